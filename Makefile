@@ -1,0 +1,47 @@
+# scanreg developer tasks. `make demo` and `make test` are the README's two commands: each
+# creates .venv (if missing), builds the Rust core in release mode and installs scanreg
+# editable into it.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+PY_SRC := python tests benchmarks examples
+
+.PHONY: dev demo test lint lint-rust lint-python test-rust test-python bench clean
+
+$(BIN)/maturin:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q 'maturin>=1.7,<2'
+
+# Re-running is cheap: cargo rebuilds only what changed.
+dev: $(BIN)/maturin
+	$(BIN)/python -m pip install -q --no-build-isolation -e '.[dev]'
+
+demo: dev
+	$(BIN)/scanreg demo
+
+lint-rust:
+	cargo fmt --all --check
+	cargo clippy --workspace --all-targets -- -D warnings
+
+lint-python: dev
+	$(BIN)/ruff check $(PY_SRC)
+	$(BIN)/ruff format --check $(PY_SRC)
+	$(BIN)/mypy
+	$(BIN)/python -m mypy.stubtest scanreg._core
+
+lint: lint-rust lint-python
+
+test-rust:
+	cargo test -p scanreg-core
+
+test-python: dev
+	$(BIN)/python -m pytest
+
+test: lint test-rust test-python
+
+bench: dev
+	$(BIN)/python benchmarks/run_all.py
+
+clean:
+	rm -rf $(VENV) target python/scanreg/*.so

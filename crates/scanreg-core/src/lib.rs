@@ -1,0 +1,22 @@
+//! scanreg-core: the per-point loops of scanreg, in plain Rust.
+//!
+//! Conventions shared by every module (stated once, here):
+//! * Points are flat, row-major `f64` slices of `N * D` values, `D` = 2 or 3.
+//! * A pose is `T_target_source`: `p_T = R p_S + t`, passed as a row-major homogeneous
+//!   matrix (`(D+1) * (D+1)` values).
+//! * Tangent vectors are ordered `[translation, rotation]` (`[ρx, ρy, θ]` in 2D,
+//!   `[ρx, ρy, ρz, φx, φy, φz]` in 3D) and perturb a pose on the **right**:
+//!   `T ⊕ δ = T · exp(δ)`. Jacobians, Hessians and gradients are with respect to that δ.
+//! * Parallel sums split the input into fixed chunks and add the partial sums in chunk
+//!   order, so results do not depend on the number of threads.
+//!
+//! Nothing here panics on user input: every entry point validates and returns [`Error`].
+
+pub mod error;
+pub mod kernel;
+pub mod paired;
+pub mod points;
+pub mod reduce;
+
+pub use error::{Error, Result};
+pub use kernel::Kernel;

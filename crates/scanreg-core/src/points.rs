@@ -1,0 +1,65 @@
+//! Validated views of flat point arrays.
+
+use crate::error::{Error, Result};
+
+/// Check that `data` holds whole `dim`-vectors, all finite, and return their count.
+pub fn check_points(arg: &'static str, data: &[f64], dim: usize) -> Result<usize> {
+    if dim != 2 && dim != 3 {
+        return Err(Error::invalid(arg, format!("dimension must be 2 or 3, got {dim}")));
+    }
+    if data.len() % dim != 0 {
+        return Err(Error::invalid(
+            arg,
+            format!("length {} is not a multiple of the dimension {dim}", data.len()),
+        ));
+    }
+    if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+        return Err(Error::invalid(
+            arg,
+            format!("point {} has a non-finite coordinate", i / dim),
+        ));
+    }
+    Ok(data.len() / dim)
+}
+
+/// Check per-point weights: one per point, finite, non-negative, not all zero.
+pub fn check_weights(arg: &'static str, weights: &[f64], n: usize) -> Result<()> {
+    if weights.len() != n {
+        return Err(Error::invalid(
+            arg,
+            format!("expected {n} weights (one per point), got {}", weights.len()),
+        ));
+    }
+    if let Some(i) = weights.iter().position(|w| !w.is_finite() || *w < 0.0) {
+        return Err(Error::invalid(
+            arg,
+            format!("weight {i} is {} (weights must be finite and >= 0)", weights[i]),
+        ));
+    }
+    if !weights.iter().any(|w| *w > 0.0) {
+        return Err(Error::invalid(arg, "all weights are zero"));
+    }
+    Ok(())
+}
+
+/// Check a row-major homogeneous `(dim+1) x (dim+1)` pose and return its rotation
+/// (row-major, `dim*dim`) and translation.
+pub fn split_pose(arg: &'static str, pose: &[f64], dim: usize) -> Result<(Vec<f64>, Vec<f64>)> {
+    let m = dim + 1;
+    if pose.len() != m * m {
+        return Err(Error::invalid(
+            arg,
+            format!("expected a {m}x{m} homogeneous matrix, got {} values", pose.len()),
+        ));
+    }
+    if pose.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid(arg, "pose has a non-finite entry"));
+    }
+    let mut rot = Vec::with_capacity(dim * dim);
+    let mut trans = Vec::with_capacity(dim);
+    for r in 0..dim {
+        rot.extend_from_slice(&pose[r * m..r * m + dim]);
+        trans.push(pose[r * m + dim]);
+    }
+    Ok((rot, trans))
+}

@@ -1,0 +1,64 @@
+//! Array conversion and validation shared by every binding.
+
+use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+
+/// Map a core error to `ValueError` (its message already names the argument).
+pub fn core_err(e: scanreg_core::Error) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+fn not_contiguous(name: &str) -> PyErr {
+    PyValueError::new_err(format!(
+        "{name}: array is not C-contiguous; pass numpy.ascontiguousarray({name})"
+    ))
+}
+
+/// A `(N, 2)` or `(N, 3)` float64 C-contiguous array as a flat slice and its dimension.
+pub fn points<'a>(arr: &'a PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<(&'a [f64], usize)> {
+    let shape = arr.shape();
+    if shape[1] != 2 && shape[1] != 3 {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected shape (N, 2) or (N, 3), got ({}, {})",
+            shape[0], shape[1]
+        )));
+    }
+    let data = arr.as_slice().map_err(|_| not_contiguous(name))?;
+    Ok((data, shape[1]))
+}
+
+/// Points that must have dimension `dim`.
+pub fn points_dim<'a>(
+    arr: &'a PyReadonlyArray2<'_, f64>,
+    name: &str,
+    dim: usize,
+) -> PyResult<&'a [f64]> {
+    let (data, d) = points(arr, name)?;
+    if d != dim {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected shape (N, {dim}) to match the other points, got ({}, {d})",
+            arr.shape()[0]
+        )));
+    }
+    Ok(data)
+}
+
+/// A 1-D float64 C-contiguous array as a slice.
+pub fn vector<'a>(arr: &'a PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<&'a [f64]> {
+    arr.as_slice().map_err(|_| not_contiguous(name))
+}
+
+/// A square homogeneous pose of size `(dim+1, dim+1)` as a row-major slice.
+pub fn pose<'a>(arr: &'a PyReadonlyArray2<'_, f64>, name: &str, dim: usize) -> PyResult<&'a [f64]> {
+    let shape = arr.shape();
+    if shape[0] != dim + 1 || shape[1] != dim + 1 {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected a ({0}, {0}) homogeneous matrix, got ({1}, {2})",
+            dim + 1,
+            shape[0],
+            shape[1]
+        )));
+    }
+    arr.as_slice().map_err(|_| not_contiguous(name))
+}

@@ -1,0 +1,21 @@
+"""scanreg: 2D/3D LiDAR scan registration that says how far to trust each estimate.
+
+Conventions: poses are ``T_target_source`` (``p_T = R p_S + t``); tangent vectors are
+translation-first and perturb on the right (``T @ exp(δ)``); see :mod:`scanreg.transform`.
+"""
+
+from ._core import __version__
+from .paired import PairedAlignment, align_paired
+from .quality import Conditioning, ResidualStats, WeakDirection
+from .transform import SE2, SE3
+
+__all__ = [
+    "SE2",
+    "SE3",
+    "Conditioning",
+    "PairedAlignment",
+    "ResidualStats",
+    "WeakDirection",
+    "__version__",
+    "align_paired",
+]

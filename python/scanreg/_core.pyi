@@ -1,0 +1,55 @@
+"""Type stub of the native module ``scanreg._core`` (checked by ``python -m mypy.stubtest``)."""
+
+import numpy as np
+from numpy.typing import NDArray
+
+__version__: str
+
+class Moments:
+    @property
+    def weight_sum(self) -> float: ...
+    @property
+    def source_mean(self) -> NDArray[np.float64]: ...
+    @property
+    def target_mean(self) -> NDArray[np.float64]: ...
+    @property
+    def cross_covariance(self) -> NDArray[np.float64]: ...
+    @property
+    def source_spread(self) -> float: ...
+    @property
+    def target_spread(self) -> float: ...
+
+class Linearization:
+    @property
+    def hessian(self) -> NDArray[np.float64]: ...
+    @property
+    def gradient(self) -> NDArray[np.float64]: ...
+    @property
+    def robust_cost(self) -> float: ...
+    @property
+    def weighted_sum_squares(self) -> float: ...
+    @property
+    def irls_sum_squares(self) -> float: ...
+    @property
+    def irls_weight_sum(self) -> float: ...
+    @property
+    def residuals(self) -> NDArray[np.float64]: ...
+    @property
+    def kernel_weights(self) -> NDArray[np.float64]: ...
+
+def paired_moments(
+    source: NDArray[np.float64],
+    target: NDArray[np.float64],
+    weights: NDArray[np.float64] | None = None,
+) -> Moments: ...
+def linearize_paired(
+    source: NDArray[np.float64],
+    target: NDArray[np.float64],
+    pose_matrix: NDArray[np.float64],
+    *,
+    objective: str,
+    kernel: str,
+    kernel_scale: float,
+    weights: NDArray[np.float64] | None = None,
+    target_normals: NDArray[np.float64] | None = None,
+) -> Linearization: ...

@@ -1,0 +1,221 @@
+"""How far to trust an estimate: residual statistics, covariance and conditioning.
+
+Everything here works on the small matrices the core returns (``JᵀJ`` is at most 6×6).
+Covariances are over the right-perturbation tangent ``δ`` of :mod:`scanreg.transform`
+(translation first, source frame): ``T_true = T_est @ exp(δ)``, ``δ ~ N(0, Σ)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validate import FloatArray
+
+#: Below this ratio of the smallest to the largest *scaled* eigenvalue of ``JᵀJ`` the pose
+#: is not determined at all (numerically singular): scanreg raises instead of returning it.
+SINGULAR_RATIO = 1e-12
+
+#: Default ratio under which a scaled eigen-direction is reported as weak (degenerate).
+#: A ratio r means the pose is 1/sqrt(r) times less certain along that direction than along
+#: the best one; 1e-4 is 100× (issue 5 derives thresholds from the noise level).
+DEFAULT_WEAK_RATIO = 1e-4
+
+
+def _frozen(a: FloatArray) -> FloatArray:
+    a = np.array(a, dtype=np.float64)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class ResidualStats:
+    """Statistics of the residuals at the final pose.
+
+    For point-to-point a residual is the distance ``|R p + t - q|``; for point-to-plane/line
+    it is the signed distance ``nᵀ(R p + t - q)``. Units are those of the points.
+    """
+
+    count: int
+    rmse: float
+    mean_abs: float
+    median_abs: float
+    max_abs: float
+    sum_squares: float
+    robust_cost: float
+
+    @classmethod
+    def from_residuals(cls, residuals: FloatArray, robust_cost: float) -> ResidualStats:
+        a = np.abs(residuals)
+        return cls(
+            count=int(a.size),
+            rmse=float(np.sqrt(np.mean(a**2))),
+            mean_abs=float(a.mean()),
+            median_abs=float(np.median(a)),
+            max_abs=float(a.max()),
+            sum_squares=float(np.sum(a**2)),
+            robust_cost=float(robust_cost),
+        )
+
+
+@dataclass(frozen=True)
+class WeakDirection:
+    """A poorly constrained direction of the pose, in tangent coordinates."""
+
+    #: Unit tangent vector (translation first), in metres / radians.
+    vector: FloatArray
+    #: Scaled eigenvalue over the largest scaled eigenvalue (1 = as good as the best).
+    ratio: float
+    #: e.g. ``"translation along (1.00, 0.00, 0.00)"`` or ``"rotation about (0.00, 0.00, 1.00)"``.
+    description: str
+
+
+@dataclass(frozen=True)
+class Conditioning:
+    """Eigen-analysis of the information matrix ``JᵀJ``.
+
+    The raw eigenvalues mix units (m⁻² for translation, rad⁻² for rotation). The *scaled*
+    analysis expresses rotation in metres at ``length_scale`` (the RMS distance of the points
+    from their centroid), so its eigenvalue ratios do not depend on the choice of units.
+    """
+
+    #: Raw eigenvalues of ``JᵀJ``, ascending.
+    eigenvalues: FloatArray
+    #: Matching unit eigenvectors (columns), tangent coordinates.
+    eigenvectors: FloatArray
+    #: ``λmax / λmin`` of the raw ``JᵀJ`` (``inf`` when singular).
+    condition_number: float
+    length_scale: float
+    #: Eigenvalues of ``S⁻¹ JᵀJ S⁻¹`` with ``S = diag(1.., L..)``, ascending.
+    scaled_eigenvalues: FloatArray
+    scaled_condition_number: float
+    #: The least constrained direction, always reported.
+    weakest: WeakDirection
+    #: Directions whose scaled ratio is below ``weak_ratio``.
+    weak_directions: tuple[WeakDirection, ...]
+    weak_ratio: float
+
+    @property
+    def degenerate(self) -> bool:
+        return bool(self.weak_directions)
+
+
+def _fmt(v: FloatArray) -> str:
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
+
+
+def describe_direction(vector: FloatArray, dim: int, length_scale: float) -> str:
+    """Name a tangent direction: translation, rotation, or a coupling of both."""
+    d = dim
+    trans = vector[:d]
+    rot = vector[d:]
+    # Compare in metres: a rotation of φ moves points at the length scale by about L·φ.
+    t_norm = float(np.linalg.norm(trans))
+    r_norm = float(np.linalg.norm(rot)) * length_scale
+    total = max(t_norm + r_norm, 1e-300)
+    sign = 1.0
+    lead = trans if t_norm >= r_norm else rot
+    if lead[int(np.argmax(np.abs(lead)))] < 0:
+        sign = -1.0  # report a canonical sign
+    t_txt = f"translation along {_fmt(sign * trans / max(t_norm, 1e-300))}"
+    if dim == 2:
+        r_txt = "rotation (θ)"
+    else:
+        r_txt = f"rotation about {_fmt(sign * rot / max(float(np.linalg.norm(rot)), 1e-300))}"
+    if r_norm / total < 0.1:
+        return t_txt
+    if t_norm / total < 0.1:
+        return r_txt
+    first, second = (t_txt, r_txt) if t_norm >= r_norm else (r_txt, t_txt)
+    return f"{first} coupled with {second}"
+
+
+def conditioning(
+    hessian: FloatArray,
+    dim: int,
+    length_scale: float,
+    *,
+    weak_ratio: float = DEFAULT_WEAK_RATIO,
+) -> Conditioning:
+    """Eigen-analysis of ``JᵀJ`` (``hessian``) for a ``dim``-D pose."""
+    dof = hessian.shape[0]
+    h = 0.5 * (hessian + hessian.T)
+    raw_vals, raw_vecs = np.linalg.eigh(h)
+    length = max(float(length_scale), 1e-12)
+    s_inv = np.ones(dof)
+    s_inv[dim:] = 1.0 / length
+    hs = h * np.outer(s_inv, s_inv)
+    vals, vecs = np.linalg.eigh(hs)
+    top = float(vals[-1])
+    ratios = vals / top if top > 0 else np.zeros_like(vals)
+
+    def direction(i: int) -> WeakDirection:
+        v = vecs[:, i] * s_inv  # back to metres / radians
+        v = v / np.linalg.norm(v)
+        return WeakDirection(
+            vector=_frozen(v),
+            ratio=float(ratios[i]),
+            description=describe_direction(v, dim, length),
+        )
+
+    weak = tuple(direction(i) for i in range(dof) if ratios[i] < weak_ratio)
+    return Conditioning(
+        eigenvalues=_frozen(raw_vals),
+        eigenvectors=_frozen(raw_vecs),
+        condition_number=float(raw_vals[-1] / raw_vals[0]) if raw_vals[0] > 0 else float("inf"),
+        length_scale=length,
+        scaled_eigenvalues=_frozen(vals),
+        scaled_condition_number=float(1.0 / ratios[0]) if ratios[0] > 0 else float("inf"),
+        weakest=direction(0),
+        weak_directions=weak,
+        weak_ratio=weak_ratio,
+    )
+
+
+def chi2_quantile(dof: float, prob: float) -> float:
+    """Quantile of the χ² distribution (Wilson–Hilferty; relative error < 1e-3 for dof >= 3).
+
+    Used for NEES consistency bands without a SciPy dependency.
+    """
+    if not 0.0 < prob < 1.0:
+        raise ValueError(f"prob: must be in (0, 1), got {prob}")
+    if dof <= 0:
+        raise ValueError(f"dof: must be > 0, got {dof}")
+    z = _normal_quantile(prob)
+    a = 2.0 / (9.0 * dof)
+    return float(dof * (1.0 - a + z * np.sqrt(a)) ** 3)
+
+
+def _normal_quantile(p: float) -> float:
+    # Acklam's rational approximation (relative error < 1.2e-9).
+    a = [-3.969683028665376e01, 2.209460984245205e02, -2.759285104469687e02,
+         1.383577518672690e02, -3.066479806614716e01, 2.506628277459239e00]
+    b = [-5.447609879822406e01, 1.615858368580409e02, -1.556989798598866e02,
+         6.680131188771972e01, -1.328068155288572e01]
+    c = [-7.784894002430293e-03, -3.223964580411365e-01, -2.400758277161838e00,
+         -2.549732539343734e00, 4.374664141464968e00, 2.938163982698783e00]
+    d = [7.784695709041462e-03, 3.224671290700398e-01, 2.445134137142996e00,
+         3.754408661907416e00]
+    lo = 0.02425
+    if p < lo:
+        q = np.sqrt(-2 * np.log(p))
+        x = (((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) / (
+            (((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1)
+    elif p > 1 - lo:
+        q = np.sqrt(-2 * np.log(1 - p))
+        x = -(((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) / (
+            (((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1)
+    else:
+        q = p - 0.5
+        r = q * q
+        x = (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q / (
+            ((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1)
+    return float(x)
+
+
+def nees_band(dof: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Two-sided band for the *mean* NEES of ``trials`` consistent estimates of ``dof`` dims."""
+    alpha = (1.0 - confidence) / 2.0
+    n = dof * trials
+    return chi2_quantile(n, alpha) / trials, chi2_quantile(n, 1.0 - alpha) / trials
