@@ -14,6 +14,7 @@
 
 pub mod error;
 pub mod kernel;
+pub mod lzf;
 pub mod paired;
 pub mod points;
 pub mod reduce;

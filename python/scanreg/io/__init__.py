@@ -1,0 +1,151 @@
+"""Readers and writers for point clouds, trajectories and pose graphs.
+
+One registry per kind of content, keyed by file extension (lower case). Adding a format is
+one function and one entry here; CARMEN logs and ROS bags (which hold many scans) will get a
+``SCAN_SOURCES`` registry of the same shape.
+
+>>> cloud = read_points("scan.pcd")          # dispatches on the extension
+>>> write_points("scan.ply", cloud)
+
+Every reader raises :class:`FileFormatError` (a ``ValueError``) naming the file and the
+problem when the file is empty, truncated, corrupt or inconsistent with its header.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ._common import FileFormatError, PathLike, PointCloud
+from .arrays import (
+    read_kitti_bin,
+    read_npy,
+    read_npz,
+    read_text,
+    write_csv,
+    write_kitti_bin,
+    write_npy,
+    write_npz,
+    write_xyz,
+)
+from .g2o import PoseGraph, PoseGraphEdge, information_from_covariance, read_g2o, write_g2o
+from .pcd import read_pcd, write_pcd
+from .ply import read_ply, write_ply
+from .trajectory import (
+    KittiCalibration,
+    Trajectory,
+    read_kitti_calib,
+    read_kitti_poses,
+    read_times,
+    read_tum,
+    write_kitti_poses,
+    write_tum,
+)
+
+#: Point-cloud readers by extension.
+READERS: dict[str, Callable[[PathLike], PointCloud]] = {
+    ".pcd": read_pcd,
+    ".ply": read_ply,
+    ".bin": read_kitti_bin,
+    ".npy": read_npy,
+    ".npz": read_npz,
+    ".csv": read_text,
+    ".xyz": read_text,
+    ".txt": read_text,
+}
+
+#: Point-cloud writers by extension (keyword options go to the writer).
+WRITERS: dict[str, Callable[..., None]] = {
+    ".pcd": write_pcd,
+    ".ply": write_ply,
+    ".bin": write_kitti_bin,
+    ".npy": write_npy,
+    ".npz": write_npz,
+    ".csv": write_csv,
+    ".xyz": write_xyz,
+    ".txt": write_xyz,
+}
+
+#: Trajectory readers/writers by format name (extensions are ambiguous: both are ``.txt``).
+TRAJECTORY_READERS: dict[str, Callable[[PathLike], Trajectory]] = {
+    "kitti": read_kitti_poses,
+    "tum": read_tum,
+}
+TRAJECTORY_WRITERS: dict[str, Callable[[PathLike, Trajectory], None]] = {
+    "kitti": write_kitti_poses,
+    "tum": write_tum,
+}
+
+
+def _lookup(table: dict[str, Any], key: str, what: str, path: PathLike) -> Any:
+    try:
+        return table[key]
+    except KeyError:
+        known = ", ".join(sorted(table))
+        raise ValueError(f"{path}: no {what} for {key!r} (known: {known})") from None
+
+
+def read_points(path: PathLike) -> PointCloud:
+    """Read a point cloud, choosing the reader from the extension (see :data:`READERS`)."""
+    reader = _lookup(READERS, Path(path).suffix.lower(), "point-cloud reader", path)
+    cloud: PointCloud = reader(path)
+    return cloud
+
+
+def write_points(path: PathLike, cloud: PointCloud, **options: Any) -> None:
+    """Write a point cloud, choosing the writer from the extension (see :data:`WRITERS`)."""
+    writer = _lookup(WRITERS, Path(path).suffix.lower(), "point-cloud writer", path)
+    writer(path, cloud, **options)
+
+
+def read_trajectory(path: PathLike, format: str) -> Trajectory:
+    """Read a trajectory in ``format`` ``"kitti"`` or ``"tum"``."""
+    reader = _lookup(TRAJECTORY_READERS, format, "trajectory reader", path)
+    trajectory: Trajectory = reader(path)
+    return trajectory
+
+
+def write_trajectory(path: PathLike, trajectory: Trajectory, format: str) -> None:
+    """Write a trajectory in ``format`` ``"kitti"`` or ``"tum"``."""
+    _lookup(TRAJECTORY_WRITERS, format, "trajectory writer", path)(path, trajectory)
+
+
+__all__ = [
+    "READERS",
+    "TRAJECTORY_READERS",
+    "TRAJECTORY_WRITERS",
+    "WRITERS",
+    "FileFormatError",
+    "KittiCalibration",
+    "PointCloud",
+    "PoseGraph",
+    "PoseGraphEdge",
+    "Trajectory",
+    "information_from_covariance",
+    "read_g2o",
+    "read_kitti_bin",
+    "read_kitti_calib",
+    "read_kitti_poses",
+    "read_npy",
+    "read_npz",
+    "read_pcd",
+    "read_ply",
+    "read_points",
+    "read_text",
+    "read_times",
+    "read_trajectory",
+    "read_tum",
+    "write_csv",
+    "write_g2o",
+    "write_kitti_bin",
+    "write_kitti_poses",
+    "write_npy",
+    "write_npz",
+    "write_pcd",
+    "write_ply",
+    "write_points",
+    "write_trajectory",
+    "write_tum",
+    "write_xyz",
+]
