@@ -12,8 +12,12 @@
 //!
 //! Nothing here panics on user input: every entry point validates and returns [`Error`].
 
+pub mod downsample;
 pub mod error;
 pub mod kernel;
+pub mod knn;
+pub mod normals;
+pub mod outliers;
 pub mod lzf;
 pub mod paired;
 pub mod points;

@@ -1,0 +1,520 @@
+//! Nearest-neighbour indices over 2D/3D points.
+//!
+//! * [`KdTree`]: an immutable k-d tree (the `kiddo` crate's `ImmutableKdTree`, f64,
+//!   Eytzinger stems, 32-point leaves), built once and queried many times. Exact queries:
+//!   nearest neighbour within a gate, k nearest, all within a radius.
+//! * [`VoxelIndex`]: a voxel hash map (point indices bucketed by voxel), the structure
+//!   KISS-ICP searches for scan-to-map correspondences. Cheap to build and to extend, and
+//!   exact here: a query with gate `r` visits every voxel within `ceil(r / voxel_size)`.
+//!
+//! Distances are **squared** Euclidean throughout. Ties (equal distances) are broken by the
+//! lower point index wherever results are sorted (k-NN, radius, voxel-index nearest), so results
+//! are reproducible; batch queries run in parallel with rayon, one result per query, in input
+//! order, so they do not depend on the thread count.
+
+use crate::error::{Error, Result};
+use crate::points::check_points;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+use std::num::NonZeroUsize;
+
+enum Tree {
+    D2(ImmutableKdTree<f64, 2>),
+    D3(ImmutableKdTree<f64, 3>),
+}
+
+/// An immutable k-d tree over `N` points of dimension 2 or 3 (it keeps its own copy).
+pub struct KdTree {
+    dim: usize,
+    points: Vec<f64>,
+    tree: Tree,
+}
+
+/// Result of a batch nearest-neighbour query: `index[i] = -1` and `squared_distance[i] = inf`
+/// where query `i` has no point within the gate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NearestBatch {
+    pub index: Vec<i64>,
+    pub squared_distance: Vec<f64>,
+}
+
+/// Result of a batch radius query in compressed-row form: the neighbours of query `i` are
+/// `index[offsets[i]..offsets[i+1]]`, sorted by (distance, index).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RadiusBatch {
+    pub offsets: Vec<i64>,
+    pub index: Vec<i64>,
+    pub squared_distance: Vec<f64>,
+}
+
+fn arr<const D: usize>(q: &[f64]) -> [f64; D] {
+    let mut a = [0.0; D];
+    a.copy_from_slice(&q[..D]);
+    a
+}
+
+fn to_pairs<const D: usize>(points: &[f64]) -> Vec<[f64; D]> {
+    points.chunks_exact(D).map(arr::<D>).collect()
+}
+
+/// Sort neighbour lists by (distance, index): a canonical order independent of tree layout.
+fn canonical(v: &mut [(u32, f64)]) {
+    v.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+}
+
+macro_rules! with_tree {
+    ($self:expr, $t:ident, $d:ident => $body:expr) => {
+        match &$self.tree {
+            Tree::D2($t) => {
+                const $d: usize = 2;
+                $body
+            }
+            Tree::D3($t) => {
+                const $d: usize = 3;
+                $body
+            }
+        }
+    };
+}
+
+/// Check a query gate (a distance, not squared): `>= 0`, may be `inf`, not NaN.
+pub fn check_max_distance(arg: &'static str, max_distance: f64) -> Result<f64> {
+    if max_distance.is_nan() || max_distance < 0.0 {
+        return Err(Error::invalid(
+            arg,
+            format!("must be >= 0 (inf for no limit), got {max_distance}"),
+        ));
+    }
+    Ok(max_distance * max_distance)
+}
+
+impl KdTree {
+    /// Build the tree (in parallel for large clouds). `points` is `N * dim` row-major.
+    pub fn build(points: &[f64], dim: usize) -> Result<Self> {
+        let n = check_points("points", points, dim)?;
+        if n == 0 {
+            return Err(Error::invalid(
+                "points",
+                "is empty; a neighbour index needs at least one point",
+            ));
+        }
+        if n > u32::MAX as usize {
+            return Err(Error::invalid("points", "more than 2^32 - 1 points"));
+        }
+        let err = |e: kiddo::kd_tree::ConstructionError| {
+            Error::invalid("points", format!("k-d tree construction failed: {e:?}"))
+        };
+        let tree = if dim == 2 {
+            Tree::D2(ImmutableKdTree::new_from_slice_parallel(&to_pairs::<2>(points)).map_err(err)?)
+        } else {
+            Tree::D3(ImmutableKdTree::new_from_slice_parallel(&to_pairs::<3>(points)).map_err(err)?)
+        };
+        Ok(KdTree {
+            dim,
+            points: points.to_vec(),
+            tree,
+        })
+    }
+
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len() / self.dim
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The indexed points, `N * dim` row-major.
+    pub fn points(&self) -> &[f64] {
+        &self.points
+    }
+
+    /// Point `i` as a slice of `dim` coordinates.
+    pub fn point(&self, i: usize) -> &[f64] {
+        &self.points[i * self.dim..(i + 1) * self.dim]
+    }
+
+    /// The nearest point to `q` (`dim` coordinates) and its squared distance, if that distance
+    /// is `<= max_sq`. With equal distances, which of the tied points is returned is fixed by
+    /// the tree but not necessarily the lowest index.
+    #[inline]
+    pub fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
+        if max_sq.is_infinite() {
+            let r = with_tree!(self, t, D => t
+                .query(&arr::<D>(q))
+                .nearest_one::<SquaredEuclidean<f64>>()
+                .execute());
+            return Some((r.item as usize, r.distance));
+        }
+        let one = NonZeroUsize::MIN;
+        let r = with_tree!(self, t, D => t
+            .query(&arr::<D>(q))
+            .nearest_n::<SquaredEuclidean<f64>>(one)
+            .within(max_sq)
+            .execute());
+        r.first().map(|it| (it.item as usize, it.distance))
+    }
+
+    /// The `k` nearest points to `q` (fewer if `max_sq` is finite), appended to `out` sorted
+    /// by (squared distance, index). `k >= 1`.
+    pub fn knn_into(&self, q: &[f64], k: usize, max_sq: f64, out: &mut Vec<(u32, f64)>) {
+        let Some(k) = NonZeroUsize::new(k) else {
+            return;
+        };
+        let start = out.len();
+        if max_sq.is_infinite() {
+            with_tree!(self, t, D => out.extend(
+                t.query(&arr::<D>(q))
+                    .nearest_n::<SquaredEuclidean<f64>>(k)
+                    .execute()
+                    .into_iter()
+                    .map(|it| (it.item, it.distance))));
+        } else {
+            with_tree!(self, t, D => out.extend(
+                t.query(&arr::<D>(q))
+                    .nearest_n::<SquaredEuclidean<f64>>(k)
+                    .within(max_sq)
+                    .execute()
+                    .into_iter()
+                    .map(|it| (it.item, it.distance))));
+        }
+        canonical(&mut out[start..]);
+    }
+
+    /// Every point within `sq_radius` (squared, inclusive) of `q`, appended to `out` sorted by
+    /// (squared distance, index).
+    pub fn radius_into(&self, q: &[f64], sq_radius: f64, out: &mut Vec<(u32, f64)>) {
+        let start = out.len();
+        with_tree!(self, t, D => out.extend(
+            t.query(&arr::<D>(q))
+                .within::<SquaredEuclidean<f64>>(sq_radius)
+                .unsorted()
+                .execute()
+                .into_iter()
+                .map(|it| (it.item, it.distance))));
+        canonical(&mut out[start..]);
+    }
+
+    fn check_queries(&self, queries: &[f64]) -> Result<usize> {
+        check_points("query_points", queries, self.dim)
+    }
+
+    /// Nearest neighbour of every query point within `max_distance` (not squared; `inf` for
+    /// no limit).
+    pub fn nearest_batch(&self, queries: &[f64], max_distance: f64) -> Result<NearestBatch> {
+        self.check_queries(queries)?;
+        let max_sq = check_max_distance("max_distance", max_distance)?;
+        let res: Vec<(i64, f64)> = queries
+            .par_chunks_exact(self.dim)
+            .map(|q| match self.nearest_within(q, max_sq) {
+                Some((i, d)) => (i as i64, d),
+                None => (-1, f64::INFINITY),
+            })
+            .collect();
+        let (index, squared_distance) = res.into_iter().unzip();
+        Ok(NearestBatch {
+            index,
+            squared_distance,
+        })
+    }
+
+    /// The `k` nearest neighbours of every query point: `M * k` indices and squared distances,
+    /// row `i` sorted by (distance, index). `1 <= k <= N`.
+    pub fn knn_batch(&self, queries: &[f64], k: usize) -> Result<(Vec<i64>, Vec<f64>)> {
+        self.check_queries(queries)?;
+        check_k("k", k, self.len())?;
+        let rows: Vec<Vec<(u32, f64)>> = queries
+            .par_chunks_exact(self.dim)
+            .map(|q| {
+                let mut v = Vec::with_capacity(k);
+                self.knn_into(q, k, f64::INFINITY, &mut v);
+                v
+            })
+            .collect();
+        let mut index = Vec::with_capacity(rows.len() * k);
+        let mut dist = Vec::with_capacity(rows.len() * k);
+        for row in rows {
+            for (i, d) in row {
+                index.push(i as i64);
+                dist.push(d);
+            }
+        }
+        Ok((index, dist))
+    }
+
+    /// All neighbours within `radius` (not squared, inclusive) of every query point.
+    pub fn radius_batch(&self, queries: &[f64], radius: f64) -> Result<RadiusBatch> {
+        self.check_queries(queries)?;
+        if !radius.is_finite() || radius < 0.0 {
+            return Err(Error::invalid(
+                "radius",
+                format!("must be finite and >= 0, got {radius}"),
+            ));
+        }
+        let sq = radius * radius;
+        let rows: Vec<Vec<(u32, f64)>> = queries
+            .par_chunks_exact(self.dim)
+            .map(|q| {
+                let mut v = Vec::new();
+                self.radius_into(q, sq, &mut v);
+                v
+            })
+            .collect();
+        let total: usize = rows.iter().map(Vec::len).sum();
+        let mut out = RadiusBatch {
+            offsets: Vec::with_capacity(rows.len() + 1),
+            index: Vec::with_capacity(total),
+            squared_distance: Vec::with_capacity(total),
+        };
+        out.offsets.push(0);
+        for row in rows {
+            for (i, d) in row {
+                out.index.push(i as i64);
+                out.squared_distance.push(d);
+            }
+            out.offsets.push(out.index.len() as i64);
+        }
+        Ok(out)
+    }
+}
+
+/// `1 <= k <= n`.
+pub fn check_k(arg: &'static str, k: usize, n: usize) -> Result<()> {
+    if k < 1 {
+        return Err(Error::invalid(arg, format!("must be >= 1, got {k}")));
+    }
+    if k > n {
+        return Err(Error::invalid(
+            arg,
+            format!("is {k} but there are only {n} points"),
+        ));
+    }
+    Ok(())
+}
+
+/// Integer voxel coordinates of a point (`floor(p / voxel_size)`), or an error if they would
+/// not fit comfortably in an `i64` (voxel far too small for the extent).
+#[inline]
+pub(crate) fn voxel_of(p: &[f64], inv: f64) -> Option<[i64; 3]> {
+    let mut key = [0i64; 3];
+    for (k, v) in key.iter_mut().zip(p) {
+        let c = (v * inv).floor();
+        if c.is_nan() || c.abs() >= 9.0e15 {
+            return None;
+        }
+        *k = c as i64;
+    }
+    Some(key)
+}
+
+/// A voxel hash map over points: exact nearest-neighbour search within a gate by visiting the
+/// voxels the gate can reach (`(2r+1)^D` voxels with `r = ceil(gate / voxel_size)`: 27 in 3D
+/// when the gate is at most one voxel).
+pub struct VoxelIndex {
+    dim: usize,
+    voxel_size: f64,
+    inv: f64,
+    points: Vec<f64>,
+    map: FxHashMap<[i64; 3], Vec<u32>>,
+}
+
+impl VoxelIndex {
+    pub fn build(points: &[f64], dim: usize, voxel_size: f64) -> Result<Self> {
+        let n = check_points("points", points, dim)?;
+        if !voxel_size.is_finite() || voxel_size <= 0.0 {
+            return Err(Error::invalid(
+                "voxel_size",
+                format!("must be finite and > 0, got {voxel_size}"),
+            ));
+        }
+        if n > u32::MAX as usize {
+            return Err(Error::invalid("points", "more than 2^32 - 1 points"));
+        }
+        let inv = 1.0 / voxel_size;
+        let keys: Vec<Option<[i64; 3]>> = points
+            .par_chunks_exact(dim)
+            .map(|p| voxel_of(p, inv))
+            .collect();
+        let mut map: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
+        for (i, key) in keys.into_iter().enumerate() {
+            let key = key.ok_or_else(|| {
+                Error::invalid(
+                    "voxel_size",
+                    format!("{voxel_size} is too small for the extent of the points"),
+                )
+            })?;
+            map.entry(key).or_default().push(i as u32);
+        }
+        Ok(VoxelIndex {
+            dim,
+            voxel_size,
+            inv,
+            points: points.to_vec(),
+            map,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len() / self.dim
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    pub fn num_voxels(&self) -> usize {
+        self.map.len()
+    }
+
+    pub fn voxel_size(&self) -> f64 {
+        self.voxel_size
+    }
+
+    /// Exact nearest point within `max_sq` (squared gate, finite), ties to the lower index.
+    pub fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
+        let dim = self.dim;
+        let center = voxel_of(q, self.inv)?;
+        let reach = (max_sq.sqrt() * self.inv).ceil() as i64;
+        let mut best: Option<(usize, f64)> = None;
+        let zr = if dim == 3 { reach } else { 0 };
+        for dx in -reach..=reach {
+            for dy in -reach..=reach {
+                for dz in -zr..=zr {
+                    let key = [center[0] + dx, center[1] + dy, center[2] + dz];
+                    let Some(bucket) = self.map.get(&key) else {
+                        continue;
+                    };
+                    for &j in bucket {
+                        let j = j as usize;
+                        let p = &self.points[j * dim..(j + 1) * dim];
+                        let mut d = 0.0;
+                        for c in 0..dim {
+                            let e = p[c] - q[c];
+                            d += e * e;
+                        }
+                        if d <= max_sq && best.is_none_or(|(bi, bd)| d < bd || (d == bd && j < bi))
+                        {
+                            best = Some((j, d));
+                        }
+                    }
+                }
+            }
+        }
+        best
+    }
+
+    /// Batch form of [`VoxelIndex::nearest_within`]; `max_distance` must be finite.
+    pub fn nearest_batch(&self, queries: &[f64], max_distance: f64) -> Result<NearestBatch> {
+        check_points("query_points", queries, self.dim)?;
+        if !max_distance.is_finite() || max_distance < 0.0 {
+            return Err(Error::invalid(
+                "max_distance",
+                format!("must be finite and >= 0 for a voxel index, got {max_distance}"),
+            ));
+        }
+        let max_sq = max_distance * max_distance;
+        let res: Vec<(i64, f64)> = queries
+            .par_chunks_exact(self.dim)
+            .map(|q| match self.nearest_within(q, max_sq) {
+                Some((i, d)) => (i as i64, d),
+                None => (-1, f64::INFINITY),
+            })
+            .collect();
+        let (index, squared_distance) = res.into_iter().unzip();
+        Ok(NearestBatch {
+            index,
+            squared_distance,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg_cloud(n: usize, dim: usize, seed: u64, grid: bool) -> Vec<f64> {
+        let mut s = seed;
+        (0..n * dim)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let u = (s >> 11) as f64 / (1u64 << 53) as f64;
+                if grid {
+                    (u * 5.0).floor() // many duplicates and ties
+                } else {
+                    u * 10.0 - 5.0
+                }
+            })
+            .collect()
+    }
+
+    fn brute(points: &[f64], dim: usize, q: &[f64]) -> Vec<(u32, f64)> {
+        let mut v: Vec<(u32, f64)> = points
+            .chunks_exact(dim)
+            .enumerate()
+            .map(|(i, p)| {
+                let d: f64 = p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+                (i as u32, d)
+            })
+            .collect();
+        canonical(&mut v);
+        v
+    }
+
+    #[test]
+    fn kdtree_matches_brute_force_with_ties() {
+        for dim in [2, 3] {
+            for grid in [false, true] {
+                let pts = lcg_cloud(500, dim, 7 + dim as u64, grid);
+                let qs = lcg_cloud(60, dim, 99, grid);
+                let tree = KdTree::build(&pts, dim).unwrap();
+                let vox = VoxelIndex::build(&pts, dim, 0.7).unwrap();
+                for q in qs.chunks_exact(dim) {
+                    let b = brute(&pts, dim, q);
+                    let (i, d) = tree.nearest_within(q, f64::INFINITY).unwrap();
+                    assert_eq!(d, b[0].1);
+                    assert_eq!(b.iter().find(|x| x.0 as usize == i).unwrap().1, d);
+                    let mut v = Vec::new();
+                    tree.knn_into(q, 10, f64::INFINITY, &mut v);
+                    let dk: Vec<f64> = v.iter().map(|x| x.1).collect();
+                    let bk: Vec<f64> = b[..10].iter().map(|x| x.1).collect();
+                    assert_eq!(dk, bk);
+                    let mut r = Vec::new();
+                    tree.radius_into(q, 1.5, &mut r);
+                    let br: Vec<(u32, f64)> = b.iter().copied().filter(|x| x.1 <= 1.5).collect();
+                    assert_eq!(r, br);
+                    // Voxel index: exact nearest within the gate, ties to the lower index.
+                    let gate = 1.3f64;
+                    let got = vox.nearest_within(q, gate * gate);
+                    let want = b
+                        .iter()
+                        .find(|x| x.1 <= gate * gate)
+                        .map(|x| (x.0 as usize, x.1));
+                    assert_eq!(got, want);
+                    let gated = tree.nearest_within(q, gate * gate).map(|x| x.1);
+                    assert_eq!(gated, want.map(|x| x.1));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn rejects_bad_input() {
+        assert!(KdTree::build(&[], 3).is_err());
+        assert!(KdTree::build(&[0.0, f64::NAN, 1.0], 3).is_err());
+        let t = KdTree::build(&[0.0, 0.0, 1.0, 1.0], 2).unwrap();
+        assert!(t.knn_batch(&[0.0, 0.0], 3).is_err());
+        assert!(t.knn_batch(&[0.0, 0.0], 0).is_err());
+        assert!(t.nearest_batch(&[0.0, 0.0], -1.0).is_err());
+        assert!(t.nearest_batch(&[0.0, 0.0], f64::NAN).is_err());
+        assert!(VoxelIndex::build(&[0.0, 0.0], 2, 0.0).is_err());
+        assert!(VoxelIndex::build(&[0.0, 0.0], 2, 1e-300).is_ok());
+        assert!(VoxelIndex::build(&[1e10, 0.0], 2, 1e-300).is_err());
+    }
+}

@@ -1,0 +1,275 @@
+//! Local geometry by k-NN PCA: normals and (regularised) covariances, 2D and 3D.
+//!
+//! For point `i`, the neighbourhood is its `k` nearest points (itself included), sorted by
+//! (distance, index); `C_i = (1/k) Σ (q - q̄)(q - q̄)ᵀ`, eigenvalues `λ_0 <= λ_1 [<= λ_2]` with
+//! eigenvectors `v_j`. The normal is `v_0`, flipped so that `n · (viewpoint - p_i) >= 0`.
+//!
+//! A neighbourhood is *degenerate* when it does not span a line (2D) or a plane (3D):
+//! `λ_max == 0` (all points coincide), or in 3D `λ_1 <= 1e-9 λ_2` (all collinear). Then the
+//! normal is undefined: `valid[i] = false`, the normal is the zero vector and the covariance is
+//! the identity (an isotropic, uninformative 1 m² blob), whatever the regularisation.
+
+#![allow(clippy::needless_range_loop)] // fixed-size coordinate loops read better indexed
+
+use crate::error::{Error, Result};
+use crate::knn::{check_k, KdTree};
+use nalgebra::{Matrix2, Matrix3, SymmetricEigen};
+use rayon::prelude::*;
+
+/// Relative eigenvalue below which a 3D neighbourhood counts as collinear.
+pub const DEGENERATE_RATIO: f64 = 1e-9;
+
+/// How covariances are regularised for GICP.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Regularization {
+    /// The raw sample covariance.
+    None,
+    /// Segal et al. 2009 (Generalized-ICP, §III-B): eigenvalues replaced by `(ε, 1, 1)` in 3D,
+    /// `(ε, 1)` in 2D: every point is a unit disc (segment) with thickness `ε`.
+    Plane(f64),
+    /// Eigenvalues divided by the largest and clamped below at `ε`: keeps the shape of the
+    /// neighbourhood (a line stays a line) at unit scale.
+    NormalizedMinEig(f64),
+}
+
+impl Regularization {
+    pub fn from_name(name: &str, epsilon: f64) -> Result<Self> {
+        if !epsilon.is_finite() || epsilon <= 0.0 {
+            return Err(Error::invalid(
+                "epsilon",
+                format!("must be finite and > 0, got {epsilon}"),
+            ));
+        }
+        match name {
+            "none" => Ok(Regularization::None),
+            "plane" => Ok(Regularization::Plane(epsilon)),
+            "normalized_min_eig" => Ok(Regularization::NormalizedMinEig(epsilon)),
+            other => Err(Error::invalid(
+                "regularization",
+                format!("unknown {other:?}; expected 'plane', 'normalized_min_eig' or 'none'"),
+            )),
+        }
+    }
+}
+
+/// Per-point local geometry.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LocalGeometry {
+    /// `N * dim` unit normals (zero where invalid), when requested.
+    pub normals: Option<Vec<f64>>,
+    /// `N * dim * dim` row-major covariances (identity where invalid), when requested.
+    pub covariances: Option<Vec<f64>>,
+    /// Whether the neighbourhood of each point was non-degenerate.
+    pub valid: Vec<bool>,
+    pub num_invalid: usize,
+}
+
+/// Eigen-decomposition of a symmetric matrix: eigenvalues ascending and the matching unit
+/// eigenvectors, as `dim x dim` column-major `[v_0 | v_1 | v_2]`.
+fn eigen(c: &[f64; 9], dim: usize) -> ([f64; 3], [[f64; 3]; 3]) {
+    let mut vals = [0.0; 3];
+    let mut vecs = [[0.0; 3]; 3];
+    if dim == 2 {
+        let m = Matrix2::new(c[0], c[1], c[2], c[3]);
+        let e = SymmetricEigen::new(m);
+        let mut order = [0usize, 1];
+        order.sort_by(|&a, &b| e.eigenvalues[a].total_cmp(&e.eigenvalues[b]));
+        for (j, &o) in order.iter().enumerate() {
+            vals[j] = e.eigenvalues[o];
+            for r in 0..2 {
+                vecs[j][r] = e.eigenvectors[(r, o)];
+            }
+        }
+    } else {
+        let m = Matrix3::new(c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]);
+        let e = SymmetricEigen::new(m);
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| e.eigenvalues[a].total_cmp(&e.eigenvalues[b]));
+        for (j, &o) in order.iter().enumerate() {
+            vals[j] = e.eigenvalues[o];
+            for r in 0..3 {
+                vecs[j][r] = e.eigenvectors[(r, o)];
+            }
+        }
+    }
+    (vals, vecs)
+}
+
+/// Normals and/or covariances of every indexed point from its `k` nearest neighbours.
+/// `viewpoint` has `dim` coordinates; `k` must be in `dim..=N`.
+pub fn local_geometry(
+    tree: &KdTree,
+    k: usize,
+    viewpoint: &[f64],
+    want_normals: bool,
+    covariances: Option<Regularization>,
+) -> Result<LocalGeometry> {
+    let dim = tree.dim();
+    let n = tree.len();
+    check_k("k", k, n)?;
+    if k < dim {
+        return Err(Error::invalid(
+            "k",
+            format!(
+                "must be >= {dim} to fit a {} in {dim}D, got {k}",
+                if dim == 2 { "line" } else { "plane" }
+            ),
+        ));
+    }
+    if viewpoint.len() != dim || viewpoint.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid(
+            "viewpoint",
+            format!("expected {dim} finite coordinates, got {viewpoint:?}"),
+        ));
+    }
+    let per: Vec<([f64; 3], [f64; 9], bool)> = (0..n)
+        .into_par_iter()
+        .map_init(
+            || Vec::with_capacity(k),
+            |buf, i| {
+                buf.clear();
+                let p = tree.point(i);
+                tree.knn_into(p, k, f64::INFINITY, buf);
+                // Two passes: mean, then centred second moment (no cancellation far from 0).
+                let mut mean = [0.0; 3];
+                for &(j, _) in buf.iter() {
+                    let q = tree.point(j as usize);
+                    for c in 0..dim {
+                        mean[c] += q[c];
+                    }
+                }
+                let m = buf.len() as f64;
+                for v in mean.iter_mut() {
+                    *v /= m;
+                }
+                let mut cov = [0.0; 9];
+                for &(j, _) in buf.iter() {
+                    let q = tree.point(j as usize);
+                    let mut d = [0.0; 3];
+                    for c in 0..dim {
+                        d[c] = q[c] - mean[c];
+                    }
+                    for r in 0..dim {
+                        for c in r..dim {
+                            cov[r * dim + c] += d[r] * d[c];
+                        }
+                    }
+                }
+                for r in 0..dim {
+                    for c in r..dim {
+                        cov[r * dim + c] /= m;
+                        cov[c * dim + r] = cov[r * dim + c];
+                    }
+                }
+                let (vals, vecs) = eigen(&cov, dim);
+                let lmax = vals[dim - 1];
+                let valid = lmax > 0.0 && (dim == 2 || vals[1] > DEGENERATE_RATIO * lmax);
+                let mut normal = [0.0; 3];
+                if valid {
+                    normal[..dim].copy_from_slice(&vecs[0][..dim]);
+                    let facing: f64 = (0..dim).map(|c| normal[c] * (viewpoint[c] - p[c])).sum();
+                    if facing < 0.0 {
+                        normal.iter_mut().for_each(|v| *v = -*v);
+                    }
+                }
+                let mut out = [0.0; 9];
+                match (valid, covariances) {
+                    (_, None) => {}
+                    (false, Some(_)) => {
+                        for r in 0..dim {
+                            out[r * dim + r] = 1.0;
+                        }
+                    }
+                    (true, Some(reg)) => {
+                        let lam: [f64; 3] = match reg {
+                            Regularization::None => vals,
+                            Regularization::Plane(eps) => [eps, 1.0, 1.0],
+                            Regularization::NormalizedMinEig(eps) => {
+                                [vals[0] / lmax, vals[1] / lmax, vals[2] / lmax].map(|l| l.max(eps))
+                            }
+                        };
+                        if matches!(reg, Regularization::None) {
+                            out = cov;
+                        } else {
+                            // C = Σ_j λ_j v_j v_jᵀ
+                            for (j, v) in vecs.iter().enumerate().take(dim) {
+                                for r in 0..dim {
+                                    for c in 0..dim {
+                                        out[r * dim + c] += lam[j] * v[r] * v[c];
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+                (normal, out, valid)
+            },
+        )
+        .collect();
+    let valid: Vec<bool> = per.iter().map(|x| x.2).collect();
+    let num_invalid = valid.iter().filter(|v| !**v).count();
+    let normals = want_normals.then(|| {
+        per.iter()
+            .flat_map(|x| x.0[..dim].iter().copied())
+            .collect()
+    });
+    let covs = covariances.map(|_| {
+        per.iter()
+            .flat_map(|x| x.1[..dim * dim].iter().copied())
+            .collect()
+    });
+    Ok(LocalGeometry {
+        normals,
+        covariances: covs,
+        valid,
+        num_invalid,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plane_normals_and_covariances() {
+        // Grid on the plane z = 2 (normal ±z), viewpoint at the origin: normals point down.
+        let mut pts = Vec::new();
+        for i in 0..15 {
+            for j in 0..15 {
+                pts.extend_from_slice(&[i as f64 * 0.1, j as f64 * 0.13, 2.0]);
+            }
+        }
+        let tree = KdTree::build(&pts, 3).unwrap();
+        let g = local_geometry(
+            &tree,
+            10,
+            &[0.0, 0.0, 0.0],
+            true,
+            Some(Regularization::Plane(1e-3)),
+        )
+        .unwrap();
+        assert_eq!(g.num_invalid, 0);
+        let nrm = g.normals.unwrap();
+        let cov = g.covariances.unwrap();
+        for i in 0..tree.len() {
+            assert!((nrm[3 * i + 2] + 1.0).abs() < 1e-12);
+            // (ε, 1, 1) with the ε axis along z.
+            assert!((cov[9 * i + 8] - 1e-3).abs() < 1e-12);
+            assert!((cov[9 * i] - 1.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn collinear_is_invalid() {
+        let pts: Vec<f64> = (0..10)
+            .flat_map(|i| [i as f64, 2.0 * i as f64, 0.5])
+            .collect();
+        let tree = KdTree::build(&pts, 3).unwrap();
+        let g = local_geometry(&tree, 5, &[0.0; 3], true, Some(Regularization::None)).unwrap();
+        assert_eq!(g.num_invalid, 10);
+        assert!(g.normals.unwrap().iter().all(|v| *v == 0.0));
+        assert!(local_geometry(&tree, 2, &[0.0; 3], true, None).is_err());
+        assert!(local_geometry(&tree, 11, &[0.0; 3], true, None).is_err());
+        assert!(local_geometry(&tree, 5, &[0.0; 2], true, None).is_err());
+    }
+}
