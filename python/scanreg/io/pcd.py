@@ -246,7 +246,9 @@ def write_pcd(
     if precision not in ("float32", "float64"):
         raise ValueError(f"precision: expected 'float32' or 'float64', got {precision!r}")
     real = "<f4" if precision == "float32" else "<f8"
-    columns: list[tuple[str, NDArray[Any]]] = [(a, cloud.points[:, i]) for i, a in enumerate("xyz")]
+    columns: list[tuple[str, NDArray[Any]]] = [
+        (a, cloud.points[:, i].astype(real)) for i, a in enumerate("xyz")
+    ]
     for name, arr in cloud.named_fields().items():
         if name == "ring":
             fits = arr.size == 0 or (arr.min() >= 0 and arr.max() < 2**16)
@@ -265,7 +267,7 @@ def write_pcd(
     lines.append("COUNT " + " ".join(str(1 if a.ndim == 1 else a.shape[1]) for _, a in columns))
     lines += [f"WIDTH {n}", "HEIGHT 1", "VIEWPOINT 0 0 0 1 0 0 0", f"POINTS {n}", f"DATA {data}"]
     head = ("\n".join(lines) + "\n").encode("ascii")
-    flat = [a.reshape(n, -1) for _, a in columns]
+    flat = [a.reshape(n, 1) if a.ndim == 1 else a for _, a in columns]
     if data == "ascii":
         text = "\n".join(
             " ".join(_fmt(v, a.dtype.kind) for a in flat for v in a[i]) for i in range(n)

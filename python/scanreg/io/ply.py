@@ -220,7 +220,9 @@ def write_ply(
         if arr.ndim != 1:
             raise ValueError(f"cloud: PLY stores scalar properties; field {name} is {arr.shape}")
     real = "f4" if precision == "float32" else "f8"
-    cols: list[tuple[str, NDArray[Any]]] = [(a, cloud.points[:, i]) for i, a in enumerate("xyz")]
+    cols: list[tuple[str, NDArray[Any]]] = [
+        (a, cloud.points[:, i].astype(real)) for i, a in enumerate("xyz")
+    ]
     for name, arr in cloud.named_fields().items():
         code = {"ring": "i4", "time": "f8"}.get(name, real)
         cols.append((name, arr.astype(code)))
