@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+import io
 import re
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +24,8 @@ def read_kitti_bin(path: PathLike) -> PointCloud:
     """
     p = Path(path)
     raw = p.read_bytes()
+    if not raw:
+        raise FileFormatError(p, "empty file")
     if len(raw) % 16:
         raise FileFormatError(
             p, f"size {len(raw)} bytes is not a multiple of 16 (float32 x y z reflectance)"
@@ -61,10 +63,13 @@ def _cloud_from_array(path: Path, arr: NDArray[Any]) -> PointCloud:
 
 
 def _load(path: Path) -> Any:
+    """``np.load`` from an in-memory copy (no file handle outlives the call)."""
     try:
-        return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise FileFormatError(path, f"cannot load: {exc}") from None
+        return np.load(io.BytesIO(path.read_bytes()), allow_pickle=False)
+    except OSError:
+        raise
+    except Exception as exc:  # numpy's header parser raises many types on corrupt input
+        raise FileFormatError(path, f"cannot load: {type(exc).__name__}: {exc}") from None
 
 
 def read_npy(path: PathLike) -> PointCloud:
@@ -87,8 +92,8 @@ def read_npz(path: PathLike) -> PointCloud:
     with archive:
         try:
             arrays = {key: archive[key] for key in archive.files}
-        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-            raise FileFormatError(p, f"cannot load: {exc}") from None
+        except Exception as exc:  # corrupt members: zip, CRC or npy header errors
+            raise FileFormatError(p, f"cannot load: {type(exc).__name__}: {exc}") from None
     if "points" not in arrays:
         raise FileFormatError(p, f"no 'points' array (arrays: {', '.join(arrays) or 'none'})")
     points = arrays.pop("points")
@@ -149,6 +154,8 @@ def read_text(path: PathLike) -> PointCloud:
         text = p.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise FileFormatError(p, "not a text file (invalid UTF-8)") from None
+    if not text.strip():
+        raise FileFormatError(p, "empty file")
     comma = p.suffix.lower() == ".csv"
     names: list[str] | None = None
     rows: list[list[str]] = []

@@ -1,0 +1,383 @@
+"""Corrupt, truncated and hostile files: a ValueError naming the file, nothing else.
+
+The fuzz tests mutate valid files (truncation, byte changes, inserted bytes) and accept two
+outcomes only: a consistent result or a ``ValueError`` whose message starts with the path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scanreg.io as sio
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from scanreg import SE3
+from scanreg.io import FileFormatError, PointCloud, PoseGraph, PoseGraphEdge, Trajectory
+
+
+def _cloud(n: int = 6) -> PointCloud:
+    rng = np.random.default_rng(0)
+    return PointCloud(
+        points=rng.normal(size=(n, 3)),
+        intensity=rng.uniform(0, 1, n),
+        ring=rng.integers(0, 8, n),
+        time=rng.uniform(0, 0.1, n),
+    )
+
+
+def _valid_files(folder: Path) -> dict[str, bytes]:
+    cloud = _cloud()
+    files: dict[str, bytes] = {}
+    writers = {
+        "a.pcd": lambda p: sio.write_pcd(p, cloud, data="ascii"),
+        "b.pcd": lambda p: sio.write_pcd(p, cloud, data="binary"),
+        "c.pcd": lambda p: sio.write_pcd(p, cloud, data="binary_compressed"),
+        "a.ply": lambda p: sio.write_ply(p, cloud, data="ascii"),
+        "b.ply": lambda p: sio.write_ply(p, cloud, data="binary_little_endian"),
+        "c.ply": lambda p: sio.write_ply(p, cloud, data="binary_big_endian"),
+        "a.bin": lambda p: sio.write_kitti_bin(p, cloud),
+        "a.npy": lambda p: sio.write_npy(p, cloud),
+        "a.npz": lambda p: sio.write_npz(p, cloud),
+        "a.csv": lambda p: sio.write_csv(p, cloud),
+        "a.xyz": lambda p: sio.write_xyz(p, cloud),
+    }
+    for name, write in writers.items():
+        write(folder / name)
+        files[name] = (folder / name).read_bytes()
+    return files
+
+
+@pytest.fixture(scope="module")
+def valid(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
+    return _valid_files(tmp_path_factory.mktemp("valid"))
+
+
+def _check_outcome(path: Path) -> None:
+    try:
+        cloud = sio.read_points(path)
+    except ValueError as exc:
+        assert str(exc).startswith(str(path)), str(exc)
+        return
+    # parsed: it must be a consistent cloud
+    assert cloud.points.dtype == np.float64 and cloud.points.ndim == 2
+    for arr in cloud.named_fields().values():
+        assert arr.shape[0] == len(cloud)
+
+
+NAMES = [
+    "a.pcd",
+    "b.pcd",
+    "c.pcd",
+    "a.ply",
+    "b.ply",
+    "c.ply",
+    "a.bin",
+    "a.npy",
+    "a.npz",
+    "a.csv",
+    "a.xyz",
+]
+
+
+@settings(
+    max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    name=st.sampled_from(NAMES),
+    cut=st.floats(0, 1),
+    edits=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=4),
+    insert=st.binary(max_size=8),
+)
+def test_fuzz_mutated_files(
+    tmp_path: Path,
+    valid: dict[str, bytes],
+    name: str,
+    cut: float,
+    edits: list[tuple[float, int]],
+    insert: bytes,
+) -> None:
+    raw = bytearray(valid[name])
+    for where, value in edits:
+        raw[int(where * (len(raw) - 1))] = value
+    pos = int(cut * len(raw))
+    data = bytes(raw[:pos]) + insert + bytes(raw[pos:]) if insert else bytes(raw[: max(pos, 1)])
+    path = tmp_path / name
+    path.write_bytes(data)
+    _check_outcome(path)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_truncation_is_clean(tmp_path: Path, valid: dict[str, bytes], name: str) -> None:
+    raw = valid[name]
+    path = tmp_path / name
+    for cut in sorted({0, 1, 5, len(raw) // 3, len(raw) // 2, len(raw) - 9, len(raw) - 1}):
+        path.write_bytes(raw[:cut])
+        _check_outcome(path)
+    path.write_bytes(b"")
+    with pytest.raises(ValueError, match=str(path)):
+        sio.read_points(path)
+
+
+def _pcd(header_lines: list[str], body: bytes) -> bytes:
+    return ("\n".join(header_lines) + "\n").encode() + body
+
+
+PCD_HEAD = ["VERSION 0.7", "FIELDS x y z", "SIZE 4 4 4", "TYPE F F F", "COUNT 1 1 1"]
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [
+        (
+            _pcd([*PCD_HEAD, "WIDTH 3", "HEIGHT 1", "POINTS 3", "DATA binary"], b"\0" * 24),
+            "truncated",
+        ),
+        (
+            _pcd(
+                [*PCD_HEAD, "WIDTH 9999999999", "HEIGHT 1", "POINTS 9999999999", "DATA binary"],
+                b"\0" * 24,
+            ),
+            "truncated",
+        ),
+        (
+            _pcd([*PCD_HEAD, "WIDTH 2", "HEIGHT 1", "POINTS 3", "DATA binary"], b"\0" * 36),
+            "POINTS 3 != WIDTH 2",
+        ),
+        (
+            _pcd([*PCD_HEAD, "WIDTH 2", "HEIGHT 1", "POINTS 2", "DATA ascii"], b"1 2 3\n4 5 x\n"),
+            "bad number",
+        ),
+        (_pcd([*PCD_HEAD, "WIDTH 2", "HEIGHT 1", "POINTS 2", "DATA ascii"], b"1 2 3\n"), "1 lines"),
+        (_pcd([*PCD_HEAD, "WIDTH 1", "HEIGHT 1", "POINTS 1", "DATA ascii"], b"1 2\n"), "2 values"),
+        (
+            _pcd(
+                [*PCD_HEAD, "WIDTH 1", "HEIGHT 1", "POINTS 1", "DATA binary_compressed"],
+                b"\xff\xff\xff\x7f\x0c\0\0\0",
+            ),
+            "truncated",
+        ),
+        (
+            _pcd(
+                [*PCD_HEAD, "WIDTH 1", "HEIGHT 1", "POINTS 1", "DATA binary_compressed"],
+                b"\x02\0\0\0\x0c\0\0\0\xe0\x00",
+            ),
+            "corrupt compressed",
+        ),
+        (
+            _pcd(
+                [
+                    *PCD_HEAD,
+                    "WIDTH 100000000",
+                    "HEIGHT 1",
+                    "POINTS 100000000",
+                    "DATA binary_compressed",
+                ],
+                np.array([2, 1_200_000_000], "<u4").tobytes() + b"\0\0",
+            ),
+            "cannot come from",
+        ),
+        (
+            _pcd(
+                [
+                    "VERSION 0.7",
+                    "FIELDS x y",
+                    "SIZE 4 4",
+                    "TYPE F F",
+                    "WIDTH 1",
+                    "POINTS 1",
+                    "DATA ascii",
+                ],
+                b"1 2\n",
+            ),
+            "no z",
+        ),
+        (
+            _pcd(
+                [
+                    "VERSION 0.7",
+                    "FIELDS x y z",
+                    "SIZE 4 4 4",
+                    "TYPE F F Q",
+                    "WIDTH 1",
+                    "POINTS 1",
+                    "DATA ascii",
+                ],
+                b"1 2 3\n",
+            ),
+            "unsupported TYPE",
+        ),
+        (
+            _pcd(
+                [
+                    "VERSION 0.7",
+                    "FIELDS x y z",
+                    "SIZE 4 4",
+                    "TYPE F F F",
+                    "WIDTH 1",
+                    "POINTS 1",
+                    "DATA ascii",
+                ],
+                b"1 2 3\n",
+            ),
+            "SIZE has 2 entries",
+        ),
+        (
+            _pcd([*PCD_HEAD, "WIDTH 1", "HEIGHT 1", "POINTS 1", "DATA lzma"], b""),
+            "unsupported DATA",
+        ),
+        (b"PK\x03\x04 not a pcd at all\n" * 3, "not a PCD file"),
+        (b"\x00" * 100_000, "no DATA line"),
+    ],
+)
+def test_hostile_pcd(tmp_path: Path, content: bytes, problem: str) -> None:
+    path = tmp_path / "h.pcd"
+    path.write_bytes(content)
+    with pytest.raises(FileFormatError, match=problem) as info:
+        sio.read_points(path)
+    assert str(info.value).startswith(str(path))
+
+
+XYZ_PROPS = "property float x\nproperty float y\nproperty float z\n"
+PLY_HEAD = "ply\nformat binary_little_endian 1.0\nelement vertex {n}\n" + XYZ_PROPS
+ASCII1 = b"ply\nformat ascii 1.0\nelement vertex 1\n"
+
+
+@pytest.mark.parametrize(
+    ("content", "problem"),
+    [
+        ((PLY_HEAD.format(n=3) + "end_header\n").encode() + b"\0" * 20, "truncated"),
+        ((PLY_HEAD.format(n=4_000_000_000) + "end_header\n").encode() + b"\0" * 24, "truncated"),
+        (b"plz\nformat ascii 1.0\nend_header\n", "no 'ply' magic"),
+        (b"ply\nelement vertex 1\nproperty float x\nend_header\n1\n", "no format line"),
+        (
+            b"ply\nformat ascii 1.0\nelement vertex 2\n"
+            + XYZ_PROPS.encode()
+            + b"end_header\n1 2 3\n",
+            "truncated",
+        ),
+        (
+            ASCII1 + XYZ_PROPS.encode() + b"end_header\n1 2 nan3\n",
+            "bad number",
+        ),
+        (
+            ASCII1 + b"property float x\nproperty float y\nend_header\n1 2\n",
+            "no z",
+        ),
+        (
+            b"ply\nformat binary_little_endian 1.0\nelement face 1000\n"
+            b"property list uchar int idx\nelement vertex 1\n"
+            + XYZ_PROPS.encode()
+            + b"end_header\n\x05\0\0",
+            "truncated inside element face",
+        ),
+        (
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float128 x\nend_header\n",
+            "bad property",
+        ),
+        (b"ply\nformat ascii 1.0\n" + b"comment " + b"a" * 70_000, "no end_header"),
+    ],
+)
+def test_hostile_ply(tmp_path: Path, content: bytes, problem: str) -> None:
+    path = tmp_path / "h.ply"
+    path.write_bytes(content)
+    with pytest.raises(FileFormatError, match=problem) as info:
+        sio.read_points(path)
+    assert str(info.value).startswith(str(path))
+
+
+def test_hostile_simple_formats(tmp_path: Path) -> None:
+    (tmp_path / "a.bin").write_bytes(b"\0" * 17)
+    with pytest.raises(FileFormatError, match="not a multiple of 16"):
+        sio.read_points(tmp_path / "a.bin")
+    (tmp_path / "a.npy").write_bytes(b"\x93NUMPY garbage")
+    with pytest.raises(FileFormatError, match="cannot load"):
+        sio.read_points(tmp_path / "a.npy")
+    np.save(tmp_path / "b.npy", np.array(["a", "b"]))
+    with pytest.raises(FileFormatError, match="numeric"):
+        sio.read_points(tmp_path / "b.npy")
+    np.savez(tmp_path / "c.npz", other=np.zeros(3))
+    with pytest.raises(FileFormatError, match="no 'points' array"):
+        sio.read_points(tmp_path / "c.npz")
+    (tmp_path / "d.csv").write_text("x,y,z\n1,2,3\n4,5\n")
+    with pytest.raises(FileFormatError, match="line 3: 2 values"):
+        sio.read_points(tmp_path / "d.csv")
+    (tmp_path / "e.xyz").write_bytes(b"1 2 3\n\xff\xfe\n")
+    with pytest.raises(FileFormatError, match="UTF-8"):
+        sio.read_points(tmp_path / "e.xyz")
+
+
+def test_hostile_trajectories(tmp_path: Path) -> None:
+    path = tmp_path / "t.txt"
+    cases = [
+        ("kitti", "1 0 0 0 0 1 0 0 0 0 1\n", "11 values"),
+        ("kitti", "1 0 0 0 0 1 0 0 0 0 1 zz\n", "bad number"),
+        ("kitti", "2 0 0 0 0 1 0 0 0 0 1 0\n", "not a rotation"),
+        ("kitti", "-1 0 0 0 0 1 0 0 0 0 1 0\n", "not a rotation"),
+        ("kitti", "", "no KITTI pose lines"),
+        ("tum", "# only a comment\n", "no TUM lines"),
+        ("tum", "0 1 2 3 0 0 0 0\n", "quaternion norm 0"),
+        ("tum", "0 1 2 nan 0 0 0 1\n", "NaN"),
+    ]
+    for fmt, text, problem in cases:
+        path.write_text(text)
+        with pytest.raises(FileFormatError, match=problem) as info:
+            sio.read_trajectory(path, fmt)
+        assert str(info.value).startswith(str(path))
+    path.write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1\n")
+    with pytest.raises(FileFormatError, match="12 finite numbers"):
+        sio.read_kitti_calib(path)
+
+
+def test_hostile_g2o(tmp_path: Path) -> None:
+    path = tmp_path / "g.g2o"
+    cases = [
+        ("VERTEX_SE2 0 1 2\n", "needs 4 values, got 3"),
+        ("VERTEX_XY 0 1 2\n", "unsupported g2o tag"),
+        ("VERTEX_SE2 0 1 2 x\n", "bad number"),
+        ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 0 0 0\n", "defined twice"),
+        ("VERTEX_SE2 0 0 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n", "unknown vertex 1"),
+        (
+            "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0\n",
+            "needs 11 values",
+        ),
+        ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 2\n", "quaternion norm"),
+        ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE2 1 0 0 0\n", "all SE2 or all SE3"),
+    ]
+    for text, problem in cases:
+        path.write_text(text)
+        with pytest.raises(FileFormatError, match=problem):
+            sio.read_g2o(path)
+
+
+@settings(
+    max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(data=st.data())
+def test_fuzz_text_formats(tmp_path: Path, data: st.DataObject) -> None:
+    traj = Trajectory.from_poses(
+        [SE3.from_vector([i, 0, 0, 0, 0, 0.1 * i]) for i in range(3)], [0.0, 1.0, 2.0]
+    )
+    graph = PoseGraph(
+        {0: traj.se3(0), 1: traj.se3(1)}, (PoseGraphEdge(0, 1, traj.se3(1), np.eye(6)),)
+    )
+    kind = data.draw(st.sampled_from(["kitti", "tum", "g2o"]))
+    path = tmp_path / "t.txt"
+    if kind == "g2o":
+        sio.write_g2o(path, graph)
+    else:
+        sio.write_trajectory(path, traj, kind)
+    raw = bytearray(path.read_bytes())
+    for _ in range(data.draw(st.integers(1, 4))):
+        raw[data.draw(st.integers(0, len(raw) - 1))] = data.draw(
+            st.sampled_from(b"0123456789.-e +#\nxn\xff")
+        )
+    path.write_bytes(bytes(raw[: data.draw(st.integers(0, len(raw)))]))
+    try:
+        result = sio.read_g2o(path) if kind == "g2o" else sio.read_trajectory(path, kind)
+    except ValueError as exc:
+        assert str(exc).startswith(str(path)), str(exc)
+        return
+    if isinstance(result, Trajectory):
+        assert result.poses.shape[1:] == (4, 4) and np.isfinite(result.poses).all()
