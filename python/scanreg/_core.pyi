@@ -55,3 +55,41 @@ def linearize_paired(
 ) -> Linearization: ...
 def lzf_decompress(data: bytes, expected_size: int) -> bytes: ...
 def lzf_compress(data: bytes) -> bytes: ...
+
+# --- scan simulation (crates/scanreg-py/src/simulate.rs) ---
+
+from typing import final  # noqa: E402
+
+SIMULATE_PRIMITIVE_COLUMNS: int
+
+@final
+class CastResult:
+    @property
+    def true_range(self) -> NDArray[np.float64]: ...
+    @property
+    def range(self) -> NDArray[np.float64]: ...
+    @property
+    def status(self) -> NDArray[np.uint8]: ...
+    @property
+    def hit(self) -> NDArray[np.int64]: ...
+    @property
+    def points(self) -> NDArray[np.float64]: ...
+    @property
+    def points_reference(self) -> NDArray[np.float64]: ...
+
+def cast_rays(
+    primitives: NDArray[np.float64],
+    directions: NDArray[np.float64],
+    time_offsets: NDArray[np.float64],
+    *,
+    start_time: float,
+    knot_times: NDArray[np.float64],
+    knot_poses: NDArray[np.float64],
+    twists: NDArray[np.float64],
+    reference_time: float,
+    min_range: float,
+    max_range: float,
+    range_sigma: float,
+    dropout_probability: float,
+    seed: int,
+) -> CastResult: ...

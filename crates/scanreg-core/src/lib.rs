@@ -22,6 +22,7 @@ pub mod outliers;
 pub mod paired;
 pub mod points;
 pub mod reduce;
+pub mod simulate;
 
 pub use error::{Error, Result};
 pub use kernel::Kernel;

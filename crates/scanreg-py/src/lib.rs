@@ -8,11 +8,13 @@ use pyo3::prelude::*;
 mod convert;
 mod io;
 mod paired;
+mod simulate;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     paired::register(m)?;
+    simulate::register(m)?;
     io::register(m)?;
     Ok(())
 }
