@@ -6,7 +6,9 @@ translation-first and perturb on the right (``T @ exp(δ)``); see :mod:`scanreg.
 
 from ._core import __version__
 from .paired import PairedAlignment, align_paired
+from . import preprocess
 from .quality import Conditioning, ResidualStats, WeakDirection
+from .target import PreparedTarget, prepare
 from .transform import SE2, SE3
 
 __all__ = [
@@ -14,8 +16,11 @@ __all__ = [
     "SE3",
     "Conditioning",
     "PairedAlignment",
+    "PreparedTarget",
     "ResidualStats",
     "WeakDirection",
     "__version__",
     "align_paired",
+    "prepare",
+    "preprocess",
 ]

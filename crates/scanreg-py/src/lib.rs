@@ -7,13 +7,17 @@ use pyo3::prelude::*;
 
 mod convert;
 mod io;
+pub mod knn;
 mod paired;
+mod preprocess;
 mod simulate;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     paired::register(m)?;
+    knn::register(m)?;
+    preprocess::register(m)?;
     simulate::register(m)?;
     io::register(m)?;
     Ok(())

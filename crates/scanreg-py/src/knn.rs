@@ -1,0 +1,240 @@
+//! Bindings for neighbour search and per-point local geometry (`scanreg_core::{knn, normals,
+//! outliers}`).
+//!
+//! `KdTree` and `VoxelIndex` are frozen (immutable) pyclasses: safe to share between Python
+//! threads; every query releases the GIL. Other bindings (registration) reach the Rust index
+//! through the public `inner` field.
+
+use crate::convert::{core_err, points, points_dim, vector};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+};
+use pyo3::prelude::*;
+use scanreg_core::knn;
+use scanreg_core::normals::{self, Regularization};
+use scanreg_core::outliers;
+
+type IndexArray = Py<PyArray1<i64>>;
+type DistArray = Py<PyArray1<f64>>;
+
+/// An immutable k-d tree over `(N, 2)` or `(N, 3)` points. Distances are squared.
+#[pyclass(frozen, module = "scanreg._core")]
+pub struct KdTree {
+    pub inner: knn::KdTree,
+}
+
+fn rows<T: numpy::Element>(py: Python<'_>, flat: Vec<T>, cols: usize) -> PyResult<Py<PyArray2<T>>> {
+    let n = flat.len().checked_div(cols).unwrap_or(0);
+    Ok(flat.into_pyarray(py).reshape([n, cols])?.unbind())
+}
+
+#[pymethods]
+impl KdTree {
+    #[new]
+    fn new(py: Python<'_>, points_array: PyReadonlyArray2<'_, f64>) -> PyResult<Self> {
+        let (data, dim) = points(&points_array, "points")?;
+        let inner = py
+            .detach(|| knn::KdTree::build(data, dim))
+            .map_err(core_err)?;
+        Ok(KdTree { inner })
+    }
+
+    #[getter]
+    fn dim(&self) -> usize {
+        self.inner.dim()
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    /// A copy of the indexed points, `(N, dim)`.
+    #[getter]
+    fn points(&self, py: Python<'_>) -> PyResult<Py<PyArray2<f64>>> {
+        rows(py, self.inner.points().to_vec(), self.inner.dim())
+    }
+
+    /// Nearest neighbour within `max_distance`: `(index (M,), squared_distance (M,))`,
+    /// `-1` / `inf` where none.
+    #[pyo3(signature = (query_points, max_distance=f64::INFINITY))]
+    fn nearest(
+        &self,
+        py: Python<'_>,
+        query_points: PyReadonlyArray2<'_, f64>,
+        max_distance: f64,
+    ) -> PyResult<(IndexArray, DistArray)> {
+        let q = points_dim(&query_points, "query_points", self.inner.dim())?;
+        let r = py
+            .detach(|| self.inner.nearest_batch(q, max_distance))
+            .map_err(core_err)?;
+        Ok((
+            r.index.into_pyarray(py).unbind(),
+            r.squared_distance.into_pyarray(py).unbind(),
+        ))
+    }
+
+    /// `k` nearest neighbours: `(index (M, k), squared_distance (M, k))`, rows sorted by
+    /// (distance, index).
+    fn knn(
+        &self,
+        py: Python<'_>,
+        query_points: PyReadonlyArray2<'_, f64>,
+        k: usize,
+    ) -> PyResult<(Py<PyArray2<i64>>, Py<PyArray2<f64>>)> {
+        let q = points_dim(&query_points, "query_points", self.inner.dim())?;
+        let (idx, dist) = py.detach(|| self.inner.knn_batch(q, k)).map_err(core_err)?;
+        Ok((rows(py, idx, k)?, rows(py, dist, k)?))
+    }
+
+    /// All neighbours within `radius`: `(offsets (M+1,), index, squared_distance)`, compressed
+    /// rows sorted by (distance, index).
+    fn radius(
+        &self,
+        py: Python<'_>,
+        query_points: PyReadonlyArray2<'_, f64>,
+        radius: f64,
+    ) -> PyResult<(IndexArray, IndexArray, DistArray)> {
+        let q = points_dim(&query_points, "query_points", self.inner.dim())?;
+        let r = py
+            .detach(|| self.inner.radius_batch(q, radius))
+            .map_err(core_err)?;
+        Ok((
+            r.offsets.into_pyarray(py).unbind(),
+            r.index.into_pyarray(py).unbind(),
+            r.squared_distance.into_pyarray(py).unbind(),
+        ))
+    }
+
+    /// k-NN PCA of every indexed point: `(normals (N, D) | None, covariances (N, D, D) | None,
+    /// valid (N,))`. `regularization=None` skips covariances.
+    #[pyo3(signature = (k, viewpoint, *, normals=true, regularization=None, epsilon=1e-3))]
+    #[allow(clippy::type_complexity)]
+    fn local_geometry(
+        &self,
+        py: Python<'_>,
+        k: usize,
+        viewpoint: PyReadonlyArray1<'_, f64>,
+        normals: bool,
+        regularization: Option<&str>,
+        epsilon: f64,
+    ) -> PyResult<(
+        Option<Py<PyArray2<f64>>>,
+        Option<Py<PyArray3<f64>>>,
+        Py<PyArray1<bool>>,
+    )> {
+        let vp = vector(&viewpoint, "viewpoint")?;
+        let reg = regularization
+            .map(|name| Regularization::from_name(name, epsilon))
+            .transpose()
+            .map_err(core_err)?;
+        let g = py
+            .detach(|| normals::local_geometry(&self.inner, k, vp, normals, reg))
+            .map_err(core_err)?;
+        let dim = self.inner.dim();
+        let n = self.inner.len();
+        let nrm = g.normals.map(|v| rows(py, v, dim)).transpose()?;
+        let cov = g
+            .covariances
+            .map(|v| -> PyResult<Py<PyArray3<f64>>> {
+                Ok(v.into_pyarray(py).reshape([n, dim, dim])?.unbind())
+            })
+            .transpose()?;
+        Ok((nrm, cov, g.valid.into_pyarray(py).unbind()))
+    }
+
+    /// Statistical outlier removal: `(kept (K,), mean_distance (N,), threshold)`.
+    fn statistical_outliers(
+        &self,
+        py: Python<'_>,
+        k: usize,
+        std_ratio: f64,
+    ) -> PyResult<(IndexArray, DistArray, f64)> {
+        let r = py
+            .detach(|| outliers::statistical_outliers(&self.inner, k, std_ratio))
+            .map_err(core_err)?;
+        let kept: Vec<i64> = r.kept.into_iter().map(|i| i as i64).collect();
+        Ok((
+            kept.into_pyarray(py).unbind(),
+            r.mean_distance.into_pyarray(py).unbind(),
+            r.threshold,
+        ))
+    }
+
+    /// Radius outlier removal: kept indices.
+    fn radius_outliers(
+        &self,
+        py: Python<'_>,
+        radius: f64,
+        min_neighbors: usize,
+    ) -> PyResult<IndexArray> {
+        let kept = py
+            .detach(|| outliers::radius_outliers(&self.inner, radius, min_neighbors))
+            .map_err(core_err)?;
+        let kept: Vec<i64> = kept.into_iter().map(|i| i as i64).collect();
+        Ok(kept.into_pyarray(py).unbind())
+    }
+}
+
+/// A voxel hash map over points (KISS-ICP style); exact nearest neighbour within a gate.
+#[pyclass(frozen, module = "scanreg._core")]
+pub struct VoxelIndex {
+    pub inner: knn::VoxelIndex,
+    dim: usize,
+}
+
+#[pymethods]
+impl VoxelIndex {
+    #[new]
+    fn new(
+        py: Python<'_>,
+        points_array: PyReadonlyArray2<'_, f64>,
+        voxel_size: f64,
+    ) -> PyResult<Self> {
+        let (data, dim) = points(&points_array, "points")?;
+        let inner = py
+            .detach(|| knn::VoxelIndex::build(data, dim, voxel_size))
+            .map_err(core_err)?;
+        Ok(VoxelIndex { inner, dim })
+    }
+
+    #[getter]
+    fn dim(&self) -> usize {
+        self.dim
+    }
+
+    #[getter]
+    fn voxel_size(&self) -> f64 {
+        self.inner.voxel_size()
+    }
+
+    #[getter]
+    fn num_voxels(&self) -> usize {
+        self.inner.num_voxels()
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    fn nearest(
+        &self,
+        py: Python<'_>,
+        query_points: PyReadonlyArray2<'_, f64>,
+        max_distance: f64,
+    ) -> PyResult<(IndexArray, DistArray)> {
+        let q = points_dim(&query_points, "query_points", self.dim)?;
+        let r = py
+            .detach(|| self.inner.nearest_batch(q, max_distance))
+            .map_err(core_err)?;
+        Ok((
+            r.index.into_pyarray(py).unbind(),
+            r.squared_distance.into_pyarray(py).unbind(),
+        ))
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<KdTree>()?;
+    m.add_class::<VoxelIndex>()?;
+    Ok(())
+}

@@ -1,0 +1,205 @@
+"""A prepared registration target: the neighbour index, normals and covariances, built once.
+
+``prepare(points)`` is the expensive part of matching against a fixed cloud (a map, or the
+target of many registrations from different initial guesses); the result is immutable, so one
+``PreparedTarget`` can be shared by many threads. Queries release the GIL.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import _core
+from ._validate import FloatArray, as_points
+from .preprocess import (
+    DEFAULT_K,
+    BoolArray,
+    IndexArray,
+    Regularization,
+    as_viewpoint,
+    check_k,
+    check_regularization,
+    positive_int,
+)
+
+
+def _readonly(a: Any) -> Any:
+    a.setflags(write=False)
+    return a
+
+
+def _gate(value: Any, name: str) -> float:
+    v = float(value)
+    if math.isnan(v) or v < 0:
+        raise ValueError(f"{name}: must be >= 0 (inf for no limit), got {value}")
+    return v
+
+
+@dataclass(frozen=True)
+class Nearest:
+    """Nearest target point of each query point, within a gate.
+
+    ``indices[i] == -1`` and ``squared_distances[i] == inf`` where query ``i`` has no target
+    point within the gate.
+    """
+
+    #: ``(M,)`` target row of the nearest point, or -1.
+    indices: IndexArray
+    #: ``(M,)`` squared Euclidean distance (units²), or inf.
+    squared_distances: FloatArray
+
+    @property
+    def found(self) -> BoolArray:
+        """``(M,)`` whether a target point was within the gate."""
+        out: BoolArray = self.indices >= 0
+        return out
+
+    @property
+    def num_found(self) -> int:
+        return int((self.indices >= 0).sum())
+
+
+@dataclass(frozen=True)
+class Neighbors:
+    """``k`` nearest target points of each query point, each row sorted by (distance, index)."""
+
+    #: ``(M, k)`` target rows.
+    indices: NDArray[np.int64]
+    #: ``(M, k)`` squared distances, non-decreasing along each row.
+    squared_distances: FloatArray
+
+
+@dataclass(frozen=True)
+class RadiusNeighbors:
+    """All target points within a radius, in compressed rows: the neighbours of query ``i`` are
+    ``indices[offsets[i]:offsets[i+1]]``, sorted by (distance, index)."""
+
+    offsets: IndexArray
+    indices: IndexArray
+    squared_distances: FloatArray
+
+    def row(self, i: int) -> IndexArray:
+        """Target rows within the radius of query ``i``."""
+        out: IndexArray = self.indices[self.offsets[i] : self.offsets[i + 1]]
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedTarget:
+    """A target cloud with its k-d tree and (optionally) normals and covariances.
+
+    Build with :func:`prepare`. Immutable and thread-safe; reuse it across registrations.
+    """
+
+    #: ``(N, D)`` the target points (a read-only copy).
+    points: FloatArray
+    #: The native k-d tree (``scanreg._core.KdTree``); registration code passes it to the core.
+    index: _core.KdTree
+    #: ``(N, D)`` unit normals facing ``viewpoint`` (zero where not ``valid``), or None.
+    normals: FloatArray | None
+    #: ``(N, D, D)`` regularised covariances (identity where not ``valid``), or None.
+    covariances: FloatArray | None
+    #: ``(N,)`` whether each point's neighbourhood was non-degenerate (None if neither normals
+    #: nor covariances were computed).
+    valid: BoolArray | None
+    #: Neighbourhood size used for normals/covariances.
+    k: int
+    regularization: str
+    epsilon: float
+
+    @property
+    def dim(self) -> int:
+        return int(self.points.shape[1])
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    def nearest(self, query_points: FloatArray, max_distance: float = math.inf) -> Nearest:
+        """Nearest target point of each query point within ``max_distance`` (not squared;
+        inclusive). Exact; ties go to a fixed, reproducible point."""
+        q = as_points(query_points, "query_points", dim=self.dim, min_points=0)
+        idx, d2 = self.index.nearest(q, _gate(max_distance, "max_distance"))
+        return Nearest(indices=_readonly(idx), squared_distances=_readonly(d2))
+
+    def knn(self, query_points: FloatArray, k: int) -> Neighbors:
+        """The ``k`` nearest target points of each query point (``1 <= k <= N``)."""
+        q = as_points(query_points, "query_points", dim=self.dim, min_points=0)
+        kk = positive_int(k, "k")
+        if kk > len(self):
+            raise ValueError(f"k: is {kk} but the target has only {len(self)} points")
+        idx, d2 = self.index.knn(q, kk)
+        return Neighbors(indices=_readonly(idx), squared_distances=_readonly(d2))
+
+    def radius(self, query_points: FloatArray, radius: float) -> RadiusNeighbors:
+        """All target points within ``radius`` (inclusive) of each query point."""
+        q = as_points(query_points, "query_points", dim=self.dim, min_points=0)
+        r = float(radius)
+        if not math.isfinite(r) or r < 0:
+            raise ValueError(f"radius: must be finite and >= 0, got {radius}")
+        off, idx, d2 = self.index.radius(q, r)
+        return RadiusNeighbors(
+            offsets=_readonly(off), indices=_readonly(idx), squared_distances=_readonly(d2)
+        )
+
+
+def prepare(
+    points: FloatArray,
+    *,
+    normals: bool = True,
+    covariances: bool = False,
+    k: int = DEFAULT_K,
+    viewpoint: Any = None,
+    regularization: Regularization = "plane",
+    epsilon: float = 1e-3,
+) -> PreparedTarget:
+    """Build a reusable registration target.
+
+    Parameters
+    ----------
+    points : (N, 2) or (N, 3) float64, N >= 1
+        The target cloud (already downsampled as wanted; it is copied).
+    normals : bool
+        Compute unit normals (point-to-plane / point-to-line), facing ``viewpoint``.
+    covariances : bool
+        Compute GICP covariances, regularised by ``regularization`` / ``epsilon``
+        (see :class:`scanreg.preprocess.Covariances`).
+    k : int
+        Neighbourhood size for normals and covariances (the point itself included),
+        ``D <= k <= N``.
+    viewpoint : (D,) array or None
+        Normals face this point; default the origin (the sensor, for a scan in its own frame).
+    """
+    pts = as_points(points, "points")
+    dim = int(pts.shape[1])
+    index = _core.KdTree(pts)
+    kk = positive_int(k, "k")
+    nrm = cov = valid = None
+    eps = check_regularization(regularization, epsilon)
+    if normals or covariances:
+        kk = check_k(kk, int(pts.shape[0]), dim)
+        vp = as_viewpoint(viewpoint, dim)
+        nrm, cov, valid = index.local_geometry(
+            kk,
+            vp,
+            normals=bool(normals),
+            regularization=regularization if covariances else None,
+            epsilon=eps,
+        )
+        for a in (nrm, cov, valid):
+            if a is not None:
+                a.setflags(write=False)
+    return PreparedTarget(
+        points=_readonly(index.points),
+        index=index,
+        normals=nrm,
+        covariances=cov,
+        valid=valid,
+        k=kk,
+        regularization=regularization,
+        epsilon=eps,
+    )
