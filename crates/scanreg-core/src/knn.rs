@@ -144,20 +144,13 @@ impl KdTree {
     /// the tree but not necessarily the lowest index.
     #[inline]
     pub fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
-        if max_sq.is_infinite() {
-            let r = with_tree!(self, t, D => t
-                .query(&arr::<D>(q))
-                .nearest_one::<SquaredEuclidean<f64>>()
-                .execute());
-            return Some((r.item as usize, r.distance));
-        }
-        let one = NonZeroUsize::MIN;
+        // kiddo's nearest_one is its most optimised exact path; gating afterwards measured
+        // no slower on KITTI than a nearest_n(1).within(gate) query.
         let r = with_tree!(self, t, D => t
             .query(&arr::<D>(q))
-            .nearest_n::<SquaredEuclidean<f64>>(one)
-            .within(max_sq)
+            .nearest_one::<SquaredEuclidean<f64>>()
             .execute());
-        r.first().map(|it| (it.item as usize, it.distance))
+        (r.distance <= max_sq).then_some((r.item as usize, r.distance))
     }
 
     /// The `k` nearest points to `q` (fewer if `max_sq` is finite), appended to `out` sorted
