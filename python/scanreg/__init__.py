@@ -4,9 +4,9 @@ Conventions: poses are ``T_target_source`` (``p_T = R p_S + t``); tangent vector
 translation-first and perturb on the right (``T @ exp(δ)``); see :mod:`scanreg.transform`.
 """
 
+from . import preprocess
 from ._core import __version__
 from .paired import PairedAlignment, align_paired
-from . import preprocess
 from .quality import Conditioning, ResidualStats, WeakDirection
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3
