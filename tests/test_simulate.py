@@ -386,3 +386,15 @@ def test_native_caster_refuses_bad_tables() -> None:
         )
     with pytest.raises(ValueError, match="directions: array is not C-contiguous"):
         _core.cast_rays(np.zeros((0, 11)), np.asfortranarray(np.eye(3)), np.zeros(3), **kwargs)
+
+
+def test_demo_simulated_section_reports_consistent_statistics() -> None:
+    from scanreg.demo import simulated_runs
+
+    office, street = simulated_runs(seed=0)
+    assert office.num_scans == 20 and street.num_scans == 5
+    # 20 scans x ~180 returns (σ = 0.01): std within 10 %; 5 x ~114k (σ = 0.02): within 2 %.
+    assert abs(office.range_error_std / 0.01 - 1) < 0.1
+    assert abs(street.range_error_std / 0.02 - 1) < 0.02
+    assert office.dynamic_fraction > 0 and street.max_distortion > 0.5
+    assert dict(street.hits_by_label)["ground"] > 0

@@ -4,7 +4,7 @@ Conventions: poses are ``T_target_source`` (``p_T = R p_S + t``); tangent vector
 translation-first and perturb on the right (``T @ exp(δ)``); see :mod:`scanreg.transform`.
 """
 
-from . import preprocess
+from . import preprocess, simulate
 from ._core import __version__
 from .paired import PairedAlignment, align_paired
 from .quality import Conditioning, ResidualStats, WeakDirection
@@ -23,4 +23,5 @@ __all__ = [
     "align_paired",
     "prepare",
     "preprocess",
+    "simulate",
 ]

@@ -1,17 +1,20 @@
 """The built-in demo: runs on generated data, no download needed.
 
 For now it reproduces the paired-alignment lab (issue 2): 200 points uniform in
-[-5, 5] × [-3, 3], moved by θ = 12°, t = (1.2, -0.7), observed with σ = 0.02 noise.
+[-5, 5] × [-3, 3], moved by θ = 12°, t = (1.2, -0.7), observed with σ = 0.02 noise;
+then it simulates a short 2D and 3D run (issue 3) and reports scan statistics.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from . import simulate
 from .paired import PairedAlignment, align_paired
-from .transform import SE2
+from .transform import SE2, SE3
 
 LAB_TRUTH = SE2.from_vector([1.2, -0.7, np.deg2rad(12.0)])
 LAB_SIGMA = 0.02
@@ -32,12 +35,11 @@ class LabRun:
 def paired_lab(seed: int = 0) -> LabRun:
     """Simulate the lab scene once and align it in closed form and with a Huber kernel."""
     rng = np.random.default_rng(seed)
-    source = np.column_stack(
-        [rng.uniform(-5, 5, LAB_POINTS), rng.uniform(-3, 3, LAB_POINTS)]
-    )
+    source = np.column_stack([rng.uniform(-5, 5, LAB_POINTS), rng.uniform(-3, 3, LAB_POINTS)])
     target = LAB_TRUTH.apply(source) + rng.normal(0.0, LAB_SIGMA, source.shape)
     closed = align_paired(source, target)
     refined = align_paired(source, target, kernel="huber")
+    assert isinstance(closed.pose, SE2)  # 2D points give an SE2
     error = (closed.pose.inverse() @ LAB_TRUTH).log()
     return LabRun(
         truth=LAB_TRUTH,
@@ -56,7 +58,7 @@ def run_demo(seed: int = 0) -> int:
     """Print the lab; exit status 0 when the estimate is inside 3σ of its covariance."""
     lab = paired_lab(seed)
     deg = np.array([1.0, 1.0, 180.0 / np.pi])
-    print("scanreg demo: paired 2D alignment (200 points, σ = 0.02, seed %d)" % seed)
+    print(f"scanreg demo: paired 2D alignment (200 points, σ = 0.02, seed {seed})")
     print(" " * 32 + "tx [m]     ty [m]     θ [deg]")
     print(_row("ground truth", lab.truth.as_vector() * deg))
     print(_row("closed form (Kabsch)", lab.closed_form.pose.as_vector() * deg))
@@ -65,8 +67,114 @@ def run_demo(seed: int = 0) -> int:
     print(_row("|error| / σ", lab.error_in_sigmas, "{:.2f}"))
     c = lab.closed_form
     print(f"  RMSE {c.residuals.rmse:.4f} m, σ̂ {np.sqrt(c.sigma2):.4f} m (true {LAB_SIGMA})")
-    print(f"  condition number of JᵀJ {c.conditioning.condition_number:.1f}; "
-          f"weakest: {c.conditioning.weakest.description}")
+    print(
+        f"  condition number of JᵀJ {c.conditioning.condition_number:.1f}; "
+        f"weakest: {c.conditioning.weakest.description}"
+    )
     inside = bool((lab.error_in_sigmas < 3.0).all())
     print("  estimate inside 3σ of the predicted covariance:", "yes" if inside else "NO")
+    _print_simulated(simulated_runs(seed))
     return 0 if inside else 1
+
+
+# --- simulated scans (issue 3); registration/odometry on them comes with those issues ----
+@dataclass(frozen=True)
+class SimulatedStats:
+    """Scan statistics of one short simulated run."""
+
+    sensor: str
+    scene: str
+    num_scans: int
+    #: Distance driven over the run (m), from the ground-truth poses.
+    distance: float
+    points_per_scan: float
+    no_return_fraction: float
+    dropout_fraction: float
+    #: Fraction of valid returns that hit a moving object (dynamic outliers).
+    dynamic_fraction: float
+    #: Sample std of measured − true range over all valid returns, and the configured σ.
+    range_error_std: float
+    range_sigma: float
+    #: Largest displacement between a raw (motion-distorted) point and its deskewed twin (m).
+    max_distortion: float
+    #: Count of valid returns per scene label, summed over the run.
+    hits_by_label: tuple[tuple[str, int], ...]
+    seconds_per_scan: float
+
+
+def _returns(scan: simulate.LaserScan | simulate.LidarSweep) -> tuple[np.ndarray, ...]:
+    """Status of every beam, and range error and primitive hit of every valid return."""
+    if isinstance(scan, simulate.LaserScan):
+        v = scan.valid
+        return scan.status, (scan.ranges - scan.true_ranges)[v], scan.primitive_index[v]
+    return scan.status_image.ravel(), scan.ranges - scan.true_ranges, scan.primitive_index
+
+
+def _stats(run: simulate.SimulatedRun, scene_name: str, seconds: float) -> SimulatedStats:
+    scans = run.scans
+    parts = [_returns(s) for s in scans]
+    status, errors, hits = (np.concatenate([p[k] for p in parts]) for k in range(3))
+    dynamic = run.scene.dynamic[hits]
+    labels, counts = np.unique(np.array(run.scene.labels)[hits], return_counts=True)
+    order = np.argsort(-counts)
+    distortion = max(float(np.abs(s.points - s.points_deskewed).max(initial=0.0)) for s in scans)
+    positions = np.array([p.translation for p in run.poses])
+    return SimulatedStats(
+        sensor=run.sensor.name,
+        scene=scene_name,
+        num_scans=len(scans),
+        distance=float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum()),
+        points_per_scan=float(np.mean([s.points.shape[0] for s in scans])),
+        no_return_fraction=float(np.mean(status == simulate.NO_RETURN)),
+        dropout_fraction=float(np.mean(status == simulate.DROPOUT)),
+        dynamic_fraction=float(dynamic.mean()),
+        range_error_std=float(errors.std(ddof=1)),
+        range_sigma=run.sensor.range_sigma,
+        max_distortion=distortion,
+        hits_by_label=tuple((str(labels[i]), int(counts[i])) for i in order),
+        seconds_per_scan=seconds / len(scans),
+    )
+
+
+def simulated_runs(seed: int = 0) -> tuple[SimulatedStats, SimulatedStats]:
+    """A 2 s drive through the office floor plan (SICK LMS200-like laser at 10 Hz) and
+    0.5 s down the street (HDL-64E-like LiDAR at 10 m/s, turning gently)."""
+    office = simulate.floor_plan(seed=seed)
+    walk = simulate.Trajectory.from_speed_and_yaw_rate(
+        1.0, 0.0, duration=2.0, start=SE2.from_vector([1.0, 0.3, 0.0])
+    )
+    t0 = time.perf_counter()
+    run2 = simulate.simulate_run(
+        office, simulate.LaserModel.preset("sick_lms200"), walk, num_scans=20, seed=seed
+    )
+    t2 = time.perf_counter() - t0
+    street = simulate.street(seed=seed)
+    drive = simulate.Trajectory.from_speed_and_yaw_rate(
+        10.0, 0.05, duration=0.5, dim=3, start=SE3.from_vector([-20.0, 1.75, 1.73, 0, 0, 0])
+    )
+    t0 = time.perf_counter()
+    run3 = simulate.simulate_run(
+        street, simulate.LidarModel.preset("hdl64"), drive, num_scans=5, seed=seed
+    )
+    t3 = time.perf_counter() - t0
+    return _stats(run2, "office floor plan", t2), _stats(run3, "street", t3)
+
+
+def _print_simulated(runs: tuple[SimulatedStats, ...]) -> None:
+    print()
+    print("scanreg demo: simulated scans (scanreg.simulate; registration on them: coming)")
+    for r in runs:
+        print(
+            f"  {r.sensor} in the {r.scene}: {r.num_scans} scans over {r.distance:.1f} m, "
+            f"{r.points_per_scan:.0f} points/scan, {1e3 * r.seconds_per_scan:.1f} ms/scan"
+        )
+        print(
+            f"    no return {100 * r.no_return_fraction:.1f} %, dropouts "
+            f"{100 * r.dropout_fraction:.2f} %, on moving objects {100 * r.dynamic_fraction:.1f} %"
+        )
+        print(
+            f"    range error std {r.range_error_std:.4f} m (configured σ {r.range_sigma}); "
+            f"largest motion distortion {r.max_distortion:.3f} m"
+        )
+        top = ", ".join(f"{name} {count}" for name, count in r.hits_by_label[:6])
+        print(f"    returns by surface: {top}")
