@@ -351,6 +351,14 @@ def test_hostile_simulation_calls_are_refused() -> None:
     with pytest.raises(ValueError, match="num_scans: must be >= 1"):
         traj = sim.Trajectory.stationary(SE2.identity())
         sim.simulate_run(room, laser, traj, num_scans=0)
+    with pytest.raises(ValueError, match="scan_rate: must be > 0"):
+        sim.simulate_run(
+            room, laser, sim.Trajectory.stationary(SE2.identity()), num_scans=2, scan_rate=-1.0
+        )
+    with pytest.raises(TypeError, match="scan_rate: expected a real number"):
+        sim.simulate_run(
+            room, laser, sim.Trajectory.stationary(SE2.identity()), num_scans=2, scan_rate="fast"
+        )  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="laser: expected a LaserModel"):
         sim.simulate_scan(room, lidar, SE2.identity())  # type: ignore[arg-type]
 

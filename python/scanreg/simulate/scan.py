@@ -28,7 +28,7 @@ import numpy as np
 from .. import _core
 from .._validate import FloatArray
 from ..transform import SE2, SE3
-from ._checks import count, finite
+from ._checks import count, finite, positive
 from ._checks import seed as check_seed
 from .scene import Scene
 from .sensors import LaserModel, LidarModel
@@ -340,9 +340,7 @@ def simulate_run(
     if isinstance(sensor, LidarModel):
         period = sensor.sweep_duration
     elif isinstance(sensor, LaserModel):
-        period = 1.0 / finite(scan_rate, "scan_rate") if scan_rate > 0 else -1.0
-        if period <= 0:
-            raise ValueError(f"scan_rate: must be > 0, got {scan_rate}")
+        period = 1.0 / positive(scan_rate, "scan_rate")
     else:
         raise TypeError(f"sensor: expected a LaserModel or LidarModel, got {type(sensor).__name__}")
     if not isinstance(trajectory, Trajectory):
