@@ -16,6 +16,7 @@ use scanreg_core::outliers;
 
 type IndexArray = Py<PyArray1<i64>>;
 type DistArray = Py<PyArray1<f64>>;
+type Rows<T> = Py<PyArray2<T>>;
 
 /// An immutable k-d tree over `(N, 2)` or `(N, 3)` points. Distances are squared.
 #[pyclass(frozen, module = "scanreg._core")]
@@ -80,7 +81,7 @@ impl KdTree {
         py: Python<'_>,
         query_points: PyReadonlyArray2<'_, f64>,
         k: usize,
-    ) -> PyResult<(Py<PyArray2<i64>>, Py<PyArray2<f64>>)> {
+    ) -> PyResult<(Rows<i64>, Rows<f64>)> {
         let q = points_dim(&query_points, "query_points", self.inner.dim())?;
         let (idx, dist) = py.detach(|| self.inner.knn_batch(q, k)).map_err(core_err)?;
         Ok((rows(py, idx, k)?, rows(py, dist, k)?))
