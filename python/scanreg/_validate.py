@@ -16,15 +16,15 @@ FloatArray = NDArray[np.float64]
 
 def _as_float64_array(value: Any, name: str) -> FloatArray:
     if not isinstance(value, np.ndarray):
-        raise TypeError(f"{name}: expected a numpy.ndarray of float64, got {type(value).__name__}")
+        kind = type(value).__name__
+        raise TypeError(f"{name}: expected a numpy.ndarray of float64, got {kind}")
     if value.dtype != np.float64:
         raise TypeError(
-            f"{name}: expected dtype float64, got {value.dtype}; convert with {name}.astype(np.float64)"
+            f"{name}: expected dtype float64, got {value.dtype}; "
+            f"convert with {name}.astype(np.float64)"
         )
     if not value.flags.c_contiguous:
-        raise ValueError(
-            f"{name}: array is not C-contiguous; pass numpy.ascontiguousarray({name})"
-        )
+        raise ValueError(f"{name}: array is not C-contiguous; pass numpy.ascontiguousarray({name})")
     return value
 
 
@@ -41,6 +41,8 @@ def as_points(
     if arr.ndim != 2 or arr.shape[1] not in dims:
         want = " or ".join(f"(N, {d})" for d in dims)
         raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
+    if arr.shape[0] == 0 and min_points > 0:
+        raise ValueError(f"{name}: is empty (0 points)")
     if arr.shape[0] < min_points:
         raise ValueError(f"{name}: need at least {min_points} points, got {arr.shape[0]}")
     if not np.isfinite(arr).all():

@@ -20,7 +20,7 @@ from .quality import (
     ResidualStats,
     conditioning,
 )
-from .robust import check_kernel, default_scale
+from .robust import check_kernel, default_scale, robust_sigma
 from .transform import SE2, SE3, as_pose, pose_class
 
 Objective = Literal["point_to_point", "point_to_plane", "point_to_line"]
@@ -53,13 +53,15 @@ class PairedAlignment:
     #: counting only pairs with a positive weight.
     num_residuals: int
     dof: int
-    #: ``σ̂² = Σ w k r² / (m_eff - dof)``: the estimated residual variance per coordinate.
+    #: Residual variance per coordinate: ``σ̂² = Σ w r² / (m - dof)`` for least squares;
+    #: with a kernel, the square of the median-based robust scale (:mod:`scanreg.robust`).
     sigma2: float
     #: ``JᵀWJ`` at the final pose (user weights × kernel weights), tangent coordinates.
     hessian: FloatArray
-    #: ``σ̂² (JᵀWJ)⁻¹``.
+    #: Least squares: ``σ̂² (JᵀWJ)⁻¹``. With a kernel: the M-estimator sandwich
+    #: ``H⁻¹ (Σ ψ ψᵀ) H⁻¹ · m/(m - dof)`` with ``ψ = w k Jᵀr`` (Huber 1981, §7.6).
     covariance: FloatArray
-    #: ``covariance⁻¹ = JᵀWJ / σ̂²``, e.g. for a pose-graph edge.
+    #: ``covariance⁻¹``, e.g. for a pose-graph edge.
     information: FloatArray
     conditioning: Conditioning
 
@@ -220,8 +222,14 @@ def align_paired(
 
     def linearize(at: SE2 | SE3, k_scale: float) -> Any:
         return _core.linearize_paired(
-            src_eff, tgt, at.as_matrix(), objective=objective_core, kernel=kernel,
-            kernel_scale=k_scale, weights=w, target_normals=normals,
+            src_eff,
+            tgt,
+            at.as_matrix(),
+            objective=objective_core,
+            kernel=kernel,
+            kernel_scale=k_scale,
+            weights=w,
+            target_normals=normals,
         )
 
     iterations, converged = 0, not do_refine
@@ -245,6 +253,8 @@ def align_paired(
     final = linearize(pose, k_scale)
     hessian = np.array(final.hessian)
     length = _length_scale(src_eff, w)
+    if length <= 1e-12 * (1.0 + float(np.abs(src_eff).max())):
+        raise ValueError("source: all points coincide; the rotation is unobservable")
     cond = conditioning(hessian, dim, length, weak_ratio=weak_ratio)
     if cond.scaled_eigenvalues[0] <= SINGULAR_RATIO * cond.scaled_eigenvalues[-1]:
         raise ValueError(
@@ -255,10 +265,25 @@ def align_paired(
     used = final.kernel_weights if w is None else final.kernel_weights[w > 0]
     m_eff = components * float(np.sum(used))
     num_residuals = components * n_used
-    sigma2 = float(final.irls_sum_squares / max(m_eff - dof, 1.0))
-    cov = sigma2 * np.linalg.inv(hessian)
+    h_inv = np.linalg.inv(hessian)
+    if kernel == "none":
+        # Least squares: σ̂² = SSR / (m - dof), Σ = σ̂² (JᵀWJ)⁻¹.
+        sigma2 = float(final.irls_sum_squares / (num_residuals - dof))
+        cov = sigma2 * h_inv
+    else:
+        # M-estimator sandwich H⁻¹ (Σ ψψᵀ) H⁻¹ (Huber 1981, §7.6), small-sample corrected:
+        # outliers a kernel only down-weights (Huber) still widen it, as they should.
+        correction = m_eff / max(m_eff - dof, 1.0)
+        cov = correction * h_inv @ np.array(final.score_outer) @ h_inv
+        # The noise level reported is the median-based robust scale, unmoved by outliers.
+        sigma2 = (
+            robust_sigma(final.residuals if w is None else final.residuals[w > 0], components) ** 2
+        )
     cov = 0.5 * (cov + cov.T)
-    info = hessian / sigma2 if sigma2 > 0 else np.full_like(hessian, np.inf)
+    try:  # noise-free data: zero covariance, infinite information
+        info = np.asarray(np.linalg.inv(cov), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        info = np.full_like(hessian, np.inf)
     residuals = final.residuals if w is None else final.residuals[w > 0]
     return PairedAlignment(
         pose=pose,
@@ -281,6 +306,14 @@ def align_paired(
     )
 
 
+def _compose(a: SE2 | SE3, b: SE2 | SE3) -> SE2 | SE3:
+    if isinstance(a, SE2) and isinstance(b, SE2):
+        return a @ b
+    if isinstance(a, SE3) and isinstance(b, SE3):
+        return a @ b
+    raise TypeError(f"cannot compose {type(a).__name__} with {type(b).__name__}")
+
+
 def _gauss_newton(
     pose: SE2 | SE3,
     linearize: Any,
@@ -301,7 +334,7 @@ def _gauss_newton(
             step = -np.linalg.lstsq(h, g, rcond=None)[0]
         accepted = False
         for _ in range(20):
-            candidate = pose @ type(pose).exp(step)
+            candidate = _compose(pose, type(pose).exp(step))
             new = linearize(candidate)
             if new.robust_cost <= lin.robust_cost * (1 + 1e-12) + 1e-300:
                 accepted = True
@@ -313,6 +346,3 @@ def _gauss_newton(
         if float(np.linalg.norm(step)) < tolerance:
             return pose, it, True
     return pose, max_iterations, False
-
-
-__all__ = ["PairedAlignment", "align_paired", "SE2", "SE3"]

@@ -54,4 +54,5 @@ def default_scale(kernel: str, residuals: FloatArray, components: int) -> float:
     """Kernel scale ``c = tuning × σ̂`` (never zero: floored at 1e-9 of the data's units)."""
     if kernel == "none":
         return 1.0
-    return max(TUNING[kernel] * np.sqrt(components) * robust_sigma(residuals, components), 1e-9)
+    scale = TUNING[kernel] * float(np.sqrt(components)) * robust_sigma(residuals, components)
+    return max(scale, 1e-9)

@@ -27,6 +27,8 @@ from ._validate import FloatArray, as_matrix, as_points
 ORTHONORMAL_TOLERANCE = 1e-6
 
 _SMALL_ANGLE = 1e-6
+# Below this angle, coefficients with cancellation use their Taylor series (error < θ⁶).
+_SERIES_ANGLE = 1e-2
 
 
 def _hat3(v: FloatArray) -> FloatArray:
@@ -38,9 +40,7 @@ def _checked_rotation(rotation: Any, dim: int, name: str, atol: float) -> FloatA
     r = as_matrix(rotation, name, (dim, dim))
     err = float(np.abs(r.T @ r - np.eye(dim)).max())
     if err > atol:
-        raise ValueError(
-            f"{name}: not orthonormal (max |RᵀR - I| = {err:.2e} > {atol:.0e})"
-        )
+        raise ValueError(f"{name}: not orthonormal (max |RᵀR - I| = {err:.2e} > {atol:.0e})")
     det = float(np.linalg.det(r))
     if det < 0:
         raise ValueError(f"{name}: is a reflection (det = {det:.6f}); a rotation needs det = +1")
@@ -56,7 +56,7 @@ def so3_exp(rotvec: FloatArray) -> FloatArray:
     if theta < _SMALL_ANGLE:
         a, b = 1.0 - theta**2 / 6.0, 0.5 - theta**2 / 24.0
     else:
-        a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta**2
+        a, b = np.sin(theta) / theta, 2.0 * np.sin(0.5 * theta) ** 2 / theta**2
     return np.eye(3) + a * k + b * (k @ k)
 
 
@@ -83,7 +83,8 @@ def so3_log(rotation: FloatArray) -> FloatArray:
         w, xyz = -w, -xyz
     s = float(np.linalg.norm(xyz))
     if s < 1e-12:
-        return 2.0 * xyz / max(w, 1e-300)  # first order: θ·axis ≈ 2·xyz
+        small: FloatArray = 2.0 * xyz / max(w, 1e-300)  # first order: θ·axis ≈ 2·xyz
+        return small
     angle = 2.0 * np.arctan2(s, w)
     result: FloatArray = xyz * (angle / s)
     return result
@@ -93,10 +94,11 @@ def _so3_left_jacobian(phi: FloatArray) -> FloatArray:
     """``V(φ)`` in ``t = V(φ) ρ`` of the SE(3) exponential."""
     theta = float(np.linalg.norm(phi))
     k = _hat3(phi)
-    if theta < _SMALL_ANGLE:
-        b, c = 0.5 - theta**2 / 24.0, 1.0 / 6.0 - theta**2 / 120.0
+    # 1 - cos θ = 2 sin²(θ/2) avoids cancellation; θ - sin θ needs its series below 1e-2.
+    b = 0.5 if theta == 0.0 else 2.0 * np.sin(0.5 * theta) ** 2 / theta**2
+    if theta < _SERIES_ANGLE:
+        c = 1.0 / 6.0 - theta**2 / 120.0 + theta**4 / 5040.0
     else:
-        b = (1.0 - np.cos(theta)) / theta**2
         c = (theta - np.sin(theta)) / theta**3
     return np.eye(3) + b * k + c * (k @ k)
 
@@ -104,8 +106,8 @@ def _so3_left_jacobian(phi: FloatArray) -> FloatArray:
 def _so3_left_jacobian_inverse(phi: FloatArray) -> FloatArray:
     theta = float(np.linalg.norm(phi))
     k = _hat3(phi)
-    if theta < _SMALL_ANGLE:
-        d = 1.0 / 12.0 + theta**2 / 720.0
+    if theta < _SERIES_ANGLE:  # the closed form cancels catastrophically near 0
+        d = 1.0 / 12.0 + theta**2 / 720.0 + theta**4 / 30240.0
     else:
         d = (1.0 - theta * np.sin(theta) / (2.0 * (1.0 - np.cos(theta)))) / theta**2
     return np.eye(3) - 0.5 * k + d * (k @ k)
@@ -116,7 +118,7 @@ def _so2_v(theta: float) -> FloatArray:
     if abs(theta) < _SMALL_ANGLE:
         a, b = 1.0 - theta**2 / 6.0, theta / 2.0 - theta**3 / 24.0
     else:
-        a, b = np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta
+        a, b = np.sin(theta) / theta, 2.0 * np.sin(0.5 * theta) ** 2 / theta
     return np.array([[a, -b], [b, a]])
 
 
@@ -383,7 +385,9 @@ def as_pose(value: Any, name: str, dim: int) -> SE2 | SE3:
     if isinstance(value, cls):
         return value
     if isinstance(value, _Pose):
-        raise TypeError(f"{name}: expected {cls.__name__} for {dim}D points, got {type(value).__name__}")
+        raise TypeError(
+            f"{name}: expected {cls.__name__} for {dim}D points, got {type(value).__name__}"
+        )
     try:
         return cls.from_matrix(value)
     except (ValueError, TypeError) as exc:

@@ -113,7 +113,14 @@ impl Kernel {
 mod tests {
     use super::*;
 
-    const ALL: [&str; 6] = ["none", "huber", "cauchy", "tukey", "geman_mcclure", "welsch"];
+    const ALL: [&str; 6] = [
+        "none",
+        "huber",
+        "cauchy",
+        "tukey",
+        "geman_mcclure",
+        "welsch",
+    ];
 
     #[test]
     fn weight_is_derivative_of_rho_over_r() {

@@ -136,6 +136,9 @@ pub struct Linearization {
     pub hessian: Vec<f64>,
     /// `Σ w k Jᵀ r`; the Gauss–Newton step is `δ = -H⁻¹ g`, applied as `T · exp(δ)`.
     pub gradient: Vec<f64>,
+    /// `Σ (w k Jᵀ r)(w k Jᵀ r)ᵀ`, row-major `dof x dof`: the "meat" of the sandwich
+    /// covariance `H⁻¹ M H⁻¹` of an M-estimator (Huber 1981, §7.6).
+    pub score_outer: Vec<f64>,
     /// `Σ w rho(|r|)`.
     pub robust_cost: f64,
     /// `Σ w |r|²`.
@@ -154,6 +157,7 @@ pub struct Linearization {
 struct Acc<const N: usize> {
     h: SMatrix<f64, N, N>,
     g: SVector<f64, N>,
+    m: SMatrix<f64, N, N>,
     cost: f64,
     wss: f64,
     irls_ss: f64,
@@ -167,6 +171,7 @@ impl<const N: usize> Acc<N> {
         Acc {
             h: SMatrix::zeros(),
             g: SVector::zeros(),
+            m: SMatrix::zeros(),
             cost: 0.0,
             wss: 0.0,
             irls_ss: 0.0,
@@ -187,8 +192,10 @@ impl<const N: usize> Acc<N> {
     ) -> f64 {
         let k = kernel.weight(norm);
         let wk = w * k;
+        let score = j.transpose() * r * wk;
         self.h += j.transpose() * j * wk;
-        self.g += j.transpose() * r * wk;
+        self.g += score;
+        self.m += score * score.transpose();
         self.cost += w * kernel.rho(norm);
         self.wss += w * norm * norm;
         self.irls_ss += wk * norm * norm;
@@ -199,6 +206,7 @@ impl<const N: usize> Acc<N> {
     fn merge(mut self, other: Self) -> Self {
         self.h += other.h;
         self.g += other.g;
+        self.m += other.m;
         self.cost += other.cost;
         self.wss += other.wss;
         self.irls_ss += other.irls_ss;
@@ -212,6 +220,7 @@ impl<const N: usize> Acc<N> {
         Linearization {
             hessian: self.h.transpose().iter().copied().collect(), // row-major
             gradient: self.g.iter().copied().collect(),
+            score_outer: self.m.transpose().iter().copied().collect(),
             robust_cost: self.cost,
             weighted_sum_squares: self.wss,
             irls_sum_squares: self.irls_ss,
@@ -284,9 +293,13 @@ pub fn linearize_paired(
         }
     }
     Ok(if dim == 2 {
-        linearize_2d(source, target, normals, &rot, &trans, weights, objective, kernel)
+        linearize_2d(
+            source, target, normals, &rot, &trans, weights, objective, kernel,
+        )
     } else {
-        linearize_3d(source, target, normals, &rot, &trans, weights, objective, kernel)
+        linearize_3d(
+            source, target, normals, &rot, &trans, weights, objective, kernel,
+        )
     })
 }
 
@@ -328,7 +341,10 @@ fn linearize_2d(
                         let ns = rt * nrm;
                         let d = nrm.dot(&e);
                         let j = SMatrix::<f64, 1, 3>::new(ns.x, ns.y, -ns.x * p.y + ns.y * p.x);
-                        (d, acc.add(&j, &SVector::<f64, 1>::new(d), d.abs(), w, &kernel))
+                        (
+                            d,
+                            acc.add(&j, &SVector::<f64, 1>::new(d), d.abs(), w, &kernel),
+                        )
                     }
                 };
                 acc.residuals.push(res);
@@ -385,7 +401,10 @@ fn linearize_3d(
                         let d = nrm.dot(&e);
                         let pxn = p.cross(&ns);
                         let j = SMatrix::<f64, 1, 6>::new(ns.x, ns.y, ns.z, pxn.x, pxn.y, pxn.z);
-                        (d, acc.add(&j, &SVector::<f64, 1>::new(d), d.abs(), w, &kernel))
+                        (
+                            d,
+                            acc.add(&j, &SVector::<f64, 1>::new(d), d.abs(), w, &kernel),
+                        )
                     }
                 };
                 acc.residuals.push(res);
@@ -421,7 +440,10 @@ mod tests {
     #[test]
     fn moments_of_translated_points() {
         let src = vec![0.0, 0.0, 2.0, 0.0, 0.0, 2.0];
-        let tgt: Vec<f64> = src.chunks(2).flat_map(|p| [p[0] + 1.0, p[1] - 1.0]).collect();
+        let tgt: Vec<f64> = src
+            .chunks(2)
+            .flat_map(|p| [p[0] + 1.0, p[1] - 1.0])
+            .collect();
         let m = paired_moments(&src, &tgt, 2, None).unwrap();
         assert_eq!(m.weight_sum, 3.0);
         assert!((m.target_mean[0] - m.source_mean[0] - 1.0).abs() < 1e-15);
@@ -462,9 +484,18 @@ mod tests {
                     m[a * 3 + b] = (0..3).map(|k| pose[a * 3 + k] * rd[k * 3 + b]).sum();
                 }
             }
-            linearize_paired(&src, &tgt, None, 2, &m, None, Objective::PointToPoint, Kernel::None)
-                .unwrap()
-                .robust_cost
+            linearize_paired(
+                &src,
+                &tgt,
+                None,
+                2,
+                &m,
+                None,
+                Objective::PointToPoint,
+                Kernel::None,
+            )
+            .unwrap()
+            .robust_cost
         };
         let lin = linearize_paired(
             &src,
@@ -515,7 +546,10 @@ mod tests {
             Kernel::None,
         )
         .unwrap_err();
-        assert!(err.to_string().contains("normal 1 has zero length"), "{err}");
+        assert!(
+            err.to_string().contains("normal 1 has zero length"),
+            "{err}"
+        );
         let err = linearize_paired(
             &ok,
             &ok,

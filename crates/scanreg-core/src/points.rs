@@ -5,12 +5,18 @@ use crate::error::{Error, Result};
 /// Check that `data` holds whole `dim`-vectors, all finite, and return their count.
 pub fn check_points(arg: &'static str, data: &[f64], dim: usize) -> Result<usize> {
     if dim != 2 && dim != 3 {
-        return Err(Error::invalid(arg, format!("dimension must be 2 or 3, got {dim}")));
-    }
-    if data.len() % dim != 0 {
         return Err(Error::invalid(
             arg,
-            format!("length {} is not a multiple of the dimension {dim}", data.len()),
+            format!("dimension must be 2 or 3, got {dim}"),
+        ));
+    }
+    if !data.len().is_multiple_of(dim) {
+        return Err(Error::invalid(
+            arg,
+            format!(
+                "length {} is not a multiple of the dimension {dim}",
+                data.len()
+            ),
         ));
     }
     if let Some(i) = data.iter().position(|v| !v.is_finite()) {
@@ -27,13 +33,19 @@ pub fn check_weights(arg: &'static str, weights: &[f64], n: usize) -> Result<()>
     if weights.len() != n {
         return Err(Error::invalid(
             arg,
-            format!("expected {n} weights (one per point), got {}", weights.len()),
+            format!(
+                "expected {n} weights (one per point), got {}",
+                weights.len()
+            ),
         ));
     }
     if let Some(i) = weights.iter().position(|w| !w.is_finite() || *w < 0.0) {
         return Err(Error::invalid(
             arg,
-            format!("weight {i} is {} (weights must be finite and >= 0)", weights[i]),
+            format!(
+                "weight {i} is {} (weights must be finite and >= 0)",
+                weights[i]
+            ),
         ));
     }
     if !weights.iter().any(|w| *w > 0.0) {
@@ -49,7 +61,10 @@ pub fn split_pose(arg: &'static str, pose: &[f64], dim: usize) -> Result<(Vec<f6
     if pose.len() != m * m {
         return Err(Error::invalid(
             arg,
-            format!("expected a {m}x{m} homogeneous matrix, got {} values", pose.len()),
+            format!(
+                "expected a {m}x{m} homogeneous matrix, got {} values",
+                pose.len()
+            ),
         ));
     }
     if pose.iter().any(|v| !v.is_finite()) {

@@ -30,7 +30,14 @@ mod tests {
     #[test]
     fn sum_matches_sequential_and_is_thread_independent() {
         let values: Vec<f64> = (0..10_000).map(|i| (i as f64).sin() * 1e-3 + 1.0).collect();
-        let run = || chunked_sum(values.len(), 0.0, |r| values[r].iter().sum::<f64>(), |a, b| a + b);
+        let run = || {
+            chunked_sum(
+                values.len(),
+                0.0,
+                |r| values[r].iter().sum::<f64>(),
+                |a, b| a + b,
+            )
+        };
         let one = rayon::ThreadPoolBuilder::new()
             .num_threads(1)
             .build()

@@ -1,5 +1,6 @@
 //! Array conversion and validation shared by every binding.
 
+use numpy::{Element, PyReadonlyArray};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -15,6 +16,18 @@ fn not_contiguous(name: &str) -> PyErr {
     ))
 }
 
+/// The data of a C-contiguous array. numpy's `as_slice` also accepts Fortran order, whose
+/// flat layout is transposed, so C order is checked explicitly.
+pub fn c_slice<'a, T: Element, D: numpy::ndarray::Dimension>(
+    arr: &'a PyReadonlyArray<'_, T, D>,
+    name: &str,
+) -> PyResult<&'a [T]> {
+    if !arr.is_c_contiguous() {
+        return Err(not_contiguous(name));
+    }
+    arr.as_slice().map_err(|_| not_contiguous(name))
+}
+
 /// A `(N, 2)` or `(N, 3)` float64 C-contiguous array as a flat slice and its dimension.
 pub fn points<'a>(arr: &'a PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<(&'a [f64], usize)> {
     let shape = arr.shape();
@@ -24,8 +37,7 @@ pub fn points<'a>(arr: &'a PyReadonlyArray2<'_, f64>, name: &str) -> PyResult<(&
             shape[0], shape[1]
         )));
     }
-    let data = arr.as_slice().map_err(|_| not_contiguous(name))?;
-    Ok((data, shape[1]))
+    Ok((c_slice(arr, name)?, shape[1]))
 }
 
 /// Points that must have dimension `dim`.
@@ -46,7 +58,7 @@ pub fn points_dim<'a>(
 
 /// A 1-D float64 C-contiguous array as a slice.
 pub fn vector<'a>(arr: &'a PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<&'a [f64]> {
-    arr.as_slice().map_err(|_| not_contiguous(name))
+    c_slice(arr, name)
 }
 
 /// A square homogeneous pose of size `(dim+1, dim+1)` as a row-major slice.
@@ -60,5 +72,5 @@ pub fn pose<'a>(arr: &'a PyReadonlyArray2<'_, f64>, name: &str, dim: usize) -> P
             shape[1]
         )));
     }
-    arr.as_slice().map_err(|_| not_contiguous(name))
+    c_slice(arr, name)
 }

@@ -32,6 +32,8 @@ pub struct Linearization {
     #[pyo3(get)]
     gradient: Py<PyArray1<f64>>,
     #[pyo3(get)]
+    score_outer: Py<PyArray2<f64>>,
+    #[pyo3(get)]
     robust_cost: f64,
     #[pyo3(get)]
     weighted_sum_squares: f64,
@@ -107,14 +109,13 @@ fn linearize_paired(
     };
     let kernel = Kernel::from_name(kernel, kernel_scale).map_err(core_err)?;
     let lin = py
-        .detach(|| {
-            paired::linearize_paired(src, tgt, nrm, dim, pose_flat, w, objective, kernel)
-        })
+        .detach(|| paired::linearize_paired(src, tgt, nrm, dim, pose_flat, w, objective, kernel))
         .map_err(core_err)?;
     let dof = lin.gradient.len();
     Ok(Linearization {
         hessian: square(py, lin.hessian, dof)?,
         gradient: lin.gradient.into_pyarray(py).unbind(),
+        score_outer: square(py, lin.score_outer, dof)?,
         robust_cost: lin.robust_cost,
         weighted_sum_squares: lin.weighted_sum_squares,
         irls_sum_squares: lin.irls_sum_squares,
