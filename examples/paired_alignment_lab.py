@@ -2,10 +2,10 @@
 
 200 points uniform in [-5, 5] × [-3, 3], moved by θ = 12°, t = (1.2, -0.7) and observed with
 σ = 0.02 noise. Prints the truth, the closed-form and refined estimates, the RMSE and the
-covariance diagonal, then a 500-trial Monte Carlo comparing the predicted covariance with the
+covariance diagonal, then a 2000-trial Monte Carlo comparing the predicted covariance with the
 spread of the estimates.
 
-    .venv/bin/python examples/paired_alignment_lab.py [--trials 500] [--seed 0]
+    .venv/bin/python examples/paired_alignment_lab.py [--trials 2000] [--seed 0]
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def simulate(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--trials", type=int, default=500)
+    parser.add_argument("--trials", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
