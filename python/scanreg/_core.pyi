@@ -1,10 +1,13 @@
 """Type stub of the native module ``scanreg._core`` (checked by ``python -m mypy.stubtest``)."""
 
+from typing import final
+
 import numpy as np
 from numpy.typing import NDArray
 
 __version__: str
 
+@final
 class Moments:
     @property
     def weight_sum(self) -> float: ...
@@ -19,6 +22,7 @@ class Moments:
     @property
     def target_spread(self) -> float: ...
 
+@final
 class Linearization:
     @property
     def hessian(self) -> NDArray[np.float64]: ...
@@ -59,8 +63,6 @@ def lzf_decompress(data: bytes, expected_size: int) -> bytes: ...
 def lzf_compress(data: bytes) -> bytes: ...
 
 # --- neighbour search and preprocessing (crates/scanreg-py/src/{knn,preprocess}.rs) ---
-
-from typing import final  # noqa: E402
 
 @final
 class KdTree:
@@ -121,8 +123,6 @@ def crop_box(
 ) -> NDArray[np.int64]: ...
 
 # --- scan simulation (crates/scanreg-py/src/simulate.rs) ---
-
-from typing import final  # noqa: E402
 
 SIMULATE_PRIMITIVE_COLUMNS: int
 
