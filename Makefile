@@ -41,7 +41,7 @@ test-python: dev
 test: lint test-rust test-python
 
 bench: dev
-	$(BIN)/python benchmarks/run_all.py
+	$(BIN)/python benchmarks/run_all.py $(if $(wildcard /tmp/peers-venv),--peers-site $(wildcard /tmp/peers-venv/lib/python3.*/site-packages))
 
 clean:
 	rm -rf $(VENV) target python/scanreg/*.so
