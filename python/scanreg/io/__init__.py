@@ -1,7 +1,7 @@
 """Readers and writers for point clouds, trajectories and pose graphs.
 
 One registry per kind of content, keyed by file extension (lower case). Adding a format is
-one function and one entry here; CARMEN logs and ROS bags (which hold many scans) will get a
+one function and one entry here; logs that hold many scans (CARMEN: :func:`read_scans`) have a
 ``SCAN_SOURCES`` registry of the same shape.
 
 >>> cloud = read_points("scan.pcd")          # dispatches on the extension
@@ -29,6 +29,7 @@ from .arrays import (
     write_npz,
     write_xyz,
 )
+from .carmen import CarmenLog, LaserScan, Odometry, read_carmen
 from .g2o import PoseGraph, PoseGraphEdge, information_from_covariance, read_g2o, write_g2o
 from .pcd import read_pcd, write_pcd
 from .ply import read_ply, write_ply
@@ -78,6 +79,15 @@ TRAJECTORY_WRITERS: dict[str, Callable[[PathLike, Trajectory], None]] = {
 }
 
 
+#: Readers of files that hold many scans, by extension (``.log.gz``: the two last suffixes).
+SCAN_SOURCES: dict[str, Callable[[PathLike], CarmenLog]] = {
+    ".log": read_carmen,
+    ".clf": read_carmen,
+    ".log.gz": read_carmen,
+    ".clf.gz": read_carmen,
+}
+
+
 def _lookup(table: dict[str, Any], key: str, what: str, path: PathLike) -> Any:
     try:
         return table[key]
@@ -99,6 +109,14 @@ def write_points(path: PathLike, cloud: PointCloud, **options: Any) -> None:
     writer(path, cloud, **options)
 
 
+def read_scans(path: PathLike) -> CarmenLog:
+    """Read a log of scans, choosing the reader from the extension (see :data:`SCAN_SOURCES`)."""
+    suffixes = Path(path).suffixes
+    key = "".join(suffixes[-2:]).lower() if suffixes[-1:] == [".gz"] else Path(path).suffix.lower()
+    log: CarmenLog = _lookup(SCAN_SOURCES, key, "scan reader", path)(path)
+    return log
+
+
 def read_trajectory(path: PathLike, format: str) -> Trajectory:
     """Read a trajectory in ``format`` ``"kitti"`` or ``"tum"``."""
     reader = _lookup(TRAJECTORY_READERS, format, "trajectory reader", path)
@@ -113,16 +131,21 @@ def write_trajectory(path: PathLike, trajectory: Trajectory, format: str) -> Non
 
 __all__ = [
     "READERS",
+    "SCAN_SOURCES",
     "TRAJECTORY_READERS",
     "TRAJECTORY_WRITERS",
     "WRITERS",
+    "CarmenLog",
     "FileFormatError",
     "KittiCalibration",
+    "LaserScan",
+    "Odometry",
     "PointCloud",
     "PoseGraph",
     "PoseGraphEdge",
     "Trajectory",
     "information_from_covariance",
+    "read_carmen",
     "read_g2o",
     "read_kitti_bin",
     "read_kitti_calib",
@@ -132,6 +155,7 @@ __all__ = [
     "read_pcd",
     "read_ply",
     "read_points",
+    "read_scans",
     "read_text",
     "read_times",
     "read_trajectory",
