@@ -1,30 +1,163 @@
-"""The ``scanreg`` command line."""
+"""The ``scanreg`` command line.
+
+Exit codes: 0 success; 1 the command ran but its check failed (e.g. the demo's estimate fell
+outside 3σ); 2 bad usage (argparse); 3 unreadable or invalid input (the message names the file
+and the problem).
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+from pathlib import Path
+from typing import Any
 
-from .demo import run_demo
+import numpy as np
+
+EXIT_OK, EXIT_CHECK_FAILED, EXIT_USAGE, EXIT_BAD_INPUT = 0, 1, 2, 3
+
+EXAMPLES = """examples:
+  scanreg demo --seed 3
+  scanreg info scan.pcd
+  scanreg info poses.txt --trajectory-format kitti --json
+  scanreg evaluate estimate.txt groundtruth.txt --format tum --metric ate
+  scanreg evaluate est.txt gt.txt --format kitti --metric rpe --delta 10 --unit meters --json
+"""
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scanreg",
         description="2D/3D LiDAR scan registration with covariance, degeneracy and a verdict.",
-        epilog="example: scanreg demo --seed 3",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", required=True)
+
     demo = sub.add_parser("demo", help="run the built-in demo on generated data")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+
+    info = sub.add_parser("info", help="summarise a point cloud or trajectory file")
+    info.add_argument("path", type=Path)
+    info.add_argument(
+        "--trajectory-format",
+        choices=["kitti", "tum"],
+        default=None,
+        help="read PATH as a trajectory in this format (default: a point cloud by extension)",
+    )
+    info.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+    ev = sub.add_parser("evaluate", help="compare an estimated trajectory with a reference")
+    ev.add_argument("estimate", type=Path)
+    ev.add_argument("reference", type=Path)
+    ev.add_argument("--format", choices=["kitti", "tum"], required=True, help="both files' format")
+    ev.add_argument("--metric", choices=["ate", "rpe", "kitti"], default="ate")
+    ev.add_argument(
+        "--alignment", choices=["se3", "sim3", "none"], default="se3", help="ATE alignment"
+    )
+    ev.add_argument("--delta", type=float, default=1.0, help="RPE pair separation (default 1)")
+    ev.add_argument("--unit", choices=["frames", "meters"], default="frames", help="RPE delta unit")
+    ev.add_argument("--json", action="store_true", help="print JSON instead of text")
     return parser
+
+
+def _stats(stats: Any) -> dict[str, float]:
+    keys = ("rmse", "mean", "median", "std", "min", "max", "sse")
+    return {k: float(getattr(stats, k)) for k in keys}
+
+
+def _info(args: argparse.Namespace) -> dict[str, Any]:
+    from . import io
+
+    if args.trajectory_format:
+        traj = io.TRAJECTORY_READERS[args.trajectory_format](args.path)
+        positions = traj.positions
+        steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+        out: dict[str, Any] = {
+            "kind": "trajectory",
+            "format": args.trajectory_format,
+            "poses": len(traj),
+            "path_length_m": float(steps.sum()),
+            "start": positions[0].tolist(),
+            "end": positions[-1].tolist(),
+        }
+        if traj.timestamps is not None:
+            out["duration_s"] = float(traj.timestamps[-1] - traj.timestamps[0])
+        return out
+    cloud = io.read_points(args.path)
+    finite = cloud.points[np.isfinite(cloud.points).all(axis=1)]
+    return {
+        "kind": "points",
+        "points": len(cloud),
+        "finite_points": int(finite.shape[0]),
+        "dim": cloud.dim,
+        "min": finite.min(axis=0).tolist() if finite.size else None,
+        "max": finite.max(axis=0).tolist() if finite.size else None,
+        "fields": sorted(cloud.named_fields()),
+    }
+
+
+def _evaluate(args: argparse.Namespace) -> dict[str, Any]:
+    from . import eval as ev
+    from . import io
+
+    read = io.TRAJECTORY_READERS[args.format]
+    est, ref = read(args.estimate), read(args.reference)
+    if args.metric == "ate":
+        ate = ev.absolute_trajectory_error(est, ref, alignment=args.alignment)
+        return {
+            "metric": "ate",
+            "alignment": args.alignment,
+            "translation_m": _stats(ate.translation),
+            "rotation_deg": _stats(ate.rotation_deg),
+        }
+    if args.metric == "rpe":
+        delta = int(args.delta) if args.unit == "frames" else args.delta
+        rpe = ev.relative_pose_error(est, ref, delta=delta, unit=args.unit)
+        return {
+            "metric": "rpe",
+            "delta": args.delta,
+            "unit": args.unit,
+            "translation_m": _stats(rpe.translation),
+            "rotation_deg": _stats(rpe.rotation_deg),
+        }
+    kitti = ev.kitti_odometry_error(est, ref)
+    return {
+        "metric": "kitti",
+        "translation_percent": kitti.translation_percent,
+        "rotation_deg_per_m": kitti.rotation_deg_per_m,
+    }
+
+
+def _print_text(result: dict[str, Any], indent: str = "") -> None:
+    for key, value in result.items():
+        if isinstance(value, dict):
+            print(f"{indent}{key}:")
+            _print_text(value, indent + "  ")
+        elif isinstance(value, float):
+            print(f"{indent}{key}: {value:.6g}")
+        else:
+            print(f"{indent}{key}: {value}")
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.command == "demo":
+        from .demo import run_demo
+
         return run_demo(args.seed)
-    return 2  # pragma: no cover - argparse rejects unknown commands
+    handlers = {"info": _info, "evaluate": _evaluate}
+    try:
+        result = handlers[args.command](args)
+    except (ValueError, OSError) as exc:  # FileFormatError is a ValueError
+        print(f"scanreg {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        _print_text(result)
+    return EXIT_OK
 
 
 if __name__ == "__main__":  # pragma: no cover
