@@ -2,7 +2,9 @@
 
 One registry per kind of content, keyed by file extension (lower case). Adding a format is
 one function and one entry here; logs that hold many scans (CARMEN: :func:`read_scans`) have a
-``SCAN_SOURCES`` registry of the same shape.
+``SCAN_SOURCES`` registry of the same shape. ROS 1/2 bags (``sensor_msgs/LaserScan`` and
+``PointCloud2``): :func:`read_bag_scans`, :func:`read_bag_clouds`, :func:`list_topics`
+(module :mod:`scanreg.io.rosbag`, needs the ``ros`` extra).
 
 >>> cloud = read_points("scan.pcd")          # dispatches on the extension
 >>> write_points("scan.ply", cloud)
@@ -33,6 +35,14 @@ from .carmen import CarmenLog, LaserScan, Odometry, read_carmen
 from .g2o import PoseGraph, PoseGraphEdge, information_from_covariance, read_g2o, write_g2o
 from .pcd import read_pcd, write_pcd
 from .ply import read_ply, write_ply
+from .rosbag import (
+    BagCloud,
+    BagTopic,
+    RosLaserScan,
+    list_topics,
+    read_bag_clouds,
+    read_bag_scans,
+)
 from .trajectory import (
     KittiCalibration,
     Trajectory,
@@ -135,6 +145,8 @@ __all__ = [
     "TRAJECTORY_READERS",
     "TRAJECTORY_WRITERS",
     "WRITERS",
+    "BagCloud",
+    "BagTopic",
     "CarmenLog",
     "FileFormatError",
     "KittiCalibration",
@@ -143,8 +155,12 @@ __all__ = [
     "PointCloud",
     "PoseGraph",
     "PoseGraphEdge",
+    "RosLaserScan",
     "Trajectory",
     "information_from_covariance",
+    "list_topics",
+    "read_bag_clouds",
+    "read_bag_scans",
     "read_carmen",
     "read_g2o",
     "read_kitti_bin",
