@@ -8,6 +8,7 @@ from . import preprocess, simulate
 from ._core import __version__
 from .paired import PairedAlignment, align_paired
 from .quality import Conditioning, ResidualStats, WeakDirection
+from .register import RegistrationResult, RegistrationSettings, RegistrationTiming, register
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3
 
@@ -17,11 +18,15 @@ __all__ = [
     "Conditioning",
     "PairedAlignment",
     "PreparedTarget",
+    "RegistrationResult",
+    "RegistrationSettings",
+    "RegistrationTiming",
     "ResidualStats",
     "WeakDirection",
     "__version__",
     "align_paired",
     "prepare",
     "preprocess",
+    "register",
     "simulate",
 ]

@@ -157,3 +157,57 @@ def cast_rays(
     dropout_probability: float,
     seed: int,
 ) -> CastResult: ...
+
+# --- local registration (icp) ---
+
+@final
+class IcpOutcome:
+    @property
+    def pose(self) -> NDArray[np.float64]: ...
+    @property
+    def iterations(self) -> int: ...
+    @property
+    def stop_reason(self) -> str: ...
+    @property
+    def hessian(self) -> NDArray[np.float64]: ...
+    @property
+    def gradient(self) -> NDArray[np.float64]: ...
+    @property
+    def score_outer(self) -> NDArray[np.float64]: ...
+    @property
+    def cost(self) -> float: ...
+    @property
+    def num_correspondences(self) -> int: ...
+    @property
+    def sum_squares(self) -> float: ...
+    @property
+    def irls_sum_squares(self) -> float: ...
+    @property
+    def irls_weight_sum(self) -> float: ...
+    @property
+    def sum_squared_distances(self) -> float: ...
+    @property
+    def iteration_seconds(self) -> NDArray[np.float64]: ...
+    @property
+    def final_evaluation_seconds(self) -> float: ...
+
+def register_icp(
+    source: NDArray[np.float64],
+    target: KdTree,
+    init_pose: NDArray[np.float64],
+    *,
+    method: str,
+    kernel: str,
+    kernel_scale: float,
+    max_correspondence_distance: float,
+    max_iterations: int,
+    translation_tolerance: float,
+    rotation_tolerance: float,
+    optimizer: str,
+    min_correspondences: int,
+    num_threads: int | None = None,
+    source_covariances: NDArray[np.float64] | None = None,
+    target_normals: NDArray[np.float64] | None = None,
+    target_covariances: NDArray[np.float64] | None = None,
+    iterate: bool = True,
+) -> IcpOutcome: ...

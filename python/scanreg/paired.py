@@ -19,6 +19,9 @@ from .quality import (
     Conditioning,
     ResidualStats,
     conditioning,
+    information_from_covariance,
+    least_squares_covariance,
+    sandwich_covariance,
 )
 from .robust import check_kernel, default_scale, robust_sigma
 from .transform import SE2, SE3, as_pose, pose_class
@@ -265,25 +268,17 @@ def align_paired(
     used = final.kernel_weights if w is None else final.kernel_weights[w > 0]
     m_eff = components * float(np.sum(used))
     num_residuals = components * n_used
-    h_inv = np.linalg.inv(hessian)
     if kernel == "none":
         # Least squares: σ̂² = SSR / (m - dof), Σ = σ̂² (JᵀWJ)⁻¹.
         sigma2 = float(final.irls_sum_squares / (num_residuals - dof))
-        cov = sigma2 * h_inv
+        cov = least_squares_covariance(hessian, sigma2)
     else:
-        # M-estimator sandwich H⁻¹ (Σ ψψᵀ) H⁻¹ (Huber 1981, §7.6), small-sample corrected:
-        # outliers a kernel only down-weights (Huber) still widen it, as they should.
-        correction = m_eff / max(m_eff - dof, 1.0)
-        cov = correction * h_inv @ np.array(final.score_outer) @ h_inv
+        cov = sandwich_covariance(hessian, np.array(final.score_outer), m_eff, dof)
         # The noise level reported is the median-based robust scale, unmoved by outliers.
         sigma2 = (
             robust_sigma(final.residuals if w is None else final.residuals[w > 0], components) ** 2
         )
-    cov = 0.5 * (cov + cov.T)
-    try:  # noise-free data: zero covariance, infinite information
-        info = np.asarray(np.linalg.inv(cov), dtype=np.float64)
-    except np.linalg.LinAlgError:
-        info = np.full_like(hessian, np.inf)
+    info = information_from_covariance(cov)
     residuals = final.residuals if w is None else final.residuals[w > 0]
     return PairedAlignment(
         pose=pose,

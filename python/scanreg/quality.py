@@ -174,6 +174,41 @@ def conditioning(
     )
 
 
+def least_squares_covariance(hessian: FloatArray, sigma2: float) -> FloatArray:
+    """``σ̂² (JᵀWJ)⁻¹``: the covariance of a least-squares estimate over the tangent ``δ``.
+
+    Raises ``numpy.linalg.LinAlgError`` when ``hessian`` is singular.
+    """
+    cov = sigma2 * np.linalg.inv(hessian)
+    out: FloatArray = 0.5 * (cov + cov.T)
+    return out
+
+
+def sandwich_covariance(
+    hessian: FloatArray, score_outer: FloatArray, effective_residuals: float, dof: int
+) -> FloatArray:
+    """M-estimator sandwich ``H⁻¹ (Σ ψψᵀ) H⁻¹ · m/(m - dof)`` (Huber 1981, §7.6).
+
+    ``ψ = w k Jᵀr`` per residual block, ``m`` the effective number of scalar residuals (kernel
+    weights summed), the factor a small-sample correction. Outliers a kernel only down-weights
+    (Huber) still widen it, as they should. Raises ``numpy.linalg.LinAlgError`` when
+    ``hessian`` is singular.
+    """
+    h_inv = np.linalg.inv(hessian)
+    correction = effective_residuals / max(effective_residuals - dof, 1.0)
+    cov = correction * h_inv @ score_outer @ h_inv
+    out: FloatArray = 0.5 * (cov + cov.T)
+    return out
+
+
+def information_from_covariance(cov: FloatArray) -> FloatArray:
+    """``cov⁻¹``, or all-``inf`` for a zero (noise-free) covariance."""
+    try:
+        return np.asarray(np.linalg.inv(cov), dtype=np.float64)
+    except np.linalg.LinAlgError:
+        return np.full_like(cov, np.inf)
+
+
 def chi2_quantile(dof: float, prob: float) -> float:
     """Quantile of the χ² distribution (Wilson–Hilferty; relative error < 1e-3 for dof >= 3).
 

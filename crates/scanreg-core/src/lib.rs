@@ -14,6 +14,7 @@
 
 pub mod downsample;
 pub mod error;
+pub mod icp;
 pub mod kernel;
 pub mod knn;
 pub mod lzf;

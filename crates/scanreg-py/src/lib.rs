@@ -10,6 +10,7 @@ mod io;
 pub mod knn;
 mod paired;
 mod preprocess;
+mod register;
 mod simulate;
 
 #[pymodule]
@@ -20,5 +21,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     preprocess::register(m)?;
     simulate::register(m)?;
     io::register(m)?;
+    register::register(m)?;
     Ok(())
 }

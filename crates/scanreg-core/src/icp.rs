@@ -1,0 +1,748 @@
+//! Local registration: the ICP family (point-to-point, point-to-plane / point-to-line, GICP)
+//! against a k-d tree, with robust kernels, Gauss–Newton or Levenberg–Marquardt on the manifold.
+//!
+//! One iteration = for every source point, transform it by the current pose, find its nearest
+//! target point within the gate, linearise one *factor* (its residual and Jacobian in the
+//! right-perturbation convention of [`crate::paired`]) and add it into the normal equations
+//! `H = Σ k JᵀWJ`, `g = Σ k JᵀW r` with the deterministic chunked sum of [`crate::reduce`];
+//! then solve for `δ` and update `T ← T · exp(δ)`. The whole loop runs here, so a registration is
+//! one call from Python.
+//!
+//! Factors, with `e = R p + t − q` and `A(p) = ∂(p ⊕ δ)/∂δ` (`[I, −[p]×]` in 3D, `[I, p⊥]` in 2D):
+//! * point-to-point: `r = Rᵀe`, `J = A` (the residual is rotated into the source frame, which
+//!   leaves `|r|` and `JᵀJ` unchanged);
+//! * point-to-plane (3D) / point-to-line (2D): `r = nᵀe`, `J = (Rᵀn)ᵀ A`;
+//! * GICP (Segal et al. 2009, eq. 2): `r = e` weighted by `W = (C_q + R C_p Rᵀ)⁻¹`, `J = R A`;
+//!   `W` is held fixed while linearising (as in the paper and its implementations).
+//!
+//! A robust kernel re-weights each factor by `k(|r|)` (`|r|` is the Mahalanobis norm
+//! `sqrt(rᵀWr)` for GICP): IRLS.
+
+use crate::error::{Error, Result};
+use crate::kernel::Kernel;
+use crate::knn::{check_max_distance, KdTree};
+use crate::points::{check_points, split_pose};
+use crate::reduce::chunked_sum;
+use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
+use rayon::ThreadPool;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::Instant;
+
+/// Which factor each correspondence contributes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    PointToPoint,
+    /// Point-to-plane in 3D, point-to-line in 2D (needs target normals).
+    PointToPlane,
+    /// Plane-to-plane (3D) / line-to-line (2D) GICP (needs source and target covariances).
+    Gicp,
+}
+
+impl Method {
+    pub fn from_name(name: &str) -> Result<Self> {
+        match name {
+            "point_to_point" => Ok(Method::PointToPoint),
+            "point_to_plane" | "point_to_line" => Ok(Method::PointToPlane),
+            "gicp" => Ok(Method::Gicp),
+            other => Err(Error::invalid(
+                "method",
+                format!(
+                    "unknown {other:?}; expected point_to_point, point_to_plane, point_to_line or gicp"
+                ),
+            )),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Optimizer {
+    /// Take the Gauss–Newton step at every iteration (classic ICP).
+    GaussNewton,
+    /// Marquardt damping `H + λ diag(H)`; a step is accepted only if it lowers the cost over the
+    /// iteration's correspondences, otherwise `λ ← 10 λ` and retry.
+    LevenbergMarquardt,
+}
+
+impl Optimizer {
+    pub fn from_name(name: &str) -> Result<Self> {
+        match name {
+            "gauss_newton" => Ok(Optimizer::GaussNewton),
+            "levenberg_marquardt" => Ok(Optimizer::LevenbergMarquardt),
+            other => Err(Error::invalid(
+                "optimizer",
+                format!("unknown {other:?}; expected gauss_newton or levenberg_marquardt"),
+            )),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Settings {
+    pub method: Method,
+    pub kernel: Kernel,
+    /// The gate: a source point has a correspondence only if its nearest target point is at
+    /// most this far (same units as the points).
+    pub max_correspondence_distance: f64,
+    pub max_iterations: usize,
+    /// Converged when the last step moved less than this (translation norm, units)...
+    pub translation_tolerance: f64,
+    /// ... and rotated less than this (radians).
+    pub rotation_tolerance: f64,
+    pub optimizer: Optimizer,
+    /// Fewer correspondences than this stops the loop (`TooFewCorrespondences`).
+    pub min_correspondences: usize,
+}
+
+/// Why the iteration loop stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopReason {
+    /// The last step was below both tolerances (or, under LM, no step lowered the cost: a
+    /// minimum).
+    Converged,
+    MaxIterations,
+    TooFewCorrespondences,
+    /// The step or the pose became non-finite.
+    Diverged,
+    /// `H` is singular: the correspondences do not determine the pose (e.g. all on one plane
+    /// for point-to-plane).
+    Degenerate,
+}
+
+impl StopReason {
+    pub fn name(self) -> &'static str {
+        match self {
+            StopReason::Converged => "converged",
+            StopReason::MaxIterations => "max_iterations",
+            StopReason::TooFewCorrespondences => "too_few_correspondences",
+            StopReason::Diverged => "diverged",
+            StopReason::Degenerate => "degenerate",
+        }
+    }
+}
+
+/// The target: its k-d tree and, as the method needs, unit normals (`N * dim`; a zero normal
+/// marks a point without one, which then never corresponds) or covariances (`N * dim * dim`).
+pub struct Target<'a> {
+    pub tree: &'a KdTree,
+    pub normals: Option<&'a [f64]>,
+    pub covariances: Option<&'a [f64]>,
+}
+
+/// The source points (`N * dim`, source frame) and, for GICP, their covariances.
+pub struct Source<'a> {
+    pub points: &'a [f64],
+    pub covariances: Option<&'a [f64]>,
+}
+
+/// The normal equations and residual statistics at one pose.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Evaluation {
+    /// `Σ k JᵀWJ`, row-major `dof x dof`.
+    pub hessian: Vec<f64>,
+    /// `Σ k JᵀW r`; the Gauss–Newton step is `δ = −H⁻¹ g`.
+    pub gradient: Vec<f64>,
+    /// `Σ ψψᵀ` with `ψ = k JᵀW r` (the sandwich "meat"); zeros unless requested.
+    pub score_outer: Vec<f64>,
+    /// `Σ rho(|r|)` over correspondences.
+    pub cost: f64,
+    pub num_correspondences: usize,
+    /// `Σ |r|²` (whitened for GICP).
+    pub sum_squares: f64,
+    /// `Σ k |r|²`.
+    pub irls_sum_squares: f64,
+    /// `Σ k`.
+    pub irls_weight_sum: f64,
+    /// `Σ |R p + t − q|²` over correspondences: the Euclidean inlier error, for every method.
+    pub sum_squared_distances: f64,
+}
+
+/// Result of [`register`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outcome {
+    /// Row-major homogeneous `T_target_source`.
+    pub pose: Vec<f64>,
+    /// Number of steps computed (linearisations that had enough correspondences).
+    pub iterations: usize,
+    pub stop_reason: StopReason,
+    /// At the returned pose, with the score outer products.
+    pub evaluation: Evaluation,
+    /// Wall time of each iteration, seconds.
+    pub iteration_seconds: Vec<f64>,
+    /// Wall time of the final evaluation, seconds.
+    pub final_evaluation_seconds: f64,
+}
+
+/// What differs between SE(2) and SE(3).
+trait Group<const D: usize, const N: usize> {
+    /// `A(p) = ∂(exp(δ) p)/∂δ` at `δ = 0`.
+    fn point_jacobian(p: &SVector<f64, D>) -> SMatrix<f64, D, N>;
+    /// `exp(δ)` as `(R, t)`.
+    fn exp(delta: &SVector<f64, N>) -> (SMatrix<f64, D, D>, SVector<f64, D>);
+    fn inverse(m: &SMatrix<f64, D, D>) -> Option<SMatrix<f64, D, D>>;
+    fn solve(h: &SMatrix<f64, N, N>, rhs: &SVector<f64, N>) -> Option<SVector<f64, N>>;
+}
+
+struct Planar;
+struct Spatial;
+
+impl Group<2, 3> for Planar {
+    #[inline]
+    fn point_jacobian(p: &Vector2<f64>) -> SMatrix<f64, 2, 3> {
+        SMatrix::<f64, 2, 3>::new(1.0, 0.0, -p.y, 0.0, 1.0, p.x)
+    }
+
+    fn exp(d: &SVector<f64, 3>) -> (Matrix2<f64>, Vector2<f64>) {
+        let th = d[2];
+        let (s, c) = th.sin_cos();
+        // V(θ) = [[sinθ/θ, −(1−cosθ)/θ], [(1−cosθ)/θ, sinθ/θ]]; series near 0.
+        let (a, b) = if th.abs() < 1e-4 {
+            (1.0 - th * th / 6.0, th / 2.0 - th * th * th / 24.0)
+        } else {
+            (s / th, (1.0 - c) / th)
+        };
+        let v = Matrix2::new(a, -b, b, a);
+        (Matrix2::new(c, -s, s, c), v * Vector2::new(d[0], d[1]))
+    }
+
+    fn inverse(m: &Matrix2<f64>) -> Option<Matrix2<f64>> {
+        m.try_inverse()
+    }
+
+    fn solve(h: &SMatrix<f64, 3, 3>, rhs: &SVector<f64, 3>) -> Option<SVector<f64, 3>> {
+        h.cholesky().map(|c| c.solve(rhs))
+    }
+}
+
+#[inline]
+fn hat(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+impl Group<3, 6> for Spatial {
+    #[inline]
+    fn point_jacobian(p: &Vector3<f64>) -> SMatrix<f64, 3, 6> {
+        #[rustfmt::skip]
+        let a = SMatrix::<f64, 3, 6>::new(
+            1.0, 0.0, 0.0, 0.0, p.z, -p.y,
+            0.0, 1.0, 0.0, -p.z, 0.0, p.x,
+            0.0, 0.0, 1.0, p.y, -p.x, 0.0,
+        );
+        a
+    }
+
+    fn exp(d: &SVector<f64, 6>) -> (Matrix3<f64>, Vector3<f64>) {
+        let rho = Vector3::new(d[0], d[1], d[2]);
+        let phi = Vector3::new(d[3], d[4], d[5]);
+        let th2 = phi.norm_squared();
+        let th = th2.sqrt();
+        // Rodrigues: R = I + a K + b K², V = I + b K + c K² (Barfoot 2017, eqs. 7.14, 7.86).
+        let (a, b, c) = if th < 1e-4 {
+            (1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0)
+        } else {
+            let (s, co) = th.sin_cos();
+            (s / th, (1.0 - co) / th2, (th - s) / (th2 * th))
+        };
+        let k = hat(&phi);
+        let k2 = k * k;
+        let r = Matrix3::identity() + k * a + k2 * b;
+        let v = Matrix3::identity() + k * b + k2 * c;
+        (r, v * rho)
+    }
+
+    fn inverse(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+        m.try_inverse()
+    }
+
+    fn solve(h: &SMatrix<f64, 6, 6>, rhs: &SVector<f64, 6>) -> Option<SVector<f64, 6>> {
+        h.cholesky().map(|c| c.solve(rhs))
+    }
+}
+
+/// Marker for "no correspondence" in the per-point correspondence list.
+const NONE: u32 = u32::MAX;
+
+struct Acc<const N: usize> {
+    h: SMatrix<f64, N, N>,
+    g: SVector<f64, N>,
+    m: SMatrix<f64, N, N>,
+    cost: f64,
+    count: usize,
+    ss: f64,
+    irls_ss: f64,
+    irls_w: f64,
+    dist_ss: f64,
+    corr: Vec<u32>,
+}
+
+impl<const N: usize> Acc<N> {
+    fn new(keep: usize) -> Self {
+        Acc {
+            h: SMatrix::zeros(),
+            g: SVector::zeros(),
+            m: SMatrix::zeros(),
+            cost: 0.0,
+            count: 0,
+            ss: 0.0,
+            irls_ss: 0.0,
+            irls_w: 0.0,
+            dist_ss: 0.0,
+            corr: Vec::with_capacity(keep),
+        }
+    }
+
+    fn merge(mut self, o: Self) -> Self {
+        self.h += o.h;
+        self.g += o.g;
+        self.m += o.m;
+        self.cost += o.cost;
+        self.count += o.count;
+        self.ss += o.ss;
+        self.irls_ss += o.irls_ss;
+        self.irls_w += o.irls_w;
+        self.dist_ss += o.dist_ss;
+        self.corr.extend(o.corr);
+        self
+    }
+}
+
+/// The pose as `(R, t)`.
+struct Pose<const D: usize> {
+    r: SMatrix<f64, D, D>,
+    t: SVector<f64, D>,
+}
+
+impl<const D: usize> Pose<D> {
+    fn from_flat(flat: &[f64]) -> Self {
+        let m = D + 1;
+        Pose {
+            r: SMatrix::from_fn(|i, j| flat[i * m + j]),
+            t: SVector::from_fn(|i, _| flat[i * m + D]),
+        }
+    }
+
+    fn to_flat(&self) -> Vec<f64> {
+        let m = D + 1;
+        let mut out = vec![0.0; m * m];
+        for i in 0..D {
+            for j in 0..D {
+                out[i * m + j] = self.r[(i, j)];
+            }
+            out[i * m + D] = self.t[i];
+        }
+        out[m * m - 1] = 1.0;
+        out
+    }
+
+    /// `T · (R_d, t_d)`.
+    fn compose(&self, rd: &SMatrix<f64, D, D>, td: &SVector<f64, D>) -> Self {
+        Pose {
+            r: self.r * rd,
+            t: self.r * td + self.t,
+        }
+    }
+
+    fn is_finite(&self) -> bool {
+        self.r.iter().chain(self.t.iter()).all(|v| v.is_finite())
+    }
+}
+
+/// Inputs of one evaluation, shared by every chunk.
+struct Problem<'a> {
+    source: &'a [f64],
+    source_covs: Option<&'a [f64]>,
+    target: &'a Target<'a>,
+    method: Method,
+    kernel: Kernel,
+    max_sq: f64,
+}
+
+#[inline]
+fn vec_at<const D: usize>(data: &[f64], i: usize) -> SVector<f64, D> {
+    SVector::from_column_slice(&data[i * D..(i + 1) * D])
+}
+
+#[inline]
+fn mat_at<const D: usize>(data: &[f64], i: usize) -> SMatrix<f64, D, D> {
+    // Covariances are symmetric, so row- vs column-major does not matter.
+    SMatrix::from_column_slice(&data[i * D * D..(i + 1) * D * D])
+}
+
+/// One factor: `(J, W-weighted pieces)` reduced to what the accumulator needs. Returns
+/// `(JᵀWJ, JᵀWr, |r|, |e|²)` or `None` when the pair cannot form a factor.
+#[inline]
+#[allow(clippy::type_complexity)]
+fn factor<G: Group<D, N>, const D: usize, const N: usize>(
+    pr: &Problem<'_>,
+    pose: &Pose<D>,
+    i: usize,
+    j: usize,
+    p: &SVector<f64, D>,
+    e: &SVector<f64, D>,
+) -> Option<(SMatrix<f64, N, N>, SVector<f64, N>, f64)> {
+    let a = G::point_jacobian(p);
+    let rt = pose.r.transpose();
+    match pr.method {
+        Method::PointToPoint => {
+            let r = rt * e;
+            Some((a.transpose() * a, a.transpose() * r, e.norm()))
+        }
+        Method::PointToPlane => {
+            let n: SVector<f64, D> = vec_at(pr.target.normals?, j);
+            if n.norm_squared() < 0.25 {
+                return None; // no normal at this target point
+            }
+            let d = n.dot(e);
+            let jrow = (rt * n).transpose() * a; // 1 x N
+            Some((jrow.transpose() * jrow, jrow.transpose() * d, d.abs()))
+        }
+        Method::Gicp => {
+            let cq: SMatrix<f64, D, D> = mat_at(pr.target.covariances?, j);
+            let cp: SMatrix<f64, D, D> = mat_at(pr.source_covs?, i);
+            let c = cq + pose.r * cp * rt;
+            let w = G::inverse(&c)?;
+            let wl = rt * w * pose.r; // W in the source frame
+            let el = rt * e;
+            let wa = wl * a;
+            let m2 = el.dot(&(wl * el)).max(0.0);
+            Some((a.transpose() * wa, wa.transpose() * el, m2.sqrt()))
+        }
+    }
+}
+
+fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
+    pr: &Problem<'_>,
+    pose: &Pose<D>,
+    with_scores: bool,
+    keep_correspondences: bool,
+) -> (Evaluation, Vec<u32>) {
+    let n = pr.source.len() / D;
+    let tree = pr.target.tree;
+    let acc = chunked_sum(
+        n,
+        Acc::<N>::new(if keep_correspondences { n } else { 0 }),
+        |range| {
+            let mut acc = Acc::<N>::new(if keep_correspondences { range.len() } else { 0 });
+            for i in range {
+                let p: SVector<f64, D> = vec_at(pr.source, i);
+                let tp = pose.r * p + pose.t;
+                let mut used = NONE;
+                if let Some((j, d2)) = tree.nearest_within(tp.as_slice(), pr.max_sq) {
+                    let q: SVector<f64, D> = vec_at(tree.points(), j);
+                    let e = tp - q;
+                    if let Some((h, g, norm)) = factor::<G, D, N>(pr, pose, i, j, &p, &e) {
+                        let k = pr.kernel.weight(norm);
+                        acc.h += h * k;
+                        let score = g * k;
+                        acc.g += score;
+                        if with_scores {
+                            acc.m += score * score.transpose();
+                        }
+                        acc.cost += pr.kernel.rho(norm);
+                        acc.count += 1;
+                        acc.ss += norm * norm;
+                        acc.irls_ss += k * norm * norm;
+                        acc.irls_w += k;
+                        acc.dist_ss += d2;
+                        used = j as u32;
+                    }
+                }
+                if keep_correspondences {
+                    acc.corr.push(used);
+                }
+            }
+            acc
+        },
+        Acc::merge,
+    );
+    let eval = Evaluation {
+        hessian: acc.h.transpose().iter().copied().collect(),
+        gradient: acc.g.iter().copied().collect(),
+        score_outer: acc.m.transpose().iter().copied().collect(),
+        cost: acc.cost,
+        num_correspondences: acc.count,
+        sum_squares: acc.ss,
+        irls_sum_squares: acc.irls_ss,
+        irls_weight_sum: acc.irls_w,
+        sum_squared_distances: acc.dist_ss,
+    };
+    (eval, acc.corr)
+}
+
+/// The robust cost at `pose` over fixed correspondences (LM acceptance test).
+fn fixed_cost<G: Group<D, N>, const D: usize, const N: usize>(
+    pr: &Problem<'_>,
+    pose: &Pose<D>,
+    corr: &[u32],
+) -> f64 {
+    let pts = pr.target.tree.points();
+    chunked_sum(
+        corr.len(),
+        0.0,
+        |range| {
+            let mut cost = 0.0;
+            for i in range {
+                let j = corr[i];
+                if j == NONE {
+                    continue;
+                }
+                let j = j as usize;
+                let p: SVector<f64, D> = vec_at(pr.source, i);
+                let e = pose.r * p + pose.t - vec_at::<D>(pts, j);
+                let norm = match pr.method {
+                    Method::PointToPoint => e.norm(),
+                    Method::PointToPlane => pr
+                        .target
+                        .normals
+                        .map_or(0.0, |n| vec_at::<D>(n, j).dot(&e).abs()),
+                    Method::Gicp => {
+                        let (Some(tc), Some(sc)) = (pr.target.covariances, pr.source_covs) else {
+                            continue;
+                        };
+                        let c =
+                            mat_at::<D>(tc, j) + pose.r * mat_at::<D>(sc, i) * pose.r.transpose();
+                        match G::inverse(&c) {
+                            Some(w) => e.dot(&(w * e)).max(0.0).sqrt(),
+                            None => continue,
+                        }
+                    }
+                };
+                cost += pr.kernel.rho(norm);
+            }
+            cost
+        },
+        |a, b| a + b,
+    )
+}
+
+fn run<G: Group<D, N>, const D: usize, const N: usize>(
+    pr: &Problem<'_>,
+    init: &[f64],
+    s: &Settings,
+) -> Outcome {
+    let mut pose = Pose::<D>::from_flat(init);
+    let lm = s.optimizer == Optimizer::LevenbergMarquardt;
+    let mut lambda = 1e-4;
+    let mut iterations = 0;
+    let mut stop = StopReason::MaxIterations;
+    let mut times = Vec::with_capacity(s.max_iterations);
+    for _ in 0..s.max_iterations {
+        let t0 = Instant::now();
+        let (lin, corr) = evaluate::<G, D, N>(pr, &pose, false, lm);
+        if lin.num_correspondences < s.min_correspondences {
+            stop = StopReason::TooFewCorrespondences;
+            break;
+        }
+        iterations += 1;
+        let h = SMatrix::<f64, N, N>::from_row_slice(&lin.hessian);
+        let g = SVector::<f64, N>::from_column_slice(&lin.gradient);
+        let mut step: Option<SVector<f64, N>> = None;
+        let mut at_minimum = false;
+        if lm {
+            let max_diag = (0..N).map(|k| h[(k, k)]).fold(0.0, f64::max);
+            if max_diag > 0.0 && max_diag.is_finite() {
+                loop {
+                    let mut hd = h;
+                    for k in 0..N {
+                        hd[(k, k)] += lambda * h[(k, k)].max(1e-12 * max_diag);
+                    }
+                    if let Some(d) = G::solve(&hd, &(-g)) {
+                        let (rd, td) = G::exp(&d);
+                        let cand = pose.compose(&rd, &td);
+                        if fixed_cost::<G, D, N>(pr, &cand, &corr) <= lin.cost {
+                            lambda = (lambda / 10.0).max(1e-12);
+                            step = Some(d);
+                            break;
+                        }
+                    }
+                    lambda *= 10.0;
+                    if lambda > 1e8 {
+                        at_minimum = true; // no step lowers the cost: a local minimum
+                        break;
+                    }
+                }
+            }
+        } else {
+            step = G::solve(&h, &(-g));
+        }
+        times.push(t0.elapsed().as_secs_f64());
+        if at_minimum {
+            stop = StopReason::Converged;
+            break;
+        }
+        let Some(d) = step else {
+            stop = StopReason::Degenerate;
+            break;
+        };
+        if d.iter().any(|v| !v.is_finite()) {
+            stop = StopReason::Diverged;
+            break;
+        }
+        let (rd, td) = G::exp(&d);
+        let next = pose.compose(&rd, &td);
+        if !next.is_finite() {
+            stop = StopReason::Diverged;
+            break;
+        }
+        pose = next;
+        let dt = d.rows(0, D).norm();
+        let dr = d.rows(D, N - D).norm();
+        if dt < s.translation_tolerance && dr < s.rotation_tolerance {
+            stop = StopReason::Converged;
+            break;
+        }
+    }
+    let t0 = Instant::now();
+    let (evaluation, _) = evaluate::<G, D, N>(pr, &pose, true, false);
+    if evaluation.num_correspondences < s.min_correspondences {
+        stop = StopReason::TooFewCorrespondences;
+    }
+    Outcome {
+        pose: pose.to_flat(),
+        iterations,
+        stop_reason: stop,
+        evaluation,
+        iteration_seconds: times,
+        final_evaluation_seconds: t0.elapsed().as_secs_f64(),
+    }
+}
+
+fn check_settings(s: &Settings) -> Result<f64> {
+    let max_sq = check_max_distance("max_correspondence_distance", s.max_correspondence_distance)?;
+    for (arg, v) in [
+        ("translation_tolerance", s.translation_tolerance),
+        ("rotation_tolerance", s.rotation_tolerance),
+    ] {
+        if !v.is_finite() || v <= 0.0 {
+            return Err(Error::invalid(
+                arg,
+                format!("must be finite and > 0, got {v}"),
+            ));
+        }
+    }
+    Ok(max_sq)
+}
+
+fn check_per_point(arg: &'static str, data: &[f64], n: usize, per: usize) -> Result<()> {
+    if data.len() != n * per {
+        return Err(Error::invalid(
+            arg,
+            format!(
+                "expected {} values ({n} points x {per}), got {}",
+                n * per,
+                data.len()
+            ),
+        ));
+    }
+    if data.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid(arg, "contains NaN or inf"));
+    }
+    Ok(())
+}
+
+fn problem<'a>(
+    source: &'a Source<'a>,
+    target: &'a Target<'a>,
+    settings: &Settings,
+) -> Result<Problem<'a>> {
+    let dim = target.tree.dim();
+    let n = check_points("source", source.points, dim)?;
+    let max_sq = check_settings(settings)?;
+    let m = target.tree.len();
+    match settings.method {
+        Method::PointToPoint => {}
+        Method::PointToPlane => {
+            let nrm = target.normals.ok_or_else(|| {
+                Error::invalid("target_normals", "are required for point-to-plane/line")
+            })?;
+            check_per_point("target_normals", nrm, m, dim)?;
+        }
+        Method::Gicp => {
+            let tc = target
+                .covariances
+                .ok_or_else(|| Error::invalid("target_covariances", "are required for GICP"))?;
+            check_per_point("target_covariances", tc, m, dim * dim)?;
+            let sc = source
+                .covariances
+                .ok_or_else(|| Error::invalid("source_covariances", "are required for GICP"))?;
+            check_per_point("source_covariances", sc, n, dim * dim)?;
+        }
+    }
+    Ok(Problem {
+        source: source.points,
+        source_covs: source.covariances,
+        target,
+        method: settings.method,
+        kernel: settings.kernel,
+        max_sq,
+    })
+}
+
+/// Register `source` to `target` from `init` (row-major homogeneous `T_target_source`).
+pub fn register(
+    source: &Source<'_>,
+    target: &Target<'_>,
+    init: &[f64],
+    settings: &Settings,
+) -> Result<Outcome> {
+    let dim = target.tree.dim();
+    let pr = problem(source, target, settings)?;
+    split_pose("init", init, dim)?;
+    Ok(if dim == 2 {
+        run::<Planar, 2, 3>(&pr, init, settings)
+    } else {
+        run::<Spatial, 3, 6>(&pr, init, settings)
+    })
+}
+
+/// The normal equations at one pose (with score outer products), without iterating.
+pub fn evaluate_at(
+    source: &Source<'_>,
+    target: &Target<'_>,
+    pose: &[f64],
+    settings: &Settings,
+) -> Result<Evaluation> {
+    let dim = target.tree.dim();
+    let pr = problem(source, target, settings)?;
+    split_pose("pose", pose, dim)?;
+    Ok(if dim == 2 {
+        evaluate::<Planar, 2, 3>(&pr, &Pose::from_flat(pose), true, false).0
+    } else {
+        evaluate::<Spatial, 3, 6>(&pr, &Pose::from_flat(pose), true, false).0
+    })
+}
+
+/// Run `f` on a rayon pool of `num_threads` threads (pools are built once per size and kept),
+/// or on the global pool when `None`.
+pub fn in_pool<T: Send>(num_threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
+    let Some(n) = num_threads else {
+        return Ok(f());
+    };
+    if n == 0 {
+        return Err(Error::invalid("num_threads", "must be >= 1"));
+    }
+    static POOLS: OnceLock<Mutex<HashMap<usize, Arc<ThreadPool>>>> = OnceLock::new();
+    let pool = {
+        let mut pools = POOLS
+            .get_or_init(Default::default)
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        match pools.get(&n) {
+            Some(p) => p.clone(),
+            None => {
+                let p = Arc::new(
+                    rayon::ThreadPoolBuilder::new()
+                        .num_threads(n)
+                        .build()
+                        .map_err(|e| Error::invalid("num_threads", e.to_string()))?,
+                );
+                pools.insert(n, p.clone());
+                p
+            }
+        }
+    };
+    Ok(pool.install(f))
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,330 @@
+use super::*;
+use crate::normals::{local_geometry, Regularization};
+
+/// Points on the inside of a box room (floor, walls, ceiling) plus a pillar: every pose
+/// direction is constrained. Deterministic pseudo-random jitter along each face.
+fn room_3d() -> Vec<f64> {
+    let mut pts = Vec::new();
+    let mut s: u64 = 12345;
+    let mut rnd = || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for _ in 0..4000 {
+        let (u, v) = (rnd(), rnd());
+        let face = (rnd() * 6.0) as usize;
+        let p = match face {
+            0 => [u * 10.0 - 5.0, v * 8.0 - 4.0, 0.0],
+            1 => [u * 10.0 - 5.0, v * 8.0 - 4.0, 3.0],
+            2 => [-5.0, v * 8.0 - 4.0, u * 3.0],
+            3 => [5.0, v * 8.0 - 4.0, u * 3.0],
+            4 => [u * 10.0 - 5.0, 4.0, v * 3.0],
+            _ => [
+                1.0 + 0.5 * (u * std::f64::consts::TAU).cos(),
+                0.5 * (u * std::f64::consts::TAU).sin(),
+                v * 3.0,
+            ],
+        };
+        pts.extend_from_slice(&p);
+    }
+    pts
+}
+
+fn room_2d() -> Vec<f64> {
+    // Irregular spacing along the walls: regularly spaced points make spurious p2p fixed points.
+    let mut pts = Vec::new();
+    let mut s: u64 = 777;
+    let mut rnd = || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for _ in 0..400 {
+        let u = rnd();
+        pts.extend_from_slice(&[u * 10.0 - 5.0, -4.0]);
+        pts.extend_from_slice(&[rnd() * 10.0 - 5.0, 4.0]);
+        pts.extend_from_slice(&[-5.0, rnd() * 8.0 - 4.0]);
+        pts.extend_from_slice(&[5.0, rnd() * 8.0 - 4.0]);
+        let a = rnd() * std::f64::consts::TAU;
+        pts.extend_from_slice(&[1.0 + 0.5 * a.cos(), 0.5 * a.sin()]);
+    }
+    pts
+}
+
+fn pose_flat<const D: usize>(p: &Pose<D>) -> Vec<f64> {
+    p.to_flat()
+}
+
+fn truth_3d() -> Pose<3> {
+    let (r, t) = Spatial::exp(&SVector::<f64, 6>::from_column_slice(&[
+        0.3, -0.2, 0.1, 0.02, -0.03, 0.08,
+    ]));
+    Pose { r, t }
+}
+
+fn truth_2d() -> Pose<2> {
+    let (r, t) = Planar::exp(&SVector::<f64, 3>::from_column_slice(&[0.3, -0.2, 0.07]));
+    Pose { r, t }
+}
+
+/// Source = inverse(truth) applied to the target, so `T_target_source = truth`.
+fn source_of<const D: usize>(target: &[f64], truth: &Pose<D>) -> Vec<f64> {
+    let rt = truth.r.transpose();
+    target
+        .chunks_exact(D)
+        .flat_map(|q| {
+            let q = SVector::<f64, D>::from_column_slice(q);
+            (rt * (q - truth.t)).iter().copied().collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+fn settings(method: Method, kernel: Kernel, optimizer: Optimizer) -> Settings {
+    Settings {
+        method,
+        kernel,
+        max_correspondence_distance: 1.0,
+        max_iterations: 60,
+        translation_tolerance: 1e-7,
+        rotation_tolerance: 1e-8,
+        optimizer,
+        min_correspondences: 10,
+    }
+}
+
+fn identity(dim: usize) -> Vec<f64> {
+    let m = dim + 1;
+    (0..m * m)
+        .map(|k| if k % (m + 1) == 0 { 1.0 } else { 0.0 })
+        .collect()
+}
+
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+fn run_case(
+    dim: usize,
+    method: Method,
+    kernel: Kernel,
+    optimizer: Optimizer,
+) -> (Outcome, Vec<f64>) {
+    let (tgt, truth) = if dim == 3 {
+        (room_3d(), pose_flat(&truth_3d()))
+    } else {
+        (room_2d(), pose_flat(&truth_2d()))
+    };
+    let src = if dim == 3 {
+        source_of(&tgt, &truth_3d())
+    } else {
+        source_of(&tgt, &truth_2d())
+    };
+    let tree = KdTree::build(&tgt, dim).unwrap();
+    let vp = vec![0.3; dim];
+    let g = local_geometry(&tree, 10, &vp, true, Some(Regularization::Plane(1e-3))).unwrap();
+    let stree = KdTree::build(&src, dim).unwrap();
+    let sg = local_geometry(&stree, 10, &vp, false, Some(Regularization::Plane(1e-3))).unwrap();
+    let target = Target {
+        tree: &tree,
+        normals: g.normals.as_deref(),
+        covariances: g.covariances.as_deref(),
+    };
+    let source = Source {
+        points: &src,
+        covariances: sg.covariances.as_deref(),
+    };
+    let out = register(
+        &source,
+        &target,
+        &identity(dim),
+        &settings(method, kernel, optimizer),
+    )
+    .unwrap();
+    (out, truth)
+}
+
+#[test]
+fn recovers_known_pose_every_method_kernel_optimizer() {
+    for dim in [2, 3] {
+        for method in [Method::PointToPoint, Method::PointToPlane, Method::Gicp] {
+            for kernel in [Kernel::None, Kernel::Huber(0.1), Kernel::Cauchy(0.2)] {
+                for opt in [Optimizer::GaussNewton, Optimizer::LevenbergMarquardt] {
+                    let (out, truth) = run_case(dim, method, kernel, opt);
+                    let err = max_abs_diff(&out.pose, &truth);
+                    assert!(
+                        err < 1e-6,
+                        "{dim}D {method:?} {kernel:?} {opt:?}: err {err}, {:?} after {}",
+                        out.stop_reason,
+                        out.iterations
+                    );
+                    assert_eq!(out.stop_reason, StopReason::Converged);
+                    assert!(out.evaluation.sum_squared_distances < 1e-10);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn gradient_matches_finite_difference_of_cost() {
+    // At a pose near the truth the correspondences do not change for tiny perturbations, so
+    // g = ∂cost/∂δ exactly (cost = Σ ½|r|² without a kernel).
+    for method in [Method::PointToPoint, Method::PointToPlane] {
+        let tgt = room_3d();
+        let src = source_of(&tgt, &truth_3d());
+        let tree = KdTree::build(&tgt, 3).unwrap();
+        let g = local_geometry(&tree, 10, &[0.3; 3], true, None).unwrap();
+        let target = Target {
+            tree: &tree,
+            normals: g.normals.as_deref(),
+            covariances: None,
+        };
+        let source = Source {
+            points: &src,
+            covariances: None,
+        };
+        let s = settings(method, Kernel::None, Optimizer::GaussNewton);
+        let base = truth_3d();
+        let (rd, td) = Spatial::exp(&SVector::<f64, 6>::from_column_slice(&[
+            0.01, 0.0, 0.0, 0.0, 0.0, 0.004,
+        ]));
+        let at = base.compose(&rd, &td);
+        let ev = evaluate_at(&source, &target, &at.to_flat(), &s).unwrap();
+        for k in 0..6 {
+            let h = 1e-6;
+            let cost = |x: f64| {
+                let mut d = SVector::<f64, 6>::zeros();
+                d[k] = x;
+                let (r, t) = Spatial::exp(&d);
+                evaluate_at(&source, &target, &at.compose(&r, &t).to_flat(), &s)
+                    .unwrap()
+                    .cost
+            };
+            let fd = (cost(h) - cost(-h)) / (2.0 * h);
+            assert!(
+                (fd - ev.gradient[k]).abs() < 1e-4 * fd.abs().max(1.0),
+                "{method:?} k={k}: fd {fd} vs {}",
+                ev.gradient[k]
+            );
+        }
+    }
+}
+
+#[test]
+fn identical_for_one_and_two_threads() {
+    let run = |n| {
+        in_pool(Some(n), || {
+            run_case(3, Method::Gicp, Kernel::Huber(0.1), Optimizer::GaussNewton).0
+        })
+        .unwrap()
+    };
+    let (a, b) = (run(1), run(2));
+    assert_eq!(a.pose, b.pose);
+    assert_eq!(a.evaluation.hessian, b.evaluation.hessian);
+    assert_eq!(a.iterations, b.iterations);
+}
+
+#[test]
+fn stop_reasons() {
+    let tgt = room_3d();
+    let src = source_of(&tgt, &truth_3d());
+    let tree = KdTree::build(&tgt, 3).unwrap();
+    let target = Target {
+        tree: &tree,
+        normals: None,
+        covariances: None,
+    };
+    let source = Source {
+        points: &src,
+        covariances: None,
+    };
+    let mut s = settings(Method::PointToPoint, Kernel::None, Optimizer::GaussNewton);
+    s.max_iterations = 2;
+    let out = register(&source, &target, &identity(3), &s).unwrap();
+    assert_eq!(out.stop_reason, StopReason::MaxIterations);
+    assert_eq!(out.iterations, 2);
+    // Source far away: nothing within the gate.
+    let far: Vec<f64> = src.iter().map(|v| v + 100.0).collect();
+    let source = Source {
+        points: &far,
+        covariances: None,
+    };
+    s.max_iterations = 30;
+    let out = register(&source, &target, &identity(3), &s).unwrap();
+    assert_eq!(out.stop_reason, StopReason::TooFewCorrespondences);
+    assert_eq!(out.iterations, 0);
+    assert_eq!(out.pose, identity(3));
+    // All points on one plane: point-to-plane cannot fix in-plane motion.
+    let plane: Vec<f64> = (0..400)
+        .flat_map(|i| [(i % 20) as f64 * 0.2, (i / 20) as f64 * 0.2, 0.0])
+        .collect();
+    let ptree = KdTree::build(&plane, 3).unwrap();
+    let g = local_geometry(&ptree, 8, &[0.0, 0.0, 5.0], true, None).unwrap();
+    let target = Target {
+        tree: &ptree,
+        normals: g.normals.as_deref(),
+        covariances: None,
+    };
+    let shifted: Vec<f64> = plane
+        .chunks(3)
+        .flat_map(|p| [p[0], p[1], p[2] + 0.1])
+        .collect();
+    let source = Source {
+        points: &shifted,
+        covariances: None,
+    };
+    let s = settings(Method::PointToPlane, Kernel::None, Optimizer::GaussNewton);
+    let out = register(&source, &target, &identity(3), &s).unwrap();
+    assert_eq!(out.stop_reason, StopReason::Degenerate);
+}
+
+#[test]
+fn rejects_bad_input() {
+    let tgt = room_3d();
+    let tree = KdTree::build(&tgt, 3).unwrap();
+    let target = Target {
+        tree: &tree,
+        normals: None,
+        covariances: None,
+    };
+    let source = Source {
+        points: &tgt,
+        covariances: None,
+    };
+    let s = settings(Method::PointToPlane, Kernel::None, Optimizer::GaussNewton);
+    let e = register(&source, &target, &identity(3), &s).unwrap_err();
+    assert!(e.to_string().starts_with("target_normals:"), "{e}");
+    let s = settings(Method::Gicp, Kernel::None, Optimizer::GaussNewton);
+    let e = register(&source, &target, &identity(3), &s).unwrap_err();
+    assert!(e.to_string().starts_with("target_covariances:"), "{e}");
+    let mut s = settings(Method::PointToPoint, Kernel::None, Optimizer::GaussNewton);
+    s.max_correspondence_distance = f64::NAN;
+    let e = register(&source, &target, &identity(3), &s).unwrap_err();
+    assert!(
+        e.to_string().starts_with("max_correspondence_distance:"),
+        "{e}"
+    );
+    let s = settings(Method::PointToPoint, Kernel::None, Optimizer::GaussNewton);
+    let e = register(&source, &target, &identity(2), &s).unwrap_err();
+    assert!(e.to_string().starts_with("init:"), "{e}");
+    let e = register(
+        &Source {
+            points: &tgt[..4],
+            covariances: None,
+        },
+        &target,
+        &identity(3),
+        &s,
+    )
+    .unwrap_err();
+    assert!(e.to_string().starts_with("source:"), "{e}");
+    assert!(in_pool(Some(0), || ()).is_err());
+    assert!(Method::from_name("icp").is_err());
+    assert!(Optimizer::from_name("newton").is_err());
+}

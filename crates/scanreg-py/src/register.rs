@@ -1,0 +1,175 @@
+//! Binding of the local registration loop (`scanreg_core::icp`): one call per registration,
+//! the GIL released for the whole loop, on a pool of `num_threads` threads.
+
+use crate::convert::{c_slice, core_err, points_dim, pose};
+use crate::knn::KdTree;
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
+    PyUntypedArrayMethods,
+};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use scanreg_core::icp::{self, Method, Optimizer, Settings, Source, Target};
+use scanreg_core::Kernel;
+
+/// What the core returns for one registration (or one evaluation).
+#[pyclass(frozen, module = "scanreg._core")]
+pub struct IcpOutcome {
+    #[pyo3(get)]
+    pose: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    iterations: usize,
+    #[pyo3(get)]
+    stop_reason: &'static str,
+    #[pyo3(get)]
+    hessian: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    gradient: Py<PyArray1<f64>>,
+    #[pyo3(get)]
+    score_outer: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    cost: f64,
+    #[pyo3(get)]
+    num_correspondences: usize,
+    #[pyo3(get)]
+    sum_squares: f64,
+    #[pyo3(get)]
+    irls_sum_squares: f64,
+    #[pyo3(get)]
+    irls_weight_sum: f64,
+    #[pyo3(get)]
+    sum_squared_distances: f64,
+    #[pyo3(get)]
+    iteration_seconds: Py<PyArray1<f64>>,
+    #[pyo3(get)]
+    final_evaluation_seconds: f64,
+}
+
+fn square(py: Python<'_>, flat: Vec<f64>, n: usize) -> PyResult<Py<PyArray2<f64>>> {
+    Ok(flat.into_pyarray(py).reshape([n, n])?.unbind())
+}
+
+fn covs<'a>(
+    arr: &'a Option<PyReadonlyArray3<'_, f64>>,
+    name: &str,
+    n: usize,
+    dim: usize,
+) -> PyResult<Option<&'a [f64]>> {
+    let Some(a) = arr else { return Ok(None) };
+    let s = a.shape();
+    if s != [n, dim, dim] {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected shape ({n}, {dim}, {dim}), got {s:?}"
+        )));
+    }
+    Ok(Some(c_slice(a, name)?))
+}
+
+#[pyfunction]
+#[pyo3(signature = (
+    source, target, init_pose, *, method, kernel, kernel_scale, max_correspondence_distance,
+    max_iterations, translation_tolerance, rotation_tolerance, optimizer, min_correspondences,
+    num_threads=None, source_covariances=None, target_normals=None, target_covariances=None,
+    iterate=true
+))]
+#[allow(clippy::too_many_arguments)]
+fn register_icp(
+    py: Python<'_>,
+    source: PyReadonlyArray2<'_, f64>,
+    target: &KdTree,
+    init_pose: PyReadonlyArray2<'_, f64>,
+    method: &str,
+    kernel: &str,
+    kernel_scale: f64,
+    max_correspondence_distance: f64,
+    max_iterations: usize,
+    translation_tolerance: f64,
+    rotation_tolerance: f64,
+    optimizer: &str,
+    min_correspondences: usize,
+    num_threads: Option<usize>,
+    source_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    target_normals: Option<PyReadonlyArray2<'_, f64>>,
+    target_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    iterate: bool,
+) -> PyResult<IcpOutcome> {
+    let tree = &target.inner;
+    let dim = tree.dim();
+    let src = points_dim(&source, "source", dim)?;
+    let init = pose(&init_pose, "init_pose", dim)?;
+    let nrm = target_normals
+        .as_ref()
+        .map(|a| points_dim(a, "target_normals", dim))
+        .transpose()?;
+    let tcov = covs(&target_covariances, "target_covariances", tree.len(), dim)?;
+    let scov = covs(
+        &source_covariances,
+        "source_covariances",
+        src.len() / dim,
+        dim,
+    )?;
+    let settings = Settings {
+        method: Method::from_name(method).map_err(core_err)?,
+        kernel: Kernel::from_name(kernel, kernel_scale).map_err(core_err)?,
+        max_correspondence_distance,
+        max_iterations,
+        translation_tolerance,
+        rotation_tolerance,
+        optimizer: Optimizer::from_name(optimizer).map_err(core_err)?,
+        min_correspondences,
+    };
+    let src_in = Source {
+        points: src,
+        covariances: scov,
+    };
+    let tgt_in = Target {
+        tree,
+        normals: nrm,
+        covariances: tcov,
+    };
+    let out = py
+        .detach(|| {
+            icp::in_pool(num_threads, || {
+                if iterate {
+                    icp::register(&src_in, &tgt_in, init, &settings)
+                } else {
+                    icp::evaluate_at(&src_in, &tgt_in, init, &settings).map(|evaluation| {
+                        icp::Outcome {
+                            pose: init.to_vec(),
+                            iterations: 0,
+                            stop_reason: icp::StopReason::MaxIterations,
+                            evaluation,
+                            iteration_seconds: Vec::new(),
+                            final_evaluation_seconds: 0.0,
+                        }
+                    })
+                }
+            })
+            .and_then(|r| r)
+        })
+        .map_err(core_err)?;
+    let dof = out.evaluation.gradient.len();
+    let ev = out.evaluation;
+    Ok(IcpOutcome {
+        pose: square(py, out.pose, dim + 1)?,
+        iterations: out.iterations,
+        stop_reason: out.stop_reason.name(),
+        hessian: square(py, ev.hessian, dof)?,
+        gradient: ev.gradient.into_pyarray(py).unbind(),
+        score_outer: square(py, ev.score_outer, dof)?,
+        cost: ev.cost,
+        num_correspondences: ev.num_correspondences,
+        sum_squares: ev.sum_squares,
+        irls_sum_squares: ev.irls_sum_squares,
+        irls_weight_sum: ev.irls_weight_sum,
+        sum_squared_distances: ev.sum_squared_distances,
+        iteration_seconds: out.iteration_seconds.into_pyarray(py).unbind(),
+        final_evaluation_seconds: out.final_evaluation_seconds,
+    })
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<IcpOutcome>()?;
+    m.add_function(wrap_pyfunction!(register_icp, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,425 @@
+"""Local registration: align a scan to a scan or a map from an initial guess (the ICP family).
+
+``register(source, target)`` estimates ``T_target_source`` for ``(N, 2)`` or ``(N, 3)`` clouds.
+The whole iteration loop runs in the Rust core (:mod:`scanreg._core`, GIL released): at each
+iteration every source point is moved by the current pose, matched to its nearest target point
+within ``max_correspondence_distance`` and linearised; the normal equations are summed in
+parallel and solved for a right-perturbation step ``T ← T @ exp(δ)``. This module sets the
+policy (method, kernel, stopping) and turns the returned ≤ 6×6 matrices into a covariance and
+a conditioning report.
+
+Methods
+-------
+``point_to_point``
+    ``|R p + t - q|²`` (Besl & McKay 1992).
+``point_to_plane`` / ``point_to_line``
+    ``(nᵀ(R p + t - q))²`` with the target normal ``n`` (Chen & Medioni 1992); in 2D the "plane"
+    is a line and both names mean the same. Target points without a valid normal (degenerate
+    neighbourhood) never form a correspondence.
+``gicp``
+    ``dᵀ (C_q + R C_p Rᵀ)⁻¹ d`` with ``d = R p + t - q`` and the k-NN covariances of source and
+    target, regularised as planes (Segal, Haehnel & Thrun 2009); in 2D the line-to-line analogue.
+
+Bad input: NaN/inf points are refused (``ValueError`` naming the point), as are empty clouds,
+mismatched dimensions and an ``init`` that is not a rigid transform. A registration that runs
+out of correspondences returns ``converged=False`` with ``stop_reason="too_few_correspondences"``
+and the pose it had reached — never a silently wrong "converged" pose.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from . import _core
+from ._validate import FloatArray, as_points
+from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
+from .quality import (
+    Conditioning,
+    conditioning,
+    information_from_covariance,
+    least_squares_covariance,
+    sandwich_covariance,
+)
+from .robust import check_kernel
+from .target import PreparedTarget, prepare
+from .transform import SE2, SE3, as_pose, pose_class
+
+Method = Literal["point_to_point", "point_to_plane", "point_to_line", "gicp"]
+Optimizer = Literal["gauss_newton", "levenberg_marquardt"]
+StopReason = Literal[
+    "converged", "max_iterations", "too_few_correspondences", "diverged", "degenerate"
+]
+
+METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "point_to_line", "gicp")
+OPTIMIZERS: tuple[str, ...] = ("gauss_newton", "levenberg_marquardt")
+
+
+def _positive_float(value: Any, name: str, *, allow_inf: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise TypeError(f"{name}: expected a number, got {type(value).__name__}")
+    v = float(value)
+    if math.isnan(v) or v <= 0 or (math.isinf(v) and not allow_inf):
+        raise ValueError(f"{name}: must be {'> 0' if allow_inf else 'finite and > 0'}, got {value}")
+    return v
+
+
+@dataclass(frozen=True)
+class RegistrationSettings:
+    """How :func:`register` runs. Frozen; validated on construction (errors name the field).
+
+    Distances are in the points' units (metres below), angles in radians.
+    """
+
+    #: The gate: a source point corresponds to its nearest target point only if that is at
+    #: most this far (after moving the source by the current pose).
+    max_correspondence_distance: float = 1.0
+    #: Upper bound on Gauss–Newton / LM steps.
+    max_iterations: int = 30
+    #: Converged when the last step's translation is below this (m) ...
+    translation_tolerance: float = 1e-4
+    #: ... and its rotation angle below this (rad).
+    rotation_tolerance: float = 1e-4
+    #: Robust kernel (``none``, ``huber``, ``cauchy``, ``tukey``, ``geman_mcclure``, ``welsch``),
+    #: applied by IRLS to each correspondence's residual norm.
+    kernel: str = "none"
+    #: Kernel scale, in the residual's units: metres for point-to-point/plane, whitened
+    #: (Mahalanobis, unitless) for GICP. ``None``: a third of ``max_correspondence_distance``
+    #: for the point methods, 1.0 for GICP.
+    kernel_scale: float | None = None
+    #: ``gauss_newton`` (classic ICP: every step taken) or ``levenberg_marquardt`` (a step is
+    #: taken only if it lowers the cost over the iteration's correspondences).
+    optimizer: Optimizer = "gauss_newton"
+    #: Threads for the per-point loops; ``None``: the default pool (``RAYON_NUM_THREADS`` or
+    #: all cores). Results do not depend on it.
+    num_threads: int | None = None
+    #: If set, voxel-downsample (centroid) the source, and a raw-array target, to this cell
+    #: size first. A :class:`~scanreg.PreparedTarget` is used as it is.
+    voxel_size: float | None = None
+    #: Neighbourhood size for normals / covariances computed here (a raw target; GICP source).
+    num_neighbors: int = DEFAULT_K
+    #: Stop (``too_few_correspondences``) below this many correspondences. ``None``: the least
+    #: that determines the pose with residual left over (point-to-point and GICP: ``dof/D + 1``;
+    #: point-to-plane/line: ``dof + 1``).
+    min_correspondences: int | None = None
+
+    def __post_init__(self) -> None:
+        _positive_float(
+            self.max_correspondence_distance, "max_correspondence_distance", allow_inf=True
+        )
+        positive_int(self.max_iterations, "max_iterations")
+        _positive_float(self.translation_tolerance, "translation_tolerance")
+        _positive_float(self.rotation_tolerance, "rotation_tolerance")
+        if not isinstance(self.kernel, str):
+            raise TypeError(f"kernel: expected a str, got {type(self.kernel).__name__}")
+        check_kernel(self.kernel)
+        if self.kernel_scale is not None:
+            _positive_float(self.kernel_scale, "kernel_scale")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(
+                f"optimizer: unknown {self.optimizer!r}; expected one of {', '.join(OPTIMIZERS)}"
+            )
+        if self.num_threads is not None:
+            positive_int(self.num_threads, "num_threads")
+        if self.voxel_size is not None:
+            _positive_float(self.voxel_size, "voxel_size")
+        positive_int(self.num_neighbors, "num_neighbors", minimum=2)
+        if self.min_correspondences is not None:
+            positive_int(self.min_correspondences, "min_correspondences")
+
+
+@dataclass(frozen=True)
+class RegistrationTiming:
+    """Wall-clock seconds spent in each stage of one :func:`register` call."""
+
+    #: Downsampling and, for a raw target, its k-d tree and normals/covariances.
+    target_preparation: float
+    #: Source downsampling and (GICP) source covariances.
+    source_preparation: float
+    #: Each iteration (correspondences + linearisation + solve), in order.
+    iterations: tuple[float, ...]
+    #: The final evaluation at the returned pose (fitness, H, scores).
+    final_evaluation: float
+    #: Covariance and conditioning in Python.
+    post_processing: float
+    total: float
+
+    @property
+    def registration(self) -> float:
+        """The core's iteration loop plus the final evaluation."""
+        return float(sum(self.iterations)) + self.final_evaluation
+
+
+@dataclass(frozen=True)
+class RegistrationResult:
+    """Result of :func:`register`.
+
+    ``pose`` is ``T_target_source`` (``p_T = R p_S + t``). ``covariance`` is over the
+    right-perturbation tangent ``δ`` (translation first, source frame): ``T_true = pose @ exp(δ)``.
+    Everything below is evaluated at ``pose`` (one last correspondence search after the last
+    step).
+    """
+
+    pose: SE2 | SE3
+    #: The method as run (``point_to_plane`` reads ``point_to_line`` in 2D).
+    method: str
+    kernel: str
+    #: Kernel scale used; ``nan`` for ``kernel="none"``.
+    kernel_scale: float
+    #: Steps computed.
+    iterations: int
+    #: ``stop_reason == "converged"``.
+    converged: bool
+    #: ``converged``: the last step was below both tolerances (under LM: no step lowered the
+    #: cost, a minimum); ``max_iterations``; ``too_few_correspondences`` (fewer than
+    #: ``min_correspondences`` inside the gate — the pose is where it stopped);
+    #: ``diverged``: the step or pose became non-finite; ``degenerate``: ``JᵀJ`` singular,
+    #: the correspondences do not determine the pose.
+    stop_reason: StopReason
+    #: Source points with a correspondence inside the gate (and, for point-to-plane, a valid
+    #: target normal) at ``pose``.
+    num_correspondences: int
+    #: Source points registered (after any downsampling).
+    num_source_points: int
+    #: ``num_correspondences / num_source_points``, in [0, 1].
+    fitness: float
+    #: RMS Euclidean distance ``|R p + t - q|`` over the correspondences (every method), or
+    #: ``nan`` without any.
+    inlier_rmse: float
+    #: Final robust cost ``Σ ρ(|r|)`` over the correspondences.
+    cost: float
+    #: ``JᵀWJ`` at ``pose`` (kernel-weighted): the information matrix, tangent coordinates.
+    hessian: FloatArray
+    #: ``JᵀW r`` at ``pose`` (≈ 0 at a converged optimum).
+    gradient: FloatArray
+    #: Residual variance per scalar residual: ``Σ r² / (m - dof)`` (kernel: IRLS-weighted).
+    sigma2: float
+    #: ``σ̂² (JᵀWJ)⁻¹``; with a kernel the M-estimator sandwich (:mod:`scanreg.quality`).
+    #: All ``inf`` when ``JᵀWJ`` is singular.
+    covariance: FloatArray
+    #: ``covariance⁻¹`` (all ``inf`` for a noise-free fit).
+    information: FloatArray
+    conditioning: Conditioning
+    timing: RegistrationTiming
+    settings: RegistrationSettings = field(repr=False)
+
+    @property
+    def standard_deviations(self) -> FloatArray:
+        """Square roots of the covariance diagonal (m, m[, m], rad[, rad, rad])."""
+        out: FloatArray = np.sqrt(np.diag(self.covariance))
+        return out
+
+
+def _frozen(a: Any) -> FloatArray:
+    out = np.array(a, dtype=np.float64)
+    out.setflags(write=False)
+    return out
+
+
+def _resolve_method(method: Any, dim: int) -> str:
+    if method not in METHODS:
+        raise ValueError(f"method: unknown {method!r}; expected one of {', '.join(METHODS)}")
+    if method == "point_to_line" and dim == 3:
+        raise ValueError("method: 'point_to_line' is for 2D points; use 'point_to_plane' in 3D")
+    if method == "point_to_plane" and dim == 2:
+        return "point_to_line"
+    return str(method)
+
+
+def _prepared_target(
+    target: Any, dim: int, method: str, settings: RegistrationSettings
+) -> PreparedTarget:
+    want_normals = method in ("point_to_plane", "point_to_line")
+    want_covs = method == "gicp"
+    if isinstance(target, PreparedTarget):
+        if target.dim != dim:
+            raise ValueError(
+                f"target: a {target.dim}D PreparedTarget cannot register {dim}D source points"
+            )
+        if want_normals and target.normals is None:
+            raise ValueError(
+                f"target: {method} needs target normals; "
+                "build it with prepare(points, normals=True)"
+            )
+        if want_covs and target.covariances is None:
+            raise ValueError(
+                "target: gicp needs target covariances; build it with "
+                "prepare(points, covariances=True)"
+            )
+        return target
+    points = as_points(target, "target", dim=dim)
+    if settings.voxel_size is not None:
+        points = voxel_downsample(points, settings.voxel_size).points
+    k = settings.num_neighbors
+    if want_normals or want_covs:
+        k = check_k(min(k, len(points)), len(points), dim)
+    return prepare(points, normals=want_normals, covariances=want_covs, k=k)
+
+
+def _length_scale(points: FloatArray) -> float:
+    """RMS distance of the points from their centroid (the conditioning's rotation lever)."""
+    centred = points - points.mean(axis=0)
+    return float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
+
+
+def register(
+    source: Any,
+    target: Any,
+    *,
+    method: Method = "point_to_plane",
+    init: Any = None,
+    settings: RegistrationSettings | None = None,
+    **overrides: Any,
+) -> RegistrationResult:
+    """Estimate ``T_target_source`` aligning ``source`` to ``target`` from ``init``.
+
+    Parameters
+    ----------
+    source
+        ``(N, D)`` float64, C-contiguous, ``D`` = 2 or 3, in the source frame.
+    target
+        ``(M, D)`` float64 points in the target frame, or a :class:`~scanreg.PreparedTarget`
+        (reused as is: build it once with :func:`scanreg.prepare` for many registrations).
+        A raw array is prepared here (normals for point-to-plane/line, covariances for GICP).
+    method
+        ``point_to_point``, ``point_to_plane`` (3D; in 2D the same as ``point_to_line``),
+        ``point_to_line`` (2D) or ``gicp``.
+    init
+        Initial ``T_target_source`` (``SE2``/``SE3`` or homogeneous matrix); default identity.
+    settings, **overrides
+        A :class:`RegistrationSettings`, and/or its fields as keywords
+        (``register(s, t, max_correspondence_distance=0.5)``); a misspelled field is a
+        ``TypeError``.
+
+    Raises
+    ------
+    TypeError, ValueError
+        On malformed input, naming the argument.
+    """
+    t_start = time.perf_counter()
+    base = settings if settings is not None else RegistrationSettings()
+    if not isinstance(base, RegistrationSettings):
+        raise TypeError(f"settings: expected RegistrationSettings, got {type(base).__name__}")
+    if overrides:
+        unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(base)})
+        if unknown:
+            raise TypeError(f"register: unknown setting(s) {', '.join(unknown)}")
+        base = dataclasses.replace(base, **overrides)
+    s = base
+    src = as_points(source, "source")
+    dim = int(src.shape[1])
+    method_eff = _resolve_method(method, dim)
+    pose0 = pose_class(dim).identity() if init is None else as_pose(init, "init", dim)
+
+    t0 = time.perf_counter()
+    prepared = _prepared_target(target, dim, method_eff, s)
+    t_target = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    if s.voxel_size is not None:
+        src = voxel_downsample(src, s.voxel_size).points
+    source_covariances = None
+    if method_eff == "gicp":
+        k = check_k(min(s.num_neighbors, len(src)), len(src), dim)
+        _, source_covariances, _ = _core.KdTree(src).local_geometry(
+            k,
+            np.zeros(dim),
+            normals=False,
+            regularization="plane"
+            if prepared.regularization == "none"
+            else prepared.regularization,
+            epsilon=prepared.epsilon,
+        )
+    t_source = time.perf_counter() - t0
+
+    dof = 3 if dim == 2 else 6
+    planar = method_eff in ("point_to_plane", "point_to_line")
+    components = 1 if planar else dim  # scalar residuals per correspondence
+    min_corr = s.min_correspondences
+    if min_corr is None:
+        min_corr = dof // components + 1
+    if s.kernel == "none":
+        k_scale = 1.0
+    elif s.kernel_scale is not None:
+        k_scale = s.kernel_scale
+    else:
+        k_scale = 1.0 if method_eff == "gicp" else s.max_correspondence_distance / 3.0
+        if not math.isfinite(k_scale):
+            raise ValueError("kernel_scale: required with an infinite max_correspondence_distance")
+
+    out = _core.register_icp(
+        src,
+        prepared.index,
+        pose0.as_matrix(),
+        method=method_eff,
+        kernel=s.kernel,
+        kernel_scale=k_scale,
+        max_correspondence_distance=s.max_correspondence_distance,
+        max_iterations=s.max_iterations,
+        translation_tolerance=s.translation_tolerance,
+        rotation_tolerance=s.rotation_tolerance,
+        optimizer=s.optimizer,
+        min_correspondences=min_corr,
+        num_threads=s.num_threads,
+        source_covariances=source_covariances,
+        target_normals=prepared.normals if planar else None,
+        target_covariances=prepared.covariances if method_eff == "gicp" else None,
+    )
+
+    t0 = time.perf_counter()
+    pose = pose_class(dim).from_matrix(out.pose, atol=1e-6)
+    hessian = np.array(out.hessian)
+    n_corr = int(out.num_correspondences)
+    m = components * n_corr
+    try:
+        if s.kernel == "none":
+            sigma2 = float(out.sum_squares / (m - dof)) if m > dof else math.nan
+            cov = least_squares_covariance(hessian, sigma2)
+        else:
+            m_eff = components * float(out.irls_weight_sum)
+            sigma2 = float(out.irls_sum_squares / (m_eff - dof)) if m_eff > dof else math.nan
+            cov = sandwich_covariance(hessian, np.array(out.score_outer), m_eff, dof)
+        if not np.isfinite(cov).all():
+            raise np.linalg.LinAlgError("non-finite covariance")
+    except np.linalg.LinAlgError:
+        sigma2 = math.nan if m <= dof else sigma2
+        cov = np.full((dof, dof), np.inf)
+    info = information_from_covariance(cov) if np.isfinite(cov).all() else np.zeros((dof, dof))
+    cond = conditioning(hessian, dim, _length_scale(src))
+    t_post = time.perf_counter() - t0
+
+    stop: StopReason = out.stop_reason  # type: ignore[assignment]
+    return RegistrationResult(
+        pose=pose,
+        method=method_eff,
+        kernel=s.kernel,
+        kernel_scale=k_scale if s.kernel != "none" else math.nan,
+        iterations=int(out.iterations),
+        converged=stop == "converged",
+        stop_reason=stop,
+        num_correspondences=n_corr,
+        num_source_points=len(src),
+        fitness=n_corr / len(src),
+        inlier_rmse=math.sqrt(out.sum_squared_distances / n_corr) if n_corr else math.nan,
+        cost=float(out.cost),
+        hessian=_frozen(hessian),
+        gradient=_frozen(out.gradient),
+        sigma2=sigma2,
+        covariance=_frozen(cov),
+        information=_frozen(info),
+        conditioning=cond,
+        timing=RegistrationTiming(
+            target_preparation=t_target,
+            source_preparation=t_source,
+            iterations=tuple(float(x) for x in out.iteration_seconds),
+            final_evaluation=float(out.final_evaluation_seconds),
+            post_processing=t_post,
+            total=time.perf_counter() - t_start,
+        ),
+        settings=s,
+    )
