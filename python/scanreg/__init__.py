@@ -6,6 +6,7 @@ translation-first and perturb on the right (``T @ exp(δ)``); see :mod:`scanreg.
 
 from . import preprocess, simulate
 from ._core import __version__
+from .deskew import deskew
 from .paired import PairedAlignment, align_paired
 from .quality import Conditioning, ResidualStats, WeakDirection
 from .register import RegistrationResult, RegistrationSettings, RegistrationTiming, register
@@ -25,6 +26,7 @@ __all__ = [
     "WeakDirection",
     "__version__",
     "align_paired",
+    "deskew",
     "prepare",
     "preprocess",
     "register",

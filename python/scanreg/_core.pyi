@@ -211,3 +211,12 @@ def register_icp(
     target_covariances: NDArray[np.float64] | None = None,
     iterate: bool = True,
 ) -> IcpOutcome: ...
+
+# --- motion compensation (crates/scanreg-py/src/deskew.rs) ---
+
+def deskew(
+    points_array: NDArray[np.float64],
+    timestamps: NDArray[np.float64],
+    velocity: NDArray[np.float64],
+    reference_time: float,
+) -> NDArray[np.float64]: ...

@@ -12,10 +12,12 @@
 //!
 //! Nothing here panics on user input: every entry point validates and returns [`Error`].
 
+pub mod deskew;
 pub mod downsample;
 pub mod error;
 pub mod icp;
 pub mod kernel;
+pub mod lie;
 pub mod knn;
 pub mod lzf;
 pub mod normals;

@@ -1,0 +1,119 @@
+//! Small Lie-group helpers shared by the core: rigid transforms and exponential maps.
+//!
+//! Tangent vectors are translation first (`[ρ, φ]`, `[ρx, ρy, θ]`), as everywhere in scanreg.
+
+use crate::error::{Error, Result};
+use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+
+/// A rigid transform `p ↦ R p + t`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rigid {
+    pub r: Matrix3<f64>,
+    pub t: Vector3<f64>,
+}
+
+impl Rigid {
+    pub fn identity() -> Self {
+        Rigid {
+            r: Matrix3::identity(),
+            t: Vector3::zeros(),
+        }
+    }
+
+    pub fn compose(&self, other: &Rigid) -> Rigid {
+        Rigid {
+            r: self.r * other.r,
+            t: self.r * other.t + self.t,
+        }
+    }
+
+    pub fn inverse(&self) -> Rigid {
+        let rt = self.r.transpose();
+        Rigid {
+            r: rt,
+            t: -(rt * self.t),
+        }
+    }
+
+    pub fn apply(&self, p: Vector3<f64>) -> Vector3<f64> {
+        self.r * p + self.t
+    }
+
+    /// From a row-major 4x4 homogeneous matrix (validated: finite, last row, orthonormal).
+    pub fn from_matrix(arg: &'static str, m: &[f64]) -> Result<Rigid> {
+        if m.len() != 16 {
+            return Err(Error::invalid(
+                arg,
+                format!("expected 16 values (4x4), got {}", m.len()),
+            ));
+        }
+        if m.iter().any(|v| !v.is_finite()) {
+            return Err(Error::invalid(arg, "pose has a non-finite entry"));
+        }
+        let r = Matrix3::new(m[0], m[1], m[2], m[4], m[5], m[6], m[8], m[9], m[10]);
+        let err = (r.transpose() * r - Matrix3::identity()).abs().max();
+        if err > 1e-6 || r.determinant() < 0.0 {
+            return Err(Error::invalid(
+                arg,
+                "rotation block is not a rotation matrix",
+            ));
+        }
+        if (m[12].abs() + m[13].abs() + m[14].abs() + (m[15] - 1.0).abs()) > 1e-9 {
+            return Err(Error::invalid(arg, "last row must be [0, 0, 0, 1]"));
+        }
+        Ok(Rigid {
+            r,
+            t: Vector3::new(m[3], m[7], m[11]),
+        })
+    }
+}
+
+pub fn hat(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// `exp` of an se(3) tangent `[ρ, φ]`: `R = exp(φ^)`, `t = J_l(φ) ρ`.
+pub fn se3_exp(rho: Vector3<f64>, phi: Vector3<f64>) -> Rigid {
+    let theta2 = phi.norm_squared();
+    let theta = theta2.sqrt();
+    let k = hat(&phi);
+    let k2 = k * k;
+    // Series below 1e-4 rad: the next terms are O(θ⁴) < 1e-16.
+    let (a, b, c) = if theta < 1e-4 {
+        (
+            1.0 - theta2 / 6.0,
+            0.5 - theta2 / 24.0,
+            1.0 / 6.0 - theta2 / 120.0,
+        )
+    } else {
+        let (s, co) = theta.sin_cos();
+        (
+            s / theta,
+            (1.0 - co) / theta2,
+            (theta - s) / (theta2 * theta),
+        )
+    };
+    let eye = Matrix3::identity();
+    Rigid {
+        r: eye + k * a + k2 * b,
+        t: (eye + k * b + k2 * c) * rho,
+    }
+}
+
+/// `exp` of an se(2) tangent `[ρx, ρy, θ]`: `R = R(θ)`, `t = V(θ) ρ`.
+pub fn se2_exp(rho: Vector2<f64>, theta: f64) -> (Matrix2<f64>, Vector2<f64>) {
+    let (s, c) = theta.sin_cos();
+    // V = [[a, -b], [b, a]] with a = sin θ / θ, b = (1 - cos θ) / θ = 2 sin²(θ/2) / θ.
+    let (a, b) = if theta.abs() < 1e-4 {
+        (
+            1.0 - theta * theta / 6.0,
+            0.5 * theta - theta.powi(3) / 24.0,
+        )
+    } else {
+        (s / theta, 2.0 * (0.5 * theta).sin().powi(2) / theta)
+    };
+    (
+        Matrix2::new(c, -s, s, c),
+        Vector2::new(a * rho.x - b * rho.y, b * rho.x + a * rho.y),
+    )
+}
