@@ -79,3 +79,42 @@ def test_demo_runs_end_to_end_as_a_command() -> None:
     )
     assert done.returncode == 0, done.stderr
     assert "estimate inside 3σ of the predicted covariance: yes" in done.stdout
+
+
+def _write_pair(tmp_path: Path) -> tuple[Path, Path, np.ndarray]:
+    """A simulated street sweep and the same points moved by a known T_target_source."""
+    from scanreg import SE3
+    from scanreg import simulate as sim
+
+    sweep = sim.simulate_sweep(
+        sim.street(seed=3),
+        sim.LidarModel.preset("vlp16"),
+        sim.Trajectory.stationary(SE3.from_vector([0, 1.75, 1.73, 0, 0, 0])),
+        seed=0,
+    )
+    truth = SE3.from_vector([0.4, -0.2, 0.05, 0.0, 0.01, 0.05])
+    src, tgt = tmp_path / "source.ply", tmp_path / "target.ply"
+    io.write_points(src, io.PointCloud(np.ascontiguousarray(sweep.points)))
+    io.write_points(tgt, io.PointCloud(truth.apply(sweep.points)))
+    return src, tgt, truth.as_matrix()
+
+
+def test_register_recovers_a_known_transform(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    src, tgt, truth = _write_pair(tmp_path)
+    out = run_json(capsys, "register", str(src), str(tgt), "--max-correspondence-distance", "2")
+    assert out["converged"] is True and out["stop_reason"] == "converged"
+    np.testing.assert_allclose(out["pose"], truth, atol=1e-3)  # type: ignore[arg-type]
+    assert 0.9 < out["fitness"] <= 1.0  # type: ignore[operator]
+    assert np.array(out["covariance"]).shape == (6, 6)
+
+
+def test_register_exit_code_1_when_not_converged(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    src, tgt, _ = _write_pair(tmp_path)
+    code = cli.main(["register", str(src), str(tgt), "--max-iterations", "1", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == cli.EXIT_CHECK_FAILED
+    assert out["converged"] is False and out["stop_reason"] == "max_iterations"

@@ -23,6 +23,7 @@ EXAMPLES = """examples:
   scanreg info poses.txt --trajectory-format kitti --json
   scanreg evaluate estimate.txt groundtruth.txt --format tum --metric ate
   scanreg evaluate est.txt gt.txt --format kitti --metric rpe --delta 10 --unit meters --json
+  scanreg register source.ply target.ply --voxel-size 0.25 --method gicp --json
 """
 
 
@@ -59,6 +60,28 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--delta", type=float, default=1.0, help="RPE pair separation (default 1)")
     ev.add_argument("--unit", choices=["frames", "meters"], default="frames", help="RPE delta unit")
     ev.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+    reg = sub.add_parser(
+        "register", help="align SOURCE to TARGET (point clouds); exit 1 if it did not converge"
+    )
+    reg.add_argument("source", type=Path)
+    reg.add_argument("target", type=Path)
+    reg.add_argument(
+        "--method",
+        choices=["point_to_point", "point_to_plane", "point_to_line", "gicp"],
+        default="point_to_plane",
+    )
+    reg.add_argument(
+        "--init",
+        type=Path,
+        default=None,
+        help="text file with the initial 4x4 or 3x3 T_target_source",
+    )
+    reg.add_argument("--max-correspondence-distance", type=float, default=1.0, help="gate (m)")
+    reg.add_argument("--voxel-size", type=float, default=None, help="downsample both clouds (m)")
+    reg.add_argument("--kernel", default="none", help="robust kernel (huber, cauchy, tukey, ...)")
+    reg.add_argument("--max-iterations", type=int, default=30)
+    reg.add_argument("--json", action="store_true", help="print JSON instead of text")
     return parser
 
 
@@ -130,6 +153,43 @@ def _evaluate(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _register(args: argparse.Namespace) -> dict[str, Any]:
+    from . import io, preprocess
+    from .register import register
+
+    clouds = []
+    for name in ("source", "target"):
+        pts = io.read_points(getattr(args, name)).finite().points
+        if args.voxel_size:
+            pts = preprocess.voxel_downsample(pts, args.voxel_size).points
+        clouds.append(np.ascontiguousarray(pts))
+    init = None if args.init is None else np.loadtxt(args.init, ndmin=2)
+    res = register(
+        clouds[0],
+        clouds[1],
+        method=args.method,
+        init=init,
+        max_correspondence_distance=args.max_correspondence_distance,
+        kernel=args.kernel,
+        max_iterations=args.max_iterations,
+    )
+    return {
+        "converged": res.converged,
+        "stop_reason": res.stop_reason,
+        "iterations": res.iterations,
+        "pose": res.pose.as_matrix().tolist(),
+        "pose_vector": res.pose.as_vector().tolist(),
+        "covariance": res.covariance.tolist(),
+        "standard_deviations": np.sqrt(np.diag(res.covariance)).tolist(),
+        "fitness": res.fitness,
+        "inlier_rmse": res.inlier_rmse,
+        "num_correspondences": res.num_correspondences,
+        "weakest_direction": res.conditioning.weakest.description,
+        "weak_directions": [d.description for d in res.conditioning.weak_directions],
+        "time_s": res.timing.total,
+    }
+
+
 def _print_text(result: dict[str, Any], indent: str = "") -> None:
     for key, value in result.items():
         if isinstance(value, dict):
@@ -147,7 +207,7 @@ def main(argv: list[str] | None = None) -> int:
         from .demo import run_demo
 
         return run_demo(args.seed)
-    handlers = {"info": _info, "evaluate": _evaluate}
+    handlers = {"info": _info, "evaluate": _evaluate, "register": _register}
     try:
         result = handlers[args.command](args)
     except (ValueError, OSError) as exc:  # FileFormatError is a ValueError
@@ -157,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result, indent=2))
     else:
         _print_text(result)
+    if result.get("converged") is False:
+        return EXIT_CHECK_FAILED
     return EXIT_OK
 
 
