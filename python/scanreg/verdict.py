@@ -1,0 +1,203 @@
+"""Accept or reject a registration, and say why.
+
+:func:`assess` measures a registration result against its inputs — overlap within a gate,
+residual statistics, conditioning, how far the estimate moved from the initial guess,
+convergence — and checks each against :class:`VerdictThresholds`. The verdict lists every
+failed check as a readable reason (``"overlap 0.18 < 0.50"``,
+``"degenerate: translation along (1.00, 0.00, 0.00)"``), so a pipeline can log it or act on it.
+
+Defaults are conservative starting points, not tuned constants: ``min_overlap = 0.5`` (half of
+the source must lie on the target, the seed's gate test), the residual bound is half the gate
+(an inlier spread that fills the gate means the gate, not the geometry, decides), and
+degeneracy uses the conditioning's scaled eigenvalue ratio (see :mod:`scanreg.quality`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ._validate import as_points
+from .quality import DEFAULT_WEAK_RATIO, Conditioning, conditioning
+from .target import PreparedTarget, prepare
+from .transform import SE2, SE3, as_pose
+
+
+def _nonnegative(value: float, name: str, *, allow_inf: bool = True) -> float:
+    v = float(value)
+    if math.isnan(v) or v < 0 or (not allow_inf and math.isinf(v)):
+        raise ValueError(f"{name}: must be >= 0{'' if allow_inf else ' and finite'}, got {value}")
+    return v
+
+
+@dataclass(frozen=True)
+class VerdictThresholds:
+    """What a registration must satisfy to be accepted (validated on construction)."""
+
+    #: Least fraction of source points with a target point within ``overlap_gate``.
+    min_overlap: float = 0.5
+    #: The overlap gate δ (units of the points); ``None``: the registration's own gate.
+    overlap_gate: float | None = None
+    #: Largest RMS distance over the overlapping points; ``None``: half the overlap gate.
+    max_inlier_rmse: float | None = None
+    #: A scaled eigen-direction weaker than this (ratio to the strongest) is degenerate.
+    weak_ratio: float = DEFAULT_WEAK_RATIO
+    #: Largest translation of the estimate away from the initial guess (a motion bound).
+    max_translation: float = math.inf
+    #: Largest rotation (radians) of the estimate away from the initial guess.
+    max_rotation: float = math.inf
+    #: Reject results that did not converge.
+    require_convergence: bool = True
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= float(self.min_overlap) <= 1.0:
+            raise ValueError(f"min_overlap: must be in [0, 1], got {self.min_overlap}")
+        if self.overlap_gate is not None:
+            _nonnegative(self.overlap_gate, "overlap_gate", allow_inf=False)
+            if self.overlap_gate == 0:
+                raise ValueError("overlap_gate: must be > 0")
+        if self.max_inlier_rmse is not None:
+            _nonnegative(self.max_inlier_rmse, "max_inlier_rmse")
+        if not 0.0 < float(self.weak_ratio) < 1.0:
+            raise ValueError(f"weak_ratio: must be in (0, 1), got {self.weak_ratio}")
+        _nonnegative(self.max_translation, "max_translation")
+        _nonnegative(self.max_rotation, "max_rotation")
+
+
+@dataclass(frozen=True)
+class QualityReport:
+    """Measurements behind a verdict (units of the points; angles in radians)."""
+
+    #: Fraction of source points whose nearest target point is within ``gate``.
+    overlap: float
+    gate: float
+    num_source_points: int
+    #: Distances to the nearest target point over the overlapping points.
+    residual_mean: float
+    residual_median: float
+    residual_rmse: float
+    #: RMS of the lowest 90 % of those distances (robust to a few wrong matches).
+    residual_trimmed_rmse: float
+    translation_from_init: float
+    rotation_from_init: float
+    converged: bool
+    stop_reason: str
+    conditioning: Conditioning
+
+
+@dataclass(frozen=True)
+class Verdict:
+    accepted: bool
+    #: One readable line per failed check; empty when accepted.
+    reasons: tuple[str, ...] = field(default=())
+
+    def __bool__(self) -> bool:
+        return self.accepted
+
+
+@dataclass(frozen=True)
+class Assessment:
+    report: QualityReport
+    verdict: Verdict
+
+
+def assess(
+    result: Any,
+    source: Any,
+    target: Any,
+    *,
+    init: Any = None,
+    thresholds: VerdictThresholds | None = None,
+) -> Assessment:
+    """Measure a registration ``result`` (``pose``, ``hessian``, ``converged``, ``stop_reason``,
+    and ``settings.max_correspondence_distance`` as from :func:`scanreg.register`) and judge it.
+
+    ``source`` are the registered source points (source frame), ``target`` the target points or
+    a :class:`~scanreg.PreparedTarget`; ``init`` the initial guess it started from (identity
+    when ``None``).
+    """
+    th = VerdictThresholds() if thresholds is None else thresholds
+    if not isinstance(th, VerdictThresholds):
+        raise TypeError(f"thresholds: expected VerdictThresholds, got {type(th).__name__}")
+    pose = result.pose
+    if not isinstance(pose, SE2 | SE3):
+        raise TypeError(f"result: its pose must be SE2 or SE3, got {type(pose).__name__}")
+    dim = pose.DIM
+    src = as_points(source, "source", dim=dim)
+    tgt = (
+        target
+        if isinstance(target, PreparedTarget)
+        else prepare(as_points(target, "target", dim=dim), normals=False)
+    )
+    if tgt.dim != dim:
+        raise ValueError(f"target: is {tgt.dim}D but the result is {dim}D")
+    gate = th.overlap_gate
+    if gate is None:
+        gate = float(result.settings.max_correspondence_distance)
+    start = type(pose).identity() if init is None else as_pose(init, "init", dim)
+
+    nearest = tgt.nearest(pose.apply(src), gate)
+    found = nearest.found
+    dist = np.sqrt(nearest.squared_distances[found])
+    overlap = float(found.mean())
+    if dist.size:
+        trimmed = np.sort(dist)[: max(1, math.ceil(0.9 * dist.size))]
+        stats = (
+            float(dist.mean()),
+            float(np.median(dist)),
+            float(np.sqrt(np.mean(dist**2))),
+            float(np.sqrt(np.mean(trimmed**2))),
+        )
+    else:
+        stats = (math.nan,) * 4
+    moved = start.inverse() @ pose  # type: ignore[operator]
+    cond = conditioning(
+        np.asarray(result.hessian, dtype=np.float64),
+        dim,
+        result.conditioning.length_scale,
+        weak_ratio=th.weak_ratio,
+    )
+    report = QualityReport(
+        overlap=overlap,
+        gate=gate,
+        num_source_points=int(src.shape[0]),
+        residual_mean=stats[0],
+        residual_median=stats[1],
+        residual_rmse=stats[2],
+        residual_trimmed_rmse=stats[3],
+        translation_from_init=float(np.linalg.norm(moved.translation)),
+        rotation_from_init=float(moved.angle) if dim == 3 else abs(float(moved.angle)),
+        converged=bool(result.converged),
+        stop_reason=str(result.stop_reason),
+        conditioning=cond,
+    )
+    return Assessment(report=report, verdict=judge(report, th))
+
+
+def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
+    """Apply ``thresholds`` to a :class:`QualityReport`."""
+    th = thresholds
+    reasons: list[str] = []
+    if th.require_convergence and not report.converged:
+        reasons.append(f"not converged: {report.stop_reason}")
+    if report.overlap < th.min_overlap:
+        reasons.append(f"overlap {report.overlap:.2f} < {th.min_overlap:.2f}")
+    max_rmse = 0.5 * report.gate if th.max_inlier_rmse is None else th.max_inlier_rmse
+    if not report.residual_rmse <= max_rmse:  # also rejects nan (no overlap at all)
+        reasons.append(f"inlier RMSE {report.residual_rmse:.3g} > {max_rmse:.3g}")
+    for weak in report.conditioning.weak_directions:
+        reasons.append(f"degenerate: {weak.description} (ratio {weak.ratio:.1e})")
+    if report.translation_from_init > th.max_translation:
+        reasons.append(
+            f"moved {report.translation_from_init:.3g} from the initial guess "
+            f"> bound {th.max_translation:.3g}"
+        )
+    if report.rotation_from_init > th.max_rotation:
+        reasons.append(
+            f"rotated {math.degrees(report.rotation_from_init):.3g}° from the initial guess "
+            f"> bound {math.degrees(th.max_rotation):.3g}°"
+        )
+    return Verdict(accepted=not reasons, reasons=tuple(reasons))
