@@ -1,0 +1,372 @@
+"""Registration speed and accuracy on real pairs, against small_gicp (and Open3D if importable).
+
+Run (2 threads for everyone; peers are optional and imported in the same process):
+
+    RAYON_NUM_THREADS=2 .venv/bin/python benchmarks/register_speed.py \
+        [--peers-site /tmp/peers-venv/lib/python3.11/site-packages] [--repeat 11]
+
+Pairs: KITTI 00 frames 000001 -> 000000 and the small_gicp/fast_gicp outdoor pair. Settings
+shared by every library: voxel 0.25 m (centroid), k = 20 neighbours for normals/covariances,
+max correspondence distance 1.0 m, at most 20 iterations, convergence at 1e-3 m / 0.1°
+(small_gicp's defaults), 2 threads, initial guess identity.
+
+Stages, timed the same way for each library (median over --repeat runs after a warm-up):
+* preprocess: downsample both clouds, build the target index, the normals (point-to-plane) or
+  the covariances of both clouds (GICP) — only what the method needs;
+* register: the alignment call on the preprocessed inputs;
+* end-to-end: raw arrays in, pose out.
+Ratio = our time / theirs (< 1: scanreg faster). Accuracy: translation / rotation error against
+the outdoor pair's reference (small_gicp's T_target_source.txt, itself a registration good to
+~2 cm / 0.2°); for KITTI, whose published ground truth is doubtful for these scans, the
+difference from small_gicp's estimate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("RAYON_NUM_THREADS", "2")  # before scanreg starts its pool
+
+import numpy as np
+import scanreg
+from scanreg import SE3
+from scanreg import preprocess as pp
+from scanreg.io import read_points
+
+DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
+VOXEL = 0.25
+K = 20
+GATE = 1.0
+MAX_ITERATIONS = 20
+TRANSLATION_EPS = 1e-3
+ROTATION_EPS = np.deg2rad(0.1)
+
+OURS = {"point_to_point": "point_to_point", "point_to_plane": "point_to_plane", "gicp": "gicp"}
+SMALL_GICP = {"point_to_point": "ICP", "point_to_plane": "PLANE_ICP", "gicp": "GICP"}
+
+
+def median_time(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
+    out = fn()  # warm-up
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
+
+
+def load_pairs() -> dict[str, tuple[np.ndarray, np.ndarray, SE3 | None]]:
+    def kitti(i: int) -> np.ndarray:
+        path = DATA / f"kitti-odometry-00-frames-000-015/velodyne/{i:06d}.bin"
+        raw = np.fromfile(path, dtype=np.float32).reshape(-1, 4)
+        return np.ascontiguousarray(raw[:, :3], dtype=np.float64)
+
+    root = DATA / "gicp-outdoor-scan-pair/small_gicp"
+    ref = SE3.from_matrix(np.loadtxt(root / "T_target_source.txt"), atol=1e-4)
+    return {
+        "kitti 01->00": (kitti(1), kitti(0), None),
+        "outdoor pair": (
+            np.ascontiguousarray(read_points(root / "source.ply").points),
+            np.ascontiguousarray(read_points(root / "target.ply").points),
+            ref,
+        ),
+    }
+
+
+def load_peers(site: str | None) -> dict[str, Any]:
+    if site:
+        sys.path.append(site)
+    peers: dict[str, Any] = {}
+    try:
+        import small_gicp
+
+        peers["small_gicp"] = small_gicp
+    except ImportError:
+        pass
+    try:
+        import open3d
+
+        peers["open3d"] = open3d
+    except (ImportError, OSError):
+        pass
+    return peers
+
+
+def error(pose: SE3, ref: SE3) -> tuple[float, float]:
+    d = (ref.inverse() @ pose).log()
+    return float(np.linalg.norm(d[:3])), float(np.degrees(np.linalg.norm(d[3:])))
+
+
+# --- scanreg ------------------------------------------------------------------------------
+
+
+def ours_preprocess(src: np.ndarray, tgt: np.ndarray, method: str) -> tuple[Any, Any]:
+    s = pp.voxel_downsample(src, VOXEL).points
+    t = pp.voxel_downsample(tgt, VOXEL).points
+    prepared = scanreg.prepare(
+        t, normals=method == "point_to_plane", covariances=method == "gicp", k=K
+    )
+    return s, prepared
+
+
+def ours_register(s: np.ndarray, prepared: Any, method: str) -> scanreg.RegistrationResult:
+    return scanreg.register(
+        s,
+        prepared,
+        method=OURS[method],  # type: ignore[arg-type]
+        max_correspondence_distance=GATE,
+        max_iterations=MAX_ITERATIONS,
+        translation_tolerance=TRANSLATION_EPS,
+        rotation_tolerance=ROTATION_EPS,
+        num_neighbors=K,
+    )
+
+
+def run_ours(src: np.ndarray, tgt: np.ndarray, method: str, repeat: int) -> dict[str, Any]:
+    # GICP's source covariances are computed inside register(); move them to "preprocess"
+    # using its own timer so that the stages mean the same for both libraries.
+    pre, (s, prepared) = median_time(lambda: ours_preprocess(src, tgt, method), repeat)
+    reg, res = median_time(lambda: ours_register(s, prepared, method), repeat)
+    src_prep = res.timing.source_preparation
+    e2e, res = median_time(
+        lambda: ours_register(*ours_preprocess(src, tgt, method), method), repeat
+    )
+    return {
+        "preprocess": pre + src_prep,
+        "register": reg - src_prep,
+        "end-to-end": e2e,
+        "pose": res.pose,
+        "iterations": res.iterations,
+    }
+
+
+# --- small_gicp ----------------------------------------------------------------------------
+
+
+def run_small_gicp(
+    sg: Any, src: np.ndarray, tgt: np.ndarray, method: str, threads: int, repeat: int
+) -> dict[str, Any]:
+    def preprocess() -> tuple[Any, Any, Any]:
+        s = sg.voxelgrid_sampling(sg.PointCloud(src), VOXEL, threads)
+        t = sg.voxelgrid_sampling(sg.PointCloud(tgt), VOXEL, threads)
+        tree = sg.KdTree(t, threads)
+        if method == "point_to_plane":
+            sg.estimate_normals(t, tree, K, threads)
+        elif method == "gicp":
+            sg.estimate_covariances(t, tree, K, threads)
+            sg.estimate_covariances(s, sg.KdTree(s, threads), K, threads)
+        return s, t, tree
+
+    def register(s: Any, t: Any, tree: Any) -> Any:
+        return sg.align(
+            t,
+            s,
+            tree,
+            registration_type=SMALL_GICP[method],
+            max_correspondence_distance=GATE,
+            num_threads=threads,
+            max_iterations=MAX_ITERATIONS,
+            rotation_epsilon=ROTATION_EPS,
+            translation_epsilon=TRANSLATION_EPS,
+        )
+
+    pre, (s, t, tree) = median_time(preprocess, repeat)
+    reg, res = median_time(lambda: register(s, t, tree), repeat)
+    e2e, res = median_time(lambda: register(*preprocess()), repeat)
+    return {
+        "preprocess": pre,
+        "register": reg,
+        "end-to-end": e2e,
+        "pose": SE3.from_matrix(res.T_target_source, atol=1e-5),
+        "iterations": res.iterations,
+    }
+
+
+# --- Open3D ----------------------------------------------------------------------------
+
+
+def run_open3d(
+    o3d: Any, src: np.ndarray, tgt: np.ndarray, method: str, repeat: int
+) -> dict[str, Any]:
+    reg = o3d.pipelines.registration
+
+    def preprocess() -> tuple[Any, Any]:
+        s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src)).voxel_down_sample(VOXEL)
+        t = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(tgt)).voxel_down_sample(VOXEL)
+        knn = o3d.geometry.KDTreeSearchParamKNN(K)
+        if method == "point_to_plane":
+            t.estimate_normals(knn)
+        elif method == "gicp":
+            t.estimate_covariances(knn)
+            s.estimate_covariances(knn)
+        return s, t
+
+    estimator = {
+        "point_to_point": reg.TransformationEstimationPointToPoint,
+        "point_to_plane": reg.TransformationEstimationPointToPlane,
+        "gicp": reg.TransformationEstimationForGeneralizedICP,
+    }[method]
+    criteria = reg.ICPConvergenceCriteria(max_iteration=MAX_ITERATIONS)
+
+    def register(s: Any, t: Any) -> Any:
+        return reg.registration_icp(s, t, GATE, np.eye(4), estimator(), criteria)
+
+    pre, (s, t) = median_time(preprocess, repeat)
+    regt, res = median_time(lambda: register(s, t), repeat)
+    e2e, res = median_time(lambda: register(*preprocess()), repeat)
+    return {
+        "preprocess": pre,
+        "register": regt,
+        "end-to-end": e2e,
+        "pose": SE3.from_matrix(np.asarray(res.transformation), atol=1e-5),
+        "iterations": -1,
+    }
+
+
+def scaling(peers: dict[str, Any], threads: int, repeat: int) -> None:
+    """Registration time against N (no downsampling): KITTI frame 0 subsampled to 10k / 100k,
+    and tiled 8x with 3 cm jitter to 1M; the source is the same cloud moved by 0.3 m / 1°."""
+    frame = load_pairs()["kitti 01->00"][1]
+    rng = np.random.default_rng(0)
+    truth = SE3.from_vector([0.3, 0.05, 0.0, 0.0, 0.0, np.deg2rad(1.0)])
+    print("\nscaling (registration only, prepared target, point_to_plane and gicp):")
+    print("| N | method | scanreg ms | ms per 1k pts | small_gicp ms | ratio |")
+    print("|---|---|---|---|---|---|")
+    for n in (10_000, 100_000, 1_000_000):
+        if n <= len(frame):
+            cloud = frame[rng.choice(len(frame), n, replace=False)]
+        else:
+            reps = -(-n // len(frame))
+            cloud = np.concatenate([frame] * reps)[:n] + rng.normal(0, 0.03, (n, 3))
+        cloud = np.ascontiguousarray(cloud)
+        source = np.ascontiguousarray(truth.inverse().apply(cloud))
+        for method in ("point_to_plane", "gicp"):
+            prepared = scanreg.prepare(
+                cloud, normals=method == "point_to_plane", covariances=method == "gicp", k=K
+            )
+            reps_n = max(1, repeat // (1 if n < 500_000 else 4))
+            ours_t, res = median_time(
+                lambda s=source, p=prepared, m=method: ours_register(s, p, m), reps_n
+            )
+            ours_t -= res.timing.source_preparation
+            row = f"| {n} | {method} | {ours_t * 1e3:.0f} | {ours_t * 1e6 / n:.2f} |"
+            if "small_gicp" in peers:
+                sg = peers["small_gicp"]
+                t_pc, s_pc = sg.PointCloud(cloud), sg.PointCloud(source)
+                tree = sg.KdTree(t_pc, threads)
+                sg.estimate_normals_covariances(t_pc, tree, K, threads)
+                sg.estimate_normals_covariances(s_pc, sg.KdTree(s_pc, threads), K, threads)
+
+                def theirs(
+                    t_pc: Any = t_pc, s_pc: Any = s_pc, tree: Any = tree, m: str = method
+                ) -> Any:
+                    return peers["small_gicp"].align(
+                        t_pc,
+                        s_pc,
+                        tree,
+                        registration_type=SMALL_GICP[m],
+                        max_correspondence_distance=GATE,
+                        num_threads=threads,
+                        max_iterations=MAX_ITERATIONS,
+                        rotation_epsilon=ROTATION_EPS,
+                        translation_epsilon=TRANSLATION_EPS,
+                    )
+
+                their_t, _ = median_time(theirs, reps_n)
+                row += f" {their_t * 1e3:.0f} | {ours_t / their_t:.2f} |"
+            else:
+                row += " - | - |"
+            print(row)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--peers-site", default=None, help="site-packages holding small_gicp/open3d")
+    ap.add_argument("--repeat", type=int, default=11)
+    ap.add_argument("--scaling", action="store_true", help="also time N = 10k, 100k, 1M")
+    args = ap.parse_args()
+    threads = int(os.environ["RAYON_NUM_THREADS"])
+    peers = load_peers(args.peers_site)
+    if "open3d" in peers:
+        peers["open3d"].utility.set_verbosity_level(peers["open3d"].utility.VerbosityLevel.Error)
+    print(
+        f"voxel {VOXEL} m, k = {K}, gate {GATE} m, <= {MAX_ITERATIONS} iterations, "
+        f"{threads} threads, median of {args.repeat}; peers: {', '.join(peers) or 'none'}"
+    )
+    rows = []
+    for pair, (src, tgt, ref) in load_pairs().items():
+        for method in OURS:
+            ours = run_ours(src, tgt, method, args.repeat)
+            theirs: dict[str, dict[str, Any]] = {}
+            if "small_gicp" in peers:
+                theirs["small_gicp"] = run_small_gicp(
+                    peers["small_gicp"], src, tgt, method, threads, args.repeat
+                )
+            if "open3d" in peers:
+                theirs["open3d"] = run_open3d(peers["open3d"], src, tgt, method, args.repeat)
+            # Accuracy: vs the reference where there is one, else vs small_gicp.
+            anchor = ref if ref is not None else theirs.get("small_gicp", {}).get("pose")
+            anchor_name = "ref" if ref is not None else "small_gicp"
+
+            def acc(r: dict[str, Any], anchor: Any = anchor) -> str:
+                if anchor is None:
+                    return "-"
+                dt, dr = error(r["pose"], anchor)
+                return f"{dt * 100:.1f} cm / {dr:.2f}°"
+
+            for stage in ("preprocess", "register", "end-to-end"):
+                row = [pair, method, stage, f"{ours[stage] * 1e3:.1f}"]
+                for name in ("small_gicp", "open3d"):
+                    if name in theirs:
+                        t = theirs[name][stage]
+                        row += [f"{t * 1e3:.1f}", f"{ours[stage] / t:.2f}"]
+                    else:
+                        row += ["-", "-"]
+                if stage == "end-to-end":
+                    row += [
+                        f"vs {anchor_name}: ours {acc(ours)}"
+                        + "".join(f", {n} {acc(r)}" for n, r in theirs.items() if n != anchor_name)
+                        + f" (it: ours {ours['iterations']}"
+                        + "".join(
+                            f", {n} {r['iterations']}"
+                            for n, r in theirs.items()
+                            if r["iterations"] >= 0
+                        )
+                        + ")"
+                    ]
+                else:
+                    row += [""]
+                rows.append(row)
+    header = [
+        "pair",
+        "method",
+        "stage",
+        "scanreg ms",
+        "small_gicp ms",
+        "ratio",
+        "open3d ms",
+        "ratio",
+        "accuracy",
+    ]
+    widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
+
+    def line(r: list[str]) -> str:
+        return "| " + " | ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True)) + " |"
+
+    print(line(header))
+    print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
+    for r in rows:
+        print(line(r))
+    if args.scaling:
+        scaling(peers, threads, max(3, args.repeat // 3))
+
+
+if __name__ == "__main__":
+    main()
