@@ -159,3 +159,39 @@ def test_refuses_bad_input(tmp_path: Path, scan_pair: tuple) -> None:
     with pytest.raises(ValueError, match="threshold"):
         plot.plot_residual_histogram(tmp_path / "h.png", np.ones(3), threshold=-1.0)
     assert not list(tmp_path.iterdir())  # nothing was written by a refused call
+
+
+def test_cli_plot(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    import json
+
+    from scanreg import cli
+    from scanreg.io import write_tum
+
+    ref, est = _trajectory(), _trajectory(noise=0.05, seed=1)
+    write_tum(tmp_path / "ref.txt", ref)
+    write_tum(tmp_path / "est.txt", est)
+    argv = ["plot", "trajectory", str(tmp_path / "est.txt"), "--format", "tum"]
+    out_png = tmp_path / "t.png"
+    assert (
+        cli.main([*argv, "--reference", str(tmp_path / "ref.txt"), "-o", str(out_png), "--json"])
+        == 0
+    )
+    result = json.loads(capsys.readouterr().out)
+    assert result == {"plot": "trajectory", "output": str(out_png), "bytes": out_png.stat().st_size}
+    assert _png_size(out_png) == (round(6.4 * 110), round(6.0 * 110))
+    errs = [
+        "plot",
+        "errors",
+        str(tmp_path / "est.txt"),
+        str(tmp_path / "ref.txt"),
+        "--format",
+        "tum",
+    ]
+    assert cli.main([*errs, "--alignment", "se3", "-o", str(tmp_path / "e.svg")]) == 0
+    assert _is_svg(tmp_path / "e.svg")
+    capsys.readouterr()
+    assert cli.main([*argv, "-o", str(tmp_path / "t.jpg")]) == cli.EXIT_BAD_INPUT
+    assert "t.jpg" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["plot", "trajectory", str(tmp_path / "est.txt"), "--format", "tum"])  # no -o
+    assert exc.value.code == cli.EXIT_USAGE

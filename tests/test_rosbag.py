@@ -424,3 +424,35 @@ def test_topic_selection_errors(tmp_path: Path) -> None:
         read_bag_clouds(path, topic="/scan")
     with pytest.raises(TypeError, match="topic"):
         read_bag_scans(path, topic=3)  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def test_cli_info_on_bags(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    import json
+
+    from scanreg import cli
+
+    path = data_dir("rosbag1-laserscan-ccny-demo", "demo.bag")
+    assert cli.main(["info", str(path), "--json"]) == cli.EXIT_OK
+    out = json.loads(capsys.readouterr().out)
+    assert out == {
+        "kind": "bag",
+        "format": "ros1",
+        "messages": 360,
+        "topics": {"/scan": {"type": SCAN, "messages": 360}},
+    }
+    ts = _store("mcap")
+    msgs = [
+        (10**9 * (i + 1), _scan_msg(ts, "mcap", s, 10**9, False))
+        for i, s in enumerate(_sim_scans(2))
+    ]
+    folder = write_bag(tmp_path / "b2", "mcap", {"/scan": (SCAN, msgs)})
+    assert cli.main(["info", str(folder), "--json"]) == cli.EXIT_OK
+    out = json.loads(capsys.readouterr().out)
+    assert out["format"] == "ros2" and out["topics"]["/scan"]["messages"] == 2
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(path.read_bytes()[:5000])
+    assert cli.main(["info", str(cut)]) == cli.EXIT_BAD_INPUT
+    assert "cut.bag" in capsys.readouterr().err

@@ -24,6 +24,9 @@ EXAMPLES = """examples:
   scanreg evaluate estimate.txt groundtruth.txt --format tum --metric ate
   scanreg evaluate est.txt gt.txt --format kitti --metric rpe --delta 10 --unit meters --json
   scanreg register source.ply target.ply --voxel-size 0.25 --method gicp --json
+  scanreg info demo.bag                      # ROS 1/2 bag: topics, types, message counts
+  scanreg plot trajectory est.txt --reference gt.txt --format kitti --alignment se3 -o traj.png
+  scanreg plot errors est.txt gt.txt --format tum --alignment sim3 -o errors.svg
 """
 
 
@@ -39,7 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="run the built-in demo on generated data")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
 
-    info = sub.add_parser("info", help="summarise a point cloud or trajectory file")
+    info = sub.add_parser(
+        "info", help="summarise a point cloud, trajectory or ROS bag (.bag, .db3, .mcap, folder)"
+    )
     info.add_argument("path", type=Path)
     info.add_argument(
         "--trajectory-format",
@@ -82,6 +87,21 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument("--kernel", default="none", help="robust kernel (huber, cauchy, tukey, ...)")
     reg.add_argument("--max-iterations", type=int, default=30)
     reg.add_argument("--json", action="store_true", help="print JSON instead of text")
+
+    plot = sub.add_parser("plot", help="draw a figure (PNG/SVG by the output's extension)")
+    kinds = plot.add_subparsers(dest="plot_kind", required=True)
+    traj = kinds.add_parser("trajectory", help="top view of a trajectory (and a reference)")
+    traj.add_argument("estimate", type=Path)
+    traj.add_argument("--reference", type=Path, default=None)
+    errs = kinds.add_parser("errors", help="position/rotation error over distance travelled")
+    errs.add_argument("estimate", type=Path)
+    errs.add_argument("reference", type=Path)
+    for kind in (traj, errs):
+        kind.add_argument("--format", choices=["kitti", "tum"], required=True, help="files' format")
+        kind.add_argument("--alignment", choices=["none", "se3", "sim3"], default="none")
+        kind.add_argument("-o", "--output", type=Path, required=True, help="figure (.png/.svg)")
+        kind.add_argument("--json", action="store_true", help="print JSON instead of text")
+    traj.add_argument("--plane", choices=["auto", "xy", "xz", "yz"], default="auto")
     return parser
 
 
@@ -90,9 +110,28 @@ def _stats(stats: Any) -> dict[str, float]:
     return {k: float(getattr(stats, k)) for k in keys}
 
 
+_BAG_SUFFIXES = {".bag": "ros1", ".db3": "ros2-sqlite3", ".mcap": "ros2-mcap"}
+
+
+def _bag_info(path: Path) -> dict[str, Any]:
+    from .io import rosbag
+
+    topics = rosbag.list_topics(path)
+    return {
+        "kind": "bag",
+        "format": "ros2" if path.is_dir() else _BAG_SUFFIXES[path.suffix.lower()],
+        "messages": sum(t.message_count for t in topics),
+        "topics": {t.name: {"type": t.msgtype, "messages": t.message_count} for t in topics},
+    }
+
+
 def _info(args: argparse.Namespace) -> dict[str, Any]:
     from . import io
 
+    if not args.trajectory_format and (
+        args.path.is_dir() or args.path.suffix.lower() in _BAG_SUFFIXES
+    ):
+        return _bag_info(args.path)
     if args.trajectory_format:
         traj = io.TRAJECTORY_READERS[args.trajectory_format](args.path)
         positions = traj.positions
@@ -190,6 +229,24 @@ def _register(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _plot(args: argparse.Namespace) -> dict[str, Any]:
+    from . import io, plot
+
+    read = io.TRAJECTORY_READERS[args.format]
+    estimate = read(args.estimate)
+    reference = None if args.reference is None else read(args.reference)
+    if args.plot_kind == "trajectory":
+        out = plot.plot_trajectories(
+            args.output, estimate, reference, alignment=args.alignment, plane=args.plane
+        )
+    else:
+        assert reference is not None
+        out = plot.plot_error_over_distance(
+            args.output, estimate, reference, alignment=args.alignment
+        )
+    return {"plot": args.plot_kind, "output": str(out), "bytes": out.stat().st_size}
+
+
 def _print_text(result: dict[str, Any], indent: str = "") -> None:
     for key, value in result.items():
         if isinstance(value, dict):
@@ -207,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
         from .demo import run_demo
 
         return run_demo(args.seed)
-    handlers = {"info": _info, "evaluate": _evaluate, "register": _register}
+    handlers = {"info": _info, "evaluate": _evaluate, "register": _register, "plot": _plot}
     try:
         result = handlers[args.command](args)
     except (ValueError, OSError) as exc:  # FileFormatError is a ValueError
