@@ -178,8 +178,9 @@ class RegistrationResult:
     #: ``converged``: the last step was below both tolerances (under LM: no step lowered the
     #: cost, a minimum); ``max_iterations``; ``too_few_correspondences`` (fewer than
     #: ``min_correspondences`` inside the gate — the pose is where it stopped);
-    #: ``diverged``: the step or pose became non-finite; ``degenerate``: ``JᵀJ`` singular,
-    #: the correspondences do not determine the pose.
+    #: ``diverged``: a step was non-finite or implausibly large (over ten times the gate, or
+    #: over 90°: a near-singular ``JᵀJ``), the pose before it is returned; ``degenerate``:
+    #: ``JᵀJ`` singular, the correspondences do not determine the pose.
     stop_reason: StopReason
     #: Source points with a correspondence inside the gate (and, for point-to-plane, a valid
     #: target normal) at ``pose``.

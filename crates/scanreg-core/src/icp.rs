@@ -102,7 +102,8 @@ pub enum StopReason {
     Converged,
     MaxIterations,
     TooFewCorrespondences,
-    /// The step or the pose became non-finite.
+    /// The step was non-finite, or implausibly large for the gate (translation over ten gates or
+    /// rotation over 90°: a near-singular `H`); the pose before that step is returned.
     Diverged,
     /// `H` is singular: the correspondences do not determine the pose (e.g. all on one plane
     /// for point-to-plane).
@@ -574,7 +575,12 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
             stop = StopReason::Degenerate;
             break;
         };
-        if d.iter().any(|v| !v.is_finite()) {
+        let dt = d.rows(0, D).norm();
+        let dr = d.rows(D, N - D).norm();
+        // Every correspondence is within the gate, so a sound step moves the source by about the
+        // gate at most; a far larger one (or a quarter turn) comes from a near-singular H.
+        let too_far = dt > 10.0 * s.max_correspondence_distance || dr > std::f64::consts::FRAC_PI_2;
+        if d.iter().any(|v| !v.is_finite()) || too_far {
             stop = StopReason::Diverged;
             break;
         }
@@ -585,8 +591,6 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
             break;
         }
         pose = next;
-        let dt = d.rows(0, D).norm();
-        let dr = d.rows(D, N - D).norm();
         if dt < s.translation_tolerance && dr < s.rotation_tolerance {
             stop = StopReason::Converged;
             break;
