@@ -236,6 +236,30 @@ def test_kitti_consecutive_frames_methods_agree() -> None:
     assert gicp.fitness > 0.8
 
 
+def test_kitti_three_frame_gap_matches_chained_consecutive_estimates() -> None:
+    """Frames 0 → 3 (~2.3 m, beyond the 1 m gate from identity) from a constant-velocity guess:
+    the direct estimate agrees with the chain 0→1→2→3 of consecutive ones (self-consistency,
+    no ground truth needed)."""
+    frames = [pp.voxel_downsample(kitti_frame(i), 0.25).points for i in range(4)]
+    chain = SE3.identity()
+    first = None
+    for i in range(3):
+        target = scanreg.prepare(frames[i], normals=False, covariances=True)
+        step = register(frames[i + 1], target, method="gicp").pose
+        assert isinstance(step, SE3)
+        first = first or step
+        chain = chain @ step
+    assert first is not None
+    guess = first @ first @ first
+    direct = register(
+        frames[3], frames[0], method="gicp", init=guess, max_correspondence_distance=1.0
+    )
+    assert direct.converged, direct.stop_reason
+    dt, dr = pose_error(direct.pose, chain)
+    assert dt < 0.05 and dr < 0.2, (dt, dr)
+    assert 1.8 < direct.pose.translation[0] < 2.8
+
+
 # --- reuse, threads, result consistency ----------------------------------------------------
 
 
