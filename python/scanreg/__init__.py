@@ -6,6 +6,12 @@ translation-first and perturb on the right (``T @ exp(δ)``); see :mod:`scanreg.
 
 from . import preprocess, simulate
 from ._core import __version__
+from .correlative import (
+    CorrelativeGrid,
+    CorrelativeResult,
+    match_correlative,
+    prepare_correlative,
+)
 from .deskew import deskew
 from .paired import PairedAlignment, align_paired
 from .quality import Conditioning, ResidualStats, WeakDirection
@@ -17,6 +23,8 @@ __all__ = [
     "SE2",
     "SE3",
     "Conditioning",
+    "CorrelativeGrid",
+    "CorrelativeResult",
     "PairedAlignment",
     "PreparedTarget",
     "RegistrationResult",
@@ -27,7 +35,9 @@ __all__ = [
     "__version__",
     "align_paired",
     "deskew",
+    "match_correlative",
     "prepare",
+    "prepare_correlative",
     "preprocess",
     "register",
     "simulate",

@@ -12,13 +12,14 @@
 //!
 //! Nothing here panics on user input: every entry point validates and returns [`Error`].
 
+pub mod correlative;
 pub mod deskew;
 pub mod downsample;
 pub mod error;
 pub mod icp;
 pub mod kernel;
-pub mod lie;
 pub mod knn;
+pub mod lie;
 pub mod lzf;
 pub mod normals;
 pub mod outliers;

@@ -6,6 +6,7 @@
 use pyo3::prelude::*;
 
 mod convert;
+mod correlative;
 mod deskew;
 mod io;
 pub mod knn;
@@ -18,6 +19,7 @@ mod simulate;
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     paired::register(m)?;
+    correlative::register(m)?;
     deskew::register(m)?;
     knn::register(m)?;
     preprocess::register(m)?;

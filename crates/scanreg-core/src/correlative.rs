@@ -1,0 +1,860 @@
+//! Correlative 2D scan matching (Olson 2009) with multi-resolution branch and bound
+//! (Hess, Kohler, Rapp, Andor 2016).
+//!
+//! * [`LikelihoodGrid`]: the reference rasterised once. Cell value `g = exp(-d² / 2σ²)` with `d`
+//!   the exact Euclidean distance from the cell centre to the nearest occupied cell centre
+//!   (Felzenszwalb–Huttenlocher distance transform, separable, parallel over rows/columns):
+//!   the Gaussian-blurred occupancy of Olson, but with `max` instead of a sum so overlapping
+//!   walls do not add up. Near a wall `g ≈ 1 − d²/2σ²`, so a sum of `g` is, to second order,
+//!   the Gaussian log-likelihood of the points — and saturates (robustly) far from walls.
+//!   Max-pooled copies per level `h` (`2^h × 2^h` windows, Hess eq. 14) are precomputed.
+//! * The search lattice (both methods, so they can be compared exactly): rotations
+//!   `θ_k = θ₀ + k·δθ`, `k ∈ [−K, K]`; translations `t₀ + (i, j)·r`, `i ∈ [−I, I]`, `j ∈ [−J, J]`
+//!   with `r` the grid resolution. For each rotation the source points are rotated, shifted by
+//!   `t₀` and mapped to cells once; a candidate `(k, i, j)` scores
+//!   `S = Σ_p g[c_p + (i, j)]`, summed in point order in `f64`.
+//! * The best candidate is the largest `S`; ties go to the smallest `(k, i, j)`
+//!   (lexicographic). Branch and bound explores every node whose bound is `≥` the best sum, so
+//!   it returns exactly the exhaustive answer (the bound of a node is, term by term, `≥` the
+//!   score of each leaf below it, and rounding is monotone, so the `f64` sums keep the order).
+//! * Covariance (Olson 2009, §IV): with `p = exp(S − S_max)` over the evaluated candidates
+//!   `x = (x, y, θ)`, `Σ = Σ p x xᵀ / Σ p − μ μᵀ`. The exhaustive search accumulates it over
+//!   the whole window (slice by slice, rescaled like a log-sum-exp); branch and bound over a
+//!   dense neighbourhood of the optimum.
+
+use crate::error::{Error, Result};
+use rayon::prelude::*;
+
+/// Largest grid (cells per level) accepted: 2D maps beyond this need a coarser resolution.
+pub const MAX_CELLS: usize = 64 * 1024 * 1024;
+/// Deepest branch-and-bound level (`2^12` cells per node side).
+pub const MAX_LEVELS: usize = 12;
+
+/// One max-pooled grid: `value(x, y) = max g[x..x+w, y..y+w]` for `x ∈ [−(w−1), W−1]`.
+#[derive(Debug, Clone)]
+struct Level {
+    shift: i64,
+    width: i64,
+    height: i64,
+    data: Vec<f32>,
+}
+
+impl Level {
+    #[inline]
+    fn at(&self, x: i64, y: i64) -> f32 {
+        let (xs, ys) = (x + self.shift, y + self.shift);
+        if xs < 0 || ys < 0 || xs >= self.width || ys >= self.height {
+            return 0.0;
+        }
+        self.data[(ys * self.width + xs) as usize]
+    }
+}
+
+/// The rasterised reference: likelihood, squared distance and max-pooled levels.
+#[derive(Debug, Clone)]
+pub struct LikelihoodGrid {
+    origin: [f64; 2],
+    resolution: f64,
+    sigma: f64,
+    width: usize,
+    height: usize,
+    /// Squared distance to the nearest occupied cell, in cells², row-major (y rows).
+    dist2: Vec<f32>,
+    /// `levels[0]` is the likelihood itself; `levels[h]` pools `2^h × 2^h`.
+    levels: Vec<Level>,
+}
+
+/// A search window around an initial pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Window {
+    /// `[x, y, θ]` of the window centre (the initial pose `T_reference_source`).
+    pub center: [f64; 3],
+    /// Half-widths in lattice steps: `i ∈ [−nx, nx]`, `j ∈ [−ny, ny]`, `k ∈ [−ntheta, ntheta]`.
+    pub nx: i64,
+    pub ny: i64,
+    pub ntheta: i64,
+    /// `δθ`, radians.
+    pub angular_step: f64,
+}
+
+/// The answer of a search.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Match {
+    /// `[x, y, θ]` of the best candidate (`T_reference_source`).
+    pub pose: [f64; 3],
+    /// Lattice index `(k, i, j)` of the best candidate.
+    pub index: [i64; 3],
+    /// `S_max = Σ_p g`.
+    pub sum: f64,
+    /// `S_max / N` in `[0, 1]`.
+    pub score: f64,
+    /// Fraction of source points within one cell (8-neighbourhood) of an occupied cell.
+    pub fitness: f64,
+    /// Olson's covariance over `[x, y, θ]` (window frame), row-major 3×3.
+    pub covariance: [f64; 9],
+    /// Weighted mean of the evaluated candidates, `[x, y, θ]`.
+    pub mean: [f64; 3],
+    /// Full-resolution candidates scored.
+    pub evaluated: u64,
+    /// Bounds computed on pooled levels (0 for the exhaustive search).
+    pub bounds: u64,
+    /// Candidates whose `p` entered the covariance.
+    pub covariance_candidates: u64,
+}
+
+/// The source points of one rotation, as cells: `(cx, cy)` per point.
+struct Slice {
+    cells: Vec<[i64; 2]>,
+}
+
+fn check_points(points: &[f64], arg: &'static str) -> Result<usize> {
+    if !points.len().is_multiple_of(2) {
+        return Err(Error::invalid(arg, "length is not a multiple of 2"));
+    }
+    let n = points.len() / 2;
+    if n == 0 {
+        return Err(Error::invalid(arg, "is empty (0 points)"));
+    }
+    if let Some(bad) = points.iter().position(|v| !v.is_finite()) {
+        return Err(Error::invalid(
+            arg,
+            format!("point {} has a non-finite coordinate", bad / 2),
+        ));
+    }
+    Ok(n)
+}
+
+/// 1-D squared distance transform (Felzenszwalb & Huttenlocher 2012, Alg. 1) of `f` in place.
+fn dt1d(f: &mut [f64], v: &mut [usize], z: &mut [f64], out: &mut [f64]) {
+    let n = f.len();
+    if n == 0 {
+        return;
+    }
+    let mut k = 0usize;
+    v[0] = 0;
+    z[0] = f64::NEG_INFINITY;
+    z[1] = f64::INFINITY;
+    for q in 1..n {
+        if !f[q].is_finite() {
+            continue;
+        }
+        loop {
+            let p = v[k];
+            if !f[p].is_finite() {
+                // The first parabola may be "at infinity": replace it outright.
+                v[k] = q;
+                z[k] = f64::NEG_INFINITY;
+                z[k + 1] = f64::INFINITY;
+                break;
+            }
+            let (qf, pf) = (q as f64, p as f64);
+            let s = ((f[q] + qf * qf) - (f[p] + pf * pf)) / (2.0 * qf - 2.0 * pf);
+            if s <= z[k] && k > 0 {
+                k -= 1;
+                continue;
+            }
+            if s <= z[k] {
+                v[k] = q;
+                z[k] = f64::NEG_INFINITY;
+                z[k + 1] = f64::INFINITY;
+                break;
+            }
+            k += 1;
+            v[k] = q;
+            z[k] = s;
+            z[k + 1] = f64::INFINITY;
+            break;
+        }
+    }
+    let mut k = 0usize;
+    for (q, o) in out.iter_mut().enumerate() {
+        let qf = q as f64;
+        while z[k + 1] < qf {
+            k += 1;
+        }
+        let p = v[k];
+        let d = qf - p as f64;
+        *o = if f[p].is_finite() {
+            d * d + f[p]
+        } else {
+            f64::INFINITY
+        };
+    }
+    f.copy_from_slice(out);
+}
+
+fn transform_lines(data: &mut [f64], len: usize) {
+    data.par_chunks_mut(len).for_each(|line| {
+        let mut v = vec![0usize; len];
+        let mut z = vec![0.0; len + 1];
+        let mut out = vec![0.0; len];
+        dt1d(line, &mut v, &mut z, &mut out);
+    });
+}
+
+fn transpose(data: &[f64], width: usize, height: usize) -> Vec<f64> {
+    let mut out = vec![0.0; data.len()];
+    out.par_chunks_mut(height).enumerate().for_each(|(x, col)| {
+        for (y, c) in col.iter_mut().enumerate() {
+            *c = data[y * width + x];
+        }
+    });
+    out
+}
+
+fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64) -> Level {
+    let w = 2 * half;
+    let shift = w - 1;
+    let width = base_w + shift;
+    let height = base_h + shift;
+    let mut data = vec![0.0f32; (width * height) as usize];
+    data.par_chunks_mut(width as usize)
+        .enumerate()
+        .for_each(|(row, out)| {
+            let y = row as i64 - shift;
+            for (col, o) in out.iter_mut().enumerate() {
+                let x = col as i64 - shift;
+                *o = prev
+                    .at(x, y)
+                    .max(prev.at(x + half, y))
+                    .max(prev.at(x, y + half))
+                    .max(prev.at(x + half, y + half));
+            }
+        });
+    Level {
+        shift,
+        width,
+        height,
+        data,
+    }
+}
+
+impl LikelihoodGrid {
+    /// Rasterise `reference` (flat `(N, 2)`, metres) at `resolution` (m/cell) with blur `sigma`
+    /// (m), and precompute `levels` max-pooled grids (`0` = none: exhaustive search only).
+    pub fn build(reference: &[f64], resolution: f64, sigma: f64, levels: usize) -> Result<Self> {
+        let n = check_points(reference, "reference")?;
+        if !(resolution.is_finite() && resolution > 0.0) {
+            return Err(Error::invalid(
+                "resolution",
+                format!("must be finite and > 0, got {resolution}"),
+            ));
+        }
+        if !(sigma.is_finite() && sigma > 0.0) {
+            return Err(Error::invalid(
+                "sigma",
+                format!("must be finite and > 0, got {sigma}"),
+            ));
+        }
+        if levels > MAX_LEVELS {
+            return Err(Error::invalid(
+                "levels",
+                format!("at most {MAX_LEVELS}, got {levels}"),
+            ));
+        }
+        // Beyond 4σ the likelihood is < 3.4e-4: the margin keeps every non-negligible value.
+        let margin = (4.0 * sigma / resolution).ceil() + 1.0;
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for p in reference.chunks_exact(2) {
+            for a in 0..2 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        // Cell boundaries on multiples of the resolution: the lattice does not depend on
+        // where the reference happens to start.
+        let origin = [
+            ((lo[0] / resolution).floor() - margin) * resolution,
+            ((lo[1] / resolution).floor() - margin) * resolution,
+        ];
+        let cells_x = ((hi[0] - origin[0]) / resolution).floor() + margin + 1.0;
+        let cells_y = ((hi[1] - origin[1]) / resolution).floor() + margin + 1.0;
+        if cells_x * cells_y > MAX_CELLS as f64 || !(cells_x * cells_y).is_finite() {
+            return Err(Error::invalid(
+                "resolution",
+                format!(
+                    "the reference spans {cells_x} × {cells_y} cells at {resolution} m \
+                     (more than {MAX_CELLS}); use a coarser resolution"
+                ),
+            ));
+        }
+        let (width, height) = (cells_x as usize, cells_y as usize);
+        let mut d2 = vec![f64::INFINITY; width * height];
+        for p in reference.chunks_exact(2) {
+            let cx = ((p[0] - origin[0]) / resolution).floor() as usize;
+            let cy = ((p[1] - origin[1]) / resolution).floor() as usize;
+            d2[cy.min(height - 1) * width + cx.min(width - 1)] = 0.0;
+        }
+        let _ = n;
+        transform_lines(&mut d2, width); // along x (rows)
+        let mut cols = transpose(&d2, width, height);
+        transform_lines(&mut cols, height); // along y (columns)
+        let d2 = transpose(&cols, height, width);
+        let s2 = (sigma / resolution).powi(2);
+        let likelihood: Vec<f32> = d2
+            .par_iter()
+            .map(|&d| (-0.5 * d / s2).exp() as f32)
+            .collect();
+        let dist2: Vec<f32> = d2.iter().map(|&d| d.min(1e30) as f32).collect();
+        let mut all = vec![Level {
+            shift: 0,
+            width: width as i64,
+            height: height as i64,
+            data: likelihood,
+        }];
+        for h in 1..=levels {
+            let half = 1i64 << (h - 1);
+            let next = pool(&all[h - 1], half, width as i64, height as i64);
+            all.push(next);
+        }
+        Ok(LikelihoodGrid {
+            origin,
+            resolution,
+            sigma,
+            width,
+            height,
+            dist2,
+            levels: all,
+        })
+    }
+
+    pub fn origin(&self) -> [f64; 2] {
+        self.origin
+    }
+    pub fn resolution(&self) -> f64 {
+        self.resolution
+    }
+    pub fn sigma(&self) -> f64 {
+        self.sigma
+    }
+    /// `(width, height)` in cells (x, y).
+    pub fn shape(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+    /// Pooled levels available for branch and bound.
+    pub fn levels(&self) -> usize {
+        self.levels.len() - 1
+    }
+    /// The likelihood, row-major `height × width` (row = y).
+    pub fn likelihood(&self) -> &[f32] {
+        &self.levels[0].data
+    }
+    /// Squared distance to the nearest occupied cell (cells²), row-major `height × width`.
+    pub fn dist2(&self) -> &[f32] {
+        &self.dist2
+    }
+
+    fn dist2_at(&self, x: i64, y: i64) -> f32 {
+        if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
+            return f32::INFINITY;
+        }
+        self.dist2[y as usize * self.width + x as usize]
+    }
+
+    fn slice(&self, source: &[f64], center: [f64; 3], theta: f64) -> Slice {
+        let (s, c) = theta.sin_cos();
+        let inv = 1.0 / self.resolution;
+        let cells = source
+            .chunks_exact(2)
+            .map(|p| {
+                let x = c * p[0] - s * p[1] + center[0];
+                let y = s * p[0] + c * p[1] + center[1];
+                [
+                    ((x - self.origin[0]) * inv).floor() as i64,
+                    ((y - self.origin[1]) * inv).floor() as i64,
+                ]
+            })
+            .collect();
+        Slice { cells }
+    }
+
+    #[inline]
+    fn sum(&self, level: usize, slice: &Slice, i: i64, j: i64) -> f64 {
+        let g = &self.levels[level];
+        slice
+            .cells
+            .iter()
+            .map(|c| g.at(c[0] + i, c[1] + j) as f64)
+            .sum()
+    }
+
+    fn fitness(&self, slice: &Slice, i: i64, j: i64) -> f64 {
+        let hits = slice
+            .cells
+            .iter()
+            .filter(|c| self.dist2_at(c[0] + i, c[1] + j) <= 2.0)
+            .count();
+        hits as f64 / slice.cells.len() as f64
+    }
+
+    fn slices(&self, source: &[f64], w: &Window) -> Vec<Slice> {
+        (-w.ntheta..=w.ntheta)
+            .into_par_iter()
+            .map(|k| self.slice(source, w.center, w.center[2] + k as f64 * w.angular_step))
+            .collect()
+    }
+
+    fn finish(
+        &self,
+        w: &Window,
+        slices: &[Slice],
+        best: (f64, [i64; 3]),
+        moments: Moments,
+        evaluated: u64,
+        bounds: u64,
+    ) -> Match {
+        let (sum, [k, i, j]) = best;
+        let slice = &slices[(k + w.ntheta) as usize];
+        let n = slice.cells.len() as f64;
+        let (covariance, mean) = moments.covariance(w, self.resolution);
+        Match {
+            pose: [
+                w.center[0] + i as f64 * self.resolution,
+                w.center[1] + j as f64 * self.resolution,
+                w.center[2] + k as f64 * w.angular_step,
+            ],
+            index: [k, i, j],
+            sum,
+            score: sum / n,
+            fitness: self.fitness(slice, i, j),
+            covariance,
+            mean,
+            evaluated,
+            bounds,
+            covariance_candidates: moments.count,
+        }
+    }
+}
+
+fn check_window(w: &Window) -> Result<()> {
+    if !w.center.iter().all(|v| v.is_finite()) {
+        return Err(Error::invalid("init", "contains NaN or inf"));
+    }
+    if w.nx < 0 || w.ny < 0 || w.ntheta < 0 {
+        return Err(Error::invalid("window", "half-widths must be >= 0"));
+    }
+    if !(w.angular_step.is_finite() && w.angular_step > 0.0) {
+        return Err(Error::invalid(
+            "angular_resolution",
+            format!("must be finite and > 0, got {}", w.angular_step),
+        ));
+    }
+    let count = (2 * w.nx + 1) as f64 * (2 * w.ny + 1) as f64 * (2 * w.ntheta + 1) as f64;
+    if count > 1e12 {
+        return Err(Error::invalid(
+            "window",
+            format!("{count:.3e} candidates; shrink the window or coarsen the steps"),
+        ));
+    }
+    Ok(())
+}
+
+/// Streaming weighted moments of `(i, j, k)` with weights `exp(S − ref)`, rescaled when a
+/// larger reference arrives (the log-sum-exp trick), so no score surface is stored.
+#[derive(Debug, Clone, Copy)]
+struct Moments {
+    reference: f64,
+    w: f64,
+    m1: [f64; 3],
+    m2: [[f64; 3]; 3],
+    count: u64,
+}
+
+impl Moments {
+    fn new() -> Self {
+        Moments {
+            reference: f64::NEG_INFINITY,
+            w: 0.0,
+            m1: [0.0; 3],
+            m2: [[0.0; 3]; 3],
+            count: 0,
+        }
+    }
+
+    fn rescale(&mut self, reference: f64) {
+        if reference > self.reference {
+            let f = if self.reference.is_finite() {
+                (self.reference - reference).exp()
+            } else {
+                0.0
+            };
+            self.w *= f;
+            for a in 0..3 {
+                self.m1[a] *= f;
+                for b in 0..3 {
+                    self.m2[a][b] *= f;
+                }
+            }
+            self.reference = reference;
+        }
+    }
+
+    /// `x = (i, j, k)` in lattice steps.
+    fn add(&mut self, sum: f64, x: [f64; 3]) {
+        self.rescale(sum);
+        let p = (sum - self.reference).exp();
+        self.w += p;
+        for a in 0..3 {
+            self.m1[a] += p * x[a];
+            for b in 0..3 {
+                self.m2[a][b] += p * x[a] * x[b];
+            }
+        }
+        self.count += 1;
+    }
+
+    fn merge(mut self, other: Moments) -> Moments {
+        if !other.reference.is_finite() {
+            return self;
+        }
+        self.rescale(other.reference);
+        let f = (other.reference - self.reference).exp();
+        self.w += f * other.w;
+        for a in 0..3 {
+            self.m1[a] += f * other.m1[a];
+            for b in 0..3 {
+                self.m2[a][b] += f * other.m2[a][b];
+            }
+        }
+        self.count += other.count;
+        self
+    }
+
+    /// Covariance and mean over `[x, y, θ]` (metres, radians; the mean is absolute).
+    fn covariance(&self, w: &Window, resolution: f64) -> ([f64; 9], [f64; 3]) {
+        let scale = [resolution, resolution, w.angular_step];
+        let mu = self.m1.map(|m| m / self.w);
+        let mut cov = [0.0; 9];
+        for a in 0..3 {
+            for b in 0..3 {
+                let c = self.m2[a][b] / self.w - mu[a] * mu[b];
+                cov[a * 3 + b] = c * scale[a] * scale[b];
+            }
+        }
+        // Cancellation can leave tiny negative variances when one candidate dominates.
+        for a in 0..3 {
+            cov[a * 4] = cov[a * 4].max(0.0);
+        }
+        let mean = [
+            w.center[0] + mu[0] * resolution,
+            w.center[1] + mu[1] * resolution,
+            w.center[2] + mu[2] * w.angular_step,
+        ];
+        (cov, mean)
+    }
+}
+
+/// Best of two `(sum, key)`: larger sum, then smaller key.
+#[inline]
+fn better(a: (f64, [i64; 3]), b: (f64, [i64; 3])) -> bool {
+    a.0 > b.0 || (a.0 == b.0 && a.1 < b.1)
+}
+
+/// Score every candidate of the window (parallel over θ); covariance over all of them.
+pub fn match_exhaustive(grid: &LikelihoodGrid, source: &[f64], w: &Window) -> Result<Match> {
+    check_points(source, "source")?;
+    check_window(w)?;
+    let slices = grid.slices(source, w);
+    let per_theta: Vec<((f64, [i64; 3]), Moments)> = slices
+        .par_iter()
+        .enumerate()
+        .map(|(idx, slice)| {
+            let k = idx as i64 - w.ntheta;
+            let mut best = (f64::NEG_INFINITY, [k, 0, 0]);
+            let mut m = Moments::new();
+            for i in -w.nx..=w.nx {
+                for j in -w.ny..=w.ny {
+                    let s = grid.sum(0, slice, i, j);
+                    m.add(s, [i as f64, j as f64, k as f64]);
+                    if better((s, [k, i, j]), best) {
+                        best = (s, [k, i, j]);
+                    }
+                }
+            }
+            (best, m)
+        })
+        .collect();
+    let mut best = (f64::NEG_INFINITY, [i64::MAX; 3]);
+    let mut moments = Moments::new();
+    for (b, m) in per_theta {
+        if better(b, best) {
+            best = b;
+        }
+        moments = moments.merge(m);
+    }
+    let evaluated = moments.count;
+    Ok(grid.finish(w, &slices, best, moments, evaluated, 0))
+}
+
+struct BnB<'a> {
+    grid: &'a LikelihoodGrid,
+    slices: &'a [Slice],
+    w: &'a Window,
+    best: (f64, [i64; 3]),
+    evaluated: u64,
+    bounds: u64,
+}
+
+#[derive(Clone, Copy)]
+struct Node {
+    bound: f64,
+    key: [i64; 3],
+    level: usize,
+}
+
+impl BnB<'_> {
+    fn node(&mut self, level: usize, key: [i64; 3]) -> Node {
+        let slice = &self.slices[(key[0] + self.w.ntheta) as usize];
+        let bound = self.grid.sum(level, slice, key[1], key[2]);
+        if level == 0 {
+            self.evaluated += 1;
+        } else {
+            self.bounds += 1;
+        }
+        Node { bound, key, level }
+    }
+
+    fn sort(nodes: &mut [Node]) {
+        nodes.sort_by(|a, b| b.bound.total_cmp(&a.bound).then(a.key.cmp(&b.key)));
+    }
+
+    fn explore(&mut self, nodes: &mut [Node]) {
+        Self::sort(nodes);
+        for n in nodes.iter() {
+            // Ties must be explored: a leaf with an equal sum and a smaller key wins.
+            if n.bound < self.best.0 {
+                break;
+            }
+            if n.level == 0 {
+                if better((n.bound, n.key), self.best) {
+                    self.best = (n.bound, n.key);
+                }
+                continue;
+            }
+            let half = 1i64 << (n.level - 1);
+            let mut children = Vec::with_capacity(4);
+            for di in [0, half] {
+                let i = n.key[1] + di;
+                if i > self.w.nx {
+                    continue;
+                }
+                for dj in [0, half] {
+                    let j = n.key[2] + dj;
+                    if j > self.w.ny {
+                        continue;
+                    }
+                    children.push(self.node(n.level - 1, [n.key[0], i, j]));
+                }
+            }
+            self.explore(&mut children);
+        }
+    }
+}
+
+/// Branch and bound over the same lattice as [`match_exhaustive`] (same answer); the
+/// covariance is accumulated over a dense `±cov_radius`-step neighbourhood of the optimum
+/// (clipped to the window).
+pub fn match_branch_and_bound(
+    grid: &LikelihoodGrid,
+    source: &[f64],
+    w: &Window,
+    cov_radius: i64,
+) -> Result<Match> {
+    check_points(source, "source")?;
+    check_window(w)?;
+    if cov_radius < 0 {
+        return Err(Error::invalid("covariance_radius", "must be >= 0"));
+    }
+    let span = 2 * w.nx.max(w.ny) + 1;
+    let mut depth = 0usize;
+    while (1i64 << depth) < span && depth < grid.levels() {
+        depth += 1;
+    }
+    let slices = grid.slices(source, w);
+    let step = 1i64 << depth;
+    // Root nodes: bounds in parallel (they dominate the work for shallow trees).
+    let keys: Vec<[i64; 3]> = (-w.ntheta..=w.ntheta)
+        .flat_map(|k| {
+            let is: Vec<i64> = (-w.nx..=w.nx).step_by(step as usize).collect();
+            let js: Vec<i64> = (-w.ny..=w.ny).step_by(step as usize).collect();
+            is.into_iter()
+                .flat_map(move |i| js.clone().into_iter().map(move |j| [k, i, j]))
+        })
+        .collect();
+    let mut roots: Vec<Node> = keys
+        .par_iter()
+        .map(|&key| Node {
+            bound: grid.sum(depth, &slices[(key[0] + w.ntheta) as usize], key[1], key[2]),
+            key,
+            level: depth,
+        })
+        .collect();
+    let mut search = BnB {
+        grid,
+        slices: &slices,
+        w,
+        best: (f64::NEG_INFINITY, [i64::MAX; 3]),
+        evaluated: if depth == 0 { roots.len() as u64 } else { 0 },
+        bounds: if depth == 0 { 0 } else { roots.len() as u64 },
+    };
+    search.explore(&mut roots);
+    let best = search.best;
+    let (evaluated, bounds) = (search.evaluated, search.bounds);
+    // Covariance: a dense neighbourhood of the optimum.
+    let [kb, ib, jb] = best.1;
+    let ks: Vec<i64> =
+        ((kb - cov_radius).max(-w.ntheta)..=(kb + cov_radius).min(w.ntheta)).collect();
+    let moments = ks
+        .par_iter()
+        .map(|&k| {
+            let slice = &slices[(k + w.ntheta) as usize];
+            let mut m = Moments::new();
+            for i in (ib - cov_radius).max(-w.nx)..=(ib + cov_radius).min(w.nx) {
+                for j in (jb - cov_radius).max(-w.ny)..=(jb + cov_radius).min(w.ny) {
+                    m.add(grid.sum(0, slice, i, j), [i as f64, j as f64, k as f64]);
+                }
+            }
+            m
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold(Moments::new(), Moments::merge);
+    Ok(grid.finish(w, &slices, best, moments, evaluated, bounds))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn room() -> Vec<f64> {
+        // An L-shaped room outline, 5 cm spacing, with a pillar: no symmetry.
+        let mut pts = Vec::new();
+        let mut seg = |a: [f64; 2], b: [f64; 2]| {
+            let len = ((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt();
+            let n = (len / 0.05).ceil() as usize;
+            for s in 0..n {
+                let t = s as f64 / n as f64;
+                pts.push(a[0] + t * (b[0] - a[0]));
+                pts.push(a[1] + t * (b[1] - a[1]));
+            }
+        };
+        seg([-3.0, -2.0], [4.0, -2.0]);
+        seg([4.0, -2.0], [4.0, 1.0]);
+        seg([4.0, 1.0], [1.0, 1.0]);
+        seg([1.0, 1.0], [1.0, 3.0]);
+        seg([1.0, 3.0], [-3.0, 3.0]);
+        seg([-3.0, 3.0], [-3.0, -2.0]);
+        seg([-1.0, 0.0], [-0.6, 0.0]);
+        seg([-0.6, 0.0], [-0.6, 0.4]);
+        pts
+    }
+
+    fn transform(points: &[f64], pose: [f64; 3]) -> Vec<f64> {
+        let (s, c) = pose[2].sin_cos();
+        points
+            .chunks_exact(2)
+            .flat_map(|p| [c * p[0] - s * p[1] + pose[0], s * p[0] + c * p[1] + pose[1]])
+            .collect()
+    }
+
+    fn inverse(pose: [f64; 3]) -> [f64; 3] {
+        let (s, c) = pose[2].sin_cos();
+        [
+            -(c * pose[0] + s * pose[1]),
+            s * pose[0] - c * pose[1],
+            -pose[2],
+        ]
+    }
+
+    #[test]
+    fn distance_transform_is_exact() {
+        let pts = [0.02, 0.02, 1.02, 0.52];
+        let g = LikelihoodGrid::build(&pts, 0.1, 0.1, 0).unwrap();
+        let (w, h) = g.shape();
+        let o = g.origin();
+        let cells: Vec<[f64; 2]> = pts
+            .chunks_exact(2)
+            .map(|p| [((p[0] - o[0]) / 0.1).floor(), ((p[1] - o[1]) / 0.1).floor()])
+            .collect();
+        for y in 0..h {
+            for x in 0..w {
+                let brute = cells
+                    .iter()
+                    .map(|c| (x as f64 - c[0]).powi(2) + (y as f64 - c[1]).powi(2))
+                    .fold(f64::INFINITY, f64::min);
+                assert_eq!(g.dist2()[y * w + x] as f64, brute, "cell {x},{y}");
+            }
+        }
+    }
+
+    #[test]
+    fn pooled_levels_are_window_maxima() {
+        let g = LikelihoodGrid::build(&room(), 0.1, 0.1, 3).unwrap();
+        let base = &g.levels[0];
+        for (h, lvl) in g.levels.iter().enumerate().skip(1) {
+            let w = 1i64 << h;
+            for y in (-(w - 1)..base.height).step_by(7) {
+                for x in (-(w - 1)..base.width).step_by(5) {
+                    let mut m = 0.0f32;
+                    for dy in 0..w {
+                        for dx in 0..w {
+                            m = m.max(base.at(x + dx, y + dy));
+                        }
+                    }
+                    assert_eq!(lvl.at(x, y), m, "level {h} at {x},{y}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn recovers_a_known_offset_and_bnb_agrees() {
+        let reference = room();
+        let grid = LikelihoodGrid::build(&reference, 0.05, 0.05, 6).unwrap();
+        let truth = [0.23, -0.17, 0.1];
+        // source = T_ref_src^{-1} applied to the reference: matching must find `truth`.
+        let source = transform(&reference, inverse(truth));
+        let w = Window {
+            center: [0.0, 0.0, 0.0],
+            nx: 8,
+            ny: 8,
+            ntheta: 10,
+            angular_step: 0.02,
+        };
+        let ex = match_exhaustive(&grid, &source, &w).unwrap();
+        assert!((ex.pose[0] - truth[0]).abs() <= 0.05, "{:?}", ex.pose);
+        assert!((ex.pose[1] - truth[1]).abs() <= 0.05, "{:?}", ex.pose);
+        assert!((ex.pose[2] - truth[2]).abs() <= 0.02, "{:?}", ex.pose);
+        assert_eq!(ex.evaluated, 17 * 17 * 21);
+        assert!(ex.fitness > 0.95);
+        let bb = match_branch_and_bound(&grid, &source, &w, 3).unwrap();
+        assert_eq!(bb.index, ex.index);
+        assert_eq!(bb.sum, ex.sum);
+        assert!(bb.evaluated < ex.evaluated);
+    }
+
+    #[test]
+    fn hostile_input_is_an_error() {
+        assert!(LikelihoodGrid::build(&[], 0.1, 0.1, 0).is_err());
+        assert!(LikelihoodGrid::build(&[0.0, f64::NAN], 0.1, 0.1, 0).is_err());
+        assert!(LikelihoodGrid::build(&[0.0, 0.0], 0.0, 0.1, 0).is_err());
+        assert!(LikelihoodGrid::build(&[0.0, 0.0], 0.1, -1.0, 0).is_err());
+        assert!(LikelihoodGrid::build(&[0.0, 0.0, 1e6, 1e6], 0.01, 0.01, 0).is_err());
+        assert!(LikelihoodGrid::build(&[0.0, 0.0], 0.1, 0.1, 40).is_err());
+        let g = LikelihoodGrid::build(&[0.0, 0.0], 0.1, 0.1, 0).unwrap();
+        let w = Window {
+            center: [0.0; 3],
+            nx: 1,
+            ny: 1,
+            ntheta: 1,
+            angular_step: 0.0,
+        };
+        assert!(match_exhaustive(&g, &[0.0, 0.0], &w).is_err());
+        let w = Window {
+            angular_step: 0.1,
+            ..w
+        };
+        assert!(match_exhaustive(&g, &[0.0], &w).is_err());
+        assert!(match_exhaustive(&g, &[0.0, 0.0], &w).is_ok());
+    }
+}

@@ -1,0 +1,358 @@
+"""Correlative 2D scan matching (Olson 2009) with branch and bound (Hess et al. 2016).
+
+The reference (a scan or a map, ``(N, 2)`` points in its own frame) is rasterised once into a
+likelihood grid — ``g = exp(−d²/2σ²)`` with ``d`` the distance from a cell to the nearest
+occupied cell — and every candidate pose of a window is scored by summing ``g`` under the
+transformed source points. The per-cell work (distance transform, max-pooled levels, the
+search) runs in the Rust core (:mod:`scanreg-core` ``correlative``), parallel over rotations.
+
+>>> grid = scanreg.prepare_correlative(reference_points, resolution=0.05)
+>>> res = scanreg.match_correlative(source_points, grid, init=T_guess,
+...                                 window=(0.5, 0.5, np.deg2rad(20)))
+>>> res.pose, res.covariance, res.fitness
+
+The search lattice
+    Rotations ``θ₀ + k·δθ`` for ``|k| ≤ ⌈dθ/δθ⌉`` and translations ``t₀ + (i, j)·r`` for
+    ``|i| ≤ ⌈dx/r⌉``, ``|j| ≤ ⌈dy/r⌉``, around ``init = (t₀, θ₀)``; ``r`` is the grid
+    resolution. ``method="branch_and_bound"`` explores the same lattice through max-pooled
+    grids and returns the same candidate as ``"exhaustive"`` (same pose, same score; ties go to
+    the smallest ``(k, i, j)``), usually after far fewer evaluations.
+
+The covariance
+    Olson's estimate over the scored candidates ``x = [x, y, θ]`` (the *window frame*: the
+    pose vector of ``T_reference_source``), with ``p = exp(S − S_max)`` and ``S = Σ g``
+    (``g ≈ 1 − d²/2σ²`` near a wall, so ``S`` is the Gaussian log-likelihood of the points to
+    second order): ``Σ_w = Σ p x xᵀ / Σ p − μ μᵀ`` — over the whole window for the exhaustive
+    search, over a ``±covariance_radius``-step neighbourhood of the optimum for branch and
+    bound. The lattice cannot resolve the pose more finely than one step, so the variance of a
+    uniform quantisation error, ``diag(r², r², δθ²)/12``, is added.
+
+    The window frame perturbs the pose vector: ``x = x̂ + δx``, ``θ = θ̂ + δθ``. scanreg's
+    covariances are over the right perturbation ``T = T̂ · exp(ξ)``, ``ξ = [ρx, ρy, θ]``,
+    whose translation to first order is ``t̂ + R̂ ρ``; hence ``ρ = R̂ᵀ δt``, ``ξθ = δθ`` and
+    ``covariance = J Σ_w Jᵀ`` with ``J = blockdiag(R̂ᵀ, 1)``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from . import _core
+from ._validate import FloatArray, as_points, positive
+from .quality import Conditioning, conditioning
+from .transform import SE2, as_pose
+
+Method = Literal["exhaustive", "branch_and_bound"]
+METHODS: tuple[str, ...] = ("exhaustive", "branch_and_bound")
+
+#: Default grid resolution (m/cell).
+DEFAULT_RESOLUTION = 0.05
+#: Default search window ``(dx, dy, dθ)``: ±0.5 m, ±0.5 m, ±20°.
+DEFAULT_WINDOW = (0.5, 0.5, math.radians(20.0))
+#: Default number of max-pooled levels (Hess et al. use 7: nodes up to 64 × 64 cells).
+DEFAULT_LEVELS = 7
+
+
+def _frozen(a: Any) -> FloatArray:
+    arr = np.array(a, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True)
+class CorrelativeTiming:
+    """Wall time in seconds: building the grid (0 when a prepared grid was passed) and the
+    search (including the covariance)."""
+
+    grid_seconds: float
+    search_seconds: float
+
+    @property
+    def total_seconds(self) -> float:
+        return self.grid_seconds + self.search_seconds
+
+
+@dataclass(frozen=True)
+class CorrelativeResult:
+    """The answer of :func:`match_correlative`.
+
+    Attributes
+    ----------
+    pose : SE2
+        ``T_reference_source`` of the best lattice candidate.
+    score : float
+        Mean likelihood of the source points at ``pose``, in ``[0, 1]`` (1: every point in an
+        occupied cell).
+    covariance : (3, 3) float64
+        Over the right perturbation ``[ρx, ρy, θ]`` (``T = pose @ SE2.exp(ξ)``); see the
+        module docstring for how it comes from the window-frame estimate.
+    window_covariance : (3, 3) float64
+        Olson's estimate over the window frame ``[x, y, θ]`` (pose-vector offsets in the
+        reference frame), quantisation term included.
+    mean : (3,) float64
+        ``[x, y, θ]``: the ``p``-weighted mean of the candidates (a sub-lattice estimate).
+    fitness : float
+        Fraction of source points within one cell (8-neighbourhood) of an occupied cell.
+    num_evaluated : int
+        Full-resolution candidates scored.
+    num_bounds : int
+        Branch-and-bound upper bounds computed on coarser levels (0 when exhaustive).
+    num_candidates : int
+        Size of the lattice window.
+    at_window_edge : bool
+        The optimum lies on the border of the window: the true pose may be outside it.
+    method : str
+    resolution, angular_resolution : float
+        The lattice steps (m, rad).
+    timing : CorrelativeTiming
+    """
+
+    pose: SE2
+    score: float
+    covariance: FloatArray
+    window_covariance: FloatArray
+    mean: FloatArray
+    fitness: float
+    num_evaluated: int
+    num_bounds: int
+    num_candidates: int
+    at_window_edge: bool
+    method: str
+    resolution: float
+    angular_resolution: float
+    timing: CorrelativeTiming
+    conditioning: Conditioning
+
+    @property
+    def standard_deviations(self) -> FloatArray:
+        """``sqrt(diag(covariance))``: ``[ρx, ρy, θ]`` in metres, metres, radians."""
+        return _frozen(np.sqrt(np.diag(self.covariance)))
+
+
+@dataclass(frozen=True, eq=False)
+class CorrelativeGrid:
+    """A reference rasterised once for :func:`match_correlative` (see
+    :func:`prepare_correlative`).
+
+    Attributes
+    ----------
+    resolution : float
+        Cell size and translation step, metres.
+    sigma : float
+        Blur of the likelihood, metres.
+    levels : int
+        Max-pooled levels available to branch and bound.
+    origin : (float, float)
+        Reference-frame coordinates of the lower-left corner of cell ``(0, 0)``.
+    shape : (int, int)
+        ``(width, height)`` in cells.
+    num_points : int
+        Reference points rasterised.
+    """
+
+    resolution: float
+    sigma: float
+    levels: int
+    origin: tuple[float, float]
+    shape: tuple[int, int]
+    num_points: int
+    _native: _core.CorrelativeGrid
+    build_seconds: float
+
+    @property
+    def likelihood(self) -> np.ndarray[Any, np.dtype[np.float32]]:
+        """``(height, width)`` float32 likelihood (row = y, column = x)."""
+        return self._native.likelihood
+
+    def match(self, source: Any, **options: Any) -> CorrelativeResult:
+        """:func:`match_correlative` against this grid."""
+        return match_correlative(source, self, **options)
+
+
+def prepare_correlative(
+    reference: Any,
+    *,
+    resolution: float = DEFAULT_RESOLUTION,
+    sigma: float | None = None,
+    levels: int = DEFAULT_LEVELS,
+) -> CorrelativeGrid:
+    """Rasterise ``reference`` ``(N, 2)`` (metres) once, for many matches against it.
+
+    Parameters
+    ----------
+    resolution : float
+        Cell size (m); also the translation step of the search.
+    sigma : float, optional
+        Blur (m) of the likelihood ``exp(−d²/2σ²)``; default: ``resolution``.
+    levels : int
+        Max-pooled levels for branch and bound (0: exhaustive only); at most 12.
+    """
+    ref = as_points(reference, "reference", dim=2)
+    res = positive(resolution, "resolution")
+    sig = res if sigma is None else positive(sigma, "sigma")
+    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)):
+        raise TypeError(f"levels: expected an int, got {type(levels).__name__}")
+    if not 0 <= levels <= 12:
+        raise ValueError(f"levels: must be in [0, 12], got {levels}")
+    t0 = time.perf_counter()
+    native = _core.CorrelativeGrid(ref, res, sig, int(levels))
+    elapsed = time.perf_counter() - t0
+    return CorrelativeGrid(
+        resolution=res,
+        sigma=sig,
+        levels=native.levels,
+        origin=native.origin,
+        shape=native.shape,
+        num_points=int(ref.shape[0]),
+        _native=native,
+        build_seconds=elapsed,
+    )
+
+
+def default_angular_resolution(source: FloatArray, resolution: float) -> float:
+    """Hess et al. 2016 eq. 7: the angle that moves the farthest point by about one cell,
+    ``acos(1 − r²/(2 d_max²))`` with ``d_max`` the largest source range."""
+    d_max = max(float(np.sqrt((source**2).sum(axis=1)).max()), resolution)
+    return float(math.acos(1.0 - resolution**2 / (2.0 * d_max**2)))
+
+
+def _window(window: Any) -> tuple[float, float, float]:
+    try:
+        values = [float(v) for v in window]
+    except (TypeError, ValueError):
+        raise TypeError(f"window: expected (dx, dy, dθ) numbers, got {window!r}") from None
+    if len(values) != 3:
+        raise ValueError(f"window: expected (dx, dy, dθ), got {len(values)} values")
+    if not all(math.isfinite(v) and v >= 0 for v in values):
+        raise ValueError(f"window: half-widths must be finite and >= 0, got {tuple(values)}")
+    if values[2] > math.pi:
+        raise ValueError(f"window: dθ must be <= π, got {values[2]}")
+    return values[0], values[1], values[2]
+
+
+def _steps(half_width: float, step: float) -> int:
+    # The window covers at least ±half_width (tolerating rounding in half_width / step).
+    return math.ceil(half_width / step - 1e-9)
+
+
+def match_correlative(
+    source: Any,
+    reference: Any,
+    *,
+    init: Any = None,
+    window: Any = DEFAULT_WINDOW,
+    resolution: float | None = None,
+    angular_resolution: float | None = None,
+    method: Method = "exhaustive",
+    sigma: float | None = None,
+    levels: int = DEFAULT_LEVELS,
+    covariance_radius: int = 4,
+) -> CorrelativeResult:
+    """Find ``T_reference_source`` by correlative search over a window around ``init``.
+
+    Parameters
+    ----------
+    source : (N, 2) float64
+        Source scan points in the source frame (metres).
+    reference : (M, 2) float64 or CorrelativeGrid
+        Reference points (its frame is the target frame), or a grid from
+        :func:`prepare_correlative` (then ``resolution``/``sigma``/``levels`` must be left
+        unset or agree).
+    init : SE2 or (3, 3) matrix, optional
+        Window centre (default: identity).
+    window : (dx, dy, dθ)
+        Half-widths in metres, metres, radians.
+    resolution : float, optional
+        Grid cell and translation step (m); default 0.05.
+    angular_resolution : float, optional
+        Rotation step (rad); default :func:`default_angular_resolution`.
+    method : "exhaustive" or "branch_and_bound"
+    covariance_radius : int
+        Branch and bound: half-width in steps of the dense neighbourhood used for the
+        covariance.
+
+    Raises
+    ------
+    ValueError, TypeError
+        Naming the argument: bad shapes, non-finite points, unknown method, a window or step
+        that is not positive, an ``init`` that is not a rigid transform.
+    """
+    src = as_points(source, "source", dim=2)
+    if method not in METHODS:
+        raise ValueError(f"method: unknown {method!r}; expected one of {', '.join(METHODS)}")
+    pose0 = SE2.identity() if init is None else as_pose(init, "init", 2)
+    assert isinstance(pose0, SE2)
+    dx, dy, dtheta = _window(window)
+    if isinstance(covariance_radius, bool) or not isinstance(covariance_radius, (int, np.integer)):
+        raise TypeError("covariance_radius: expected an int")
+    if covariance_radius < 0:
+        raise ValueError(f"covariance_radius: must be >= 0, got {covariance_radius}")
+    if isinstance(reference, CorrelativeGrid):
+        grid = reference
+        if resolution is not None and positive(resolution, "resolution") != grid.resolution:
+            raise ValueError(
+                f"resolution: {resolution} differs from the prepared grid's {grid.resolution}"
+            )
+        if sigma is not None and positive(sigma, "sigma") != grid.sigma:
+            raise ValueError(f"sigma: {sigma} differs from the prepared grid's {grid.sigma}")
+        grid_seconds = 0.0
+    else:
+        res = DEFAULT_RESOLUTION if resolution is None else resolution
+        grid = prepare_correlative(reference, resolution=res, sigma=sigma, levels=levels)
+        grid_seconds = grid.build_seconds
+    r = grid.resolution
+    dth = (
+        default_angular_resolution(src, r)
+        if angular_resolution is None
+        else positive(angular_resolution, "angular_resolution")
+    )
+    nx, ny, nt = _steps(dx, r), _steps(dy, r), _steps(dtheta, dth)
+    center = pose0.as_vector()
+    t0 = time.perf_counter()
+    m = grid._native.search(
+        src, (center[0], center[1], center[2]), nx, ny, nt, dth, method, int(covariance_radius)
+    )
+    search_seconds = time.perf_counter() - t0
+    pose = SE2.from_vector(m.pose)
+    k, i, j = m.index
+    window_cov = np.array(m.covariance) + np.diag([r * r, r * r, dth * dth]) / 12.0
+    jac = np.eye(3)
+    jac[:2, :2] = pose.rotation.T
+    cov = jac @ window_cov @ jac.T
+    cov = 0.5 * (cov + cov.T)
+    length = float(np.sqrt((src**2).sum(axis=1).mean())) or 1.0
+    return CorrelativeResult(
+        pose=pose,
+        score=float(m.score),
+        covariance=_frozen(cov),
+        window_covariance=_frozen(window_cov),
+        mean=_frozen(m.mean),
+        fitness=float(m.fitness),
+        num_evaluated=int(m.evaluated),
+        num_bounds=int(m.bounds),
+        num_candidates=(2 * nx + 1) * (2 * ny + 1) * (2 * nt + 1),
+        at_window_edge=bool(
+            (nx > 0 and abs(i) == nx) or (ny > 0 and abs(j) == ny) or (nt > 0 and abs(k) == nt)
+        ),
+        method=method,
+        resolution=r,
+        angular_resolution=dth,
+        timing=CorrelativeTiming(grid_seconds=grid_seconds, search_seconds=search_seconds),
+        conditioning=conditioning(_frozen(np.linalg.inv(cov)), 2, length),
+    )
+
+
+__all__ = [
+    "METHODS",
+    "CorrelativeGrid",
+    "CorrelativeResult",
+    "CorrelativeTiming",
+    "default_angular_resolution",
+    "match_correlative",
+    "prepare_correlative",
+]

@@ -1,0 +1,248 @@
+"""Correlative scan matching: exact recovery on simulated scans, branch and bound equal to the
+exhaustive search, Olson's covariance against a brute-force score surface, the corridor, the
+MbICP self-matching protocol on real scans, hostile input."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import cache
+from typing import Any
+
+import numpy as np
+import pytest
+import scanreg
+from conftest import data_dir
+from scanreg import SE2
+from scanreg import simulate as sim
+from scanreg.io import read_carmen
+
+SICK = sim.LaserModel.preset("sick_lms200")
+
+
+def _c(a: Any) -> np.ndarray[Any, np.dtype[np.float64]]:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+@cache
+def _office_map() -> tuple[sim.Scene, np.ndarray[Any, np.dtype[np.float64]]]:
+    """A room of the simulated office, outlined densely by noise-free 360° scans (world frame)."""
+    scene = sim.floor_plan(seed=1, num_people=0)
+    dense = dataclasses.replace(
+        sim.LaserModel.preset("laser_360"),
+        range_sigma=0.0,
+        dropout_probability=0.0,
+        num_beams=2880,
+        angle_increment=2 * math.pi / 2880,
+    )
+    parts = []
+    for p in ([3.0, 3.7, 0.0], [3.0, 3.7, 1.0], [2.2, 3.2, 2.0], [4.0, 4.4, -1.0]):
+        pose = SE2.from_vector(p)
+        parts.append(pose.apply(sim.simulate_scan(scene, dense, pose, seed=7).points))
+    return scene, _c(np.vstack(parts))
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+@pytest.mark.parametrize("method", ["exhaustive", "branch_and_bound"])
+def test_recovers_known_offsets_on_simulated_scans(method: str) -> None:
+    scene, reference = _office_map()
+    grid = scanreg.prepare_correlative(reference, resolution=0.05)
+    rng = np.random.default_rng(1)
+    checked = 0
+    for n in range(40):
+        truth = SE2.from_vector([rng.uniform(2.5, 3.5), rng.uniform(3.3, 4.1), rng.uniform(-3, 3)])
+        scan = sim.simulate_scan(scene, SICK, truth, seed=n)
+        offset = np.array(
+            [rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(-0.25, 0.25)]
+        )
+        if np.median(np.linalg.norm(scan.points, axis=1)) < 1.0:
+            continue  # the simulated sensor stands against (or in) furniture
+        init = SE2.from_vector(truth.as_vector() + offset)
+        res = grid.match(
+            _c(scan.points),
+            init=init,
+            window=(0.4, 0.4, 0.3),
+            angular_resolution=0.02,
+            method=method,
+        )
+        err = res.pose.as_vector() - truth.as_vector()
+        assert abs(err[0]) <= 0.05 and abs(err[1]) <= 0.05, (n, err)
+        assert abs(_wrap(err[2])) <= 0.02, (n, err)
+        assert res.fitness > 0.8 and res.score > 0.7 and not res.at_window_edge
+        checked += 1
+    assert checked >= 20
+
+
+def test_branch_and_bound_equals_exhaustive_on_random_cases() -> None:
+    scene = sim.floor_plan(seed=3, num_people=0)
+    rng = np.random.default_rng(5)
+    fewer = 0
+    for case in range(30):
+        a = SE2.from_vector([rng.uniform(1, 20), rng.uniform(-0.8, 0.8), rng.uniform(-3, 3)])
+        step = SE2.from_vector(
+            [rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5)]
+        )
+        ref = sim.simulate_scan(scene, SICK, a, seed=case).points
+        src = sim.simulate_scan(scene, SICK, a @ step, seed=case, scan_index=1).points
+        res = float(rng.choice([0.03, 0.05, 0.1]))
+        grid = scanreg.prepare_correlative(_c(ref), resolution=res, levels=int(rng.integers(1, 8)))
+        # Windows of every shape, some too small to hold the truth (ties and edges included).
+        window = (rng.uniform(0, 0.7), rng.uniform(0, 0.7), rng.uniform(0, 0.6))
+        kw = dict(window=window, angular_resolution=float(rng.uniform(0.005, 0.03)))
+        init = SE2.from_vector(rng.normal(0, 0.1, 3))
+        ex = grid.match(_c(src), init=init, method="exhaustive", **kw)
+        bb = grid.match(_c(src), init=init, method="branch_and_bound", **kw)
+        assert bb.pose == ex.pose, (case, bb.pose, ex.pose)
+        assert bb.score == ex.score and bb.fitness == ex.fitness
+        assert ex.num_evaluated == ex.num_candidates and ex.num_bounds == 0
+        assert bb.num_evaluated <= ex.num_evaluated
+        fewer += bb.num_evaluated + bb.num_bounds < ex.num_evaluated
+    assert fewer >= 20  # it also has to prune
+
+
+def test_covariance_is_olsons_estimate_over_the_window() -> None:
+    """Recompute the score surface in numpy from the grid and compare Σ and its mapping."""
+    scene = sim.floor_plan(seed=1, num_people=0)
+    a = SE2.from_vector([3.0, 3.7, 0.4])
+    ref = _c(sim.simulate_scan(scene, SICK, a, seed=0).points)
+    src = _c(sim.simulate_scan(scene, SICK, a @ SE2.from_vector([0.1, -0.05, 0.04]), seed=1).points)
+    grid = scanreg.prepare_correlative(ref, resolution=0.1, sigma=0.25)
+    init = SE2.from_vector([0.05, 0.0, 0.3])
+    dth = 0.02
+    res = grid.match(src, init=init, window=(0.3, 0.3, 0.1), angular_resolution=dth)
+    like = grid.likelihood.astype(np.float64)
+    origin = np.array(grid.origin)
+    c0 = init.as_vector()
+    rows, sums = [], []
+    for k in range(-5, 6):
+        th = c0[2] + k * dth
+        rot = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+        cells = np.floor((src @ rot.T + c0[:2] - origin) / 0.1).astype(int)
+        for i in range(-3, 4):
+            for j in range(-3, 4):
+                cx, cy = cells[:, 0] + i, cells[:, 1] + j
+                inside = (cx >= 0) & (cy >= 0) & (cx < like.shape[1]) & (cy < like.shape[0])
+                sums.append(like[cy[inside], cx[inside]].sum())
+                rows.append([c0[0] + 0.1 * i, c0[1] + 0.1 * j, th])
+    x, s = np.array(rows), np.array(sums)
+    assert res.num_evaluated == len(s)
+    best = int(np.argmax(s))
+    np.testing.assert_allclose(res.pose.as_vector(), x[best], atol=1e-12)
+    assert res.score == pytest.approx(s[best] / len(src), rel=1e-9)
+    p = np.exp(s - s.max())
+    mu = p @ x / p.sum()
+    olson = (x * p[:, None]).T @ x / p.sum() - np.outer(mu, mu)
+    quant = np.diag([0.01, 0.01, dth**2]) / 12
+    np.testing.assert_allclose(res.window_covariance, olson + quant, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(res.mean, mu, atol=1e-9)
+    # Window frame → right perturbation: ρ = Rᵀ δt.
+    jac = np.eye(3)
+    jac[:2, :2] = res.pose.rotation.T
+    np.testing.assert_allclose(res.covariance, jac @ res.window_covariance @ jac.T, atol=1e-15)
+    assert olson[0, 0] > 0 and olson[2, 2] > 0  # the blur spreads p over several candidates
+
+
+def test_corridor_is_weak_along_its_axis() -> None:
+    scene = sim.corridor(length=200.0, width=2.0, closed_ends=False)
+    a = SE2.from_vector([100.0, 0.1, 0.05])
+    ref = _c(sim.simulate_scan(scene, SICK, a, seed=0).points)
+    src = _c(sim.simulate_scan(scene, SICK, a @ SE2.from_vector([0.2, 0.05, 0.03]), seed=1).points)
+    res = scanreg.match_correlative(src, ref, window=(0.5, 0.3, 0.2), resolution=0.05, sigma=0.1)
+    sd = res.standard_deviations
+    assert sd[0] > 4 * sd[1]
+    weakest = res.conditioning.weakest.vector
+    assert abs(weakest[0]) > 0.95
+    assert "translation along (1.00" in res.conditioning.weakest.description
+    # Across the corridor and in heading it is pinned down.
+    assert abs(res.pose.as_vector()[1] - 0.05) <= 0.05 and abs(res.pose.angle - 0.03) <= 0.02
+
+
+def test_mbicp_laserazos_self_matching_protocol() -> None:
+    """Minguez et al. 2006 / Censi's CSM harness: each real scan against a noisy (σ = 1 cm)
+    copy of itself displaced by a known offset, at three perturbation sizes."""
+    log = read_carmen(data_dir("carmen-mbicp-laserazos", "laserazosSM3.log"))
+    rng = np.random.default_rng(0)
+    subset = rng.choice(len(log), 25, replace=False)
+    res_m, dth = 0.03, 0.01
+    for max_t, max_th in [
+        (0.05, math.radians(5)),
+        (0.1, math.radians(15)),
+        (0.2, math.radians(45)),
+    ]:
+        errors = []
+        for i in subset:
+            scan = log.scans[int(i)]
+            mask = scan.valid(min_range=0.05)
+            noisy = scan.ranges[mask] + rng.normal(0.0, 0.01, int(mask.sum()))
+            ang = scan.angles[mask]
+            copy = np.c_[noisy * np.cos(ang), noisy * np.sin(ang)]
+            truth = SE2.from_vector(rng.uniform([-max_t, -max_t, -max_th], [max_t, max_t, max_th]))
+            res = scanreg.match_correlative(
+                _c(truth.inverse().apply(copy)),
+                scan.to_points(min_range=0.05),
+                window=(0.2, 0.2, math.radians(45)),
+                resolution=res_m,
+                angular_resolution=dth,
+                method="branch_and_bound",
+            )
+            e = (truth.inverse() @ res.pose).as_vector()
+            errors.append([math.hypot(e[0], e[1]), abs(e[2])])
+        err = np.array(errors)
+        success = np.mean((err[:, 0] <= 2 * res_m) & (err[:, 1] <= 2 * dth))
+        assert success >= 0.95, (max_t, success, err.max(axis=0))
+        assert np.median(err[:, 0]) <= res_m and np.median(err[:, 1]) <= dth
+
+
+def test_prepared_grid_gives_the_same_answer() -> None:
+    scene = sim.floor_plan(seed=1, num_people=0)
+    a = SE2.from_vector([3.0, 3.7, 0.4])
+    ref = _c(sim.simulate_scan(scene, SICK, a, seed=0).points)
+    src = _c(sim.simulate_scan(scene, SICK, a @ SE2.from_vector([0.1, 0.0, 0.05]), seed=1).points)
+    grid = scanreg.prepare_correlative(ref, resolution=0.05)
+    r1 = scanreg.match_correlative(src, grid)
+    r2 = scanreg.match_correlative(src, ref, resolution=0.05)
+    assert r1.pose == r2.pose and r1.score == r2.score
+    assert r1.timing.grid_seconds == 0.0 and r2.timing.grid_seconds > 0.0
+    assert grid.likelihood.shape == grid.shape[::-1]
+    assert float(grid.likelihood.max()) == 1.0
+
+
+def test_hostile_input_names_the_problem() -> None:
+    ref = _c(np.random.default_rng(0).uniform(-3, 3, (50, 2)))
+    src = ref.copy()
+    grid = scanreg.prepare_correlative(ref, resolution=0.1)
+    cases: list[tuple[type[Exception], str, dict[str, Any]]] = [
+        (ValueError, r"source: expected shape \(N, 2\)", {"source": _c(np.zeros((5, 3)))}),
+        (ValueError, "source: point 1 has a non-finite", {"source": _c([[0, 0], [np.nan, 1.0]])}),
+        (ValueError, "source: is empty", {"source": _c(np.zeros((0, 2)))}),
+        (TypeError, "source: expected dtype float64", {"source": src.astype(np.float32)}),
+        (ValueError, "method: unknown 'icp'", {"method": "icp"}),
+        (ValueError, "window: half-widths", {"window": (0.1, -0.1, 0.1)}),
+        (ValueError, "window: expected", {"window": (0.1, 0.1)}),
+        (ValueError, "window: dθ must be", {"window": (0.1, 0.1, 4.0)}),
+        (ValueError, "angular_resolution: must be finite and > 0", {"angular_resolution": 0.0}),
+        (ValueError, "resolution: 0.2 differs", {"resolution": 0.2}),
+        (ValueError, "init: ", {"init": np.array([[1.0, 0, 0], [0, 2.0, 0], [0, 0, 1.0]])}),
+        (TypeError, "init: expected SE2", {"init": scanreg.SE3.identity()}),
+        (ValueError, "covariance_radius", {"covariance_radius": -1}),
+    ]
+    for exc, match, kw in cases:
+        args = {"source": src, **kw}
+        source = args.pop("source")
+        with pytest.raises(exc, match=match):
+            scanreg.match_correlative(source, grid, **args)
+    with pytest.raises(ValueError, match="resolution: must be finite and > 0"):
+        scanreg.prepare_correlative(ref, resolution=-1.0)
+    with pytest.raises(ValueError, match="levels: must be in"):
+        scanreg.prepare_correlative(ref, levels=13)
+    with pytest.raises(ValueError, match="resolution: the reference spans"):
+        scanreg.prepare_correlative(_c([[0.0, 0.0], [1e5, 1e5]]), resolution=0.01)
+    with pytest.raises(ValueError, match="reference: expected shape"):
+        scanreg.prepare_correlative(_c(np.zeros((4, 3))))
+    with pytest.raises(ValueError, match="reference: expected shape"):
+        scanreg._core.CorrelativeGrid(_c(np.zeros((4, 3))), 0.1, 0.1, 1)
+    with pytest.raises(ValueError, match="not C-contiguous"):
+        scanreg.match_correlative(np.asfortranarray(np.ones((4, 2))), grid)
