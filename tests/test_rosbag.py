@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import data_dir
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from numpy.typing import NDArray
 from scanreg import SE2
 from scanreg import simulate as sim
@@ -424,6 +426,67 @@ def test_topic_selection_errors(tmp_path: Path) -> None:
         read_bag_clouds(path, topic="/scan")
     with pytest.raises(TypeError, match="topic"):
         read_bag_scans(path, topic=3)  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def small_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
+    """Small valid ROS 1 bags (plain, bz2, lz4) holding 2 LaserScans and 1 PointCloud2."""
+    out = {}
+    for kind in ("ros1", "ros1-bz2", "ros1-lz4"):
+        ts = _store(kind)
+        scans = [
+            (10**9 * (i + 1), _scan_msg(ts, kind, s, 10**9, i == 0))
+            for i, s in enumerate(_sim_scans(2))
+        ]
+        rec = np.zeros(30, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+        clouds = [(10**9, _cloud_msg(ts, kind, rec, 10**9))]
+        folder = tmp_path_factory.mktemp(kind)
+        path = write_bag(folder / "b", kind, {"/scan": (SCAN, scans), "/cloud": (CLOUD, clouds)})
+        out[kind] = path.read_bytes()
+    return out
+
+
+@settings(
+    max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    kind=st.sampled_from(["ros1", "ros1-bz2", "ros1-lz4"]),
+    cut=st.floats(0, 1),
+    edits=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=4),
+    insert=st.binary(max_size=8),
+)
+def test_fuzz_mutated_ros1_bags(
+    tmp_path: Path,
+    small_bags: dict[str, bytes],
+    kind: str,
+    cut: float,
+    edits: list[tuple[float, int]],
+    insert: bytes,
+) -> None:
+    """Mutated bags either read (with consistent shapes) or raise FileFormatError naming the
+    file — never another exception, a hang or a crash."""
+    raw = bytearray(small_bags[kind])
+    for where, value in edits:
+        raw[int(where * (len(raw) - 1))] = value
+    pos = int(cut * len(raw))
+    data = bytes(raw[:pos]) + insert + bytes(raw[pos:]) if insert else bytes(raw[: max(pos, 1)])
+    path = tmp_path / "fuzz.bag"
+    path.write_bytes(data)
+    try:
+        topics = list_topics(path)
+        scans = read_bag_scans(path, topic="/scan")
+        clouds = read_bag_clouds(path, topic="/cloud")
+    except FileFormatError as exc:
+        assert "fuzz.bag" in str(exc)
+        return
+    except ValueError as exc:  # topic selection after a mutated connection record
+        assert str(exc).startswith("topic:") or "fuzz.bag" in str(exc)
+        return
+    assert {t.name for t in topics} >= {"/scan", "/cloud"}
+    for scan in scans:
+        assert scan.ranges.shape == scan.angles.shape
+    for cloud in clouds:
+        assert cloud.cloud.points.shape == (cloud.height * cloud.width, 3)
 
 
 # --------------------------------------------------------------------------- CLI

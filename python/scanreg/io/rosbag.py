@@ -248,7 +248,14 @@ def decode_pointcloud2(
             blob = np.concatenate([blob, np.zeros(needed - blob.size, np.uint8)])
         rows = blob[:needed].reshape(height, row_step)[:, : width * point_step]
         records = np.ascontiguousarray(rows).view(dtype).reshape(n)
-    columns = {name: np.asarray(records[name]) for name in names}
+    # float32 → float64 raises an "invalid" FP flag on signalling NaNs: they are plain NaNs
+    with np.errstate(invalid="ignore"):
+        columns = {
+            name: np.asarray(records[name], dtype=np.float64)
+            if records.dtype[name].base.kind == "f"
+            else np.asarray(records[name])
+            for name in names
+        }
     return cloud_from_columns("PointCloud2", columns)
 
 
@@ -308,10 +315,15 @@ def _op(path: Path, fields: dict[str, bytes], where: int) -> int:
 class _Records:
     """Records ``(op, header fields, data, offset)`` of a byte stream in the bag's framing."""
 
-    def __init__(self, path: Path, stream: BinaryIO, start: int, end: int | None) -> None:
+    def __init__(self, path: Path, stream: BinaryIO, start: int, end: int) -> None:
         self.path, self.stream, self.pos, self.end = path, stream, start, end
 
     def _read(self, size: int, what: str, where: int) -> bytes:
+        # check against the known size first: a corrupt length must not allocate gigabytes
+        if self.pos + size > self.end:
+            raise FileFormatError(
+                self.path, f"truncated: {what} of the record at byte {where} ends past the data"
+            )
         chunk = self.stream.read(size)
         if len(chunk) != size:
             raise FileFormatError(
@@ -321,15 +333,9 @@ class _Records:
         return chunk
 
     def __iter__(self) -> Iterator[tuple[int, dict[str, bytes], bytes, int]]:
-        while self.end is None or self.pos < self.end:
+        while self.pos < self.end:
             where = self.pos
-            head = self.stream.read(4)
-            if not head:
-                return
-            self.pos += len(head)
-            if len(head) < 4:
-                raise FileFormatError(self.path, f"truncated record at byte {where}")
-            (hlen,) = struct.unpack("<I", head)
+            (hlen,) = struct.unpack("<I", self._read(4, "the header length", where))
             if hlen > _MAX_HEADER:
                 raise FileFormatError(
                     self.path, f"corrupt record at byte {where}: header length {hlen}"
@@ -370,11 +376,12 @@ def _decompress(path: Path, header: dict[str, bytes], data: bytes, where: int) -
         if compression == "none":
             out = data
         elif compression == "bz2":
-            out = bz2.decompress(data)
+            # never more than the declared size + 1 byte: a corrupt chunk cannot balloon
+            out = bz2.BZ2Decompressor().decompress(data, max_length=size + 1)
         elif compression == "lz4":
             import lz4.frame  # type: ignore[import-untyped]  # a dependency of rosbags
 
-            out = lz4.frame.decompress(data)
+            out = lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size + 1)
         else:
             raise FileFormatError(path, f"chunk at byte {where}: unknown compression {compression}")
     except (OSError, ValueError, RuntimeError, EOFError) as exc:
@@ -393,6 +400,9 @@ class _Ros1Bag:
 
     def __init__(self, path: Path) -> None:
         self.path = path
+
+    def _size(self) -> int:
+        return self.path.stat().st_size
 
     def _open(self) -> tuple[BinaryIO, int]:
         stream = self.path.open("rb")
@@ -417,7 +427,7 @@ class _Ros1Bag:
         path = self.path
         stream, start = self._open()
         with stream:
-            records = iter(_Records(path, stream, start, None))
+            records = iter(_Records(path, stream, start, self._size()))
             first = next(records, None)
             if first is None or first[0] != _OP_BAG_HEADER:
                 raise FileFormatError(path, "the first record is not the bag header")
@@ -489,7 +499,7 @@ class _Ros1Bag:
         stream, start = self._open()
         out: list[_Connection] = []
         with stream:
-            for op, header, data, where in _Records(self.path, stream, start, None):
+            for op, header, data, where in _Records(self.path, stream, start, self._size()):
                 if op == _OP_CONNECTION:
                     out.append(_ros1_connection(self.path, header, data, where))
         return out
@@ -655,9 +665,10 @@ def iter_bag_scans(path: PathLike, topic: str | None = None) -> Iterator[RosLase
     p = _check_path(path)
     chosen = _choose_topic(p, topic, LASER_SCAN)
     for conn, stamp, msg, index in _deserialised(p, chosen, LASER_SCAN):
-        ranges = np.asarray(msg.ranges, dtype=np.float64)
+        with np.errstate(invalid="ignore"):  # signalling NaNs are read as NaN
+            ranges = np.asarray(msg.ranges, dtype=np.float64)
+            inten = np.asarray(msg.intensities, dtype=np.float64)
         n = ranges.shape[0]
-        inten = np.asarray(msg.intensities, dtype=np.float64)
         where = f"{conn.topic} message {index}"
         values = (msg.angle_min, msg.angle_increment, msg.range_max, msg.range_min)
         if not np.isfinite(values).all():
