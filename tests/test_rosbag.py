@@ -378,6 +378,19 @@ def test_corrupt_ros1_bags(tmp_path: Path) -> None:
         list_topics(tmp_path / "missing.bag")
 
 
+@pytest.mark.parametrize("index_pos", [0, 500_000, 2**40])
+def test_ros1_bag_without_a_usable_index(tmp_path: Path, index_pos: int) -> None:
+    """Unindexed (index_pos 0), or pointing into a chunk or past the end: the walk still
+    reads every message (the chunk-info counts still agree)."""
+    data = bytearray(data_dir("rosbag1-laserscan-ccny-demo", "demo.bag").read_bytes())
+    at = data.index(b"index_pos=") + len(b"index_pos=")
+    data[at : at + 8] = index_pos.to_bytes(8, "little")
+    path = tmp_path / "reindexed.bag"
+    path.write_bytes(bytes(data))
+    assert list_topics(path) == (BagTopic("/scan", SCAN, 360),)
+    assert len(read_bag_scans(path)) == 360
+
+
 def test_truncated_message_bytes(tmp_path: Path) -> None:
     """A well-framed bag whose message bytes are cut short: the deserialiser's error is named."""
     ts = _store("ros1")

@@ -496,13 +496,35 @@ class _Ros1Bag:
         return [(seen[k], counts.get(k, 0)) for k in sorted(seen)]
 
     def _all_connections(self) -> list[_Connection]:
+        """The connection records: from the index section when the bag header points to a
+        readable one (no chunk is read), else from a walk over the whole file."""
         stream, start = self._open()
-        out: list[_Connection] = []
+        size = self._size()
         with stream:
-            for op, header, data, where in _Records(self.path, stream, start, self._size()):
-                if op == _OP_CONNECTION:
-                    out.append(_ros1_connection(self.path, header, data, where))
-        return out
+            records = iter(_Records(self.path, stream, start, size))
+            first = next(records, None)
+            if first is None or first[0] != _OP_BAG_HEADER:
+                raise FileFormatError(self.path, "the first record is not the bag header")
+            index_pos = first[1].get("index_pos", b"")
+            pos = struct.unpack("<Q", index_pos)[0] if len(index_pos) == 8 else 0
+            after_header = stream.tell()
+            if start < pos < size:
+                stream.seek(pos)
+                try:
+                    found = self._connection_records(_Records(self.path, stream, pos, size))
+                except FileFormatError:
+                    found = []  # a damaged index section: the walk below decides
+                if found:
+                    return found
+            stream.seek(after_header)
+            return self._connection_records(_Records(self.path, stream, after_header, size))
+
+    def _connection_records(self, records: _Records) -> list[_Connection]:
+        return [
+            _ros1_connection(self.path, header, data, where)
+            for op, header, data, where in records
+            if op == _OP_CONNECTION
+        ]
 
 
 # --------------------------------------------------------------------------- ROS 2
