@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import data_dir
 from scanreg import SE2, SE3
 from scanreg.interop import (
     covariance_from_ros,
@@ -19,7 +20,7 @@ from scanreg.interop import (
     to_ros_pose2d_covariance,
     to_ros_pose_with_covariance,
 )
-from scanreg.io import PointCloud
+from scanreg.io import PointCloud, read_kitti_bin
 from scanreg.transform import so3_exp, so3_log
 
 # A pose far from the origin: the adjoint's [t]x term would show up at once.
@@ -182,8 +183,21 @@ def test_open3d_round_trip() -> None:
     back = from_open3d(pcd)
     np.testing.assert_array_equal(back.points, pts)
     np.testing.assert_array_equal(back.fields["normal"], normals)
+    np.testing.assert_array_equal(back.fields["color"], cloud.fields["color"])
     flat = to_open3d(np.ascontiguousarray(pts[:, :2]))
     np.testing.assert_array_equal(np.asarray(flat.points)[:, 2], 0.0)
+    np.testing.assert_array_equal(np.asarray(flat.points)[:, :2], pts[:, :2])
+    bare = from_open3d(to_open3d(pts))
+    assert dict(bare.fields) == {}
+    # a real KITTI frame through Open3D and back, bit for bit
+    kitti = read_kitti_bin(data_dir("kitti-odometry-00-frames-000-015", "velodyne", "000000.bin"))
+    np.testing.assert_array_equal(from_open3d(to_open3d(kitti)).points, kitti.points)
+    nan = np.array(pts)
+    nan[3, 1] = np.nan
+    with pytest.raises(ValueError, match="cloud"):
+        to_open3d(PointCloud(points=nan))
+    with pytest.raises(TypeError, match="pcd"):
+        from_open3d(pts)
 
 
 def test_open3d_missing_is_a_clear_error(monkeypatch: Any) -> None:

@@ -86,13 +86,14 @@ def to_open3d(cloud: PointCloud | FloatArray) -> Any:
     if points.shape[1] == 2:
         points = np.concatenate([points, np.zeros((points.shape[0], 1))], axis=1)
     out = o3d.geometry.PointCloud()
-    out.points = o3d.utility.Vector3dVector(np.ascontiguousarray(points))
+    # Open3D refuses read-only arrays (PointCloud's are): hand it copies
+    out.points = o3d.utility.Vector3dVector(np.array(points, dtype=np.float64))
     for name, value in (("normal", normals), ("color", colors)):
         if value is None:
             continue
         if value.shape != (points.shape[0], 3):
             raise ValueError(f"cloud: fields[{name!r}] must have shape (N, 3), got {value.shape}")
-        vec = o3d.utility.Vector3dVector(np.ascontiguousarray(value))
+        vec = o3d.utility.Vector3dVector(np.array(value, dtype=np.float64))
         if name == "normal":
             out.normals = vec
         else:
