@@ -146,12 +146,12 @@ def plot_scan_alignment(
         ax.set_title(f"{label} alignment")
         ax.set_aspect("equal", adjustable="datalim")
         ax.set_xlabel("x [m] (target frame)")
-        ax.legend(loc="upper right", markerscale=4, fontsize=8)
     axes[0].set_ylabel("y [m]")
     origin = pose.translation
     heading = np.array([np.cos(pose.angle), np.sin(pose.angle)])
     axes[1].plot(*origin, marker="+", color="k", ms=10, ls="none", label="source origin")
-    axes[1].legend(loc="upper right", markerscale=1, fontsize=8)
+    for ax in axes[:2]:
+        ax.legend(loc="upper right", markerscale=2, fontsize=8)
     if cov is not None:
         ax = axes[2]
         rot = pose.rotation
