@@ -20,7 +20,7 @@ from scanreg.io import FileFormatError, PointCloud, read_kitti_bin
 pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'scanreg[ros]')")
 
 from rosbags.rosbag1 import Writer as Writer1
-from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 from scanreg.io.rosbag import (
@@ -122,8 +122,13 @@ def write_bag(path: Path, kind: str, topics: dict[str, tuple[str, list[tuple[int
                 for t, msg in msgs:
                     w1.write(conn, t, ts.serialize_ros1(msg, msgtype))
         return path
-    plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
-    with Writer2(path, version=9, storage_plugin=plugin) as w2:
+    plugin = StoragePlugin.MCAP if kind.startswith("mcap") else StoragePlugin.SQLITE3
+    w2 = Writer2(path, version=9, storage_plugin=plugin)
+    if kind.endswith("-zstd-file"):
+        w2.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
+    if kind.endswith("-zstd-message"):
+        w2.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
+    with w2:
         for topic, (msgtype, msgs) in topics.items():
             conn = w2.add_connection(topic, msgtype, typestore=ts)
             for t, msg in msgs:
@@ -165,7 +170,7 @@ def _kitti_records(step: int = 25) -> NDArray[Any]:
 # --------------------------------------------------------------------------- round trips
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", [*KINDS, "sqlite3-zstd-file", "mcap-zstd-message"])
 def test_laserscan_round_trip(tmp_path: Path, kind: str) -> None:
     ts = _store(kind)
     scans = _sim_scans()
