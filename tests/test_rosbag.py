@@ -243,6 +243,52 @@ def test_pointcloud2_round_trip_from_kitti(tmp_path: Path, kind: str) -> None:
     assert got[0].cloud.ring.max() > 30  # the rings are real elevations, not all zero
 
 
+def test_ros_laserscan_semantics() -> None:
+    """range_min is honoured whatever min_range is asked; beam times follow time_increment."""
+    scan = RosLaserScan(
+        kind="sensor_msgs/LaserScan",
+        ranges=np.array([0.01, 0.5, np.inf, 5.0, 6.0, np.nan]),
+        angles=np.linspace(0, 1, 6),
+        max_range=5.6,
+        laser_pose=None,
+        odometry_pose=None,
+        timestamp=10.0,
+        logger_timestamp=10.01,
+        range_min=0.02,
+        time_increment=1e-3,
+    )
+    np.testing.assert_array_equal(scan.valid(), [False, True, False, True, False, False])
+    np.testing.assert_array_equal(
+        scan.valid(min_range=1.0), [False, False, False, True, False, False]
+    )
+    assert scan.to_points().shape == (2, 2)
+    np.testing.assert_allclose(scan.beam_times, np.arange(6) * 1e-3)
+    with pytest.raises(ValueError, match="range_min"):
+        RosLaserScan(
+            kind="k",
+            ranges=np.ones(3),
+            angles=np.zeros(3),
+            max_range=1.0,
+            laser_pose=None,
+            odometry_pose=None,
+            timestamp=0.0,
+            logger_timestamp=0.0,
+            range_min=2.0,
+        )
+    with pytest.raises(ValueError, match="intensities"):
+        RosLaserScan(
+            kind="k",
+            ranges=np.ones(3),
+            angles=np.zeros(3),
+            max_range=1.0,
+            laser_pose=None,
+            odometry_pose=None,
+            timestamp=0.0,
+            logger_timestamp=0.0,
+            intensities=np.ones(2),
+        )
+
+
 def test_pointcloud2_layouts() -> None:
     """Big-endian, organised with NaNs and row padding, float64 and multi-count fields."""
     ts = _store("mcap")

@@ -124,6 +124,10 @@ class RosLaserScan(LaserScan):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if not (np.isfinite(self.range_min) and 0 <= self.range_min < self.max_range):
+            raise ValueError(
+                f"range_min: must be finite, >= 0 and < max_range, got {self.range_min}"
+            )
         if self.intensities is not None:
             inten = np.array(self.intensities, dtype=np.float64)
             if inten.shape != self.ranges.shape:
@@ -700,23 +704,27 @@ def iter_bag_scans(path: PathLike, topic: str | None = None) -> Iterator[RosLase
         if inten.size not in (0, n):
             raise FileFormatError(p, f"{where}: {inten.size} intensities for {n} ranges")
         angles = float(msg.angle_min) + float(msg.angle_increment) * np.arange(n, dtype=np.float64)
-        yield RosLaserScan(
-            kind="sensor_msgs/LaserScan",
-            ranges=ranges,
-            angles=angles,
-            max_range=float(msg.range_max),
-            laser_pose=None,
-            odometry_pose=None,
-            timestamp=_stamp(msg),
-            logger_timestamp=stamp * 1e-9,
-            topic=conn.topic,
-            frame_id=str(msg.header.frame_id),
-            range_min=max(float(msg.range_min), 0.0),
-            intensities=inten if inten.size else None,
-            time_increment=float(msg.time_increment),
-            scan_time=float(msg.scan_time),
-            angle_increment=float(msg.angle_increment),
-        )
+        try:
+            scan = RosLaserScan(
+                kind="sensor_msgs/LaserScan",
+                ranges=ranges,
+                angles=angles,
+                max_range=float(msg.range_max),
+                laser_pose=None,
+                odometry_pose=None,
+                timestamp=_stamp(msg),
+                logger_timestamp=stamp * 1e-9,
+                topic=conn.topic,
+                frame_id=str(msg.header.frame_id),
+                range_min=max(float(msg.range_min), 0.0),
+                intensities=inten if inten.size else None,
+                time_increment=float(msg.time_increment),
+                scan_time=float(msg.scan_time),
+                angle_increment=float(msg.angle_increment),
+            )
+        except ValueError as exc:
+            raise FileFormatError(p, f"{where}: {exc}") from None
+        yield scan
 
 
 def read_bag_scans(path: PathLike, topic: str | None = None) -> list[RosLaserScan]:
