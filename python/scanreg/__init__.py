@@ -13,6 +13,7 @@ from .correlative import (
     prepare_correlative,
 )
 from .deskew import deskew
+from .ndt import NdtResult, NdtTarget, match_ndt, prepare_ndt
 from .paired import PairedAlignment, align_paired
 from .quality import Conditioning, ResidualStats, WeakDirection
 from .register import RegistrationResult, RegistrationSettings, RegistrationTiming, register
@@ -25,6 +26,8 @@ __all__ = [
     "Conditioning",
     "CorrelativeGrid",
     "CorrelativeResult",
+    "NdtResult",
+    "NdtTarget",
     "PairedAlignment",
     "PreparedTarget",
     "RegistrationResult",
@@ -36,8 +39,10 @@ __all__ = [
     "align_paired",
     "deskew",
     "match_correlative",
+    "match_ndt",
     "prepare",
     "prepare_correlative",
+    "prepare_ndt",
     "preprocess",
     "register",
     "simulate",

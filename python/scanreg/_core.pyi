@@ -276,3 +276,23 @@ def deskew(
     velocity: NDArray[np.float64],
     reference_time: float,
 ) -> NDArray[np.float64]: ...
+
+# --- 2D NDT (crates/scanreg-py/src/ndt2d.rs) ---
+
+@final
+class NdtGrid:
+    def __new__(
+        cls,
+        reference: NDArray[np.float64],
+        cell_size: float,
+        min_points: int,
+        min_eigen_ratio: float,
+    ) -> NdtGrid: ...
+    @property
+    def cell_size(self) -> float: ...
+    @property
+    def num_cells(self) -> tuple[int, int, int, int]: ...
+    def cells(self, g: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+    def evaluate(
+        self, source: NDArray[np.float64], pose: tuple[float, float, float]
+    ) -> tuple[float, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], int]: ...

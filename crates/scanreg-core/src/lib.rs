@@ -21,6 +21,7 @@ pub mod kernel;
 pub mod knn;
 pub mod lie;
 pub mod lzf;
+pub mod ndt2d;
 pub mod normals;
 pub mod outliers;
 pub mod paired;

@@ -10,6 +10,7 @@ mod correlative;
 mod deskew;
 mod io;
 pub mod knn;
+mod ndt2d;
 mod paired;
 mod preprocess;
 mod register;
@@ -20,6 +21,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     paired::register(m)?;
     correlative::register(m)?;
+    ndt2d::register(m)?;
     deskew::register(m)?;
     knn::register(m)?;
     preprocess::register(m)?;

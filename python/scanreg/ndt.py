@@ -1,0 +1,281 @@
+"""2D Normal Distributions Transform registration (Biber & Straßer 2003).
+
+The reference is summarised by a Gaussian per cell in four grids shifted by half a cell (built
+once, in the Rust core); a source scan is aligned by Newton's method on the NDT cost
+``f(p) = −Σ exp(−½ qᵀΣ⁻¹q)`` over the pose vector ``p = [tx, ty, θ]`` of
+``T_reference_source``. The per-point sums (cost, analytic gradient and Hessian) run in the
+core; the iteration policy is here.
+
+>>> target = scanreg.prepare_ndt(reference_points, cell_size=1.0)
+>>> res = scanreg.match_ndt(source_points, target, init=T_guess)
+>>> res.pose, res.covariance, res.converged
+
+Covariance
+    Near a good fit ``exp(−½m) ≈ 1 − ½m``, so ``f`` is, up to a constant, the negative Gaussian
+    log-likelihood of the points with each cell's covariance as the measurement model (Biber &
+    Straßer §IV use the Hessian this way). Its Gauss–Newton part, the Fisher information
+    ``Σ e·JᵀΣ⁻¹J``, is inverted (the exact Hessian adds terms that vanish at a perfect fit and
+    turn it indefinite where points cross cell borders). It is mapped to scanreg's right
+    perturbation ``T = T̂ · exp(ξ)`` with ``J = blockdiag(R̂ᵀ, 1)`` (``ρ = R̂ᵀ δt``, see
+    :mod:`scanreg.correlative`). Cell covariances are shapes of walls, not sensor noise, so
+    expect it to be over-confident.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from . import _core
+from ._validate import FloatArray, as_points, positive
+from .quality import Conditioning, conditioning
+from .transform import SE2, as_pose
+
+StopReason = Literal["converged", "max_iterations", "no_overlap"]
+
+
+def _frozen(a: Any) -> FloatArray:
+    arr = np.array(a, dtype=np.float64)
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class NdtTarget:
+    """A reference prepared for :func:`match_ndt` (see :func:`prepare_ndt`).
+
+    ``cell_sizes`` are the levels matched coarse to fine (``cell_size · 2^k``, …,
+    ``cell_size``); ``num_cells`` counts the cells of the four shifted grids of the finest.
+    """
+
+    cell_size: float
+    cell_sizes: tuple[float, ...]
+    num_cells: tuple[int, int, int, int]
+    num_points: int
+    _natives: tuple[_core.NdtGrid, ...]
+
+    def cells(self, grid: int = 0) -> tuple[FloatArray, FloatArray]:
+        """Means ``(K, 2)`` and covariances ``(K, 2, 2)`` of one of the four shifted grids of
+        the finest level."""
+        return self._natives[-1].cells(grid)
+
+
+@dataclass(frozen=True)
+class NdtResult:
+    """The answer of :func:`match_ndt`.
+
+    Attributes
+    ----------
+    pose : SE2
+        ``T_reference_source``.
+    covariance : (3, 3)
+        Over the right perturbation ``[ρx, ρy, θ]`` (see the module docstring); all ``inf``
+        when the information is singular.
+    hessian : (3, 3)
+        ``∇²f`` over the pose vector ``[tx, ty, θ]`` at ``pose`` (may be indefinite: the cost
+        has kinks where points cross cell borders).
+    information : (3, 3)
+        ``covariance⁻¹``: the Fisher information ``Σ e·JᵀΣ⁻¹J`` in the tangent.
+    cost : float
+        ``f`` at ``pose`` (``−Σ exp(−½ qᵀΣ⁻¹q)`` over points and the four grids).
+    score : float
+        ``−cost / N``: mean NDT score per source point, in ``[0, 4]``.
+    fitness : float
+        Fraction of source points inside at least one reference cell.
+    iterations : int
+    converged : bool
+    stop_reason : "converged", "max_iterations" or "no_overlap"
+        ``converged``: a step below both tolerances, or no damped step lowers the cost.
+    conditioning : Conditioning
+        Of the information ``covariance⁻¹``, weak directions named.
+    seconds : float
+        Wall time of the iterations.
+    """
+
+    pose: SE2
+    covariance: FloatArray
+    hessian: FloatArray
+    information: FloatArray
+    cost: float
+    score: float
+    fitness: float
+    iterations: int
+    converged: bool
+    stop_reason: StopReason
+    conditioning: Conditioning
+    seconds: float
+
+    @property
+    def standard_deviations(self) -> FloatArray:
+        return _frozen(np.sqrt(np.diag(self.covariance)))
+
+
+def prepare_ndt(
+    reference: Any,
+    *,
+    cell_size: float = 1.0,
+    levels: int = 2,
+    min_points: int = 3,
+    min_eigen_ratio: float = 1e-3,
+) -> NdtTarget:
+    """Build the four shifted NDT grids of ``reference`` ``(N, 2)`` (metres) at ``levels``
+    cell sizes ``cell_size · 2^(levels−1)``, …, ``cell_size`` (coarse to fine: the coarse
+    levels widen the basin, the finest sets the detail).
+
+    Cells with fewer than ``min_points`` points are dropped; covariance eigenvalues below
+    ``min_eigen_ratio`` × the larger one are raised to it (Biber & Straßer use 0.001).
+    """
+    ref = as_points(reference, "reference", dim=2)
+    size = positive(cell_size, "cell_size")
+    for name, value in (("levels", levels), ("min_points", min_points)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise TypeError(f"{name}: expected an int, got {type(value).__name__}")
+    if not 1 <= levels <= 8:
+        raise ValueError(f"levels: must be in [1, 8], got {levels}")
+    sizes = tuple(size * 2.0**k for k in range(int(levels) - 1, -1, -1))
+    natives = tuple(_core.NdtGrid(ref, c, int(min_points), float(min_eigen_ratio)) for c in sizes)
+    if sum(natives[-1].num_cells) == 0:
+        raise ValueError(
+            f"reference: no cell of {size} m holds {min_points} points; use larger cells"
+        )
+    return NdtTarget(
+        cell_size=size,
+        cell_sizes=sizes,
+        num_cells=natives[-1].num_cells,
+        num_points=len(ref),
+        _natives=natives,
+    )
+
+
+def _levenberg_marquardt(
+    native: _core.NdtGrid,
+    src: FloatArray,
+    p: FloatArray,
+    max_iterations: int,
+    tol_t: float,
+    tol_r: float,
+) -> tuple[FloatArray, StopReason, int]:
+    """Minimise the NDT cost from ``p`` on one grid level.
+
+    Newton steps damped as Levenberg–Marquardt: ``(∇²f + λI) δ = −∇f``, with λ raised until
+    ``∇²f + λI`` is positive definite and the step lowers the cost (Biber & Straßer: "add λI
+    until positive definite"), and lowered after each accepted step. A step is at most half a
+    cell and 0.1 rad, the region where the quadratic model of a cell's Gaussian holds.
+    """
+
+    def evaluate(v: FloatArray) -> tuple[float, FloatArray, FloatArray, int]:
+        cost, grad, hess, _, matched = native.evaluate(src, (float(v[0]), float(v[1]), float(v[2])))
+        return cost, grad, hess, matched
+
+    cost, grad, hess, matched = evaluate(p)
+    max_step = 0.5 * native.cell_size
+    lam = 0.0
+    for iteration in range(1, max_iterations + 1):
+        if matched == 0:
+            return p, "no_overlap", iteration - 1
+        sym = 0.5 * (hess + hess.T)
+        vals = np.linalg.eigvalsh(sym)
+        top = max(float(np.abs(vals).max()), 1e-12)
+        lam = max(lam, -float(vals[0]) + 1e-6 * top, 0.0)
+        while True:
+            step = -np.linalg.solve(sym + lam * np.eye(3), grad)
+            scale = min(1.0, max_step / max(float(np.hypot(step[0], step[1])), 1e-300))
+            step = step * min(scale, 0.1 / max(abs(float(step[2])), 1e-300))
+            trial = p + step
+            c_new, g_new, h_new, m_new = evaluate(trial)
+            if c_new < cost:
+                break
+            lam = max(4.0 * lam, 1e-3 * top)
+            if lam > 1e9 * top:  # no step lowers the cost: a minimum
+                return p, "converged", iteration
+        p, cost, grad, hess, matched = trial, c_new, g_new, h_new, m_new
+        lam /= 3.0
+        if float(np.hypot(step[0], step[1])) < tol_t and abs(float(step[2])) < tol_r:
+            return p, "converged", iteration
+    return p, "max_iterations", max_iterations
+
+
+def match_ndt(
+    source: Any,
+    reference: Any,
+    *,
+    init: Any = None,
+    cell_size: float | None = None,
+    max_iterations: int = 50,
+    translation_tolerance: float = 1e-5,
+    rotation_tolerance: float = 1e-5,
+) -> NdtResult:
+    """Align ``source`` ``(N, 2)`` to ``reference`` (points or an :class:`NdtTarget`) by NDT.
+
+    Parameters
+    ----------
+    init : SE2 or (3, 3) matrix, optional
+        Initial ``T_reference_source`` (default identity). NDT is local: the basin is about
+        half a cell.
+    cell_size : float, optional
+        For a raw reference (default 1.0 m); must agree with a prepared one.
+    max_iterations, translation_tolerance, rotation_tolerance
+        Newton stops when a step is below both tolerances (m, rad).
+    """
+    src = as_points(source, "source", dim=2)
+    pose0 = SE2.identity() if init is None else as_pose(init, "init", 2)
+    assert isinstance(pose0, SE2)
+    if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)):
+        raise TypeError("max_iterations: expected an int")
+    if max_iterations < 1:
+        raise ValueError(f"max_iterations: must be >= 1, got {max_iterations}")
+    tol_t = positive(translation_tolerance, "translation_tolerance")
+    tol_r = positive(rotation_tolerance, "rotation_tolerance")
+    if isinstance(reference, NdtTarget):
+        target = reference
+        if cell_size is not None and positive(cell_size, "cell_size") != target.cell_size:
+            raise ValueError(
+                f"cell_size: {cell_size} differs from the prepared target's {target.cell_size}"
+            )
+    else:
+        target = prepare_ndt(reference, cell_size=1.0 if cell_size is None else cell_size)
+    if not target._natives:
+        raise ValueError("reference: the NdtTarget has no grid")
+    t0 = time.perf_counter()
+    p = pose0.as_vector()
+    stop: StopReason = "max_iterations"
+    iterations = 0
+    for native in target._natives:
+        p, stop, used = _levenberg_marquardt(native, src, p, int(max_iterations), tol_t, tol_r)
+        iterations += used
+    seconds = time.perf_counter() - t0
+    p[2] = math.atan2(math.sin(p[2]), math.cos(p[2]))
+    cost, _, hess, fisher, matched = native.evaluate(src, (float(p[0]), float(p[1]), float(p[2])))
+    pose = SE2.from_vector(p)
+    h = 0.5 * (hess + hess.T)
+    fisher = 0.5 * (fisher + fisher.T)
+    jac = np.eye(3)
+    jac[:2, :2] = pose.rotation.T
+    info = jac @ fisher @ jac.T  # ξ = J δp, so I_ξ = J⁻ᵀ I_p J⁻¹ = J I_p Jᵀ (J orthogonal)
+    if np.linalg.eigvalsh(fisher).min() > 1e-12 * max(float(np.abs(fisher).max()), 1e-300):
+        cov = np.linalg.inv(info)
+        cov = 0.5 * (cov + cov.T)
+    else:
+        cov = np.full((3, 3), np.inf)
+    length = float(np.sqrt((src**2).sum(axis=1).mean())) or 1.0
+    return NdtResult(
+        pose=pose,
+        covariance=_frozen(cov),
+        hessian=_frozen(h),
+        information=_frozen(info),
+        cost=float(cost),
+        score=float(-cost / len(src)),
+        fitness=float(matched / len(src)),
+        iterations=iterations,
+        converged=stop == "converged",
+        stop_reason=stop,
+        conditioning=conditioning(_frozen(0.5 * (info + info.T)), 2, length),
+        seconds=seconds,
+    )
+
+
+__all__ = ["NdtResult", "NdtTarget", "match_ndt", "prepare_ndt"]
