@@ -583,3 +583,20 @@ def test_cli_info_on_bags(capsys: pytest.CaptureFixture[str], tmp_path: Path) ->
     cut.write_bytes(path.read_bytes()[:5000])
     assert cli.main(["info", str(cut)]) == cli.EXIT_BAD_INPUT
     assert "cut.bag" in capsys.readouterr().err
+
+
+def test_missing_rosbags_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without the ros extra, reading a bag says what to install (simulated)."""
+    import builtins
+
+    real_import = builtins.__import__
+
+    def fake_import(name: str, *args: Any, **kwargs: Any) -> Any:
+        if name == "rosbags" or name.startswith("rosbags."):
+            raise ImportError(f"No module named {name!r}")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", fake_import)
+    path = data_dir("rosbag1-laserscan-ccny-demo", "demo.bag")
+    with pytest.raises(ImportError, match=r"pip install 'scanreg\[ros\]'"):
+        read_bag_scans(path)
