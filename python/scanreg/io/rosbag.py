@@ -620,7 +620,7 @@ def list_topics(path: PathLike) -> tuple[BagTopic, ...]:
 
 
 def _choose_topic(path: Path, topic: str | None, msgtype: str) -> str:
-    topics = list_topics_fast(path)
+    topics = _topic_types(path)
     matching = sorted({t for t, m in topics if m == msgtype})
     if topic is not None:
         if not isinstance(topic, str):
@@ -642,7 +642,7 @@ def _choose_topic(path: Path, topic: str | None, msgtype: str) -> str:
     return matching[0]
 
 
-def list_topics_fast(path: Path) -> set[tuple[str, str]]:
+def _topic_types(path: Path) -> set[tuple[str, str]]:
     """``(topic, msgtype)`` pairs, reading only connection records (no message counts)."""
     if _is_ros1(path):
         return {(c.topic, c.msgtype) for c in _Ros1Bag(path)._all_connections()}
