@@ -81,11 +81,10 @@ def test_trajectory_figures(tmp_path: Path) -> None:
 
 def test_weak_directions_and_histogram(tmp_path: Path, scan_pair: tuple) -> None:
     source, _, result = scan_pair
-    one = plot.plot_weak_directions(tmp_path / "w.png", source, result.conditioning)
     every = plot.plot_weak_directions(
         tmp_path / "w_all.png", source, result.conditioning, all_directions=True
     )
-    assert _png_size(every)[0] == round(5.2 * 3 * 110) and _png_size(one)[0] == round(6.4 * 110)
+    assert _png_size(every)[0] == round(5.2 * 3 * 110)  # one panel per direction
     # a corridor's point-to-line information: translation along x is free
     rng = np.random.default_rng(0)
     pts = np.ascontiguousarray(
@@ -103,7 +102,6 @@ def test_weak_directions_and_histogram(tmp_path: Path, scan_pair: tuple) -> None
     residuals = np.concatenate([rng.normal(0, 0.02, 500), rng.uniform(-1, 1, 20)])
     hist = plot.plot_residual_histogram(tmp_path / "h.png", residuals, threshold=0.1, log=True)
     assert _png_size(hist) == (round(6.4 * 110), round(4.2 * 110))
-    assert _is_svg(plot.plot_residual_histogram(tmp_path / "h.svg", np.abs(residuals)))
 
 
 def test_helpers() -> None:
