@@ -834,6 +834,30 @@ mod tests {
     }
 
     #[test]
+    fn ties_resolve_to_the_same_candidate() {
+        // One source point and a long straight wall: every candidate that puts the point on
+        // the wall scores exactly the same, so only the tie rule decides.
+        let wall: Vec<f64> = (0..200)
+            .flat_map(|k| [(k as f64 + 0.5) * 0.05 - 5.0, 1.01])
+            .collect();
+        let grid = LikelihoodGrid::build(&wall, 0.05, 0.05, 5).unwrap();
+        for (center, ntheta) in [([0.3, 0.95, 0.0], 0), ([-0.2, 1.02, 0.0], 2)] {
+            let w = Window {
+                center,
+                nx: 20,
+                ny: 6,
+                ntheta,
+                angular_step: 0.01,
+            };
+            let ex = match_exhaustive(&grid, &[0.0, 0.0], &w).unwrap();
+            let bb = match_branch_and_bound(&grid, &[0.0, 0.0], &w, 2).unwrap();
+            assert_eq!(ex.index, bb.index);
+            assert_eq!(ex.sum, bb.sum);
+            assert_eq!(ex.index[1], -20, "the smallest key wins: {:?}", ex.index);
+        }
+    }
+
+    #[test]
     fn hostile_input_is_an_error() {
         assert!(LikelihoodGrid::build(&[], 0.1, 0.1, 0).is_err());
         assert!(LikelihoodGrid::build(&[0.0, f64::NAN], 0.1, 0.1, 0).is_err());
