@@ -6,7 +6,8 @@ evaluable on it. Compared (relations metric: mean ± std of translational/rotati
 
 * raw wheel odometry;
 * scan-to-scan correlative matching (branch and bound, window around the odometry prior);
-* correlative followed by point-to-line ICP (``scanreg.register``) from the correlative pose.
+* correlative followed by point-to-line ICP (``scanreg.register``) or NDT (``scanreg.match_ndt``)
+  from the correlative pose.
 
 Run: ``.venv/bin/python benchmarks/intel_scan_to_scan.py [--data ../shared/data]``.
 """
@@ -48,7 +49,7 @@ def trajectory(poses: list[SE2], stamps: Any) -> Trajectory:
 def scan_to_scan(
     log: Any,
     *,
-    refine: bool,
+    refine: str | None,
     resolution: float = 0.05,
     window: tuple[float, float, float] = (0.3, 0.3, math.radians(10)),
     min_range: float = 0.1,
@@ -69,7 +70,12 @@ def scan_to_scan(
             method="branch_and_bound",
         )
         pose = res.pose
-        if refine:
+        if refine == "ndt":
+            ndt = scanreg.match_ndt(points[k], points[k - 1], init=pose, cell_size=1.0)
+            step = ndt.pose.as_vector() - pose.as_vector()
+            if ndt.converged and np.hypot(step[0], step[1]) < 3 * resolution:
+                pose = ndt.pose
+        if refine == "point_to_line":
             icp = scanreg.register(
                 points[k],
                 points[k - 1],
@@ -100,10 +106,12 @@ def main() -> None:
     rows = []
     odom = [SE2.from_vector(v) for v in log.odometry_poses()]
     rows.append(("raw odometry", odom, 0.0))
-    for name, refine in (
-        ("scan-to-scan correlative", False),
-        ("correlative + point-to-line", True),
-    ):
+    variants: tuple[tuple[str, str | None], ...] = (
+        ("scan-to-scan correlative", None),
+        ("correlative + point-to-line", "point_to_line"),
+        ("correlative + NDT", "ndt"),
+    )
+    for name, refine in variants:
         poses, per_scan = scan_to_scan(log, refine=refine)
         rows.append((name, poses, per_scan))
     print(f"Intel subset: {len(log)} scans, {len(relations)} relations")
