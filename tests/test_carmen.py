@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import gzip
 import math
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import data_dir
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scanreg import SE2
 from scanreg.io import FileFormatError, read_carmen, read_scans
 from scanreg.io.carmen import flaser_angles
@@ -180,3 +183,43 @@ def test_truncated_and_binary_files(tmp_path: Path) -> None:
     assert len(read_scans(ok)) == 3
     with pytest.raises(ValueError, match="no scan reader"):
         read_scans(tmp_path / "x.bag")
+
+
+_VALID_LOG = (
+    "# CARMEN log\nPARAM robot_frontlaser_offset 0.0 nohost 0\n"
+    + _flaser(["1.0", "NaN", "2.5", "81.83"])
+    + "ODOM 0.5 0.25 0.1 0.2 0.01 0 10.5 host 10.5\n"
+    + "ROBOTLASER1 0 -1.0 2.0 0.5 30.0 0.01 0 3 1 2 3 0 1 2 0.1 0.9 2 0.1 0.2 0.01 1 1 0 11 h 11\n"
+    + "RAWLASER1 0 -1.0 2.0 1.0 30.0 0.01 0 3 1 2 3 1 7 12.5 h 12.5\n"
+    + "NEFF 42\n"
+).encode()
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    cut=st.floats(0, 1),
+    edits=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=4),
+    insert=st.binary(max_size=8),
+    gz=st.booleans(),
+)
+def test_fuzz_mutated_logs(
+    cut: float, edits: list[tuple[float, int]], insert: bytes, gz: bool
+) -> None:
+    """Any mutation of a valid log either reads or raises FileFormatError — nothing else."""
+    raw = bytearray(_VALID_LOG)
+    for where, value in edits:
+        raw[int(where * (len(raw) - 1))] = value
+    pos = int(cut * len(raw))
+    data = bytes(raw[:pos]) + insert + bytes(raw[pos:]) if insert else bytes(raw[: max(pos, 1)])
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / ("f.log.gz" if gz else "f.log")
+        path.write_bytes(gzip.compress(data) if gz else data)
+        try:
+            log = read_scans(path)
+        except FileFormatError as exc:
+            assert str(exc).startswith(str(path))
+            return
+        for scan in log.scans:
+            assert scan.ranges.shape == scan.angles.shape
+            pts = scan.to_points()
+            assert np.isfinite(pts).all()

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import subprocess
+import sys
 from functools import cache
 from typing import Any
 
@@ -298,3 +301,37 @@ def test_intel_local_relations_scan_to_scan() -> None:
     assert err[:, 0].mean() < 0.035 and err[:, 1].mean() < 0.45
     assert err[:, 1].mean() < odo[:, 1].mean() / 3  # heading: 3× better than wheel odometry
     assert np.median(err[:, 0]) < np.median(odo[:, 0]) / 2
+
+
+_DETERMINISM_SCRIPT = """
+import numpy as np, scanreg
+from scanreg import SE2, simulate as sim
+scene = sim.floor_plan(seed=2, num_people=0)
+laser = sim.LaserModel.preset("sick_lms200")
+a = SE2.from_vector([7.0, 0.3, 0.2])
+ref = np.ascontiguousarray(sim.simulate_scan(scene, laser, a, seed=0).points)
+src = np.ascontiguousarray(
+    sim.simulate_scan(scene, laser, a @ SE2.from_vector([0.2, -0.1, 0.05]), seed=1).points
+)
+for method in ("exhaustive", "branch_and_bound"):
+    r = scanreg.match_correlative(src, ref, window=(0.4, 0.4, 0.2), method=method)
+    print(r.pose.as_vector().tobytes().hex(), r.covariance.tobytes().hex(), r.num_evaluated)
+n = scanreg.match_ndt(src, ref, cell_size=1.0)
+print(n.pose.as_vector().tobytes().hex(), n.covariance.tobytes().hex())
+"""
+
+
+def test_results_do_not_depend_on_the_thread_count() -> None:
+    outputs = []
+    for threads in ("1", "2", "3"):
+        env = {**os.environ, "RAYON_NUM_THREADS": threads}
+        run = subprocess.run(
+            [sys.executable, "-c", _DETERMINISM_SCRIPT],
+            env=env,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        outputs.append(run.stdout)
+    assert outputs[0] == outputs[1] == outputs[2]
+    assert len(outputs[0].splitlines()) == 3
