@@ -161,8 +161,8 @@ class RegistrationResult:
 
     ``pose`` is ``T_target_source`` (``p_T = R p_S + t``). ``covariance`` is over the
     right-perturbation tangent ``δ`` (translation first, source frame): ``T_true = pose @ exp(δ)``.
-    Everything below is evaluated at ``pose`` (one last correspondence search after the last
-    step).
+    Everything below is evaluated at ``pose``: with the correspondences of the last search when
+    the last step was below the tolerances (``converged``), else after a fresh search.
     """
 
     pose: SE2 | SE3

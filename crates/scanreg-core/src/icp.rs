@@ -166,7 +166,8 @@ pub struct Outcome {
     /// Number of steps computed (linearisations that had enough correspondences).
     pub iterations: usize,
     pub stop_reason: StopReason,
-    /// At the returned pose, with the score outer products.
+    /// At the returned pose, with the score outer products; re-using the last search's
+    /// correspondences when converged (the last step was below the tolerances).
     pub evaluation: Evaluation,
     /// Wall time of each iteration, seconds.
     pub iteration_seconds: Vec<f64>,
@@ -411,11 +412,14 @@ fn factor<G: Group<D, N>, const D: usize, const N: usize>(
     }
 }
 
+/// Linearise at `pose`. Correspondences are searched in the tree, or taken from `fixed` (one
+/// target index per source point, `NONE` for none) and re-gated.
 fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
     pr: &Problem<'_>,
     pose: &Pose<D>,
     with_scores: bool,
     keep_correspondences: bool,
+    fixed: Option<&[u32]>,
 ) -> (Evaluation, Vec<u32>) {
     let n = pr.source.len() / D;
     let tree = pr.target.tree;
@@ -428,7 +432,16 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                 let p: SVector<f64, D> = vec_at(pr.source, i);
                 let tp = pose.r * p + pose.t;
                 let mut used = NONE;
-                if let Some((j, d2)) = tree.nearest_within(tp.as_slice(), pr.max_sq) {
+                let found = match fixed {
+                    None => tree.nearest_within(tp.as_slice(), pr.max_sq),
+                    Some(c) if c[i] != NONE => {
+                        let j = c[i] as usize;
+                        let d2 = (tp - vec_at::<D>(tree.points(), j)).norm_squared();
+                        (d2 <= pr.max_sq).then_some((j, d2))
+                    }
+                    Some(_) => None,
+                };
+                if let Some((j, d2)) = found {
                     let q: SVector<f64, D> = vec_at(tree.points(), j);
                     let e = tp - q;
                     if let Some((h, g, norm)) = factor::<G, D, N>(pr, pose, i, j, &p, &e) {
@@ -527,9 +540,10 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     let mut iterations = 0;
     let mut stop = StopReason::MaxIterations;
     let mut times = Vec::with_capacity(s.max_iterations);
+    let mut last_corr: Vec<u32> = Vec::new();
     for _ in 0..s.max_iterations {
         let t0 = Instant::now();
-        let (lin, corr) = evaluate::<G, D, N>(pr, &pose, false, lm);
+        let (lin, corr) = evaluate::<G, D, N>(pr, &pose, false, true, None);
         if lin.num_correspondences < s.min_correspondences {
             stop = StopReason::TooFewCorrespondences;
             break;
@@ -569,6 +583,7 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
         times.push(t0.elapsed().as_secs_f64());
         if at_minimum {
             stop = StopReason::Converged;
+            last_corr = corr;
             break;
         }
         let Some(d) = step else {
@@ -593,11 +608,15 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
         pose = next;
         if dt < s.translation_tolerance && dr < s.rotation_tolerance {
             stop = StopReason::Converged;
+            last_corr = corr;
             break;
         }
     }
     let t0 = Instant::now();
-    let (evaluation, _) = evaluate::<G, D, N>(pr, &pose, true, false);
+    // After a converged (sub-tolerance) last step the correspondences cannot have changed
+    // meaningfully: re-use them instead of a full search (saves one nearest-neighbour pass).
+    let fixed = (stop == StopReason::Converged).then_some(last_corr.as_slice());
+    let (evaluation, _) = evaluate::<G, D, N>(pr, &pose, true, false, fixed);
     if evaluation.num_correspondences < s.min_correspondences {
         stop = StopReason::TooFewCorrespondences;
     }
@@ -710,9 +729,9 @@ pub fn evaluate_at(
     let pr = problem(source, target, settings)?;
     split_pose("pose", pose, dim)?;
     Ok(if dim == 2 {
-        evaluate::<Planar, 2, 3>(&pr, &Pose::from_flat(pose), true, false).0
+        evaluate::<Planar, 2, 3>(&pr, &Pose::from_flat(pose), true, false, None).0
     } else {
-        evaluate::<Spatial, 3, 6>(&pr, &Pose::from_flat(pose), true, false).0
+        evaluate::<Spatial, 3, 6>(&pr, &Pose::from_flat(pose), true, false, None).0
     })
 }
 
