@@ -95,8 +95,9 @@ class RegistrationSettings:
     #: ``gauss_newton`` (classic ICP: every step taken) or ``levenberg_marquardt`` (a step is
     #: taken only if it lowers the cost over the iteration's correspondences).
     optimizer: Optimizer = "gauss_newton"
-    #: Threads for the per-point loops; ``None``: the default pool (``RAYON_NUM_THREADS`` or
-    #: all cores). Results do not depend on it.
+    #: Threads for the registration loop; ``None``: the default pool (``RAYON_NUM_THREADS`` or
+    #: all cores). Downsampling, normals and covariances computed here use the default pool.
+    #: Results do not depend on it.
     num_threads: int | None = None
     #: If set, voxel-downsample (centroid) the source, and a raw-array target, to this cell
     #: size first. A :class:`~scanreg.PreparedTarget` is used as it is.
