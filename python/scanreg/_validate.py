@@ -91,3 +91,17 @@ def positive(value: float, name: str) -> float:
     if not np.isfinite(v) or v <= 0:
         raise ValueError(f"{name}: must be finite and > 0, got {value}")
     return v
+
+
+def frozen(value: Any) -> FloatArray:
+    """A read-only float64 copy of ``value``: what result dataclasses hold, so that a frozen
+    result is immutable all the way down."""
+    out: FloatArray = np.array(value, dtype=np.float64)
+    out.setflags(write=False)
+    return out
+
+
+def readonly(arr: Any) -> Any:
+    """Mark a freshly made array read-only in place (no copy) and return it."""
+    arr.setflags(write=False)
+    return arr

@@ -44,6 +44,7 @@ import numpy as np
 
 from . import _core
 from ._validate import FloatArray, as_points, positive
+from ._validate import frozen as _frozen
 from .quality import Conditioning, conditioning
 from .transform import SE2, as_pose
 
@@ -56,12 +57,6 @@ DEFAULT_RESOLUTION = 0.05
 DEFAULT_WINDOW = (0.5, 0.5, math.radians(20.0))
 #: Default number of max-pooled levels (Hess et al. use 7: nodes up to 64 × 64 cells).
 DEFAULT_LEVELS = 7
-
-
-def _frozen(a: Any) -> FloatArray:
-    arr = np.array(a, dtype=np.float64)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True)

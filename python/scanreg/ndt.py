@@ -32,16 +32,11 @@ import numpy as np
 
 from . import _core
 from ._validate import FloatArray, as_points, positive
+from ._validate import frozen as _frozen
 from .quality import Conditioning, conditioning
 from .transform import SE2, as_pose
 
 StopReason = Literal["converged", "max_iterations", "no_overlap"]
-
-
-def _frozen(a: Any) -> FloatArray:
-    arr = np.array(a, dtype=np.float64)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, eq=False)

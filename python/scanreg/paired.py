@@ -13,6 +13,7 @@ import numpy as np
 
 from . import _core
 from ._validate import FloatArray, as_points, as_weights, positive
+from ._validate import frozen as _frozen
 from .quality import (
     DEFAULT_WEAK_RATIO,
     SINGULAR_RATIO,
@@ -73,12 +74,6 @@ class PairedAlignment:
         """Square roots of the covariance diagonal (m, m[, m], rad[, rad, rad])."""
         out: FloatArray = np.sqrt(np.diag(self.covariance))
         return out
-
-
-def _frozen(a: FloatArray) -> FloatArray:
-    a = np.array(a, dtype=np.float64)
-    a.setflags(write=False)
-    return a
 
 
 def _kabsch(

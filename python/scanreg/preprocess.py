@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from . import _core
 from ._validate import FloatArray, as_matrix, as_points, positive
+from ._validate import readonly as _readonly
 
 IndexArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
@@ -28,11 +29,6 @@ Regularization = Literal["plane", "normalized_min_eig", "none"]
 
 #: Default neighbourhood size for normals, covariances and statistical outlier removal.
 DEFAULT_K = 20
-
-
-def _readonly(a: Any) -> Any:
-    a.setflags(write=False)
-    return a
 
 
 def positive_int(value: Any, name: str, *, minimum: int = 1) -> int:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._validate import FloatArray
+from ._validate import frozen as _frozen
 
 #: Below this ratio of the smallest to the largest *scaled* eigenvalue of ``JᵀJ`` the pose
 #: is not determined at all (numerically singular): scanreg raises instead of returning it.
@@ -21,12 +22,6 @@ SINGULAR_RATIO = 1e-12
 #: A ratio r means the pose is 1/sqrt(r) times less certain along that direction than along
 #: the best one; 1e-4 is 100× (issue 5 derives thresholds from the noise level).
 DEFAULT_WEAK_RATIO = 1e-4
-
-
-def _frozen(a: FloatArray) -> FloatArray:
-    a = np.array(a, dtype=np.float64)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)

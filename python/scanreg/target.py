@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from . import _core
 from ._validate import FloatArray, as_points
+from ._validate import readonly as _readonly
 from .preprocess import (
     DEFAULT_K,
     BoolArray,
@@ -26,11 +27,6 @@ from .preprocess import (
     check_regularization,
     positive_int,
 )
-
-
-def _readonly(a: Any) -> Any:
-    a.setflags(write=False)
-    return a
 
 
 def _gate(value: Any, name: str) -> float:

@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import _core
 from .._validate import FloatArray
+from .._validate import frozen as _frozen
 from ._checks import finite, non_negative, positive
 from ._checks import seed as check_seed
 
@@ -28,12 +29,6 @@ COLUMNS: int = _core.SIMULATE_PRIMITIVE_COLUMNS
 PLANE, BOX, CYLINDER, SPHERE, WALL = 0.0, 1.0, 2.0, 3.0, 4.0
 #: Vertical extent of 2D primitives.
 FLAT_Z = 1.0
-
-
-def _frozen(a: Any, dtype: Any = np.float64) -> Any:
-    out = np.array(a, dtype=dtype)
-    out.setflags(write=False)
-    return out
 
 
 @dataclass(frozen=True, eq=False)

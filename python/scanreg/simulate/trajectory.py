@@ -17,14 +17,9 @@ from typing import Any
 import numpy as np
 
 from .._validate import FloatArray, as_matrix
+from .._validate import frozen as _frozen
 from ..transform import SE2, SE3
 from ._checks import finite, non_negative, positive
-
-
-def _frozen(a: Any) -> FloatArray:
-    out = np.array(a, dtype=np.float64)
-    out.setflags(write=False)
-    return out
 
 
 @dataclass(frozen=True, eq=False)
