@@ -38,6 +38,7 @@ import numpy as np
 
 from . import _core
 from ._validate import FloatArray, as_points
+from ._validate import frozen as _frozen
 from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
 from .quality import (
     Conditioning,
@@ -215,12 +216,6 @@ class RegistrationResult:
         """Square roots of the covariance diagonal (m, m[, m], rad[, rad, rad])."""
         out: FloatArray = np.sqrt(np.diag(self.covariance))
         return out
-
-
-def _frozen(a: Any) -> FloatArray:
-    out = np.array(a, dtype=np.float64)
-    out.setflags(write=False)
-    return out
 
 
 def _resolve_method(method: Any, dim: int) -> str:
