@@ -88,7 +88,8 @@ class OdometryConfig2D:
     correlative_window: tuple[float, float, float] = (0.3, 0.3, math.radians(10.0))
     #: ... and grid resolution.
     correlative_resolution: float = 0.05
-    #: A refinement moving further than this from the correlative pose is discarded.
+    #: A point-to-line result moving further than this (m) from where it started (the
+    #: prediction, or the correlative pose) is discarded and its start kept (``inf``: never).
     max_refinement_step: float = 0.15
     #: Verdict thresholds (gate: the point-to-line gate).
     thresholds: VerdictThresholds = field(default_factory=VerdictThresholds)
@@ -117,7 +118,9 @@ class OdometryConfig2D:
         for i, v in enumerate(w):
             _positive(v, f"correlative_window[{i}]", allow_zero=True)
         _positive(self.correlative_resolution, "correlative_resolution")
-        _positive(self.max_refinement_step, "max_refinement_step")
+        step = self.max_refinement_step
+        if not (isinstance(step, float) and step == math.inf):
+            _positive(self.max_refinement_step, "max_refinement_step")
         if not isinstance(self.thresholds, VerdictThresholds):
             raise TypeError(
                 f"thresholds: expected VerdictThresholds, got {type(self.thresholds).__name__}"
@@ -224,6 +227,7 @@ class Odometry2D:
                     f"timestamp: {timestamp} is earlier than the previous scan's {self._last_time}"
                 )
         motion = None if prior is None else as_pose(prior, "prior", 2)
+        assert motion is None or isinstance(motion, SE2)
         cfg = self.config
         if cfg.scan_voxel_size > 0:
             pts = np.ascontiguousarray(voxel_downsample(pts, cfg.scan_voxel_size).points)
@@ -342,8 +346,7 @@ def _accepted_pose(res: RegistrationResult, start: SE2, cfg: OdometryConfig2D) -
         return start
     pose = res.pose
     assert isinstance(pose, SE2)
-    if cfg.front_end == "correlative":
-        step = start.inverse() @ pose
-        if float(np.linalg.norm(step.translation)) > cfg.max_refinement_step:
-            return start
+    step = start.inverse() @ pose
+    if float(np.linalg.norm(step.translation)) > cfg.max_refinement_step:
+        return start
     return pose

@@ -1,0 +1,194 @@
+"""2D scan-to-map odometry (scanreg.pipeline.Odometry2D): simulated truth, the Intel relations,
+hostile configuration and input."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+import scanreg
+from conftest import data_dir
+from scanreg import SE2
+from scanreg import simulate as sim
+from scanreg.pipeline import Frame2D, Odometry2D, OdometryConfig2D
+from scanreg.verdict import VerdictThresholds
+
+SICK = sim.LaserModel.preset("sick_lms200")
+
+
+def _points(scan: object) -> np.ndarray:
+    return np.ascontiguousarray(scan.points)  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("front_end", ["icp", "correlative"])
+def test_square_room_loop_final_drift(front_end: str) -> None:
+    # A 1.67 m-radius circle inside a 10 m square room, 200 scans; exact truth.
+    start = SE2.from_vector([0.0, -2.0, 0.0])
+    traj = sim.Trajectory.from_speed_and_yaw_rate(0.5, 0.3, duration=25.0, start=start)
+    run = sim.simulate_run(sim.square_room(5.0), SICK, traj, num_scans=200, scan_rate=8.0, seed=2)
+    odo = Odometry2D(OdometryConfig2D(front_end=front_end))  # type: ignore[arg-type]
+    frames = [odo.step(_points(s), timestamp=0.125 * k) for k, s in enumerate(run.scans)]
+    truth = run.poses[0].inverse() @ run.poses[-1]
+    err = truth.inverse() @ frames[-1].pose
+    # Travelled about 12.5 m and turned 430°: final drift below 3 cm and 0.3°.
+    assert np.linalg.norm(err.translation) < 0.03
+    assert abs(err.angle) < math.radians(0.3)
+    # A few steps stop at max_iterations (Huber IRLS creeping below the tolerance).
+    assert sum(f.verdict.accepted for f in frames) >= 0.9 * len(frames)
+    assert sum(f.keyframe for f in frames) > 10
+    assert frames[0].prediction == "first" and frames[1].prediction == "constant_velocity"
+    f = frames[-1]
+    assert isinstance(f, Frame2D) and f.covariance.shape == (3, 3)
+    assert not f.covariance.flags.writeable
+    assert f.timing.total >= f.timing.align > 0 and 0.9 < f.fitness <= 1.0
+    with pytest.raises(AttributeError):
+        f.pose = SE2.identity()  # type: ignore[misc]
+
+
+def test_wheel_prior_is_used_and_corrected() -> None:
+    # A straight drive in the square room with a wheel prior 10 % too long.
+    start = SE2.from_vector([-3.0, -1.0, 0.2])
+    traj = sim.Trajectory.from_speed_and_yaw_rate(0.6, 0.0, duration=8.0, start=start)
+    run = sim.simulate_run(sim.square_room(5.0), SICK, traj, num_scans=40, scan_rate=5.0, seed=4)
+    odo = Odometry2D()
+    for k, s in enumerate(run.scans):
+        prior = None
+        if k:
+            true_step = (run.poses[k - 1].inverse() @ run.poses[k]).as_vector()
+            prior = SE2.from_vector(true_step * [1.1, 1.1, 1.0])
+        frame = odo.step(_points(s), prior=prior)
+        if k:
+            assert frame.prediction == "prior"
+    truth = run.poses[0].inverse() @ run.poses[-1]
+    assert np.linalg.norm((truth.inverse() @ frame.pose).translation) < 0.02
+
+
+def test_corridor_covariance_names_the_corridor_axis() -> None:
+    # Along the corridor of floor_plan(seed=1) scan-to-map slips along x (the constant-velocity
+    # prediction starts at rest): the estimate lags the truth. The verdict does not flag it
+    # (the conditioning threshold is not reached, see the covariance calibration notes), but the
+    # covariance's principal axis is the corridor's.
+    scene = sim.floor_plan(seed=1, num_people=0)
+    traj = sim.Trajectory.from_speed_and_yaw_rate(
+        1.0, 0.0, duration=10.0, start=SE2.from_vector([1.0, 0.0, 0.0])
+    )
+    run = sim.simulate_run(scene, SICK, traj, num_scans=30, scan_rate=5.0, seed=2)
+    odo = Odometry2D()
+    frames = [odo.step(_points(s)) for s in run.scans]
+    truth = run.poses[0].inverse() @ run.poses[-1]
+    err = truth.inverse() @ frames[-1].pose
+    assert abs(err.translation[0]) > 5 * abs(err.translation[1])  # drift is along x
+    along_x = 0
+    for f in frames[1:]:
+        _values, vectors = np.linalg.eigh(f.covariance[:2, :2])
+        along_x += abs(vectors[0, 1]) > 0.9
+    assert along_x >= 0.8 * (len(frames) - 1)
+
+
+def test_intel_subset_relations() -> None:
+    from scanreg.eval.relations import read_relations, relation_error
+    from scanreg.io import Trajectory, read_carmen
+
+    folder = data_dir("carmen-intel")
+    log = read_carmen(folder / "intel_gfs_subset_clf_timestamps.clf")
+    relations = read_relations(folder / "intel_gfs_subset.relations")
+    odo = Odometry2D(OdometryConfig2D(front_end="icp", max_refinement_step=math.inf))
+    poses = []
+    t0 = time.perf_counter()
+    for k, scan in enumerate(log.scans):
+        prior = None if k == 0 else log.motion_prior(k - 1, k)
+        poses.append(odo.step(scan.to_points(0.1, 40.0), timestamp=scan.timestamp, prior=prior))
+    elapsed = time.perf_counter() - t0
+    matrices = np.tile(np.eye(4), (len(poses), 1, 1))
+    for m, f in zip(matrices, poses, strict=True):
+        m[:2, :2] = f.pose.rotation
+        m[:2, 3] = f.pose.translation
+    traj = Trajectory(poses=matrices, timestamps=log.timestamps)
+    local = np.abs(relations.t2 - relations.t1) < 60.0
+    sub = type(relations)(
+        t1=relations.t1[local], t2=relations.t2[local], poses=relations.poses[local]
+    )
+    err = relation_error(traj, sub)
+    assert len(err.used) == 69
+    # Raw odometry: 0.052 ± 0.013 m, 1.22 ± 1.22°; measured here 0.029 ± 0.056 m (median
+    # 0.016 m), 0.36°; all 90 relations 0.35 m (raw odometry 3.3 m).
+    assert err.translation.mean < 0.035
+    assert err.translation.median < 0.02
+    assert err.rotation_deg.mean < 0.5
+    every = relation_error(traj, relations)
+    assert every.translation.mean < 0.6  # raw odometry: 3.3 m
+    assert elapsed < 20.0
+    assert sum(not f.verdict.accepted for f in poses) < 0.1 * len(poses)
+
+
+def test_config_validation_names_the_field() -> None:
+    cases = [
+        ({"front_end": "ndt"}, ValueError, "front_end"),
+        ({"max_correspondence_distance": 0.0}, ValueError, "max_correspondence_distance"),
+        ({"max_correspondence_distance": math.nan}, ValueError, "max_correspondence_distance"),
+        ({"max_correspondence_distance": "1"}, TypeError, "max_correspondence_distance"),
+        ({"kernel": "bogus"}, ValueError, "kernel"),
+        ({"kernel": 3}, TypeError, "kernel"),
+        ({"max_iterations": 0}, ValueError, "max_iterations"),
+        ({"max_iterations": 2.5}, TypeError, "max_iterations"),
+        ({"keyframe_distance": -1.0}, ValueError, "keyframe_distance"),
+        ({"keyframe_angle": math.inf}, ValueError, "keyframe_angle"),
+        ({"max_keyframes": 0}, ValueError, "max_keyframes"),
+        ({"max_keyframes": True}, TypeError, "max_keyframes"),
+        ({"map_voxel_size": -0.1}, ValueError, "map_voxel_size"),
+        ({"correlative_window": (0.1, 0.1)}, ValueError, "correlative_window"),
+        ({"correlative_window": (0.1, -0.1, 0.1)}, ValueError, r"correlative_window\[1\]"),
+        ({"correlative_resolution": 0.0}, ValueError, "correlative_resolution"),
+        ({"max_refinement_step": -1.0}, ValueError, "max_refinement_step"),
+        ({"thresholds": {}}, TypeError, "thresholds"),
+    ]
+    for kwargs, error, name in cases:
+        with pytest.raises(error, match=name):
+            OdometryConfig2D(**kwargs)  # type: ignore[arg-type]
+    OdometryConfig2D(max_refinement_step=math.inf, thresholds=VerdictThresholds(min_overlap=0.3))
+    with pytest.raises(TypeError, match="config"):
+        Odometry2D({"front_end": "icp"})  # type: ignore[arg-type]
+
+
+def test_hostile_input() -> None:
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-5, 5, (100, 2))
+    odo = Odometry2D()
+    assert odo.pose is None and odo.map_points is None
+    with pytest.raises(TypeError, match="points"):
+        odo.step(pts.tolist())
+    with pytest.raises(TypeError, match="points"):
+        odo.step(pts.astype(np.float32))
+    with pytest.raises(ValueError, match="points"):
+        odo.step(np.asfortranarray(pts))
+    with pytest.raises(ValueError, match="points"):
+        odo.step(np.ascontiguousarray(rng.uniform(-5, 5, (100, 3))))
+    bad = pts.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match="points"):
+        odo.step(bad)
+    with pytest.raises(ValueError, match="points"):
+        odo.step(pts[:2].copy())
+    with pytest.raises(ValueError, match="timestamp"):
+        odo.step(pts, timestamp=math.inf)
+    with pytest.raises(TypeError, match="timestamp"):
+        odo.step(pts, timestamp="1.0")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="prior"):
+        odo.step(pts, prior=np.array([0.1, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="prior"):
+        odo.step(pts, prior=np.eye(3) * 2.0)
+    # Nothing was consumed by the refused calls.
+    assert odo.pose is None
+    f0 = odo.step(pts, timestamp=1.0)
+    assert f0.pose == SE2.identity() and f0.report is None and f0.keyframe
+    with pytest.raises(ValueError, match="timestamp"):
+        odo.step(pts, timestamp=0.5)
+    f1 = odo.step(pts, timestamp=2.0)
+    assert np.linalg.norm(f1.pose.translation) < 1e-6
+    assert odo.map_points is not None and not odo.map_points.flags.writeable
+
+
+def test_exported_from_package() -> None:
+    assert scanreg.pipeline.Odometry2D is Odometry2D
