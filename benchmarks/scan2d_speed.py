@@ -1,0 +1,245 @@
+"""2D scan-to-scan speed and accuracy: scanreg (SE(2)) against small_gicp with z = 0 padding.
+
+Run (one thread for everyone — a 2D scan has a few hundred points; peers imported in the same
+process, optional):
+
+    .venv/bin/python benchmarks/scan2d_speed.py \
+        [--peers-site /tmp/peers-venv/lib/python3.11/site-packages] [--repeat 7] [--median]
+
+Pairs:
+* Intel subset (carmen-intel): consecutive scans k-1 -> k for every 4th k, points at
+  0.1–40 m, initial guess the wheel-odometry motion; reference: scan-to-scan correlative
+  (branch and bound) + point-to-line, the chain that scores 0.027 m on the local relations;
+* simulated: a SICK LMS200 in ``floor_plan(seed=3)`` driving a curve, exact truth, initial
+  guess the truth perturbed by (0.05 m, -0.05 m, 2°).
+Each library gets raw (N, 2) arrays (small_gicp: (N, 3) with z = 0) and returns a pose:
+building the target index, its normals (point-to-line / PLANE_ICP) or both clouds'
+covariances (GICP), then the alignment — end-to-end per pair; no downsampling. Shared settings:
+gate 0.3 m, k = 10, at most 30 iterations, convergence at 1e-4 m / 1e-4 rad, no robust
+kernel, identical initial guesses. Time: the whole set of pairs, best of --repeat runs after a
+warm-up (--median for medians). Ratio = our time / theirs (< 1: scanreg faster). Accuracy:
+median and 95th percentile translation error (mm) against the reference / the truth.
+Also: scans per second of ``scanreg.pipeline.Odometry2D`` on the 902 Intel scans.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scanreg
+from scanreg import SE2
+from scanreg import simulate as sim
+from scanreg.io import read_carmen
+from scanreg.pipeline import Odometry2D, OdometryConfig2D
+
+DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
+GATE = 0.3
+K = 10
+MAX_ITERATIONS = 30
+EPS = 1e-4
+OURS = {"point_to_line": "point_to_line", "point_to_point": "point_to_point", "gicp": "gicp"}
+THEIRS = {"point_to_line": "PLANE_ICP", "point_to_point": "ICP", "gicp": "GICP"}
+
+Pair = tuple[np.ndarray, np.ndarray, SE2, SE2]  # source, target, init, reference
+
+
+def timed(fn: Callable[[], Any], repeat: int, best: bool) -> tuple[float, Any]:
+    out = fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return (min(times) if best else statistics.median(times)), out
+
+
+def intel_pairs(log: Any) -> list[Pair]:
+    pts = [s.to_points(0.1, 40.0) for s in log.scans]
+    pairs = []
+    for k in range(4, len(pts), 4):
+        if min(len(pts[k]), len(pts[k - 1])) < 50:  # a handful of returns: nothing to compare
+            continue
+        init = log.motion_prior(k - 1, k)
+        c = scanreg.match_correlative(
+            pts[k],
+            pts[k - 1],
+            init=init,
+            window=(0.3, 0.3, math.radians(10)),
+            resolution=0.05,
+            method="branch_and_bound",
+        )
+        r = scanreg.register(
+            pts[k],
+            pts[k - 1],
+            method="point_to_line",
+            init=c.pose,
+            max_correspondence_distance=0.15,
+            kernel="huber",
+        )
+        ref = r.pose if r.converged else c.pose
+        assert isinstance(ref, SE2)
+        pairs.append((pts[k], pts[k - 1], init, ref))
+    return pairs
+
+
+def simulated_pairs() -> list[Pair]:
+    scene = sim.floor_plan(seed=3, num_people=0)
+    start = SE2.from_vector([2.0, 0.0, 0.0])
+    traj = sim.Trajectory.from_speed_and_yaw_rate(
+        0.8, 0.0, duration=16.0, start=start, yaw_rate_amplitude=0.1
+    )
+    run = sim.simulate_run(
+        scene, sim.LaserModel.preset("sick_lms200"), traj, num_scans=80, scan_rate=5.0, seed=5
+    )
+    pairs = []
+    kick = SE2.from_vector([0.05, -0.05, math.radians(2.0)])
+    for k in range(1, len(run.scans)):
+        truth = run.poses[k - 1].inverse() @ run.poses[k]
+        assert isinstance(truth, SE2)
+        src = np.ascontiguousarray(run.scans[k].points)
+        tgt = np.ascontiguousarray(run.scans[k - 1].points)
+        if min(len(src), len(tgt)) < 50:
+            continue
+        init = truth @ kick
+        assert isinstance(init, SE2)
+        pairs.append((src, tgt, init, truth))
+    return pairs
+
+
+def ours(pairs: list[Pair], method: str) -> list[SE2]:
+    out = []
+    for src, tgt, init, _ in pairs:
+        target = scanreg.prepare(
+            tgt, normals=method == "point_to_line", covariances=method == "gicp", k=K
+        )
+        res = scanreg.register(
+            src,
+            target,
+            method=OURS[method],
+            init=init,
+            max_correspondence_distance=GATE,
+            max_iterations=MAX_ITERATIONS,
+            translation_tolerance=EPS,
+            rotation_tolerance=EPS,
+            num_threads=1,
+            num_neighbors=K,
+        )
+        out.append(res.pose)
+    return out
+
+
+def pad(points: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(np.c_[points, np.zeros(len(points))])
+
+
+def mat4(pose: SE2) -> np.ndarray:
+    m = np.eye(4)
+    m[:2, :2] = pose.rotation
+    m[:2, 3] = pose.translation
+    return m
+
+
+def theirs(
+    sg: Any, pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], method: str
+) -> list[SE2]:
+    out = []
+    for src, tgt, init in pairs:
+        t = sg.PointCloud(tgt)
+        tree = sg.KdTree(t, 1)
+        s = sg.PointCloud(src)
+        if method == "point_to_line":
+            sg.estimate_normals(t, tree, K, 1)
+        elif method == "gicp":
+            sg.estimate_covariances(t, tree, K, 1)
+            sg.estimate_covariances(s, sg.KdTree(s, 1), K, 1)
+        res = sg.align(
+            t,
+            s,
+            tree,
+            init_T_target_source=init,
+            registration_type=THEIRS[method],
+            max_correspondence_distance=GATE,
+            num_threads=1,
+            max_iterations=MAX_ITERATIONS,
+            rotation_epsilon=EPS,
+            translation_epsilon=EPS,
+        )
+        m = np.asarray(res.T_target_source)
+        out.append(SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])]))
+    return out
+
+
+def errors_mm(poses: list[SE2], pairs: list[Pair]) -> tuple[float, float]:
+    e = [
+        1e3 * float(np.linalg.norm((ref.inverse() @ p).translation))
+        for p, (_, _, _, ref) in zip(poses, pairs, strict=True)
+    ]
+    return float(np.median(e)), float(np.percentile(e, 95))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--peers-site", default=None, help="site-packages holding small_gicp")
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--median", action="store_true", help="median instead of best of N")
+    args = ap.parse_args()
+    sg = None
+    if args.peers_site:
+        sys.path.append(args.peers_site)
+    with contextlib.suppress(ImportError):
+        import small_gicp as sg
+    log = read_carmen(DATA / "carmen-intel" / "intel_gfs_subset_clf_timestamps.clf")
+    sets = {"intel": intel_pairs(log), "simulated": simulated_pairs()}
+    print(
+        f"load average: {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f}; "
+        f"{'median' if args.median else 'best'} of {args.repeat}; small_gicp: {sg is not None}"
+    )
+    print(
+        "| pairs | n | method | scanreg ms/pair | small_gicp ms/pair | ratio | "
+        "scanreg err mm (median / p95) | small_gicp err mm |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    best = not args.median
+    for name, pairs in sets.items():
+        padded = [(pad(s), pad(t), mat4(i)) for s, t, i, _ in pairs]
+        for method in OURS:
+            t_ours, p_ours = timed(lambda m=method, p=pairs: ours(p, m), args.repeat, best)
+            e_ours = errors_mm(p_ours, pairs)
+            row = f"| {name} | {len(pairs)} | {method} | {t_ours / len(pairs) * 1e3:.3f} | "
+            if sg is not None:
+                t_them, p_them = timed(
+                    lambda m=method, p=padded: theirs(sg, p, m), args.repeat, best
+                )
+                e_them = errors_mm(p_them, pairs)
+                row += (
+                    f"{t_them / len(pairs) * 1e3:.3f} | {t_ours / t_them:.2f} | "
+                    f"{e_ours[0]:.1f} / {e_ours[1]:.1f} | {e_them[0]:.1f} / {e_them[1]:.1f} |"
+                )
+            else:
+                row += f"– | – | {e_ours[0]:.1f} / {e_ours[1]:.1f} | – |"
+            print(row, flush=True)
+    points = [s.to_points(0.1, 40.0) for s in log.scans]
+    for front_end in ("icp", "correlative"):
+        odo = Odometry2D(OdometryConfig2D(front_end=front_end))  # type: ignore[arg-type]
+        t0 = time.perf_counter()
+        for k, p in enumerate(points):
+            odo.step(p, prior=None if k == 0 else log.motion_prior(k - 1, k))
+        dt = time.perf_counter() - t0
+        print(
+            f"Odometry2D ({front_end} front end), {len(points)} Intel scans: "
+            f"{len(points) / dt:.0f} scans/s"
+        )
+
+
+if __name__ == "__main__":
+    main()
