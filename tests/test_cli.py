@@ -118,3 +118,105 @@ def test_register_exit_code_1_when_not_converged(
     out = json.loads(capsys.readouterr().out)
     assert code == cli.EXIT_CHECK_FAILED
     assert out["converged"] is False and out["stop_reason"] == "max_iterations"
+
+
+def test_simulate_writes_scans_and_truth(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    from scanreg import SE3
+    from scanreg import simulate as sim
+
+    out_dir = tmp_path / "run"
+    args = ["simulate", "--scene", "street", "--sensor", "vlp16", "--scans", "3"]
+    out = run_json(
+        capsys, *args, "--speed", "8", "--yaw-rate", "0.1", "--seed", "2", "-o", str(out_dir)
+    )
+    assert out["scans"] == 3 and out["dim"] == 3
+    assert sorted(p.name for p in out_dir.glob("*.pcd")) == [f"{k:06d}.pcd" for k in range(3)]
+    # The same run through the library: the files must hold its truth and its points.
+    traj = sim.Trajectory.from_speed_and_yaw_rate(
+        8.0,
+        0.1,
+        duration=0.1 * 3 + 0.5,
+        dim=3,
+        start=SE3.from_vector([0.0, 1.75, 1.73, 0.0, 0.0, 0.0]),
+    )
+    lidar = sim.LidarModel.preset("vlp16")
+    run = sim.simulate_run(sim.street(seed=2), lidar, traj, num_scans=3, seed=2)
+    truth = np.array([p.as_matrix() for p in run.poses])
+    kitti = io.read_kitti_poses(out_dir / "poses_kitti.txt")
+    tum = io.read_tum(out_dir / "poses_tum.txt")
+    np.testing.assert_allclose(kitti.poses, truth, atol=1e-9)
+    np.testing.assert_allclose(tum.poses, truth, atol=1e-9)
+    assert tum.timestamps is not None
+    np.testing.assert_allclose(tum.timestamps, run.start_times, atol=1e-9)
+    cloud = io.read_points(out_dir / "000001.pcd")
+    assert cloud.ring is not None and cloud.time is not None
+    assert len(cloud) == len(run.scans[1].points) == out["points_per_scan"][1]  # type: ignore[index]
+    np.testing.assert_allclose(cloud.points, run.scans[1].points, atol=1e-4)  # float32 file
+    info = run_json(capsys, "info", str(out_dir / "000001.pcd"))
+    assert info["points"] == len(run.scans[1].points)
+    assert info["fields"] == ["ring", "time"]
+
+
+def test_simulate_2d_csv_and_pcd(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    out = run_json(capsys, "simulate", "--scans", "4", "-o", str(tmp_path / "a"))
+    assert out["dim"] == 2 and len(list((tmp_path / "a").glob("*.csv"))) == 4
+    info = run_json(capsys, "info", str(tmp_path / "a" / "000002.csv"))
+    assert info["dim"] == 2 and info["points"] == out["points_per_scan"][2]  # type: ignore[index]
+    assert len(io.read_kitti_poses(tmp_path / "a" / "poses_kitti.txt")) == 4
+    out = run_json(
+        capsys,
+        "simulate",
+        "--scene",
+        "corridor",
+        "--sensor",
+        "laser_360",
+        "--scans",
+        "2",
+        "--format",
+        "pcd",
+        "-o",
+        str(tmp_path / "b"),
+    )
+    cloud = io.read_points(tmp_path / "b" / "000000.pcd")
+    assert cloud.dim == 3 and np.all(cloud.points[:, 2] == 0.0)
+
+
+@pytest.mark.parametrize(
+    ("argv", "code"),
+    [
+        (["simulate", "--scene", "mars", "-o", "x"], cli.EXIT_USAGE),
+        (["simulate", "--sensor", "hdl64"], cli.EXIT_USAGE),  # no -o
+        (["simulate", "--scans", "many", "-o", "x"], cli.EXIT_USAGE),
+        (
+            ["simulate", "--scene", "street", "--sensor", "sick_lms200", "-o", "x"],
+            cli.EXIT_BAD_INPUT,
+        ),
+        (["simulate", "--scene", "floor_plan", "--sensor", "vlp16", "-o", "x"], cli.EXIT_BAD_INPUT),
+        (["simulate", "--scans", "0", "-o", "x"], cli.EXIT_BAD_INPUT),
+        (["simulate", "--speed", "nan", "-o", "x"], cli.EXIT_BAD_INPUT),
+    ],
+)
+def test_simulate_bad_arguments(
+    argv: list[str], code: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    if code == cli.EXIT_USAGE:
+        with pytest.raises(SystemExit) as exc:
+            cli.main(argv)
+        assert exc.value.code == code
+    else:
+        assert cli.main(argv) == code
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("command", ["demo", "info", "evaluate", "register", "plot", "simulate"])
+def test_every_subcommand_help_shows_examples(
+    command: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        cli.main([command, "--help"])
+    assert exc.value.code == 0
+    text = capsys.readouterr().out
+    assert "examples:" in text and f"scanreg {command}" in text

@@ -27,7 +27,33 @@ EXAMPLES = """examples:
   scanreg info demo.bag                      # ROS 1/2 bag: topics, types, message counts
   scanreg plot trajectory est.txt --reference gt.txt --format kitti --alignment se3 -o traj.png
   scanreg plot errors est.txt gt.txt --format tum --alignment sim3 -o errors.svg
+  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/ --json
 """
+
+#: Per-subcommand examples, shown by ``scanreg SUBCOMMAND --help``.
+SUB_EXAMPLES = {
+    "demo": "examples:\n  scanreg demo\n  scanreg demo --seed 3\n",
+    "info": "examples:\n  scanreg info scan.pcd\n  scanreg info demo.bag --json\n"
+    "  scanreg info poses.txt --trajectory-format kitti\n",
+    "evaluate": "examples:\n  scanreg evaluate est.txt gt.txt --format tum --metric ate\n"
+    "  scanreg evaluate est.txt gt.txt --format kitti --metric rpe --delta 10 --unit meters\n"
+    "  scanreg evaluate est.txt gt.txt --format kitti --metric kitti --json\n",
+    "register": "examples:\n  scanreg register source.pcd target.pcd --json\n"
+    "  scanreg register src.ply tgt.ply --voxel-size 0.25 --method gicp --kernel huber\n"
+    "  scanreg register a.csv b.csv --method point_to_line --init guess.txt\n",
+    "plot": "examples:\n"
+    "  scanreg plot trajectory est.txt --reference gt.txt --format kitti -o traj.png\n"
+    "  scanreg plot errors est.txt gt.txt --format tum --alignment sim3 -o errors.svg\n",
+    "simulate": "examples:\n"
+    "  scanreg simulate -o run/                  # 2D: floor_plan, sick_lms200\n"
+    "  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/\n"
+    "  scanreg simulate --scene corridor --sensor laser_360 --format pcd -o run/ --json\n",
+}
+
+_SCENES_2D = ("floor_plan", "corridor", "square_room")
+_SCENES_3D = ("street", "tunnel", "corridor")
+_SENSORS_2D = ("sick_lms200", "laser_360")
+_SENSORS_3D = ("vlp16", "hdl32", "hdl64")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -102,6 +128,31 @@ def build_parser() -> argparse.ArgumentParser:
         kind.add_argument("-o", "--output", type=Path, required=True, help="figure (.png/.svg)")
         kind.add_argument("--json", action="store_true", help="print JSON instead of text")
     traj.add_argument("--plane", choices=["auto", "xy", "xz", "yz"], default="auto")
+
+    sim = sub.add_parser(
+        "simulate",
+        help="write a simulated run: one point file per scan and the ground-truth poses",
+    )
+    sim.add_argument("--scene", choices=sorted({*_SCENES_2D, *_SCENES_3D}), default="floor_plan")
+    sim.add_argument(
+        "--sensor", choices=[*_SENSORS_2D, *_SENSORS_3D], default="sick_lms200", help="preset"
+    )
+    sim.add_argument("--scans", type=int, default=10, help="number of scans (default 10)")
+    sim.add_argument("--speed", type=float, default=1.0, help="forward speed, m/s (default 1)")
+    sim.add_argument("--yaw-rate", type=float, default=0.0, help="rad/s (default 0)")
+    sim.add_argument("--scan-rate", type=float, default=10.0, help="2D scans per second")
+    sim.add_argument("--seed", type=int, default=0, help="scene and noise seed (default 0)")
+    sim.add_argument(
+        "--format",
+        choices=["auto", "pcd", "csv", "ply", "npy", "xyz"],
+        default="auto",
+        help="scan file format (auto: pcd for 3D, csv for 2D)",
+    )
+    sim.add_argument("-o", "--output", type=Path, required=True, help="folder (created)")
+    sim.add_argument("--json", action="store_true", help="print JSON instead of text")
+    for name, subparser in sub.choices.items():
+        subparser.epilog = SUB_EXAMPLES[name]
+        subparser.formatter_class = argparse.RawDescriptionHelpFormatter
     return parser
 
 
@@ -247,6 +298,93 @@ def _plot(args: argparse.Namespace) -> dict[str, Any]:
     return {"plot": args.plot_kind, "output": str(out), "bytes": out.stat().st_size}
 
 
+def _simulate(args: argparse.Namespace) -> dict[str, Any]:
+    from . import io
+    from . import simulate as sim
+    from .transform import SE2, SE3
+
+    dim = 3 if args.sensor in _SENSORS_3D else 2
+    scenes = _SCENES_3D if dim == 3 else _SCENES_2D
+    if args.scene not in scenes:
+        raise ValueError(
+            f"--scene {args.scene} is not available for the {dim}D sensor {args.sensor} "
+            f"(choose from {', '.join(scenes)})"
+        )
+    if args.scans < 1:
+        raise ValueError(f"--scans must be >= 1, got {args.scans}")
+    fmt = args.format if args.format != "auto" else ("pcd" if dim == 3 else "csv")
+    # PCD/PLY hold 3D points: a 2D scan is written in the plane z = 0.
+    pad_z = dim == 2 and fmt in ("pcd", "ply")
+    sensor: sim.LaserModel | sim.LidarModel
+    start: SE2 | SE3
+    if dim == 3:
+        sensor = sim.LidarModel.preset(args.sensor)
+        period = sensor.sweep_duration
+        if args.scene == "street":
+            scene = sim.street(seed=args.seed)
+            start = SE3.from_vector([0.0, 1.75, 1.73, 0.0, 0.0, 0.0])
+        elif args.scene == "tunnel":
+            scene = sim.tunnel()
+            start = SE3.from_vector([0.0, 0.0, 1.73, 0.0, 0.0, 0.0])
+        else:
+            scene = sim.corridor(dim=3)
+            start = SE3.from_vector([1.0, 0.0, 1.2, 0.0, 0.0, 0.0])
+    else:
+        sensor = sim.LaserModel.preset(args.sensor)
+        period = 1.0 / args.scan_rate
+        if args.scene == "floor_plan":
+            scene = sim.floor_plan(seed=args.seed)
+            start = SE2.from_vector([1.0, 0.0, 0.0])
+        elif args.scene == "corridor":
+            scene = sim.corridor()
+            start = SE2.from_vector([1.0, 0.0, 0.0])
+        else:
+            scene = sim.square_room()
+            start = SE2.identity()
+    duration = period * args.scans + 0.5
+    traj = sim.Trajectory.from_speed_and_yaw_rate(
+        args.speed, args.yaw_rate, duration=duration, dim=dim, start=start
+    )
+    run = sim.simulate_run(
+        scene, sensor, traj, num_scans=args.scans, scan_rate=args.scan_rate, seed=args.seed
+    )
+    out: Path = args.output
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    scans: tuple[sim.LaserScan | sim.LidarSweep, ...] = run.scans
+    for k, scan in enumerate(scans):
+        points = scan.points
+        if pad_z:
+            points = np.column_stack([points, np.zeros(len(points))])
+        if isinstance(scan, sim.LidarSweep):
+            ring, stamps = scan.rings, scan.timestamps
+        else:
+            ring, stamps = None, scan.timestamps[scan.point_beams]
+        # Per-point time in seconds since the scan's start, as drivers report it.
+        cloud = io.PointCloud(
+            points=np.ascontiguousarray(points), ring=ring, time=stamps - scan.start_time
+        )
+        path = out / f"{k:06d}.{fmt}"
+        io.write_points(path, cloud)
+        files.append(path.name)
+    poses: list[SE2] | list[SE3] = list(run.poses)  # type: ignore[assignment]
+    truth = io.Trajectory.from_poses(poses, timestamps=run.start_times)
+    io.write_kitti_poses(out / "poses_kitti.txt", truth)
+    io.write_tum(out / "poses_tum.txt", truth)
+    return {
+        "output": str(out),
+        "scene": args.scene,
+        "sensor": args.sensor,
+        "dim": dim,
+        "scans": len(files),
+        "files": files,
+        "points_per_scan": [len(s.points) for s in run.scans],
+        "poses_kitti": "poses_kitti.txt",
+        "poses_tum": "poses_tum.txt",
+        "poses": "T_world_sensor at each scan's start time (the TUM timestamps)",
+    }
+
+
 def _print_text(result: dict[str, Any], indent: str = "") -> None:
     for key, value in result.items():
         if isinstance(value, dict):
@@ -264,7 +402,13 @@ def main(argv: list[str] | None = None) -> int:
         from .demo import run_demo
 
         return run_demo(args.seed)
-    handlers = {"info": _info, "evaluate": _evaluate, "register": _register, "plot": _plot}
+    handlers = {
+        "info": _info,
+        "evaluate": _evaluate,
+        "register": _register,
+        "plot": _plot,
+        "simulate": _simulate,
+    }
     try:
         result = handlers[args.command](args)
     except (ValueError, OSError) as exc:  # FileFormatError is a ValueError
