@@ -12,7 +12,6 @@ Run: ``.venv/bin/python benchmarks/intel_odometry.py [--data ../shared/data]``.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import time
 from pathlib import Path
@@ -55,9 +54,7 @@ def main() -> None:
     poses, per_scan = scan_to_scan(log, refine="point_to_line")
     rows.append(("scan-to-scan correlative + point-to-line", poses, per_scan, ""))
     configs = {
-        "scan-to-map, ICP front end": OdometryConfig2D(
-            front_end="icp", max_refinement_step=math.inf
-        ),
+        "scan-to-map, ICP front end": OdometryConfig2D(front_end="icp"),
         "scan-to-map, correlative + ICP (Cauchy, 50 keyframes)": OdometryConfig2D(
             front_end="correlative", kernel="cauchy", max_keyframes=50
         ),

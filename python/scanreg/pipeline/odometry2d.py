@@ -89,8 +89,9 @@ class OdometryConfig2D:
     #: ... and grid resolution.
     correlative_resolution: float = 0.05
     #: A point-to-line result moving further than this (m) from where it started (the
-    #: prediction, or the correlative pose) is discarded and its start kept (``inf``: never).
-    max_refinement_step: float = 0.15
+    #: prediction, or the correlative pose) is discarded and its start kept. ``None``: 0.15 m
+    #: (three 5 cm cells) for the correlative front end, no limit for the ICP front end.
+    max_refinement_step: float | None = None
     #: Verdict thresholds (gate: the point-to-line gate).
     thresholds: VerdictThresholds = field(default_factory=VerdictThresholds)
 
@@ -119,8 +120,8 @@ class OdometryConfig2D:
             _positive(v, f"correlative_window[{i}]", allow_zero=True)
         _positive(self.correlative_resolution, "correlative_resolution")
         step = self.max_refinement_step
-        if not (isinstance(step, float) and step == math.inf):
-            _positive(self.max_refinement_step, "max_refinement_step")
+        if step is not None and not (isinstance(step, float) and step == math.inf):
+            _positive(step, "max_refinement_step")
         if not isinstance(self.thresholds, VerdictThresholds):
             raise TypeError(
                 f"thresholds: expected VerdictThresholds, got {type(self.thresholds).__name__}"
@@ -346,7 +347,10 @@ def _accepted_pose(res: RegistrationResult, start: SE2, cfg: OdometryConfig2D) -
         return start
     pose = res.pose
     assert isinstance(pose, SE2)
+    bound = cfg.max_refinement_step
+    if bound is None:
+        bound = 0.15 if cfg.front_end == "correlative" else math.inf
     step = start.inverse() @ pose
-    if float(np.linalg.norm(step.translation)) > cfg.max_refinement_step:
+    if float(np.linalg.norm(step.translation)) > bound:
         return start
     return pose
