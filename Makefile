@@ -4,7 +4,7 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-PY_SRC := python tests benchmarks examples
+PY_SRC := python tests benchmarks examples docs
 
 .PHONY: dev demo test lint lint-rust lint-python test-rust test-python bench clean
 

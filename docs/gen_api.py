@@ -1,0 +1,143 @@
+"""Write docs/api.md, the API reference, from scanreg's docstrings and signatures.
+
+Run from the repository root after changing the public API::
+
+    .venv/bin/python docs/gen_api.py
+
+A module's public names are its ``__all__``, or else every name it defines (not imported)
+without a leading underscore. Each function and class is listed with its signature and its
+docstring as written (they carry shapes, units, frames and the errors raised).
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import re
+from pathlib import Path
+from typing import Any
+
+#: Modules in reading order, with a one-line summary each.
+MODULES: tuple[tuple[str, str], ...] = (
+    ("scanreg", "the top-level entry points (re-exported from the modules below)"),
+    ("scanreg.transform", "SE(2)/SE(3) poses, exp/log, adjoints"),
+    ("scanreg.paired", "closed-form and robust alignment of paired points"),
+    ("scanreg.register", "local registration: ICP, point-to-plane/line, GICP"),
+    ("scanreg.target", "prepared targets (k-d tree, normals, covariances)"),
+    ("scanreg.preprocess", "downsampling, cropping, outliers, normals, covariances"),
+    ("scanreg.correlative", "2D correlative scan matching (global within a window)"),
+    ("scanreg.ndt", "2D NDT"),
+    ("scanreg.quality", "covariance, conditioning, residual statistics"),
+    ("scanreg.verdict", "accept or reject a registration, with reasons"),
+    ("scanreg.deskew", "motion compensation of a sweep"),
+    ("scanreg.robust", "robust kernels"),
+    ("scanreg.io", "point clouds, CARMEN logs, ROS bags, trajectories, g2o"),
+    ("scanreg.eval", "ATE, RPE, the KITTI metric, Kümmerle relations"),
+    ("scanreg.simulate", "scenes, sensors, trajectories and ray-cast scans with truth"),
+    ("scanreg.interop", "Open3D and ROS message layouts"),
+    ("scanreg.plot", "figures (matplotlib)"),
+    ("scanreg.pipeline", "odometry pipelines"),
+)
+
+OUT = Path(__file__).resolve().parent / "api.md"
+
+
+def public_names(module: Any) -> list[str]:
+    names = getattr(module, "__all__", None)
+    if names is not None:
+        return [n for n in names if not n.startswith("__")]
+    return sorted(
+        name
+        for name, obj in vars(module).items()
+        if not name.startswith("_")
+        and (inspect.isfunction(obj) or inspect.isclass(obj))
+        and getattr(obj, "__module__", None) == module.__name__
+    )
+
+
+def signature(obj: Any) -> str:
+    try:
+        text = str(inspect.signature(obj))
+    except (TypeError, ValueError):
+        return "(...)"
+    # Postponed annotations are strings: show them unquoted (defaults keep their quotes).
+    return re.sub(r"(: |-> )'([^']*)'", r"\1\2", text)
+
+
+def docstring(obj: Any) -> str:
+    doc = inspect.getdoc(obj)
+    return doc.strip() if doc else "(no docstring)"
+
+
+def summary(obj: Any) -> str:
+    doc = inspect.getdoc(obj)
+    return f": {doc.strip().splitlines()[0]}" if doc else ""
+
+
+def fence(text: str) -> str:
+    return f"```text\n{text}\n```\n"
+
+
+def render_class(qualname: str, cls: type) -> list[str]:
+    lines = [f"### class `{qualname}`\n", f"`{qualname}{signature(cls)}`\n", fence(docstring(cls))]
+    members = []
+    for name, member in inspect.getmembers(cls):
+        if name.startswith("_") or name not in vars(cls):
+            continue
+        raw = vars(cls)[name]
+        if isinstance(raw, property):
+            members.append(f"- `{name}` (property){summary(raw)}")
+        elif inspect.isfunction(member) or isinstance(raw, (classmethod, staticmethod)):
+            members.append(f"- `{name}{signature(member)}`{summary(member)}")
+    if members:
+        lines.append("Members:\n")
+        lines.extend(members)
+        lines.append("")
+    return lines
+
+
+def render_module(name: str, title: str) -> list[str]:
+    module = importlib.import_module(name)
+    lines = [f"## `{name}` — {title}\n", fence(docstring(module))]
+    if name == "scanreg":  # re-exports: point to where each is documented
+        for attr in public_names(module):
+            obj = getattr(module, attr)
+            home = obj.__name__ if inspect.ismodule(obj) else getattr(obj, "__module__", name)
+            lines.append(f"- `scanreg.{attr}` — see `{home}`")
+        lines.append("")
+        return lines
+    for attr in public_names(module):
+        obj = getattr(module, attr)
+        qualname = f"{name}.{attr}"
+        if inspect.isclass(obj):
+            lines.extend(render_class(qualname, obj))
+        elif callable(obj):
+            lines.append(f"### `{qualname}{signature(obj)}`\n")
+            lines.append(fence(docstring(obj)))
+        elif inspect.ismodule(obj):
+            lines.append(f"### module `{qualname}` (see its section)\n")
+        else:
+            lines.append(f"### `{qualname}` = `{obj!r}`\n"[:300])
+    return lines
+
+
+def render() -> str:
+    lines = [
+        "# scanreg API reference\n",
+        "Generated by `docs/gen_api.py` from the docstrings; regenerate it after API changes.",
+        "Conventions (frames, `T_target_source`, tangent order, covariances) are in",
+        "[concepts.md](concepts.md). Errors: invalid arguments raise `ValueError`/`TypeError`",
+        "naming the argument; unreadable files raise `scanreg.io.FileFormatError` (a",
+        "`ValueError`) naming the file and the problem.\n",
+        "Modules:\n",
+    ]
+    lines.extend(f"- `{name}` — {summary}" for name, summary in MODULES)
+    lines.append("")
+    for name, summary in MODULES:
+        lines.extend(render_module(name, summary))
+    return "\n".join(lines).rstrip() + "\n"
+
+
+if __name__ == "__main__":
+    OUT.write_text(render(), encoding="utf-8")
+    print(f"wrote {OUT}")
