@@ -61,7 +61,18 @@ def signature(obj: Any) -> str:
     except (TypeError, ValueError):
         return "(...)"
     # Postponed annotations are strings: show them unquoted (defaults keep their quotes).
-    return re.sub(r"(: |-> )'([^']*)'", r"\1\2", text)
+    text = re.sub(r"(: |-> )'([^']*)'", r"\1\2", text)
+    return re.sub(r'(: |-> )"([^"]*)"', r"\1\2", text)
+
+
+def value(obj: Any) -> str:
+    """A constant's value; functions by name (their reprs hold memory addresses)."""
+    if isinstance(obj, dict):
+        items = ", ".join(f"{k!r}: {value(v)}" for k, v in obj.items())
+        return "{" + items + "}"
+    if callable(obj):
+        return str(getattr(obj, "__name__", type(obj).__name__))
+    return repr(obj)
 
 
 def docstring(obj: Any) -> str:
@@ -117,7 +128,7 @@ def render_module(name: str, title: str) -> list[str]:
         elif inspect.ismodule(obj):
             lines.append(f"### module `{qualname}` (see its section)\n")
         else:
-            lines.append(f"### `{qualname}` = `{obj!r}`\n"[:300])
+            lines.append(f"### `{qualname}` = `{value(obj)}`\n")
     return lines
 
 
