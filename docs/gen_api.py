@@ -72,7 +72,8 @@ def value(obj: Any) -> str:
         return "{" + items + "}"
     if callable(obj):
         return str(getattr(obj, "__name__", type(obj).__name__))
-    return repr(obj)
+    text = repr(obj)
+    return text if len(text) <= 120 else f"{type(obj).__name__}(...)"
 
 
 def docstring(obj: Any) -> str:
