@@ -1,27 +1,257 @@
 //! Nearest-neighbour indices over 2D/3D points.
 //!
-//! * [`KdTree`]: an immutable k-d tree (the `kiddo` crate's `ImmutableKdTree`, f64,
-//!   Eytzinger stems, 32-point leaves), built once and queried many times. Exact queries:
-//!   nearest neighbour within a gate, k nearest, all within a radius.
+//! * [`KdTree`]: an immutable k-d tree of our own (median split on the widest axis, points
+//!   reordered into contiguous 16-point leaf buckets, iterative traversal with a fixed stack,
+//!   no allocation per query), built once and queried many times. Exact queries: nearest
+//!   neighbour within a gate (the gate prunes from the start), k nearest (a sorted array of at
+//!   most `k`, in the caller's buffer), all within a radius.
 //! * [`VoxelIndex`]: a voxel hash map (point indices bucketed by voxel), the structure
 //!   KISS-ICP searches for scan-to-map correspondences. Cheap to build and to extend, and
 //!   exact here: a query with gate `r` visits every voxel within `ceil(r / voxel_size)`.
 //!
 //! Distances are **squared** Euclidean throughout. Ties (equal distances) are broken by the
-//! lower point index wherever results are sorted (k-NN, radius, voxel-index nearest), so results
+//! lower point index everywhere (k-d tree nearest, k-NN, radius, voxel-index nearest), so results
 //! are reproducible; batch queries run in parallel with rayon, one result per query, in input
 //! order, so they do not depend on the thread count.
 
 use crate::error::{Error, Result};
 use crate::points::check_points;
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
-use std::num::NonZeroUsize;
+
+/// Points per leaf bucket (at most; a leaf is split while it holds more).
+const LEAF_SIZE: usize = 16;
+/// Traversal stack depth: the tree is balanced (median splits), so its depth is
+/// `ceil(log2(N / LEAF_SIZE)) + 1 <= 33` for `N < 2^32`; each level pushes at most one node.
+const STACK: usize = 64;
+const LEAF: u32 = u32::MAX;
+
+/// One node: a leaf holds points `lo..hi` of the reordered arrays; an inner node splits at
+/// `split` on axis `axis` (left child: coordinate `<= split`, right child: `>= split`).
+#[derive(Clone, Copy)]
+struct Node {
+    axis: u32,
+    lo: u32,
+    hi: u32,
+    right: u32,
+    split: f64,
+}
+
+/// The tree proper for a fixed dimension: points reordered into contiguous leaf buckets,
+/// `ids[j]` the original index of `pts[j]`. Node 0 is the root; an inner node's left child
+/// is the next node (depth-first layout).
+struct Inner<const D: usize> {
+    nodes: Vec<Node>,
+    pts: Vec<[f64; D]>,
+    ids: Vec<u32>,
+}
+
+#[inline(always)]
+fn sq_dist<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
+    let mut d = 0.0;
+    for c in 0..D {
+        let e = a[c] - b[c];
+        d += e * e;
+    }
+    d
+}
+
+/// `(d, i) < (bd, bi)` lexicographically: the tie rule (lower index wins at equal distance).
+#[inline(always)]
+fn before(d: f64, i: u32, bd: f64, bi: u32) -> bool {
+    d < bd || (d == bd && i < bi)
+}
+
+impl<const D: usize> Inner<D> {
+    fn build(points: &[f64]) -> Self {
+        let mut items: Vec<([f64; D], u32)> = points
+            .chunks_exact(D)
+            .enumerate()
+            .map(|(i, p)| (arr::<D>(p), i as u32))
+            .collect();
+        let n = items.len();
+        let mut nodes = Vec::with_capacity(2 * n.div_ceil(LEAF_SIZE) + 1);
+        Self::build_rec(&mut items, 0, &mut nodes);
+        let (pts, ids) = items.into_iter().unzip();
+        Inner { nodes, pts, ids }
+    }
+
+    /// Median split on the widest axis of the bounding box; returns the node's index.
+    fn build_rec(items: &mut [([f64; D], u32)], offset: usize, nodes: &mut Vec<Node>) -> usize {
+        let me = nodes.len();
+        let n = items.len();
+        let leaf = Node {
+            axis: LEAF,
+            lo: offset as u32,
+            hi: (offset + n) as u32,
+            right: 0,
+            split: 0.0,
+        };
+        nodes.push(leaf);
+        if n <= LEAF_SIZE {
+            return me;
+        }
+        let mut lo = [f64::INFINITY; D];
+        let mut hi = [f64::NEG_INFINITY; D];
+        for (p, _) in items.iter() {
+            for c in 0..D {
+                lo[c] = lo[c].min(p[c]);
+                hi[c] = hi[c].max(p[c]);
+            }
+        }
+        let mut axis = 0;
+        for c in 1..D {
+            if hi[c] - lo[c] > hi[axis] - lo[axis] {
+                axis = c;
+            }
+        }
+        if hi[axis] - lo[axis] <= 0.0 {
+            return me; // all points identical: one (large) leaf
+        }
+        let mid = n / 2;
+        items.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
+        let split = items[mid].0[axis];
+        let (l, r) = items.split_at_mut(mid);
+        Self::build_rec(l, offset, nodes);
+        let right = Self::build_rec(r, offset + mid, nodes);
+        nodes[me] = Node {
+            axis: axis as u32,
+            lo: offset as u32,
+            hi: (offset + n) as u32,
+            right: right as u32,
+            split,
+        };
+        me
+    }
+
+    /// Visit the tree depth-first, nearer child first, skipping any node whose lower-bound
+    /// squared distance exceeds `bound()` (strictly, so ties at the bound are still seen).
+    /// `leaf(lo, hi)` scans one bucket.
+    #[inline(always)]
+    fn traverse(
+        &self,
+        q: &[f64; D],
+        mut bound: impl FnMut() -> f64,
+        mut leaf: impl FnMut(usize, usize),
+    ) {
+        let mut stack = [(0u32, 0.0f64); STACK];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let (mut node, lb) = stack[top];
+            if lb > bound() {
+                continue;
+            }
+            loop {
+                let nd = &self.nodes[node as usize];
+                if nd.axis == LEAF {
+                    leaf(nd.lo as usize, nd.hi as usize);
+                    break;
+                }
+                let diff = q[nd.axis as usize] - nd.split;
+                let (near, far) = if diff < 0.0 {
+                    (node + 1, nd.right)
+                } else {
+                    (nd.right, node + 1)
+                };
+                let far_lb = lb.max(diff * diff);
+                if far_lb <= bound() {
+                    stack[top] = (far, far_lb);
+                    top += 1;
+                }
+                node = near;
+            }
+        }
+    }
+
+    #[inline]
+    fn nearest(&self, q: &[f64; D], max_sq: f64) -> Option<(usize, f64)> {
+        let mut bd = max_sq;
+        let mut bi = u32::MAX;
+        let pts = &self.pts;
+        let ids = &self.ids;
+        let best = std::cell::Cell::new(max_sq);
+        self.traverse(
+            q,
+            || best.get(),
+            |lo, hi| {
+                for j in lo..hi {
+                    let d = sq_dist(&pts[j], q);
+                    if d <= bd && before(d, ids[j], bd, bi) {
+                        bd = d;
+                        bi = ids[j];
+                    }
+                }
+                best.set(bd);
+            },
+        );
+        (bi != u32::MAX).then_some((bi as usize, bd))
+    }
+
+    /// `out[start..]` is kept sorted by (distance, index), at most `k` long.
+    #[inline]
+    fn knn(&self, q: &[f64; D], k: usize, max_sq: f64, out: &mut Vec<(u32, f64)>) {
+        let start = out.len();
+        let pts = &self.pts;
+        let ids = &self.ids;
+        let worst = std::cell::Cell::new(max_sq);
+        let mut full = false;
+        self.traverse(
+            q,
+            || worst.get(),
+            |lo, hi| {
+                for j in lo..hi {
+                    let d = sq_dist(&pts[j], q);
+                    if d > max_sq {
+                        continue;
+                    }
+                    let id = ids[j];
+                    if full {
+                        let (wi, wd) = out[out.len() - 1];
+                        if !before(d, id, wd, wi) {
+                            continue;
+                        }
+                        out.pop();
+                    }
+                    // Insertion into the sorted tail.
+                    let mut pos = out.len();
+                    while pos > start && before(d, id, out[pos - 1].1, out[pos - 1].0) {
+                        pos -= 1;
+                    }
+                    out.insert(pos, (id, d));
+                    if out.len() - start == k {
+                        full = true;
+                        worst.set(out[out.len() - 1].1);
+                    }
+                }
+            },
+        );
+    }
+
+    #[inline]
+    fn radius(&self, q: &[f64; D], sq_radius: f64, out: &mut Vec<(u32, f64)>) {
+        let start = out.len();
+        let pts = &self.pts;
+        let ids = &self.ids;
+        self.traverse(
+            q,
+            || sq_radius,
+            |lo, hi| {
+                for j in lo..hi {
+                    let d = sq_dist(&pts[j], q);
+                    if d <= sq_radius {
+                        out.push((ids[j], d));
+                    }
+                }
+            },
+        );
+        canonical(&mut out[start..]);
+    }
+}
 
 enum Tree {
-    D2(ImmutableKdTree<f64, 2>),
-    D3(ImmutableKdTree<f64, 3>),
+    D2(Inner<2>),
+    D3(Inner<3>),
 }
 
 /// An immutable k-d tree over `N` points of dimension 2 or 3 (it keeps its own copy).
@@ -48,14 +278,11 @@ pub struct RadiusBatch {
     pub squared_distance: Vec<f64>,
 }
 
+#[inline(always)]
 fn arr<const D: usize>(q: &[f64]) -> [f64; D] {
     let mut a = [0.0; D];
     a.copy_from_slice(&q[..D]);
     a
-}
-
-fn to_pairs<const D: usize>(points: &[f64]) -> Vec<[f64; D]> {
-    points.chunks_exact(D).map(arr::<D>).collect()
 }
 
 /// Sort neighbour lists by (distance, index): a canonical order independent of tree layout.
@@ -90,7 +317,7 @@ pub fn check_max_distance(arg: &'static str, max_distance: f64) -> Result<f64> {
 }
 
 impl KdTree {
-    /// Build the tree (in parallel for large clouds). `points` is `N * dim` row-major.
+    /// Build the tree. `points` is `N * dim` row-major.
     pub fn build(points: &[f64], dim: usize) -> Result<Self> {
         let n = check_points("points", points, dim)?;
         if n == 0 {
@@ -99,16 +326,13 @@ impl KdTree {
                 "is empty; a neighbour index needs at least one point",
             ));
         }
-        if n > u32::MAX as usize {
-            return Err(Error::invalid("points", "more than 2^32 - 1 points"));
+        if n >= u32::MAX as usize {
+            return Err(Error::invalid("points", "more than 2^32 - 2 points"));
         }
-        let err = |e: kiddo::kd_tree::ConstructionError| {
-            Error::invalid("points", format!("k-d tree construction failed: {e:?}"))
-        };
         let tree = if dim == 2 {
-            Tree::D2(ImmutableKdTree::new_from_slice_parallel(&to_pairs::<2>(points)).map_err(err)?)
+            Tree::D2(Inner::<2>::build(points))
         } else {
-            Tree::D3(ImmutableKdTree::new_from_slice_parallel(&to_pairs::<3>(points)).map_err(err)?)
+            Tree::D3(Inner::<3>::build(points))
         };
         Ok(KdTree {
             dim,
@@ -140,57 +364,26 @@ impl KdTree {
     }
 
     /// The nearest point to `q` (`dim` coordinates) and its squared distance, if that distance
-    /// is `<= max_sq`. With equal distances, which of the tied points is returned is fixed by
-    /// the tree but not necessarily the lowest index.
+    /// is `<= max_sq`. With equal distances the lowest index is returned.
     #[inline]
     pub fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
-        // kiddo's nearest_one is its most optimised exact path; gating afterwards measured
-        // no slower on KITTI than a nearest_n(1).within(gate) query.
-        let r = with_tree!(self, t, D => t
-            .query(&arr::<D>(q))
-            .nearest_one::<SquaredEuclidean<f64>>()
-            .execute());
-        (r.distance <= max_sq).then_some((r.item as usize, r.distance))
+        with_tree!(self, t, D => t.nearest(&arr::<D>(q), max_sq))
     }
 
     /// The `k` nearest points to `q` (fewer if `max_sq` is finite), appended to `out` sorted
     /// by (squared distance, index). `k >= 1`.
     pub fn knn_into(&self, q: &[f64], k: usize, max_sq: f64, out: &mut Vec<(u32, f64)>) {
-        let Some(k) = NonZeroUsize::new(k) else {
+        if k == 0 {
             return;
-        };
-        let start = out.len();
-        if max_sq.is_infinite() {
-            with_tree!(self, t, D => out.extend(
-                t.query(&arr::<D>(q))
-                    .nearest_n::<SquaredEuclidean<f64>>(k)
-                    .execute()
-                    .into_iter()
-                    .map(|it| (it.item, it.distance))));
-        } else {
-            with_tree!(self, t, D => out.extend(
-                t.query(&arr::<D>(q))
-                    .nearest_n::<SquaredEuclidean<f64>>(k)
-                    .within(max_sq)
-                    .execute()
-                    .into_iter()
-                    .map(|it| (it.item, it.distance))));
         }
-        canonical(&mut out[start..]);
+        out.reserve(k + 1);
+        with_tree!(self, t, D => t.knn(&arr::<D>(q), k, max_sq, out));
     }
 
     /// Every point within `sq_radius` (squared, inclusive) of `q`, appended to `out` sorted by
     /// (squared distance, index).
     pub fn radius_into(&self, q: &[f64], sq_radius: f64, out: &mut Vec<(u32, f64)>) {
-        let start = out.len();
-        with_tree!(self, t, D => out.extend(
-            t.query(&arr::<D>(q))
-                .within::<SquaredEuclidean<f64>>(sq_radius)
-                .unsorted()
-                .execute()
-                .into_iter()
-                .map(|it| (it.item, it.distance))));
-        canonical(&mut out[start..]);
+        with_tree!(self, t, D => t.radius(&arr::<D>(q), sq_radius, out));
     }
 
     fn check_queries(&self, queries: &[f64]) -> Result<usize> {
@@ -369,10 +562,25 @@ impl VoxelIndex {
     }
 
     /// Exact nearest point within `max_sq` (squared gate, finite), ties to the lower index.
+    ///
+    /// When the gate reaches more voxels than are occupied (a gate of many voxel sizes, or a
+    /// query outside the key range) every point is scanned instead: still exact, and bounded
+    /// by `O(N)` rather than by the gate's volume (a 1e6 m gate over 1 m voxels would
+    /// otherwise visit 8e18 voxels).
     pub fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
         let dim = self.dim;
-        let center = voxel_of(q, self.inv)?;
-        let reach = (max_sq.sqrt() * self.inv).ceil() as i64;
+        let reach_f = (max_sq.sqrt() * self.inv).ceil();
+        let span = 2.0 * reach_f + 1.0;
+        let visits = if dim == 3 {
+            span * span * span
+        } else {
+            span * span
+        };
+        let center = match voxel_of(q, self.inv) {
+            Some(c) if visits <= self.map.len() as f64 => c,
+            _ => return self.nearest_by_scan(q, max_sq),
+        };
+        let reach = reach_f as i64;
         let mut best: Option<(usize, f64)> = None;
         let zr = if dim == 3 { reach } else { 0 };
         for dx in -reach..=reach {
@@ -396,6 +604,19 @@ impl VoxelIndex {
                         }
                     }
                 }
+            }
+        }
+        best
+    }
+
+    /// Exact nearest point within `max_sq` by scanning every point (same tie rule).
+    fn nearest_by_scan(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
+        let dim = self.dim;
+        let mut best: Option<(usize, f64)> = None;
+        for (j, p) in self.points.chunks_exact(dim).enumerate() {
+            let d: f64 = p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+            if d <= max_sq && best.is_none_or(|(_, bd)| d < bd) {
+                best = Some((j, d));
             }
         }
         best
@@ -509,5 +730,12 @@ mod tests {
         assert!(VoxelIndex::build(&[0.0, 0.0], 2, 0.0).is_err());
         assert!(VoxelIndex::build(&[0.0, 0.0], 2, 1e-300).is_ok());
         assert!(VoxelIndex::build(&[1e10, 0.0], 2, 1e-300).is_err());
+        // A gate of a million voxels scans the points instead of the gate's volume.
+        let vox = VoxelIndex::build(&[0.0, 0.0, 0.0, 5.0, 0.0, 0.0], 3, 1.0).unwrap();
+        assert_eq!(
+            vox.nearest_within(&[1e5, 0.0, 0.0], 1e12),
+            Some((1, (1e5f64 - 5.0).powi(2)))
+        );
+        assert_eq!(vox.nearest_within(&[1e300, 0.0, 0.0], 1e12), None);
     }
 }
