@@ -64,7 +64,7 @@ pub fn voxel_downsample(
         .enumerate()
         .map(|(i, p)| voxel_of(p, inv).map(|k| (k, i as u32)))
         .collect();
-    let mut keyed = keyed.ok_or_else(|| {
+    let keyed = keyed.ok_or_else(|| {
         Error::invalid(
             "voxel_size",
             format!("{voxel_size} is too small for the extent of the points"),
@@ -73,6 +73,38 @@ pub fn voxel_downsample(
     if n > u32::MAX as usize {
         return Err(Error::invalid("points", "more than 2^32 - 1 points"));
     }
+    // Pack the key into one u64 (21 bits per axis) when every voxel coordinate fits: sorting
+    // 16-byte (u64, u32) pairs instead of 32-byte ([i64; 3], u32) is ~2x faster. The packing
+    // is injective, and voxels are reordered by first index at the end, so the output is the
+    // same either way.
+    const HALF: i64 = 1 << 20;
+    if keyed
+        .iter()
+        .all(|(k, _)| k.iter().all(|&c| (-HALF..HALF).contains(&c)))
+    {
+        let packed: Vec<(u64, u32)> = keyed
+            .iter()
+            .map(|(k, i)| {
+                let p = ((k[0] + HALF) as u64) << 42
+                    | ((k[1] + HALF) as u64) << 21
+                    | (k[2] + HALF) as u64;
+                (p, *i)
+            })
+            .collect();
+        drop(keyed);
+        Ok(group_voxels(points, dim, method, packed))
+    } else {
+        Ok(group_voxels(points, dim, method, keyed))
+    }
+}
+
+/// Sort `(key, index)` pairs, one voxel per run of equal keys, voxels by first index.
+fn group_voxels<K: Ord + Copy + Send + Sync>(
+    points: &[f64],
+    dim: usize,
+    method: VoxelMethod,
+    mut keyed: Vec<(K, u32)>,
+) -> VoxelGrid {
     // Keys are unique (the index breaks ties), so the unstable sort is deterministic.
     keyed.par_sort_unstable();
     let mut starts: Vec<usize> = Vec::new();
@@ -121,7 +153,7 @@ pub fn voxel_downsample(
         out.index.push(first as i64);
         out.count.push(count as i64);
     }
-    Ok(out)
+    out
 }
 
 /// SplitMix64 (Steele, Lea & Flood 2014): a small, well-mixed, seedable generator.
