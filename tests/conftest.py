@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
+from functools import cache
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pytest
 
 _REPO = Path(__file__).resolve().parent.parent
@@ -30,3 +35,25 @@ def data_dir(*parts: str) -> Path:
 def data() -> Path:
     """The real-data root folder (see :func:`data_dir`)."""
     return data_dir()
+
+
+@cache
+def office_map() -> tuple[Any, np.ndarray[Any, np.dtype[np.float64]]]:
+    """A room of the simulated office (``floor_plan(seed=1)``, no people), outlined densely by
+    four noise-free 360° scans, in the world frame; shared by the 2D matcher tests."""
+    from scanreg import SE2
+    from scanreg import simulate as sim
+
+    scene = sim.floor_plan(seed=1, num_people=0)
+    dense = dataclasses.replace(
+        sim.LaserModel.preset("laser_360"),
+        range_sigma=0.0,
+        dropout_probability=0.0,
+        num_beams=2880,
+        angle_increment=2 * math.pi / 2880,
+    )
+    parts = []
+    for p in ([3.0, 3.7, 0.0], [3.0, 3.7, 1.0], [2.2, 3.2, 2.0], [4.0, 4.4, -1.0]):
+        pose = SE2.from_vector(p)
+        parts.append(pose.apply(sim.simulate_scan(scene, dense, pose, seed=7).points))
+    return scene, np.ascontiguousarray(np.vstack(parts), dtype=np.float64)

@@ -4,18 +4,16 @@ MbICP self-matching protocol on real scans, hostile input."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import subprocess
 import sys
-from functools import cache
 from typing import Any
 
 import numpy as np
 import pytest
 import scanreg
-from conftest import data_dir
+from conftest import data_dir, office_map
 from scanreg import SE2
 from scanreg import simulate as sim
 from scanreg.io import read_carmen
@@ -27,22 +25,7 @@ def _c(a: Any) -> np.ndarray[Any, np.dtype[np.float64]]:
     return np.ascontiguousarray(a, dtype=np.float64)
 
 
-@cache
-def _office_map() -> tuple[sim.Scene, np.ndarray[Any, np.dtype[np.float64]]]:
-    """A room of the simulated office, outlined densely by noise-free 360° scans (world frame)."""
-    scene = sim.floor_plan(seed=1, num_people=0)
-    dense = dataclasses.replace(
-        sim.LaserModel.preset("laser_360"),
-        range_sigma=0.0,
-        dropout_probability=0.0,
-        num_beams=2880,
-        angle_increment=2 * math.pi / 2880,
-    )
-    parts = []
-    for p in ([3.0, 3.7, 0.0], [3.0, 3.7, 1.0], [2.2, 3.2, 2.0], [4.0, 4.4, -1.0]):
-        pose = SE2.from_vector(p)
-        parts.append(pose.apply(sim.simulate_scan(scene, dense, pose, seed=7).points))
-    return scene, _c(np.vstack(parts))
+_office_map = office_map
 
 
 def _wrap(a: float) -> float:

@@ -3,15 +3,13 @@ self-matching protocol on real scans, the corridor's weak axis, hostile input.""
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from functools import cache
 from typing import Any
 
 import numpy as np
 import pytest
 import scanreg
-from conftest import data_dir
+from conftest import data_dir, office_map
 from scanreg import SE2
 from scanreg import simulate as sim
 from scanreg.io import read_carmen
@@ -23,21 +21,7 @@ def _c(a: Any) -> np.ndarray[Any, np.dtype[np.float64]]:
     return np.ascontiguousarray(a, dtype=np.float64)
 
 
-@cache
-def _office() -> tuple[sim.Scene, np.ndarray[Any, np.dtype[np.float64]]]:
-    scene = sim.floor_plan(seed=1, num_people=0)
-    dense = dataclasses.replace(
-        sim.LaserModel.preset("laser_360"),
-        range_sigma=0.0,
-        dropout_probability=0.0,
-        num_beams=2880,
-        angle_increment=2 * math.pi / 2880,
-    )
-    parts = []
-    for p in ([3.0, 3.7, 0.0], [3.0, 3.7, 1.0], [2.2, 3.2, 2.0], [4.0, 4.4, -1.0]):
-        pose = SE2.from_vector(p)
-        parts.append(pose.apply(sim.simulate_scan(scene, dense, pose, seed=7).points))
-    return scene, _c(np.vstack(parts))
+_office = office_map
 
 
 def _free(scan: Any) -> bool:
