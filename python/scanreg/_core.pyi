@@ -109,6 +109,41 @@ class VoxelIndex:
         self, query_points: NDArray[np.float64], max_distance: float
     ) -> tuple[NDArray[np.int64], NDArray[np.float64]]: ...
 
+@final
+class LocalMap:
+    def __new__(
+        cls,
+        dim: int,
+        voxel_size: float,
+        max_points_per_voxel: int,
+        min_spacing: float,
+        attributes: str = "none",
+    ) -> LocalMap: ...
+    @property
+    def dim(self) -> int: ...
+    @property
+    def voxel_size(self) -> float: ...
+    @property
+    def max_points_per_voxel(self) -> int: ...
+    @property
+    def attributes(self) -> str: ...
+    @property
+    def num_voxels(self) -> int: ...
+    def __len__(self) -> int: ...
+    def insert(
+        self,
+        points: NDArray[np.float64],
+        normals: NDArray[np.float64] | None = None,
+        covariances: NDArray[np.float64] | None = None,
+    ) -> int: ...
+    def remove_far(self, center: NDArray[np.float64], max_distance: float) -> int: ...
+    def points(self) -> NDArray[np.float64]: ...
+    def normals(self) -> NDArray[np.float64] | None: ...
+    def covariances(self) -> NDArray[np.float64] | None: ...
+    def nearest(
+        self, query_points: NDArray[np.float64], max_distance: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+
 def voxel_downsample(
     points_array: NDArray[np.float64], voxel_size: float, method: str
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]: ...
@@ -193,7 +228,7 @@ class IcpOutcome:
 
 def register_icp(
     source: NDArray[np.float64],
-    target: KdTree,
+    target: KdTree | LocalMap,
     init_pose: NDArray[np.float64],
     *,
     method: str,

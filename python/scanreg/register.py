@@ -39,6 +39,7 @@ import numpy as np
 from . import _core
 from ._validate import FloatArray, as_points
 from ._validate import frozen as _frozen
+from .local_map import LocalMap
 from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
 from .quality import (
     Conditioning,
@@ -228,11 +229,26 @@ def _resolve_method(method: Any, dim: int) -> str:
     return str(method)
 
 
+def _check_local_map(target: LocalMap, dim: int, method: str) -> LocalMap:
+    if target.dim != dim:
+        raise ValueError(f"target: a {target.dim}D LocalMap cannot register {dim}D source points")
+    need = {"gicp": "covariances", "point_to_plane": "normals", "point_to_line": "normals"}
+    want = need.get(method)
+    if want is not None and target.attributes != want:
+        raise ValueError(
+            f"target: {method} needs a LocalMap that stores {want}; "
+            f"this one stores {target.attributes}"
+        )
+    return target
+
+
 def _prepared_target(
     target: Any, dim: int, method: str, settings: RegistrationSettings
-) -> PreparedTarget:
+) -> PreparedTarget | LocalMap:
     want_normals = method in ("point_to_plane", "point_to_line")
     want_covs = method == "gicp"
+    if isinstance(target, LocalMap):
+        return _check_local_map(target, dim, method)
     if isinstance(target, PreparedTarget):
         if target.dim != dim:
             raise ValueError(
@@ -271,6 +287,7 @@ def register(
     method: Method = "point_to_plane",
     init: Any = None,
     settings: RegistrationSettings | None = None,
+    source_covariances: Any = None,
     **overrides: Any,
 ) -> RegistrationResult:
     """Estimate ``T_target_source`` aligning ``source`` to ``target`` from ``init``.
@@ -280,14 +297,18 @@ def register(
     source
         ``(N, D)`` float64, C-contiguous, ``D`` = 2 or 3, in the source frame.
     target
-        ``(M, D)`` float64 points in the target frame, or a :class:`~scanreg.PreparedTarget`
-        (reused as is: build it once with :func:`scanreg.prepare` for many registrations).
+        ``(M, D)`` float64 points in the target frame, a :class:`~scanreg.PreparedTarget`
+        (reused as is: build it once with :func:`scanreg.prepare` for many registrations), or
+        a :class:`~scanreg.LocalMap` (odometry's map, with the attributes the method needs).
         A raw array is prepared here (normals for point-to-plane/line, covariances for GICP).
     method
         ``point_to_point``, ``point_to_plane`` (3D; in 2D the same as ``point_to_line``),
         ``point_to_line`` (2D) or ``gicp``.
     init
         Initial ``T_target_source`` (``SE2``/``SE3`` or homogeneous matrix); default identity.
+    source_covariances
+        GICP only: ``(N, D, D)`` covariances of ``source`` when the caller has them already
+        (computed here from ``num_neighbors`` neighbours otherwise).
     settings, **overrides
         A :class:`RegistrationSettings`, and/or its fields as keywords
         (``register(s, t, max_correspondence_distance=0.5)``); a misspelled field is a
@@ -299,6 +320,7 @@ def register(
         On malformed input, naming the argument.
     """
     t_start = time.perf_counter()
+    source_attributes = source_covariances
     base = settings if settings is not None else RegistrationSettings()
     if not isinstance(base, RegistrationSettings):
         raise TypeError(f"settings: expected RegistrationSettings, got {type(base).__name__}")
@@ -321,16 +343,27 @@ def register(
     if s.voxel_size is not None:
         src = voxel_downsample(src, s.voxel_size).points
     source_covariances = None
-    if method_eff == "gicp":
+    if source_attributes is not None:
+        if method_eff != "gicp":
+            raise ValueError("source_covariances: only used by method='gicp'")
+        if s.voxel_size is not None:
+            raise ValueError("source_covariances: cannot be combined with voxel_size")
+        source_covariances = np.ascontiguousarray(source_attributes, dtype=np.float64)
+        if source_covariances.shape != (len(src), dim, dim):
+            raise ValueError(
+                f"source_covariances: expected shape ({len(src)}, {dim}, {dim}), "
+                f"got {source_covariances.shape}"
+            )
+    if method_eff == "gicp" and source_covariances is None:
+        # A map's covariances were regularised by its builder: the source follows the
+        # library default ("plane", 1e-3) unless a PreparedTarget says otherwise.
+        reg, eps = "plane", 1e-3
+        if isinstance(prepared, PreparedTarget):
+            reg = "plane" if prepared.regularization == "none" else prepared.regularization
+            eps = prepared.epsilon
         k = check_k(min(s.num_neighbors, len(src)), len(src), dim)
         _, source_covariances, _ = _core.KdTree(src).local_geometry(
-            k,
-            np.zeros(dim),
-            normals=False,
-            regularization="plane"
-            if prepared.regularization == "none"
-            else prepared.regularization,
-            epsilon=prepared.epsilon,
+            k, np.zeros(dim), normals=False, regularization=reg, epsilon=eps
         )
     t_source = time.perf_counter() - t0
 
@@ -349,9 +382,15 @@ def register(
         if not math.isfinite(k_scale):
             raise ValueError("kernel_scale: required with an infinite max_correspondence_distance")
 
+    # A LocalMap carries its own normals/covariances; a PreparedTarget passes them in.
+    index: _core.KdTree | _core.LocalMap
+    if isinstance(prepared, LocalMap):
+        index, t_normals, t_covs = prepared.native, None, None
+    else:
+        index, t_normals, t_covs = prepared.index, prepared.normals, prepared.covariances
     out = _core.register_icp(
         src,
-        prepared.index,
+        index,
         pose0.as_matrix(),
         method=method_eff,
         kernel=s.kernel,
@@ -364,8 +403,8 @@ def register(
         min_correspondences=min_corr,
         num_threads=s.num_threads,
         source_covariances=source_covariances,
-        target_normals=prepared.normals if planar else None,
-        target_covariances=prepared.covariances if method_eff == "gicp" else None,
+        target_normals=t_normals if planar else None,
+        target_covariances=t_covs if method_eff == "gicp" else None,
     )
 
     t0 = time.perf_counter()

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ._validate import as_points
+from .local_map import LocalMap
 from .quality import DEFAULT_WEAK_RATIO, Conditioning, conditioning
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose
@@ -115,9 +116,9 @@ def assess(
     """Measure a registration ``result`` (``pose``, ``hessian``, ``converged``, ``stop_reason``,
     and ``settings.max_correspondence_distance`` as from :func:`scanreg.register`) and judge it.
 
-    ``source`` are the registered source points (source frame), ``target`` the target points or
-    a :class:`~scanreg.PreparedTarget`; ``init`` the initial guess it started from (identity
-    when ``None``).
+    ``source`` are the registered source points (source frame), ``target`` the target points,
+    a :class:`~scanreg.PreparedTarget` or a :class:`~scanreg.LocalMap`; ``init`` the initial
+    guess it started from (identity when ``None``).
     """
     th = VerdictThresholds() if thresholds is None else thresholds
     if not isinstance(th, VerdictThresholds):
@@ -129,7 +130,7 @@ def assess(
     src = as_points(source, "source", dim=dim)
     tgt = (
         target
-        if isinstance(target, PreparedTarget)
+        if isinstance(target, PreparedTarget | LocalMap)
         else prepare(as_points(target, "target", dim=dim), normals=False)
     )
     if tgt.dim != dim:

@@ -122,10 +122,42 @@ impl StopReason {
     }
 }
 
-/// The target: its k-d tree and, as the method needs, unit normals (`N * dim`; a zero normal
-/// marks a point without one, which then never corresponds) or covariances (`N * dim * dim`).
+/// Where the loop finds correspondences: a k-d tree over a fixed cloud, or a voxel map that
+/// odometry updates in place. A point's id indexes `points()` (`id * dim`) and the target's
+/// normals and covariances.
+pub trait NeighborSearch: Sync {
+    fn dim(&self) -> usize;
+    /// Size of the id space (attribute arrays hold this many entries).
+    fn id_count(&self) -> usize;
+    fn points(&self) -> &[f64];
+    /// Nearest point within the squared gate `max_sq`, as `(id, squared distance)`.
+    fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)>;
+    /// True when the attributes were validated on the way in (no per-call finiteness scan).
+    fn attributes_validated(&self) -> bool {
+        false
+    }
+}
+
+impl NeighborSearch for KdTree {
+    fn dim(&self) -> usize {
+        KdTree::dim(self)
+    }
+    fn id_count(&self) -> usize {
+        self.len()
+    }
+    fn points(&self) -> &[f64] {
+        KdTree::points(self)
+    }
+    fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
+        KdTree::nearest_within(self, q, max_sq)
+    }
+}
+
+/// The target: its neighbour search and, as the method needs, unit normals (`N * dim`; a zero
+/// normal marks a point without one, which then never corresponds) or covariances
+/// (`N * dim * dim`), indexed by point id.
 pub struct Target<'a> {
-    pub tree: &'a KdTree,
+    pub search: &'a dyn NeighborSearch,
     pub normals: Option<&'a [f64]>,
     pub covariances: Option<&'a [f64]>,
 }
@@ -422,7 +454,7 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
     fixed: Option<&[u32]>,
 ) -> (Evaluation, Vec<u32>) {
     let n = pr.source.len() / D;
-    let tree = pr.target.tree;
+    let tree = pr.target.search;
     let acc = chunked_sum(
         n,
         Acc::<N>::new(if keep_correspondences { n } else { 0 }),
@@ -489,7 +521,7 @@ fn fixed_cost<G: Group<D, N>, const D: usize, const N: usize>(
     pose: &Pose<D>,
     corr: &[u32],
 ) -> f64 {
-    let pts = pr.target.tree.points();
+    let pts = pr.target.search.points();
     chunked_sum(
         corr.len(),
         0.0,
@@ -646,7 +678,13 @@ fn check_settings(s: &Settings) -> Result<f64> {
     Ok(max_sq)
 }
 
-fn check_per_point(arg: &'static str, data: &[f64], n: usize, per: usize) -> Result<()> {
+fn check_per_point(
+    arg: &'static str,
+    data: &[f64],
+    n: usize,
+    per: usize,
+    validated: bool,
+) -> Result<()> {
     if data.len() != n * per {
         return Err(Error::invalid(
             arg,
@@ -657,7 +695,7 @@ fn check_per_point(arg: &'static str, data: &[f64], n: usize, per: usize) -> Res
             ),
         ));
     }
-    if data.iter().any(|v| !v.is_finite()) {
+    if !validated && data.iter().any(|v| !v.is_finite()) {
         return Err(Error::invalid(arg, "contains NaN or inf"));
     }
     Ok(())
@@ -668,27 +706,28 @@ fn problem<'a>(
     target: &'a Target<'a>,
     settings: &Settings,
 ) -> Result<Problem<'a>> {
-    let dim = target.tree.dim();
+    let dim = target.search.dim();
     let n = check_points("source", source.points, dim)?;
     let max_sq = check_settings(settings)?;
-    let m = target.tree.len();
+    let m = target.search.id_count();
+    let checked = target.search.attributes_validated();
     match settings.method {
         Method::PointToPoint => {}
         Method::PointToPlane => {
             let nrm = target.normals.ok_or_else(|| {
                 Error::invalid("target_normals", "are required for point-to-plane/line")
             })?;
-            check_per_point("target_normals", nrm, m, dim)?;
+            check_per_point("target_normals", nrm, m, dim, checked)?;
         }
         Method::Gicp => {
             let tc = target
                 .covariances
                 .ok_or_else(|| Error::invalid("target_covariances", "are required for GICP"))?;
-            check_per_point("target_covariances", tc, m, dim * dim)?;
+            check_per_point("target_covariances", tc, m, dim * dim, checked)?;
             let sc = source
                 .covariances
                 .ok_or_else(|| Error::invalid("source_covariances", "are required for GICP"))?;
-            check_per_point("source_covariances", sc, n, dim * dim)?;
+            check_per_point("source_covariances", sc, n, dim * dim, false)?;
         }
     }
     Ok(Problem {
@@ -708,7 +747,7 @@ pub fn register(
     init: &[f64],
     settings: &Settings,
 ) -> Result<Outcome> {
-    let dim = target.tree.dim();
+    let dim = target.search.dim();
     let pr = problem(source, target, settings)?;
     split_pose("init", init, dim)?;
     Ok(if dim == 2 {
@@ -725,7 +764,7 @@ pub fn evaluate_at(
     pose: &[f64],
     settings: &Settings,
 ) -> Result<Evaluation> {
-    let dim = target.tree.dim();
+    let dim = target.search.dim();
     let pr = problem(source, target, settings)?;
     split_pose("pose", pose, dim)?;
     Ok(if dim == 2 {

@@ -10,6 +10,7 @@ mod correlative;
 mod deskew;
 mod io;
 pub mod knn;
+mod local_map;
 mod ndt2d;
 mod paired;
 mod preprocess;
@@ -24,6 +25,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     ndt2d::register(m)?;
     deskew::register(m)?;
     knn::register(m)?;
+    local_map::register(m)?;
     preprocess::register(m)?;
     simulate::register(m)?;
     io::register(m)?;

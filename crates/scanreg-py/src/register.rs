@@ -3,6 +3,7 @@
 
 use crate::convert::{c_slice, core_err, points_dim, pose};
 use crate::knn::KdTree;
+use crate::local_map::LocalMap;
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
     PyUntypedArrayMethods,
@@ -76,7 +77,7 @@ fn covs<'a>(
 fn register_icp(
     py: Python<'_>,
     source: PyReadonlyArray2<'_, f64>,
-    target: &KdTree,
+    target: &Bound<'_, PyAny>,
     init_pose: PyReadonlyArray2<'_, f64>,
     method: &str,
     kernel: &str,
@@ -93,15 +94,45 @@ fn register_icp(
     target_covariances: Option<PyReadonlyArray3<'_, f64>>,
     iterate: bool,
 ) -> PyResult<IcpOutcome> {
-    let tree = &target.inner;
-    let dim = tree.dim();
+    // The target is a k-d tree over a fixed cloud (attributes passed in) or a local map
+    // (attributes stored in it, read under its lock for the whole registration).
+    let tree_ref = target.cast::<KdTree>().ok().map(|t| t.get());
+    let map_ref = target.cast::<LocalMap>().ok().map(|m| m.get());
+    let map_guard = map_ref.map(|m| m.read());
+    let search: &dyn icp::NeighborSearch = match (tree_ref, &map_guard) {
+        (Some(t), _) => &t.inner,
+        (None, Some(g)) => &**g,
+        (None, None) => {
+            return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+                "target: expected a KdTree or LocalMap, got {}",
+                target.get_type().name()?
+            )))
+        }
+    };
+    if map_guard.is_some() && (target_normals.is_some() || target_covariances.is_some()) {
+        return Err(PyValueError::new_err(
+            "target_normals/target_covariances: a LocalMap target carries its own",
+        ));
+    }
+    let dim = search.dim();
     let src = points_dim(&source, "source", dim)?;
     let init = pose(&init_pose, "init_pose", dim)?;
-    let nrm = target_normals
-        .as_ref()
-        .map(|a| points_dim(a, "target_normals", dim))
-        .transpose()?;
-    let tcov = covs(&target_covariances, "target_covariances", tree.len(), dim)?;
+    let nrm = match &map_guard {
+        Some(g) => g.normals(),
+        None => target_normals
+            .as_ref()
+            .map(|a| points_dim(a, "target_normals", dim))
+            .transpose()?,
+    };
+    let tcov = match &map_guard {
+        Some(g) => g.covariances(),
+        None => covs(
+            &target_covariances,
+            "target_covariances",
+            search.id_count(),
+            dim,
+        )?,
+    };
     let scov = covs(
         &source_covariances,
         "source_covariances",
@@ -123,7 +154,7 @@ fn register_icp(
         covariances: scov,
     };
     let tgt_in = Target {
-        tree,
+        search,
         normals: nrm,
         covariances: tcov,
     };

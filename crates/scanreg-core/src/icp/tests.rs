@@ -131,7 +131,7 @@ fn run_case(
     let stree = KdTree::build(&src, dim).unwrap();
     let sg = local_geometry(&stree, 10, &vp, false, Some(Regularization::Plane(1e-3))).unwrap();
     let target = Target {
-        tree: &tree,
+        search: &tree,
         normals: g.normals.as_deref(),
         covariances: g.covariances.as_deref(),
     };
@@ -181,7 +181,7 @@ fn gradient_matches_finite_difference_of_cost() {
         let tree = KdTree::build(&tgt, 3).unwrap();
         let g = local_geometry(&tree, 10, &[0.3; 3], true, None).unwrap();
         let target = Target {
-            tree: &tree,
+            search: &tree,
             normals: g.normals.as_deref(),
             covariances: None,
         };
@@ -236,7 +236,7 @@ fn stop_reasons() {
     let src = source_of(&tgt, &truth_3d());
     let tree = KdTree::build(&tgt, 3).unwrap();
     let target = Target {
-        tree: &tree,
+        search: &tree,
         normals: None,
         covariances: None,
     };
@@ -267,7 +267,7 @@ fn stop_reasons() {
     let ptree = KdTree::build(&plane, 3).unwrap();
     let g = local_geometry(&ptree, 8, &[0.0, 0.0, 5.0], true, None).unwrap();
     let target = Target {
-        tree: &ptree,
+        search: &ptree,
         normals: g.normals.as_deref(),
         covariances: None,
     };
@@ -289,7 +289,7 @@ fn rejects_bad_input() {
     let tgt = room_3d();
     let tree = KdTree::build(&tgt, 3).unwrap();
     let target = Target {
-        tree: &tree,
+        search: &tree,
         normals: None,
         covariances: None,
     };

@@ -1,0 +1,212 @@
+//! Binding of `scanreg_core::voxel_map::VoxelMap`: the odometry's local map, updated in place.
+//!
+//! Frozen pyclass around an `RwLock`: registrations read it with the GIL released while no
+//! update can interleave; updates take the write lock. Safe to share between Python threads.
+
+use crate::convert::{c_slice, core_err, points_dim, vector};
+use numpy::{
+    IntoPyArray, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3, PyUntypedArrayMethods,
+};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use scanreg_core::icp::NeighborSearch;
+use scanreg_core::voxel_map::{Attributes, VoxelMap};
+use std::sync::{RwLock, RwLockReadGuard, RwLockWriteGuard};
+
+type Points = Py<PyArray2<f64>>;
+type Distances = Py<numpy::PyArray1<f64>>;
+
+#[pyclass(frozen, module = "scanreg._core")]
+pub struct LocalMap {
+    inner: RwLock<VoxelMap>,
+    dim: usize,
+}
+
+impl LocalMap {
+    pub fn read(&self) -> RwLockReadGuard<'_, VoxelMap> {
+        self.inner.read().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn write(&self) -> RwLockWriteGuard<'_, VoxelMap> {
+        self.inner.write().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+#[pymethods]
+impl LocalMap {
+    #[new]
+    #[pyo3(signature = (dim, voxel_size, max_points_per_voxel, min_spacing, attributes="none"))]
+    fn new(
+        dim: usize,
+        voxel_size: f64,
+        max_points_per_voxel: usize,
+        min_spacing: f64,
+        attributes: &str,
+    ) -> PyResult<Self> {
+        let attrs = Attributes::from_name(attributes).map_err(core_err)?;
+        let inner = VoxelMap::new(dim, voxel_size, max_points_per_voxel, min_spacing, attrs)
+            .map_err(core_err)?;
+        Ok(LocalMap {
+            inner: RwLock::new(inner),
+            dim,
+        })
+    }
+
+    #[getter]
+    fn dim(&self) -> usize {
+        self.dim
+    }
+
+    #[getter]
+    fn voxel_size(&self) -> f64 {
+        self.read().voxel_size()
+    }
+
+    #[getter]
+    fn max_points_per_voxel(&self) -> usize {
+        self.read().max_per_voxel()
+    }
+
+    #[getter]
+    fn attributes(&self) -> &'static str {
+        self.read().attributes().name()
+    }
+
+    #[getter]
+    fn num_voxels(&self) -> usize {
+        self.read().num_voxels()
+    }
+
+    fn __len__(&self) -> usize {
+        self.read().len()
+    }
+
+    /// Add world-frame points (with normals or covariances as the map stores); returns how many
+    /// were kept.
+    #[pyo3(signature = (points, normals=None, covariances=None))]
+    fn insert(
+        &self,
+        py: Python<'_>,
+        points: PyReadonlyArray2<'_, f64>,
+        normals: Option<PyReadonlyArray2<'_, f64>>,
+        covariances: Option<PyReadonlyArray3<'_, f64>>,
+    ) -> PyResult<usize> {
+        let dim = self.dim;
+        let p = points_dim(&points, "points", dim)?;
+        let n = p.len() / dim;
+        let nrm = match &normals {
+            Some(a) => {
+                let s = points_dim(a, "normals", dim)?;
+                if s.len() != p.len() {
+                    return Err(PyValueError::new_err(format!(
+                        "normals: expected {n} rows (one per point), got {}",
+                        s.len() / dim
+                    )));
+                }
+                Some(s)
+            }
+            None => None,
+        };
+        let cov = match &covariances {
+            Some(a) => {
+                if a.shape() != [n, dim, dim] {
+                    return Err(PyValueError::new_err(format!(
+                        "covariances: expected shape ({n}, {dim}, {dim}), got {:?}",
+                        a.shape()
+                    )));
+                }
+                Some(c_slice(a, "covariances")?)
+            }
+            None => None,
+        };
+        py.detach(|| self.write().insert(p, nrm, cov))
+            .map_err(core_err)
+    }
+
+    /// Drop the voxels farther than `max_distance` from `center`; returns the points removed.
+    fn remove_far(&self, center: PyReadonlyArray1<'_, f64>, max_distance: f64) -> PyResult<usize> {
+        let c = vector(&center, "center")?;
+        self.write().remove_far(c, max_distance).map_err(core_err)
+    }
+
+    /// The map's points, `(N, dim)`, in a deterministic order.
+    fn points(&self, py: Python<'_>) -> PyResult<Py<PyArray2<f64>>> {
+        let c = py.detach(|| self.read().contents());
+        let n = c.points.len() / self.dim;
+        Ok(c.points.into_pyarray(py).reshape([n, self.dim])?.unbind())
+    }
+
+    /// The normals in the order of `points()`, or `None` when the map stores none.
+    fn normals(&self, py: Python<'_>) -> PyResult<Option<Py<PyArray2<f64>>>> {
+        let c = py.detach(|| self.read().contents());
+        if c.normals.is_empty() && self.read().attributes() != Attributes::Normals {
+            return Ok(None);
+        }
+        let n = c.normals.len() / self.dim;
+        Ok(Some(
+            c.normals.into_pyarray(py).reshape([n, self.dim])?.unbind(),
+        ))
+    }
+
+    /// The covariances in the order of `points()`, or `None` when the map stores none.
+    fn covariances(&self, py: Python<'_>) -> PyResult<Option<Py<PyArray3<f64>>>> {
+        let c = py.detach(|| self.read().contents());
+        if self.read().attributes() != Attributes::Covariances {
+            return Ok(None);
+        }
+        let d = self.dim;
+        let n = c.covariances.len() / (d * d);
+        Ok(Some(
+            c.covariances.into_pyarray(py).reshape([n, d, d])?.unbind(),
+        ))
+    }
+
+    /// Nearest map point within `max_distance` of each query: `(found, squared distance)`
+    /// with the point itself (rows of NaN where none).
+    fn nearest(
+        &self,
+        py: Python<'_>,
+        query_points: PyReadonlyArray2<'_, f64>,
+        max_distance: f64,
+    ) -> PyResult<(Points, Distances)> {
+        let dim = self.dim;
+        let q = points_dim(&query_points, "query_points", dim)?;
+        if !max_distance.is_finite() || max_distance < 0.0 {
+            return Err(PyValueError::new_err(format!(
+                "max_distance: must be finite and >= 0, got {max_distance}"
+            )));
+        }
+        let max_sq = max_distance * max_distance;
+        let (pts, d2) = py.detach(|| {
+            let map = self.read();
+            let mut pts = Vec::with_capacity(q.len());
+            let mut d2 = Vec::with_capacity(q.len() / dim);
+            for qq in q.chunks_exact(dim) {
+                match map.nearest_within(qq, max_sq) {
+                    Some((j, d)) => {
+                        pts.extend_from_slice(
+                            &NeighborSearch::points(&*map)[j * dim..(j + 1) * dim],
+                        );
+                        d2.push(d);
+                    }
+                    None => {
+                        pts.extend(std::iter::repeat_n(f64::NAN, dim));
+                        d2.push(f64::INFINITY);
+                    }
+                }
+            }
+            (pts, d2)
+        });
+        let n = d2.len();
+        Ok((
+            pts.into_pyarray(py).reshape([n, dim])?.unbind(),
+            d2.into_pyarray(py).unbind(),
+        ))
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<LocalMap>()?;
+    Ok(())
+}
