@@ -13,8 +13,10 @@ from .correlative import (
     prepare_correlative,
 )
 from .deskew import deskew
+from .local_map import LocalMap
 from .ndt import NdtResult, NdtTarget, match_ndt, prepare_ndt
 from .paired import PairedAlignment, align_paired
+from .pipeline.odometry import FrameResult, Odometry, OdometryConfig
 from .quality import Conditioning, ResidualStats, WeakDirection
 from .register import RegistrationResult, RegistrationSettings, RegistrationTiming, register
 from .target import PreparedTarget, prepare
@@ -26,8 +28,12 @@ __all__ = [
     "Conditioning",
     "CorrelativeGrid",
     "CorrelativeResult",
+    "FrameResult",
+    "LocalMap",
     "NdtResult",
     "NdtTarget",
+    "Odometry",
+    "OdometryConfig",
     "PairedAlignment",
     "PreparedTarget",
     "RegistrationResult",

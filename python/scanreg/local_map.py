@@ -127,6 +127,12 @@ class LocalMap:
             cov = np.ascontiguousarray(covariances, dtype=np.float64)
         return self._native.insert(pts, nrm, cov)
 
+    def clear(self) -> None:
+        """Remove every point (the settings stay)."""
+        self._native = _core.LocalMap(
+            self.dim, self.voxel_size, self.max_points_per_voxel, self.min_spacing, self.attributes
+        )
+
     def remove_far(self, center: Any, max_distance: float) -> int:
         """Evict every voxel whose first point is farther than ``max_distance`` from
         ``center``; returns the number of points removed."""
