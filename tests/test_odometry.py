@@ -7,7 +7,6 @@ from functools import cache
 
 import numpy as np
 import pytest
-
 import scanreg
 from scanreg import simulate as sim
 from scanreg.pipeline.odometry import FrameResult, Odometry, OdometryConfig
