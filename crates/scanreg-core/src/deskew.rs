@@ -55,26 +55,45 @@ pub fn deskew(
         return Err(Error::invalid("reference_time", "must be finite"));
     }
     let mut out = vec![0.0; points.len()];
+    // A spinning LiDAR fires a column of rings at one instant: consecutive points often share a
+    // timestamp, so each chunk re-uses the last transform while the time repeats (same result,
+    // one exponential per column instead of per point).
     out.par_chunks_mut(CHUNK * dim)
         .zip(points.par_chunks(CHUNK * dim))
         .zip(timestamps.par_chunks(CHUNK))
         .for_each(|((dst, src), times)| {
-            for (k, &t) in times.iter().enumerate() {
-                let dt = t - reference_time;
-                let (p, q) = (
-                    &src[k * dim..(k + 1) * dim],
-                    &mut dst[k * dim..(k + 1) * dim],
-                );
-                if dim == 2 {
-                    let (r, tr) =
-                        se2_exp(Vector2::new(twist[0] * dt, twist[1] * dt), twist[2] * dt);
-                    let y = r * Vector2::new(p[0], p[1]) + tr;
-                    q.copy_from_slice(y.as_slice());
-                } else {
-                    let v = Vector3::new(twist[0], twist[1], twist[2]) * dt;
-                    let w = Vector3::new(twist[3], twist[4], twist[5]) * dt;
-                    let y = se3_exp(v, w).apply(Vector3::new(p[0], p[1], p[2]));
-                    q.copy_from_slice(y.as_slice());
+            if dim == 2 {
+                let mut cache: Option<(f64, nalgebra::Matrix2<f64>, Vector2<f64>)> = None;
+                for (k, &t) in times.iter().enumerate() {
+                    let (r, tr) = match cache {
+                        Some((ct, r, tr)) if ct == t => (r, tr),
+                        _ => {
+                            let dt = t - reference_time;
+                            let (r, tr) =
+                                se2_exp(Vector2::new(twist[0] * dt, twist[1] * dt), twist[2] * dt);
+                            cache = Some((t, r, tr));
+                            (r, tr)
+                        }
+                    };
+                    let y = r * Vector2::new(src[2 * k], src[2 * k + 1]) + tr;
+                    dst[2 * k..2 * k + 2].copy_from_slice(y.as_slice());
+                }
+            } else {
+                let mut cache = None;
+                for (k, &t) in times.iter().enumerate() {
+                    let m = match cache {
+                        Some((ct, m)) if ct == t => m,
+                        _ => {
+                            let dt = t - reference_time;
+                            let v = Vector3::new(twist[0], twist[1], twist[2]) * dt;
+                            let w = Vector3::new(twist[3], twist[4], twist[5]) * dt;
+                            let m = se3_exp(v, w);
+                            cache = Some((t, m));
+                            m
+                        }
+                    };
+                    let y = m.apply(Vector3::new(src[3 * k], src[3 * k + 1], src[3 * k + 2]));
+                    dst[3 * k..3 * k + 3].copy_from_slice(y.as_slice());
                 }
             }
         });
