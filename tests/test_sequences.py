@@ -4,6 +4,7 @@ frames, simulated drives, and hostile folders that must fail with a named error.
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 from typing import Any
@@ -394,7 +395,7 @@ def test_bag_sequence_round_trip(
     assert info["frames"] == 3 and info["per_point_time"] is True
 
 
-def test_bag_sequence_topics_and_truth(tmp_path: Path) -> None:
+def test_bag_sequence_topics_and_truth(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     pytest.importorskip("rosbags")
     from test_rosbag import _cloud_msg, _store, write_bag
 
@@ -413,6 +414,15 @@ def test_bag_sequence_topics_and_truth(tmp_path: Path) -> None:
         open_sequence(path, topic="/c")
     seq = open_sequence(path, topic="/b")
     assert len(seq) == 2 and seq[1].timestamps is None
+    # scanreg info: the bag's topics, and the chosen topic summarised as a sequence
+    from scanreg import cli
+
+    assert cli.main(["info", str(path), "--json"]) == cli.EXIT_OK
+    assert "sequence" not in json.loads(capsys.readouterr().out)  # two topics, none chosen
+    assert cli.main(["info", str(path), "--topic", "/b", "--json"]) == cli.EXIT_OK
+    out = json.loads(capsys.readouterr().out)
+    assert out["kind"] == "bag" and out["sequence"]["frames"] == 2
+    assert out["sequence"]["points_per_frame"] == {"0": 4}
     gt = tmp_path / "gt.txt"
     write_kitti_poses(gt, Trajectory(np.tile(np.eye(4), (3, 1, 1))))
     with pytest.raises(FileFormatError, match="3 poses for 2 frames"):

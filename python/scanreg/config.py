@@ -174,7 +174,7 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
             raise fail(f" ({len(value)} items, expected {len(args)})")
         return tuple(
             _coerce(v, a, f"{key}[{i}]", where)
-            for i, (v, a) in enumerate(zip(args, value, strict=True))
+            for i, (v, a) in enumerate(zip(value, args, strict=True))
         )
     if tp is bool:
         if isinstance(value, bool):
