@@ -124,6 +124,30 @@ def test_wrong_types_rejected(data: dict[str, object], match: str) -> None:
         config_from_dict(Demo, data)
 
 
+@dataclass(frozen=True)
+class WithTunedDefault:
+    # a plain instance default (frozen, so shared safely) must work as well as a factory
+    registration: RegistrationSettings = RegistrationSettings(kernel="huber", max_iterations=7)  # noqa: RUF009
+    deskew: Deskew = field(default_factory=lambda: Deskew(reference="end"))
+
+
+def test_partial_table_keeps_the_fields_default_instance() -> None:
+    cfg = config_from_dict(WithTunedDefault, {"registration": {"max_correspondence_distance": 2.0}})
+    assert cfg.registration == RegistrationSettings(
+        kernel="huber", max_iterations=7, max_correspondence_distance=2.0
+    )
+    cfg = config_from_dict(WithTunedDefault, {"deskew": {"enabled": False}})
+    assert cfg.deskew == Deskew(enabled=False, reference="end")
+    assert load_config(WithTunedDefault, dump_config_dict(cfg)) == cfg
+
+
+def dump_config_dict(cfg: object) -> dict[str, object]:
+    from scanreg import config
+
+    out: dict[str, object] = config.tomllib.loads(dump_config(cfg))  # tomli on 3.10
+    return out
+
+
 def test_literal_does_not_confuse_bool_and_int() -> None:
     @dataclass(frozen=True)
     class L:

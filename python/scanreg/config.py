@@ -197,12 +197,31 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
     )
 
 
+def _nested_defaults(cls: type) -> dict[str, Any]:
+    """Default values of ``cls``'s fields that are dataclass instances (e.g.
+    ``registration: RegistrationSettings = RegistrationSettings(kernel="huber")``)."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        if not f.init:
+            continue
+        if f.default is not dataclasses.MISSING:
+            default = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            default = f.default_factory()
+        else:
+            continue
+        if dataclasses.is_dataclass(default) and not isinstance(default, type):
+            out[f.name] = default
+    return out
+
+
 def _build(cls: type[T], data: Mapping[str, Any], table: str, where: str) -> T:
     if not isinstance(data, Mapping):
         raise ConfigError(
             f"{where}: {_table_name(table)}: expected a table, got {type(data).__name__}"
         )
     fields = _config_fields(cls)
+    defaults = _nested_defaults(cls)
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         if not isinstance(key, str) or key not in fields:
@@ -213,6 +232,9 @@ def _build(cls: type[T], data: Mapping[str, Any], table: str, where: str) -> T:
                 f"(valid keys: {', '.join(fields)}){hint}"
             )
         name = f"{table}.{key}" if table else key
+        if key in defaults and isinstance(value, Mapping):
+            # a partial table changes the field's default instance, not the class defaults
+            value = merge_config(config_to_dict(defaults[key]), value)
         kwargs[key] = _coerce(value, fields[key], name, where)
     try:
         return cls(**kwargs)

@@ -23,7 +23,8 @@ and units (Velodyne ``time``: seconds since the sweep stamp; Ouster ``t`` and Li
 ``time_unit="auto"`` the unit is inferred from the span of the values within one sweep — a
 LiDAR sweep lasts between a few milliseconds and a couple of seconds, so a span up to 2 is
 seconds, up to 2e3 milliseconds, up to 2e6 microseconds, and beyond nanoseconds — and
-absolute times (beyond 1e6 s, i.e. epoch seconds) are made relative to the stamp. Pass
+absolute times (beyond 1e6 s, i.e. epoch seconds) are made relative to the message header
+stamp (bags) or to the sweep's earliest point (folders, whose stamps may be synthetic). Pass
 ``time_unit="s"``/``"ms"``/``"us"``/``"ns"`` to override the guess.
 
 Errors name the path and what is wrong (:class:`~scanreg.io.FileFormatError` for bad
