@@ -6,12 +6,15 @@ from __future__ import annotations
 
 import json
 import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from conftest import data_dir
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from scanreg import SE3
 from scanreg.io import (
     FileFormatError,
@@ -488,3 +491,27 @@ def test_sim_spec_parse() -> None:
     }
     with pytest.raises(ValueError, match="unknown LiDAR preset"):
         SimulatedSequence("street", sensor="hdl128")
+
+
+# --------------------------------------------------------------------------- fuzz
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    target=st.sampled_from(["calib.txt", "poses.txt", "times.txt", "velodyne/000001.bin"]),
+    content=st.binary(max_size=300)
+    | st.text(alphabet="0123456789.-e: \nTrP", max_size=300).map(str.encode),
+)
+def test_kitti_fuzzed_files_fail_cleanly(target: str, content: bytes) -> None:
+    """Whatever a KITTI folder's files hold, opening and reading it either works or raises a
+    FileFormatError naming a file of the folder — never another exception."""
+    with tempfile.TemporaryDirectory() as tmp:
+        root, _, _ = make_kitti(Path(tmp), n=3, points=5)
+        (root / target).write_bytes(content)
+        try:
+            seq = open_sequence(root)
+            frames = list(seq)
+        except FileFormatError as exc:
+            assert str(exc).startswith(str(root))
+            return
+        assert len(frames) == 3 and all(np.isfinite(f.points).all() for f in frames)
