@@ -98,6 +98,42 @@ def test_write_poses_kitti_and_tum(tmp_path: Path) -> None:
         write_poses(tmp_path / "x.txt", mats, "g2o")
 
 
+def test_write_run_outputs(tmp_path: Path) -> None:
+    from scanreg import RegistrationSettings
+    from scanreg.config import load_config
+    from scanreg.io import write_run_outputs
+
+    rng = np.random.default_rng(3)
+    poses = np.array([SE3.exp(rng.normal(0, 1, 6)).as_matrix() for _ in range(4)])
+    tr = SE3.exp(rng.normal(0, 1, 6))
+    cfg = RegistrationSettings(kernel="cauchy")
+    paths = write_run_outputs(
+        tmp_path / "run",
+        poses=poses,
+        stamps=[0.0, 0.1, 0.2, 0.3],
+        rows=ROWS,
+        config=cfg,
+        T_cam0_velo=tr,
+    )
+    assert sorted(paths) == [
+        "config",
+        "poses_kitti",
+        "poses_kitti_cam0",
+        "poses_tum",
+        "quality_csv",
+        "quality_jsonl",
+    ]
+    np.testing.assert_allclose(read_kitti_poses(paths["poses_kitti"]).poses, poses, atol=1e-11)
+    cam = read_kitti_poses(paths["poses_kitti_cam0"]).poses
+    np.testing.assert_allclose(
+        np.linalg.inv(tr.as_matrix()) @ cam @ tr.as_matrix(), poses, atol=1e-9
+    )
+    assert len(read_jsonl(paths["quality_jsonl"])) == 3
+    assert load_config(RegistrationSettings, paths["config"]) == cfg
+    minimal = write_run_outputs(tmp_path / "min", poses=poses, stamps=[0, 1, 2, 3])
+    assert sorted(minimal) == ["poses_kitti", "poses_tum"]
+
+
 # --------------------------------------------------------------------------- CLI
 
 

@@ -63,6 +63,7 @@ from .tables import (
     write_jsonl,
     write_poses,
     write_rows,
+    write_run_outputs,
 )
 from .trajectory import (
     KittiCalibration,
@@ -220,6 +221,7 @@ __all__ = [
     "write_points",
     "write_poses",
     "write_rows",
+    "write_run_outputs",
     "write_trajectory",
     "write_tum",
     "write_xyz",

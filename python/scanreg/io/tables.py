@@ -155,6 +155,47 @@ def lidar_to_camera_poses(poses: Any, T_cam0_velo: Any) -> Any:
     return tr @ mats @ np.linalg.inv(tr)
 
 
+def write_run_outputs(
+    folder: PathLike,
+    *,
+    poses: Any,
+    stamps: Any,
+    rows: Iterable[Mapping[str, Any]] = (),
+    config: Any = None,
+    T_cam0_velo: Any = None,
+) -> dict[str, str]:
+    """Write an odometry run's outputs into ``folder`` (created) and return their paths.
+
+    * ``poses_kitti.txt`` and ``poses_tum.txt``: ``poses`` (``T_world_lidar``, ``(K, 4, 4)`` or
+      SE3 list) with ``stamps`` (``(K,)`` s) for TUM;
+    * ``poses_kitti_cam0.txt`` when ``T_cam0_velo`` is given (a KITTI sequence's
+      ``T_cam0_velo``): the poses in the camera-0 frame, as the KITTI benchmark reads them;
+    * ``quality.jsonl`` and ``quality.csv``: ``rows`` (one flat dict per frame), when any;
+    * ``config.toml``: ``config`` (a dataclass) through :func:`scanreg.config.dump_config`.
+
+    Returns ``{"poses_kitti": path, ...}`` (JSON-ready strings).
+    """
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    traj = poses_to_trajectory(poses, stamps)
+    written = {
+        "poses_kitti": write_poses(out / "poses_kitti.txt", traj.poses, "kitti"),
+        "poses_tum": write_poses(out / "poses_tum.txt", traj.poses, "tum", timestamps=stamps),
+    }
+    if T_cam0_velo is not None:
+        cam = lidar_to_camera_poses(traj.poses, T_cam0_velo)
+        written["poses_kitti_cam0"] = write_poses(out / "poses_kitti_cam0.txt", cam, "kitti")
+    table = list(rows)
+    if table:
+        written["quality_jsonl"] = write_jsonl(out / "quality.jsonl", table)
+        written["quality_csv"] = write_csv_rows(out / "quality.csv", table)
+    if config is not None:
+        from ..config import write_config
+
+        written["config"] = write_config(out / "config.toml", config)
+    return {k: str(v) for k, v in written.items()}
+
+
 __all__ = [
     "ROW_FORMATS",
     "lidar_to_camera_poses",
@@ -164,4 +205,5 @@ __all__ = [
     "write_jsonl",
     "write_poses",
     "write_rows",
+    "write_run_outputs",
 ]
