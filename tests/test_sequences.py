@@ -224,6 +224,19 @@ def test_kitti_corrupt_pose_file(tmp_path: Path) -> None:
         open_sequence(root)
 
 
+def test_kitti_velodyne_folder_given_and_flat_kitti_refused(tmp_path: Path) -> None:
+    root, _, truth = make_kitti(tmp_path)
+    seq = open_sequence(root / "velodyne")
+    assert isinstance(seq, KittiSequence) and seq.ground_truth is not None
+    np.testing.assert_allclose(seq.ground_truth, truth, atol=1e-9)
+    # scans next to calib.txt and camera-0 poses.txt: refused rather than misread as LiDAR poses
+    for f in (root / "velodyne").iterdir():
+        f.rename(root / f.name)
+    (root / "velodyne").rmdir()
+    with pytest.raises(FileFormatError, match=r"has calib\.txt and poses\.txt"):
+        open_sequence(root)
+
+
 def test_kitti_calib_but_no_velodyne_folder(tmp_path: Path) -> None:
     (tmp_path / "calib.txt").write_text("Tr: 1 0 0 0 0 1 0 0 0 0 1 0\n")
     with pytest.raises(FileFormatError, match="no velodyne/"):

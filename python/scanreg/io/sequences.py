@@ -418,6 +418,14 @@ class FolderSequence(ScanSequence):
             gt_path = next(
                 (self.root / g for g in FOLDER_GROUND_TRUTH if (self.root / g).is_file()), None
             )
+            if gt_path is not None and (self.root / "calib.txt").is_file():
+                # KITTI poses next to a calib.txt are camera-0 poses: taking them as LiDAR
+                # poses would be silently wrong
+                raise FileFormatError(
+                    self.root,
+                    f"has calib.txt and {gt_path.name}: for KITTI camera-0 poses put the scans "
+                    "in velodyne/ (KITTI layout); else pass ground_truth= explicitly",
+                )
         self.ground_truth_path = gt_path
         self._gt: FloatArray | None = None
         stamps = None
@@ -726,8 +734,9 @@ def open_sequence(
 
     * ``"sim:street"``, ``"sim:tunnel"`` (options: ``sim:street,frames=200,sensor=hdl64``,
       see :func:`parse_sim_spec`) → :class:`SimulatedSequence`;
-    * a folder with ``velodyne/`` → :class:`KittiSequence` (``ground_truth``: a camera-0 pose
-      file that replaces the one found next to it);
+    * a folder with ``velodyne/`` (or that ``velodyne/`` folder itself, next to a
+      ``calib.txt``) → :class:`KittiSequence` (``ground_truth``: a camera-0 pose file that
+      replaces the one found next to it);
     * a ``.bag`` / ``.db3`` / ``.mcap`` file or a folder with ``metadata.yaml`` →
       :class:`RosbagSequence` (``topic``);
     * any other folder → :class:`FolderSequence`.
@@ -740,6 +749,8 @@ def open_sequence(
     if path.is_dir():
         if (path / "velodyne").is_dir():
             return KittiSequence(path, poses=ground_truth)
+        if path.name == "velodyne" and (path.parent / "calib.txt").is_file():
+            return KittiSequence(path.parent, poses=ground_truth)  # the scans' folder given
         if (path / "metadata.yaml").is_file():
             return RosbagSequence(path, topic=topic, ground_truth=ground_truth, time_unit=time_unit)
         if (path / "calib.txt").is_file() and not any(
