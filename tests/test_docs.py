@@ -42,7 +42,8 @@ def test_tutorial_runs(path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPat
     assert blocks, f"{path.name} has no python blocks"
     namespace: dict[str, object] = {"__name__": f"docs.{path.stem}"}
     for number, block in enumerate(blocks, start=1):
-        code = compile(block, f"{path.name} [python block {number}]", "exec")
+        # dont_inherit: a tutorial runs like a script, without this file's __future__ imports
+        code = compile(block, f"{path.name} [python block {number}]", "exec", dont_inherit=True)
         exec(code, namespace)  # running the documentation is the point
     figures = [p for p in tmp_path.iterdir() if p.suffix in (".png", ".svg")]
     assert all(p.stat().st_size > 1000 for p in figures)

@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from ._progress import Progress
+
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_USAGE, EXIT_BAD_INPUT = 0, 1, 2, 3
 
 EXAMPLES = """examples:
@@ -25,6 +27,7 @@ EXAMPLES = """examples:
   scanreg evaluate est.txt gt.txt --format kitti --metric rpe --delta 10 --unit meters --json
   scanreg register source.ply target.ply --voxel-size 0.25 --method gicp --json
   scanreg info demo.bag                      # ROS 1/2 bag: topics, types, message counts
+  scanreg info dataset/sequences/00          # a sequence: frames, points per frame, truth
   scanreg plot trajectory est.txt --reference gt.txt --format kitti --alignment se3 -o traj.png
   scanreg plot errors est.txt gt.txt --format tum --alignment sim3 -o errors.svg
   scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/ --json
@@ -34,7 +37,9 @@ EXAMPLES = """examples:
 SUB_EXAMPLES = {
     "demo": "examples:\n  scanreg demo\n  scanreg demo --seed 3\n",
     "info": "examples:\n  scanreg info scan.pcd\n  scanreg info demo.bag --json\n"
-    "  scanreg info poses.txt --trajectory-format kitti\n",
+    "  scanreg info poses.txt --trajectory-format kitti\n"
+    "  scanreg info dataset/sequences/00        # KITTI: frames, points, ground truth\n"
+    "  scanreg info sim:street --json          # a simulated sequence\n",
     "evaluate": "examples:\n  scanreg evaluate est.txt gt.txt --format tum --metric ate\n"
     "  scanreg evaluate est.txt gt.txt --format kitti --metric rpe --delta 10 --unit meters\n"
     "  scanreg evaluate est.txt gt.txt --format kitti --metric kitti --json\n",
@@ -69,9 +74,14 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
 
     info = sub.add_parser(
-        "info", help="summarise a point cloud, trajectory or ROS bag (.bag, .db3, .mcap, folder)"
+        "info",
+        help="summarise a point cloud, trajectory, ROS bag (.bag, .db3, .mcap, folder) or "
+        "sequence (KITTI folder, folder of point files, sim:street)",
     )
-    info.add_argument("path", type=Path)
+    info.add_argument("path", type=Path, help="file, folder or sim:NAME")
+    info.add_argument(
+        "--topic", default=None, help="bag: the PointCloud2 topic to summarise as a sequence"
+    )
     info.add_argument(
         "--trajectory-format",
         choices=["kitti", "tum"],
@@ -150,6 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sim.add_argument("-o", "--output", type=Path, required=True, help="folder (created)")
     sim.add_argument("--json", action="store_true", help="print JSON instead of text")
+    sim.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     for name, subparser in sub.choices.items():
         subparser.epilog = SUB_EXAMPLES[name]
         subparser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -164,25 +175,36 @@ def _stats(stats: Any) -> dict[str, float]:
 _BAG_SUFFIXES = {".bag": "ros1", ".db3": "ros2-sqlite3", ".mcap": "ros2-mcap"}
 
 
-def _bag_info(path: Path) -> dict[str, Any]:
-    from .io import rosbag
+def _bag_info(path: Path, topic: str | None) -> dict[str, Any]:
+    from .io import rosbag, sequences
 
     topics = rosbag.list_topics(path)
-    return {
+    out: dict[str, Any] = {
         "kind": "bag",
         "format": "ros2" if path.is_dir() else _BAG_SUFFIXES[path.suffix.lower()],
         "messages": sum(t.message_count for t in topics),
         "topics": {t.name: {"type": t.msgtype, "messages": t.message_count} for t in topics},
     }
+    clouds = [t.name for t in topics if t.msgtype == rosbag.POINT_CLOUD2]
+    if topic is not None or len(clouds) == 1:
+        # random access re-reads a bag from the start: summarise the first frame only
+        seq = sequences.RosbagSequence(path, topic=topic)
+        out["sequence"] = sequences.describe_sequence(seq, max_frames=1)
+    return out
 
 
 def _info(args: argparse.Namespace) -> dict[str, Any]:
     from . import io
+    from .io import sequences
 
-    if not args.trajectory_format and (
-        args.path.is_dir() or args.path.suffix.lower() in _BAG_SUFFIXES
-    ):
-        return _bag_info(args.path)
+    if not args.trajectory_format:
+        spec = str(args.path)
+        if spec.startswith("sim:"):
+            return sequences.describe_sequence(sequences.open_sequence(spec))
+        if args.path.suffix.lower() in _BAG_SUFFIXES or (args.path / "metadata.yaml").is_file():
+            return _bag_info(args.path, args.topic)
+        if args.path.is_dir():
+            return sequences.describe_sequence(sequences.open_sequence(args.path))
     if args.trajectory_format:
         traj = io.TRAJECTORY_READERS[args.trajectory_format](args.path)
         positions = traj.positions
@@ -312,6 +334,8 @@ def _simulate(args: argparse.Namespace) -> dict[str, Any]:
         )
     if args.scans < 1:
         raise ValueError(f"--scans must be >= 1, got {args.scans}")
+    if not args.scan_rate > 0:
+        raise ValueError(f"--scan-rate must be > 0, got {args.scan_rate}")
     fmt = args.format if args.format != "auto" else ("pcd" if dim == 3 else "csv")
     # PCD/PLY hold 3D points: a 2D scan is written in the plane z = 0.
     pad_z = dim == 2 and fmt in ("pcd", "ply")
@@ -345,14 +369,29 @@ def _simulate(args: argparse.Namespace) -> dict[str, Any]:
     traj = sim.Trajectory.from_speed_and_yaw_rate(
         args.speed, args.yaw_rate, duration=duration, dim=dim, start=start
     )
-    run = sim.simulate_run(
-        scene, sensor, traj, num_scans=args.scans, scan_rate=args.scan_rate, seed=args.seed
-    )
     out: Path = args.output
     out.mkdir(parents=True, exist_ok=True)
     files = []
-    scans: tuple[sim.LaserScan | sim.LidarSweep, ...] = run.scans
-    for k, scan in enumerate(scans):
+    # one scan at a time (the same calls and seeds as simulate_run) so the bar can move
+    start_times = traj.start_time + period * np.arange(args.scans)
+    scans: list[sim.LaserScan | sim.LidarSweep] = []
+    bar = Progress(
+        args.scans,
+        description="simulate",
+        unit="scans",
+        enabled=not (args.quiet or args.json),
+    )
+    for k, t0 in enumerate(start_times):
+        scan: sim.LaserScan | sim.LidarSweep
+        if isinstance(sensor, sim.LidarModel):
+            scan = sim.simulate_sweep(
+                scene, sensor, traj, start_time=float(t0), seed=args.seed, scan_index=k
+            )
+        else:
+            scan = sim.simulate_scan(
+                scene, sensor, traj, start_time=float(t0), seed=args.seed, scan_index=k
+            )
+        scans.append(scan)
         points = scan.points
         if pad_z:
             points = np.column_stack([points, np.zeros(len(points))])
@@ -367,8 +406,10 @@ def _simulate(args: argparse.Namespace) -> dict[str, Any]:
         path = out / f"{k:06d}.{fmt}"
         io.write_points(path, cloud)
         files.append(path.name)
-    poses: list[SE2] | list[SE3] = list(run.poses)  # type: ignore[assignment]
-    truth = io.Trajectory.from_poses(poses, timestamps=run.start_times)
+        bar.update(points=len(scan.points))
+    bar.close()
+    poses: list[Any] = [s.pose for s in scans]
+    truth = io.Trajectory.from_poses(poses, timestamps=start_times)
     io.write_kitti_poses(out / "poses_kitti.txt", truth)
     io.write_tum(out / "poses_tum.txt", truth)
     return {
@@ -378,7 +419,7 @@ def _simulate(args: argparse.Namespace) -> dict[str, Any]:
         "dim": dim,
         "scans": len(files),
         "files": files,
-        "points_per_scan": [len(s.points) for s in run.scans],
+        "points_per_scan": [len(s.points) for s in scans],
         "poses_kitti": "poses_kitti.txt",
         "poses_tum": "poses_tum.txt",
         "poses": "T_world_sensor at each scan's start time (the TUM timestamps)",

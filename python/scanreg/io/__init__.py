@@ -5,6 +5,9 @@ one function and one entry here; logs that hold many scans (CARMEN: :func:`read_
 ``SCAN_SOURCES`` registry of the same shape. ROS 1/2 bags (``sensor_msgs/LaserScan`` and
 ``PointCloud2``): :func:`read_bag_scans`, :func:`read_bag_clouds`, :func:`list_topics`
 (module :mod:`scanreg.io.rosbag`, needs the ``ros`` extra).
+Sequences of sweeps (KITTI folders, folders of point files, bags, ``sim:street``):
+:func:`open_sequence` (module :mod:`scanreg.io.sequences`); per-frame tables and pose lists:
+:func:`write_rows`, :func:`write_poses` (module :mod:`scanreg.io.tables`).
 
 >>> cloud = read_points("scan.pcd")          # dispatches on the extension
 >>> write_points("scan.ply", cloud)
@@ -42,6 +45,25 @@ from .rosbag import (
     list_topics,
     read_bag_clouds,
     read_bag_scans,
+)
+from .sequences import (
+    FolderSequence,
+    KittiSequence,
+    RosbagSequence,
+    ScanSequence,
+    SequenceFrame,
+    SimulatedSequence,
+    describe_sequence,
+    open_sequence,
+)
+from .tables import (
+    lidar_to_camera_poses,
+    read_jsonl,
+    write_csv_rows,
+    write_jsonl,
+    write_poses,
+    write_rows,
+    write_run_outputs,
 )
 from .trajectory import (
     KittiCalibration,
@@ -149,20 +171,30 @@ __all__ = [
     "BagTopic",
     "CarmenLog",
     "FileFormatError",
+    "FolderSequence",
     "KittiCalibration",
+    "KittiSequence",
     "LaserScan",
     "Odometry",
     "PointCloud",
     "PoseGraph",
     "PoseGraphEdge",
     "RosLaserScan",
+    "RosbagSequence",
+    "ScanSequence",
+    "SequenceFrame",
+    "SimulatedSequence",
     "Trajectory",
+    "describe_sequence",
     "information_from_covariance",
+    "lidar_to_camera_poses",
     "list_topics",
+    "open_sequence",
     "read_bag_clouds",
     "read_bag_scans",
     "read_carmen",
     "read_g2o",
+    "read_jsonl",
     "read_kitti_bin",
     "read_kitti_calib",
     "read_kitti_poses",
@@ -177,7 +209,9 @@ __all__ = [
     "read_trajectory",
     "read_tum",
     "write_csv",
+    "write_csv_rows",
     "write_g2o",
+    "write_jsonl",
     "write_kitti_bin",
     "write_kitti_poses",
     "write_npy",
@@ -185,6 +219,9 @@ __all__ = [
     "write_pcd",
     "write_ply",
     "write_points",
+    "write_poses",
+    "write_rows",
+    "write_run_outputs",
     "write_trajectory",
     "write_tum",
     "write_xyz",
