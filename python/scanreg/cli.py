@@ -31,6 +31,8 @@ EXAMPLES = """examples:
   scanreg plot trajectory est.txt --reference gt.txt --format kitti --alignment se3 -o traj.png
   scanreg plot errors est.txt gt.txt --format tum --alignment sim3 -o errors.svg
   scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/ --json
+  scanreg odometry sim:street -o out/        # LiDAR odometry on a simulated drive, scored
+  scanreg odometry dataset/sequences/00 --preset velodyne-hdl64 --config run.toml -o out/
 """
 
 #: Per-subcommand examples, shown by ``scanreg SUBCOMMAND --help``.
@@ -49,6 +51,11 @@ SUB_EXAMPLES = {
     "plot": "examples:\n"
     "  scanreg plot trajectory est.txt --reference gt.txt --format kitti -o traj.png\n"
     "  scanreg plot errors est.txt gt.txt --format tum --alignment sim3 -o errors.svg\n",
+    "odometry": "examples:\n"
+    "  scanreg odometry sim:street -o out/                 # no download; scored vs truth\n"
+    "  scanreg odometry sim:tunnel,frames=50 --method point_to_plane -o out/ --json\n"
+    "  scanreg odometry dataset/sequences/00 --preset velodyne-hdl64 -o out/\n"
+    "  scanreg odometry drive.bag --topic /points --config run.toml --max-frames 200 -o out/\n",
     "simulate": "examples:\n"
     "  scanreg simulate -o run/                  # 2D: floor_plan, sick_lms200\n"
     "  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/\n"
@@ -161,6 +168,37 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("-o", "--output", type=Path, required=True, help="folder (created)")
     sim.add_argument("--json", action="store_true", help="print JSON instead of text")
     sim.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    odo = sub.add_parser(
+        "odometry",
+        help="LiDAR odometry over a sequence (KITTI folder, folder of point files, ROS bag, "
+        "sim:street): poses, per-frame quality, effective config, plots",
+    )
+    odo.add_argument("path", help="sequence: folder, bag, or sim:street / sim:tunnel[,frames=N]")
+    odo.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=Path("odometry-output"),
+        help="folder for the outputs (created; default odometry-output)",
+    )
+    odo.add_argument("--config", type=Path, default=None, help="TOML config (unknown keys fail)")
+    odo.add_argument(
+        "--preset",
+        action="append",
+        default=[],
+        help="sensor preset (repeatable; see scanreg.config.PRESETS)",
+    )
+    odo.add_argument(
+        "--method",
+        choices=["point_to_point", "point_to_plane", "gicp"],
+        default=None,
+        help="override the config's method",
+    )
+    odo.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
+    odo.add_argument("--topic", default=None, help="bag: the PointCloud2 topic")
+    odo.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    odo.add_argument("--json", action="store_true", help="print JSON instead of text")
+    odo.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     for name, subparser in sub.choices.items():
         subparser.epilog = SUB_EXAMPLES[name]
         subparser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -426,6 +464,72 @@ def _simulate(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _odometry(args: argparse.Namespace) -> dict[str, Any]:
+    from .config import load_config
+    from .io import open_sequence, write_run_outputs
+    from .io.sequences import KittiSequence, SimulatedSequence
+    from .pipeline.odometry import OdometryConfig
+    from .pipeline.run import evaluate_run, run_odometry
+
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
+    overrides = {} if args.method is None else {"method": args.method}
+    config = load_config(OdometryConfig, args.config, presets=args.preset, overrides=overrides)
+    seq = open_sequence(args.path, topic=args.topic)
+    run = run_odometry(
+        seq, config, max_frames=args.max_frames, progress=not (args.quiet or args.json)
+    )
+    t_cam = getattr(seq, "T_cam0_velo", None) if isinstance(seq, KittiSequence) else None
+    written = write_run_outputs(
+        args.output,
+        poses=run.poses,
+        stamps=run.stamps,
+        rows=run.quality_rows(),
+        config=config,
+        T_cam0_velo=t_cam,
+    )
+    result: dict[str, Any] = {
+        "sequence": getattr(seq, "name", str(args.path)),
+        "frames": len(run.frames),
+        "frames_per_second": run.frames_per_second,
+        "accepted": run.num_accepted,
+        "rejected": len(run.frames) - run.num_accepted,
+        "rejection_reasons": run.rejection_reasons(),
+        "held_frames": sum(bool(f.held_directions) for f in run.frames),
+        "method": config.method,
+    }
+    truth = None
+    if isinstance(seq, SimulatedSequence):
+        truth = seq.ground_truth_at(config.reference_time)  # the time the poses refer to
+    elif seq.ground_truth is not None:
+        truth = seq.ground_truth
+    if truth is not None and len(run.frames) >= 2:
+        result["accuracy"] = evaluate_run(run, truth)
+    if not args.no_plots:
+        from . import plot
+        from .io import Trajectory
+
+        est = Trajectory(run.poses, run.stamps)
+        ref = None if truth is None else Trajectory(truth[: len(run.poses)], run.stamps)
+        traj_png = plot.plot_trajectories(
+            args.output / "trajectory.png",
+            est,
+            ref,
+            alignment="none" if ref is None else "se3",
+            title=f"{result['sequence']}: odometry",
+        )
+        unc_png = plot.plot_frame_uncertainty(
+            args.output / "uncertainty.png",
+            np.array([f.covariance for f in run.frames]),
+            accepted=[f.verdict.accepted for f in run.frames],
+            held=[bool(f.held_directions) for f in run.frames],
+        )
+        written["trajectory_plot"] = str(traj_png)
+        written["uncertainty_plot"] = str(unc_png)
+    result["outputs"] = written
+    return result
+
+
 def _print_text(result: dict[str, Any], indent: str = "") -> None:
     for key, value in result.items():
         if isinstance(value, dict):
@@ -449,6 +553,7 @@ def main(argv: list[str] | None = None) -> int:
         "register": _register,
         "plot": _plot,
         "simulate": _simulate,
+        "odometry": _odometry,
     }
     try:
         result = handlers[args.command](args)

@@ -12,6 +12,8 @@ threads and on machines without a display.
 * :func:`plot_error_over_distance` — position (and heading) error along the reference path.
 * :func:`plot_weak_directions` — the points with the poorly constrained directions as arrows.
 * :func:`plot_residual_histogram` — residuals, with an optional threshold line.
+* :func:`plot_frame_uncertainty` — an odometry run's per-frame standard deviations, with the
+  rejected frames and the frames held to the motion prior marked.
 """
 
 from __future__ import annotations
@@ -509,3 +511,56 @@ __all__ = [
     "plot_trajectories",
     "plot_weak_directions",
 ]
+
+
+def plot_frame_uncertainty(
+    path: PathLike,
+    covariances: Any,
+    *,
+    accepted: Any = None,
+    held: Any = None,
+    title: str | None = None,
+) -> Path:
+    """Per-frame standard deviations of an odometry run: translation (x, y, z in cm) above,
+    rotation (roll, pitch, yaw in degrees) below, on a log scale. ``covariances`` is
+    ``(K, 6, 6)`` (translation first; ``inf`` rows, e.g. the first frame, are left out);
+    ``accepted`` and ``held`` are optional ``(K,)`` flags: rejected frames get a red tick at
+    the bottom, frames held to the motion prior an orange one."""
+    out = _check_path(path)
+    cov = np.asarray(covariances, dtype=np.float64)
+    if cov.ndim != 3 or cov.shape[1:] != (6, 6) or len(cov) == 0:
+        raise ValueError(f"covariances: expected shape (K, 6, 6) with K >= 1, got {cov.shape}")
+    k = np.arange(len(cov))
+    with np.errstate(invalid="ignore"):
+        sd = np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0, None))
+    sd[~np.isfinite(sd)] = np.nan
+    fig = _figure(7.0, 5.0)
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    for axis, (lo, scale, unit, names) in zip(
+        (top, bottom),
+        ((0, 100.0, "cm", "xyz"), (3, np.degrees(1.0), "deg", ("roll", "pitch", "yaw"))),
+        strict=True,
+    ):
+        for c in range(3):
+            axis.plot(k, sd[:, lo + c] * scale, lw=1.2, label=f"σ {names[c]}")
+        axis.set_yscale("log")
+        axis.set_ylabel(f"σ [{unit}]")
+        axis.grid(alpha=0.3, which="both")
+        axis.legend(loc="upper right", ncols=3, fontsize="small")
+    for flags, color, label in ((accepted, "#d62728", "rejected"), (held, "#ff7f0e", "held")):
+        if flags is None:
+            continue
+        f = np.asarray(flags, dtype=bool)
+        marks = k[~f] if label == "rejected" else k[f]
+        if marks.size:
+            bottom.plot(
+                marks,
+                np.full(marks.size, np.nanmin(sd[:, 3:] * np.degrees(1.0))),
+                "|",
+                color=color,
+                ms=12,
+                label=label,
+            )
+    bottom.set_xlabel("frame")
+    top.set_title(title or "per-frame standard deviation (given the local map)")
+    return _save(fig, out)

@@ -656,10 +656,28 @@ class SimulatedSequence(ScanSequence):
             SE3.from_vector([x0, y0, z0, 0.0, 0.0, 0.0]), self.speed, self.weave, duration
         )
         self.stamps: FloatArray = _readonly(period * np.arange(num_frames))
-        poses = [self.trajectory.pose_at(float(t)) for t in self.stamps]
-        first_inv = poses[0].inverse()
-        self._gt: FloatArray = _readonly([(first_inv @ p).as_matrix() for p in poses])
+        self._gt: FloatArray = self.ground_truth_at("start")
         self.name = f"sim:{scene}"
+
+    def ground_truth_at(self, reference: str | float) -> FloatArray:
+        """``(K, 4, 4)`` truth at each sweep's ``"start"``, ``"middle"`` or ``"end"`` (or that
+        many seconds after its start) — to compare with an
+        odometry whose poses refer to that time within the sweep. Relative to the first sweep at
+        the same time, so the first pose is the identity."""
+        period = self.lidar.sweep_duration
+        offsets = {"start": 0.0, "middle": 0.5 * period, "end": period}
+        if isinstance(reference, str):
+            if reference not in offsets:
+                raise ValueError(
+                    f"reference: expected seconds or one of start, middle, end; got {reference!r}"
+                )
+            offset = offsets[reference]
+        else:
+            offset = float(reference)
+        first_inv = self.trajectory.pose_at(float(self.stamps[0]) + offset).inverse()
+        poses = [first_inv @ self.trajectory.pose_at(float(t) + offset) for t in self.stamps]
+        out: FloatArray = _readonly([p.as_matrix() for p in poses])
+        return out
 
     def __len__(self) -> int:
         return self.num_frames

@@ -128,9 +128,11 @@ class OdometryConfig:
     convergence_tolerance: float = 1e-4
     #: Hold the prediction along weakly constrained translation directions (a tunnel's axis):
     #: the estimate's correction along them is dropped and the covariance there becomes the
-    #: prior's (``prior_sigma``). Needs the directional information of ``point_to_plane`` or
-    #: ``gicp``; point-to-point's translation information is isotropic and flags nothing.
-    degeneracy_aware: bool = True
+    #: prior's (``prior_sigma``). ``"prior"`` (default): only for frames given an external
+    #: motion ``prior`` — constant velocity is no evidence (from rest it would hold the vehicle
+    #: still); ``"always"``: also with constant velocity; ``"never"``. Needs the directional
+    #: information of ``point_to_plane`` or ``gicp``: point-to-point's is isotropic.
+    degeneracy_aware: Literal["prior", "always", "never"] = "prior"
     #: A translation direction is weak when its eigenvalue of the translation block of ``JᵀJ``
     #: is below this fraction of the largest. Measured with GICP on simulated VLP-16 sweeps
     #: (20 frames each): a tunnel 0.003–0.033 (along its axis), a street 0.069–0.109.
@@ -171,9 +173,10 @@ class OdometryConfig:
         _number(self.convergence_tolerance, "convergence_tolerance")
         if self.num_threads is not None:
             _integer(self.num_threads, "num_threads", 1)
-        if not isinstance(self.degeneracy_aware, bool):
-            raise TypeError(
-                f"degeneracy_aware: expected a bool, got {type(self.degeneracy_aware).__name__}"
+        if self.degeneracy_aware not in ("prior", "always", "never"):
+            raise ValueError(
+                "degeneracy_aware: expected 'prior', 'always' or 'never', "
+                f"got {self.degeneracy_aware!r}"
             )
         if not 0.0 < float(self.weak_translation_ratio) < 1.0:
             raise ValueError(
@@ -379,6 +382,17 @@ class Odometry:
             The sweep's time (s); with the previous sweep's it gives the deskew period
             (otherwise the span of ``timestamps``).
         """
+        return self._step(points, timestamps, prior, stamp, external_prior=prior is not None)
+
+    def _step(
+        self,
+        points: Any,
+        timestamps: Any,
+        prior: Any,
+        stamp: float | None,
+        *,
+        external_prior: bool,
+    ) -> FrameResult:
         t_start = time.perf_counter()
         c = self.config
         pts = as_points(points, "points", dim=3)
@@ -386,6 +400,7 @@ class Odometry:
         index = len(self._poses)
 
         # 1. predict
+        has_prior = external_prior
         motion_guess = _se3(as_pose(prior, "prior", 3)) if prior is not None else self._last_motion
         previous = self._poses[-1] if self._poses else self._start
         prediction = _se3(previous @ motion_guess) if self._poses else self._start
@@ -439,7 +454,8 @@ class Odometry:
         pose = _se3(reg.pose) if usable else prediction
         cov = np.array(reg.covariance) if usable else np.full((6, 6), np.inf)
         held: tuple[str, ...] = ()
-        if usable and c.degeneracy_aware:
+        hold = c.degeneracy_aware == "always" or (c.degeneracy_aware == "prior" and has_prior)
+        if usable and hold:
             pose, cov, held = hold_weak_translation(
                 prediction, pose, reg.hessian, cov, c.weak_translation_ratio, c.prior_sigma
             )
@@ -454,7 +470,7 @@ class Odometry:
                 velocity = velocity_from_motion(motion, self._period(times, stamp))
                 self.map.clear()
                 self._insert(previous, self._map_points(first_pts, first_times, velocity))
-                return self.step(points, timestamps, motion, stamp=stamp)
+                return self._step(points, timestamps, motion, stamp, external_prior=has_prior)
         self._first_sweep = None
 
         # 6. judge
