@@ -16,6 +16,7 @@ from .deskew import deskew
 from .local_map import LocalMap
 from .ndt import NdtResult, NdtTarget, match_ndt, prepare_ndt
 from .paired import PairedAlignment, align_paired
+from .pipeline.localizer import Localizer, Relocalization
 from .pipeline.odometry import FrameResult, Odometry, OdometryConfig
 from .quality import Conditioning, ResidualStats, WeakDirection
 from .register import RegistrationResult, RegistrationSettings, RegistrationTiming, register
@@ -30,6 +31,7 @@ __all__ = [
     "CorrelativeResult",
     "FrameResult",
     "LocalMap",
+    "Localizer",
     "NdtResult",
     "NdtTarget",
     "Odometry",
@@ -39,6 +41,7 @@ __all__ = [
     "RegistrationResult",
     "RegistrationSettings",
     "RegistrationTiming",
+    "Relocalization",
     "ResidualStats",
     "WeakDirection",
     "__version__",

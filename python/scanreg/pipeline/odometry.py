@@ -42,6 +42,7 @@ from ..local_map import Attributes, LocalMap
 from ..preprocess import crop_range, estimate_covariances, estimate_normals, voxel_downsample
 from ..register import RegistrationResult, RegistrationSettings, register
 from ..robust import check_kernel
+from ..target import PreparedTarget
 from ..transform import SE3, as_pose
 from ..verdict import QualityReport, Verdict, VerdictThresholds, assess
 
@@ -334,6 +335,10 @@ class Odometry:
         self.map = LocalMap(
             3, c.voxel_size, c.max_points_per_voxel, attributes=MAP_ATTRIBUTES[c.method]
         )
+        #: What sweeps are registered against: the local map here; a fixed prior map in
+        #: :class:`~scanreg.pipeline.localizer.Localizer`, which also turns map updates off.
+        self._target: LocalMap | PreparedTarget = self.map
+        self._builds_map = True
         self.gate = AdaptiveGate(c.initial_gate, c.min_gate, c.min_motion, c.max_range)
         self._start = (
             SE3.identity()
@@ -420,7 +425,7 @@ class Odometry:
         source = voxel_downsample(map_points, 1.5 * c.voxel_size).points
         t_down = time.perf_counter() - t0
 
-        if not self._poses:
+        if not self._poses and self._builds_map:
             if times is not None:
                 self._first_sweep = (pts, times)
             return self._first(
@@ -433,7 +438,7 @@ class Odometry:
         t0 = time.perf_counter()
         reg = register(
             source,
-            self.map,
+            self._target,
             method=c.method,
             init=prediction,
             settings=RegistrationSettings(
@@ -475,16 +480,19 @@ class Odometry:
 
         # 6. judge
         t0 = time.perf_counter()
-        judged = assess(reg, source, self.map, init=prediction, thresholds=self._thresholds)
+        judged = assess(reg, source, self._target, init=prediction, thresholds=self._thresholds)
         t_judge = time.perf_counter() - t0
 
         # 7. update
         t0 = time.perf_counter()
-        motion = _se3(previous.inverse() @ pose)
-        if usable:
+        # A localizer's first frame corrects its initial pose: not a motion to repeat.
+        motion = _se3(previous.inverse() @ pose) if self._poses else SE3.identity()
+        if usable and self._poses:
             self.gate.update(prediction, pose, motion)
+        if usable and self._builds_map:
             self._insert(pose, map_points)
-        self.map.remove_far(pose.translation, c.max_range)
+        if self._builds_map:
+            self.map.remove_far(pose.translation, c.max_range)
         self._remember(pose, motion, stamp)
         t_update = time.perf_counter() - t0
 
@@ -500,8 +508,8 @@ class Odometry:
             gate=gate,
             num_points=len(pts),
             num_source_points=len(source),
-            num_map_points=len(self.map),
-            map_updated=usable,
+            num_map_points=len(self._target),
+            map_updated=usable and self._builds_map,
             held_directions=held,
             timing=FrameTiming(
                 deskew=t_deskew,

@@ -1,0 +1,181 @@
+"""Localization in a prior map: the odometry's machinery against a fixed map, no map updates.
+
+``Localizer(map_points, config, initial_pose=guess)`` then :meth:`Localizer.step` per sweep,
+exactly as :class:`~scanreg.Odometry` (predict, deskew, downsample, gate, align, judge) except
+that the target is the prior map — a k-d tree with normals/covariances computed from the map's
+own neighbourhoods — and nothing is inserted. Poses are ``T_map_sensor``.
+
+A rough or lost pose is recovered with :meth:`Localizer.relocalize`: registrations from a grid
+of hypotheses around the guess (headings all round, positions within a radius), the best by
+overlap then refined, and judged like any frame — so a guess in the wrong place is *rejected*
+(low overlap), not silently snapped to the nearest look-alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from .._validate import as_points
+from ..preprocess import voxel_downsample
+from ..register import RegistrationResult, RegistrationSettings, register
+from ..target import prepare
+from ..transform import SE3, as_pose
+from ..verdict import assess
+from .odometry import FAILED_STOPS, FrameResult, Odometry, OdometryConfig, _se3
+
+
+@dataclasses.dataclass(frozen=True)
+class Relocalization:
+    """What :meth:`Localizer.relocalize` found."""
+
+    #: The refined best hypothesis, judged against the map; the localizer now tracks from it
+    #: when accepted.
+    frame: FrameResult
+    #: Hypotheses tried.
+    num_hypotheses: int
+    #: Overlap of the best and of the second-best distinct hypothesis (more than 2 m or 20°
+    #: from the best): close values mean an ambiguous place (a corridor, a repeated structure).
+    best_overlap: float
+    runner_up_overlap: float
+
+
+class Localizer(Odometry):
+    """Track a sensor in a fixed prior map (see the module docstring).
+
+    Parameters
+    ----------
+    map_points
+        ``(M, 3)`` the prior map, in its own frame (downsampled here to half the voxel size).
+    config
+        The same :class:`~scanreg.OdometryConfig` as the odometry (its map fields are unused).
+    initial_pose
+        ``T_map_sensor`` to start tracking from (default identity); refine a rough one with
+        :meth:`relocalize`.
+    """
+
+    def __init__(
+        self,
+        map_points: Any,
+        config: OdometryConfig | None = None,
+        *,
+        initial_pose: Any = None,
+    ) -> None:
+        super().__init__(config, initial_pose=initial_pose)
+        c = self.config
+        pts = as_points(map_points, "map_points", dim=3, min_points=c.num_neighbors)
+        pts = voxel_downsample(pts, 0.5 * c.voxel_size).points
+        self.prior_map = prepare(
+            pts,
+            normals=c.method == "point_to_plane",
+            covariances=c.method == "gicp",
+            k=min(c.num_neighbors, len(pts)),
+            # A map has no single viewpoint; normals' sign does not matter to the point-to-plane
+            # residual.
+        )
+        self._target = self.prior_map
+        self._builds_map = False
+
+    def reset(self, pose: Any) -> None:
+        """Forget the track and start again from ``pose`` (``T_map_sensor``)."""
+        self._start = _se3(as_pose(pose, "pose", 3))
+        self._poses.clear()
+        self._stamps.clear()
+        self._last_motion = SE3.identity()
+
+    def relocalize(
+        self,
+        points: Any,
+        guess: Any,
+        *,
+        radius: float = 4.0,
+        spacing: float = 2.0,
+        num_headings: int = 12,
+        timestamps: Any = None,
+        stamp: float | None = None,
+    ) -> Relocalization:
+        """Find the sweep in the map near ``guess`` (``T_map_sensor``), then track from there.
+
+        Hypotheses: every ``360° / num_headings`` of heading about the map's z axis, at grid
+        positions ``spacing`` apart within ``radius`` of the guess. Each is registered
+        point-to-point (Geman–McClure, gate ``spacing``, a few iterations, on a coarse copy of
+        the sweep); the one with the largest overlap is refined by :meth:`step` from a clean
+        track. Rejected results leave the localizer where it was.
+        """
+        g = _se3(as_pose(guess, "guess", 3))
+        if not (math.isfinite(radius) and radius >= 0):
+            raise ValueError(f"radius: must be finite and >= 0, got {radius}")
+        if not (math.isfinite(spacing) and spacing > 0):
+            raise ValueError(f"spacing: must be finite and > 0, got {spacing}")
+        if isinstance(num_headings, bool) or not isinstance(num_headings, int) or num_headings < 1:
+            raise ValueError(f"num_headings: must be an int >= 1, got {num_headings!r}")
+        c = self.config
+        pts = as_points(points, "points", dim=3)
+        coarse = voxel_downsample(pts, 2.0 * c.voxel_size).points
+        steps = np.arange(-radius, radius + 1e-9, spacing)
+        offsets = [(x, y) for x in steps for y in steps if math.hypot(x, y) <= radius + 1e-9]
+        yaw0 = math.atan2(g.rotation[1, 0], g.rotation[0, 0])
+        settings = RegistrationSettings(
+            max_correspondence_distance=spacing,
+            max_iterations=10,
+            kernel="geman_mcclure",
+            kernel_scale=spacing / 3.0,
+            num_threads=c.num_threads,
+        )
+        scored: list[tuple[float, SE3, RegistrationResult]] = []
+        for dx, dy in offsets:
+            for h in range(num_headings):
+                yaw = yaw0 + 2.0 * math.pi * h / num_headings
+                rot = _yaw_matrix(yaw) @ _tilt(g)
+                start = np.eye(4)
+                start[:3, :3] = rot
+                start[:3, 3] = g.translation + np.array([dx, dy, 0.0])
+                res = register(
+                    coarse, self.prior_map, method="point_to_point", init=start, settings=settings
+                )
+                if res.stop_reason in FAILED_STOPS:
+                    continue
+                overlap = assess(res, coarse, self.prior_map, init=start).report.overlap
+                scored.append((overlap, _se3(res.pose), res))
+        if not scored:
+            raise ValueError("points: no hypothesis found correspondences in the map near guess")
+        scored.sort(key=lambda s: -s[0])
+        best_overlap, best_pose, _ = scored[0]
+        runner_up = next(
+            (
+                o
+                for o, p, _ in scored[1:]
+                if np.linalg.norm(p.translation - best_pose.translation) > 2.0
+                or _se3(best_pose.inverse() @ p).angle > math.radians(20.0)
+            ),
+            0.0,
+        )
+        saved = (self._start, list(self._poses), list(self._stamps), self._last_motion)
+        self.reset(best_pose)
+        frame = self.step(pts, timestamps, stamp=stamp)
+        if not frame.verdict.accepted:
+            self._start, self._poses, self._stamps, self._last_motion = saved
+        return Relocalization(
+            frame=frame,
+            num_hypotheses=len(offsets) * num_headings,
+            best_overlap=best_overlap,
+            runner_up_overlap=runner_up,
+        )
+
+
+def _yaw_matrix(yaw: float) -> Any:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _tilt(pose: SE3) -> Any:
+    """The roll/pitch part of ``pose``'s rotation (its yaw removed), kept for every heading."""
+    r = pose.rotation
+    yaw = math.atan2(r[1, 0], r[0, 0])
+    return _yaw_matrix(-yaw) @ r
+
+
+__all__ = ["Localizer", "Relocalization"]
