@@ -55,9 +55,11 @@ def test_config_preset_and_method_flags(capsys: pytest.CaptureFixture[str], tmp_
         "--method",
         "point_to_plane",
         "--no-plots",
+        "--save-map",
         "-o",
         str(tmp_path / "out"),
     )
+    assert out["map_points"] > 1000 and (tmp_path / "out" / "map.ply").stat().st_size > 10_000
     assert out["method"] == "point_to_plane"
     eff = load_config(OdometryConfig, tmp_path / "out" / "config.toml")
     assert (eff.max_points_per_voxel, eff.voxel_size, eff.thresholds.min_overlap) == (10, 0.5, 0.2)

@@ -160,3 +160,19 @@ def test_bad_input_is_named() -> None:
     with pytest.raises(TypeError, match="config"):
         Odometry(dataclasses.asdict(OdometryConfig()))  # type: ignore[arg-type]
     assert odo.poses == ()  # nothing was recorded by the failed steps
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".pcd"])
+def test_map_export_round_trips(tmp_path, suffix: str) -> None:  # type: ignore[no-untyped-def]
+    run = _run("street", 5.0, 4)
+    odo = Odometry(OdometryConfig(method="point_to_plane"))
+    for s in run.scans:
+        odo.step(s.points, s.timestamps)
+    path = tmp_path / f"map{suffix}"
+    n = odo.save_map(path)
+    cloud = scanreg.io.read_points(path)
+    assert n == len(odo.map) == len(cloud.points)
+    np.testing.assert_allclose(cloud.points, odo.map.points(), atol=1e-6)  # float32 on disk
+    normals = odo.map.normals()
+    assert normals is not None
+    np.testing.assert_allclose(cloud.fields["normal_z"], normals[:, 2], atol=1e-6)

@@ -196,6 +196,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     odo.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
     odo.add_argument("--topic", default=None, help="bag: the PointCloud2 topic")
+    odo.add_argument(
+        "--save-map",
+        action="store_true",
+        help="also write the final local map (world frame) as map.ply",
+    )
     odo.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     odo.add_argument("--json", action="store_true", help="print JSON instead of text")
     odo.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
@@ -526,6 +531,9 @@ def _odometry(args: argparse.Namespace) -> dict[str, Any]:
         )
         written["trajectory_plot"] = str(traj_png)
         written["uncertainty_plot"] = str(unc_png)
+    if args.save_map:
+        written["map"] = str(args.output / "map.ply")
+        result["map_points"] = run.odometry.save_map(args.output / "map.ply")
     result["outputs"] = written
     return result
 

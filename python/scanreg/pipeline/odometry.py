@@ -521,6 +521,25 @@ class Odometry:
             ),
         )
 
+    def save_map(self, path: Any) -> int:
+        """Write the local map (world frame) to ``path`` — PLY or PCD (or any point format
+        of :data:`scanreg.io.WRITERS`), with ``normal_x/y/z`` fields when the map stores
+        normals. Returns the number of points written."""
+        from ..io import PointCloud, write_points
+
+        target = self._target
+        if isinstance(target, LocalMap):
+            pts, normals = np.ascontiguousarray(target.points()), target.normals()
+        else:
+            pts, normals = np.ascontiguousarray(target.points), target.normals
+        fields: dict[str, FloatArray] = {}
+        if normals is not None:
+            fields = {
+                f"normal_{a}": np.ascontiguousarray(normals[:, i]) for i, a in enumerate("xyz")
+            }
+        write_points(path, PointCloud(points=pts, fields=fields))
+        return len(pts)
+
     def run(self, sweeps: Sequence[Any]) -> list[FrameResult]:
         """``step`` over ``(points, timestamps)`` pairs or bare point arrays."""
         out = []

@@ -8,6 +8,7 @@ sequence's ground truth (ATE after SE(3) alignment, KITTI drift over short segme
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import time
 from collections import Counter
@@ -35,6 +36,8 @@ class OdometryRun:
     seconds: float
     #: Seconds spent inside ``Odometry.step`` only.
     step_seconds: float
+    #: The odometry after the last frame (its local map, e.g. for ``save_map``).
+    odometry: Odometry = dataclasses.field(repr=False, compare=False)
 
     @property
     def frames_per_second(self) -> float:
@@ -131,6 +134,7 @@ def run_odometry(
         stamps=np.array(stamps),
         seconds=time.perf_counter() - t_start,
         step_seconds=in_step,
+        odometry=odo,
     )
 
 
