@@ -22,8 +22,8 @@ from . import _core
 from ._validate import FloatArray, as_points, readonly
 from .preprocess import BoolArray, positive_int
 
-Attributes = Literal["none", "normals", "covariances"]
-ATTRIBUTES: tuple[str, ...] = ("none", "normals", "covariances")
+Attributes = Literal["none", "normals", "covariances", "voxel_covariances"]
+ATTRIBUTES: tuple[str, ...] = ("none", "normals", "covariances", "voxel_covariances")
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,10 @@ class LocalMap:
         would tile one face).
     attributes
         What each point carries: ``"none"`` (point-to-point), ``"normals"`` (point-to-plane /
-        line) or ``"covariances"`` (GICP); :meth:`insert` then requires exactly those.
+        line) or ``"covariances"`` (GICP); :meth:`insert` then requires exactly those. Or
+        ``"voxel_covariances"`` (GICP): the map computes them itself, each voxel's points'
+        covariance regularised as a plane and shared by its points (as in VGICP), refreshed for
+        the voxels an insertion touches — no per-point neighbour search.
     """
 
     def __init__(

@@ -232,11 +232,15 @@ def _resolve_method(method: Any, dim: int) -> str:
 def _check_local_map(target: LocalMap, dim: int, method: str) -> LocalMap:
     if target.dim != dim:
         raise ValueError(f"target: a {target.dim}D LocalMap cannot register {dim}D source points")
-    need = {"gicp": "covariances", "point_to_plane": "normals", "point_to_line": "normals"}
+    need = {
+        "gicp": ("covariances", "voxel_covariances"),
+        "point_to_plane": ("normals",),
+        "point_to_line": ("normals",),
+    }
     want = need.get(method)
-    if want is not None and target.attributes != want:
+    if want is not None and target.attributes not in want:
         raise ValueError(
-            f"target: {method} needs a LocalMap that stores {want}; "
+            f"target: {method} needs a LocalMap that stores {' or '.join(want)}; "
             f"this one stores {target.attributes}"
         )
     return target

@@ -22,8 +22,13 @@ pub enum Attributes {
     None,
     /// A unit normal per point (point-to-plane / point-to-line).
     Normals,
-    /// A `dim x dim` covariance per point (GICP).
+    /// A `dim x dim` covariance per point (GICP), given by the caller.
     Covariances,
+    /// GICP covariances the map computes itself: each voxel's points' sample covariance,
+    /// regularised as a plane (eigenvalues `(ε, 1, 1)` / `(ε, 1)`, Segal et al. 2009), shared
+    /// by its points and refreshed for the voxels an insertion touches. A voxel with fewer
+    /// than `dim + 2` points gets the identity (a point-to-point-like factor).
+    VoxelCovariances,
 }
 
 impl Attributes {
@@ -32,9 +37,13 @@ impl Attributes {
             "none" => Ok(Attributes::None),
             "normals" => Ok(Attributes::Normals),
             "covariances" => Ok(Attributes::Covariances),
+            "voxel_covariances" => Ok(Attributes::VoxelCovariances),
             other => Err(Error::invalid(
                 "attributes",
-                format!("unknown {other:?}; expected 'none', 'normals' or 'covariances'"),
+                format!(
+                    "unknown {other:?}; expected 'none', 'normals', 'covariances' or \
+                     'voxel_covariances'"
+                ),
             )),
         }
     }
@@ -44,6 +53,7 @@ impl Attributes {
             Attributes::None => "none",
             Attributes::Normals => "normals",
             Attributes::Covariances => "covariances",
+            Attributes::VoxelCovariances => "voxel_covariances",
         }
     }
 }
@@ -177,7 +187,11 @@ impl VoxelMap {
 
     /// Flat covariances indexed by point id, when the map stores covariances.
     pub fn covariances(&self) -> Option<&[f64]> {
-        (self.attributes == Attributes::Covariances).then_some(self.covariances.as_slice())
+        matches!(
+            self.attributes,
+            Attributes::Covariances | Attributes::VoxelCovariances
+        )
+        .then_some(self.covariances.as_slice())
     }
 
     fn key(&self, p: &[f64]) -> Result<[i64; 3]> {
@@ -209,7 +223,7 @@ impl VoxelMap {
                     Attributes::Normals => self
                         .normals
                         .resize(self.normals.len() + cap * self.dim, 0.0),
-                    Attributes::Covariances => self
+                    Attributes::Covariances | Attributes::VoxelCovariances => self
                         .covariances
                         .resize(self.covariances.len() + cap * self.dim * self.dim, 0.0),
                 }
@@ -236,7 +250,7 @@ impl VoxelMap {
             .map(|p| self.key(p))
             .collect::<Result<Vec<_>>>()?;
         match (self.attributes, normals, covariances) {
-            (Attributes::None, None, None) => {}
+            (Attributes::None | Attributes::VoxelCovariances, None, None) => {}
             (Attributes::Normals, Some(nrm), None) => check_attribute("normals", nrm, n * dim)?,
             (Attributes::Covariances, None, Some(c)) => {
                 check_attribute("covariances", c, n * dim * dim)?
@@ -255,6 +269,7 @@ impl VoxelMap {
         }
         let cap = self.max_per_voxel;
         let mut kept = 0;
+        let mut touched: Vec<usize> = Vec::new();
         for (i, key) in keys.into_iter().enumerate() {
             let p = &points[i * dim..(i + 1) * dim];
             let slot = match self.slots.get(&key) {
@@ -287,8 +302,73 @@ impl VoxelMap {
             self.counts[slot] += 1;
             self.len += 1;
             kept += 1;
+            if self.attributes == Attributes::VoxelCovariances {
+                touched.push(slot);
+            }
+        }
+        touched.sort_unstable();
+        touched.dedup();
+        for slot in touched {
+            self.refresh_voxel_covariance(slot);
         }
         Ok(kept)
+    }
+
+    /// Recompute the shared, plane-regularised covariance of one voxel's points.
+    fn refresh_voxel_covariance(&mut self, slot: usize) {
+        const EPSILON: f64 = 1e-3;
+        let (dim, cap) = (self.dim, self.max_per_voxel);
+        let count = self.counts[slot] as usize;
+        let pts = &self.points[slot * cap * dim..(slot * cap + count) * dim];
+        let mut cov = [0.0; 9];
+        if count >= dim + 2 {
+            let mut mean = [0.0; 3];
+            for p in pts.chunks_exact(dim) {
+                for c in 0..dim {
+                    mean[c] += p[c] / count as f64;
+                }
+            }
+            let mut m = nalgebra::Matrix3::<f64>::zeros();
+            for p in pts.chunks_exact(dim) {
+                for a in 0..dim {
+                    for b in 0..dim {
+                        m[(a, b)] += (p[a] - mean[a]) * (p[b] - mean[b]);
+                    }
+                }
+            }
+            if dim == 2 {
+                let m2 = nalgebra::Matrix2::new(m[(0, 0)], m[(0, 1)], m[(1, 0)], m[(1, 1)]);
+                let e = m2.symmetric_eigen();
+                let small = if e.eigenvalues[0] <= e.eigenvalues[1] {
+                    0
+                } else {
+                    1
+                };
+                let n = e.eigenvectors.column(small);
+                let t = e.eigenvectors.column(1 - small);
+                let c = n * n.transpose() * EPSILON + t * t.transpose();
+                cov[..4].copy_from_slice(&[c[(0, 0)], c[(0, 1)], c[(1, 0)], c[(1, 1)]]);
+            } else {
+                let e = m.symmetric_eigen();
+                let small = e.eigenvalues.imin();
+                let mut c = nalgebra::Matrix3::<f64>::zeros();
+                for k in 0..3 {
+                    let v = e.eigenvectors.column(k);
+                    let w = if k == small { EPSILON } else { 1.0 };
+                    c += v * v.transpose() * w;
+                }
+                cov.copy_from_slice(c.as_slice()); // symmetric: order does not matter
+            }
+        } else {
+            for c in 0..dim {
+                cov[c * dim + c] = 1.0;
+            }
+        }
+        let d2 = dim * dim;
+        for k in 0..count {
+            let id = slot * cap + k;
+            self.covariances[id * d2..(id + 1) * d2].copy_from_slice(&cov[..d2]);
+        }
     }
 
     /// Drop every voxel whose first point is farther than `max_distance` from `center`.
@@ -342,7 +422,7 @@ impl VoxelMap {
                 Attributes::Normals => out
                     .normals
                     .extend_from_slice(&self.normals[a * dim..b * dim]),
-                Attributes::Covariances => out
+                Attributes::Covariances | Attributes::VoxelCovariances => out
                     .covariances
                     .extend_from_slice(&self.covariances[a * d2..b * d2]),
             }
@@ -405,13 +485,52 @@ impl NeighborSearch for VoxelMap {
             }
             return best;
         }
-        for x in lo[0]..=hi[0] {
-            for y in lo[1]..=hi[1] {
-                for z in lo[2]..=hi[2] {
-                    if let Some(&slot) = self.slots.get(&[x, y, z]) {
-                        self.scan_nearest(q, max_sq, slot as usize, &mut best);
+        // Shell by shell outwards from the query's voxel (Chebyshev distance r), clipped to the
+        // gate's box. A voxel beyond shell r is more than r voxel sizes away along some axis,
+        // so once the best distance is within r·v no further shell can beat it: the search is
+        // exact and usually stops after the 27 voxels around the query.
+        let mut center = [0i64; 3];
+        for c in 0..self.dim {
+            center[c] = (q[c] * self.inv).floor() as i64;
+        }
+        let reach = (0..self.dim)
+            .map(|c| (center[c] - lo[c]).max(hi[c] - center[c]))
+            .max()
+            .unwrap_or(0);
+        for r in 0..=reach {
+            let x0 = (center[0] - r).max(lo[0]);
+            let x1 = (center[0] + r).min(hi[0]);
+            let y0 = (center[1] - r).max(lo[1]);
+            let y1 = (center[1] + r).min(hi[1]);
+            let z0 = (center[2] - r).max(lo[2]);
+            let z1 = (center[2] + r).min(hi[2]);
+            for x in x0..=x1 {
+                let x_edge = (x - center[0]).abs() == r;
+                for y in y0..=y1 {
+                    let on_shell = x_edge || (y - center[1]).abs() == r;
+                    let mut visit = |z: i64| {
+                        if let Some(&slot) = self.slots.get(&[x, y, z]) {
+                            self.scan_nearest(q, max_sq, slot as usize, &mut best);
+                        }
+                    };
+                    if on_shell {
+                        for z in z0..=z1 {
+                            visit(z);
+                        }
+                    } else {
+                        // Interior of this x-y column: only the two z faces are on the shell.
+                        if center[2] - r >= z0 {
+                            visit(center[2] - r);
+                        }
+                        if r > 0 && center[2] + r <= z1 {
+                            visit(center[2] + r);
+                        }
                     }
                 }
+            }
+            let shell = r as f64 * self.voxel_size;
+            if best.is_some_and(|(_, d)| d <= shell * shell) {
+                break;
             }
         }
         best

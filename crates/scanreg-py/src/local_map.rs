@@ -152,7 +152,10 @@ impl LocalMap {
     /// The covariances in the order of `points()`, or `None` when the map stores none.
     fn covariances(&self, py: Python<'_>) -> PyResult<Option<Py<PyArray3<f64>>>> {
         let c = py.detach(|| self.read().contents());
-        if self.read().attributes() != Attributes::Covariances {
+        if !matches!(
+            self.read().attributes(),
+            Attributes::Covariances | Attributes::VoxelCovariances
+        ) {
             return Ok(None);
         }
         let d = self.dim;

@@ -164,3 +164,40 @@ fn registration_against_map_equals_kd_tree() {
     assert!((by_map.pose[7] + 0.05).abs() < 1e-6, "{:?}", by_map.pose);
     assert!((by_map.pose[4] - s).abs() < 1e-6, "{:?}", by_map.pose);
 }
+
+#[test]
+fn voxel_covariances_are_plane_regularised_per_voxel() {
+    let mut map = VoxelMap::new(3, 1.0, 20, 0.0, Attributes::VoxelCovariances).unwrap();
+    // A tilted plane patch z = 0.2 x inside one voxel, plus 2 points alone in another voxel.
+    let mut pts = Vec::new();
+    for i in 0..4 {
+        for j in 0..4 {
+            let (x, y) = (0.1 + 0.2 * i as f64, 0.1 + 0.2 * j as f64);
+            pts.extend_from_slice(&[x, y, 0.5 + 0.2 * (x - 0.5)]);
+        }
+    }
+    pts.extend_from_slice(&[5.5, 5.5, 5.5, 5.6, 5.5, 5.5]);
+    assert_eq!(map.insert(&pts, None, None).unwrap(), 18);
+    let covs = map.covariances().unwrap();
+    let c = nalgebra::Matrix3::from_column_slice(&covs[0..9]);
+    let e = c.symmetric_eigen();
+    let mut vals: Vec<f64> = e.eigenvalues.iter().copied().collect();
+    vals.sort_by(f64::total_cmp);
+    assert!(
+        (vals[0] - 1e-3).abs() < 1e-12 && (vals[1] - 1.0).abs() < 1e-12,
+        "{vals:?}"
+    );
+    // Its thin direction is the plane normal (-0.2, 0, 1) / |.|.
+    let n = e.eigenvectors.column(e.eigenvalues.imin()).into_owned();
+    let want = nalgebra::Vector3::new(-0.2, 0.0, 1.0).normalize();
+    assert!(n.dot(&want).abs() > 1.0 - 1e-9);
+    // Every point of the voxel shares it; the 2-point voxel gets the identity.
+    assert_eq!(&covs[9..18], &covs[0..9]);
+    let id = NeighborSearch::nearest_within(&map, &[5.5, 5.5, 5.5], 1e-6)
+        .unwrap()
+        .0;
+    assert_eq!(
+        &covs[id * 9..id * 9 + 9],
+        &[1., 0., 0., 0., 1., 0., 0., 0., 1.]
+    );
+}

@@ -1,0 +1,259 @@
+"""LiDAR odometry side by side: scanreg, KISS-ICP and GenZ-ICP on the same sequences.
+
+    python benchmarks/odometry_peers.py --peers-site /tmp/peers-venv/lib/python3.11/site-packages
+        [--frames 100] [--sensor hdl64] [--threads 2] [--json out.json]
+
+Sequences (every method gets the same arrays, saved once to a temporary .npz):
+
+* ``kitti16`` — the 16 real KITTI 00 frames (``../shared/data``; no per-point time, already
+  motion-compensated; its ground truth is doubtful, so there the peers' agreement is the check);
+* ``sim-street`` / ``sim-tunnel`` — ``scanreg.io.SimulatedSequence`` drives with motion
+  distortion and per-point time, exact truth at mid-sweep (the time every method here deskews
+  to). The tunnel reaches beyond the sensor range at both ends: degenerate along its axis.
+  ``scanreg+prior`` also gets a wheel-odometry-like motion prior there (the true increments
+  with 2 % scale error and noise, seeded), which KISS-ICP and GenZ-ICP cannot take.
+
+Each method runs in its own subprocess (for its peak RSS, ``ru_maxrss``) with 2 threads.
+Reported: ATE (SE(3)-aligned RMSE), end-point error, KITTI-style drift over short segments,
+median per-frame time, frames per second, peak memory, and our ratios to KISS-ICP.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+DATA = Path(os.environ.get("SCANREG_DATA", HERE.parent.parent / "shared" / "data"))
+METHODS = ("scanreg", "scanreg+prior", "scanreg-p2p", "kiss_icp", "genz_icp")
+
+
+# ------------------------------------------------------------------ inputs
+
+
+def _save_sequence(path: Path, frames: list[Any], gt: np.ndarray, min_range: float) -> None:
+    arrays: dict[str, Any] = {"gt": gt, "min_range": np.array(min_range)}
+    arrays["stamps"] = np.array([f.stamp for f in frames])
+    for k, f in enumerate(frames):
+        arrays[f"p{k}"] = np.ascontiguousarray(f.points)
+        if f.timestamps is not None:
+            arrays[f"t{k}"] = np.ascontiguousarray(f.timestamps)
+    np.savez(path, **arrays)
+
+
+def build_inputs(folder: Path, frames: int, sensor: str) -> dict[str, Path]:
+    from scanreg.io import open_sequence
+    from scanreg.io.sequences import SimulatedSequence
+
+    out: dict[str, Path] = {}
+    kitti = DATA / "kitti-odometry-00-frames-000-015"
+    if kitti.exists():
+        seq = open_sequence(str(kitti))
+        assert seq.ground_truth is not None
+        out["kitti16"] = folder / "kitti16.npz"
+        _save_sequence(out["kitti16"], list(seq), np.asarray(seq.ground_truth), 3.0)
+    else:
+        print(f"# {kitti} not found: KITTI rows skipped", file=sys.stderr)
+    for scene in ("street", "tunnel"):
+        sim = SimulatedSequence(scene, num_frames=frames, sensor=sensor)
+        out[f"sim-{scene}"] = folder / f"sim-{scene}.npz"
+        _save_sequence(out[f"sim-{scene}"], list(sim), sim.ground_truth_at("middle"), 1.0)
+    return out
+
+
+def _load(path: Path) -> tuple[list[np.ndarray], list[np.ndarray | None], np.ndarray, Any]:
+    z = np.load(path)
+    n = len(z["stamps"])
+    pts = [z[f"p{k}"] for k in range(n)]
+    times = [z[f"t{k}"] if f"t{k}" in z.files else None for k in range(n)]
+    return pts, times, z["gt"], z
+
+
+def wheel_prior(gt: np.ndarray, seed: int = 7) -> list[np.ndarray | None]:
+    """True increments with a 2 % scale error, 2 cm / 0.1° noise per frame: a wheel odometry."""
+    rng = np.random.default_rng(seed)
+    from scanreg import SE3
+
+    out: list[np.ndarray | None] = [None]
+    for k in range(1, len(gt)):
+        inc = SE3.from_matrix(np.linalg.inv(gt[k - 1]) @ gt[k]).log()
+        inc[:3] = inc[:3] * 1.02 + rng.normal(0, 0.02, 3)
+        inc[3:] += rng.normal(0, math.radians(0.1), 3)
+        out.append(SE3.exp(inc).as_matrix())
+    return out
+
+
+# ------------------------------------------------------------------ workers
+
+
+def run_worker(method: str, data: Path, threads: int) -> dict[str, Any]:
+    pts, times, gt, z = _load(data)
+    min_range = float(z["min_range"])
+    has_time = times[0] is not None
+    poses, ms = [], []
+    if method.startswith("scanreg"):
+        from scanreg import Odometry, OdometryConfig
+
+        cfg = OdometryConfig(
+            min_range=min_range,
+            num_threads=threads,
+            method="point_to_point" if method == "scanreg-p2p" else "gicp",
+            kernel="geman_mcclure" if method == "scanreg-p2p" else "none",
+        )
+        odo = Odometry(cfg)
+        priors = wheel_prior(gt) if method == "scanreg+prior" else [None] * len(pts)
+        stamps = z["stamps"]
+        for k, p in enumerate(pts):
+            t0 = time.perf_counter()
+            r = odo.step(p, times[k], priors[k], stamp=float(stamps[k]))
+            ms.append(1e3 * (time.perf_counter() - t0))
+            poses.append(r.pose.as_matrix())
+    elif method == "kiss_icp":
+        from kiss_icp.config import KISSConfig
+        from kiss_icp.kiss_icp import KissICP
+
+        cfg = KISSConfig()
+        cfg.data.max_range, cfg.data.min_range = 100.0, min_range
+        cfg.data.deskew = has_time
+        cfg.mapping.voxel_size = 1.0
+        cfg.registration.max_num_threads = threads
+        kiss = KissICP(cfg)
+        for k, p in enumerate(pts):
+            t0 = time.perf_counter()
+            kiss.register_frame(p, times[k] if has_time else np.array([]))
+            ms.append(1e3 * (time.perf_counter() - t0))
+            poses.append(np.array(kiss.last_pose))
+    elif method == "genz_icp":
+        from genz_icp.config.parser import load_config
+        from genz_icp.genz_icp import GenZICP
+
+        cfg = load_config(None)
+        cfg.data.max_range, cfg.data.min_range = 100.0, min_range
+        cfg.data.deskew = has_time
+        genz = GenZICP(cfg)  # no thread knob: TBB picks
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        saved = os.dup(1)
+        os.dup2(devnull, 1)  # its core prints a status panel per frame
+        try:
+            for k, p in enumerate(pts):
+                t0 = time.perf_counter()
+                genz.register_frame(p, times[k] if has_time else None)
+                ms.append(1e3 * (time.perf_counter() - t0))
+                poses.append(np.array(genz.last_pose))
+        finally:
+            os.dup2(saved, 1)
+    else:
+        raise ValueError(f"method: unknown {method!r}")
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return {"poses": np.array(poses).tolist(), "ms": ms, "peak_mb": peak_mb}
+
+
+# ------------------------------------------------------------------ metrics
+
+
+def metrics(poses: np.ndarray, gt: np.ndarray, ms: list[float]) -> dict[str, float]:
+    from scanreg.eval import absolute_trajectory_error, kitti_odometry_error
+    from scanreg.io import Trajectory
+
+    est = Trajectory(np.linalg.inv(poses[0]) @ poses)
+    ref = Trajectory(np.linalg.inv(gt[0]) @ gt)
+    ate = absolute_trajectory_error(est, ref, alignment="se3")
+    path = float(np.sum(np.linalg.norm(np.diff(ref.poses[:, :3, 3], axis=0), axis=1)))
+    lengths = tuple(x for x in (5.0, 10.0, 20.0, 40.0, 80.0) if x < 0.9 * path)
+    out = {
+        "ate_m": float(ate.translation.rmse),
+        "end_m": float(np.linalg.norm(est.poses[-1, :3, 3] - ref.poses[-1, :3, 3])),
+        "median_ms": float(np.median(ms[1:])),
+        "fps": 1e3 / float(np.median(ms[1:])),
+        "path_m": path,
+    }
+    try:
+        k = kitti_odometry_error(est, ref, lengths=lengths, step=1)
+        out["drift_pct"] = float(k.translation_percent)
+        out["rot_deg_100m"] = 100.0 * float(k.rotation_deg_per_m)
+    except ValueError:
+        out["drift_pct"] = out["rot_deg_100m"] = math.nan
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--peers-site", default=None, help="site-packages holding kiss_icp/genz_icp")
+    ap.add_argument("--frames", type=int, default=100)
+    ap.add_argument("--sensor", default="hdl64", choices=["vlp16", "hdl32", "hdl64"])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--data", type=Path, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.peers_site:
+        sys.path.append(args.peers_site)
+    if args.worker:
+        print(json.dumps(run_worker(args.worker, args.data, args.threads)))
+        return
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        inputs = build_inputs(Path(tmp), args.frames, args.sensor)
+        for name, data in inputs.items():
+            gt = _load(data)[2]
+            for method in METHODS:
+                if method == "scanreg+prior" and name != "sim-tunnel":
+                    continue
+                cmd = [sys.executable, __file__, "--worker", method, "--data", str(data)]
+                cmd += ["--threads", str(args.threads)]
+                if args.peers_site:
+                    cmd += ["--peers-site", args.peers_site]
+                proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+                if proc.returncode != 0:
+                    print(
+                        f"# {name} {method}: failed: {proc.stderr.strip()[-300:]}", file=sys.stderr
+                    )
+                    continue
+                res = json.loads(proc.stdout.strip().splitlines()[-1])
+                row = {"sequence": name, "method": method, "peak_mb": res["peak_mb"]}
+                row.update(metrics(np.array(res["poses"]), gt, res["ms"]))
+                rows.append(row)
+                print(f"# {name:11s} {method:14s} done", file=sys.stderr)
+
+    load = os.getloadavg()[0]
+    print(
+        f"# {args.frames} simulated frames ({args.sensor}), {args.threads} threads, "
+        f"load {load:.1f} at the end"
+    )
+    head = f"{'sequence':11s} {'method':14s} {'ATE m':>7s} {'end m':>7s} {'drift %':>8s} "
+    head += f"{'deg/100m':>8s} {'ms/frame':>9s} {'fps':>6s} {'peak MB':>8s}"
+    print(head)
+    print("-" * len(head))
+    for r in rows:
+        print(
+            f"{r['sequence']:11s} {r['method']:14s} {r['ate_m']:7.3f} {r['end_m']:7.3f} "
+            f"{r['drift_pct']:8.3f} {r['rot_deg_100m']:8.3f} {r['median_ms']:9.1f} "
+            f"{r['fps']:6.1f} {r['peak_mb']:8.0f}"
+        )
+    print("\nratios scanreg (gicp, no prior) / kiss_icp: drift, fps, peak memory")
+    for name in sorted({r["sequence"] for r in rows}):
+        by = {r["method"]: r for r in rows if r["sequence"] == name}
+        if "scanreg" in by and "kiss_icp" in by:
+            a, b = by["scanreg"], by["kiss_icp"]
+            print(
+                f"{name:11s} drift {a['drift_pct'] / b['drift_pct']:.2f}  "
+                f"fps {a['fps'] / b['fps']:.2f}  memory {a['peak_mb'] / b['peak_mb']:.2f}"
+            )
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2))
+
+
+if __name__ == "__main__":
+    main()
