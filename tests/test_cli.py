@@ -79,6 +79,8 @@ def test_demo_runs_end_to_end_as_a_command() -> None:
     )
     assert done.returncode == 0, done.stderr
     assert "estimate inside 3σ of the predicted covariance: yes" in done.stdout
+    assert "street drift below 2 % of the path: yes" in done.stdout
+    assert "held to the prior: translation along (1.00" in done.stdout
 
 
 def _write_pair(tmp_path: Path) -> tuple[Path, Path, np.ndarray]:
@@ -211,7 +213,9 @@ def test_simulate_bad_arguments(
     assert not (tmp_path / "x").exists()
 
 
-@pytest.mark.parametrize("command", ["demo", "info", "evaluate", "register", "plot", "simulate"])
+@pytest.mark.parametrize(
+    "command", ["demo", "info", "evaluate", "register", "plot", "simulate", "odometry"]
+)
 def test_every_subcommand_help_shows_examples(
     command: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
