@@ -72,12 +72,27 @@ def build_inputs(folder: Path, frames: int, sensor: str) -> dict[str, Path]:
     return out
 
 
-def _load(path: Path) -> tuple[list[np.ndarray], list[np.ndarray | None], np.ndarray, Any]:
-    z = np.load(path)
-    n = len(z["stamps"])
-    pts = [z[f"p{k}"] for k in range(n)]
-    times = [z[f"t{k}"] if f"t{k}" in z.files else None for k in range(n)]
-    return pts, times, z["gt"], z
+class _Frames:
+    """Frames read from the .npz one at a time, so a worker's peak memory is the method's
+    (plus one frame), not the whole sequence's."""
+
+    def __init__(self, path: Path) -> None:
+        self.z = np.load(path)
+        self.n = len(self.z["stamps"])
+        self.has_time = "t0" in self.z.files
+
+    def __len__(self) -> int:
+        return self.n
+
+    def points(self, k: int) -> np.ndarray:
+        return self.z[f"p{k}"]
+
+    def times(self, k: int) -> np.ndarray | None:
+        return self.z[f"t{k}"] if self.has_time else None
+
+
+def _ground_truth(path: Path) -> np.ndarray:
+    return np.load(path)["gt"]
 
 
 def wheel_prior(gt: np.ndarray, seed: int = 7) -> list[np.ndarray | None]:
@@ -98,10 +113,13 @@ def wheel_prior(gt: np.ndarray, seed: int = 7) -> list[np.ndarray | None]:
 
 
 def run_worker(method: str, data: Path, threads: int) -> dict[str, Any]:
-    pts, times, gt, z = _load(data)
+    frames = _Frames(data)
+    z, gt = frames.z, frames.z["gt"]
     min_range = float(z["min_range"])
-    has_time = times[0] is not None
+    has_time = frames.has_time
+    stamps = z["stamps"]
     poses, ms = [], []
+    step: Any
     if method.startswith("scanreg"):
         from scanreg import Odometry, OdometryConfig
 
@@ -112,13 +130,13 @@ def run_worker(method: str, data: Path, threads: int) -> dict[str, Any]:
             kernel="geman_mcclure" if method == "scanreg-p2p" else "none",
         )
         odo = Odometry(cfg)
-        priors = wheel_prior(gt) if method == "scanreg+prior" else [None] * len(pts)
-        stamps = z["stamps"]
-        for k, p in enumerate(pts):
-            t0 = time.perf_counter()
-            r = odo.step(p, times[k], priors[k], stamp=float(stamps[k]))
-            ms.append(1e3 * (time.perf_counter() - t0))
-            poses.append(r.pose.as_matrix())
+        priors = wheel_prior(gt) if method == "scanreg+prior" else [None] * len(frames)
+
+        def step(k: int, p: np.ndarray, t: np.ndarray | None) -> np.ndarray:
+            r = odo.step(p, t, priors[k], stamp=float(stamps[k]))
+            out: np.ndarray = r.pose.as_matrix()
+            return out
+
     elif method == "kiss_icp":
         from kiss_icp.config import KISSConfig
         from kiss_icp.kiss_icp import KissICP
@@ -129,11 +147,11 @@ def run_worker(method: str, data: Path, threads: int) -> dict[str, Any]:
         cfg.mapping.voxel_size = 1.0
         cfg.registration.max_num_threads = threads
         kiss = KissICP(cfg)
-        for k, p in enumerate(pts):
-            t0 = time.perf_counter()
-            kiss.register_frame(p, times[k] if has_time else np.array([]))
-            ms.append(1e3 * (time.perf_counter() - t0))
-            poses.append(np.array(kiss.last_pose))
+
+        def step(k: int, p: np.ndarray, t: np.ndarray | None) -> np.ndarray:
+            kiss.register_frame(p, t if t is not None else np.array([]))
+            return np.array(kiss.last_pose)
+
     elif method == "genz_icp":
         from genz_icp.config.parser import load_config
         from genz_icp.genz_icp import GenZICP
@@ -142,19 +160,24 @@ def run_worker(method: str, data: Path, threads: int) -> dict[str, Any]:
         cfg.data.max_range, cfg.data.min_range = 100.0, min_range
         cfg.data.deskew = has_time
         genz = GenZICP(cfg)  # no thread knob: TBB picks
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        saved = os.dup(1)
-        os.dup2(devnull, 1)  # its core prints a status panel per frame
-        try:
-            for k, p in enumerate(pts):
-                t0 = time.perf_counter()
-                genz.register_frame(p, times[k] if has_time else None)
-                ms.append(1e3 * (time.perf_counter() - t0))
-                poses.append(np.array(genz.last_pose))
-        finally:
-            os.dup2(saved, 1)
+
+        def step(k: int, p: np.ndarray, t: np.ndarray | None) -> np.ndarray:
+            genz.register_frame(p, t)
+            return np.array(genz.last_pose)
+
     else:
         raise ValueError(f"method: unknown {method!r}")
+    # GenZ-ICP's core prints a status panel per frame: silence fd 1 while stepping.
+    devnull, saved = os.open(os.devnull, os.O_WRONLY), os.dup(1)
+    os.dup2(devnull, 1)
+    try:
+        for k in range(len(frames)):
+            p, t = frames.points(k), frames.times(k)
+            t0 = time.perf_counter()
+            poses.append(step(k, p, t))
+            ms.append(1e3 * (time.perf_counter() - t0))
+    finally:
+        os.dup2(saved, 1)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return {"poses": np.array(poses).tolist(), "ms": ms, "peak_mb": peak_mb}
 
@@ -207,7 +230,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         inputs = build_inputs(Path(tmp), args.frames, args.sensor)
         for name, data in inputs.items():
-            gt = _load(data)[2]
+            gt = _ground_truth(data)
             for method in METHODS:
                 if method == "scanreg+prior" and name != "sim-tunnel":
                     continue

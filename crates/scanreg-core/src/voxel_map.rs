@@ -14,6 +14,7 @@ use crate::error::{Error, Result};
 use crate::icp::NeighborSearch;
 use crate::knn::voxel_of;
 use crate::points::check_points;
+use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
 /// What each map point carries besides its position.
@@ -430,6 +431,31 @@ impl VoxelMap {
         out
     }
 
+    /// Nearest map point within `max_distance` (finite) of each query, in parallel:
+    /// `(ids, squared distances)` with `-1` / `inf` where none.
+    pub fn nearest_batch(
+        &self,
+        queries: &[f64],
+        max_distance: f64,
+    ) -> Result<(Vec<i64>, Vec<f64>)> {
+        check_points("query_points", queries, self.dim)?;
+        if !max_distance.is_finite() || max_distance < 0.0 {
+            return Err(Error::invalid(
+                "max_distance",
+                format!("must be finite and >= 0, got {max_distance}"),
+            ));
+        }
+        let max_sq = max_distance * max_distance;
+        let found: Vec<(i64, f64)> = queries
+            .par_chunks_exact(self.dim)
+            .map(|q| match self.nearest_within(q, max_sq) {
+                Some((j, d)) => (j as i64, d),
+                None => (-1, f64::INFINITY),
+            })
+            .collect();
+        Ok(found.into_iter().unzip())
+    }
+
     fn scan_nearest(&self, q: &[f64], max_sq: f64, slot: usize, best: &mut Option<(usize, f64)>) {
         let (dim, cap) = (self.dim, self.max_per_voxel);
         for k in 0..self.counts[slot] as usize {
@@ -490,9 +516,16 @@ impl NeighborSearch for VoxelMap {
         // so once the best distance is within r·v no further shell can beat it: the search is
         // exact and usually stops after the 27 voxels around the query.
         let mut center = [0i64; 3];
+        // Distance from q to the nearest face of its own voxel: after shell r every unvisited
+        // point is farther than r·v plus this.
+        let mut margin = f64::INFINITY;
         for c in 0..self.dim {
-            center[c] = (q[c] * self.inv).floor() as i64;
+            let f = (q[c] * self.inv).floor();
+            center[c] = f as i64;
+            let inside = q[c] - f * self.voxel_size;
+            margin = margin.min(inside).min(self.voxel_size - inside);
         }
+        let margin = margin.max(0.0);
         let reach = (0..self.dim)
             .map(|c| (center[c] - lo[c]).max(hi[c] - center[c]))
             .max()
@@ -528,7 +561,7 @@ impl NeighborSearch for VoxelMap {
                     }
                 }
             }
-            let shell = r as f64 * self.voxel_size;
+            let shell = r as f64 * self.voxel_size + margin;
             if best.is_some_and(|(_, d)| d <= shell * shell) {
                 break;
             }

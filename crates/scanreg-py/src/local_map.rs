@@ -180,27 +180,24 @@ impl LocalMap {
                 "max_distance: must be finite and >= 0, got {max_distance}"
             )));
         }
-        let max_sq = max_distance * max_distance;
-        let (pts, d2) = py.detach(|| {
-            let map = self.read();
-            let mut pts = Vec::with_capacity(q.len());
-            let mut d2 = Vec::with_capacity(q.len() / dim);
-            for qq in q.chunks_exact(dim) {
-                match map.nearest_within(qq, max_sq) {
-                    Some((j, d)) => {
-                        pts.extend_from_slice(
-                            &NeighborSearch::points(&*map)[j * dim..(j + 1) * dim],
-                        );
-                        d2.push(d);
+        let (pts, d2) = py
+            .detach(|| {
+                let map = self.read();
+                map.nearest_batch(q, max_distance).map(|(ids, d2)| {
+                    let all = NeighborSearch::points(&*map);
+                    let mut pts = Vec::with_capacity(q.len());
+                    for &j in &ids {
+                        if j < 0 {
+                            pts.extend(std::iter::repeat_n(f64::NAN, dim));
+                        } else {
+                            let j = j as usize;
+                            pts.extend_from_slice(&all[j * dim..(j + 1) * dim]);
+                        }
                     }
-                    None => {
-                        pts.extend(std::iter::repeat_n(f64::NAN, dim));
-                        d2.push(f64::INFINITY);
-                    }
-                }
-            }
-            (pts, d2)
-        });
+                    (pts, d2)
+                })
+            })
+            .map_err(core_err)?;
         let n = d2.len();
         Ok((
             pts.into_pyarray(py).reshape([n, dim])?.unbind(),
