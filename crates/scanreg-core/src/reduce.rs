@@ -3,8 +3,10 @@
 use rayon::prelude::*;
 use std::ops::Range;
 
-/// Points per chunk. Large enough to amortise scheduling, small enough to balance 2-64 cores.
-pub const CHUNK: usize = 2048;
+/// Points per chunk. A registration source is often only 1-3 thousand points (a downsampled
+/// sweep): 256 splits it evenly over the threads, and a chunk still amortises its scheduling
+/// and its partial sum (a few hundred nearest-neighbour queries).
+pub const CHUNK: usize = 256;
 
 /// Apply `partial` to consecutive index ranges of `0..n` in parallel and fold the results
 /// in order with `combine`, starting from `identity`. The chunking does not depend on the

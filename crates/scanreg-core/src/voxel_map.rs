@@ -76,15 +76,25 @@ pub struct VoxelMap {
     max_per_voxel: usize,
     min_spacing_sq: f64,
     attributes: Attributes,
-    slots: FxHashMap<[i64; 3], u32>,
+    slots: FxHashMap<u64, u32>,
     /// Per slot: its voxel key and how many points it holds (0 for a free slot).
-    keys: Vec<[i64; 3]>,
+    keys: Vec<u64>,
     counts: Vec<u32>,
     points: Vec<f64>,
     normals: Vec<f64>,
     covariances: Vec<f64>,
     free: Vec<u32>,
     len: usize,
+}
+
+/// Voxel indices packed 21 bits per axis (offset by 2^20): one u64 hashes and compares in one
+/// instruction. `None` outside ±2^20 voxels (±1048 km at 1 m voxels).
+#[inline]
+fn pack(x: i64, y: i64, z: i64) -> Option<u64> {
+    const OFF: i64 = 1 << 20;
+    let ok = |v: i64| (-OFF..OFF).contains(&v);
+    (ok(x) && ok(y) && ok(z))
+        .then(|| ((x + OFF) as u64) << 42 | ((y + OFF) as u64) << 21 | (z + OFF) as u64)
 }
 
 fn positive(arg: &'static str, v: f64) -> Result<f64> {
@@ -195,19 +205,22 @@ impl VoxelMap {
         .then_some(self.covariances.as_slice())
     }
 
-    fn key(&self, p: &[f64]) -> Result<[i64; 3]> {
-        voxel_of(p, self.inv).ok_or_else(|| {
-            Error::invalid(
-                "points",
-                format!(
-                    "coordinates too large for voxel size {} (|p| / voxel_size >= 9e15)",
-                    self.voxel_size
-                ),
-            )
-        })
+    fn key(&self, p: &[f64]) -> Result<u64> {
+        voxel_of(p, self.inv)
+            .and_then(|[x, y, z]| pack(x, y, z))
+            .ok_or_else(|| {
+                Error::invalid(
+                    "points",
+                    format!(
+                        "coordinates too far from the origin for voxel size {} (more than 2^20 \
+                         voxels along an axis)",
+                        self.voxel_size
+                    ),
+                )
+            })
     }
 
-    fn allocate(&mut self, key: [i64; 3]) -> u32 {
+    fn allocate(&mut self, key: u64) -> u32 {
         let slot = match self.free.pop() {
             Some(s) => {
                 self.keys[s as usize] = key;
@@ -542,7 +555,7 @@ impl NeighborSearch for VoxelMap {
                 for y in y0..=y1 {
                     let on_shell = x_edge || (y - center[1]).abs() == r;
                     let mut visit = |z: i64| {
-                        if let Some(&slot) = self.slots.get(&[x, y, z]) {
+                        if let Some(&slot) = pack(x, y, z).and_then(|k| self.slots.get(&k)) {
                             self.scan_nearest(q, max_sq, slot as usize, &mut best);
                         }
                     };
