@@ -147,6 +147,13 @@ class LocalMap:
 def voxel_downsample(
     points_array: NDArray[np.float64], voxel_size: float, method: str
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]: ...
+def sweep_grids(
+    points_array: NDArray[np.float64],
+    min_range: float,
+    max_range: float,
+    fine_voxel: float,
+    coarse_voxel: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], int]: ...
 def random_subsample_indices(n: int, count: int, seed: int) -> NDArray[np.int64]: ...
 def crop_range(
     points_array: NDArray[np.float64], min_distance: float, max_distance: float

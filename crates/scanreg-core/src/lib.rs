@@ -28,6 +28,7 @@ pub mod paired;
 pub mod points;
 pub mod reduce;
 pub mod simulate;
+pub mod sweep;
 pub mod voxel_map;
 
 pub use error::{Error, Result};

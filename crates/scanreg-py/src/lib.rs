@@ -16,6 +16,7 @@ mod paired;
 mod preprocess;
 mod register;
 mod simulate;
+mod sweep;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -28,6 +29,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     local_map::register(m)?;
     preprocess::register(m)?;
     simulate::register(m)?;
+    sweep::register(m)?;
     io::register(m)?;
     register::register(m)?;
     Ok(())

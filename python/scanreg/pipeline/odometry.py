@@ -36,10 +36,11 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .. import _core
 from .._validate import FloatArray, as_matrix, as_points
 from ..deskew import REFERENCES, deskew, velocity_from_motion
 from ..local_map import Attributes, LocalMap
-from ..preprocess import crop_range, estimate_normals, voxel_downsample
+from ..preprocess import estimate_normals
 from ..register import RegistrationResult, RegistrationSettings, register
 from ..robust import check_kernel
 from ..target import PreparedTarget
@@ -436,8 +437,7 @@ class Odometry:
 
         # 3. downsample
         t0 = time.perf_counter()
-        map_points = self._map_points(pts)
-        source = voxel_downsample(map_points, 1.5 * c.voxel_size).points
+        map_points, source = self._grids(pts)
         t_down = time.perf_counter() - t0
 
         if not self._poses and self._builds_map:
@@ -490,7 +490,7 @@ class Odometry:
                 motion = _se3(previous.inverse() @ pose)
                 velocity = velocity_from_motion(motion, self._period(times, stamp))
                 self.map.clear()
-                self._insert(previous, self._map_points(first_pts, first_times, velocity))
+                self._insert(previous, self._grids(first_pts, first_times, velocity)[0])
                 return self._step(points, timestamps, motion, stamp, external_prior=has_prior)
         self._first_sweep = None
 
@@ -574,21 +574,23 @@ class Odometry:
             return float(stamp) - last
         return float(times.max() - times.min())
 
-    def _map_points(
+    def _grids(
         self, pts: FloatArray, times: FloatArray | None = None, velocity: Any = None
-    ) -> FloatArray:
-        """Deskewed (when ``velocity`` is given), range-cropped, on the fine grid."""
+    ) -> tuple[FloatArray, FloatArray]:
+        """Deskewed (when ``velocity`` is given), range-cropped, on the fine grid (the map's
+        points) and the coarse grid (the registered points): one pass in the core."""
         c = self.config
         if velocity is not None and times is not None:
             pts = deskew(pts, times, velocity, reference_time=c.reference_time)
-        kept = crop_range(pts, c.min_range, c.max_range).points
-        if len(kept) < 10:
+        fine, coarse, kept = _core.sweep_grids(
+            pts, c.min_range, c.max_range, 0.5 * c.voxel_size, 1.5 * c.voxel_size
+        )
+        if kept < 10:
             raise ValueError(
-                f"points: only {len(kept)} of {len(pts)} points lie within "
+                f"points: only {kept} of {len(pts)} points lie within "
                 f"[{c.min_range}, {c.max_range}] m of the sensor; need at least 10"
             )
-        out: FloatArray = voxel_downsample(kept, 0.5 * c.voxel_size).points
-        return out
+        return fine, coarse
 
     def _insert(self, pose: SE3, map_points: FloatArray) -> None:
         """Add a sweep's map points (sensor frame) to the map at ``pose``. Point-to-plane: with

@@ -1,0 +1,171 @@
+//! The odometry front end in one pass: range crop, then centroid voxel grids at two sizes.
+//!
+//! A sweep of ~120k points goes through crop and a fine grid (the points that join the map)
+//! and a coarse grid of the fine points (the points registered). Done with generic tools that
+//! is a filter, a gather, a sort-based grid and a second grid; here it is one hash-accumulation
+//! pass over the input in order (so sums, and the output order — voxels in order of their
+//! first point — do not depend on anything but the input), then a second over the fine grid.
+
+use crate::error::{Error, Result};
+use crate::points::check_points;
+use rustc_hash::FxHashMap;
+
+/// The two grids of a sweep (row-major `N * dim`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SweepGrids {
+    pub fine: Vec<f64>,
+    pub coarse: Vec<f64>,
+    /// Points left after the range crop.
+    pub num_in_range: usize,
+}
+
+fn check_voxel(arg: &'static str, v: f64) -> Result<f64> {
+    if !v.is_finite() || v <= 0.0 {
+        return Err(Error::invalid(
+            arg,
+            format!("must be finite and > 0, got {v}"),
+        ));
+    }
+    Ok(1.0 / v)
+}
+
+/// Centroids of the occupied voxels of `points` (those passing `keep`), in order of first point.
+fn grid(points: &[f64], dim: usize, inv: f64, keep: impl Fn(&[f64]) -> bool) -> (Vec<f64>, usize) {
+    let mut index: FxHashMap<[i64; 3], u32> = FxHashMap::default();
+    let mut sums: Vec<[f64; 4]> = Vec::new();
+    let mut kept = 0;
+    for p in points.chunks_exact(dim) {
+        if !keep(p) {
+            continue;
+        }
+        kept += 1;
+        let mut key = [0i64; 3];
+        for c in 0..dim {
+            key[c] = (p[c] * inv).floor() as i64; // finite: checked, and bounded by the crop
+        }
+        let slot = *index.entry(key).or_insert_with(|| {
+            sums.push([0.0; 4]);
+            (sums.len() - 1) as u32
+        }) as usize;
+        let s = &mut sums[slot];
+        for c in 0..dim {
+            s[c] += p[c];
+        }
+        s[3] += 1.0;
+    }
+    let mut out = Vec::with_capacity(sums.len() * dim);
+    for s in &sums {
+        for c in 0..dim {
+            out.push(s[c] / s[3]);
+        }
+    }
+    (out, kept)
+}
+
+/// Keep points with `min_range <= |p| <= max_range`, then centroid grids of `fine_voxel` over
+/// them and of `coarse_voxel` over the fine centroids.
+pub fn sweep_grids(
+    points: &[f64],
+    dim: usize,
+    min_range: f64,
+    max_range: f64,
+    fine_voxel: f64,
+    coarse_voxel: f64,
+) -> Result<SweepGrids> {
+    check_points("points", points, dim)?;
+    if !(min_range.is_finite() && min_range >= 0.0) {
+        return Err(Error::invalid(
+            "min_range",
+            format!("must be finite and >= 0, got {min_range}"),
+        ));
+    }
+    if !(max_range.is_finite() && max_range > min_range) {
+        return Err(Error::invalid(
+            "max_range",
+            format!("must be finite and > min_range ({min_range}), got {max_range}"),
+        ));
+    }
+    let fine_inv = check_voxel("fine_voxel", fine_voxel)?;
+    let coarse_inv = check_voxel("coarse_voxel", coarse_voxel)?;
+    if max_range * fine_inv.max(coarse_inv) > 9.0e15 {
+        return Err(Error::invalid(
+            "fine_voxel",
+            "too small for max_range (voxel indices would overflow)",
+        ));
+    }
+    let (lo, hi) = (min_range * min_range, max_range * max_range);
+    let (fine, num_in_range) = grid(points, dim, fine_inv, |p| {
+        let r2: f64 = p.iter().map(|v| v * v).sum();
+        r2 >= lo && r2 <= hi
+    });
+    let (coarse, _) = grid(&fine, dim, coarse_inv, |_| true);
+    Ok(SweepGrids {
+        fine,
+        coarse,
+        num_in_range,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::downsample::{crop_range, gather, voxel_downsample, VoxelMethod};
+
+    fn cloud(n: usize) -> Vec<f64> {
+        let mut s = 12345u64;
+        (0..n * 3)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((s >> 11) as f64 / (1u64 << 53) as f64) * 60.0 - 30.0
+            })
+            .collect()
+    }
+
+    /// Same points (as sets, to rounding) as crop + the generic grids.
+    #[test]
+    fn equals_crop_then_two_grids() {
+        let pts = cloud(20000);
+        let got = sweep_grids(&pts, 3, 2.0, 25.0, 0.5, 1.5).unwrap();
+        let kept = crop_range(&pts, 3, 2.0, 25.0).unwrap();
+        assert_eq!(got.num_in_range, kept.len());
+        let cropped = gather(&pts, 3, &kept);
+        let fine = voxel_downsample(&cropped, 3, 0.5, VoxelMethod::Centroid)
+            .unwrap()
+            .points;
+        let coarse = voxel_downsample(&fine, 3, 1.5, VoxelMethod::Centroid)
+            .unwrap()
+            .points;
+        for (a, b) in [(&got.fine, &fine), (&got.coarse, &coarse)] {
+            assert_eq!(a.len(), b.len());
+            let sort = |v: &Vec<f64>| {
+                let mut rows: Vec<[f64; 3]> =
+                    v.chunks_exact(3).map(|r| [r[0], r[1], r[2]]).collect();
+                rows.sort_by(|x, y| x.partial_cmp(y).unwrap());
+                rows
+            };
+            for (x, y) in sort(a).iter().zip(sort(b).iter()) {
+                for c in 0..3 {
+                    assert!((x[c] - y[c]).abs() < 1e-9, "{x:?} vs {y:?}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn rejects_bad_arguments() {
+        let pts = cloud(10);
+        for (args, name) in [
+            ((-1.0, 10.0, 0.5, 1.0), "min_range"),
+            ((5.0, 1.0, 0.5, 1.0), "max_range"),
+            ((0.0, 10.0, 0.0, 1.0), "fine_voxel"),
+            ((0.0, 10.0, 0.5, f64::NAN), "coarse_voxel"),
+            ((0.0, 1e300, 0.5, 1.0), "fine_voxel"),
+        ] {
+            let e = sweep_grids(&pts, 3, args.0, args.1, args.2, args.3).unwrap_err();
+            assert!(e.to_string().starts_with(name), "{e}");
+        }
+        assert!(sweep_grids(&[f64::NAN, 0.0, 0.0], 3, 0.0, 1.0, 0.5, 1.0).is_err());
+    }
+}
