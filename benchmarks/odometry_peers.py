@@ -9,7 +9,8 @@ Sequences (every method gets the same arrays, saved once to a temporary .npz):
   motion-compensated; its ground truth is doubtful, so there the peers' agreement is the check);
 * ``sim-street`` / ``sim-tunnel`` — ``scanreg.io.SimulatedSequence`` drives with motion
   distortion and per-point time, exact truth at mid-sweep (the time every method here deskews
-  to). The tunnel reaches beyond the sensor range at both ends: degenerate along its axis.
+  to), starting from rest and reaching 10 m/s after 2 s (a standing start: every method begins
+  with a zero-velocity prediction, as on a real vehicle). The tunnel reaches beyond the sensor range at both ends: degenerate along its axis.
   ``scanreg+prior`` also gets a wheel-odometry-like motion prior there (the true increments
   with 2 % scale error and noise, seeded), which KISS-ICP and GenZ-ICP cannot take.
 
@@ -66,7 +67,7 @@ def build_inputs(folder: Path, frames: int, sensor: str) -> dict[str, Path]:
     else:
         print(f"# {kitti} not found: KITTI rows skipped", file=sys.stderr)
     for scene in ("street", "tunnel"):
-        sim = SimulatedSequence(scene, num_frames=frames, sensor=sensor)
+        sim = SimulatedSequence(scene, num_frames=frames, sensor=sensor, ramp=2.0)
         out[f"sim-{scene}"] = folder / f"sim-{scene}.npz"
         _save_sequence(out[f"sim-{scene}"], list(sim), sim.ground_truth_at("middle"), 1.0)
     return out

@@ -528,3 +528,15 @@ def test_kitti_fuzzed_files_fail_cleanly(target: str, content: bytes) -> None:
             assert str(exc).startswith(str(root))
             return
         assert len(frames) == 3 and all(np.isfinite(f.points).all() for f in frames)
+
+
+def test_simulated_sequence_can_start_from_rest() -> None:
+    from scanreg.io.sequences import SimulatedSequence
+
+    seq = SimulatedSequence("street", num_frames=30, ramp=2.0)
+    steps = np.linalg.norm(np.diff(seq.ground_truth[:, :3, 3], axis=0), axis=1)
+    # 10 m/s reached after 2 s at constant acceleration: 0.1 s frames move 0.025, 0.075, ...
+    np.testing.assert_allclose(steps[:3], [0.025, 0.075, 0.125], atol=2e-3)
+    np.testing.assert_allclose(steps[-5:], 1.0, atol=2e-3)
+    with pytest.raises(ValueError, match="ramp"):
+        SimulatedSequence("street", num_frames=3, ramp=-1.0)

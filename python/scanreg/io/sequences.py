@@ -564,6 +564,7 @@ SIM_OPTIONS: dict[str, type] = {
     "sensor": str,
     "speed": float,
     "weave": float,
+    "ramp": float,
     "seed": int,
 }
 
@@ -572,7 +573,7 @@ def parse_sim_spec(spec: str) -> dict[str, Any]:
     """Parse ``sim:NAME[,key=value,...]`` (e.g. ``sim:street,frames=150,sensor=hdl64``).
 
     Returns the keyword arguments of :class:`SimulatedSequence` (``scene`` and the options of
-    :data:`SIM_OPTIONS`: ``frames``, ``sensor``, ``speed``, ``weave``, ``seed``).
+    :data:`SIM_OPTIONS`: ``frames``, ``sensor``, ``speed``, ``weave``, ``ramp``, ``seed``).
     """
     if not spec.startswith("sim:"):
         raise ValueError(f"{spec!r}: a simulated sequence is written sim:NAME[,key=value...]")
@@ -621,6 +622,7 @@ class SimulatedSequence(ScanSequence):
         sensor: str = "vlp16",
         speed: float | None = None,
         weave: float | None = None,
+        ramp: float = 0.0,
         seed: int = 0,
     ) -> None:
         from .. import simulate as sim
@@ -641,6 +643,9 @@ class SimulatedSequence(ScanSequence):
             raise ValueError(f"speed: must be finite and >= 0, got {speed}")
         if not (math.isfinite(self.weave) and self.weave >= 0):
             raise ValueError(f"weave: must be finite and >= 0, got {weave}")
+        self.ramp = float(ramp)
+        if not (math.isfinite(self.ramp) and self.ramp >= 0):
+            raise ValueError(f"ramp: must be finite and >= 0, got {ramp}")
         period = self.lidar.sweep_duration
         duration = period * (num_frames + 1)
         travel = self.speed * duration
@@ -653,7 +658,11 @@ class SimulatedSequence(ScanSequence):
         else:
             self.scene = sim.tunnel(length=max(400.0, length))
         self.trajectory = _weaving_trajectory(
-            SE3.from_vector([x0, y0, z0, 0.0, 0.0, 0.0]), self.speed, self.weave, duration
+            SE3.from_vector([x0, y0, z0, 0.0, 0.0, 0.0]),
+            self.speed,
+            self.weave,
+            duration,
+            ramp=self.ramp,
         )
         self.stamps: FloatArray = _readonly(period * np.arange(num_frames))
         self._gt: FloatArray = self.ground_truth_at("start")
@@ -715,13 +724,16 @@ class SimulatedSequence(ScanSequence):
         )
 
 
-def _weaving_trajectory(start: Any, speed: float, weave: float, duration: float) -> Any:
+def _weaving_trajectory(
+    start: Any, speed: float, weave: float, duration: float, *, ramp: float = 0.0
+) -> Any:
     """Forward at ``speed`` with yaw rate ``weave · cos(2π t / 8 s)`` (zero-mean heading),
-    held constant over 0.05 s steps."""
+    held constant over 0.05 s steps; with ``ramp`` > 0, starting from rest and reaching
+    ``speed`` after ``ramp`` seconds (constant acceleration)."""
     from ..simulate import Trajectory as SimTrajectory
     from ..transform import SE3
 
-    if weave == 0.0:
+    if weave == 0.0 and ramp == 0.0:
         return SimTrajectory.constant_velocity(
             start, [speed, 0.0, 0.0], [0.0, 0.0, 0.0], duration=duration + 1.0
         )
@@ -730,7 +742,7 @@ def _weaving_trajectory(start: Any, speed: float, weave: float, duration: float)
     knots = step * np.arange(n + 1, dtype=np.float64)
     mid = knots[:-1] + step / 2
     twists = np.zeros((n, 6))
-    twists[:, 0] = speed
+    twists[:, 0] = speed * (np.minimum(1.0, mid / ramp) if ramp > 0 else 1.0)
     twists[:, 5] = weave * np.cos(2 * math.pi * mid / 8.0)
     poses = [start]
     for k in range(n - 1):
