@@ -28,6 +28,7 @@ pub mod paired;
 pub mod points;
 pub mod reduce;
 pub mod simulate;
+pub mod symeig;
 
 pub use error::{Error, Result};
 pub use kernel::Kernel;
