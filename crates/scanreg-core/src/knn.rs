@@ -194,11 +194,11 @@ impl<const D: usize> Inner<D> {
             q,
             || best.get(),
             |lo, hi| {
-                for j in lo..hi {
-                    let d = sq_dist(&pts[j], q);
-                    if d <= bd && before(d, ids[j], bd, bi) {
+                for (p, &id) in pts[lo..hi].iter().zip(&ids[lo..hi]) {
+                    let d = sq_dist(p, q);
+                    if d <= bd && before(d, id, bd, bi) {
                         bd = d;
-                        bi = ids[j];
+                        bi = id;
                     }
                 }
                 best.set(bd);
@@ -219,18 +219,18 @@ impl<const D: usize> Inner<D> {
         let ids = &self.ids;
         let worst = std::cell::Cell::new(max_sq);
         let mut full = false;
+        // The k-th neighbour once `full` (the bound for pruning).
+        let (mut wi, mut wd) = (u32::MAX, max_sq);
         self.traverse::<true>(
             q,
             || worst.get(),
             |lo, hi| {
-                for j in lo..hi {
-                    let d = sq_dist(&pts[j], q);
-                    if d > max_sq {
-                        continue;
+                for (p, &id) in pts[lo..hi].iter().zip(&ids[lo..hi]) {
+                    let d = sq_dist(p, q);
+                    if d > wd {
+                        continue; // beyond the gate, or (once full) behind the k-th
                     }
-                    let id = ids[j];
                     if full {
-                        let (wi, wd) = out[out.len() - 1];
                         if !before(d, id, wd, wi) {
                             continue;
                         }
@@ -238,15 +238,21 @@ impl<const D: usize> Inner<D> {
                     }
                     // Insertion into the sorted tail (element-wise shift: k is small).
                     out.push((id, d));
-                    let mut pos = out.len() - 1;
-                    while pos > start && before(d, id, out[pos - 1].1, out[pos - 1].0) {
-                        out[pos] = out[pos - 1];
+                    let buf = &mut out[start..];
+                    let mut pos = buf.len() - 1;
+                    while pos > 0 {
+                        let prev = buf[pos - 1];
+                        if !before(d, id, prev.1, prev.0) {
+                            break;
+                        }
+                        buf[pos] = prev;
                         pos -= 1;
                     }
-                    out[pos] = (id, d);
-                    if out.len() - start == k {
+                    buf[pos] = (id, d);
+                    if buf.len() == k {
                         full = true;
-                        worst.set(out[out.len() - 1].1);
+                        (wi, wd) = buf[k - 1];
+                        worst.set(wd);
                     }
                 }
             },
