@@ -301,8 +301,8 @@ mod tests {
                 let k: Vec<i64> = p.iter().map(|v| (v / size).floor() as i64).collect();
                 let e = m.entry(k).or_insert((i, 0, vec![0.0; dim]));
                 e.1 += 1;
-                for c in 0..dim {
-                    e.2[c] += p[c];
+                for (a, b) in e.2.iter_mut().zip(p) {
+                    *a += b;
                 }
             }
             let mut v: Vec<_> = m.into_values().collect();

@@ -235,8 +235,8 @@ mod tests {
             );
             let v = nalgebra::Vector3::from(vecs[j]);
             assert!((v.norm() - 1.0).abs() <= tol, "not unit: {v}");
-            for k in 0..j {
-                let vk = nalgebra::Vector3::from(vecs[k]);
+            for &other in &vecs[..j] {
+                let vk = nalgebra::Vector3::from(other);
                 assert!(v.dot(&vk).abs() <= tol, "not orthogonal");
             }
             let res = (m * v - v * vals[j]).norm();
