@@ -59,6 +59,7 @@ MAX_ITERATIONS = 20
 TRANSLATION_EPS = 1e-3
 ROTATION_EPS = np.deg2rad(0.1)
 BEST_OF = True  # set by --median
+CLOCK = time.perf_counter  # time.process_time with --cpu-time
 
 OURS = {"point_to_point": "point_to_point", "point_to_plane": "point_to_plane", "gicp": "gicp"}
 SMALL_GICP = {"point_to_point": "ICP", "point_to_plane": "PLANE_ICP", "gicp": "GICP"}
@@ -68,9 +69,9 @@ def median_time(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
     out = fn()  # warm-up
     times = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = CLOCK()
         out = fn()
-        times.append(time.perf_counter() - t0)
+        times.append(CLOCK() - t0)
     # Best of N: on a shared, loaded machine the minimum is the least disturbed estimate (OpenMP
     # peers spin-wait and suffer more from oversubscription than rayon, which skews medians).
     return (min(times) if BEST_OF else statistics.median(times)), out
@@ -147,10 +148,15 @@ def run_ours(src: np.ndarray, tgt: np.ndarray, method: str, repeat: int) -> dict
     pre, (s, prepared) = median_time(lambda: ours_preprocess(src, tgt, method), repeat)
     # GICP's source covariances are computed inside register(); they belong to "preprocess", so
     # split each run by register()'s own timer (source_preparation) and aggregate per part.
-    runs = [ours_register(s, prepared, method) for _ in range(repeat + 1)][1:]
+    runs = []
+    for _ in range(repeat + 1):
+        t0 = CLOCK()
+        r = ours_register(s, prepared, method)
+        runs.append((CLOCK() - t0, r))
+    runs = runs[1:]  # warm-up
     agg = min if BEST_OF else statistics.median
-    src_prep = agg(r.timing.source_preparation for r in runs)
-    reg = agg(r.timing.total - r.timing.source_preparation for r in runs)
+    src_prep = agg(r.timing.source_preparation for _, r in runs)
+    reg = agg(t - r.timing.source_preparation for t, r in runs)
     e2e, res = median_time(
         lambda: ours_register(*ours_preprocess(src, tgt, method), method), repeat
     )
@@ -303,6 +309,49 @@ def peak_memory(lib: str, pair: str, method: str, peers_site: str | None) -> flo
     return float(out.strip().splitlines()[-1])
 
 
+def interleaved(peers: dict[str, Any], threads: int, repeat: int) -> None:
+    """End-to-end only, libraries alternating run by run (ours, small_gicp, Open3D, ours, ...):
+    a burst of load from other processes then hits every library alike. Reports the best run
+    of each and the median over rounds of the per-round ratio (each ratio from two runs
+    seconds apart), the statistic least moved by a shared, loaded machine."""
+    libs = ["scanreg", *[n for n in ("small_gicp", "open3d") if n in peers]]
+    print(f"\ninterleaved end-to-end, {repeat} rounds (best ms; median of per-round ratios):")
+    head = " | ".join(f"{lib} best ms" for lib in libs)
+    ratios = " | ".join(f"ratio vs {lib}" for lib in libs[1:])
+    print(f"| pair | method | {head} | {ratios} |")
+    print("|---|---|" + "---|" * (2 * len(libs) - 1))
+    for pair, (src, tgt, _) in load_pairs().items():
+        for method in OURS:
+            fns: dict[str, Callable[[], Any]] = {
+                "scanreg": lambda m=method, a=src, b=tgt: ours_register(
+                    *ours_preprocess(a, b, m), m
+                )
+            }
+            if "small_gicp" in peers:
+                fns["small_gicp"] = lambda m=method, a=src, b=tgt: run_small_gicp(
+                    peers["small_gicp"], a, b, m, threads, 0, once=True
+                )
+            if "open3d" in peers:
+                fns["open3d"] = lambda m=method, a=src, b=tgt: run_open3d(
+                    peers["open3d"], a, b, m, 0, once=True
+                )
+            times: dict[str, list[float]] = {lib: [] for lib in libs}
+            for lib in libs:
+                fns[lib]()  # warm-up
+            for _ in range(repeat):
+                for lib in libs:
+                    t0 = CLOCK()
+                    fns[lib]()
+                    times[lib].append(CLOCK() - t0)
+            best = " | ".join(f"{min(times[lib]) * 1e3:.1f}" for lib in libs)
+            ours_t = times["scanreg"]
+            rat = " | ".join(
+                f"{statistics.median(o / t for o, t in zip(ours_t, times[lib], strict=True)):.2f}"
+                for lib in libs[1:]
+            )
+            print(f"| {pair} | {method} | {best} | {rat} |", flush=True)
+
+
 def memory_table(peer_names: list[str], peers_site: str | None) -> None:
     libs = ["scanreg", *peer_names]
     print("\npeak RSS growth of one end-to-end run, MB (fresh process per cell):")
@@ -402,6 +451,14 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=11)
     ap.add_argument("--scaling", action="store_true", help="also time N = 10k, 100k, 1M")
     ap.add_argument("--median", action="store_true", help="report medians instead of minima")
+    ap.add_argument(
+        "--cpu-time",
+        action="store_true",
+        help="time with process CPU time (use with RAYON_NUM_THREADS=1: load-independent)",
+    )
+    ap.add_argument(
+        "--interleave", type=int, default=0, help="also N interleaved end-to-end rounds"
+    )
     ap.add_argument("--memory", action="store_true", help="also peak RSS per library (subprocess)")
     ap.add_argument(
         "--memory-child", nargs=3, metavar=("LIB", "PAIR", "METHOD"), help=argparse.SUPPRESS
@@ -412,15 +469,18 @@ def main() -> None:
         lib, pair, method = args.memory_child
         memory_child(lib, pair, method, args.peers_site)
         return
-    global BEST_OF
+    global BEST_OF, CLOCK
     BEST_OF = not args.median
+    if args.cpu_time:
+        CLOCK = time.process_time
     threads = int(os.environ["RAYON_NUM_THREADS"])
     peers = load_peers(args.peers_site)
     if "open3d" in peers:
         peers["open3d"].utility.set_verbosity_level(peers["open3d"].utility.VerbosityLevel.Error)
     print(
         f"voxel {VOXEL} m, k = {K}, gate {GATE} m, <= {MAX_ITERATIONS} iterations, "
-        f"{threads} threads, {'median' if args.median else 'best'} of {args.repeat}; "
+        f"{threads} threads, {'median' if args.median else 'best'} of {args.repeat}"
+        f"{' (process CPU time)' if args.cpu_time else ' (wall clock)'}; "
         f"peers: {', '.join(peers) or 'none'}"
     )
     rows = []
@@ -487,6 +547,8 @@ def main() -> None:
     print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
     for r in rows:
         print(line(r))
+    if args.interleave:
+        interleaved(peers, threads, args.interleave)
     if args.memory:
         memory_table(list(peers), args.peers_site)
     if args.scaling:
