@@ -16,7 +16,15 @@ for medians):
   the covariances of both clouds (GICP) — only what the method needs;
 * register: the alignment call on the preprocessed inputs;
 * end-to-end: raw arrays in, pose out.
-Ratio = our time / theirs (< 1: scanreg faster). Accuracy: translation / rotation error against
+Ratio = our time / theirs (< 1: scanreg faster).
+
+--memory: peak memory of one end-to-end run (raw arrays in, pose out), each library in a fresh
+process per pair and method: the data are loaded and the library imported first, then the
+kernel's peak-RSS mark is reset (/proc/self/clear_refs) and the run's VmHWM minus the RSS
+before it is reported (native allocations included, which tracemalloc would miss).
+
+--scaling: preparation (index + normals or covariances) and registration time against
+N = 10k, 100k, 1M points. Accuracy: translation / rotation error against
 the outdoor pair's reference (small_gicp's T_target_source.txt, itself a registration good to
 ~2 cm / 0.2°); for KITTI, whose published ground truth is doubtful for these scans, the
 difference from small_gicp's estimate.
@@ -27,6 +35,7 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -34,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("RAYON_NUM_THREADS", "2")  # before scanreg starts its pool
+os.environ.setdefault("OMP_NUM_THREADS", os.environ["RAYON_NUM_THREADS"])  # Open3D's OpenMP
 
 import numpy as np
 import scanreg
@@ -49,6 +59,7 @@ MAX_ITERATIONS = 20
 TRANSLATION_EPS = 1e-3
 ROTATION_EPS = np.deg2rad(0.1)
 BEST_OF = True  # set by --median
+CLOCK = time.perf_counter  # time.process_time with --cpu-time
 
 OURS = {"point_to_point": "point_to_point", "point_to_plane": "point_to_plane", "gicp": "gicp"}
 SMALL_GICP = {"point_to_point": "ICP", "point_to_plane": "PLANE_ICP", "gicp": "GICP"}
@@ -58,9 +69,9 @@ def median_time(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
     out = fn()  # warm-up
     times = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = CLOCK()
         out = fn()
-        times.append(time.perf_counter() - t0)
+        times.append(CLOCK() - t0)
     # Best of N: on a shared, loaded machine the minimum is the least disturbed estimate (OpenMP
     # peers spin-wait and suffer more from oversubscription than rayon, which skews medians).
     return (min(times) if BEST_OF else statistics.median(times)), out
@@ -137,10 +148,15 @@ def run_ours(src: np.ndarray, tgt: np.ndarray, method: str, repeat: int) -> dict
     pre, (s, prepared) = median_time(lambda: ours_preprocess(src, tgt, method), repeat)
     # GICP's source covariances are computed inside register(); they belong to "preprocess", so
     # split each run by register()'s own timer (source_preparation) and aggregate per part.
-    runs = [ours_register(s, prepared, method) for _ in range(repeat + 1)][1:]
+    runs = []
+    for _ in range(repeat + 1):
+        t0 = CLOCK()
+        r = ours_register(s, prepared, method)
+        runs.append((CLOCK() - t0, r))
+    runs = runs[1:]  # warm-up
     agg = min if BEST_OF else statistics.median
-    src_prep = agg(r.timing.source_preparation for r in runs)
-    reg = agg(r.timing.total - r.timing.source_preparation for r in runs)
+    src_prep = agg(r.timing.source_preparation for _, r in runs)
+    reg = agg(t - r.timing.source_preparation for t, r in runs)
     e2e, res = median_time(
         lambda: ours_register(*ours_preprocess(src, tgt, method), method), repeat
     )
@@ -157,7 +173,13 @@ def run_ours(src: np.ndarray, tgt: np.ndarray, method: str, repeat: int) -> dict
 
 
 def run_small_gicp(
-    sg: Any, src: np.ndarray, tgt: np.ndarray, method: str, threads: int, repeat: int
+    sg: Any,
+    src: np.ndarray,
+    tgt: np.ndarray,
+    method: str,
+    threads: int,
+    repeat: int,
+    once: bool = False,
 ) -> dict[str, Any]:
     def preprocess() -> tuple[Any, Any, Any]:
         s = sg.voxelgrid_sampling(sg.PointCloud(src), VOXEL, threads)
@@ -183,6 +205,8 @@ def run_small_gicp(
             translation_epsilon=TRANSLATION_EPS,
         )
 
+    if once:  # one end-to-end run only (memory measurement)
+        return {"result": register(*preprocess())}
     pre, (s, t, tree) = median_time(preprocess, repeat)
     reg, res = median_time(lambda: register(s, t, tree), repeat)
     e2e, res = median_time(lambda: register(*preprocess()), repeat)
@@ -199,9 +223,12 @@ def run_small_gicp(
 
 
 def run_open3d(
-    o3d: Any, src: np.ndarray, tgt: np.ndarray, method: str, repeat: int
+    o3d: Any, src: np.ndarray, tgt: np.ndarray, method: str, repeat: int, once: bool = False
 ) -> dict[str, Any]:
     reg = o3d.pipelines.registration
+    # Open3D's Vector3dVector wants writable arrays (it copies them either way); the inputs here
+    # are read-only, so copy once, outside the timed functions.
+    src, tgt = np.array(src), np.array(tgt)
 
     def preprocess() -> tuple[Any, Any]:
         s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src)).voxel_down_sample(VOXEL)
@@ -224,6 +251,8 @@ def run_open3d(
     def register(s: Any, t: Any) -> Any:
         return reg.registration_icp(s, t, GATE, np.eye(4), estimator(), criteria)
 
+    if once:  # one end-to-end run only (memory measurement)
+        return {"result": register(*preprocess())}
     pre, (s, t) = median_time(preprocess, repeat)
     regt, res = median_time(lambda: register(s, t), repeat)
     e2e, res = median_time(lambda: register(*preprocess()), repeat)
@@ -236,15 +265,123 @@ def run_open3d(
     }
 
 
+def _status_kb(field: str) -> int:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(field + ":"):
+                return int(line.split()[1])
+    raise KeyError(field)
+
+
+def memory_child(lib: str, pair: str, method: str, peers_site: str | None) -> None:
+    """In a fresh process: peak RSS growth (MB) of one end-to-end run of `lib`."""
+    src, tgt, _ = load_pairs()[pair]
+    threads = int(os.environ["RAYON_NUM_THREADS"])
+    run: Callable[[], Any]
+    if lib == "scanreg":
+
+        def run() -> Any:
+            return ours_register(*ours_preprocess(src, tgt, method), method)
+
+    else:
+        mod = load_peers(peers_site)[lib]
+
+        def run() -> Any:
+            if lib == "small_gicp":
+                return run_small_gicp(mod, src, tgt, method, threads, 0, once=True)
+            return run_open3d(mod, src, tgt, method, 0, once=True)
+
+    import gc
+
+    gc.collect()
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")  # reset VmHWM to the current RSS
+    before = _status_kb("VmRSS")
+    run()
+    print(f"{(_status_kb('VmHWM') - before) / 1024:.1f}")
+
+
+def peak_memory(lib: str, pair: str, method: str, peers_site: str | None) -> float:
+    cmd = [sys.executable, __file__, "--memory-child", lib, pair, method]
+    if peers_site:
+        cmd += ["--peers-site", peers_site]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+    return float(out.strip().splitlines()[-1])
+
+
+def interleaved(peers: dict[str, Any], threads: int, repeat: int) -> None:
+    """End-to-end only, libraries alternating run by run (ours, small_gicp, Open3D, ours, ...):
+    a burst of load from other processes then hits every library alike. Reports the best run
+    of each and the median over rounds of the per-round ratio (each ratio from two runs
+    seconds apart), the statistic least moved by a shared, loaded machine."""
+    libs = ["scanreg", *[n for n in ("small_gicp", "open3d") if n in peers]]
+    print(f"\ninterleaved end-to-end, {repeat} rounds (best ms; median of per-round ratios):")
+    head = " | ".join(f"{lib} best ms" for lib in libs)
+    ratios = " | ".join(f"ratio vs {lib}" for lib in libs[1:])
+    print(f"| pair | method | {head} | {ratios} |")
+    print("|---|---|" + "---|" * (2 * len(libs) - 1))
+    for pair, (src, tgt, _) in load_pairs().items():
+        for method in OURS:
+            fns: dict[str, Callable[[], Any]] = {
+                "scanreg": lambda m=method, a=src, b=tgt: ours_register(
+                    *ours_preprocess(a, b, m), m
+                )
+            }
+            if "small_gicp" in peers:
+                fns["small_gicp"] = lambda m=method, a=src, b=tgt: run_small_gicp(
+                    peers["small_gicp"], a, b, m, threads, 0, once=True
+                )
+            if "open3d" in peers:
+                fns["open3d"] = lambda m=method, a=src, b=tgt: run_open3d(
+                    peers["open3d"], a, b, m, 0, once=True
+                )
+            times: dict[str, list[float]] = {lib: [] for lib in libs}
+            for lib in libs:
+                fns[lib]()  # warm-up
+            for _ in range(repeat):
+                for lib in libs:
+                    t0 = CLOCK()
+                    fns[lib]()
+                    times[lib].append(CLOCK() - t0)
+            best = " | ".join(f"{min(times[lib]) * 1e3:.1f}" for lib in libs)
+            ours_t = times["scanreg"]
+            rat = " | ".join(
+                f"{statistics.median(o / t for o, t in zip(ours_t, times[lib], strict=True)):.2f}"
+                for lib in libs[1:]
+            )
+            print(f"| {pair} | {method} | {best} | {rat} |", flush=True)
+
+
+def memory_table(peer_names: list[str], peers_site: str | None) -> None:
+    libs = ["scanreg", *peer_names]
+    print("\npeak RSS growth of one end-to-end run, MB (fresh process per cell):")
+    print("| pair | method | " + " | ".join(libs) + " | scanreg / small_gicp |")
+    print("|---|---|" + "---|" * len(libs) + "---|")
+    for pair in load_pairs():
+        for method in OURS:
+            mb = {lib: peak_memory(lib, pair, method, peers_site) for lib in libs}
+            ratio = f"{mb['scanreg'] / mb['small_gicp']:.2f}" if mb.get("small_gicp") else "-"
+            cells = " | ".join(f"{mb[lib]:.1f}" for lib in libs)
+            print(f"| {pair} | {method} | {cells} | {ratio} |", flush=True)
+
+
 def scaling(peers: dict[str, Any], threads: int, repeat: int) -> None:
-    """Registration time against N (no downsampling): KITTI frame 0 subsampled to 10k / 100k,
-    and tiled 8x with 3 cm jitter to 1M; the source is the same cloud moved by 0.3 m / 1°."""
+    """Preparation and registration time against N (no downsampling): KITTI frame 0 subsampled
+    to 10k / 100k, and tiled 8x with 3 cm jitter to 1M; the source is the same cloud moved by
+    0.3 m / 1°. Preparation: k-d tree + normals (point-to-plane) or covariances (GICP) of the
+    target; registration: the alignment call with a prepared target (and, for GICP, source
+    covariances computed beforehand for small_gicp and excluded from ours)."""
     frame = load_pairs()["kitti 01->00"][1]
     rng = np.random.default_rng(0)
     truth = SE3.from_vector([0.3, 0.05, 0.0, 0.0, 0.0, np.deg2rad(1.0)])
-    print("\nscaling (registration only, prepared target, point_to_plane and gicp):")
-    print("| N | method | scanreg ms | ms per 1k pts | small_gicp ms | ratio |")
-    print("|---|---|---|---|---|---|")
+    sg = peers.get("small_gicp")
+    print("\nscaling (no downsampling; best of runs):")
+    print(
+        "| N | method | prepare scanreg ms | prepare small_gicp ms | ratio "
+        "| register scanreg ms | register small_gicp ms | ratio "
+        "| scanreg µs per point (prep + reg) |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
     for n in (10_000, 100_000, 1_000_000):
         if n <= len(frame):
             cloud = frame[rng.choice(len(frame), n, replace=False)]
@@ -253,27 +390,42 @@ def scaling(peers: dict[str, Any], threads: int, repeat: int) -> None:
             cloud = np.concatenate([frame] * reps)[:n] + rng.normal(0, 0.03, (n, 3))
         cloud = np.ascontiguousarray(cloud)
         source = np.ascontiguousarray(truth.inverse().apply(cloud))
+        reps_n = max(1, repeat // (1 if n < 500_000 else 3))
         for method in ("point_to_plane", "gicp"):
-            prepared = scanreg.prepare(
-                cloud, normals=method == "point_to_plane", covariances=method == "gicp", k=K
-            )
-            reps_n = max(1, repeat // (1 if n < 500_000 else 4))
+
+            def prep(c: np.ndarray = cloud, m: str = method) -> Any:
+                return scanreg.prepare(
+                    c, normals=m == "point_to_plane", covariances=m == "gicp", k=K
+                )
+
+            ours_p, prepared = median_time(prep, reps_n)
             ours_t, res = median_time(
                 lambda s=source, p=prepared, m=method: ours_register(s, p, m), reps_n
             )
             ours_t -= res.timing.source_preparation
-            row = f"| {n} | {method} | {ours_t * 1e3:.0f} | {ours_t * 1e6 / n:.2f} |"
-            if "small_gicp" in peers:
-                sg = peers["small_gicp"]
-                t_pc, s_pc = sg.PointCloud(cloud), sg.PointCloud(source)
-                tree = sg.KdTree(t_pc, threads)
-                sg.estimate_normals_covariances(t_pc, tree, K, threads)
+            row = f"| {n} | {method} | {ours_p * 1e3:.0f} |"
+            tail = f" {(ours_p + ours_t) * 1e6 / n:.2f} |"
+            if sg is not None:
+
+                def sg_prep(c: np.ndarray = cloud, m: str = method) -> Any:
+                    pc = sg.PointCloud(c)
+                    tree = sg.KdTree(pc, threads)
+                    if m == "point_to_plane":
+                        sg.estimate_normals(pc, tree, K, threads)
+                    else:
+                        sg.estimate_covariances(pc, tree, K, threads)
+                    return pc, tree
+
+                their_p, (t_pc, tree) = median_time(sg_prep, reps_n)
+                s_pc = sg.PointCloud(source)
                 sg.estimate_normals_covariances(s_pc, sg.KdTree(s_pc, threads), K, threads)
+                if method == "point_to_plane":
+                    sg.estimate_normals(t_pc, tree, K, threads)
 
                 def theirs(
                     t_pc: Any = t_pc, s_pc: Any = s_pc, tree: Any = tree, m: str = method
                 ) -> Any:
-                    return peers["small_gicp"].align(
+                    return sg.align(
                         t_pc,
                         s_pc,
                         tree,
@@ -286,10 +438,11 @@ def scaling(peers: dict[str, Any], threads: int, repeat: int) -> None:
                     )
 
                 their_t, _ = median_time(theirs, reps_n)
-                row += f" {their_t * 1e3:.0f} | {ours_t / their_t:.2f} |"
+                row += f" {their_p * 1e3:.0f} | {ours_p / their_p:.2f} |"
+                row += f" {ours_t * 1e3:.0f} | {their_t * 1e3:.0f} | {ours_t / their_t:.2f} |"
             else:
-                row += " - | - |"
-            print(row)
+                row += f" - | - | {ours_t * 1e3:.0f} | - | - |"
+            print(row + tail, flush=True)
 
 
 def main() -> None:
@@ -298,20 +451,40 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=11)
     ap.add_argument("--scaling", action="store_true", help="also time N = 10k, 100k, 1M")
     ap.add_argument("--median", action="store_true", help="report medians instead of minima")
+    ap.add_argument(
+        "--cpu-time",
+        action="store_true",
+        help="time with process CPU time (use with RAYON_NUM_THREADS=1: load-independent)",
+    )
+    ap.add_argument(
+        "--interleave", type=int, default=0, help="also N interleaved end-to-end rounds"
+    )
+    ap.add_argument("--memory", action="store_true", help="also peak RSS per library (subprocess)")
+    ap.add_argument(
+        "--memory-child", nargs=3, metavar=("LIB", "PAIR", "METHOD"), help=argparse.SUPPRESS
+    )
+    ap.add_argument("--skip-table", action="store_true", help="only --memory / --scaling")
     args = ap.parse_args()
-    global BEST_OF
+    if args.memory_child:
+        lib, pair, method = args.memory_child
+        memory_child(lib, pair, method, args.peers_site)
+        return
+    global BEST_OF, CLOCK
     BEST_OF = not args.median
+    if args.cpu_time:
+        CLOCK = time.process_time
     threads = int(os.environ["RAYON_NUM_THREADS"])
     peers = load_peers(args.peers_site)
     if "open3d" in peers:
         peers["open3d"].utility.set_verbosity_level(peers["open3d"].utility.VerbosityLevel.Error)
     print(
         f"voxel {VOXEL} m, k = {K}, gate {GATE} m, <= {MAX_ITERATIONS} iterations, "
-        f"{threads} threads, {'median' if args.median else 'best'} of {args.repeat}; "
+        f"{threads} threads, {'median' if args.median else 'best'} of {args.repeat}"
+        f"{' (process CPU time)' if args.cpu_time else ' (wall clock)'}; "
         f"peers: {', '.join(peers) or 'none'}"
     )
     rows = []
-    for pair, (src, tgt, ref) in load_pairs().items():
+    for pair, (src, tgt, ref) in ({} if args.skip_table else load_pairs()).items():
         for method in OURS:
             ours = run_ours(src, tgt, method, args.repeat)
             theirs: dict[str, dict[str, Any]] = {}
@@ -374,6 +547,10 @@ def main() -> None:
     print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
     for r in rows:
         print(line(r))
+    if args.interleave:
+        interleaved(peers, threads, args.interleave)
+    if args.memory:
+        memory_table(list(peers), args.peers_site)
     if args.scaling:
         scaling(peers, threads, max(3, args.repeat // 3))
 

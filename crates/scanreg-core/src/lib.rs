@@ -29,6 +29,7 @@ pub mod points;
 pub mod reduce;
 pub mod simulate;
 pub mod sweep;
+pub mod symeig;
 pub mod voxel_map;
 
 pub use error::{Error, Result};

@@ -13,7 +13,7 @@
 
 use crate::error::{Error, Result};
 use crate::knn::{check_k, KdTree};
-use nalgebra::{Matrix2, Matrix3, SymmetricEigen};
+use crate::symeig;
 use rayon::prelude::*;
 
 /// Relative eigenvalue below which a 3D neighbourhood counts as collinear.
@@ -65,34 +65,18 @@ pub struct LocalGeometry {
 }
 
 /// Eigen-decomposition of a symmetric matrix: eigenvalues ascending and the matching unit
-/// eigenvectors, as `dim x dim` column-major `[v_0 | v_1 | v_2]`.
+/// eigenvectors, as `dim x dim` column-major `[v_0 | v_1 | v_2]` (closed form, [`crate::symeig`]).
+#[inline]
 fn eigen(c: &[f64; 9], dim: usize) -> ([f64; 3], [[f64; 3]; 3]) {
-    let mut vals = [0.0; 3];
-    let mut vecs = [[0.0; 3]; 3];
     if dim == 2 {
-        let m = Matrix2::new(c[0], c[1], c[2], c[3]);
-        let e = SymmetricEigen::new(m);
-        let mut order = [0usize, 1];
-        order.sort_by(|&a, &b| e.eigenvalues[a].total_cmp(&e.eigenvalues[b]));
-        for (j, &o) in order.iter().enumerate() {
-            vals[j] = e.eigenvalues[o];
-            for r in 0..2 {
-                vecs[j][r] = e.eigenvectors[(r, o)];
-            }
-        }
+        let (l, v) = symeig::sym2(c[0], c[1], c[3]);
+        (
+            [l[0], l[1], 0.0],
+            [[v[0][0], v[0][1], 0.0], [v[1][0], v[1][1], 0.0], [0.0; 3]],
+        )
     } else {
-        let m = Matrix3::new(c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]);
-        let e = SymmetricEigen::new(m);
-        let mut order = [0usize, 1, 2];
-        order.sort_by(|&a, &b| e.eigenvalues[a].total_cmp(&e.eigenvalues[b]));
-        for (j, &o) in order.iter().enumerate() {
-            vals[j] = e.eigenvalues[o];
-            for r in 0..3 {
-                vecs[j][r] = e.eigenvectors[(r, o)];
-            }
-        }
+        symeig::sym3(c)
     }
-    (vals, vecs)
 }
 
 /// Normals and/or covariances of every indexed point from its `k` nearest neighbours.
@@ -122,11 +106,15 @@ pub fn local_geometry(
             format!("expected {dim} finite coordinates, got {viewpoint:?}"),
         ));
     }
-    let per: Vec<([f64; 3], [f64; 9], bool)> = (0..n)
-        .into_par_iter()
+    // Points in the tree's leaf order: consecutive queries share most of their traversal, which
+    // keeps it in cache. Each result is computed independently, then put back in input order.
+    let order = tree.leaf_order();
+    let per_leaf: Vec<([f64; 3], [f64; 9], bool)> = order
+        .par_iter()
         .map_init(
-            || Vec::with_capacity(k),
-            |buf, i| {
+            || Vec::with_capacity(k + 1),
+            |buf, &i| {
+                let i = i as usize;
                 buf.clear();
                 let p = tree.point(i);
                 tree.knn_into(p, k, f64::INFINITY, buf);
@@ -206,6 +194,10 @@ pub fn local_geometry(
             },
         )
         .collect();
+    let mut per = vec![([0.0; 3], [0.0; 9], false); n];
+    for (&i, r) in order.iter().zip(per_leaf) {
+        per[i as usize] = r;
+    }
     let valid: Vec<bool> = per.iter().map(|x| x.2).collect();
     let num_invalid = valid.iter().filter(|v| !**v).count();
     let normals = want_normals.then(|| {

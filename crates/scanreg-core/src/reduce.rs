@@ -3,10 +3,14 @@
 use rayon::prelude::*;
 use std::ops::Range;
 
-/// Points per chunk. A registration source is often only 1-3 thousand points (a downsampled
-/// sweep): 256 splits it evenly over the threads, and a chunk still amortises its scheduling
-/// and its partial sum (a few hundred nearest-neighbour queries).
-pub const CHUNK: usize = 256;
+/// Points per chunk for `n` points: about 64 chunks, each of 256 to 8192 points.
+///
+/// A function of `n` only, never of the thread count, so results stay thread-independent. It
+/// used to be a fixed 2048, which split a typical downsampled scan (~6k points) into 3 full
+/// chunks and a sliver: on 2 threads one thread did two thirds of every ICP iteration.
+pub fn chunk_len(n: usize) -> usize {
+    n.div_ceil(64).clamp(256, 8192)
+}
 
 /// Apply `partial` to consecutive index ranges of `0..n` in parallel and fold the results
 /// in order with `combine`, starting from `identity`. The chunking does not depend on the
@@ -17,10 +21,11 @@ where
     F: Fn(Range<usize>) -> A + Sync,
     C: Fn(A, A) -> A,
 {
-    let chunks = n.div_ceil(CHUNK);
+    let len = chunk_len(n);
+    let chunks = n.div_ceil(len);
     let parts: Vec<A> = (0..chunks)
         .into_par_iter()
-        .map(|c| partial(c * CHUNK..((c + 1) * CHUNK).min(n)))
+        .map(|c| partial(c * len..((c + 1) * len).min(n)))
         .collect();
     parts.into_iter().fold(identity, combine)
 }
