@@ -40,9 +40,13 @@ from . import _core
 from ._validate import FloatArray, as_points
 from ._validate import frozen as _frozen
 from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
+from .degeneracy import Degeneracy, analyse_degeneracy, normal_noise, rotation_levers
 from .quality import (
     Conditioning,
+    block_covariance,
+    censi_covariance,
     conditioning,
+    covariance_upper_bound,
     information_from_covariance,
     least_squares_covariance,
     sandwich_covariance,
@@ -50,6 +54,7 @@ from .quality import (
 from .robust import check_kernel
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose, pose_class
+from .verdict import QualityReport, Verdict, VerdictThresholds, assess
 
 Method = Literal["point_to_point", "point_to_plane", "point_to_line", "gicp"]
 Optimizer = Literal["gauss_newton", "levenberg_marquardt"]
@@ -57,7 +62,10 @@ StopReason = Literal[
     "converged", "max_iterations", "too_few_correspondences", "diverged", "degenerate"
 ]
 
+CovarianceKind = Literal["calibrated", "hessian", "censi", "block"]
+
 METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "point_to_line", "gicp")
+COVARIANCE_KINDS: tuple[str, ...] = ("calibrated", "hessian", "censi", "block")
 OPTIMIZERS: tuple[str, ...] = ("gauss_newton", "levenberg_marquardt")
 
 
@@ -109,6 +117,21 @@ class RegistrationSettings:
     #: that determines the pose with residual left over (point-to-point and GICP: ``dof/D + 1``;
     #: point-to-plane/line: ``dof + 1``).
     min_correspondences: int | None = None
+    #: Which estimate ``RegistrationResult.covariance`` reports (all are in
+    #: ``RegistrationResult.covariances``): ``hessian`` σ̂²(JᵀWJ)⁻¹ (sandwich under a kernel);
+    #: ``censi`` Censi's closed form (noise on source and target points, shared targets);
+    #: ``block`` the cluster-robust sandwich over spatial blocks of ``block_size``;
+    #: ``calibrated`` (default) the smallest covariance covering ``censi`` and ``block``, with
+    #: the prior variance along degenerate directions. See ``docs/calibration.md``.
+    covariance: CovarianceKind = "calibrated"
+    #: Edge of the spatial blocks of the ``block`` covariance (units of the points); ``None``:
+    #: twice ``max_correspondence_distance`` (a fifth of the source's RMS radius if infinite).
+    block_size: float | None = None
+    #: Degeneracy-aware solve: if the first solve finds weak directions
+    #: (:mod:`scanreg.degeneracy`), solve again from ``init`` with every step restricted to the
+    #: well-constrained directions (solution remapping, Zhang, Kaess & Singh 2016), so the
+    #: estimate keeps the initial guess along the weak ones; their variance is the prior's.
+    degeneracy_aware: bool = False
 
     def __post_init__(self) -> None:
         _positive_float(
@@ -133,6 +156,17 @@ class RegistrationSettings:
         positive_int(self.num_neighbors, "num_neighbors", minimum=2)
         if self.min_correspondences is not None:
             positive_int(self.min_correspondences, "min_correspondences")
+        if self.covariance not in COVARIANCE_KINDS:
+            raise ValueError(
+                f"covariance: unknown {self.covariance!r}; expected one of "
+                f"{', '.join(COVARIANCE_KINDS)}"
+            )
+        if self.block_size is not None:
+            _positive_float(self.block_size, "block_size")
+        if not isinstance(self.degeneracy_aware, bool):
+            raise TypeError(
+                f"degeneracy_aware: expected a bool, got {type(self.degeneracy_aware).__name__}"
+            )
 
 
 @dataclass(frozen=True)
@@ -155,6 +189,27 @@ class RegistrationTiming:
     def registration(self) -> float:
         """The core's iteration loop plus the final evaluation."""
         return float(sum(self.iterations)) + self.final_evaluation
+
+
+@dataclass(frozen=True)
+class CovarianceEstimates:
+    """Every covariance kind at the final pose, ``(dof, dof)`` over the tangent ``δ``
+    (translation first, right perturbation, source frame); all ``inf`` when not determined."""
+
+    #: σ̂²(JᵀWJ)⁻¹, or the M-estimator sandwich under a kernel.
+    hessian: FloatArray
+    #: Censi's closed form with per-coordinate point noise ``point_variance``.
+    censi: FloatArray
+    #: Cluster-robust sandwich over ``num_blocks`` spatial blocks of ``block_size``.
+    block: FloatArray
+    #: ``censi`` ∨ ``block``, with the prior variance along degenerate directions.
+    calibrated: FloatArray
+    #: Variance of each coordinate of a source or target point used by ``censi`` (units²).
+    point_variance: float
+    block_size: float
+    num_blocks: int
+    #: The prior used along degenerate directions (``init_covariance``, or the gate's).
+    prior: FloatArray
 
 
 @dataclass(frozen=True)
@@ -210,6 +265,14 @@ class RegistrationResult:
     conditioning: Conditioning
     timing: RegistrationTiming
     settings: RegistrationSettings = field(repr=False)
+    #: Every covariance kind; ``covariance`` is ``getattr(covariances, settings.covariance)``.
+    covariances: CovarianceEstimates | None = field(default=None, repr=False)
+    #: Weak directions of the scene, named (:mod:`scanreg.degeneracy`).
+    degeneracy: Degeneracy | None = field(default=None, repr=False)
+    #: Overlap, residuals, motion from the initial guess, convergence (:mod:`scanreg.verdict`).
+    quality: QualityReport | None = field(default=None, repr=False)
+    #: ``verdict.accepted`` and the readable ``verdict.reasons``.
+    verdict: Verdict | None = None
 
     @property
     def standard_deviations(self) -> FloatArray:
@@ -252,10 +315,12 @@ def _prepared_target(
     points = as_points(target, "target", dim=dim)
     if settings.voxel_size is not None:
         points = voxel_downsample(points, settings.voxel_size).points
-    k = settings.num_neighbors
-    if want_normals or want_covs:
-        k = check_k(min(k, len(points)), len(points), dim)
-    return prepare(points, normals=want_normals, covariances=want_covs, k=k)
+    # Normals for every method when there are enough points: the degeneracy analysis uses the
+    # plane information.
+    if len(points) < dim + 1 and not (want_normals or want_covs):
+        return prepare(points, normals=False)
+    k = check_k(min(settings.num_neighbors, len(points)), len(points), dim)
+    return prepare(points, normals=True, covariances=want_covs, k=k)
 
 
 def _length_scale(points: FloatArray) -> float:
@@ -271,6 +336,8 @@ def register(
     method: Method = "point_to_plane",
     init: Any = None,
     settings: RegistrationSettings | None = None,
+    init_covariance: Any = None,
+    thresholds: VerdictThresholds | None = None,
     **overrides: Any,
 ) -> RegistrationResult:
     """Estimate ``T_target_source`` aligning ``source`` to ``target`` from ``init``.
@@ -292,6 +359,14 @@ def register(
         A :class:`RegistrationSettings`, and/or its fields as keywords
         (``register(s, t, max_correspondence_distance=0.5)``); a misspelled field is a
         ``TypeError``.
+    init_covariance
+        ``(dof, dof)`` covariance of ``init`` over the tangent (the motion model's), used as
+        the variance along degenerate directions. ``None``: a gate-wide prior,
+        ``diag(δ², …, (δ/L_a)², …)`` with ``δ = max_correspondence_distance`` and ``L_a`` the
+        rotation levers (ICP only converges from within about a gate of the truth).
+    thresholds
+        :class:`~scanreg.VerdictThresholds` for ``result.verdict``; default thresholds if
+        ``None``.
 
     Raises
     ------
@@ -349,24 +424,89 @@ def register(
         if not math.isfinite(k_scale):
             raise ValueError("kernel_scale: required with an infinite max_correspondence_distance")
 
-    out = _core.register_icp(
-        src,
-        prepared.index,
-        pose0.as_matrix(),
-        method=method_eff,
-        kernel=s.kernel,
-        kernel_scale=k_scale,
-        max_correspondence_distance=s.max_correspondence_distance,
-        max_iterations=s.max_iterations,
-        translation_tolerance=s.translation_tolerance,
-        rotation_tolerance=s.rotation_tolerance,
-        optimizer=s.optimizer,
-        min_correspondences=min_corr,
-        num_threads=s.num_threads,
-        source_covariances=source_covariances,
-        target_normals=prepared.normals if planar else None,
-        target_covariances=prepared.covariances if method_eff == "gicp" else None,
+    levers = rotation_levers(src, dim)
+    prior = _prior(init_covariance, dof, dim, s.max_correspondence_distance, levers)
+    if thresholds is not None and not isinstance(thresholds, VerdictThresholds):
+        raise TypeError(
+            f"thresholds: expected VerdictThresholds, got {type(thresholds).__name__}"
+        )
+
+    def run(projector: FloatArray | None) -> Any:
+        return _core.register_icp(
+            src,
+            prepared.index,
+            pose0.as_matrix(),
+            method=method_eff,
+            kernel=s.kernel,
+            kernel_scale=k_scale,
+            max_correspondence_distance=s.max_correspondence_distance,
+            max_iterations=s.max_iterations,
+            translation_tolerance=s.translation_tolerance,
+            rotation_tolerance=s.rotation_tolerance,
+            optimizer=s.optimizer,
+            min_correspondences=min_corr,
+            num_threads=s.num_threads,
+            source_covariances=source_covariances,
+            target_normals=prepared.normals if planar else None,
+            target_covariances=prepared.covariances if method_eff == "gicp" else None,
+            step_projector=projector,
+        )
+
+    eps2 = (
+        normal_noise(prepared.points, prepared.normals, prepared.index)
+        if prepared.normals is not None
+        else math.nan
     )
+    block = s.block_size
+    if block is None:
+        block = 2.0 * s.max_correspondence_distance
+        if not math.isfinite(block):
+            block = float(np.sqrt(np.mean(levers**2))) / 5.0
+
+    def analyse(out: Any, sigma2_point: float) -> tuple[Any, Degeneracy]:
+        ana = _core.censi_analysis(
+            src,
+            prepared.points,
+            out.pose,
+            out.correspondences,
+            method=method_eff,
+            kernel=s.kernel,
+            kernel_scale=k_scale,
+            source_variance=sigma2_point,
+            target_variance=sigma2_point,
+            block_size=max(block, 1e-9),
+            target_normals=prepared.normals,
+            source_covariances=source_covariances,
+            target_covariances=prepared.covariances if method_eff == "gicp" else None,
+            num_threads=s.num_threads,
+        )
+        if ana.num_plane_correspondences > dof:
+            deg = analyse_degeneracy(
+                np.array(ana.plane_information),
+                ana.num_plane_correspondences,
+                dim,
+                levers,
+                normal_noise=eps2,
+            )
+        else:
+            deg = analyse_degeneracy(
+                np.array(ana.hessian),
+                max(ana.num_correspondences, 1),
+                dim,
+                levers,
+                normal_noise=eps2,
+                basis="hessian",
+            )
+        return ana, deg
+
+    out = run(None)
+    sigma2_point = _point_variance(out, method_eff, dim, dof)
+    ana, deg = analyse(out, sigma2_point)
+    weak_projector = deg.weak_projector()
+    if s.degeneracy_aware and deg.degenerate and len(out.correspondences):
+        out = run(np.ascontiguousarray(np.eye(dof) - weak_projector))
+        sigma2_point = _point_variance(out, method_eff, dim, dof)
+        ana, _ = analyse(out, sigma2_point)
 
     t0 = time.perf_counter()
     pose = pose_class(dim).from_matrix(out.pose, atol=1e-6)
@@ -386,12 +526,18 @@ def register(
     except np.linalg.LinAlgError:
         sigma2 = math.nan if m <= dof else sigma2
         cov = np.full((dof, dof), np.inf)
-    info = information_from_covariance(cov) if np.isfinite(cov).all() else np.zeros((dof, dof))
+    estimates = _estimates(
+        cov, ana, weak_projector, prior, sigma2_point, block, dof, s.degeneracy_aware
+    )
+    chosen = getattr(estimates, s.covariance)
+    info = (
+        information_from_covariance(chosen) if np.isfinite(chosen).all() else np.zeros((dof, dof))
+    )
     cond = conditioning(hessian, dim, _length_scale(src))
     t_post = time.perf_counter() - t0
 
     stop: StopReason = out.stop_reason  # type: ignore[assignment]
-    return RegistrationResult(
+    result = RegistrationResult(
         pose=pose,
         method=method_eff,
         kernel=s.kernel,
@@ -407,7 +553,7 @@ def register(
         hessian=_frozen(hessian),
         gradient=_frozen(out.gradient),
         sigma2=sigma2,
-        covariance=_frozen(cov),
+        covariance=_frozen(chosen),
         information=_frozen(info),
         conditioning=cond,
         timing=RegistrationTiming(
@@ -419,4 +565,75 @@ def register(
             total=time.perf_counter() - t_start,
         ),
         settings=s,
+        covariances=estimates,
+        degeneracy=deg,
+    )
+    checked = assess(result, src, prepared, init=pose0, thresholds=thresholds)
+    return dataclasses.replace(result, quality=checked.report, verdict=checked.verdict)
+
+
+def _prior(
+    init_covariance: Any, dof: int, dim: int, gate: float, levers: FloatArray
+) -> FloatArray:
+    """The covariance of the initial guess (see :func:`register`)."""
+    if init_covariance is None:
+        g = gate if math.isfinite(gate) else float(np.sqrt(np.mean(levers**2)))
+        return np.diag(np.concatenate([np.full(dim, g**2), (g / levers) ** 2]))
+    p = np.asarray(init_covariance, dtype=np.float64)
+    if p.shape != (dof, dof):
+        raise ValueError(f"init_covariance: expected shape ({dof}, {dof}), got {p.shape}")
+    if not np.isfinite(p).all() or not np.allclose(p, p.T, rtol=1e-9, atol=1e-12):
+        raise ValueError("init_covariance: must be finite and symmetric")
+    if np.linalg.eigvalsh(p)[0] < 0:
+        raise ValueError("init_covariance: must be positive semi-definite")
+    return p
+
+
+def _point_variance(out: Any, method: str, dim: int, dof: int) -> float:
+    """Per-coordinate noise of one point, half of the residual variance (source and target
+    points are equally noisy): point-to-plane ``Σ r²/(n - dof)``; the others from the
+    Euclidean distances ``Σ |e|² / (D n - dof)``."""
+    n = int(out.num_correspondences)
+    if method in ("point_to_plane", "point_to_line"):
+        return float(out.sum_squares / max(n - dof, 1)) / 2.0
+    return float(out.sum_squared_distances / max(dim * n - dof, 1)) / 2.0
+
+
+def _estimates(
+    hessian_cov: FloatArray,
+    ana: Any,
+    weak: FloatArray,
+    prior: FloatArray,
+    point_variance: float,
+    block: float,
+    dof: int,
+    aware: bool,
+) -> CovarianceEstimates:
+    bad = np.full((dof, dof), np.inf)
+    h = np.array(ana.hessian)
+    try:
+        censi = censi_covariance(h, np.array(ana.censi_meat))
+        blk = block_covariance(h, np.array(ana.block_meat), int(ana.num_blocks))
+        if not (np.isfinite(censi).all() and np.isfinite(blk).all()):
+            raise np.linalg.LinAlgError("non-finite covariance")
+        calibrated = covariance_upper_bound(censi, blk)
+    except np.linalg.LinAlgError:
+        censi = blk = calibrated = bad
+    if np.any(weak != 0) and np.isfinite(calibrated).all():
+        # Along weak directions the data say nothing reliable: the estimate is the prior
+        # (degeneracy-aware solve) or wherever sampling left it, within about the prior.
+        strong = np.eye(dof) - weak
+        calibrated = strong @ calibrated @ strong.T + weak @ prior @ weak.T
+        if not aware:
+            calibrated = calibrated + weak @ prior @ weak.T  # the drift, plus the prior
+        calibrated = 0.5 * (calibrated + calibrated.T)
+    return CovarianceEstimates(
+        hessian=_frozen(hessian_cov),
+        censi=_frozen(censi),
+        block=_frozen(blk),
+        calibrated=_frozen(calibrated),
+        point_variance=float(point_variance),
+        block_size=float(block),
+        num_blocks=int(ana.num_blocks),
+        prior=_frozen(prior),
     )

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ._validate import as_points
+from .degeneracy import Degeneracy
 from .quality import DEFAULT_WEAK_RATIO, Conditioning, conditioning
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose
@@ -51,6 +52,9 @@ class VerdictThresholds:
     max_rotation: float = math.inf
     #: Reject results that did not converge.
     require_convergence: bool = True
+    #: Reject results with a weak direction (``result.degeneracy``, whose threshold is derived
+    #: from the measured normal noise; results without one fall back to ``weak_ratio``).
+    reject_degenerate: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 <= float(self.min_overlap) <= 1.0:
@@ -86,6 +90,8 @@ class QualityReport:
     converged: bool
     stop_reason: str
     conditioning: Conditioning
+    #: The registration's degeneracy analysis, when it has one.
+    degeneracy: Degeneracy | None = None
 
 
 @dataclass(frozen=True)
@@ -173,6 +179,7 @@ def assess(
         converged=bool(result.converged),
         stop_reason=str(result.stop_reason),
         conditioning=cond,
+        degeneracy=getattr(result, "degeneracy", None),
     )
     return Assessment(report=report, verdict=judge(report, th))
 
@@ -188,8 +195,18 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
     max_rmse = 0.5 * report.gate if th.max_inlier_rmse is None else th.max_inlier_rmse
     if not report.residual_rmse <= max_rmse:  # also rejects nan (no overlap at all)
         reasons.append(f"inlier RMSE {report.residual_rmse:.3g} > {max_rmse:.3g}")
-    for weak in report.conditioning.weak_directions:
-        reasons.append(f"degenerate: {weak.description} (ratio {weak.ratio:.1e})")
+    if th.reject_degenerate:
+        deg = report.degeneracy
+        if deg is not None:
+            for weak, lam in zip(deg.directions, deg.eigenvalues, strict=True):
+                if lam < deg.threshold:
+                    reasons.append(
+                        f"degenerate: {weak.description} "
+                        f"(constraint {lam:.2g} < {deg.threshold:.2g})"
+                    )
+        else:
+            for weak in report.conditioning.weak_directions:
+                reasons.append(f"degenerate: {weak.description} (ratio {weak.ratio:.1e})")
     if report.translation_from_init > th.max_translation:
         reasons.append(
             f"moved {report.translation_from_init:.3g} from the initial guess "

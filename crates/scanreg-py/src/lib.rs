@@ -5,6 +5,7 @@
 
 use pyo3::prelude::*;
 
+mod censi;
 mod convert;
 mod correlative;
 mod deskew;
@@ -28,5 +29,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     simulate::register(m)?;
     io::register(m)?;
     register::register(m)?;
+    censi::register(m)?;
     Ok(())
 }

@@ -1,0 +1,153 @@
+"""Degeneracy: which pose directions the scene does not constrain, named in pose coordinates.
+
+The analysis works on the *plane information* ``G = Σ J Jᵀ`` of the point-to-plane/line factor
+over the final correspondences (for every method: point-to-point's own ``JᵀJ`` has ``N·I`` as
+its translation block and cannot see a corridor). It is made unit-independent and
+size-independent before its eigenvalues are compared:
+
+* rotation about tangent axis ``a`` is expressed in metres at that axis' lever ``L_a``, the RMS
+  distance of the source points from the axis through the source origin (about which the right
+  perturbation rotates), so ``S = diag(1.., L_a..)``;
+* ``Ĝ = S⁻¹ G S⁻¹ / n`` over the ``n`` correspondences. An eigenvalue of ``Ĝ`` along a unit
+  direction ``v`` is then the mean squared constraint per correspondence, e.g. the mean of
+  ``(n_i·v)²`` for a translation: 1 when every surface faces ``v``, 0 in a corridor along ``v``.
+
+A direction is **weak** when its eigenvalue is below ``threshold = max(min_constraint,
+noise_factor · ε̂²)``: ``ε̂²`` is the mean squared error of the target normals, measured on the
+data (half the mean squared sine between each normal and its nearest neighbour's), i.e. the
+information along any direction that noisy normals alone produce; ``noise_factor = 9`` puts
+the threshold three normal-noise standard deviations up. ``min_constraint = 0.05`` is the
+floor for clean data: fewer than the equivalent of 5 % of the correspondences facing a
+direction. Both are documented with the measurements that support them in
+``docs/calibration.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._validate import FloatArray
+from ._validate import frozen as _frozen
+from .quality import WeakDirection, describe_direction
+
+#: Floor of the weak-direction threshold (a mean squared constraint per correspondence).
+DEFAULT_MIN_CONSTRAINT = 0.05
+#: The threshold is at least this many times the measured normal noise ``ε̂²`` (3σ).
+DEFAULT_NOISE_FACTOR = 9.0
+
+
+@dataclass(frozen=True)
+class Degeneracy:
+    """Eigen-analysis of the normalised, scaled plane information (see module docstring)."""
+
+    #: ``Ĝ = S⁻¹ G S⁻¹ / n`` (dof × dof), unitless.
+    information: FloatArray
+    #: Rotation levers ``L_a`` (units of the points), one per rotation axis.
+    levers: FloatArray
+    #: Eigenvalues of ``Ĝ``, ascending (mean squared constraint per correspondence).
+    eigenvalues: FloatArray
+    #: Every eigen-direction, weakest first, in tangent coordinates (unit length in metres).
+    directions: tuple[WeakDirection, ...]
+    #: Those below ``threshold``.
+    weak_directions: tuple[WeakDirection, ...]
+    threshold: float
+    #: ``ε̂²``: mean squared normal error measured on the target (``nan`` if not measured).
+    normal_noise: float
+    #: ``"plane_information"`` (target normals available) or ``"hessian"`` (the method's own
+    #: ``JᵀWJ``, when the target has no normals).
+    basis: str
+
+    @property
+    def degenerate(self) -> bool:
+        return bool(self.weak_directions)
+
+    def weak_projector(self) -> FloatArray:
+        """``(dof, dof)`` projector onto the weak subspace, in tangent coordinates."""
+        dof = self.information.shape[0]
+        dim = dof - self.levers.size
+        s_inv = np.concatenate([np.ones(dim), 1.0 / self.levers])
+        vals, vecs = np.linalg.eigh(self.information)
+        weak = vecs[:, vals < self.threshold]
+        p_s = weak @ weak.T
+        out: FloatArray = p_s * np.outer(s_inv, 1.0 / s_inv)
+        return out
+
+
+def rotation_levers(points: FloatArray, dim: int) -> FloatArray:
+    """RMS distance of ``points`` from each rotation axis through the origin (≥ 1e-9)."""
+    sq = points**2
+    if dim == 2:
+        levers = np.array([np.sqrt(np.mean(sq.sum(axis=1)))])
+    else:
+        total = sq.sum(axis=1)
+        levers = np.sqrt(np.array([np.mean(total - sq[:, a]) for a in range(3)]))
+    out: FloatArray = np.maximum(levers, 1e-9)
+    return out
+
+
+def normal_noise(target_points: FloatArray, normals: FloatArray, index: object) -> float:
+    """``ε̂²``: half the mean squared sine between a normal and its nearest neighbour's.
+
+    Two independent normal errors of variance ``ε²`` per tangent axis make a squared sine of
+    about ``2ε²``; real creases add to it, so this errs on the side of a higher threshold.
+    Up to 2000 target points are sampled (deterministically).
+    """
+    valid = np.flatnonzero(np.einsum("ij,ij->i", normals, normals) > 0.25)
+    if valid.size < 2:
+        return float("nan")
+    sample = valid[:: max(1, valid.size // 2000)]
+    idx, _ = index.knn(np.ascontiguousarray(target_points[sample]), 2)  # type: ignore[attr-defined]
+    j = np.asarray(idx)[:, 1]
+    nj = normals[j]
+    ok = np.einsum("ij,ij->i", nj, nj) > 0.25
+    if not ok.any():
+        return float("nan")
+    cos = np.abs(np.einsum("ij,ij->i", normals[sample][ok], nj[ok]))
+    return float(0.5 * np.mean(1.0 - np.minimum(cos, 1.0) ** 2))
+
+
+def analyse_degeneracy(
+    information: FloatArray,
+    count: int,
+    dim: int,
+    levers: FloatArray,
+    *,
+    normal_noise: float = float("nan"),
+    min_constraint: float = DEFAULT_MIN_CONSTRAINT,
+    noise_factor: float = DEFAULT_NOISE_FACTOR,
+    basis: str = "plane_information",
+) -> Degeneracy:
+    """Name the weak directions of ``information`` (``Σ JᵀJ`` over ``count`` correspondences)."""
+    dof = information.shape[0]
+    s_inv = np.concatenate([np.ones(dim), 1.0 / np.asarray(levers, dtype=np.float64)])
+    g = 0.5 * (information + information.T) * np.outer(s_inv, s_inv) / max(count, 1)
+    vals, vecs = np.linalg.eigh(g)
+    threshold = float(min_constraint)
+    if np.isfinite(normal_noise):
+        threshold = max(threshold, noise_factor * float(normal_noise))
+    top = max(float(vals[-1]), 1e-300)
+    length = float(np.sqrt(np.mean(np.asarray(levers) ** 2)))
+
+    def direction(i: int) -> WeakDirection:
+        v = vecs[:, i] * s_inv  # back to metres / radians
+        v = v / np.linalg.norm(v / s_inv)  # unit length in metres-equivalent
+        return WeakDirection(
+            vector=_frozen(v),
+            ratio=float(vals[i] / top),
+            description=describe_direction(v, dim, length),
+        )
+
+    directions = tuple(direction(i) for i in range(dof))
+    weak = tuple(d for d, lam in zip(directions, vals, strict=True) if lam < threshold)
+    return Degeneracy(
+        information=_frozen(g),
+        levers=_frozen(np.asarray(levers, dtype=np.float64)),
+        eigenvalues=_frozen(vals),
+        directions=directions,
+        weak_directions=weak,
+        threshold=threshold,
+        normal_noise=float(normal_noise),
+        basis=basis,
+    )
