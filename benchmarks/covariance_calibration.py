@@ -9,7 +9,7 @@ covariance gives mean NEES ≈ dof (3 in 2D, 6 in 3D), inside the printed 95 % b
 Two protocols:
 
 * ``identity``: registered from the identity, default settings (the gate-wide prior is used
-  along degenerate directions);
+  along degenerate directions); ``identity-aware``: the same with ``degeneracy_aware=True``;
 * ``prior``: the initial guess is drawn around the truth from a motion prior
   ``P = diag(0.1² m², …, (1°)², …)``, passed as ``init_covariance``, with
   ``degeneracy_aware=True`` (the estimate keeps the prior along weak directions).
@@ -110,7 +110,13 @@ def run_scene(scene: Scene, method: str, reps: int, protocol: str) -> dict[str, 
                 degeneracy_aware=True,
             )
         else:
-            res = scanreg.register(src, target, method=method, max_correspondence_distance=1.0)  # type: ignore[arg-type]
+            res = scanreg.register(
+                src,
+                target,
+                method=method,  # type: ignore[arg-type]
+                max_correspondence_distance=1.0,
+                degeneracy_aware=protocol == "identity-aware",
+            )
         d = (res.pose.inverse() @ truth).log()  # type: ignore[operator]
         abs_err.append(np.abs(d))
         assert res.covariances is not None and res.degeneracy is not None

@@ -33,9 +33,9 @@ from ._validate import frozen as _frozen
 from .quality import WeakDirection, describe_direction
 
 #: Floor of the weak-direction threshold (a mean squared constraint per correspondence).
-DEFAULT_MIN_CONSTRAINT = 0.05
+DEFAULT_MIN_CONSTRAINT = 0.03
 #: The threshold is at least this many times the measured normal noise ``ε̂²`` (3σ).
-DEFAULT_NOISE_FACTOR = 9.0
+DEFAULT_NOISE_FACTOR = 6.0
 
 
 @dataclass(frozen=True)
@@ -64,13 +64,28 @@ class Degeneracy:
         return bool(self.weak_directions)
 
     def weak_projector(self) -> FloatArray:
-        """``(dof, dof)`` projector onto the weak subspace, in tangent coordinates."""
+        """``(dof, dof)`` projector onto the weak subspace, in tangent coordinates.
+
+        Components of a weak direction (scaled coordinates, unit length) smaller than the
+        normal noise ``ε̂`` (radians, from ``normal_noise``) are not resolved by the data and
+        are set to zero first: a corridor's weak direction is the translation along its axis,
+        not a noise-tilted version of it (a tilt would tie the well-determined directions to
+        the drift along the axis).
+        """
         dof = self.information.shape[0]
         dim = dof - self.levers.size
         s_inv = np.concatenate([np.ones(dim), 1.0 / self.levers])
-        vals, vecs = np.linalg.eigh(self.information)
-        weak = vecs[:, vals < self.threshold]
-        p_s = weak @ weak.T
+        if not self.weak_directions:
+            return np.zeros((dof, dof))
+        eps = float(np.sqrt(self.normal_noise)) if np.isfinite(self.normal_noise) else 0.0
+        cols = []
+        for w in self.weak_directions:
+            v = np.array(w.vector) / s_inv  # scaled coordinates
+            v = v / np.linalg.norm(v)
+            snapped = np.where(np.abs(v) < eps, 0.0, v)
+            cols.append(snapped if np.any(snapped) else v)
+        basis, _ = np.linalg.qr(np.array(cols).T)
+        p_s = basis @ basis.T
         out: FloatArray = p_s * np.outer(s_inv, 1.0 / s_inv)
         return out
 
