@@ -40,7 +40,13 @@ from . import _core
 from ._validate import FloatArray, as_points
 from ._validate import frozen as _frozen
 from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
-from .degeneracy import Degeneracy, analyse_degeneracy, normal_noise, rotation_levers
+from .degeneracy import (
+    Degeneracy,
+    analyse_degeneracy,
+    correspondence_normal_noise,
+    normal_noise,
+    rotation_levers,
+)
 from .quality import (
     Conditioning,
     block_covariance,
@@ -452,10 +458,10 @@ def register(
             step_projector=projector,
         )
 
-    eps2 = (
+    eps2, eps2_typical = (
         normal_noise(prepared.points, prepared.normals, prepared.index)
         if prepared.normals is not None
-        else math.nan
+        else (math.nan, math.nan)
     )
     block = s.block_size
     if block is None:
@@ -463,7 +469,21 @@ def register(
         if not math.isfinite(block):
             block = float(np.sqrt(np.mean(levers**2))) / 5.0
 
+    source_normals = None
+    if planar and len(src) > dim:
+        # Source normals only to measure the normal noise between the two scans (Censi's
+        # normal term); the registration itself does not use them.
+        source_normals, _, _ = _core.KdTree(src).local_geometry(
+            check_k(min(s.num_neighbors, len(src)), len(src), dim), np.zeros(dim)
+        )
+
     def analyse(out: Any, sigma2_point: float) -> tuple[Any, Degeneracy]:
+        normal_var = 0.0
+        if source_normals is not None and prepared.normals is not None:
+            normal_var = correspondence_normal_noise(
+                source_normals, prepared.normals, np.array(out.pose)[:dim, :dim], out.correspondences
+            )
+            normal_var = normal_var if math.isfinite(normal_var) else 0.0
         ana = _core.censi_analysis(
             src,
             prepared.points,
@@ -475,6 +495,7 @@ def register(
             source_variance=sigma2_point,
             target_variance=sigma2_point,
             block_size=max(block, 1e-9),
+            normal_variance=normal_var,
             target_normals=prepared.normals,
             source_covariances=source_covariances,
             target_covariances=prepared.covariances if method_eff == "gicp" else None,
@@ -487,6 +508,7 @@ def register(
                 dim,
                 levers,
                 normal_noise=eps2,
+                typical_normal_noise=eps2_typical,
             )
         else:
             deg = analyse_degeneracy(
@@ -495,6 +517,7 @@ def register(
                 dim,
                 levers,
                 normal_noise=eps2,
+                typical_normal_noise=eps2_typical,
                 basis="hessian",
             )
         return ana, deg

@@ -19,7 +19,9 @@
 //! Per correspondence, with `e = R p + t − q`, `A(p) = ∂(exp(δ) p)/∂δ` and `C(w) = ∂(A(p)ᵀ w)/∂p`
 //! at fixed `w` (`[0; −[w]×]` in 3D, `[0, 0; w_y, −w_x]` in 2D):
 //! * point-to-point (`r = Rᵀe`): `∂g/∂p = k (Aᵀ + C(r))`, `∂g/∂q = −k Aᵀ Rᵀ`;
-//! * point-to-plane/line (`m = Rᵀn`, `r = nᵀe`): `∂g/∂p = k (A ᵀm mᵀ + r C(m))`, `∂g/∂q = −k Aᵀ m nᵀ`;
+//! * point-to-plane/line (`m = Rᵀn`, `r = nᵀe`): `∂g/∂p = k (Aᵀ m mᵀ + r C(m))`, `∂g/∂q = −k Aᵀ m nᵀ`,
+//!   and for the target normal (its direction noise `σ_n² (I − nnᵀ)`, Censi's "line" term)
+//!   `∂g/∂n = k Aᵀ (Rᵀ r + m eᵀ)`;
 //! * GICP (`W_l = Rᵀ W R`, `r = Rᵀe`): `∂g/∂p = k (Aᵀ W_l + C(W_l r))`, `∂g/∂q = −k Aᵀ W_l Rᵀ`.
 //!
 //! The same pass also sums the per-point scores `ψ_i = k J_iᵀ W r_i` by spatial block (cells of
@@ -64,6 +66,10 @@ pub struct Options {
     pub source_variance: f64,
     /// Variance of each coordinate of a target point (units²).
     pub target_variance: f64,
+    /// Variance of a target normal's direction, per tangent axis (rad²): the normal is
+    /// perturbed within its tangent plane, `Σ_n = normal_variance (I − n nᵀ)`. Point-to-plane
+    /// only (the residual `nᵀe` depends on it).
+    pub normal_variance: f64,
     /// Edge of the cubic (square) blocks the scores are summed over; `inf`: one block per point.
     pub block_size: f64,
 }
@@ -153,6 +159,8 @@ struct Term<const D: usize, const N: usize> {
     score: SVector<f64, N>,
     dp: SMatrix<f64, N, D>,
     dq: SMatrix<f64, N, D>,
+    /// `∂g/∂n` and `Σ_n` of the target normal (point-to-plane only).
+    dn: Option<(SMatrix<f64, N, D>, SMatrix<f64, D, D>)>,
     plane: Option<SMatrix<f64, N, N>>,
 }
 
@@ -178,6 +186,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
         let jrow = (rt * n).transpose() * a;
         jrow.transpose() * jrow
     });
+    let mut dn = None;
     let (h, score, dp, dq, norm) = match opts.method {
         Method::PointToPoint => {
             let rl = rt * e;
@@ -194,6 +203,10 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
             let m = rt * n;
             let d = n.dot(&e);
             let jt = a.transpose() * m; // N x 1
+            // g = Aᵀ m d with m = Rᵀn, d = nᵀe: ∂g/∂n = Aᵀ (Rᵀ d + m eᵀ).
+            let dgn = a.transpose() * (rt * d + m * e.transpose());
+            let tangent = SMatrix::<f64, D, D>::identity() - n * n.transpose();
+            dn = Some((dgn, tangent * opts.normal_variance));
             (
                 jt * jt.transpose(),
                 jt * d,
@@ -224,6 +237,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
         score: score * k,
         dp: dp * k,
         dq: dq * k,
+        dn: dn.map(|(d, c)| (d * k, c)),
         plane,
     })
 }
@@ -289,13 +303,20 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
     while k < shared.len() {
         let j = shared[k].0;
         let mut d = SMatrix::<f64, N, D>::zeros();
+        let mut dn = SMatrix::<f64, N, D>::zeros();
+        let mut cov_n = SMatrix::<f64, D, D>::zeros();
         while k < shared.len() && shared[k].0 == j {
             if let Some((_, tm)) = &terms[shared[k].1] {
                 d += tm.dq;
+                if let Some((dgn, c)) = &tm.dn {
+                    dn += dgn;
+                    cov_n = *c;
+                }
             }
             k += 1;
         }
         meat += d * d.transpose() * opts.target_variance;
+        meat += dn * cov_n * dn.transpose();
     }
     let mut block_meat = SMatrix::<f64, N, N>::zeros();
     for s in blocks.values() {
@@ -358,6 +379,7 @@ pub fn analyse(input: &Input<'_>, pose: &[f64], dim: usize, opts: &Options) -> R
     for (arg, v) in [
         ("source_variance", opts.source_variance),
         ("target_variance", opts.target_variance),
+        ("normal_variance", opts.normal_variance),
     ] {
         if !v.is_finite() || v < 0.0 {
             return Err(Error::invalid(arg, format!("must be finite and >= 0, got {v}")));

@@ -51,7 +51,7 @@ fn covs<'a>(
 #[pyfunction]
 #[pyo3(signature = (
     source, target, pose_matrix, correspondences, *, method, kernel, kernel_scale,
-    source_variance, target_variance, block_size, target_normals=None, source_covariances=None,
+    source_variance, target_variance, block_size, normal_variance=0.0, target_normals=None, source_covariances=None,
     target_covariances=None, num_threads=None
 ))]
 #[allow(clippy::too_many_arguments)]
@@ -67,6 +67,7 @@ fn censi_analysis(
     source_variance: f64,
     target_variance: f64,
     block_size: f64,
+    normal_variance: f64,
     target_normals: Option<PyReadonlyArray2<'_, f64>>,
     source_covariances: Option<PyReadonlyArray3<'_, f64>>,
     target_covariances: Option<PyReadonlyArray3<'_, f64>>,
@@ -109,6 +110,7 @@ fn censi_analysis(
         kernel: Kernel::from_name(kernel, kernel_scale).map_err(core_err)?,
         source_variance,
         target_variance,
+        normal_variance,
         block_size,
     };
     let out = py

@@ -45,6 +45,7 @@ fn check_method(method: Method) {
         kernel: Kernel::from_name("none", 1.0).unwrap(),
         source_variance: 1.0,
         target_variance: 0.0,
+        normal_variance: 0.0,
         block_size: f64::INFINITY,
     };
     let input = Input {
@@ -100,6 +101,48 @@ fn check_method(method: Method) {
 }
 
 #[test]
+fn normal_term_matches_finite_differences() {
+    let (src, tgt, nrm, corr) = scene();
+    let th = 0.141f64.atan2(0.99);
+    let pose = [th.cos(), -th.sin(), 0.2, th.sin(), th.cos(), -0.1, 0.0, 0.0, 1.0];
+    let opts = Options {
+        method: Method::PointToPlane,
+        kernel: Kernel::from_name("none", 1.0).unwrap(),
+        source_variance: 0.0,
+        target_variance: 0.0,
+        normal_variance: 1.0,
+        block_size: f64::INFINITY,
+    };
+    let input = Input {
+        source: &src,
+        source_covariances: None,
+        target: &tgt,
+        target_normals: Some(&nrm),
+        target_covariances: None,
+        correspondences: &corr,
+    };
+    // In 2D the normal turns about its one tangent t = (−n_y, n_x): Σ_n = t tᵀ.
+    let mut meat_fd = SMatrix::<f64, 3, 3>::zeros();
+    let h = 1e-6;
+    for j in 0..tgt.len() / 2 {
+        let t = [-nrm[2 * j + 1], nrm[2 * j]];
+        let mut plus = nrm.clone();
+        let mut minus = nrm.clone();
+        for c in 0..2 {
+            plus[2 * j + c] += h * t[c];
+            minus[2 * j + c] -= h * t[c];
+        }
+        let gp = total_score(&Input { target_normals: Some(&plus), ..input }, &opts, &pose);
+        let gm = total_score(&Input { target_normals: Some(&minus), ..input }, &opts, &pose);
+        let d = (gp - gm) / (2.0 * h);
+        meat_fd += d * d.transpose();
+    }
+    let out = analyse(&input, &pose, 2, &opts).unwrap();
+    let meat = SMatrix::<f64, 3, 3>::from_row_slice(&out.censi_meat);
+    assert!((meat - meat_fd).norm() < 1e-5 * meat_fd.norm(), "{meat} vs {meat_fd}");
+}
+
+#[test]
 fn censi_meat_matches_finite_differences() {
     check_method(Method::PointToPoint);
     check_method(Method::PointToPlane);
@@ -122,6 +165,7 @@ fn rejects_bad_correspondences() {
         kernel: Kernel::from_name("none", 1.0).unwrap(),
         source_variance: 1.0,
         target_variance: 1.0,
+        normal_variance: 0.0,
         block_size: 1.0,
     };
     let pose = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
