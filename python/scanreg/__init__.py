@@ -15,10 +15,20 @@ from .correlative import (
 from .deskew import deskew
 from .ndt import NdtResult, NdtTarget, match_ndt, prepare_ndt
 from .paired import PairedAlignment, align_paired
-from .quality import Conditioning, ResidualStats, WeakDirection
-from .register import RegistrationResult, RegistrationSettings, RegistrationTiming, register
+from .degeneracy import Degeneracy
+from .quality import Conditioning, ResidualStats, WeakDirection, transform_covariance
+from .register import (
+    CovarianceEstimates,
+    RegistrationResult,
+    RegistrationSettings,
+    RegistrationTiming,
+    SamplingCovariance,
+    register,
+    sampling_covariance,
+)
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3
+from .verdict import QualityReport, Verdict, VerdictThresholds
 
 __all__ = [
     "SE2",
@@ -26,14 +36,20 @@ __all__ = [
     "Conditioning",
     "CorrelativeGrid",
     "CorrelativeResult",
+    "CovarianceEstimates",
+    "Degeneracy",
     "NdtResult",
     "NdtTarget",
     "PairedAlignment",
     "PreparedTarget",
+    "QualityReport",
     "RegistrationResult",
     "RegistrationSettings",
     "RegistrationTiming",
     "ResidualStats",
+    "SamplingCovariance",
+    "Verdict",
+    "VerdictThresholds",
     "WeakDirection",
     "__version__",
     "align_paired",
@@ -45,5 +61,7 @@ __all__ = [
     "prepare_ndt",
     "preprocess",
     "register",
+    "sampling_covariance",
     "simulate",
+    "transform_covariance",
 ]

@@ -660,3 +660,91 @@ def _estimates(
         num_blocks=int(ana.num_blocks),
         prior=_frozen(prior),
     )
+
+
+@dataclass(frozen=True)
+class SamplingCovariance:
+    """Result of :func:`sampling_covariance`."""
+
+    #: ``(dof, dof)`` sample covariance of the restarts' poses about ``reference`` (tangent,
+    #: right perturbation); restarts that did not converge are left out.
+    covariance: FloatArray
+    #: The registration from ``init`` itself, about which the spread is measured.
+    reference: RegistrationResult
+    #: ``(R, dof)`` tangent offsets ``log(reference⁻¹ · pose_r)`` of the converged restarts.
+    offsets: FloatArray
+    #: Converged restarts over all restarts.
+    converged_fraction: float
+
+
+def sampling_covariance(
+    source: Any,
+    target: Any,
+    *,
+    method: Method = "point_to_plane",
+    init: Any = None,
+    init_covariance: Any = None,
+    restarts: int = 20,
+    seed: int = 0,
+    settings: RegistrationSettings | None = None,
+    **overrides: Any,
+) -> SamplingCovariance:
+    """Spread of the estimate over restarts from perturbed initial guesses.
+
+    ``restarts`` registrations start from ``init @ exp(ξ)``, ``ξ ~ N(0, init_covariance)``
+    (default: the gate-wide prior of :func:`register`), seeded by ``seed``. Their sample
+    covariance about the registration from ``init`` shows how much the *optimiser* (basin,
+    local minima, the degenerate drift) adds to the noise; it does not see the noise of the
+    points themselves (each restart uses the same data), so compare it with, do not use it
+    instead of, ``RegistrationResult.covariances``. ``restarts + 1`` registrations: costly.
+    """
+    count = positive_int(restarts, "restarts", minimum=2)
+    if isinstance(target, PreparedTarget):
+        prepared_target = target
+    else:
+        base = settings if settings is not None else RegistrationSettings()
+        merged = dataclasses.replace(base, **overrides) if overrides else base
+        src_dim = as_points(source, "source").shape[1]
+        prepared_target = _prepared_target(
+            target, int(src_dim), _resolve_method(method, int(src_dim)), merged
+        )
+    reference = register(
+        source,
+        prepared_target,
+        method=method,
+        init=init,
+        settings=settings,
+        init_covariance=init_covariance,
+        **overrides,
+    )
+    dim = reference.pose.DIM
+    dof = 3 if dim == 2 else 6
+    start = pose_class(dim).identity() if init is None else as_pose(init, "init", dim)
+    prior = (
+        reference.covariances.prior
+        if reference.covariances is not None
+        else np.eye(dof) * reference.settings.max_correspondence_distance**2
+    )
+    rng = np.random.default_rng(seed)
+    offsets = []
+    for _ in range(count):
+        xi = rng.multivariate_normal(np.zeros(dof), prior)
+        res = register(
+            source,
+            prepared_target,
+            method=method,
+            init=start @ type(start).exp(xi),  # type: ignore[operator]
+            settings=settings,
+            init_covariance=init_covariance,
+            **overrides,
+        )
+        if res.converged:
+            offsets.append((reference.pose.inverse() @ res.pose).log())  # type: ignore[operator]
+    arr = np.array(offsets).reshape(-1, dof)
+    cov = arr.T @ arr / max(len(arr) - 1, 1) if len(arr) >= 2 else np.full((dof, dof), np.nan)
+    return SamplingCovariance(
+        covariance=_frozen(cov),
+        reference=reference,
+        offsets=_frozen(arr),
+        converged_fraction=len(arr) / count,
+    )
