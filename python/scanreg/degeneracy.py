@@ -66,30 +66,43 @@ class Degeneracy:
     def degenerate(self) -> bool:
         return bool(self.weak_directions)
 
-    def weak_projector(self) -> FloatArray:
-        """``(dof, dof)`` projector onto the weak subspace, in tangent coordinates.
+    def scaling(self) -> FloatArray:
+        """``diag(S⁻¹)``: tangent = ``S⁻¹`` × scaled coordinates (``1`` for translation,
+        ``1/L_a`` for rotation)."""
+        dim = self.information.shape[0] - self.levers.size
+        out: FloatArray = np.concatenate([np.ones(dim), 1.0 / self.levers])
+        return out
 
-        Components of a weak direction (scaled coordinates, unit length) smaller than the
-        normal noise ``ε̂`` (radians, from ``normal_noise``) are not resolved by the data and
-        are set to zero first: a corridor's weak direction is the translation along its axis,
-        not a noise-tilted version of it (a tilt would tie the well-determined directions to
-        the drift along the axis).
+    def weak_basis(self) -> FloatArray:
+        """``(dof, w)`` orthonormal basis of the weak subspace in *scaled* coordinates.
+
+        Components of a weak direction (scaled, unit length) smaller than the normal noise
+        ``ε̂`` (radians, from ``normal_noise``) are not resolved by the data and are set to zero
+        first: a corridor's weak direction is the translation along its axis, not a
+        noise-tilted version of it (a tilt would tie the well-determined directions to the
+        drift along the axis).
         """
         dof = self.information.shape[0]
-        dim = dof - self.levers.size
-        s_inv = np.concatenate([np.ones(dim), 1.0 / self.levers])
         if not self.weak_directions:
-            return np.zeros((dof, dof))
+            return np.zeros((dof, 0))
+        s_inv = self.scaling()
         eps = float(np.sqrt(self.normal_noise)) if np.isfinite(self.normal_noise) else 0.0
         cols = []
         for w in self.weak_directions:
-            v = np.array(w.vector) / s_inv  # scaled coordinates
+            v = np.array(w.vector) / s_inv
             v = v / np.linalg.norm(v)
             snapped = np.where(np.abs(v) < eps, 0.0, v)
             cols.append(snapped if np.any(snapped) else v)
         basis, _ = np.linalg.qr(np.array(cols).T)
-        p_s = basis @ basis.T
-        out: FloatArray = p_s * np.outer(s_inv, 1.0 / s_inv)
+        out: FloatArray = basis
+        return out
+
+    def weak_projector(self) -> FloatArray:
+        """``(dof, dof)`` projector onto the weak subspace along the strong one, in tangent
+        coordinates (``S⁻¹ W Wᵀ S`` with ``W`` = :meth:`weak_basis`)."""
+        s_inv = self.scaling()
+        w = self.weak_basis()
+        out: FloatArray = (w @ w.T) * np.outer(s_inv, 1.0 / s_inv)
         return out
 
 

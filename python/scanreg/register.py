@@ -212,6 +212,9 @@ class CovarianceEstimates:
     calibrated: FloatArray
     #: Variance of each coordinate of a source or target point used by ``censi`` (units²).
     point_variance: float
+    #: Variance of a target normal's direction per tangent axis used by ``censi`` (rad²),
+    #: measured between the two scans (point-to-plane/line; 0 otherwise).
+    normal_variance: float
     block_size: float
     num_blocks: int
     #: The prior used along degenerate directions (``init_covariance``, or the gate's).
@@ -477,13 +480,15 @@ def register(
             check_k(min(s.num_neighbors, len(src)), len(src), dim), np.zeros(dim)
         )
 
-    def analyse(out: Any, sigma2_point: float) -> tuple[Any, Degeneracy]:
+    def analyse(out: Any) -> tuple[Any, Degeneracy, float, float]:
         normal_var = 0.0
         if source_normals is not None and prepared.normals is not None:
             normal_var = correspondence_normal_noise(
                 source_normals, prepared.normals, np.array(out.pose)[:dim, :dim], out.correspondences
             )
             normal_var = normal_var if math.isfinite(normal_var) else 0.0
+        # Unit variances: the meats scale linearly and are combined below, once the point
+        # noise is known from the residuals of this very analysis.
         ana = _core.censi_analysis(
             src,
             prepared.points,
@@ -492,10 +497,10 @@ def register(
             method=method_eff,
             kernel=s.kernel,
             kernel_scale=k_scale,
-            source_variance=sigma2_point,
-            target_variance=sigma2_point,
+            source_variance=1.0,
+            target_variance=1.0,
             block_size=max(block, 1e-9),
-            normal_variance=normal_var,
+            normal_variance=1.0,
             target_normals=prepared.normals,
             source_covariances=source_covariances,
             target_covariances=prepared.covariances if method_eff == "gicp" else None,
@@ -520,16 +525,14 @@ def register(
                 typical_normal_noise=eps2_typical,
                 basis="hessian",
             )
-        return ana, deg
+        return ana, deg, _point_variance(out, ana, method_eff, dim, dof), normal_var
 
     out = run(None)
-    sigma2_point = _point_variance(out, method_eff, dim, dof)
-    ana, deg = analyse(out, sigma2_point)
+    ana, deg, sigma2_point, normal_var = analyse(out)
     weak_projector = deg.weak_projector()
     if s.degeneracy_aware and deg.degenerate and len(out.correspondences):
         out = run(np.ascontiguousarray(np.eye(dof) - weak_projector))
-        sigma2_point = _point_variance(out, method_eff, dim, dof)
-        ana, _ = analyse(out, sigma2_point)
+        ana, _, sigma2_point, normal_var = analyse(out)
 
     t0 = time.perf_counter()
     pose = pose_class(dim).from_matrix(out.pose, atol=1e-6)
@@ -550,7 +553,7 @@ def register(
         sigma2 = math.nan if m <= dof else sigma2
         cov = np.full((dof, dof), np.inf)
     estimates = _estimates(
-        cov, ana, weak_projector, prior, sigma2_point, block, dof, s.degeneracy_aware
+        cov, ana, deg, prior, sigma2_point, normal_var, block, dof, s.degeneracy_aware
     )
     chosen = getattr(estimates, s.covariance)
     info = (
@@ -612,54 +615,86 @@ def _prior(
     return p
 
 
-def _point_variance(out: Any, method: str, dim: int, dof: int) -> float:
-    """Per-coordinate noise of one point, half of the residual variance (source and target
-    points are equally noisy): point-to-plane ``Σ r²/(n - dof)``; the others from the
-    Euclidean distances ``Σ |e|² / (D n - dof)``."""
+def _point_variance(out: Any, ana: Any, method: str, dim: int, dof: int) -> float:
+    """Noise variance of one coordinate of a point, half of the residual variance (source and
+    target points are equally noisy).
+
+    Point-to-plane/line: along the normal, ``Σ (nᵀe)² / (n - dof)`` — the noise its residual
+    feels. Point-to-point and GICP: ``Σ |e|² / (D n - dof)``, the along-surface sampling
+    offsets included. For GICP the normal-only estimate was measured too
+    (``docs/calibration.md``): consistent in 2D but 4× over-confident in the 3D street and
+    tunnel, where the along-surface offsets are part of the error; the Euclidean one errs on
+    the safe side (over-cautious in the degenerate 2D/3D scenes).
+    """
+    n_plane = int(ana.num_plane_correspondences)
+    if method in ("point_to_plane", "point_to_line") and n_plane > dof:
+        return float(ana.plane_sum_squares / (n_plane - dof)) / 2.0
     n = int(out.num_correspondences)
-    if method in ("point_to_plane", "point_to_line"):
-        return float(out.sum_squares / max(n - dof, 1)) / 2.0
     return float(out.sum_squared_distances / max(dim * n - dof, 1)) / 2.0
 
 
 def _estimates(
     hessian_cov: FloatArray,
     ana: Any,
-    weak: FloatArray,
+    deg: Degeneracy,
     prior: FloatArray,
     point_variance: float,
+    normal_variance: float,
     block: float,
     dof: int,
     aware: bool,
 ) -> CovarianceEstimates:
     bad = np.full((dof, dof), np.inf)
     h = np.array(ana.hessian)
+    meat = point_variance * (np.array(ana.source_meat) + np.array(ana.target_meat))
+    meat = meat + normal_variance * np.array(ana.normal_meat)
     try:
-        censi = censi_covariance(h, np.array(ana.censi_meat))
+        censi = censi_covariance(h, meat)
         blk = block_covariance(h, np.array(ana.block_meat), int(ana.num_blocks))
         if not (np.isfinite(censi).all() and np.isfinite(blk).all()):
             raise np.linalg.LinAlgError("non-finite covariance")
         calibrated = covariance_upper_bound(censi, blk)
     except np.linalg.LinAlgError:
         censi = blk = calibrated = bad
-    if np.any(weak != 0) and np.isfinite(calibrated).all():
-        # Along weak directions the data say nothing reliable: the estimate is the prior
-        # (degeneracy-aware solve) or wherever sampling left it, within about the prior.
-        strong = np.eye(dof) - weak
-        calibrated = strong @ calibrated @ strong.T + weak @ prior @ weak.T
-        if not aware:
-            calibrated = calibrated + weak @ prior @ weak.T  # the drift, plus the prior
-        calibrated = 0.5 * (calibrated + calibrated.T)
+    if deg.degenerate and np.isfinite(calibrated).all():
+        calibrated = _with_prior_along_weak(calibrated, deg, prior, aware)
     return CovarianceEstimates(
         hessian=_frozen(hessian_cov),
         censi=_frozen(censi),
         block=_frozen(blk),
         calibrated=_frozen(calibrated),
         point_variance=float(point_variance),
+        normal_variance=float(normal_variance),
         block_size=float(block),
         num_blocks=int(ana.num_blocks),
         prior=_frozen(prior),
     )
+
+
+def _with_prior_along_weak(
+    cov: FloatArray, deg: Degeneracy, prior: FloatArray, aware: bool
+) -> FloatArray:
+    """Replace the data's say along the weak directions by the prior's.
+
+    In scaled coordinates with ``W`` the weak basis and ``U`` its orthogonal complement: the
+    well-determined part is the data's covariance of ``U``-coordinates *given* the weak ones
+    (``(Uᵀ Λ U)⁻¹``, ``Λ = cov⁻¹``): the solve fixes (aware) or drifts (not aware) along ``W``
+    and solves the rest for that value. Along ``W`` the variance is the prior's; without the
+    degeneracy-aware solve it is counted twice (the initial error plus the drift).
+    """
+    s_inv = deg.scaling()
+    w = deg.weak_basis()
+    dof = s_inv.size
+    full, _, _ = np.linalg.svd(w, full_matrices=True)
+    u = full[:, w.shape[1] :]
+    # scaled covariance: δ_s = S δ
+    cov_s = cov / np.outer(s_inv, s_inv)
+    prior_s = prior / np.outer(s_inv, s_inv)
+    info_s = np.linalg.inv(cov_s)
+    strong = u @ np.linalg.inv(u.T @ info_s @ u) @ u.T if u.shape[1] else np.zeros((dof, dof))
+    weak = w @ (w.T @ prior_s @ w) @ w.T * (1.0 if aware else 2.0)
+    out = (strong + weak) * np.outer(s_inv, s_inv)
+    return np.asarray(0.5 * (out + out.T), dtype=np.float64)
 
 
 @dataclass(frozen=True)

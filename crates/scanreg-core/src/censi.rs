@@ -79,8 +79,19 @@ pub struct Options {
 pub struct Analysis {
     /// `Σ k JᵀWJ` over the correspondences.
     pub hessian: Vec<f64>,
-    /// `(∂g/∂z) Σ_z (∂g/∂z)ᵀ`: Censi's middle term.
+    /// `(∂g/∂z) Σ_z (∂g/∂z)ᵀ`: Censi's middle term with the [`Options`] variances; the sum
+    /// of the three unit-variance terms below, each times its variance.
     pub censi_meat: Vec<f64>,
+    /// The source-point term at unit variance (`σ_s² = 1`).
+    pub source_meat: Vec<f64>,
+    /// The target-point term at unit variance, shared target points summed.
+    pub target_meat: Vec<f64>,
+    /// The target-normal term at unit variance (point-to-plane/line; zeros otherwise).
+    pub normal_meat: Vec<f64>,
+    /// `Σ (nᵀe)²` over correspondences whose target has a normal: the residual along the
+    /// surface normal, for every method (the noise that matters, free of the along-surface
+    /// sampling offsets in `|e|²`).
+    pub plane_sum_squares: f64,
     /// `Σ_b ψ_b ψ_bᵀ` over spatial blocks.
     pub block_meat: Vec<f64>,
     /// Blocks holding at least one correspondence.
@@ -161,7 +172,7 @@ struct Term<const D: usize, const N: usize> {
     dq: SMatrix<f64, N, D>,
     /// `∂g/∂n` and `Σ_n` of the target normal (point-to-plane only).
     dn: Option<(SMatrix<f64, N, D>, SMatrix<f64, D, D>)>,
-    plane: Option<SMatrix<f64, N, N>>,
+    plane: Option<(SMatrix<f64, N, N>, f64)>,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -184,7 +195,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
         .filter(|n| n.norm_squared() >= 0.25);
     let plane = normal.map(|n| {
         let jrow = (rt * n).transpose() * a;
-        jrow.transpose() * jrow
+        (jrow.transpose() * jrow, n.dot(&e).powi(2))
     });
     let mut dn = None;
     let (h, score, dp, dq, norm) = match opts.method {
@@ -206,7 +217,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
             // g = Aᵀ m d with m = Rᵀn, d = nᵀe: ∂g/∂n = Aᵀ (Rᵀ d + m eᵀ).
             let dgn = a.transpose() * (rt * d + m * e.transpose());
             let tangent = SMatrix::<f64, D, D>::identity() - n * n.transpose();
-            dn = Some((dgn, tangent * opts.normal_variance));
+            dn = Some((dgn, tangent));
             (
                 jt * jt.transpose(),
                 jt * d,
@@ -276,8 +287,11 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
         })
         .collect();
     let mut h = SMatrix::<f64, N, N>::zeros();
-    let mut meat = SMatrix::<f64, N, N>::zeros();
+    let mut m_src = SMatrix::<f64, N, N>::zeros();
+    let mut m_tgt = SMatrix::<f64, N, N>::zeros();
+    let mut m_nrm = SMatrix::<f64, N, N>::zeros();
     let mut plane = SMatrix::<f64, N, N>::zeros();
+    let mut plane_ss = 0.0;
     let mut plane_count = 0;
     let mut count = 0;
     let mut shared: Vec<(u32, usize)> = Vec::with_capacity(n);
@@ -286,10 +300,11 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
         let Some((j, tm)) = item else { continue };
         count += 1;
         h += tm.h;
-        meat += tm.dp * tm.dp.transpose() * opts.source_variance;
+        m_src += tm.dp * tm.dp.transpose();
         shared.push((*j, i));
-        if let Some(pl) = tm.plane {
+        if let Some((pl, d2)) = tm.plane {
             plane += pl;
+            plane_ss += d2;
             plane_count += 1;
         }
         let p: SVector<f64, D> = vec_at(input.source, i);
@@ -315,17 +330,23 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
             }
             k += 1;
         }
-        meat += d * d.transpose() * opts.target_variance;
-        meat += dn * cov_n * dn.transpose();
+        m_tgt += d * d.transpose();
+        m_nrm += dn * cov_n * dn.transpose();
     }
     let mut block_meat = SMatrix::<f64, N, N>::zeros();
     for s in blocks.values() {
         block_meat += s * s.transpose();
     }
+    let meat =
+        m_src * opts.source_variance + m_tgt * opts.target_variance + m_nrm * opts.normal_variance;
     let flat = |mat: SMatrix<f64, N, N>| mat.transpose().iter().copied().collect::<Vec<f64>>();
     Analysis {
         hessian: flat(h),
         censi_meat: flat(meat),
+        source_meat: flat(m_src),
+        target_meat: flat(m_tgt),
+        normal_meat: flat(m_nrm),
+        plane_sum_squares: plane_ss,
         block_meat: flat(block_meat),
         num_blocks: blocks.len(),
         plane_information: flat(plane),

@@ -17,6 +17,14 @@ pub struct CensiAnalysis {
     #[pyo3(get)]
     censi_meat: Py<PyArray2<f64>>,
     #[pyo3(get)]
+    source_meat: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    target_meat: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    normal_meat: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    plane_sum_squares: f64,
+    #[pyo3(get)]
     block_meat: Py<PyArray2<f64>>,
     #[pyo3(get)]
     num_blocks: usize,
@@ -120,6 +128,10 @@ fn censi_analysis(
     Ok(CensiAnalysis {
         hessian: square(py, out.hessian, dof)?,
         censi_meat: square(py, out.censi_meat, dof)?,
+        source_meat: square(py, out.source_meat, dof)?,
+        target_meat: square(py, out.target_meat, dof)?,
+        normal_meat: square(py, out.normal_meat, dof)?,
+        plane_sum_squares: out.plane_sum_squares,
         block_meat: square(py, out.block_meat, dof)?,
         num_blocks: out.num_blocks,
         plane_information: square(py, out.plane_information, dof)?,
