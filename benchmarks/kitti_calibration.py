@@ -75,7 +75,10 @@ def main() -> None:
                 nees.append(float(d @ np.linalg.solve(cov, d)))
                 z.append(d / np.sqrt(np.diag(cov)))
             zr = np.sqrt(np.mean(np.array(z) ** 2, axis=0))
-            print(f"  {kind:>10}: mean NEES {np.mean(nees):9.3g}   z-RMS " + " ".join(f"{v:6.2f}" for v in zr))
+            print(
+                f"  {kind:>10}: mean NEES {np.mean(nees):9.3g}   z-RMS "
+                + " ".join(f"{v:6.2f}" for v in zr)
+            )
 
 
 if __name__ == "__main__":

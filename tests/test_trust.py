@@ -45,7 +45,9 @@ def test_corridor_is_degenerate_along_its_axis_and_the_room_is_not() -> None:
     assert abs(weak.vector[0]) > 0.99
     assert res.degeneracy.eigenvalues[0] < 0.3 * res.degeneracy.threshold
     assert res.verdict is not None and not res.verdict.accepted
-    assert any(r.startswith("degenerate: translation along (1.00, 0.00)") for r in res.verdict.reasons)
+    assert any(
+        r.startswith("degenerate: translation along (1.00, 0.00)") for r in res.verdict.reasons
+    )
     # The covariance says so: the standard deviation along x is the prior's (the gate), not mm.
     assert np.sqrt(res.covariance[0, 0]) > 0.5
     assert np.sqrt(res.covariance[1, 1]) < 0.01
@@ -161,12 +163,16 @@ def test_censi_matches_monte_carlo_on_a_small_problem(method: str) -> None:
     )
     truth = SE2.from_vector([0.05, -0.03, 0.01])
     sigma = 0.01
-    estimates, censi, hess = [], [], []
+    estimates, censi = [], []
     for _ in range(200):
         src = np.ascontiguousarray(walls + rng.normal(0, sigma, walls.shape))
         tgt = np.ascontiguousarray(truth.apply(walls) + rng.normal(0, sigma, walls.shape))
         res = scanreg.register(
-            src, tgt, init=truth, method=method, max_correspondence_distance=0.1  # type: ignore[arg-type]
+            src,
+            tgt,
+            init=truth,
+            method=method,
+            max_correspondence_distance=0.1,  # type: ignore[arg-type]
         )
         estimates.append((truth.inverse() @ res.pose).log())
         assert res.covariances is not None

@@ -12,10 +12,10 @@ from .correlative import (
     match_correlative,
     prepare_correlative,
 )
+from .degeneracy import Degeneracy
 from .deskew import deskew
 from .ndt import NdtResult, NdtTarget, match_ndt, prepare_ndt
 from .paired import PairedAlignment, align_paired
-from .degeneracy import Degeneracy
 from .quality import Conditioning, ResidualStats, WeakDirection, transform_covariance
 from .register import (
     CovarianceEstimates,

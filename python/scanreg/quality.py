@@ -330,8 +330,6 @@ def transform_covariance(covariance: FloatArray, adjoint: FloatArray) -> FloatAr
     ad = np.asarray(adjoint, dtype=np.float64)
     cov = np.asarray(covariance, dtype=np.float64)
     if ad.shape != cov.shape or ad.ndim != 2 or ad.shape[0] != ad.shape[1]:
-        raise ValueError(
-            f"adjoint: expected shape {cov.shape} to match covariance, got {ad.shape}"
-        )
+        raise ValueError(f"adjoint: expected shape {cov.shape} to match covariance, got {ad.shape}")
     out: FloatArray = ad @ cov @ ad.T
     return np.asarray(0.5 * (out + out.T), dtype=np.float64)

@@ -39,7 +39,6 @@ import numpy as np
 from . import _core
 from ._validate import FloatArray, as_points
 from ._validate import frozen as _frozen
-from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
 from .degeneracy import (
     Degeneracy,
     analyse_degeneracy,
@@ -47,6 +46,7 @@ from .degeneracy import (
     normal_noise,
     rotation_levers,
 )
+from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
 from .quality import (
     Conditioning,
     block_covariance,
@@ -436,9 +436,7 @@ def register(
     levers = rotation_levers(src, dim)
     prior = _prior(init_covariance, dof, dim, s.max_correspondence_distance, levers)
     if thresholds is not None and not isinstance(thresholds, VerdictThresholds):
-        raise TypeError(
-            f"thresholds: expected VerdictThresholds, got {type(thresholds).__name__}"
-        )
+        raise TypeError(f"thresholds: expected VerdictThresholds, got {type(thresholds).__name__}")
 
     def run(projector: FloatArray | None) -> Any:
         return _core.register_icp(
@@ -484,7 +482,10 @@ def register(
         normal_var = 0.0
         if source_normals is not None and prepared.normals is not None:
             normal_var = correspondence_normal_noise(
-                source_normals, prepared.normals, np.array(out.pose)[:dim, :dim], out.correspondences
+                source_normals,
+                prepared.normals,
+                np.array(out.pose)[:dim, :dim],
+                out.correspondences,
             )
             normal_var = normal_var if math.isfinite(normal_var) else 0.0
         # Unit variances: the meats scale linearly and are combined below, once the point
@@ -562,7 +563,7 @@ def register(
     cond = conditioning(hessian, dim, _length_scale(src))
     t_post = time.perf_counter() - t0
 
-    stop: StopReason = out.stop_reason  # type: ignore[assignment]
+    stop: StopReason = out.stop_reason
     result = RegistrationResult(
         pose=pose,
         method=method_eff,
@@ -598,9 +599,7 @@ def register(
     return dataclasses.replace(result, quality=checked.report, verdict=checked.verdict)
 
 
-def _prior(
-    init_covariance: Any, dof: int, dim: int, gate: float, levers: FloatArray
-) -> FloatArray:
+def _prior(init_covariance: Any, dof: int, dim: int, gate: float, levers: FloatArray) -> FloatArray:
     """The covariance of the initial guess (see :func:`register`)."""
     if init_covariance is None:
         g = gate if math.isfinite(gate) else float(np.sqrt(np.mean(levers**2)))

@@ -214,7 +214,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
             let m = rt * n;
             let d = n.dot(&e);
             let jt = a.transpose() * m; // N x 1
-            // g = Aᵀ m d with m = Rᵀn, d = nᵀe: ∂g/∂n = Aᵀ (Rᵀ d + m eᵀ).
+                                        // g = Aᵀ m d with m = Rᵀn, d = nᵀe: ∂g/∂n = Aᵀ (Rᵀ d + m eᵀ).
             let dgn = a.transpose() * (rt * d + m * e.transpose());
             let tangent = SMatrix::<f64, D, D>::identity() - n * n.transpose();
             dn = Some((dgn, tangent));
@@ -403,7 +403,10 @@ pub fn analyse(input: &Input<'_>, pose: &[f64], dim: usize, opts: &Options) -> R
         ("normal_variance", opts.normal_variance),
     ] {
         if !v.is_finite() || v < 0.0 {
-            return Err(Error::invalid(arg, format!("must be finite and >= 0, got {v}")));
+            return Err(Error::invalid(
+                arg,
+                format!("must be finite and >= 0, got {v}"),
+            ));
         }
     }
     if opts.block_size.is_nan() || opts.block_size <= 0.0 {

@@ -92,12 +92,9 @@ fn censi_analysis(
             if j < 0 {
                 Ok(NONE)
             } else {
-                u32::try_from(j)
-                    .ok()
-                    .filter(|&v| v != NONE)
-                    .ok_or_else(|| {
-                        PyValueError::new_err(format!("correspondences: index {j} out of range"))
-                    })
+                u32::try_from(j).ok().filter(|&v| v != NONE).ok_or_else(|| {
+                    PyValueError::new_err(format!("correspondences: index {j} out of range"))
+                })
             }
         })
         .collect::<PyResult<_>>()?;

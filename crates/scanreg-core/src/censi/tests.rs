@@ -64,8 +64,22 @@ fn check_method(method: Method) {
         plus[c] += h;
         let mut minus = src.clone();
         minus[c] -= h;
-        let gp = total_score(&Input { source: &plus, ..input }, &opts, &pose);
-        let gm = total_score(&Input { source: &minus, ..input }, &opts, &pose);
+        let gp = total_score(
+            &Input {
+                source: &plus,
+                ..input
+            },
+            &opts,
+            &pose,
+        );
+        let gm = total_score(
+            &Input {
+                source: &minus,
+                ..input
+            },
+            &opts,
+            &pose,
+        );
         let d = (gp - gm) / (2.0 * h);
         meat_fd += d * d.transpose();
     }
@@ -87,8 +101,22 @@ fn check_method(method: Method) {
         plus[c] += h;
         let mut minus = tgt.clone();
         minus[c] -= h;
-        let gp = total_score(&Input { target: &plus, ..input }, &opts_t, &pose);
-        let gm = total_score(&Input { target: &minus, ..input }, &opts_t, &pose);
+        let gp = total_score(
+            &Input {
+                target: &plus,
+                ..input
+            },
+            &opts_t,
+            &pose,
+        );
+        let gm = total_score(
+            &Input {
+                target: &minus,
+                ..input
+            },
+            &opts_t,
+            &pose,
+        );
         let d = (gp - gm) / (2.0 * h);
         meat_fd += d * d.transpose();
     }
@@ -104,7 +132,17 @@ fn check_method(method: Method) {
 fn normal_term_matches_finite_differences() {
     let (src, tgt, nrm, corr) = scene();
     let th = 0.141f64.atan2(0.99);
-    let pose = [th.cos(), -th.sin(), 0.2, th.sin(), th.cos(), -0.1, 0.0, 0.0, 1.0];
+    let pose = [
+        th.cos(),
+        -th.sin(),
+        0.2,
+        th.sin(),
+        th.cos(),
+        -0.1,
+        0.0,
+        0.0,
+        1.0,
+    ];
     let opts = Options {
         method: Method::PointToPlane,
         kernel: Kernel::from_name("none", 1.0).unwrap(),
@@ -132,14 +170,31 @@ fn normal_term_matches_finite_differences() {
             plus[2 * j + c] += h * t[c];
             minus[2 * j + c] -= h * t[c];
         }
-        let gp = total_score(&Input { target_normals: Some(&plus), ..input }, &opts, &pose);
-        let gm = total_score(&Input { target_normals: Some(&minus), ..input }, &opts, &pose);
+        let gp = total_score(
+            &Input {
+                target_normals: Some(&plus),
+                ..input
+            },
+            &opts,
+            &pose,
+        );
+        let gm = total_score(
+            &Input {
+                target_normals: Some(&minus),
+                ..input
+            },
+            &opts,
+            &pose,
+        );
         let d = (gp - gm) / (2.0 * h);
         meat_fd += d * d.transpose();
     }
     let out = analyse(&input, &pose, 2, &opts).unwrap();
     let meat = SMatrix::<f64, 3, 3>::from_row_slice(&out.censi_meat);
-    assert!((meat - meat_fd).norm() < 1e-5 * meat_fd.norm(), "{meat} vs {meat_fd}");
+    assert!(
+        (meat - meat_fd).norm() < 1e-5 * meat_fd.norm(),
+        "{meat} vs {meat_fd}"
+    );
 }
 
 #[test]
