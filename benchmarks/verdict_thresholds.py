@@ -2,7 +2,8 @@
 
 Simulated pairs (2D room, 2D office floor plan, 3D street; fresh noise and sampling per pair)
 in four situations, each registered with default settings (``max_correspondence_distance``
-1.0 m) and judged with the default :class:`~scanreg.VerdictThresholds`:
+1.0 m) and judged with the default :class:`~scanreg.VerdictThresholds` (``max_inlier_rmse`` set by
+``--rmse-fraction``):
 
 * ``good``: initial guess within 0.2 m / 2° of the truth;
 * ``far init``: initial guess 1.5–3 m / 10–30° off (ICP lands in a wrong minimum or stops);
@@ -14,7 +15,7 @@ situation: how many were correct, how many accepted, and the accepted-but-wrong 
 accepts) and rejected-but-correct count (false rejects), plus the quantiles of overlap and
 inlier RMSE that the thresholds cut.
 
-    .venv/bin/python benchmarks/verdict_thresholds.py [--pairs 40]
+    .venv/bin/python benchmarks/verdict_thresholds.py [--pairs 40] [--rmse-fraction 0.25]
 """
 
 from __future__ import annotations
@@ -34,7 +35,14 @@ from scanreg import simulate as sim
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--pairs", type=int, default=40)
+    parser.add_argument(
+        "--rmse-fraction",
+        type=float,
+        default=0.5,
+        help="max_inlier_rmse as a fraction of the 1 m gate (default 0.5, the library default)",
+    )
     args = parser.parse_args()
+    thresholds = scanreg.VerdictThresholds(max_inlier_rmse=args.rmse_fraction * 1.0)
     laser = sim.LaserModel.preset("laser_360")
     lidar = sim.LidarModel.preset("vlp16")
     scenes = {
@@ -90,7 +98,9 @@ def main() -> None:
                     err_v[:2] = rng.normal(0, 0.1, 2)
                     err_v[-1] = np.deg2rad(rng.normal(0, 1.0))
                 init = truth @ cls.from_vector(err_v)  # type: ignore[operator]
-                res = scanreg.register(src, tgt, init=init, max_correspondence_distance=1.0)
+                res = scanreg.register(
+                    src, tgt, init=init, max_correspondence_distance=1.0, thresholds=thresholds
+                )
                 d = (res.pose.inverse() @ truth).log()  # type: ignore[operator]
                 correct = (
                     situation != "wrong place"

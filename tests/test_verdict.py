@@ -100,7 +100,7 @@ def test_no_overlap_at_all_rejects_on_rmse_too() -> None:
         conditioning=scanreg.quality.conditioning(np.eye(3), 2, 1.0),
     )
     verdict = judge(report, VerdictThresholds())
-    assert verdict.reasons == ("overlap 0.00 < 0.50", "inlier RMSE nan > 0.25")
+    assert verdict.reasons == ("overlap 0.00 < 0.50", "inlier RMSE nan > 0.5")
 
 
 @pytest.mark.parametrize(

@@ -266,8 +266,9 @@ class RegistrationResult:
     gradient: FloatArray
     #: Residual variance per scalar residual: ``Σ r² / (m - dof)`` (kernel: IRLS-weighted).
     sigma2: float
-    #: ``σ̂² (JᵀWJ)⁻¹``; with a kernel the M-estimator sandwich (:mod:`scanreg.quality`).
-    #: All ``inf`` when ``JᵀWJ`` is singular.
+    #: The covariance of kind ``settings.covariance`` (default ``calibrated``: Censi ∨ block
+    #: sandwich, the prior along degenerate directions; ``docs/calibration.md``). The
+    #: classic ``σ̂² (JᵀWJ)⁻¹`` is ``covariances.hessian``. All ``inf`` when not determined.
     covariance: FloatArray
     #: ``covariance⁻¹`` (all ``inf`` for a noise-free fit).
     information: FloatArray
