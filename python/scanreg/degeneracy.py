@@ -25,9 +25,11 @@ measurements that support both are in ``docs/calibration.md``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from . import _core
 from ._validate import FloatArray
 from ._validate import frozen as _frozen
 from .quality import WeakDirection, describe_direction
@@ -189,6 +191,20 @@ def analyse_degeneracy(
         typical_normal_noise=float(typical_normal_noise),
         basis=basis,
     )
+
+
+def sampled_normals(points: FloatArray, k: int, max_points: int = 1500) -> tuple[Any, FloatArray]:
+    """Unit normals (PCA of the ``k`` nearest neighbours) of at most ``max_points`` evenly
+    spaced points of ``points``: ``(indices, normals)``. Enough to *measure* normal noise at a
+    fraction of the cost of normals for every point."""
+    n = points.shape[0]
+    idx = np.arange(0, n, max(1, n // max_points))
+    nb, _ = _core.KdTree(points).knn(np.ascontiguousarray(points[idx]), min(k, n))
+    hood = points[np.asarray(nb)]
+    centred = hood - hood.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", centred, centred))
+    normals: FloatArray = np.ascontiguousarray(vecs[:, :, 0])
+    return idx, normals
 
 
 def correspondence_normal_noise(

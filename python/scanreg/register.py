@@ -45,6 +45,7 @@ from .degeneracy import (
     correspondence_normal_noise,
     normal_noise,
     rotation_levers,
+    sampled_normals,
 )
 from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
 from .quality import (
@@ -473,20 +474,21 @@ def register(
 
     source_normals = None
     if planar and len(src) > dim:
-        # Source normals only to measure the normal noise between the two scans (Censi's
-        # normal term); the registration itself does not use them.
-        source_normals, _, _ = _core.KdTree(src).local_geometry(
-            check_k(min(s.num_neighbors, len(src)), len(src), dim), np.zeros(dim)
+        # Normals of a sample of the source, only to measure the normal noise between the two
+        # scans (Censi's normal term); the registration itself does not use them.
+        source_normals = sampled_normals(
+            src, check_k(min(s.num_neighbors, len(src)), len(src), dim)
         )
 
     def analyse(out: Any) -> tuple[Any, Degeneracy, float, float]:
         normal_var = 0.0
         if source_normals is not None and prepared.normals is not None:
+            sample, sample_normals = source_normals
             normal_var = correspondence_normal_noise(
-                source_normals,
+                sample_normals,
                 prepared.normals,
                 np.array(out.pose)[:dim, :dim],
-                out.correspondences,
+                np.asarray(out.correspondences)[sample],
             )
             normal_var = normal_var if math.isfinite(normal_var) else 0.0
         # Unit variances: the meats scale linearly and are combined below, once the point
