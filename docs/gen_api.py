@@ -28,6 +28,7 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.correlative", "2D correlative scan matching (global within a window)"),
     ("scanreg.ndt", "2D NDT"),
     ("scanreg.quality", "covariance, conditioning, residual statistics"),
+    ("scanreg.degeneracy", "weak directions named in pose coordinates"),
     ("scanreg.verdict", "accept or reject a registration, with reasons"),
     ("scanreg.deskew", "motion compensation of a sweep"),
     ("scanreg.robust", "robust kernels"),

@@ -12,16 +12,26 @@ from .correlative import (
     match_correlative,
     prepare_correlative,
 )
+from .degeneracy import Degeneracy
 from .deskew import deskew
 from .local_map import LocalMap
 from .ndt import NdtResult, NdtTarget, match_ndt, prepare_ndt
 from .paired import PairedAlignment, align_paired
 from .pipeline.localizer import Localizer, Relocalization
 from .pipeline.odometry import FrameResult, Odometry, OdometryConfig
-from .quality import Conditioning, ResidualStats, WeakDirection
-from .register import RegistrationResult, RegistrationSettings, RegistrationTiming, register
+from .quality import Conditioning, ResidualStats, WeakDirection, transform_covariance
+from .register import (
+    CovarianceEstimates,
+    RegistrationResult,
+    RegistrationSettings,
+    RegistrationTiming,
+    SamplingCovariance,
+    register,
+    sampling_covariance,
+)
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3
+from .verdict import QualityReport, Verdict, VerdictThresholds
 
 __all__ = [
     "SE2",
@@ -29,6 +39,8 @@ __all__ = [
     "Conditioning",
     "CorrelativeGrid",
     "CorrelativeResult",
+    "CovarianceEstimates",
+    "Degeneracy",
     "FrameResult",
     "LocalMap",
     "Localizer",
@@ -38,11 +50,15 @@ __all__ = [
     "OdometryConfig",
     "PairedAlignment",
     "PreparedTarget",
+    "QualityReport",
     "RegistrationResult",
     "RegistrationSettings",
     "RegistrationTiming",
     "Relocalization",
     "ResidualStats",
+    "SamplingCovariance",
+    "Verdict",
+    "VerdictThresholds",
     "WeakDirection",
     "__version__",
     "align_paired",
@@ -54,5 +70,7 @@ __all__ = [
     "prepare_ndt",
     "preprocess",
     "register",
+    "sampling_covariance",
     "simulate",
+    "transform_covariance",
 ]

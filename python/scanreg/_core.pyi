@@ -235,6 +235,8 @@ class IcpOutcome:
     def iteration_seconds(self) -> NDArray[np.float64]: ...
     @property
     def final_evaluation_seconds(self) -> float: ...
+    @property
+    def correspondences(self) -> NDArray[np.int64]: ...
 
 def register_icp(
     source: NDArray[np.float64],
@@ -255,7 +257,54 @@ def register_icp(
     target_normals: NDArray[np.float64] | None = None,
     target_covariances: NDArray[np.float64] | None = None,
     iterate: bool = True,
+    step_projector: NDArray[np.float64] | None = None,
 ) -> IcpOutcome: ...
+
+# --- Censi covariance and block scores (crates/scanreg-py/src/censi.rs) ---
+
+@final
+class CensiAnalysis:
+    @property
+    def hessian(self) -> NDArray[np.float64]: ...
+    @property
+    def censi_meat(self) -> NDArray[np.float64]: ...
+    @property
+    def source_meat(self) -> NDArray[np.float64]: ...
+    @property
+    def target_meat(self) -> NDArray[np.float64]: ...
+    @property
+    def normal_meat(self) -> NDArray[np.float64]: ...
+    @property
+    def plane_sum_squares(self) -> float: ...
+    @property
+    def block_meat(self) -> NDArray[np.float64]: ...
+    @property
+    def num_blocks(self) -> int: ...
+    @property
+    def plane_information(self) -> NDArray[np.float64]: ...
+    @property
+    def num_plane_correspondences(self) -> int: ...
+    @property
+    def num_correspondences(self) -> int: ...
+
+def censi_analysis(
+    source: NDArray[np.float64],
+    target: NDArray[np.float64],
+    pose_matrix: NDArray[np.float64],
+    correspondences: NDArray[np.int64],
+    *,
+    method: str,
+    kernel: str,
+    kernel_scale: float,
+    source_variance: float,
+    target_variance: float,
+    block_size: float,
+    normal_variance: float = 0.0,
+    target_normals: NDArray[np.float64] | None = None,
+    source_covariances: NDArray[np.float64] | None = None,
+    target_covariances: NDArray[np.float64] | None = None,
+    num_threads: int | None = None,
+) -> CensiAnalysis: ...
 
 # --- correlative scan matching (crates/scanreg-py/src/correlative.rs) ---
 

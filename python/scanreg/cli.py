@@ -340,7 +340,14 @@ def _register(args: argparse.Namespace) -> dict[str, Any]:
         "inlier_rmse": res.inlier_rmse,
         "num_correspondences": res.num_correspondences,
         "weakest_direction": res.conditioning.weakest.description,
-        "weak_directions": [d.description for d in res.conditioning.weak_directions],
+        "weak_directions": (
+            [d.description for d in res.degeneracy.weak_directions]
+            if res.degeneracy is not None
+            else [d.description for d in res.conditioning.weak_directions]
+        ),
+        "accepted": bool(res.verdict.accepted) if res.verdict is not None else None,
+        "reasons": list(res.verdict.reasons) if res.verdict is not None else [],
+        "overlap": res.quality.overlap if res.quality is not None else None,
         "time_s": res.timing.total,
     }
 

@@ -271,3 +271,65 @@ def nees_band(dof: int, trials: int, confidence: float = 0.95) -> tuple[float, f
     alpha = (1.0 - confidence) / 2.0
     n = dof * trials
     return chi2_quantile(n, alpha) / trials, chi2_quantile(n, 1.0 - alpha) / trials
+
+
+def censi_covariance(hessian: FloatArray, meat: FloatArray) -> FloatArray:
+    """Censi's closed form ``H⁻¹ (∂g/∂z) Σ_z (∂g/∂z)ᵀ H⁻¹`` from its middle term ``meat``.
+
+    Raises ``numpy.linalg.LinAlgError`` when ``hessian`` is singular.
+    """
+    h_inv = np.linalg.inv(hessian)
+    cov = h_inv @ meat @ h_inv
+    out: FloatArray = 0.5 * (cov + cov.T)
+    return out
+
+
+def block_covariance(hessian: FloatArray, block_meat: FloatArray, num_blocks: int) -> FloatArray:
+    """Cluster-robust sandwich ``H⁻¹ (Σ_b ψ_b ψ_bᵀ) H⁻¹ · G/(G - 1)`` over ``G`` spatial blocks.
+
+    ``ψ_b`` sums the per-correspondence scores of a block, so errors correlated inside a block
+    (sampling, model error) count once per block instead of averaging out as ``1/N``
+    (Liang & Zeger 1986; Cameron & Miller 2015, §II.C). Raises ``numpy.linalg.LinAlgError``
+    when ``hessian`` is singular.
+    """
+    h_inv = np.linalg.inv(hessian)
+    g = max(int(num_blocks), 2)
+    cov = (g / (g - 1.0)) * h_inv @ block_meat @ h_inv
+    out: FloatArray = 0.5 * (cov + cov.T)
+    return out
+
+
+def covariance_upper_bound(a: FloatArray, b: FloatArray) -> FloatArray:
+    """The smallest covariance ``C`` with ``C ⪰ a`` and ``C ⪰ b`` along the joint eigenbasis:
+    ``a^{1/2} U max(1, Λ) Uᵀ a^{1/2}`` with ``U Λ Uᵀ`` the eigen-decomposition of
+    ``a^{-1/2} b a^{-1/2}``. Either input may be singular only if the other is not.
+    """
+    vals, vecs = np.linalg.eigh(0.5 * (a + a.T))
+    if vals[0] <= 0:
+        vals2, vecs2 = np.linalg.eigh(0.5 * (b + b.T))
+        if vals2[0] <= 0:
+            return np.asarray(np.maximum(a, b), dtype=np.float64)
+        a, b, vals, vecs = b, a, vals2, vecs2
+    root = vecs * np.sqrt(vals)
+    inv_root = vecs / np.sqrt(vals)
+    w_vals, w_vecs = np.linalg.eigh(inv_root.T @ b @ inv_root)
+    m = w_vecs * np.maximum(w_vals, 1.0) @ w_vecs.T
+    out: FloatArray = root @ m @ root.T
+    return np.asarray(0.5 * (out + out.T), dtype=np.float64)
+
+
+def transform_covariance(covariance: FloatArray, adjoint: FloatArray) -> FloatArray:
+    """``Ad Σ Adᵀ``: the covariance of ``Ad δ``.
+
+    With ``Ad = pose.adjoint()`` this turns scanreg's right-perturbation covariance (source
+    frame, ``T_true = T @ exp(δ)``) into the left-perturbation one (target frame,
+    ``T_true = exp(ε) @ T``), the convention of e.g. GTSAM's ``BetweenFactor`` on the inverse
+    or of an EKF over the target-frame pose. With ``Ad = X.adjoint()`` for a fixed transform
+    ``X = T_source_sensor⁻¹`` it moves the tangent to another body frame.
+    """
+    ad = np.asarray(adjoint, dtype=np.float64)
+    cov = np.asarray(covariance, dtype=np.float64)
+    if ad.shape != cov.shape or ad.ndim != 2 or ad.shape[0] != ad.shape[1]:
+        raise ValueError(f"adjoint: expected shape {cov.shape} to match covariance, got {ad.shape}")
+    out: FloatArray = ad @ cov @ ad.T
+    return np.asarray(0.5 * (out + out.T), dtype=np.float64)

@@ -39,11 +39,22 @@ import numpy as np
 from . import _core
 from ._validate import FloatArray, as_points
 from ._validate import frozen as _frozen
+from .degeneracy import (
+    Degeneracy,
+    analyse_degeneracy,
+    correspondence_normal_noise,
+    normal_noise,
+    rotation_levers,
+    sampled_normals,
+)
 from .local_map import LocalMap
 from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
 from .quality import (
     Conditioning,
+    block_covariance,
+    censi_covariance,
     conditioning,
+    covariance_upper_bound,
     information_from_covariance,
     least_squares_covariance,
     sandwich_covariance,
@@ -51,6 +62,7 @@ from .quality import (
 from .robust import check_kernel
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose, pose_class
+from .verdict import QualityReport, Verdict, VerdictThresholds, assess
 
 Method = Literal["point_to_point", "point_to_plane", "point_to_line", "gicp"]
 Optimizer = Literal["gauss_newton", "levenberg_marquardt"]
@@ -58,7 +70,10 @@ StopReason = Literal[
     "converged", "max_iterations", "too_few_correspondences", "diverged", "degenerate"
 ]
 
+CovarianceKind = Literal["calibrated", "hessian", "censi", "block"]
+
 METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "point_to_line", "gicp")
+COVARIANCE_KINDS: tuple[str, ...] = ("calibrated", "hessian", "censi", "block")
 OPTIMIZERS: tuple[str, ...] = ("gauss_newton", "levenberg_marquardt")
 
 
@@ -110,6 +125,21 @@ class RegistrationSettings:
     #: that determines the pose with residual left over (point-to-point and GICP: ``dof/D + 1``;
     #: point-to-plane/line: ``dof + 1``).
     min_correspondences: int | None = None
+    #: Which estimate ``RegistrationResult.covariance`` reports (all are in
+    #: ``RegistrationResult.covariances``): ``hessian`` σ̂²(JᵀWJ)⁻¹ (sandwich under a kernel);
+    #: ``censi`` Censi's closed form (noise on source and target points, shared targets);
+    #: ``block`` the cluster-robust sandwich over spatial blocks of ``block_size``;
+    #: ``calibrated`` (default) the smallest covariance covering ``censi`` and ``block``, with
+    #: the prior variance along degenerate directions. See ``docs/calibration.md``.
+    covariance: CovarianceKind = "calibrated"
+    #: Edge of the spatial blocks of the ``block`` covariance (units of the points); ``None``:
+    #: twice ``max_correspondence_distance`` (a fifth of the source's RMS radius if infinite).
+    block_size: float | None = None
+    #: Degeneracy-aware solve: if the first solve finds weak directions
+    #: (:mod:`scanreg.degeneracy`), solve again from ``init`` with every step restricted to the
+    #: well-constrained directions (solution remapping, Zhang, Kaess & Singh 2016), so the
+    #: estimate keeps the initial guess along the weak ones; their variance is the prior's.
+    degeneracy_aware: bool = False
 
     def __post_init__(self) -> None:
         _positive_float(
@@ -134,6 +164,17 @@ class RegistrationSettings:
         positive_int(self.num_neighbors, "num_neighbors", minimum=2)
         if self.min_correspondences is not None:
             positive_int(self.min_correspondences, "min_correspondences")
+        if self.covariance not in COVARIANCE_KINDS:
+            raise ValueError(
+                f"covariance: unknown {self.covariance!r}; expected one of "
+                f"{', '.join(COVARIANCE_KINDS)}"
+            )
+        if self.block_size is not None:
+            _positive_float(self.block_size, "block_size")
+        if not isinstance(self.degeneracy_aware, bool):
+            raise TypeError(
+                f"degeneracy_aware: expected a bool, got {type(self.degeneracy_aware).__name__}"
+            )
 
 
 @dataclass(frozen=True)
@@ -156,6 +197,30 @@ class RegistrationTiming:
     def registration(self) -> float:
         """The core's iteration loop plus the final evaluation."""
         return float(sum(self.iterations)) + self.final_evaluation
+
+
+@dataclass(frozen=True)
+class CovarianceEstimates:
+    """Every covariance kind at the final pose, ``(dof, dof)`` over the tangent ``δ``
+    (translation first, right perturbation, source frame); all ``inf`` when not determined."""
+
+    #: σ̂²(JᵀWJ)⁻¹, or the M-estimator sandwich under a kernel.
+    hessian: FloatArray
+    #: Censi's closed form with per-coordinate point noise ``point_variance``.
+    censi: FloatArray
+    #: Cluster-robust sandwich over ``num_blocks`` spatial blocks of ``block_size``.
+    block: FloatArray
+    #: ``censi`` ∨ ``block``, with the prior variance along degenerate directions.
+    calibrated: FloatArray
+    #: Variance of each coordinate of a source or target point used by ``censi`` (units²).
+    point_variance: float
+    #: Variance of a target normal's direction per tangent axis used by ``censi`` (rad²),
+    #: measured between the two scans (point-to-plane/line; 0 otherwise).
+    normal_variance: float
+    block_size: float
+    num_blocks: int
+    #: The prior used along degenerate directions (``init_covariance``, or the gate's).
+    prior: FloatArray
 
 
 @dataclass(frozen=True)
@@ -203,14 +268,23 @@ class RegistrationResult:
     gradient: FloatArray
     #: Residual variance per scalar residual: ``Σ r² / (m - dof)`` (kernel: IRLS-weighted).
     sigma2: float
-    #: ``σ̂² (JᵀWJ)⁻¹``; with a kernel the M-estimator sandwich (:mod:`scanreg.quality`).
-    #: All ``inf`` when ``JᵀWJ`` is singular.
+    #: The covariance of kind ``settings.covariance`` (default ``calibrated``: Censi ∨ block
+    #: sandwich, the prior along degenerate directions; ``docs/calibration.md``). The
+    #: classic ``σ̂² (JᵀWJ)⁻¹`` is ``covariances.hessian``. All ``inf`` when not determined.
     covariance: FloatArray
     #: ``covariance⁻¹`` (all ``inf`` for a noise-free fit).
     information: FloatArray
     conditioning: Conditioning
     timing: RegistrationTiming
     settings: RegistrationSettings = field(repr=False)
+    #: Every covariance kind; ``covariance`` is ``getattr(covariances, settings.covariance)``.
+    covariances: CovarianceEstimates | None = field(default=None, repr=False)
+    #: Weak directions of the scene, named (:mod:`scanreg.degeneracy`).
+    degeneracy: Degeneracy | None = field(default=None, repr=False)
+    #: Overlap, residuals, motion from the initial guess, convergence (:mod:`scanreg.verdict`).
+    quality: QualityReport | None = field(default=None, repr=False)
+    #: ``verdict.accepted`` and the readable ``verdict.reasons``.
+    verdict: Verdict | None = None
 
     @property
     def standard_deviations(self) -> FloatArray:
@@ -272,10 +346,12 @@ def _prepared_target(
     points = as_points(target, "target", dim=dim)
     if settings.voxel_size is not None:
         points = voxel_downsample(points, settings.voxel_size).points
-    k = settings.num_neighbors
-    if want_normals or want_covs:
-        k = check_k(min(k, len(points)), len(points), dim)
-    return prepare(points, normals=want_normals, covariances=want_covs, k=k)
+    # Normals for every method when there are enough points: the degeneracy analysis uses the
+    # plane information.
+    if len(points) < dim + 1 and not (want_normals or want_covs):
+        return prepare(points, normals=False)
+    k = check_k(min(settings.num_neighbors, len(points)), len(points), dim)
+    return prepare(points, normals=True, covariances=want_covs, k=k)
 
 
 def _length_scale(points: FloatArray) -> float:
@@ -292,6 +368,8 @@ def register(
     init: Any = None,
     settings: RegistrationSettings | None = None,
     source_covariances: Any = None,
+    init_covariance: Any = None,
+    thresholds: VerdictThresholds | None = None,
     **overrides: Any,
 ) -> RegistrationResult:
     """Estimate ``T_target_source`` aligning ``source`` to ``target`` from ``init``.
@@ -317,6 +395,14 @@ def register(
         A :class:`RegistrationSettings`, and/or its fields as keywords
         (``register(s, t, max_correspondence_distance=0.5)``); a misspelled field is a
         ``TypeError``.
+    init_covariance
+        ``(dof, dof)`` covariance of ``init`` over the tangent (the motion model's), used as
+        the variance along degenerate directions. ``None``: a gate-wide prior,
+        ``diag(δ², …, (δ/L_a)², …)`` with ``δ = max_correspondence_distance`` and ``L_a`` the
+        rotation levers (ICP only converges from within about a gate of the truth).
+    thresholds
+        :class:`~scanreg.VerdictThresholds` for ``result.verdict``; default thresholds if
+        ``None``.
 
     Raises
     ------
@@ -386,30 +472,121 @@ def register(
         if not math.isfinite(k_scale):
             raise ValueError("kernel_scale: required with an infinite max_correspondence_distance")
 
-    # A LocalMap carries its own normals/covariances; a PreparedTarget passes them in.
+    levers = rotation_levers(src, dim)
+    prior = _prior(init_covariance, dof, dim, s.max_correspondence_distance, levers)
+    if thresholds is not None and not isinstance(thresholds, VerdictThresholds):
+        raise TypeError(f"thresholds: expected VerdictThresholds, got {type(thresholds).__name__}")
+
+    # A LocalMap carries its own normals/covariances (the core reads them under its lock); the
+    # correspondence analysis reads the same id-indexed storage. A PreparedTarget passes its
+    # arrays in.
     index: _core.KdTree | _core.LocalMap
+    is_map = isinstance(prepared, LocalMap)
     if isinstance(prepared, LocalMap):
-        index, t_normals, t_covs = prepared.native, None, None
+        index = prepared.native
+        t_points, t_normals, t_covs = prepared.native.storage()
     else:
-        index, t_normals, t_covs = prepared.index, prepared.normals, prepared.covariances
-    out = _core.register_icp(
-        src,
-        index,
-        pose0.as_matrix(),
-        method=method_eff,
-        kernel=s.kernel,
-        kernel_scale=k_scale,
-        max_correspondence_distance=s.max_correspondence_distance,
-        max_iterations=s.max_iterations,
-        translation_tolerance=s.translation_tolerance,
-        rotation_tolerance=s.rotation_tolerance,
-        optimizer=s.optimizer,
-        min_correspondences=min_corr,
-        num_threads=s.num_threads,
-        source_covariances=source_covariances,
-        target_normals=t_normals if planar else None,
-        target_covariances=t_covs if method_eff == "gicp" else None,
+        index = prepared.index
+        t_points, t_normals, t_covs = prepared.points, prepared.normals, prepared.covariances
+
+    def run(projector: FloatArray | None) -> Any:
+        return _core.register_icp(
+            src,
+            index,
+            pose0.as_matrix(),
+            method=method_eff,
+            kernel=s.kernel,
+            kernel_scale=k_scale,
+            max_correspondence_distance=s.max_correspondence_distance,
+            max_iterations=s.max_iterations,
+            translation_tolerance=s.translation_tolerance,
+            rotation_tolerance=s.rotation_tolerance,
+            optimizer=s.optimizer,
+            min_correspondences=min_corr,
+            num_threads=s.num_threads,
+            source_covariances=source_covariances,
+            target_normals=t_normals if planar and not is_map else None,
+            target_covariances=t_covs if method_eff == "gicp" and not is_map else None,
+            step_projector=projector,
+        )
+
+    # The target's own normal noise needs its k-d tree: not measured on a map.
+    eps2, eps2_typical = (
+        normal_noise(prepared.points, prepared.normals, prepared.index)
+        if isinstance(prepared, PreparedTarget) and prepared.normals is not None
+        else (math.nan, math.nan)
     )
+    block = s.block_size
+    if block is None:
+        block = 2.0 * s.max_correspondence_distance
+        if not math.isfinite(block):
+            block = float(np.sqrt(np.mean(levers**2))) / 5.0
+
+    source_normals = None
+    if planar and len(src) > dim:
+        # Normals of a sample of the source, only to measure the normal noise between the two
+        # scans (Censi's normal term); the registration itself does not use them.
+        source_normals = sampled_normals(
+            src, check_k(min(s.num_neighbors, len(src)), len(src), dim)
+        )
+
+    def analyse(out: Any) -> tuple[Any, Degeneracy, float, float]:
+        normal_var = 0.0
+        if source_normals is not None and t_normals is not None:
+            sample, sample_normals = source_normals
+            normal_var = correspondence_normal_noise(
+                sample_normals,
+                t_normals,
+                np.array(out.pose)[:dim, :dim],
+                np.asarray(out.correspondences)[sample],
+            )
+            normal_var = normal_var if math.isfinite(normal_var) else 0.0
+        # Unit variances: the meats scale linearly and are combined below, once the point
+        # noise is known from the residuals of this very analysis.
+        ana = _core.censi_analysis(
+            src,
+            t_points,
+            out.pose,
+            out.correspondences,
+            method=method_eff,
+            kernel=s.kernel,
+            kernel_scale=k_scale,
+            source_variance=1.0,
+            target_variance=1.0,
+            block_size=max(block, 1e-9),
+            normal_variance=1.0,
+            target_normals=t_normals,
+            source_covariances=source_covariances,
+            target_covariances=t_covs if method_eff == "gicp" else None,
+            num_threads=s.num_threads,
+        )
+        if ana.num_plane_correspondences > dof:
+            deg = analyse_degeneracy(
+                np.array(ana.plane_information),
+                ana.num_plane_correspondences,
+                dim,
+                levers,
+                normal_noise=eps2,
+                typical_normal_noise=eps2_typical,
+            )
+        else:
+            deg = analyse_degeneracy(
+                np.array(ana.hessian),
+                max(ana.num_correspondences, 1),
+                dim,
+                levers,
+                normal_noise=eps2,
+                typical_normal_noise=eps2_typical,
+                basis="hessian",
+            )
+        return ana, deg, _point_variance(out, ana, method_eff, dim, dof), normal_var
+
+    out = run(None)
+    ana, deg, sigma2_point, normal_var = analyse(out)
+    weak_projector = deg.weak_projector()
+    if s.degeneracy_aware and deg.degenerate and len(out.correspondences):
+        out = run(np.ascontiguousarray(np.eye(dof) - weak_projector))
+        ana, _, sigma2_point, normal_var = analyse(out)
 
     t0 = time.perf_counter()
     pose = pose_class(dim).from_matrix(out.pose, atol=1e-6)
@@ -429,12 +606,18 @@ def register(
     except np.linalg.LinAlgError:
         sigma2 = math.nan if m <= dof else sigma2
         cov = np.full((dof, dof), np.inf)
-    info = information_from_covariance(cov) if np.isfinite(cov).all() else np.zeros((dof, dof))
+    estimates = _estimates(
+        cov, ana, deg, prior, sigma2_point, normal_var, block, dof, s.degeneracy_aware
+    )
+    chosen = getattr(estimates, s.covariance)
+    info = (
+        information_from_covariance(chosen) if np.isfinite(chosen).all() else np.zeros((dof, dof))
+    )
     cond = conditioning(hessian, dim, _length_scale(src))
     t_post = time.perf_counter() - t0
 
-    stop: StopReason = out.stop_reason  # type: ignore[assignment]
-    return RegistrationResult(
+    stop: StopReason = out.stop_reason
+    result = RegistrationResult(
         pose=pose,
         method=method_eff,
         kernel=s.kernel,
@@ -450,7 +633,7 @@ def register(
         hessian=_frozen(hessian),
         gradient=_frozen(out.gradient),
         sigma2=sigma2,
-        covariance=_frozen(cov),
+        covariance=_frozen(chosen),
         information=_frozen(info),
         conditioning=cond,
         timing=RegistrationTiming(
@@ -462,4 +645,194 @@ def register(
             total=time.perf_counter() - t_start,
         ),
         settings=s,
+        covariances=estimates,
+        degeneracy=deg,
+    )
+    checked = assess(result, src, prepared, init=pose0, thresholds=thresholds)
+    return dataclasses.replace(result, quality=checked.report, verdict=checked.verdict)
+
+
+def _prior(init_covariance: Any, dof: int, dim: int, gate: float, levers: FloatArray) -> FloatArray:
+    """The covariance of the initial guess (see :func:`register`)."""
+    if init_covariance is None:
+        g = gate if math.isfinite(gate) else float(np.sqrt(np.mean(levers**2)))
+        return np.diag(np.concatenate([np.full(dim, g**2), (g / levers) ** 2]))
+    p = np.asarray(init_covariance, dtype=np.float64)
+    if p.shape != (dof, dof):
+        raise ValueError(f"init_covariance: expected shape ({dof}, {dof}), got {p.shape}")
+    if not np.isfinite(p).all() or not np.allclose(p, p.T, rtol=1e-9, atol=1e-12):
+        raise ValueError("init_covariance: must be finite and symmetric")
+    if np.linalg.eigvalsh(p)[0] < 0:
+        raise ValueError("init_covariance: must be positive semi-definite")
+    return p
+
+
+def _point_variance(out: Any, ana: Any, method: str, dim: int, dof: int) -> float:
+    """Noise variance of one coordinate of a point, half of the residual variance (source and
+    target points are equally noisy).
+
+    Point-to-plane/line: along the normal, ``Σ (nᵀe)² / (n - dof)`` — the noise its residual
+    feels. Point-to-point and GICP: ``Σ |e|² / (D n - dof)``, the along-surface sampling
+    offsets included. For GICP the normal-only estimate was measured too
+    (``docs/calibration.md``): consistent in 2D but 4× over-confident in the 3D street and
+    tunnel, where the along-surface offsets are part of the error; the Euclidean one errs on
+    the safe side (over-cautious in the degenerate 2D/3D scenes).
+    """
+    n_plane = int(ana.num_plane_correspondences)
+    if method in ("point_to_plane", "point_to_line") and n_plane > dof:
+        return float(ana.plane_sum_squares / (n_plane - dof)) / 2.0
+    n = int(out.num_correspondences)
+    return float(out.sum_squared_distances / max(dim * n - dof, 1)) / 2.0
+
+
+def _estimates(
+    hessian_cov: FloatArray,
+    ana: Any,
+    deg: Degeneracy,
+    prior: FloatArray,
+    point_variance: float,
+    normal_variance: float,
+    block: float,
+    dof: int,
+    aware: bool,
+) -> CovarianceEstimates:
+    bad = np.full((dof, dof), np.inf)
+    h = np.array(ana.hessian)
+    meat = point_variance * (np.array(ana.source_meat) + np.array(ana.target_meat))
+    meat = meat + normal_variance * np.array(ana.normal_meat)
+    try:
+        censi = censi_covariance(h, meat)
+        blk = block_covariance(h, np.array(ana.block_meat), int(ana.num_blocks))
+        if not (np.isfinite(censi).all() and np.isfinite(blk).all()):
+            raise np.linalg.LinAlgError("non-finite covariance")
+        calibrated = covariance_upper_bound(censi, blk)
+    except np.linalg.LinAlgError:
+        censi = blk = calibrated = bad
+    if deg.degenerate and np.isfinite(calibrated).all():
+        calibrated = _with_prior_along_weak(calibrated, deg, prior, aware)
+    return CovarianceEstimates(
+        hessian=_frozen(hessian_cov),
+        censi=_frozen(censi),
+        block=_frozen(blk),
+        calibrated=_frozen(calibrated),
+        point_variance=float(point_variance),
+        normal_variance=float(normal_variance),
+        block_size=float(block),
+        num_blocks=int(ana.num_blocks),
+        prior=_frozen(prior),
+    )
+
+
+def _with_prior_along_weak(
+    cov: FloatArray, deg: Degeneracy, prior: FloatArray, aware: bool
+) -> FloatArray:
+    """Replace the data's say along the weak directions by the prior's.
+
+    In scaled coordinates with ``W`` the weak basis and ``U`` its orthogonal complement: the
+    well-determined part is the data's covariance of ``U``-coordinates *given* the weak ones
+    (``(Uᵀ Λ U)⁻¹``, ``Λ = cov⁻¹``): the solve fixes (aware) or drifts (not aware) along ``W``
+    and solves the rest for that value. Along ``W`` the variance is the prior's; without the
+    degeneracy-aware solve it is counted twice (the initial error plus the drift).
+    """
+    s_inv = deg.scaling()
+    w = deg.weak_basis()
+    dof = s_inv.size
+    full, _, _ = np.linalg.svd(w, full_matrices=True)
+    u = full[:, w.shape[1] :]
+    # scaled covariance: δ_s = S δ
+    cov_s = cov / np.outer(s_inv, s_inv)
+    prior_s = prior / np.outer(s_inv, s_inv)
+    info_s = np.linalg.inv(cov_s)
+    strong = u @ np.linalg.inv(u.T @ info_s @ u) @ u.T if u.shape[1] else np.zeros((dof, dof))
+    weak = w @ (w.T @ prior_s @ w) @ w.T * (1.0 if aware else 2.0)
+    out = (strong + weak) * np.outer(s_inv, s_inv)
+    return np.asarray(0.5 * (out + out.T), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class SamplingCovariance:
+    """Result of :func:`sampling_covariance`."""
+
+    #: ``(dof, dof)`` sample covariance of the restarts' poses about ``reference`` (tangent,
+    #: right perturbation); restarts that did not converge are left out.
+    covariance: FloatArray
+    #: The registration from ``init`` itself, about which the spread is measured.
+    reference: RegistrationResult
+    #: ``(R, dof)`` tangent offsets ``log(reference⁻¹ · pose_r)`` of the converged restarts.
+    offsets: FloatArray
+    #: Converged restarts over all restarts.
+    converged_fraction: float
+
+
+def sampling_covariance(
+    source: Any,
+    target: Any,
+    *,
+    method: Method = "point_to_plane",
+    init: Any = None,
+    init_covariance: Any = None,
+    restarts: int = 20,
+    seed: int = 0,
+    settings: RegistrationSettings | None = None,
+    **overrides: Any,
+) -> SamplingCovariance:
+    """Spread of the estimate over restarts from perturbed initial guesses.
+
+    ``restarts`` registrations start from ``init @ exp(ξ)``, ``ξ ~ N(0, init_covariance)``
+    (default: the gate-wide prior of :func:`register`), seeded by ``seed``. Their sample
+    covariance about the registration from ``init`` shows how much the *optimiser* (basin,
+    local minima, the degenerate drift) adds to the noise; it does not see the noise of the
+    points themselves (each restart uses the same data), so compare it with, do not use it
+    instead of, ``RegistrationResult.covariances``. ``restarts + 1`` registrations: costly.
+    """
+    count = positive_int(restarts, "restarts", minimum=2)
+    prepared_target: PreparedTarget | LocalMap
+    if isinstance(target, PreparedTarget | LocalMap):
+        prepared_target = target
+    else:
+        base = settings if settings is not None else RegistrationSettings()
+        merged = dataclasses.replace(base, **overrides) if overrides else base
+        src_dim = as_points(source, "source").shape[1]
+        prepared_target = _prepared_target(
+            target, int(src_dim), _resolve_method(method, int(src_dim)), merged
+        )
+    reference = register(
+        source,
+        prepared_target,
+        method=method,
+        init=init,
+        settings=settings,
+        init_covariance=init_covariance,
+        **overrides,
+    )
+    dim = reference.pose.DIM
+    dof = 3 if dim == 2 else 6
+    start = pose_class(dim).identity() if init is None else as_pose(init, "init", dim)
+    prior = (
+        reference.covariances.prior
+        if reference.covariances is not None
+        else np.eye(dof) * reference.settings.max_correspondence_distance**2
+    )
+    rng = np.random.default_rng(seed)
+    offsets = []
+    for _ in range(count):
+        xi = rng.multivariate_normal(np.zeros(dof), prior)
+        res = register(
+            source,
+            prepared_target,
+            method=method,
+            init=start @ type(start).exp(xi),  # type: ignore[operator]
+            settings=settings,
+            init_covariance=init_covariance,
+            **overrides,
+        )
+        if res.converged:
+            offsets.append((reference.pose.inverse() @ res.pose).log())  # type: ignore[operator]
+    arr = np.array(offsets).reshape(-1, dof)
+    cov = arr.T @ arr / max(len(arr) - 1, 1) if len(arr) >= 2 else np.full((dof, dof), np.nan)
+    return SamplingCovariance(
+        covariance=_frozen(cov),
+        reference=reference,
+        offsets=_frozen(arr),
+        converged_fraction=len(arr) / count,
     )

@@ -6,10 +6,15 @@ convergence — and checks each against :class:`VerdictThresholds`. The verdict 
 failed check as a readable reason (``"overlap 0.18 < 0.50"``,
 ``"degenerate: translation along (1.00, 0.00, 0.00)"``), so a pipeline can log it or act on it.
 
-Defaults are conservative starting points, not tuned constants: ``min_overlap = 0.5`` (half of
-the source must lie on the target, the seed's gate test), the residual bound is half the gate
-(an inlier spread that fills the gate means the gate, not the geometry, decides), and
-degeneracy uses the conditioning's scaled eigenvalue ratio (see :mod:`scanreg.quality`).
+Defaults, and the experiment behind them (``benchmarks/verdict_thresholds.py``, recorded in
+``docs/calibration.md``): ``min_overlap = 0.5`` (half of the source must lie on the target, the
+seed's gate test); the residual bound is half the gate — with a generous 1 m gate a quarter
+would separate better (correct registrations up to 0.17 of it, wrong ones with overlap ≥ 0.5
+from 0.24; half the gate accepted 28 of 80 wrong office registrations), but with the tight
+0.3 m gate of the Intel scan-to-map pipeline correct registrations reach 0.37 of the gate, so
+set ``max_inlier_rmse`` from the sensor when the gate is generous; degeneracy
+comes from the registration's own analysis (:mod:`scanreg.degeneracy`), whose threshold is
+set by the measured normal noise, or else the conditioning's scaled eigenvalue ratio.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ._validate import as_points
+from .degeneracy import Degeneracy
 from .local_map import LocalMap
 from .quality import DEFAULT_WEAK_RATIO, Conditioning, conditioning
 from .target import PreparedTarget, prepare
@@ -52,6 +58,9 @@ class VerdictThresholds:
     max_rotation: float = math.inf
     #: Reject results that did not converge.
     require_convergence: bool = True
+    #: Reject results with a weak direction (``result.degeneracy``, whose threshold is derived
+    #: from the measured normal noise; results without one fall back to ``weak_ratio``).
+    reject_degenerate: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 <= float(self.min_overlap) <= 1.0:
@@ -87,6 +96,8 @@ class QualityReport:
     converged: bool
     stop_reason: str
     conditioning: Conditioning
+    #: The registration's degeneracy analysis, when it has one.
+    degeneracy: Degeneracy | None = None
 
 
 @dataclass(frozen=True)
@@ -174,6 +185,7 @@ def assess(
         converged=bool(result.converged),
         stop_reason=str(result.stop_reason),
         conditioning=cond,
+        degeneracy=getattr(result, "degeneracy", None),
     )
     return Assessment(report=report, verdict=judge(report, th))
 
@@ -189,8 +201,18 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
     max_rmse = 0.5 * report.gate if th.max_inlier_rmse is None else th.max_inlier_rmse
     if not report.residual_rmse <= max_rmse:  # also rejects nan (no overlap at all)
         reasons.append(f"inlier RMSE {report.residual_rmse:.3g} > {max_rmse:.3g}")
-    for weak in report.conditioning.weak_directions:
-        reasons.append(f"degenerate: {weak.description} (ratio {weak.ratio:.1e})")
+    if th.reject_degenerate:
+        deg = report.degeneracy
+        if deg is not None:
+            for weak, lam in zip(deg.directions, deg.eigenvalues, strict=True):
+                if lam < deg.threshold:
+                    reasons.append(
+                        f"degenerate: {weak.description} "
+                        f"(constraint {lam:.2g} < {deg.threshold:.2g})"
+                    )
+        else:
+            for weak in report.conditioning.weak_directions:
+                reasons.append(f"degenerate: {weak.description} (ratio {weak.ratio:.1e})")
     if report.translation_from_init > th.max_translation:
         reasons.append(
             f"moved {report.translation_from_init:.3g} from the initial guess "

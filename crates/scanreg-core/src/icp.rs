@@ -92,6 +92,11 @@ pub struct Settings {
     pub optimizer: Optimizer,
     /// Fewer correspondences than this stops the loop (`TooFewCorrespondences`).
     pub min_correspondences: usize,
+    /// Degeneracy-aware solve (solution remapping, Zhang, Kaess & Singh 2016, §IV): every step
+    /// `δ` is replaced by `P δ`, `P` (row-major `dof x dof`, first `dof²` values used) the
+    /// projector onto the well-constrained directions along the weak ones, so the estimate
+    /// keeps its initial value along weak directions. `None`: plain steps.
+    pub step_projector: Option<[f64; 36]>,
 }
 
 /// Why the iteration loop stopped.
@@ -205,6 +210,9 @@ pub struct Outcome {
     pub iteration_seconds: Vec<f64>,
     /// Wall time of the final evaluation, seconds.
     pub final_evaluation_seconds: f64,
+    /// Target index of each source point at the returned pose (`u32::MAX`: none), as used by
+    /// `evaluation`.
+    pub correspondences: Vec<u32>,
 }
 
 /// What differs between SE(2) and SE(3).
@@ -585,6 +593,17 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
         let g = SVector::<f64, N>::from_column_slice(&lin.gradient);
         let mut step: Option<SVector<f64, N>> = None;
         let mut at_minimum = false;
+        let solve = |hm: &SMatrix<f64, N, N>| match &s.step_projector {
+            Some(p) => {
+                // Stiffen the weak directions (Q = I − P) so a singular H still solves, then
+                // remap: no motion along them.
+                let p = SMatrix::<f64, N, N>::from_row_slice(&p[..N * N]);
+                let q = SMatrix::<f64, N, N>::identity() - p;
+                let stiff = hm.trace().abs().max(1e-300) / N as f64;
+                G::solve(&(hm + q.transpose() * q * stiff), &(-g)).map(|d| p * d)
+            }
+            None => G::solve(hm, &(-g)),
+        };
         if lm {
             let max_diag = (0..N).map(|k| h[(k, k)]).fold(0.0, f64::max);
             if max_diag > 0.0 && max_diag.is_finite() {
@@ -593,7 +612,7 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
                     for k in 0..N {
                         hd[(k, k)] += lambda * h[(k, k)].max(1e-12 * max_diag);
                     }
-                    if let Some(d) = G::solve(&hd, &(-g)) {
+                    if let Some(d) = solve(&hd) {
                         let (rd, td) = G::exp(&d);
                         let cand = pose.compose(&rd, &td);
                         if fixed_cost::<G, D, N>(pr, &cand, &corr) <= lin.cost {
@@ -610,7 +629,7 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
                 }
             }
         } else {
-            step = G::solve(&h, &(-g));
+            step = solve(&h);
         }
         times.push(t0.elapsed().as_secs_f64());
         if at_minimum {
@@ -648,7 +667,7 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     // After a converged (sub-tolerance) last step the correspondences cannot have changed
     // meaningfully: re-use them instead of a full search (saves one nearest-neighbour pass).
     let fixed = (stop == StopReason::Converged).then_some(last_corr.as_slice());
-    let (evaluation, _) = evaluate::<G, D, N>(pr, &pose, true, false, fixed);
+    let (evaluation, correspondences) = evaluate::<G, D, N>(pr, &pose, true, true, fixed);
     if evaluation.num_correspondences < s.min_correspondences {
         stop = StopReason::TooFewCorrespondences;
     }
@@ -659,11 +678,17 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
         evaluation,
         iteration_seconds: times,
         final_evaluation_seconds: t0.elapsed().as_secs_f64(),
+        correspondences,
     }
 }
 
 fn check_settings(s: &Settings) -> Result<f64> {
     let max_sq = check_max_distance("max_correspondence_distance", s.max_correspondence_distance)?;
+    if let Some(p) = &s.step_projector {
+        if p.iter().any(|v| !v.is_finite()) {
+            return Err(Error::invalid("step_projector", "contains NaN or inf"));
+        }
+    }
     for (arg, v) in [
         ("translation_tolerance", s.translation_tolerance),
         ("rotation_tolerance", s.rotation_tolerance),

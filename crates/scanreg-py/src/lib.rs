@@ -5,6 +5,7 @@
 
 use pyo3::prelude::*;
 
+mod censi;
 mod convert;
 mod correlative;
 mod deskew;
@@ -32,5 +33,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     sweep::register(m)?;
     io::register(m)?;
     register::register(m)?;
+    censi::register(m)?;
     Ok(())
 }

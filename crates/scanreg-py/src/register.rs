@@ -44,6 +44,9 @@ pub struct IcpOutcome {
     iteration_seconds: Py<PyArray1<f64>>,
     #[pyo3(get)]
     final_evaluation_seconds: f64,
+    /// Target index per source point at `pose`, -1 for none.
+    #[pyo3(get)]
+    correspondences: Py<PyArray1<i64>>,
 }
 
 fn square(py: Python<'_>, flat: Vec<f64>, n: usize) -> PyResult<Py<PyArray2<f64>>> {
@@ -66,12 +69,26 @@ fn covs<'a>(
     Ok(Some(c_slice(a, name)?))
 }
 
+fn projector(arr: &Option<PyReadonlyArray2<'_, f64>>, dim: usize) -> PyResult<Option<[f64; 36]>> {
+    let Some(a) = arr else { return Ok(None) };
+    let dof = if dim == 2 { 3 } else { 6 };
+    if a.shape() != [dof, dof] {
+        return Err(PyValueError::new_err(format!(
+            "step_projector: expected shape ({dof}, {dof}), got {:?}",
+            a.shape()
+        )));
+    }
+    let mut out = [0.0; 36];
+    out[..dof * dof].copy_from_slice(c_slice(a, "step_projector")?);
+    Ok(Some(out))
+}
+
 #[pyfunction]
 #[pyo3(signature = (
     source, target, init_pose, *, method, kernel, kernel_scale, max_correspondence_distance,
     max_iterations, translation_tolerance, rotation_tolerance, optimizer, min_correspondences,
     num_threads=None, source_covariances=None, target_normals=None, target_covariances=None,
-    iterate=true
+    iterate=true, step_projector=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn register_icp(
@@ -93,6 +110,7 @@ fn register_icp(
     target_normals: Option<PyReadonlyArray2<'_, f64>>,
     target_covariances: Option<PyReadonlyArray3<'_, f64>>,
     iterate: bool,
+    step_projector: Option<PyReadonlyArray2<'_, f64>>,
 ) -> PyResult<IcpOutcome> {
     // The target is a k-d tree over a fixed cloud (attributes passed in) or a local map
     // (attributes stored in it, read under its lock for the whole registration).
@@ -148,6 +166,7 @@ fn register_icp(
         rotation_tolerance,
         optimizer: Optimizer::from_name(optimizer).map_err(core_err)?,
         min_correspondences,
+        step_projector: projector(&step_projector, dim)?,
     };
     let src_in = Source {
         points: src,
@@ -172,6 +191,7 @@ fn register_icp(
                             evaluation,
                             iteration_seconds: Vec::new(),
                             final_evaluation_seconds: 0.0,
+                            correspondences: Vec::new(),
                         }
                     })
                 }
@@ -196,6 +216,13 @@ fn register_icp(
         sum_squared_distances: ev.sum_squared_distances,
         iteration_seconds: out.iteration_seconds.into_pyarray(py).unbind(),
         final_evaluation_seconds: out.final_evaluation_seconds,
+        correspondences: out
+            .correspondences
+            .iter()
+            .map(|&j| if j == u32::MAX { -1 } else { i64::from(j) })
+            .collect::<Vec<i64>>()
+            .into_pyarray(py)
+            .unbind(),
     })
 }
 

@@ -187,7 +187,10 @@ def cloud_from_columns(
     for a in axes:
         if columns[a].ndim != 1:
             raise FileFormatError(path, f"field {a} must have one value per point")
-    points = np.stack([np.asarray(columns[a], dtype=np.float64) for a in axes], axis=1)
+    # A float32 signalling NaN in a file raises numpy's "invalid value" on the cast; it is
+    # NaN either way (kept, like any NaN point; PointCloud.finite() drops them).
+    with np.errstate(invalid="ignore"):
+        points = np.stack([np.asarray(columns[a], dtype=np.float64) for a in axes], axis=1)
     named: dict[str, NDArray[Any]] = {}
     extras: dict[str, NDArray[Any]] = {}
     for name in names:

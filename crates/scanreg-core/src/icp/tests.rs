@@ -92,6 +92,7 @@ fn settings(method: Method, kernel: Kernel, optimizer: Optimizer) -> Settings {
         rotation_tolerance: 1e-8,
         optimizer,
         min_correspondences: 10,
+        step_projector: None,
     }
 }
 

@@ -125,6 +125,7 @@ fn registration_against_map_equals_kd_tree() {
         rotation_tolerance: 1e-9,
         optimizer: Optimizer::GaussNewton,
         min_correspondences: 10,
+        step_projector: None,
     };
     let init = [
         1.0, 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.,

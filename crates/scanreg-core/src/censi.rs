@@ -1,0 +1,450 @@
+//! Closed-form covariance of an ICP estimate (Censi 2007), and the per-point sums behind the
+//! other covariance kinds, at a fixed pose and fixed correspondences.
+//!
+//! At the optimum the gradient `g(x, z) = Σ_i k_i J_iᵀ W_i r_i` is zero. Perturbing the data `z`
+//! (source points `p_i`, target points `q_j`) moves the optimum by `δx = −H⁻¹ (∂g/∂z) δz`, so
+//! (Censi 2007, "An accurate closed-form estimate of ICP's covariance", eq. 4)
+//!
+//! ```text
+//! Σ_x = H⁻¹ (∂g/∂z) Σ_z (∂g/∂z)ᵀ H⁻¹,   H = ∂g/∂x (Gauss–Newton).
+//! ```
+//!
+//! This module returns the middle term (the "meat") for isotropic per-point noise `σ_s²` on every
+//! source point and `σ_t²` on every target point. Target points are shared: when several source
+//! points correspond to the same target point, its noise moves all of their residuals together,
+//! so their derivatives are summed per target point before the outer product (the dependence of
+//! the correspondences that a per-residual formula ignores). Normals, GICP weights `W` and kernel
+//! weights `k` are held fixed, as the solver holds them.
+//!
+//! Per correspondence, with `e = R p + t − q`, `A(p) = ∂(exp(δ) p)/∂δ` and `C(w) = ∂(A(p)ᵀ w)/∂p`
+//! at fixed `w` (`[0; −[w]×]` in 3D, `[0, 0; w_y, −w_x]` in 2D):
+//! * point-to-point (`r = Rᵀe`): `∂g/∂p = k (Aᵀ + C(r))`, `∂g/∂q = −k Aᵀ Rᵀ`;
+//! * point-to-plane/line (`m = Rᵀn`, `r = nᵀe`): `∂g/∂p = k (Aᵀ m mᵀ + r C(m))`, `∂g/∂q = −k Aᵀ m nᵀ`,
+//!   and for the target normal (its direction noise `σ_n² (I − nnᵀ)`, Censi's "line" term)
+//!   `∂g/∂n = k Aᵀ (Rᵀ r + m eᵀ)`;
+//! * GICP (`W_l = Rᵀ W R`, `r = Rᵀe`): `∂g/∂p = k (Aᵀ W_l + C(W_l r))`, `∂g/∂q = −k Aᵀ W_l Rᵀ`.
+//!
+//! The same pass also sums the per-point scores `ψ_i = k J_iᵀ W r_i` by spatial block (cells of
+//! `block_size` in the source frame): `Σ_b ψ_b ψ_bᵀ` is the meat of a cluster-robust sandwich,
+//! which stays honest when residual errors are correlated in space (sampling, model error),
+//! and the point-to-plane information `Σ Jᵀ J` over correspondences with a target normal, the
+//! geometry-only matrix the degeneracy analysis uses for every method.
+
+use crate::error::{Error, Result};
+use crate::icp::Method;
+use crate::kernel::Kernel;
+use crate::points::{check_points, split_pose};
+use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+/// Marker for "no correspondence".
+pub const NONE: u32 = u32::MAX;
+
+/// The data at the final pose.
+pub struct Input<'a> {
+    /// `N * D` source points (source frame).
+    pub source: &'a [f64],
+    /// `N * D * D` source covariances (GICP only).
+    pub source_covariances: Option<&'a [f64]>,
+    /// `M * D` target points (target frame).
+    pub target: &'a [f64],
+    /// `M * D` unit target normals (point-to-plane; optional otherwise: the plane information).
+    pub target_normals: Option<&'a [f64]>,
+    /// `M * D * D` target covariances (GICP only).
+    pub target_covariances: Option<&'a [f64]>,
+    /// One target index per source point, [`NONE`] for none.
+    pub correspondences: &'a [u32],
+}
+
+/// Options of [`analyse`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Options {
+    pub method: Method,
+    pub kernel: Kernel,
+    /// Variance of each coordinate of a source point (units²).
+    pub source_variance: f64,
+    /// Variance of each coordinate of a target point (units²).
+    pub target_variance: f64,
+    /// Variance of a target normal's direction, per tangent axis (rad²): the normal is
+    /// perturbed within its tangent plane, `Σ_n = normal_variance (I − n nᵀ)`. Point-to-plane
+    /// only (the residual `nᵀe` depends on it).
+    pub normal_variance: f64,
+    /// Edge of the cubic (square) blocks the scores are summed over; `inf`: one block per point.
+    pub block_size: f64,
+}
+
+/// Row-major `dof x dof` matrices.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Analysis {
+    /// `Σ k JᵀWJ` over the correspondences.
+    pub hessian: Vec<f64>,
+    /// `(∂g/∂z) Σ_z (∂g/∂z)ᵀ`: Censi's middle term with the [`Options`] variances; the sum
+    /// of the three unit-variance terms below, each times its variance.
+    pub censi_meat: Vec<f64>,
+    /// The source-point term at unit variance (`σ_s² = 1`).
+    pub source_meat: Vec<f64>,
+    /// The target-point term at unit variance, shared target points summed.
+    pub target_meat: Vec<f64>,
+    /// The target-normal term at unit variance (point-to-plane/line; zeros otherwise).
+    pub normal_meat: Vec<f64>,
+    /// `Σ (nᵀe)²` over correspondences whose target has a normal: the residual along the
+    /// surface normal, for every method (the noise that matters, free of the along-surface
+    /// sampling offsets in `|e|²`).
+    pub plane_sum_squares: f64,
+    /// `Σ_b ψ_b ψ_bᵀ` over spatial blocks.
+    pub block_meat: Vec<f64>,
+    /// Blocks holding at least one correspondence.
+    pub num_blocks: usize,
+    /// `Σ Jᵀ J` of the point-to-plane factor over correspondences whose target has a normal
+    /// (zeros without normals).
+    pub plane_information: Vec<f64>,
+    /// Correspondences with a target normal.
+    pub num_plane_correspondences: usize,
+    pub num_correspondences: usize,
+}
+
+trait Geometry<const D: usize, const N: usize> {
+    fn a(p: &SVector<f64, D>) -> SMatrix<f64, D, N>;
+    /// `∂(A(p)ᵀ w)/∂p` at fixed `w`.
+    fn c(w: &SVector<f64, D>) -> SMatrix<f64, N, D>;
+    fn inverse(m: &SMatrix<f64, D, D>) -> Option<SMatrix<f64, D, D>>;
+}
+
+struct Planar;
+struct Spatial;
+
+impl Geometry<2, 3> for Planar {
+    fn a(p: &Vector2<f64>) -> SMatrix<f64, 2, 3> {
+        SMatrix::<f64, 2, 3>::new(1.0, 0.0, -p.y, 0.0, 1.0, p.x)
+    }
+    fn c(w: &Vector2<f64>) -> SMatrix<f64, 3, 2> {
+        SMatrix::<f64, 3, 2>::new(0.0, 0.0, 0.0, 0.0, w.y, -w.x)
+    }
+    fn inverse(m: &Matrix2<f64>) -> Option<Matrix2<f64>> {
+        m.try_inverse()
+    }
+}
+
+impl Geometry<3, 6> for Spatial {
+    fn a(p: &Vector3<f64>) -> SMatrix<f64, 3, 6> {
+        #[rustfmt::skip]
+        let a = SMatrix::<f64, 3, 6>::new(
+            1.0, 0.0, 0.0, 0.0, p.z, -p.y,
+            0.0, 1.0, 0.0, -p.z, 0.0, p.x,
+            0.0, 0.0, 1.0, p.y, -p.x, 0.0,
+        );
+        a
+    }
+    fn c(w: &Vector3<f64>) -> SMatrix<f64, 6, 3> {
+        // −[w]× in the rotation rows.
+        #[rustfmt::skip]
+        let c = SMatrix::<f64, 6, 3>::new(
+            0.0, 0.0, 0.0,
+            0.0, 0.0, 0.0,
+            0.0, 0.0, 0.0,
+            0.0, w.z, -w.y,
+            -w.z, 0.0, w.x,
+            w.y, -w.x, 0.0,
+        );
+        c
+    }
+    fn inverse(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+        m.try_inverse()
+    }
+}
+
+#[inline]
+fn vec_at<const D: usize>(data: &[f64], i: usize) -> SVector<f64, D> {
+    SVector::from_column_slice(&data[i * D..(i + 1) * D])
+}
+
+#[inline]
+fn mat_at<const D: usize>(data: &[f64], i: usize) -> SMatrix<f64, D, D> {
+    SMatrix::from_column_slice(&data[i * D * D..(i + 1) * D * D])
+}
+
+/// What one correspondence contributes.
+struct Term<const D: usize, const N: usize> {
+    h: SMatrix<f64, N, N>,
+    score: SVector<f64, N>,
+    dp: SMatrix<f64, N, D>,
+    dq: SMatrix<f64, N, D>,
+    /// `∂g/∂n` and `Σ_n` of the target normal (point-to-plane only).
+    dn: Option<(SMatrix<f64, N, D>, SMatrix<f64, D, D>)>,
+    plane: Option<(SMatrix<f64, N, N>, f64)>,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
+    input: &Input<'_>,
+    opts: &Options,
+    r: &SMatrix<f64, D, D>,
+    t: &SVector<f64, D>,
+    i: usize,
+    j: usize,
+) -> Option<Term<D, N>> {
+    let p: SVector<f64, D> = vec_at(input.source, i);
+    let q: SVector<f64, D> = vec_at(input.target, j);
+    let e = r * p + t - q;
+    let a = G::a(&p);
+    let rt = r.transpose();
+    let normal: Option<SVector<f64, D>> = input
+        .target_normals
+        .map(|n| vec_at::<D>(n, j))
+        .filter(|n| n.norm_squared() >= 0.25);
+    let plane = normal.map(|n| {
+        let jrow = (rt * n).transpose() * a;
+        (jrow.transpose() * jrow, n.dot(&e).powi(2))
+    });
+    let mut dn = None;
+    let (h, score, dp, dq, norm) = match opts.method {
+        Method::PointToPoint => {
+            let rl = rt * e;
+            (
+                a.transpose() * a,
+                a.transpose() * rl,
+                a.transpose() + G::c(&rl),
+                -(a.transpose() * rt),
+                e.norm(),
+            )
+        }
+        Method::PointToPlane => {
+            let n = normal?;
+            let m = rt * n;
+            let d = n.dot(&e);
+            let jt = a.transpose() * m; // N x 1
+                                        // g = Aᵀ m d with m = Rᵀn, d = nᵀe: ∂g/∂n = Aᵀ (Rᵀ d + m eᵀ).
+            let dgn = a.transpose() * (rt * d + m * e.transpose());
+            let tangent = SMatrix::<f64, D, D>::identity() - n * n.transpose();
+            dn = Some((dgn, tangent));
+            (
+                jt * jt.transpose(),
+                jt * d,
+                jt * m.transpose() + G::c(&m) * d,
+                -(jt * n.transpose()),
+                d.abs(),
+            )
+        }
+        Method::Gicp => {
+            let cq: SMatrix<f64, D, D> = mat_at(input.target_covariances?, j);
+            let cp: SMatrix<f64, D, D> = mat_at(input.source_covariances?, i);
+            let w = G::inverse(&(cq + r * cp * rt))?;
+            let wl = rt * w * r;
+            let el = rt * e;
+            let we = wl * el;
+            (
+                a.transpose() * wl * a,
+                a.transpose() * we,
+                a.transpose() * wl + G::c(&we),
+                -(a.transpose() * wl * rt),
+                el.dot(&we).max(0.0).sqrt(),
+            )
+        }
+    };
+    let k = opts.kernel.weight(norm);
+    Some(Term {
+        h: h * k,
+        score: score * k,
+        dp: dp * k,
+        dq: dq * k,
+        dn: dn.map(|(d, c)| (d * k, c)),
+        plane,
+    })
+}
+
+fn block_key<const D: usize>(p: &SVector<f64, D>, size: f64, i: usize) -> [i64; 4] {
+    if !size.is_finite() {
+        return [i as i64, 0, 0, 0];
+    }
+    let mut key = [0i64; 4];
+    for (k, v) in p.iter().enumerate() {
+        // saturating float-to-int cast: far points share the extreme block, never overflow
+        key[k] = (v / size).floor() as i64;
+    }
+    key
+}
+
+fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
+    input: &Input<'_>,
+    pose: &[f64],
+    opts: &Options,
+) -> Analysis {
+    let m = D + 1;
+    let r: SMatrix<f64, D, D> = SMatrix::from_fn(|i, j| pose[i * m + j]);
+    let t: SVector<f64, D> = SVector::from_fn(|i, _| pose[i * m + D]);
+    let n = input.correspondences.len();
+    // Per-point terms in parallel, collected in order (deterministic).
+    let terms: Vec<Option<(u32, Term<D, N>)>> = (0..n)
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|i| {
+            let j = input.correspondences[i];
+            if j == NONE {
+                return None;
+            }
+            term::<G, D, N>(input, opts, &r, &t, i, j as usize).map(|tm| (j, tm))
+        })
+        .collect();
+    let mut h = SMatrix::<f64, N, N>::zeros();
+    let mut m_src = SMatrix::<f64, N, N>::zeros();
+    let mut m_tgt = SMatrix::<f64, N, N>::zeros();
+    let mut m_nrm = SMatrix::<f64, N, N>::zeros();
+    let mut plane = SMatrix::<f64, N, N>::zeros();
+    let mut plane_ss = 0.0;
+    let mut plane_count = 0;
+    let mut count = 0;
+    let mut shared: Vec<(u32, usize)> = Vec::with_capacity(n);
+    let mut blocks: BTreeMap<[i64; 4], SVector<f64, N>> = BTreeMap::new();
+    for (i, item) in terms.iter().enumerate() {
+        let Some((j, tm)) = item else { continue };
+        count += 1;
+        h += tm.h;
+        m_src += tm.dp * tm.dp.transpose();
+        shared.push((*j, i));
+        if let Some((pl, d2)) = tm.plane {
+            plane += pl;
+            plane_ss += d2;
+            plane_count += 1;
+        }
+        let p: SVector<f64, D> = vec_at(input.source, i);
+        *blocks
+            .entry(block_key(&p, opts.block_size, i))
+            .or_insert_with(SVector::zeros) += tm.score;
+    }
+    // Target noise: sum the derivatives of every residual that uses the same target point.
+    shared.sort_unstable();
+    let mut k = 0;
+    while k < shared.len() {
+        let j = shared[k].0;
+        let mut d = SMatrix::<f64, N, D>::zeros();
+        let mut dn = SMatrix::<f64, N, D>::zeros();
+        let mut cov_n = SMatrix::<f64, D, D>::zeros();
+        while k < shared.len() && shared[k].0 == j {
+            if let Some((_, tm)) = &terms[shared[k].1] {
+                d += tm.dq;
+                if let Some((dgn, c)) = &tm.dn {
+                    dn += dgn;
+                    cov_n = *c;
+                }
+            }
+            k += 1;
+        }
+        m_tgt += d * d.transpose();
+        m_nrm += dn * cov_n * dn.transpose();
+    }
+    let mut block_meat = SMatrix::<f64, N, N>::zeros();
+    for s in blocks.values() {
+        block_meat += s * s.transpose();
+    }
+    let meat =
+        m_src * opts.source_variance + m_tgt * opts.target_variance + m_nrm * opts.normal_variance;
+    let flat = |mat: SMatrix<f64, N, N>| mat.transpose().iter().copied().collect::<Vec<f64>>();
+    Analysis {
+        hessian: flat(h),
+        censi_meat: flat(meat),
+        source_meat: flat(m_src),
+        target_meat: flat(m_tgt),
+        normal_meat: flat(m_nrm),
+        plane_sum_squares: plane_ss,
+        block_meat: flat(block_meat),
+        num_blocks: blocks.len(),
+        plane_information: flat(plane),
+        num_plane_correspondences: plane_count,
+        num_correspondences: count,
+    }
+}
+
+fn check_len(arg: &'static str, data: &[f64], n: usize, per: usize) -> Result<()> {
+    if data.len() != n * per {
+        return Err(Error::invalid(
+            arg,
+            format!(
+                "expected {} values ({n} points x {per}), got {}",
+                n * per,
+                data.len()
+            ),
+        ));
+    }
+    if data.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid(arg, "contains NaN or inf"));
+    }
+    Ok(())
+}
+
+/// Censi's middle term, the block-score meat and the plane information at `pose` (row-major
+/// homogeneous `T_target_source`) over the given correspondences.
+pub fn analyse(input: &Input<'_>, pose: &[f64], dim: usize, opts: &Options) -> Result<Analysis> {
+    let n = check_points("source", input.source, dim)?;
+    let m = check_points("target", input.target, dim)?;
+    split_pose("pose", pose, dim)?;
+    if input.correspondences.len() != n {
+        return Err(Error::invalid(
+            "correspondences",
+            format!(
+                "expected one per source point ({n}), got {}",
+                input.correspondences.len()
+            ),
+        ));
+    }
+    if let Some(&bad) = input
+        .correspondences
+        .iter()
+        .find(|&&j| j != NONE && j as usize >= m)
+    {
+        return Err(Error::invalid(
+            "correspondences",
+            format!("index {bad} out of range for {m} target points"),
+        ));
+    }
+    for (arg, v) in [
+        ("source_variance", opts.source_variance),
+        ("target_variance", opts.target_variance),
+        ("normal_variance", opts.normal_variance),
+    ] {
+        if !v.is_finite() || v < 0.0 {
+            return Err(Error::invalid(
+                arg,
+                format!("must be finite and >= 0, got {v}"),
+            ));
+        }
+    }
+    if opts.block_size.is_nan() || opts.block_size <= 0.0 {
+        return Err(Error::invalid(
+            "block_size",
+            format!("must be > 0, got {}", opts.block_size),
+        ));
+    }
+    if let Some(nrm) = input.target_normals {
+        check_len("target_normals", nrm, m, dim)?;
+    }
+    match opts.method {
+        Method::PointToPoint => {}
+        Method::PointToPlane => {
+            if input.target_normals.is_none() {
+                return Err(Error::invalid(
+                    "target_normals",
+                    "are required for point-to-plane/line",
+                ));
+            }
+        }
+        Method::Gicp => {
+            let tc = input
+                .target_covariances
+                .ok_or_else(|| Error::invalid("target_covariances", "are required for GICP"))?;
+            check_len("target_covariances", tc, m, dim * dim)?;
+            let sc = input
+                .source_covariances
+                .ok_or_else(|| Error::invalid("source_covariances", "are required for GICP"))?;
+            check_len("source_covariances", sc, n, dim * dim)?;
+        }
+    }
+    Ok(if dim == 2 {
+        run::<Planar, 2, 3>(input, pose, opts)
+    } else {
+        run::<Spatial, 3, 6>(input, pose, opts)
+    })
+}
+
+#[cfg(test)]
+mod tests;

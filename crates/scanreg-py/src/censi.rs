@@ -1,0 +1,144 @@
+//! Binding of `scanreg_core::censi`: the per-point sums behind Censi's closed-form covariance,
+//! the block-score sandwich and the plane information, at one pose.
+
+use crate::convert::{c_slice, core_err, points_dim, pose};
+use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{PyReadonlyArray3, PyUntypedArrayMethods};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use scanreg_core::censi::{self, Input, Options, NONE};
+use scanreg_core::icp::{in_pool, Method};
+use scanreg_core::Kernel;
+
+#[pyclass(frozen, module = "scanreg._core")]
+pub struct CensiAnalysis {
+    #[pyo3(get)]
+    hessian: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    censi_meat: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    source_meat: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    target_meat: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    normal_meat: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    plane_sum_squares: f64,
+    #[pyo3(get)]
+    block_meat: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    num_blocks: usize,
+    #[pyo3(get)]
+    plane_information: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    num_plane_correspondences: usize,
+    #[pyo3(get)]
+    num_correspondences: usize,
+}
+
+fn square(py: Python<'_>, flat: Vec<f64>, n: usize) -> PyResult<Py<PyArray2<f64>>> {
+    Ok(flat.into_pyarray(py).reshape([n, n])?.unbind())
+}
+
+fn covs<'a>(
+    arr: &'a Option<PyReadonlyArray3<'_, f64>>,
+    name: &str,
+    n: usize,
+    dim: usize,
+) -> PyResult<Option<&'a [f64]>> {
+    let Some(a) = arr else { return Ok(None) };
+    let s = a.shape();
+    if s != [n, dim, dim] {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected shape ({n}, {dim}, {dim}), got {s:?}"
+        )));
+    }
+    Ok(Some(c_slice(a, name)?))
+}
+
+#[pyfunction]
+#[pyo3(signature = (
+    source, target, pose_matrix, correspondences, *, method, kernel, kernel_scale,
+    source_variance, target_variance, block_size, normal_variance=0.0, target_normals=None, source_covariances=None,
+    target_covariances=None, num_threads=None
+))]
+#[allow(clippy::too_many_arguments)]
+fn censi_analysis(
+    py: Python<'_>,
+    source: PyReadonlyArray2<'_, f64>,
+    target: PyReadonlyArray2<'_, f64>,
+    pose_matrix: PyReadonlyArray2<'_, f64>,
+    correspondences: PyReadonlyArray1<'_, i64>,
+    method: &str,
+    kernel: &str,
+    kernel_scale: f64,
+    source_variance: f64,
+    target_variance: f64,
+    block_size: f64,
+    normal_variance: f64,
+    target_normals: Option<PyReadonlyArray2<'_, f64>>,
+    source_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    target_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    num_threads: Option<usize>,
+) -> PyResult<CensiAnalysis> {
+    let (src, dim) = crate::convert::points(&source, "source")?;
+    let tgt = points_dim(&target, "target", dim)?;
+    let pm = pose(&pose_matrix, "pose_matrix", dim)?;
+    let n = src.len() / dim;
+    let m = tgt.len() / dim;
+    let corr: Vec<u32> = c_slice(&correspondences, "correspondences")?
+        .iter()
+        .map(|&j| {
+            if j < 0 {
+                Ok(NONE)
+            } else {
+                u32::try_from(j).ok().filter(|&v| v != NONE).ok_or_else(|| {
+                    PyValueError::new_err(format!("correspondences: index {j} out of range"))
+                })
+            }
+        })
+        .collect::<PyResult<_>>()?;
+    let nrm = target_normals
+        .as_ref()
+        .map(|a| points_dim(a, "target_normals", dim))
+        .transpose()?;
+    let input = Input {
+        source: src,
+        source_covariances: covs(&source_covariances, "source_covariances", n, dim)?,
+        target: tgt,
+        target_normals: nrm,
+        target_covariances: covs(&target_covariances, "target_covariances", m, dim)?,
+        correspondences: &corr,
+    };
+    let opts = Options {
+        method: Method::from_name(method).map_err(core_err)?,
+        kernel: Kernel::from_name(kernel, kernel_scale).map_err(core_err)?,
+        source_variance,
+        target_variance,
+        normal_variance,
+        block_size,
+    };
+    let out = py
+        .detach(|| in_pool(num_threads, || censi::analyse(&input, pm, dim, &opts)).and_then(|r| r))
+        .map_err(core_err)?;
+    let dof = if dim == 2 { 3 } else { 6 };
+    Ok(CensiAnalysis {
+        hessian: square(py, out.hessian, dof)?,
+        censi_meat: square(py, out.censi_meat, dof)?,
+        source_meat: square(py, out.source_meat, dof)?,
+        target_meat: square(py, out.target_meat, dof)?,
+        normal_meat: square(py, out.normal_meat, dof)?,
+        plane_sum_squares: out.plane_sum_squares,
+        block_meat: square(py, out.block_meat, dof)?,
+        num_blocks: out.num_blocks,
+        plane_information: square(py, out.plane_information, dof)?,
+        num_plane_correspondences: out.num_plane_correspondences,
+        num_correspondences: out.num_correspondences,
+    })
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<CensiAnalysis>()?;
+    m.add_function(wrap_pyfunction!(censi_analysis, m)?)?;
+    Ok(())
+}

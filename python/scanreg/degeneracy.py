@@ -1,0 +1,239 @@
+"""Degeneracy: which pose directions the scene does not constrain, named in pose coordinates.
+
+The analysis works on the *plane information* ``G = Σ J Jᵀ`` of the point-to-plane/line factor
+over the final correspondences (for every method: point-to-point's own ``JᵀJ`` has ``N·I`` as
+its translation block and cannot see a corridor). It is made unit-independent and
+size-independent before its eigenvalues are compared:
+
+* rotation about tangent axis ``a`` is expressed in metres at that axis' lever ``L_a``, the RMS
+  distance of the source points from the axis through the source origin (about which the right
+  perturbation rotates), so ``S = diag(1.., L_a..)``;
+* ``Ĝ = S⁻¹ G S⁻¹ / n`` over the ``n`` correspondences. An eigenvalue of ``Ĝ`` along a unit
+  direction ``v`` is then the mean squared constraint per correspondence, e.g. the mean of
+  ``(n_i·v)²`` for a translation: 1 when every surface faces ``v``, 0 in a corridor along ``v``.
+
+A direction is **weak** when its eigenvalue is below ``threshold = max(min_constraint,
+noise_factor · ε̃²)``: ``ε̃²`` is the typical squared error of the target normals, measured on
+the data (half the median squared sine between each normal and its nearest neighbour's), i.e.
+the information along any direction that noisy normals alone produce; ``noise_factor = 6``.
+``min_constraint = 0.03`` is the floor: fewer than the equivalent of 3 % of the
+correspondences facing a direction. On the simulated scenes the floor decides (sensor noise
+of 2–3 cm makes ``6 ε̃² < 0.001``); the noise term raises the threshold for noisy sensors. The
+measurements that support both are in ``docs/calibration.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from ._validate import FloatArray
+from ._validate import frozen as _frozen
+from .quality import WeakDirection, describe_direction
+
+#: Floor of the weak-direction threshold (a mean squared constraint per correspondence).
+DEFAULT_MIN_CONSTRAINT = 0.03
+#: The threshold is at least this many times the typical normal noise ``ε̃²``.
+DEFAULT_NOISE_FACTOR = 6.0
+
+
+@dataclass(frozen=True)
+class Degeneracy:
+    """Eigen-analysis of the normalised, scaled plane information (see module docstring)."""
+
+    #: ``Ĝ = S⁻¹ G S⁻¹ / n`` (dof × dof), unitless.
+    information: FloatArray
+    #: Rotation levers ``L_a`` (units of the points), one per rotation axis.
+    levers: FloatArray
+    #: Eigenvalues of ``Ĝ``, ascending (mean squared constraint per correspondence).
+    eigenvalues: FloatArray
+    #: Every eigen-direction, weakest first, in tangent coordinates (unit length in metres).
+    directions: tuple[WeakDirection, ...]
+    #: Those below ``threshold``.
+    weak_directions: tuple[WeakDirection, ...]
+    threshold: float
+    #: ``ε̂²``: mean squared normal error measured on the target, creases included (``nan`` if
+    #: not measured); its root is the resolution of a weak direction's components.
+    normal_noise: float
+    #: ``ε̃²``: the median counterpart (clutter and creases left out); sets the threshold.
+    typical_normal_noise: float
+    #: ``"plane_information"`` (target normals available) or ``"hessian"`` (the method's own
+    #: ``JᵀWJ``, when the target has no normals).
+    basis: str
+
+    @property
+    def degenerate(self) -> bool:
+        return bool(self.weak_directions)
+
+    def scaling(self) -> FloatArray:
+        """``diag(S⁻¹)``: tangent = ``S⁻¹`` × scaled coordinates (``1`` for translation,
+        ``1/L_a`` for rotation)."""
+        dim = self.information.shape[0] - self.levers.size
+        out: FloatArray = np.concatenate([np.ones(dim), 1.0 / self.levers])
+        return out
+
+    def weak_basis(self) -> FloatArray:
+        """``(dof, w)`` orthonormal basis of the weak subspace in *scaled* coordinates.
+
+        Components of a weak direction (scaled, unit length) smaller than the normal noise
+        ``ε̂`` (radians, from ``normal_noise``) are not resolved by the data and are set to zero
+        first: a corridor's weak direction is the translation along its axis, not a
+        noise-tilted version of it (a tilt would tie the well-determined directions to the
+        drift along the axis).
+        """
+        dof = self.information.shape[0]
+        if not self.weak_directions:
+            return np.zeros((dof, 0))
+        s_inv = self.scaling()
+        eps = float(np.sqrt(self.normal_noise)) if np.isfinite(self.normal_noise) else 0.0
+        cols = []
+        for w in self.weak_directions:
+            v = np.array(w.vector) / s_inv
+            v = v / np.linalg.norm(v)
+            snapped = np.where(np.abs(v) < eps, 0.0, v)
+            cols.append(snapped if np.any(snapped) else v)
+        basis, _ = np.linalg.qr(np.array(cols).T)
+        out: FloatArray = basis
+        return out
+
+    def weak_projector(self) -> FloatArray:
+        """``(dof, dof)`` projector onto the weak subspace along the strong one, in tangent
+        coordinates (``S⁻¹ W Wᵀ S`` with ``W`` = :meth:`weak_basis`)."""
+        s_inv = self.scaling()
+        w = self.weak_basis()
+        out: FloatArray = (w @ w.T) * np.outer(s_inv, 1.0 / s_inv)
+        return out
+
+
+def rotation_levers(points: FloatArray, dim: int) -> FloatArray:
+    """RMS distance of ``points`` from each rotation axis through the origin (≥ 1e-9)."""
+    sq = points**2
+    if dim == 2:
+        levers = np.array([np.sqrt(np.mean(sq.sum(axis=1)))])
+    else:
+        total = sq.sum(axis=1)
+        levers = np.sqrt(np.array([np.mean(total - sq[:, a]) for a in range(3)]))
+    out: FloatArray = np.maximum(levers, 1e-9)
+    return out
+
+
+def normal_noise(
+    target_points: FloatArray, normals: FloatArray, index: object
+) -> tuple[float, float]:
+    """``(ε̂², ε̃²)``: half the mean and half the median squared sine between a normal and its
+    nearest neighbour's.
+
+    Two independent normal errors of variance ``ε²`` per tangent axis make a squared sine of
+    about ``2ε²``; real creases and clutter add to the mean, not to the median. Up to 2000
+    target points are sampled (deterministically). ``nan`` without valid normals.
+    """
+    nan = (float("nan"), float("nan"))
+    valid = np.flatnonzero(np.einsum("ij,ij->i", normals, normals) > 0.25)
+    if valid.size < 2:
+        return nan
+    sample = valid[:: max(1, valid.size // 2000)]
+    idx, _ = index.knn(np.ascontiguousarray(target_points[sample]), 2)  # type: ignore[attr-defined]
+    j = np.asarray(idx)[:, 1]
+    nj = normals[j]
+    ok = np.einsum("ij,ij->i", nj, nj) > 0.25
+    if not ok.any():
+        return nan
+    cos = np.abs(np.einsum("ij,ij->i", normals[sample][ok], nj[ok]))
+    sin2 = 1.0 - np.minimum(cos, 1.0) ** 2
+    return float(0.5 * np.mean(sin2)), float(0.5 * np.median(sin2))
+
+
+def analyse_degeneracy(
+    information: FloatArray,
+    count: int,
+    dim: int,
+    levers: FloatArray,
+    *,
+    normal_noise: float = float("nan"),
+    typical_normal_noise: float = float("nan"),
+    min_constraint: float = DEFAULT_MIN_CONSTRAINT,
+    noise_factor: float = DEFAULT_NOISE_FACTOR,
+    basis: str = "plane_information",
+) -> Degeneracy:
+    """Name the weak directions of ``information`` (``Σ JᵀJ`` over ``count`` correspondences)."""
+    dof = information.shape[0]
+    s_inv = np.concatenate([np.ones(dim), 1.0 / np.asarray(levers, dtype=np.float64)])
+    g = 0.5 * (information + information.T) * np.outer(s_inv, s_inv) / max(count, 1)
+    vals, vecs = np.linalg.eigh(g)
+    threshold = float(min_constraint)
+    if np.isfinite(typical_normal_noise):
+        threshold = max(threshold, noise_factor * float(typical_normal_noise))
+    top = max(float(vals[-1]), 1e-300)
+    length = float(np.sqrt(np.mean(np.asarray(levers) ** 2)))
+
+    def direction(i: int) -> WeakDirection:
+        v = vecs[:, i] * s_inv  # back to metres / radians
+        v = v / np.linalg.norm(v / s_inv)  # unit length in metres-equivalent
+        return WeakDirection(
+            vector=_frozen(v),
+            ratio=float(vals[i] / top),
+            description=describe_direction(v, dim, length),
+        )
+
+    directions = tuple(direction(i) for i in range(dof))
+    weak = tuple(d for d, lam in zip(directions, vals, strict=True) if lam < threshold)
+    return Degeneracy(
+        information=_frozen(g),
+        levers=_frozen(np.asarray(levers, dtype=np.float64)),
+        eigenvalues=_frozen(vals),
+        directions=directions,
+        weak_directions=weak,
+        threshold=threshold,
+        normal_noise=float(normal_noise),
+        typical_normal_noise=float(typical_normal_noise),
+        basis=basis,
+    )
+
+
+def sampled_normals(points: FloatArray, k: int, max_points: int = 1500) -> tuple[Any, FloatArray]:
+    """Unit normals (PCA of the ``k`` nearest neighbours) of at most ``max_points`` evenly
+    spaced points of ``points``: ``(indices, normals)``. Enough to *measure* normal noise at a
+    fraction of the cost of normals for every point."""
+    n = points.shape[0]
+    idx = np.arange(0, n, max(1, n // max_points))
+    nb, _ = _core.KdTree(points).knn(np.ascontiguousarray(points[idx]), min(k, n))
+    hood = points[np.asarray(nb)]
+    centred = hood - hood.mean(axis=1, keepdims=True)
+    _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", centred, centred))
+    normals: FloatArray = np.ascontiguousarray(vecs[:, :, 0])
+    return idx, normals
+
+
+def correspondence_normal_noise(
+    source_normals: FloatArray,
+    target_normals: FloatArray,
+    rotation: FloatArray,
+    correspondences: FloatArray,
+) -> float:
+    """Variance of a normal's direction per tangent axis (rad²), measured between two scans.
+
+    The source normal (rotated into the target frame) and the target normal of each
+    correspondence come from different samplings of the same surface, so their disagreement
+    measures the error of normals *including* sampling effects a single scan cannot see (the
+    ring structure of a spinning LiDAR tilts all neighbouring normals alike). Each normal
+    errs by ``ε²`` per tangent axis, their difference by ``2ε²``: ``ε̂² = mean sin² /
+    (2 (D - 1))`` over the best 90 % (creases and wrong matches dropped). ``nan`` without
+    enough valid pairs.
+    """
+    j = np.asarray(correspondences)
+    i = np.flatnonzero(j >= 0)
+    if i.size < 10:
+        return float("nan")
+    ns = source_normals[i] @ np.asarray(rotation).T
+    nt = target_normals[j[i]]
+    ok = (np.einsum("ij,ij->i", ns, ns) > 0.25) & (np.einsum("ij,ij->i", nt, nt) > 0.25)
+    if ok.sum() < 10:
+        return float("nan")
+    cos = np.abs(np.einsum("ij,ij->i", ns[ok], nt[ok]))
+    sin2 = np.sort(1.0 - np.minimum(cos, 1.0) ** 2)
+    kept = sin2[: max(1, int(0.9 * sin2.size))]
+    dim = source_normals.shape[1]
+    return float(np.mean(kept) / (2.0 * (dim - 1)))

@@ -1,0 +1,309 @@
+"""Issue 5: calibrated covariance, degeneracy named in pose coordinates, verdict with reasons.
+
+Every test here can fail: each checks a measured quantity against what the physics of the
+scene says (a corridor is degenerate along its axis, a room is not; NEES of a calibrated
+covariance is inside the χ² band), not against a recorded output.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scanreg
+from scanreg import SE2, SE3
+from scanreg import simulate as sim
+from scanreg.quality import nees_band, transform_covariance
+from scanreg.verdict import VerdictThresholds
+
+LASER = sim.LaserModel.preset("laser_360")
+STEP2 = SE2.from_vector([0.3, 0.1, np.deg2rad(2.0)])
+
+
+def _scan(scene: sim.Scene, pose: SE2, seed: int) -> np.ndarray:
+    return np.ascontiguousarray(sim.simulate_scan(scene, LASER, pose, seed=seed).points)
+
+
+def _pair(scene: sim.Scene, pose_a: SE2, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    return _scan(scene, pose_a, 2 * seed), _scan(scene, pose_a @ STEP2, 2 * seed + 1)
+
+
+ROOM = sim.square_room(5.0)
+CORRIDOR = sim.corridor(length=200.0, width=3.0)
+ROOM_POSE = SE2.from_vector([0.5, 0.3, 0.3])
+CORRIDOR_POSE = SE2.from_vector([100.0, 0.0, 0.0])
+
+
+# --- degeneracy ---------------------------------------------------------------------------
+
+
+def test_corridor_is_degenerate_along_its_axis_and_the_room_is_not() -> None:
+    src, tgt = _pair(CORRIDOR, CORRIDOR_POSE, 0)
+    res = scanreg.register(src, tgt, max_correspondence_distance=1.0)
+    assert res.degeneracy is not None and res.degeneracy.degenerate
+    (weak,) = res.degeneracy.weak_directions
+    assert weak.description == "translation along (1.00, 0.00)"
+    assert abs(weak.vector[0]) > 0.99
+    assert res.degeneracy.eigenvalues[0] < 0.3 * res.degeneracy.threshold
+    assert res.verdict is not None and not res.verdict.accepted
+    assert any(
+        r.startswith("degenerate: translation along (1.00, 0.00)") for r in res.verdict.reasons
+    )
+    # The covariance says so: the standard deviation along x is the prior's (the gate), not mm.
+    assert np.sqrt(res.covariance[0, 0]) > 0.5
+    assert np.sqrt(res.covariance[1, 1]) < 0.01
+
+    src, tgt = _pair(ROOM, ROOM_POSE, 0)
+    res = scanreg.register(src, tgt, max_correspondence_distance=1.0)
+    assert res.degeneracy is not None and not res.degeneracy.degenerate
+    assert res.degeneracy.eigenvalues[0] > 3 * res.degeneracy.threshold
+    assert res.verdict is not None and res.verdict.accepted, res.verdict.reasons
+
+
+def test_degeneracy_is_named_for_point_to_point_too() -> None:
+    # Point-to-point's own JᵀJ has N·I as its translation block: the analysis uses the plane
+    # information from the target normals instead.
+    src, tgt = _pair(CORRIDOR, CORRIDOR_POSE, 1)
+    res = scanreg.register(src, tgt, method="point_to_point", max_correspondence_distance=1.0)
+    assert res.degeneracy is not None
+    assert res.degeneracy.basis == "plane_information"
+    assert [w.description for w in res.degeneracy.weak_directions] == [
+        "translation along (1.00, 0.00)"
+    ]
+
+
+def test_degeneracy_aware_solve_keeps_the_prior_along_the_axis() -> None:
+    src, tgt = _pair(CORRIDOR, CORRIDOR_POSE, 2)
+    truth = STEP2.inverse()
+    init = truth @ SE2.from_vector([0.2, 0.05, 0.01])  # 20 cm off along the axis
+    prior = np.diag([0.2**2, 0.2**2, 0.02**2])
+    aware = scanreg.register(
+        src,
+        tgt,
+        init=init,
+        init_covariance=prior,
+        degeneracy_aware=True,
+        max_correspondence_distance=1.0,
+    )
+    plain = scanreg.register(src, tgt, init=init, max_correspondence_distance=1.0)
+    moved_aware = (init.inverse() @ aware.pose).log()
+    moved_plain = (init.inverse() @ plain.pose).log()
+    assert abs(moved_aware[0]) < 1e-3  # kept the initial guess along x ...
+    assert abs(moved_plain[0]) > 10 * abs(moved_aware[0])  # ... where plain ICP drifted
+    err = (aware.pose.inverse() @ truth).log()
+    assert abs(err[1]) < 0.01 and abs(err[2]) < 0.002  # y and θ still solved
+    assert aware.covariance[0, 0] == pytest.approx(0.2**2, rel=0.05)  # the prior's variance
+
+
+# --- verdict ------------------------------------------------------------------------------
+
+
+def test_partial_overlap_with_low_cost_is_rejected_for_overlap() -> None:
+    src, tgt = _pair(ROOM, ROOM_POSE, 3)
+    truth = STEP2.inverse()
+    # The target keeps one wall: what overlaps fits perfectly (low cost), but little overlaps.
+    keep = tgt[:, 1] < -3.0
+    res = scanreg.register(
+        src, np.ascontiguousarray(tgt[keep]), init=truth, max_correspondence_distance=0.3
+    )
+    assert res.quality is not None and res.verdict is not None
+    assert res.quality.residual_rmse < 0.05  # the cost is low ...
+    assert res.quality.overlap < 0.5  # ... but most of the source sees nothing
+    assert not res.verdict.accepted
+    assert f"overlap {res.quality.overlap:.2f} < 0.50" in res.verdict.reasons
+
+
+def test_full_overlap_with_large_residual_is_rejected_for_cost() -> None:
+    # The target is a bigger room: every source point has a target point inside the gate
+    # (full overlap), but the best fit leaves ~0.35 m residuals (the seed's problem 5).
+    src = _scan(ROOM, ROOM_POSE, 8)
+    tgt = _scan(sim.square_room(5.7), ROOM_POSE, 9)
+    res = scanreg.register(src, tgt, max_correspondence_distance=0.9)
+    assert res.quality is not None and res.verdict is not None
+    assert res.quality.overlap > 0.9
+    assert res.quality.residual_rmse > 0.5 * res.quality.gate
+    assert not res.verdict.accepted
+    assert any(r.startswith("inlier RMSE") for r in res.verdict.reasons)
+    assert not any(r.startswith("overlap") for r in res.verdict.reasons)
+
+
+def test_motion_bound_exceeded_is_rejected() -> None:
+    src, tgt = _pair(ROOM, ROOM_POSE, 5)
+    bound = VerdictThresholds(max_translation=0.1, max_rotation=np.deg2rad(1.0))
+    res = scanreg.register(src, tgt, max_correspondence_distance=1.0, thresholds=bound)
+    assert res.verdict is not None and not res.verdict.accepted
+    moved = res.quality.translation_from_init if res.quality else 0.0
+    assert moved == pytest.approx(np.hypot(0.3, 0.1), abs=0.02)
+    assert f"moved {moved:.3g} from the initial guess > bound 0.1" in res.verdict.reasons
+    assert any(r.startswith("rotated") for r in res.verdict.reasons)
+    ok = scanreg.register(src, tgt, max_correspondence_distance=1.0)
+    assert ok.verdict is not None and ok.verdict.accepted, ok.verdict.reasons
+
+
+def test_thresholds_argument_is_type_checked() -> None:
+    src, tgt = _pair(ROOM, ROOM_POSE, 6)
+    with pytest.raises(TypeError, match="thresholds"):
+        scanreg.register(src, tgt, thresholds={"min_overlap": 0.5})  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="init_covariance"):
+        scanreg.register(src, tgt, init_covariance=np.eye(2))
+    with pytest.raises(ValueError, match="covariance"):
+        scanreg.register(src, tgt, covariance="magic")  # type: ignore[arg-type]
+
+
+# --- covariance ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("method", ["point_to_point", "point_to_plane"])
+def test_censi_matches_monte_carlo_on_a_small_problem(method: str) -> None:
+    # Points of a room's walls 0.25 m apart, isotropic noise σ on source and target (Censi's
+    # model): the spread of the estimates over 200 noise draws is what the closed form says.
+    rng = np.random.default_rng(1)
+    s = np.arange(-4.0, 4.01, 0.25)
+    walls = np.concatenate(
+        [np.c_[s, np.full_like(s, -4.0)], np.c_[np.full_like(s, 4.0), s], np.c_[s, 0.5 * s + 4.5]]
+    )
+    truth = SE2.from_vector([0.05, -0.03, 0.01])
+    sigma = 0.01
+    estimates, censi = [], []
+    for _ in range(200):
+        src = np.ascontiguousarray(walls + rng.normal(0, sigma, walls.shape))
+        tgt = np.ascontiguousarray(truth.apply(walls) + rng.normal(0, sigma, walls.shape))
+        res = scanreg.register(
+            src,
+            tgt,
+            init=truth,
+            method=method,
+            max_correspondence_distance=0.1,  # type: ignore[arg-type]
+        )
+        estimates.append((truth.inverse() @ res.pose).log())
+        assert res.covariances is not None
+        censi.append(res.covariances.censi)
+    emp = np.cov(np.array(estimates).T)
+    pred = np.mean(censi, axis=0)
+    ratio = np.diag(emp) / np.diag(pred)
+    # 200 draws: the sample variance is within ±30 % of the truth at ~3σ.
+    assert np.all((ratio > 0.7) & (ratio < 1.4)), ratio
+
+
+def _mean_nees(scene: sim.Scene, pose_a: SE2, reps: int, **kwargs: object) -> float:
+    truth = STEP2.inverse()
+    out = []
+    for k in range(reps):
+        src, tgt = _pair(scene, pose_a, 100 + k)
+        res = scanreg.register(src, tgt, max_correspondence_distance=1.0, **kwargs)  # type: ignore[arg-type]
+        d = (res.pose.inverse() @ truth).log()
+        out.append(float(d @ res.information @ d))
+    return float(np.mean(out))
+
+
+@pytest.mark.parametrize(
+    ("scene", "pose"), [(ROOM, ROOM_POSE), (CORRIDOR, CORRIDOR_POSE)], ids=["room", "corridor"]
+)
+def test_default_covariance_is_consistent(scene: sim.Scene, pose: SE2) -> None:
+    # Seeded reduced version of benchmarks/covariance_calibration.py (the published table uses
+    # 200 realisations; see docs/calibration.md).
+    # Acceptance (issue 5): mean NEES inside the 95 % band or at worst within a factor 2 of
+    # the dimension; the room sits at ~1.4 (sampling error, docs/calibration.md).
+    reps = 40
+    lo, hi = nees_band(3, reps)
+    mean = _mean_nees(scene, pose, reps)
+    assert min(lo, 1.5) <= mean <= max(hi, 6.0), (mean, lo, hi)
+
+
+def test_hessian_covariance_is_overconfident_in_the_corridor() -> None:
+    # The check above can fail: the old default fails it by orders of magnitude.
+    mean = _mean_nees(CORRIDOR, CORRIDOR_POSE, 10, covariance="hessian")
+    assert mean > 100 * nees_band(3, 10)[1]
+
+
+def test_every_kind_is_reported_and_the_setting_picks_one() -> None:
+    src, tgt = _pair(ROOM, ROOM_POSE, 7)
+    res = scanreg.register(src, tgt, covariance="censi")
+    assert res.covariances is not None
+    np.testing.assert_array_equal(res.covariance, res.covariances.censi)
+    for kind in ("hessian", "censi", "block", "calibrated"):
+        c = getattr(res.covariances, kind)
+        assert c.shape == (3, 3) and np.all(np.linalg.eigvalsh(c) > 0)
+    # calibrated covers both censi and block
+    cal = res.covariances.calibrated
+    for other in (res.covariances.censi, res.covariances.block):
+        assert np.linalg.eigvalsh(cal - other)[0] > -1e-12 * np.abs(cal).max()
+
+
+def test_transform_covariance_moves_the_tangent_to_the_left() -> None:
+    rng = np.random.default_rng(0)
+    pose = SE3.from_vector([1.0, -2.0, 0.5, 0.1, -0.2, 0.3])
+    a = rng.normal(size=(6, 6))
+    cov = a @ a.T * 1e-4
+    # Monte Carlo: T exp(δ) = exp(Ad δ) T, so the left perturbation has covariance Ad Σ Adᵀ.
+    deltas = rng.multivariate_normal(np.zeros(6), cov, size=4000)
+    left = np.array([((pose @ SE3.exp(d)) @ pose.inverse()).log() for d in deltas])
+    np.testing.assert_allclose(
+        np.cov(left.T), transform_covariance(cov, pose.adjoint()), atol=3e-5, rtol=0.1
+    )
+    with pytest.raises(ValueError, match="adjoint"):
+        transform_covariance(cov, np.eye(3))
+
+
+def test_sampling_covariance_sees_the_degenerate_drift_and_not_the_room() -> None:
+    src, tgt = _pair(CORRIDOR, CORRIDOR_POSE, 9)
+    prior = np.diag([0.2**2, 0.05**2, 0.01**2])
+    corridor = scanreg.sampling_covariance(
+        src, tgt, init=STEP2.inverse(), init_covariance=prior, restarts=8, seed=1,
+        max_correspondence_distance=1.0,
+    )  # fmt: skip
+    assert corridor.converged_fraction > 0.5
+    assert corridor.offsets.shape[1] == 3
+    # Along the corridor the restarts stay where they started: the spread is the prior's.
+    assert np.sqrt(corridor.covariance[0, 0]) > 0.05
+    src, tgt = _pair(ROOM, ROOM_POSE, 9)
+    room = scanreg.sampling_covariance(
+        src, tgt, init=STEP2.inverse(), init_covariance=prior, restarts=8, seed=1,
+        max_correspondence_distance=1.0,
+    )  # fmt: skip
+    assert np.sqrt(room.covariance[0, 0]) < 0.01
+    with pytest.raises(ValueError, match="restarts"):
+        scanreg.sampling_covariance(src, tgt, restarts=1)
+
+
+def _sweep(scene: sim.Scene, pose: SE3, seed: int) -> np.ndarray:
+    pts = sim.simulate_sweep(scene, sim.LidarModel.preset("vlp16"), pose, seed=seed).points
+    return scanreg.preprocess.voxel_downsample(np.ascontiguousarray(pts), 0.3).points
+
+
+STEP3 = SE3.from_vector([0.5, 0.1, 0.0, 0.0, 0.0, np.deg2rad(2.0)])
+
+
+@pytest.mark.parametrize(
+    ("name", "method"), [("tunnel", "point_to_plane"), ("street", "gicp")], ids=str
+)
+def test_default_covariance_is_consistent_in_3d(name: str, method: str) -> None:
+    # Reduced, seeded version of the 3D rows of docs/calibration.md: the tunnel with a motion
+    # prior and the degeneracy-aware solve (200 realisations: 1.02 × dof), the street with GICP
+    # (1.00 × dof). The street with point-to-plane is the documented failure (6.9 ×, a bias).
+    scene, pose_a = (
+        (sim.tunnel(), SE3.from_vector([0, 0, 1.8, 0, 0, 0]))
+        if name == "tunnel"
+        else (sim.street(seed=4), SE3.from_vector([0, 1.75, 1.73, 0, 0, 0]))
+    )
+    truth = STEP3.inverse()
+    prior = np.diag([0.1**2] * 3 + [np.deg2rad(1.0) ** 2] * 3)
+    reps = 12
+    nees = []
+    for k in range(reps):
+        src = _sweep(scene, pose_a, 2 * k)
+        tgt = scanreg.prepare(_sweep(scene, pose_a @ STEP3, 2 * k + 1), covariances=True)
+        init = truth @ SE3.exp(np.random.default_rng(k).multivariate_normal(np.zeros(6), prior))
+        res = scanreg.register(
+            src,
+            tgt,
+            method=method,  # type: ignore[arg-type]
+            init=init,
+            init_covariance=prior,
+            degeneracy_aware=True,
+            max_correspondence_distance=1.0,
+        )
+        assert res.degeneracy is not None
+        assert res.degeneracy.degenerate == (name == "tunnel")
+        d = (res.pose.inverse() @ truth).log()
+        nees.append(float(d @ res.information @ d))
+    assert 3.0 <= float(np.mean(nees)) <= 12.0, nees
