@@ -10,7 +10,8 @@ Sequences (every method gets the same arrays, saved once to a temporary .npz):
 * ``sim-street`` / ``sim-tunnel`` — ``scanreg.io.SimulatedSequence`` drives with motion
   distortion and per-point time, exact truth at mid-sweep (the time every method here deskews
   to), starting from rest and reaching 10 m/s after 2 s (a standing start: every method begins
-  with a zero-velocity prediction, as on a real vehicle). The tunnel reaches beyond the sensor range at both ends: degenerate along its axis.
+  with a zero-velocity prediction, as on a real vehicle). The tunnel reaches beyond the sensor
+  range at both ends: degenerate along its axis.
   ``scanreg+prior`` also gets a wheel-odometry-like motion prior there (the true increments
   with 2 % scale error and noise, seeded), which KISS-ICP and GenZ-ICP cannot take.
 
