@@ -13,8 +13,8 @@ One :meth:`Odometry.step` per sweep, in the order the code reads:
    predictions (an adaptive threshold, as in KISS-ICP), ``initial_gate`` until enough motion has
    been seen; the robust kernel's scale is ``σ``;
 5. **align** — :func:`scanreg.register` against the local map from the prediction;
-6. **judge** — :func:`scanreg.verdict.assess` against the map, with the prediction as the
-   motion-bound reference;
+6. **judge** — the verdict :func:`scanreg.register` attaches: overlap and residuals against the
+   map, the prediction as the motion-bound reference;
 7. **update** — the sweep (in the world frame) joins the map; voxels beyond ``max_range`` of the
    sensor are evicted. A registration that failed outright (too few correspondences, diverged,
    singular) is not trusted: the pose falls back to the prediction and the map is not updated.
@@ -45,7 +45,7 @@ from ..register import RegistrationResult, RegistrationSettings, register
 from ..robust import check_kernel
 from ..target import PreparedTarget
 from ..transform import SE3, as_pose
-from ..verdict import QualityReport, Verdict, VerdictThresholds, assess
+from ..verdict import QualityReport, Verdict, VerdictThresholds
 
 OdometryMethod = Literal["point_to_point", "point_to_plane", "gicp"]
 ODOMETRY_METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "gicp")
@@ -87,7 +87,7 @@ def _default_thresholds() -> VerdictThresholds:
     # not guaranteed at a new street corner; a third is. Degeneracy is handled by the
     # degeneracy-aware update and reported in FrameResult.held_directions, not rejected (a
     # tunnel frame held to its prior is still the best estimate there is).
-    return VerdictThresholds(min_overlap=0.3, weak_ratio=1e-6)
+    return VerdictThresholds(min_overlap=0.3, reject_degenerate=False)
 
 
 @dataclass(frozen=True)
@@ -468,6 +468,7 @@ class Odometry:
                 num_threads=c.num_threads,
                 num_neighbors=c.num_neighbors,
             ),
+            thresholds=self._thresholds,
         )
         t_align = time.perf_counter() - t0
         usable = reg.stop_reason not in FAILED_STOPS
@@ -494,9 +495,10 @@ class Odometry:
                 return self._step(points, timestamps, motion, stamp, external_prior=has_prior)
         self._first_sweep = None
 
-        # 6. judge
+        # 6. judge: register() judged the result against the map, from the prediction
         t0 = time.perf_counter()
-        judged = assess(reg, source, self._target, init=prediction, thresholds=self._thresholds)
+        assert reg.quality is not None and reg.verdict is not None
+        quality, verdict = reg.quality, reg.verdict
         t_judge = time.perf_counter() - t0
 
         # 7. update
@@ -518,8 +520,8 @@ class Odometry:
             motion=motion,
             prediction=prediction,
             covariance=cov,
-            verdict=judged.verdict,
-            quality=judged.report,
+            verdict=verdict,
+            quality=quality,
             registration=reg,
             gate=gate,
             num_points=len(pts),
