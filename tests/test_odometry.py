@@ -190,3 +190,22 @@ def test_local_map_storage_is_what_the_ids_index() -> None:
     ids = [int(np.flatnonzero((raw == p).all(axis=1))[0]) for p in near.points]
     np.testing.assert_array_equal(raw[ids], near.points)
     assert len(raw) % 4 == 0 and len(raw) >= len(m)
+
+
+def test_map_target_gives_the_same_estimate_and_censi_covariance_as_a_prepared_one() -> None:
+    # The same cloud as a PreparedTarget (k-d tree) and as a LocalMap keeping every point with
+    # the same GICP covariances: equal pose, equal Censi covariance (the analysis gathers the
+    # matched map rows by id).
+    run = _run("street", 5.0, 2)
+    tgt = np.ascontiguousarray(run.scans[0].points_deskewed)
+    src = np.ascontiguousarray(run.scans[1].points_deskewed[::7])
+    prepared = scanreg.prepare(tgt, normals=True, covariances=True, k=10)
+    m = scanreg.LocalMap(3, 1.0, 1024, min_spacing=0.0, attributes="covariances")
+    assert prepared.covariances is not None
+    assert m.insert(tgt, covariances=prepared.covariances) == len(tgt)
+    init = run.poses[0].inverse() @ run.poses[1]
+    a = scanreg.register(src, prepared, method="gicp", init=init, max_correspondence_distance=1.0)
+    b = scanreg.register(src, m, method="gicp", init=init, max_correspondence_distance=1.0)
+    np.testing.assert_allclose(a.pose.as_matrix(), b.pose.as_matrix(), atol=1e-9)
+    np.testing.assert_allclose(a.covariances.censi, b.covariances.censi, rtol=1e-6, atol=1e-15)
+    assert b.verdict is not None and b.verdict.accepted, b.verdict.reasons

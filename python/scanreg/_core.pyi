@@ -143,6 +143,9 @@ class LocalMap:
     def storage(
         self,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64] | None]: ...
+    def gather(
+        self, ids: NDArray[np.int64]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64] | None]: ...
     def nearest(
         self, query_points: NDArray[np.float64], max_distance: float
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...

@@ -482,9 +482,11 @@ def register(
     # arrays in.
     index: _core.KdTree | _core.LocalMap
     is_map = isinstance(prepared, LocalMap)
+    t_points: Any = None
+    t_normals: Any = None
+    t_covs: Any = None
     if isinstance(prepared, LocalMap):
-        index = prepared.native
-        t_points, t_normals, t_covs = prepared.native.storage()
+        index = prepared.native  # the analysis gathers the matched rows (target_rows below)
     else:
         index = prepared.index
         t_points, t_normals, t_covs = prepared.points, prepared.normals, prepared.covariances
@@ -530,24 +532,38 @@ def register(
             src, check_k(min(s.num_neighbors, len(src)), len(src), dim)
         )
 
+    def target_rows(out: Any) -> tuple[Any, Any, Any, Any]:
+        """The target arrays the analysis reads and the correspondences into them. A map's
+        rows are gathered for the matched ids only (a few thousand, not the whole storage)."""
+        corr = np.asarray(out.correspondences)
+        if not isinstance(prepared, LocalMap):
+            return t_points, t_normals, t_covs, corr
+        used = corr >= 0
+        ids, compact = np.unique(corr[used], return_inverse=True)
+        rows = prepared.native.gather(np.ascontiguousarray(ids, dtype=np.int64))
+        remapped = np.full(corr.shape, -1, dtype=np.int64)
+        remapped[used] = compact
+        return rows[0], rows[1], rows[2], remapped
+
     def analyse(out: Any) -> tuple[Any, Degeneracy, float, float]:
         normal_var = 0.0
-        if source_normals is not None and t_normals is not None:
+        tp, tn, tc, corr = target_rows(out)
+        if source_normals is not None and tn is not None:
             sample, sample_normals = source_normals
             normal_var = correspondence_normal_noise(
                 sample_normals,
-                t_normals,
+                tn,
                 np.array(out.pose)[:dim, :dim],
-                np.asarray(out.correspondences)[sample],
+                corr[sample],
             )
             normal_var = normal_var if math.isfinite(normal_var) else 0.0
         # Unit variances: the meats scale linearly and are combined below, once the point
         # noise is known from the residuals of this very analysis.
         ana = _core.censi_analysis(
             src,
-            t_points,
+            tp,
             out.pose,
-            out.correspondences,
+            corr,
             method=method_eff,
             kernel=s.kernel,
             kernel_scale=k_scale,
@@ -555,9 +571,9 @@ def register(
             target_variance=1.0,
             block_size=max(block, 1e-9),
             normal_variance=1.0,
-            target_normals=t_normals,
+            target_normals=tn,
             source_covariances=source_covariances,
-            target_covariances=t_covs if method_eff == "gicp" else None,
+            target_covariances=tc if method_eff == "gicp" else None,
             num_threads=s.num_threads,
         )
         if ana.num_plane_correspondences > dof:

@@ -195,6 +195,50 @@ impl LocalMap {
         ))
     }
 
+    /// Rows of `storage()` for the given ids only: `(points, normals, covariances)`.
+    #[allow(clippy::type_complexity)]
+    fn gather(
+        &self,
+        py: Python<'_>,
+        ids: PyReadonlyArray1<'_, i64>,
+    ) -> PyResult<(Points, Option<Points>, Option<Py<PyArray3<f64>>>)> {
+        let ids = c_slice(&ids, "ids")?;
+        let map = self.read();
+        let d = self.dim;
+        let cap = map.id_count();
+        if let Some(&bad) = ids.iter().find(|&&j| j < 0 || j as usize >= cap) {
+            return Err(PyValueError::new_err(format!(
+                "ids: {bad} is not a point id of this map (0..{cap})"
+            )));
+        }
+        let rows = |data: &[f64], per: usize| -> Vec<f64> {
+            let mut out = Vec::with_capacity(ids.len() * per);
+            for &j in ids {
+                let j = j as usize;
+                out.extend_from_slice(&data[j * per..(j + 1) * per]);
+            }
+            out
+        };
+        let pts = rows(NeighborSearch::points(&*map), d);
+        let normals = map.normals().map(|v| rows(v, d));
+        let covs = map.covariances().map(|v| rows(v, d * d));
+        drop(map);
+        let n = ids.len();
+        let normals = match normals {
+            Some(v) => Some(v.into_pyarray(py).reshape([n, d])?.unbind()),
+            None => None,
+        };
+        let covs = match covs {
+            Some(v) => Some(v.into_pyarray(py).reshape([n, d, d])?.unbind()),
+            None => None,
+        };
+        Ok((
+            pts.into_pyarray(py).reshape([n, d])?.unbind(),
+            normals,
+            covs,
+        ))
+    }
+
     /// Nearest map point within `max_distance` of each query: `(found, squared distance)`
     /// with the point itself (rows of NaN where none).
     fn nearest(
