@@ -131,13 +131,13 @@ impl<const D: usize> Inner<D> {
     /// squared distance exceeds `bound()` (strictly, so ties at the bound are still seen).
     /// `leaf(lo, hi)` scans one bucket.
     ///
-    /// With `FULL`, the lower bound is the squared distance from `q` to the node's cell, kept
-    /// per axis and updated incrementally (Arya & Mount 1993): descending to the far side of a
-    /// split changes only that axis' offset, from the parent's to `|q − split|`. It prunes more
-    /// than the single-axis bound `max(lb, diff²)` but costs more per node: it pays for k-NN
-    /// (many leaves) and not for the nearest neighbour (few), which keeps the cheap bound.
+    /// The lower bound is the squared distance from `q` to the node's cell, kept per axis and
+    /// updated incrementally (Arya & Mount 1993): descending to the far side of a split changes
+    /// only that axis' offset, from the parent's to `|q − split|`. It prunes more than the
+    /// single-axis bound `max(lb, diff²)` but costs more per node: it pays for k-NN and radius
+    /// queries (many leaves), not for the nearest neighbour ([`Self::traverse_near`]).
     #[inline(always)]
-    fn traverse<const FULL: bool>(
+    fn traverse(
         &self,
         q: &[f64; D],
         mut bound: impl FnMut() -> f64,
@@ -164,21 +164,56 @@ impl<const D: usize> Inner<D> {
                 } else {
                     (nd.right, node + 1)
                 };
-                let far_lb = if FULL {
-                    let old = off[axis];
-                    lb - old * old + diff * diff
-                } else {
-                    lb.max(diff * diff)
-                };
+                let old = off[axis];
+                let far_lb = lb - old * old + diff * diff;
                 if far_lb * SHRINK <= bound() {
                     let mut far_off = off;
-                    if FULL {
-                        far_off[axis] = diff.abs();
-                    }
+                    far_off[axis] = diff.abs();
                     stack[top] = (far, far_lb, far_off);
                     top += 1;
                 }
                 node = near; // the near child keeps the parent's offsets
+            }
+        }
+    }
+
+    /// [`Self::traverse`] with the single-axis bound `max(lb, diff²)` and a 16-byte stack entry,
+    /// for the nearest neighbour (few leaves: the cheap bound wins). No shrink needed: floating
+    /// subtraction and squaring are monotonic, so a point beyond the split is never computed
+    /// closer than `diff²`.
+    #[inline(always)]
+    fn traverse_near(
+        &self,
+        q: &[f64; D],
+        mut bound: impl FnMut() -> f64,
+        mut leaf: impl FnMut(usize, usize),
+    ) {
+        let mut stack = [(0u32, 0.0f64); STACK];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let (mut node, lb) = stack[top];
+            if lb > bound() {
+                continue;
+            }
+            loop {
+                let nd = &self.nodes[node as usize];
+                if nd.axis == LEAF {
+                    leaf(nd.lo as usize, nd.hi as usize);
+                    break;
+                }
+                let diff = q[nd.axis as usize] - nd.split;
+                let (near, far) = if diff < 0.0 {
+                    (node + 1, nd.right)
+                } else {
+                    (nd.right, node + 1)
+                };
+                let far_lb = lb.max(diff * diff);
+                if far_lb <= bound() {
+                    stack[top] = (far, far_lb);
+                    top += 1;
+                }
+                node = near;
             }
         }
     }
@@ -190,7 +225,7 @@ impl<const D: usize> Inner<D> {
         let pts = &self.pts;
         let ids = &self.ids;
         let best = std::cell::Cell::new(max_sq);
-        self.traverse::<false>(
+        self.traverse_near(
             q,
             || best.get(),
             |lo, hi| {
@@ -221,7 +256,7 @@ impl<const D: usize> Inner<D> {
         let mut full = false;
         // The k-th neighbour once `full` (the bound for pruning).
         let (mut wi, mut wd) = (u32::MAX, max_sq);
-        self.traverse::<true>(
+        self.traverse(
             q,
             || worst.get(),
             |lo, hi| {
@@ -264,7 +299,7 @@ impl<const D: usize> Inner<D> {
         let start = out.len();
         let pts = &self.pts;
         let ids = &self.ids;
-        self.traverse::<true>(
+        self.traverse(
             q,
             || sq_radius,
             |lo, hi| {
