@@ -392,3 +392,22 @@ def test_settings_are_validated_on_construction(
     s = RegistrationSettings()
     with pytest.raises(dataclasses.FrozenInstanceError):
         s.max_iterations = 3  # type: ignore[misc]
+
+
+def test_step_projector_keeps_the_initial_guess_along_projected_directions() -> None:
+    import scanreg
+
+    rng = np.random.default_rng(4)
+    tgt = np.ascontiguousarray(rng.uniform(-5, 5, (400, 3)))
+    truth = scanreg.SE3.from_vector([0.2, -0.1, 0.05, 0.0, 0.0, 0.0])
+    src = np.ascontiguousarray(truth.inverse().apply(tgt))
+    p = np.eye(6)
+    p[0, 0] = 0.0  # body-x translation steps removed: x stays at the initial guess (0)
+    res = scanreg.register(src, tgt, method="point_to_point", step_projector=p)
+    # Steps are right perturbations: with the (tiny) estimated rotation, body-y steps leak a
+    # little into world x; the free solve moves it 0.2.
+    assert abs(res.pose.as_vector()[0]) < 0.01, res.pose.as_vector()
+    free = scanreg.register(src, tgt, method="point_to_point")
+    assert abs(free.pose.as_vector()[0] - 0.2) < 0.05
+    with pytest.raises(ValueError, match="step_projector"):
+        scanreg.register(src, tgt, step_projector=np.eye(3))

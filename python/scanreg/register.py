@@ -370,6 +370,7 @@ def register(
     source_covariances: Any = None,
     init_covariance: Any = None,
     thresholds: VerdictThresholds | None = None,
+    step_projector: Any = None,
     **overrides: Any,
 ) -> RegistrationResult:
     """Estimate ``T_target_source`` aligning ``source`` to ``target`` from ``init``.
@@ -403,6 +404,10 @@ def register(
     thresholds
         :class:`~scanreg.VerdictThresholds` for ``result.verdict``; default thresholds if
         ``None``.
+    step_projector
+        ``(dof, dof)`` matrix applied to every step (``δ ← P δ``): with ``P = I − V Vᵀ`` the
+        estimate keeps ``init`` along the directions ``V`` the caller already knows are
+        unobservable (the odometry's degeneracy-aware hold). ``None``: free steps.
 
     Raises
     ------
@@ -597,7 +602,15 @@ def register(
             )
         return ana, deg, _point_variance(out, ana, method_eff, dim, dof), normal_var
 
-    out = run(None)
+    projector0 = None
+    if step_projector is not None:
+        projector0 = np.ascontiguousarray(step_projector, dtype=np.float64)
+        if projector0.shape != (dof, dof) or not np.isfinite(projector0).all():
+            raise ValueError(
+                f"step_projector: expected a finite ({dof}, {dof}) matrix, "
+                f"got shape {projector0.shape}"
+            )
+    out = run(projector0)
     ana, deg, sigma2_point, normal_var = analyse(out)
     weak_projector = deg.weak_projector()
     if s.degeneracy_aware and deg.degenerate and len(out.correspondences):

@@ -447,8 +447,17 @@ class Odometry:
                 index, prediction, pts, map_points, source, stamp, t_start, t_deskew, t_down
             )
 
-        # 4. gate
+        # 4. gate (and, when holding to a prior, the directions the scan cannot observe: the
+        # solver keeps the prediction along them instead of sliding)
         gate = self.gate.gate
+        hold = c.degeneracy_aware == "always" or (c.degeneracy_aware == "prior" and has_prior)
+        info = scan_translation_information(source, c.num_neighbors) if hold else None
+        weak = [] if info is None else weak_translation_directions(info, c.weak_translation_ratio)
+        projector = None
+        if weak:
+            projector = np.eye(6)
+            for v in weak:
+                projector[:3, :3] -= np.outer(v, v)
         # 5. align
         t0 = time.perf_counter()
         reg = register(
@@ -469,15 +478,14 @@ class Odometry:
                 num_neighbors=c.num_neighbors,
             ),
             thresholds=self._thresholds,
+            step_projector=projector,
         )
         t_align = time.perf_counter() - t0
         usable = reg.stop_reason not in FAILED_STOPS
         pose = _se3(reg.pose) if usable else prediction
         cov = np.array(reg.covariance) if usable else np.full((6, 6), np.inf)
         held: tuple[str, ...] = ()
-        hold = c.degeneracy_aware == "always" or (c.degeneracy_aware == "prior" and has_prior)
-        if usable and hold:
-            info = scan_translation_information(source, c.num_neighbors)
+        if usable and info is not None:
             pose, cov, held = hold_weak_translation(
                 prediction, pose, info, cov, c.weak_translation_ratio, c.prior_sigma
             )
