@@ -119,10 +119,10 @@ class OdometryConfig:
     #: estimates oscillate.
     reference_time: Literal["start", "middle", "end"] = "middle"
     #: Gate used until the adaptive gate has seen enough motion; ``None``: 6 m for
-    #: point-to-point (KISS-ICP's initial σ = 2 m, gate 3σ: measured on a standing-start
-    #: simulated street, a 2 m gate left point-to-point locked on the ground rings that move
-    #: with the sensor — 49 m end error over 60 frames, 0.68 m with 6 m), 2 m for the others
-    #: (6 m made GICP worse there: 0.52 m against 0.05 m).
+    #: point-to-point (KISS-ICP's initial σ = 2 m, gate 3σ), 2 m for the others. On one
+    #: standing-start simulated street (60 HDL-64 frames) the 6 m gate rescued point-to-point
+    #: (49 m -> 0.68 m end error) — on the 100-frame drive it stays locked on the ground rings
+    #: that move with the sensor (not yet understood); 6 m made GICP worse (0.52 m vs 0.05 m).
     initial_gate: float | None = None
     #: Lower bound of the adaptive gate: the distance from a coarse-grid source point to the
     #: nearest map point is up to ~0.4 × ``voxel_size`` from sampling alone, noise-free.
