@@ -178,20 +178,6 @@ def test_map_export_round_trips(tmp_path, suffix: str) -> None:  # type: ignore[
     np.testing.assert_allclose(cloud.fields["normal_z"], normals[:, 2], atol=1e-6)
 
 
-def test_local_map_storage_is_what_the_ids_index() -> None:
-    # register_icp's correspondences are ids into the map's slot storage: storage() must
-    # hand back that same layout (used for the correspondence-aware covariance).
-    m = scanreg.LocalMap(3, 1.0, 4, attributes="voxel_covariances")
-    pts = np.random.default_rng(1).uniform(-5, 5, (300, 3))
-    m.insert(pts)
-    raw, normals, covs = m.native.storage()
-    assert normals is None and covs is not None and covs.shape == (len(raw), 3, 3)
-    near = m.nearest(pts[:50], 0.5)
-    ids = [int(np.flatnonzero((raw == p).all(axis=1))[0]) for p in near.points]
-    np.testing.assert_array_equal(raw[ids], near.points)
-    assert len(raw) % 4 == 0 and len(raw) >= len(m)
-
-
 def test_map_target_gives_the_same_estimate_and_censi_covariance_as_a_prepared_one() -> None:
     # The same cloud as a PreparedTarget (k-d tree) and as a LocalMap keeping every point with
     # the same GICP covariances: equal pose, equal Censi covariance (the analysis gathers the

@@ -37,7 +37,7 @@ from typing import Any, Literal
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray, as_points
+from ._validate import FloatArray, as_matrix, as_points
 from ._validate import frozen as _frozen
 from .degeneracy import (
     Degeneracy,
@@ -604,12 +604,7 @@ def register(
 
     projector0 = None
     if step_projector is not None:
-        projector0 = np.ascontiguousarray(step_projector, dtype=np.float64)
-        if projector0.shape != (dof, dof) or not np.isfinite(projector0).all():
-            raise ValueError(
-                f"step_projector: expected a finite ({dof}, {dof}) matrix, "
-                f"got shape {projector0.shape}"
-            )
+        projector0 = as_matrix(step_projector, "step_projector", (dof, dof))
     out = run(projector0)
     ana, deg, sigma2_point, normal_var = analyse(out)
     weak_projector = deg.weak_projector()

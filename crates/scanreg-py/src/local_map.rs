@@ -165,37 +165,8 @@ impl LocalMap {
         ))
     }
 
-    /// The id-indexed storage the registration core reads: `(points, normals, covariances)`
-    /// with one row per point id (`capacity = slots * max_points_per_voxel`; rows of unused ids
-    /// are zeros). The ids are those of `register_icp`'s correspondences.
-    #[allow(clippy::type_complexity)]
-    fn storage(
-        &self,
-        py: Python<'_>,
-    ) -> PyResult<(Points, Option<Points>, Option<Py<PyArray3<f64>>>)> {
-        let map = self.read();
-        let d = self.dim;
-        let pts = NeighborSearch::points(&*map).to_vec();
-        let n = pts.len() / d;
-        let normals = map.normals().map(|v| v.to_vec());
-        let covs = map.covariances().map(|v| v.to_vec());
-        drop(map);
-        let normals = match normals {
-            Some(v) => Some(v.into_pyarray(py).reshape([n, d])?.unbind()),
-            None => None,
-        };
-        let covs = match covs {
-            Some(v) => Some(v.into_pyarray(py).reshape([n, d, d])?.unbind()),
-            None => None,
-        };
-        Ok((
-            pts.into_pyarray(py).reshape([n, d])?.unbind(),
-            normals,
-            covs,
-        ))
-    }
-
-    /// Rows of `storage()` for the given ids only: `(points, normals, covariances)`.
+    /// The rows the registration core reads for the given point ids (the ids of
+    /// `register_icp`'s correspondences): `(points, normals, covariances)`.
     #[allow(clippy::type_complexity)]
     fn gather(
         &self,

@@ -24,7 +24,6 @@ from ..preprocess import voxel_downsample
 from ..register import RegistrationResult, RegistrationSettings, register
 from ..target import prepare
 from ..transform import SE3, as_pose
-from ..verdict import assess
 from .odometry import FAILED_STOPS, FrameResult, Odometry, OdometryConfig, _se3
 
 
@@ -138,8 +137,8 @@ class Localizer(Odometry):
                 )
                 if res.stop_reason in FAILED_STOPS:
                     continue
-                overlap = assess(res, coarse, self.prior_map, init=start).report.overlap
-                scored.append((overlap, _se3(res.pose), res))
+                assert res.quality is not None  # register() judged it from `start`
+                scored.append((res.quality.overlap, _se3(res.pose), res))
         if not scored:
             raise ValueError("points: no hypothesis found correspondences in the map near guess")
         scored.sort(key=lambda s: -s[0])

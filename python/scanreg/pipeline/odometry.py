@@ -40,12 +40,13 @@ from .. import _core
 from .._validate import FloatArray, as_matrix, as_points
 from ..deskew import REFERENCES, deskew, velocity_from_motion
 from ..local_map import Attributes, LocalMap
-from ..preprocess import estimate_normals
+from ..preprocess import estimate_normals, positive_int
 from ..register import RegistrationResult, RegistrationSettings, register
 from ..robust import check_kernel
 from ..target import PreparedTarget
 from ..transform import SE3, as_pose
 from ..verdict import QualityReport, Verdict, VerdictThresholds
+from .odometry2d import _positive  # the same number check as the 2D pipeline
 
 OdometryMethod = Literal["point_to_point", "point_to_plane", "gicp"]
 ODOMETRY_METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "gicp")
@@ -57,24 +58,6 @@ MAP_ATTRIBUTES: dict[str, Attributes] = {
 }
 #: Stop reasons after which the estimate is not used (the prediction stands in for it).
 FAILED_STOPS: frozenset[str] = frozenset({"too_few_correspondences", "diverged", "degenerate"})
-
-
-def _number(value: Any, name: str, *, minimum: float = 0.0, strict: bool = True) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise TypeError(f"{name}: expected a number, got {type(value).__name__}")
-    v = float(value)
-    bad = not math.isfinite(v) or v < minimum or (strict and v == minimum)
-    if bad:
-        raise ValueError(f"{name}: must be finite and {'>' if strict else '>='} {minimum}, got {v}")
-    return v
-
-
-def _integer(value: Any, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        raise TypeError(f"{name}: expected an int, got {type(value).__name__}")
-    if int(value) < minimum:
-        raise ValueError(f"{name}: must be >= {minimum}, got {value}")
-    return int(value)
 
 
 def _se3(pose: Any) -> SE3:
@@ -153,20 +136,20 @@ class OdometryConfig:
     thresholds: VerdictThresholds = field(default_factory=_default_thresholds)
 
     def __post_init__(self) -> None:
-        _number(self.min_range, "min_range", strict=False)
-        _number(self.max_range, "max_range")
+        _positive(self.min_range, "min_range", allow_zero=True)
+        _positive(self.max_range, "max_range")
         if self.max_range <= self.min_range:
             raise ValueError(
                 f"max_range: must exceed min_range ({self.min_range}), got {self.max_range}"
             )
-        _number(self.voxel_size, "voxel_size")
-        _integer(self.max_points_per_voxel, "max_points_per_voxel", 1)
+        _positive(self.voxel_size, "voxel_size")
+        positive_int(self.max_points_per_voxel, "max_points_per_voxel", minimum=1)
         if self.method not in ODOMETRY_METHODS:
             raise ValueError(
                 f"method: unknown {self.method!r}; expected one of {', '.join(ODOMETRY_METHODS)}"
             )
         check_kernel(self.kernel)
-        _integer(self.num_neighbors, "num_neighbors", 3)
+        positive_int(self.num_neighbors, "num_neighbors", minimum=3)
         if not isinstance(self.deskew, bool):
             raise TypeError(f"deskew: expected a bool, got {type(self.deskew).__name__}")
         if self.reference_time not in REFERENCES:
@@ -175,13 +158,13 @@ class OdometryConfig:
                 f"got {self.reference_time!r}"
             )
         if self.initial_gate is not None:
-            _number(self.initial_gate, "initial_gate")
-        _number(self.min_gate, "min_gate")
-        _number(self.min_motion, "min_motion", strict=False)
-        _integer(self.max_iterations, "max_iterations", 1)
-        _number(self.convergence_tolerance, "convergence_tolerance")
+            _positive(self.initial_gate, "initial_gate")
+        _positive(self.min_gate, "min_gate")
+        _positive(self.min_motion, "min_motion", allow_zero=True)
+        positive_int(self.max_iterations, "max_iterations", minimum=1)
+        _positive(self.convergence_tolerance, "convergence_tolerance")
         if self.num_threads is not None:
-            _integer(self.num_threads, "num_threads", 1)
+            positive_int(self.num_threads, "num_threads", minimum=1)
         if self.degeneracy_aware not in ("prior", "always", "never"):
             raise ValueError(
                 "degeneracy_aware: expected 'prior', 'always' or 'never', "
@@ -191,7 +174,7 @@ class OdometryConfig:
             raise ValueError(
                 f"weak_translation_ratio: must be in (0, 1), got {self.weak_translation_ratio}"
             )
-        _number(self.prior_sigma, "prior_sigma")
+        _positive(self.prior_sigma, "prior_sigma")
         if not isinstance(self.thresholds, VerdictThresholds):
             raise TypeError(
                 f"thresholds: expected VerdictThresholds, got {type(self.thresholds).__name__}"
@@ -200,7 +183,9 @@ class OdometryConfig:
 
 @dataclass(frozen=True)
 class FrameTiming:
-    """Wall-clock seconds of each stage of one :meth:`Odometry.step`."""
+    """Wall-clock seconds of each stage of one :meth:`Odometry.step`. ``align`` includes the
+    verdict, which :func:`scanreg.register` computes with the estimate; ``judge`` is only
+    what the pipeline adds to it (reading the attached verdict)."""
 
     deskew: float
     downsample: float
