@@ -4,7 +4,6 @@ hostile configuration and input."""
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -96,11 +95,9 @@ def test_intel_subset_relations() -> None:
     relations = read_relations(folder / "intel_gfs_subset.relations")
     odo = Odometry2D(OdometryConfig2D(front_end="icp"))
     poses = []
-    t0 = time.perf_counter()
     for k, scan in enumerate(log.scans):
         prior = None if k == 0 else log.motion_prior(k - 1, k)
         poses.append(odo.step(scan.to_points(0.1, 40.0), timestamp=scan.timestamp, prior=prior))
-    elapsed = time.perf_counter() - t0
     matrices = np.tile(np.eye(4), (len(poses), 1, 1))
     for m, f in zip(matrices, poses, strict=True):
         m[:2, :2] = f.pose.rotation
@@ -119,7 +116,6 @@ def test_intel_subset_relations() -> None:
     assert err.rotation_deg.mean < 0.5
     every = relation_error(traj, relations)
     assert every.translation.mean < 0.6  # raw odometry: 3.3 m
-    assert elapsed < 20.0
     assert sum(not f.verdict.accepted for f in poses) < 0.1 * len(poses)
 
 
