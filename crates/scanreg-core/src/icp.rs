@@ -141,6 +141,11 @@ pub trait NeighborSearch: Sync {
     fn attributes_validated(&self) -> bool {
         false
     }
+    /// Ids sharing one row of the target's covariances (row `id / group`): a voxel map keeps
+    /// one covariance per voxel instead of a copy per point.
+    fn covariance_group(&self) -> usize {
+        1
+    }
 }
 
 impl NeighborSearch for KdTree {
@@ -397,6 +402,8 @@ struct Problem<'a> {
     method: Method,
     kernel: Kernel,
     max_sq: f64,
+    /// See [`NeighborSearch::covariance_group`].
+    cov_group: usize,
 }
 
 #[inline]
@@ -439,7 +446,7 @@ fn factor<G: Group<D, N>, const D: usize, const N: usize>(
             Some((jrow.transpose() * jrow, jrow.transpose() * d, d.abs()))
         }
         Method::Gicp => {
-            let cq: SMatrix<f64, D, D> = mat_at(pr.target.covariances?, j);
+            let cq: SMatrix<f64, D, D> = mat_at(pr.target.covariances?, j / pr.cov_group);
             let cp: SMatrix<f64, D, D> = mat_at(pr.source_covs?, i);
             let c = cq + pose.r * cp * rt;
             let w = G::inverse(&c)?;
@@ -553,8 +560,8 @@ fn fixed_cost<G: Group<D, N>, const D: usize, const N: usize>(
                         let (Some(tc), Some(sc)) = (pr.target.covariances, pr.source_covs) else {
                             continue;
                         };
-                        let c =
-                            mat_at::<D>(tc, j) + pose.r * mat_at::<D>(sc, i) * pose.r.transpose();
+                        let c = mat_at::<D>(tc, j / pr.cov_group)
+                            + pose.r * mat_at::<D>(sc, i) * pose.r.transpose();
                         match G::inverse(&c) {
                             Some(w) => e.dot(&(w * e)).max(0.0).sqrt(),
                             None => continue,
@@ -748,7 +755,8 @@ fn problem<'a>(
             let tc = target
                 .covariances
                 .ok_or_else(|| Error::invalid("target_covariances", "are required for GICP"))?;
-            check_per_point("target_covariances", tc, m, dim * dim, checked)?;
+            let rows = m / target.search.covariance_group().max(1);
+            check_per_point("target_covariances", tc, rows, dim * dim, checked)?;
             let sc = source
                 .covariances
                 .ok_or_else(|| Error::invalid("source_covariances", "are required for GICP"))?;
@@ -762,6 +770,7 @@ fn problem<'a>(
         method: settings.method,
         kernel: settings.kernel,
         max_sq,
+        cov_group: target.search.covariance_group().max(1),
     })
 }
 

@@ -67,7 +67,7 @@ pub struct LocalGeometry {
 /// Eigen-decomposition of a symmetric matrix: eigenvalues ascending and the matching unit
 /// eigenvectors, as `dim x dim` column-major `[v_0 | v_1 | v_2]` (closed form, [`crate::symeig`]).
 #[inline]
-fn eigen(c: &[f64; 9], dim: usize) -> ([f64; 3], [[f64; 3]; 3]) {
+pub(crate) fn eigen(c: &[f64; 9], dim: usize) -> ([f64; 3], [[f64; 3]; 3]) {
     if dim == 2 {
         let (l, v) = symeig::sym2(c[0], c[1], c[3]);
         (

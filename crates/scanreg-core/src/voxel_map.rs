@@ -13,9 +13,11 @@
 use crate::error::{Error, Result};
 use crate::icp::NeighborSearch;
 use crate::knn::voxel_of;
+use crate::normals::eigen;
 use crate::points::check_points;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
+use std::sync::OnceLock;
 
 /// What each map point carries besides its position.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -95,6 +97,30 @@ fn pack(x: i64, y: i64, z: i64) -> Option<u64> {
     let ok = |v: i64| (-OFF..OFF).contains(&v);
     (ok(x) && ok(y) && ok(z))
         .then(|| ((x + OFF) as u64) << 42 | ((y + OFF) as u64) << 21 | (z + OFF) as u64)
+}
+
+/// The 3^dim voxel offsets around (and including) a voxel: itself first, then those sharing a
+/// face, an edge, a corner — roughly nearest first, so the best point is found early and the
+/// farther boxes are skipped.
+fn neighbour_offsets(dim: usize) -> &'static [[i64; 3]] {
+    static OFFSETS: OnceLock<[Vec<[i64; 3]>; 2]> = OnceLock::new();
+    let all = OFFSETS.get_or_init(|| {
+        let build = |dim: usize| {
+            let zs: &[i64] = if dim == 3 { &[-1, 0, 1] } else { &[0] };
+            let mut v: Vec<[i64; 3]> = Vec::new();
+            for x in -1..=1 {
+                for y in -1..=1 {
+                    for &z in zs {
+                        v.push([x, y, z]);
+                    }
+                }
+            }
+            v.sort_by_key(|o| o.iter().filter(|&&c| c != 0).count());
+            v
+        };
+        [build(2), build(3)]
+    });
+    &all[dim - 2]
 }
 
 fn positive(arg: &'static str, v: f64) -> Result<f64> {
@@ -196,7 +222,18 @@ impl VoxelMap {
         (self.attributes == Attributes::Normals).then_some(self.normals.as_slice())
     }
 
-    /// Flat covariances indexed by point id, when the map stores covariances.
+    /// Point ids that share one covariance row: `max_per_voxel` for voxel covariances (one
+    /// row per voxel: its points' ids are `slot * max_per_voxel + k`), else 1.
+    pub fn covariance_group(&self) -> usize {
+        if self.attributes == Attributes::VoxelCovariances {
+            self.max_per_voxel
+        } else {
+            1
+        }
+    }
+
+    /// Flat covariances, row `id / covariance_group()` for point `id`, when the map stores
+    /// covariances.
     pub fn covariances(&self) -> Option<&[f64]> {
         matches!(
             self.attributes,
@@ -237,9 +274,11 @@ impl VoxelMap {
                     Attributes::Normals => self
                         .normals
                         .resize(self.normals.len() + cap * self.dim, 0.0),
-                    Attributes::Covariances | Attributes::VoxelCovariances => self
-                        .covariances
-                        .resize(self.covariances.len() + cap * self.dim * self.dim, 0.0),
+                    Attributes::Covariances | Attributes::VoxelCovariances => {
+                        let rows = cap / self.covariance_group();
+                        self.covariances
+                            .resize(self.covariances.len() + rows * self.dim * self.dim, 0.0)
+                    }
                 }
                 s
             }
@@ -328,7 +367,8 @@ impl VoxelMap {
         Ok(kept)
     }
 
-    /// Recompute the shared, plane-regularised covariance of one voxel's points.
+    /// Recompute the shared, plane-regularised covariance of one voxel's points (its slot's
+    /// single covariance row).
     fn refresh_voxel_covariance(&mut self, slot: usize) {
         const EPSILON: f64 = 1e-3;
         let (dim, cap) = (self.dim, self.max_per_voxel);
@@ -342,36 +382,23 @@ impl VoxelMap {
                     mean[c] += p[c] / count as f64;
                 }
             }
-            let mut m = nalgebra::Matrix3::<f64>::zeros();
+            let mut m = [0.0; 9];
             for p in pts.chunks_exact(dim) {
                 for a in 0..dim {
                     for b in 0..dim {
-                        m[(a, b)] += (p[a] - mean[a]) * (p[b] - mean[b]);
+                        m[a * dim + b] += (p[a] - mean[a]) * (p[b] - mean[b]);
                     }
                 }
             }
-            if dim == 2 {
-                let m2 = nalgebra::Matrix2::new(m[(0, 0)], m[(0, 1)], m[(1, 0)], m[(1, 1)]);
-                let e = m2.symmetric_eigen();
-                let small = if e.eigenvalues[0] <= e.eigenvalues[1] {
-                    0
-                } else {
-                    1
-                };
-                let n = e.eigenvectors.column(small);
-                let t = e.eigenvectors.column(1 - small);
-                let c = n * n.transpose() * EPSILON + t * t.transpose();
-                cov[..4].copy_from_slice(&[c[(0, 0)], c[(0, 1)], c[(1, 0)], c[(1, 1)]]);
-            } else {
-                let e = m.symmetric_eigen();
-                let small = e.eigenvalues.imin();
-                let mut c = nalgebra::Matrix3::<f64>::zeros();
-                for k in 0..3 {
-                    let v = e.eigenvectors.column(k);
-                    let w = if k == small { EPSILON } else { 1.0 };
-                    c += v * v.transpose() * w;
+            // Eigenvalues ascending: the first eigenvector is the normal.
+            let (_, vecs) = eigen(&m, dim);
+            for (k, v) in vecs.iter().enumerate().take(dim) {
+                let w = if k == 0 { EPSILON } else { 1.0 };
+                for a in 0..dim {
+                    for b in 0..dim {
+                        cov[a * dim + b] += w * v[a] * v[b];
+                    }
                 }
-                cov.copy_from_slice(c.as_slice()); // symmetric: order does not matter
             }
         } else {
             for c in 0..dim {
@@ -379,10 +406,7 @@ impl VoxelMap {
             }
         }
         let d2 = dim * dim;
-        for k in 0..count {
-            let id = slot * cap + k;
-            self.covariances[id * d2..(id + 1) * d2].copy_from_slice(&cov[..d2]);
-        }
+        self.covariances[slot * d2..(slot + 1) * d2].copy_from_slice(&cov[..d2]);
     }
 
     /// Drop every voxel whose first point is farther than `max_distance` from `center`.
@@ -436,9 +460,15 @@ impl VoxelMap {
                 Attributes::Normals => out
                     .normals
                     .extend_from_slice(&self.normals[a * dim..b * dim]),
-                Attributes::Covariances | Attributes::VoxelCovariances => out
+                Attributes::Covariances => out
                     .covariances
                     .extend_from_slice(&self.covariances[a * d2..b * d2]),
+                Attributes::VoxelCovariances => {
+                    for _ in 0..count {
+                        out.covariances
+                            .extend_from_slice(&self.covariances[s * d2..(s + 1) * d2]);
+                    }
+                }
             }
         }
         out
@@ -499,6 +529,10 @@ impl NeighborSearch for VoxelMap {
         true // checked on insertion
     }
 
+    fn covariance_group(&self) -> usize {
+        VoxelMap::covariance_group(self)
+    }
+
     /// Exact: visits the voxels the gate's bounding box overlaps (per axis
     /// `floor((q - g) / v) ..= floor((q + g) / v)`), or every occupied voxel when that is fewer.
     fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
@@ -524,26 +558,53 @@ impl NeighborSearch for VoxelMap {
             }
             return best;
         }
-        // Shell by shell outwards from the query's voxel (Chebyshev distance r), clipped to the
-        // gate's box. A voxel beyond shell r is more than r voxel sizes away along some axis,
-        // so once the best distance is within r·v no further shell can beat it: the search is
-        // exact and usually stops after the 27 voxels around the query.
+        // The query's own voxel, then its neighbours nearest face first, each skipped when its
+        // box is farther than the best point so far (most are: the hash lookups dominate).
+        // Then shell by shell (Chebyshev distance r ≥ 2), clipped to the gate's box: a voxel
+        // beyond shell r is more than r voxel sizes away along some axis, so once the best
+        // distance is within r·v (plus `margin`) no further shell can beat it — exact, and
+        // usually done after the first shell.
         let mut center = [0i64; 3];
-        // Distance from q to the nearest face of its own voxel: after shell r every unvisited
-        // point is farther than r·v plus this.
-        let mut margin = f64::INFINITY;
+        // Per axis, the distance from q to its voxel's lower and upper faces.
+        let mut below = [0.0f64; 3];
+        let mut above = [0.0f64; 3];
         for c in 0..self.dim {
             let f = (q[c] * self.inv).floor();
             center[c] = f as i64;
-            let inside = q[c] - f * self.voxel_size;
-            margin = margin.min(inside).min(self.voxel_size - inside);
+            below[c] = (q[c] - f * self.voxel_size).max(0.0);
+            above[c] = (self.voxel_size - below[c]).max(0.0);
         }
-        let margin = margin.max(0.0);
+        // After shell r every unvisited point is farther than r·v plus this.
+        let margin = (0..self.dim)
+            .map(|c| below[c].min(above[c]))
+            .fold(f64::INFINITY, f64::min);
         let reach = (0..self.dim)
             .map(|c| (center[c] - lo[c]).max(hi[c] - center[c]))
             .max()
             .unwrap_or(0);
-        for r in 0..=reach {
+        for off in neighbour_offsets(self.dim) {
+            let mut box_sq = 0.0;
+            for c in 0..self.dim {
+                box_sq += match off[c] {
+                    -1 => below[c] * below[c],
+                    1 => above[c] * above[c],
+                    _ => 0.0,
+                };
+            }
+            // `>`, not `>=`: a point at exactly the best distance with a lower id still wins.
+            if box_sq > max_sq || best.is_some_and(|(_, d)| box_sq > d) {
+                continue;
+            }
+            let key = pack(center[0] + off[0], center[1] + off[1], center[2] + off[2]);
+            if let Some(&slot) = key.and_then(|k| self.slots.get(&k)) {
+                self.scan_nearest(q, max_sq, slot as usize, &mut best);
+            }
+        }
+        let shell = self.voxel_size + margin;
+        if reach <= 1 || best.is_some_and(|(_, d)| d <= shell * shell) {
+            return best;
+        }
+        for r in 2..=reach {
             let x0 = (center[0] - r).max(lo[0]);
             let x1 = (center[0] + r).min(hi[0]);
             let y0 = (center[1] - r).max(lo[1]);

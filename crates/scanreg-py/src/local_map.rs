@@ -192,7 +192,16 @@ impl LocalMap {
         };
         let pts = rows(NeighborSearch::points(&*map), d);
         let normals = map.normals().map(|v| rows(v, d));
-        let covs = map.covariances().map(|v| rows(v, d * d));
+        let group = map.covariance_group();
+        let covs = map.covariances().map(|v| {
+            let d2 = d * d;
+            let mut out = Vec::with_capacity(ids.len() * d2);
+            for &j in ids {
+                let r = j as usize / group;
+                out.extend_from_slice(&v[r * d2..(r + 1) * d2]);
+            }
+            out
+        });
         drop(map);
         let n = ids.len();
         let normals = match normals {

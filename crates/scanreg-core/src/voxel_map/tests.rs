@@ -192,13 +192,19 @@ fn voxel_covariances_are_plane_regularised_per_voxel() {
     let n = e.eigenvectors.column(e.eigenvalues.imin()).into_owned();
     let want = nalgebra::Vector3::new(-0.2, 0.0, 1.0).normalize();
     assert!(n.dot(&want).abs() > 1.0 - 1e-9);
-    // Every point of the voxel shares it; the 2-point voxel gets the identity.
-    assert_eq!(&covs[9..18], &covs[0..9]);
+    // One row per voxel, which every point of it reads (and `contents` repeats per point);
+    // the 2-point voxel gets the identity.
+    assert_eq!(map.covariance_group(), 20);
+    assert_eq!(covs.len(), 2 * 9);
+    let listed = map.contents().covariances;
+    assert_eq!(listed.len(), 18 * 9);
+    assert!(listed[..16 * 9].chunks_exact(9).all(|r| r == &covs[0..9]));
     let id = NeighborSearch::nearest_within(&map, &[5.5, 5.5, 5.5], 1e-6)
         .unwrap()
         .0;
+    let row = id / map.covariance_group();
     assert_eq!(
-        &covs[id * 9..id * 9 + 9],
+        &covs[row * 9..row * 9 + 9],
         &[1., 0., 0., 0., 1., 0., 0., 0., 1.]
     );
 }
