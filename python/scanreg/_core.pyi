@@ -156,7 +156,8 @@ def sweep_grids(
     max_range: float,
     fine_voxel: float,
     coarse_voxel: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], int]: ...
+    coarse_covariances: bool = False,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], int, NDArray[np.float64] | None]: ...
 def random_subsample_indices(n: int, count: int, seed: int) -> NDArray[np.int64]: ...
 def crop_range(
     points_array: NDArray[np.float64], min_distance: float, max_distance: float

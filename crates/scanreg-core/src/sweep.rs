@@ -7,6 +7,7 @@
 //! first point — do not depend on anything but the input), then a second over the fine grid.
 
 use crate::error::{Error, Result};
+use crate::normals::plane_covariance;
 use crate::points::check_points;
 use rustc_hash::FxHashMap;
 
@@ -15,6 +16,10 @@ use rustc_hash::FxHashMap;
 pub struct SweepGrids {
     pub fine: Vec<f64>,
     pub coarse: Vec<f64>,
+    /// When asked for: per coarse point (`dim * dim` each), the plane-regularised covariance
+    /// of the fine points it averages (see [`plane_covariance`]) — GICP's source covariances
+    /// without a neighbour search.
+    pub coarse_covariances: Option<Vec<f64>>,
     /// Points left after the range crop.
     pub num_in_range: usize,
 }
@@ -41,13 +46,27 @@ fn packed_key(p: &[f64], inv: f64) -> u64 {
     key
 }
 
-/// Centroids of the occupied voxels of `points` (those passing `keep`), in order of first point.
-fn grid(points: &[f64], dim: usize, inv: f64, keep: impl Fn(&[f64]) -> bool) -> (Vec<f64>, usize) {
+/// A voxel grid of `points` (those passing `keep`): centroids in order of first point, how
+/// many points were kept, and (when `want_slots`) each kept point's voxel (its output row).
+struct Grid {
+    centroids: Vec<f64>,
+    kept: usize,
+    slots: Vec<u32>,
+}
+
+fn grid(
+    points: &[f64],
+    dim: usize,
+    inv: f64,
+    want_slots: bool,
+    keep: impl Fn(&[f64]) -> bool,
+) -> Grid {
     // Sized for a typical sweep (a few points per voxel) so the table rarely grows mid-pass.
     let guess = points.len() / dim / 4 + 16;
     let mut index: FxHashMap<u64, u32> =
         FxHashMap::with_capacity_and_hasher(guess, Default::default());
     let mut sums: Vec<[f64; 4]> = Vec::with_capacity(guess);
+    let mut slots = Vec::with_capacity(if want_slots { points.len() / dim } else { 0 });
     let mut kept = 0;
     for p in points.chunks_exact(dim) {
         if !keep(p) {
@@ -55,23 +74,57 @@ fn grid(points: &[f64], dim: usize, inv: f64, keep: impl Fn(&[f64]) -> bool) -> 
         }
         kept += 1;
         let next = sums.len() as u32;
-        let slot = *index.entry(packed_key(p, inv)).or_insert(next) as usize;
-        if slot == sums.len() {
+        let slot = *index.entry(packed_key(p, inv)).or_insert(next);
+        if slot == next {
             sums.push([0.0; 4]);
         }
-        let s = &mut sums[slot];
+        if want_slots {
+            slots.push(slot);
+        }
+        let s = &mut sums[slot as usize];
         for c in 0..dim {
             s[c] += p[c];
         }
         s[3] += 1.0;
     }
-    let mut out = Vec::with_capacity(sums.len() * dim);
+    let mut centroids = Vec::with_capacity(sums.len() * dim);
     for s in &sums {
         for c in 0..dim {
-            out.push(s[c] / s[3]);
+            centroids.push(s[c] / s[3]);
         }
     }
-    (out, kept)
+    Grid {
+        centroids,
+        kept,
+        slots,
+    }
+}
+
+/// Per voxel of `grid` (built over `points` with slots), the plane-regularised covariance of
+/// its points about their centroid.
+fn voxel_covariances(points: &[f64], dim: usize, grid: &Grid) -> Vec<f64> {
+    let d2 = dim * dim;
+    let voxels = grid.centroids.len() / dim;
+    let mut moments = vec![0.0; voxels * d2];
+    let mut counts = vec![0usize; voxels];
+    for (p, &slot) in points.chunks_exact(dim).zip(&grid.slots) {
+        let v = slot as usize;
+        let mean = &grid.centroids[v * dim..(v + 1) * dim];
+        let m = &mut moments[v * d2..(v + 1) * d2];
+        for a in 0..dim {
+            for b in 0..dim {
+                m[a * dim + b] += (p[a] - mean[a]) * (p[b] - mean[b]);
+            }
+        }
+        counts[v] += 1;
+    }
+    let mut out = Vec::with_capacity(voxels * d2);
+    for (m, &count) in moments.chunks_exact(d2).zip(&counts) {
+        let mut full = [0.0; 9];
+        full[..d2].copy_from_slice(m);
+        out.extend_from_slice(&plane_covariance(&full, count, dim)[..d2]);
+    }
+    out
 }
 
 /// Keep points with `min_range <= |p| <= max_range`, then centroid grids of `fine_voxel` over
@@ -83,6 +136,7 @@ pub fn sweep_grids(
     max_range: f64,
     fine_voxel: f64,
     coarse_voxel: f64,
+    coarse_covariances: bool,
 ) -> Result<SweepGrids> {
     check_points("points", points, dim)?;
     if !(min_range.is_finite() && min_range >= 0.0) {
@@ -107,15 +161,19 @@ pub fn sweep_grids(
         ));
     }
     let (lo, hi) = (min_range * min_range, max_range * max_range);
-    let (fine, num_in_range) = grid(points, dim, fine_inv, |p| {
+    let fine = grid(points, dim, fine_inv, false, |p| {
         let r2: f64 = p.iter().map(|v| v * v).sum();
         r2 >= lo && r2 <= hi
     });
-    let (coarse, _) = grid(&fine, dim, coarse_inv, |_| true);
+    let coarse = grid(&fine.centroids, dim, coarse_inv, coarse_covariances, |_| {
+        true
+    });
+    let covs = coarse_covariances.then(|| voxel_covariances(&fine.centroids, dim, &coarse));
     Ok(SweepGrids {
-        fine,
-        coarse,
-        num_in_range,
+        fine: fine.centroids,
+        coarse: coarse.centroids,
+        coarse_covariances: covs,
+        num_in_range: fine.kept,
     })
 }
 
@@ -140,7 +198,7 @@ mod tests {
     #[test]
     fn equals_crop_then_two_grids() {
         let pts = cloud(20000);
-        let got = sweep_grids(&pts, 3, 2.0, 25.0, 0.5, 1.5).unwrap();
+        let got = sweep_grids(&pts, 3, 2.0, 25.0, 0.5, 1.5, false).unwrap();
         let kept = crop_range(&pts, 3, 2.0, 25.0).unwrap();
         assert_eq!(got.num_in_range, kept.len());
         let cropped = gather(&pts, 3, &kept);
@@ -166,6 +224,43 @@ mod tests {
         }
     }
 
+    /// Each coarse point's covariance is the plane fit of the fine points it averages.
+    #[test]
+    fn coarse_covariances_fit_the_fine_points_of_each_voxel() {
+        // A tilted plane z = 0.3 x + 5 sampled densely over [1.5, 3) x [1.5, 3) (one coarse
+        // voxel of 1.5 m holding 3 x 3 columns of fine voxels of 0.5 m), and one lone point.
+        let mut pts = Vec::new();
+        for i in 0..30 {
+            for j in 0..30 {
+                let (x, y) = (1.525 + 0.05 * i as f64, 1.525 + 0.05 * j as f64);
+                pts.extend_from_slice(&[x, y, 0.3 * x + 5.0]);
+            }
+        }
+        pts.extend_from_slice(&[-8.2, 1.1, 0.4]);
+        let g = sweep_grids(&pts, 3, 0.0, 50.0, 0.5, 1.5, true).unwrap();
+        let covs = g.coarse_covariances.unwrap();
+        assert_eq!(covs.len(), g.coarse.len() / 3 * 9);
+        let n = nalgebra::Vector3::new(-0.3, 0.0, 1.0).normalize();
+        assert_eq!(g.coarse.len(), 2 * 3);
+        for (c, row) in g.coarse.chunks_exact(3).zip(covs.chunks_exact(9)) {
+            let m = nalgebra::Matrix3::from_row_slice(row);
+            if c[0] < 0.0 {
+                assert_eq!(m, nalgebra::Matrix3::identity(), "a lone point: no plane");
+                continue;
+            }
+            // Eigenvalues (1e-3, 1, 1) with the plane normal as the thin direction.
+            let e = m.symmetric_eigen();
+            let k = e.eigenvalues.imin();
+            assert!((e.eigenvalues[k] - 1e-3).abs() < 1e-12);
+            assert!((e.eigenvalues.sum() - 2.001).abs() < 1e-12);
+            assert!(e.eigenvectors.column(k).dot(&n).abs() > 1.0 - 1e-9);
+        }
+        assert!(sweep_grids(&pts, 3, 0.0, 50.0, 0.5, 1.5, false)
+            .unwrap()
+            .coarse_covariances
+            .is_none());
+    }
+
     #[test]
     fn rejects_bad_arguments() {
         let pts = cloud(10);
@@ -176,9 +271,9 @@ mod tests {
             ((0.0, 10.0, 0.5, f64::NAN), "coarse_voxel"),
             ((0.0, 1e300, 0.5, 1.0), "fine_voxel"),
         ] {
-            let e = sweep_grids(&pts, 3, args.0, args.1, args.2, args.3).unwrap_err();
+            let e = sweep_grids(&pts, 3, args.0, args.1, args.2, args.3, false).unwrap_err();
             assert!(e.to_string().starts_with(name), "{e}");
         }
-        assert!(sweep_grids(&[f64::NAN, 0.0, 0.0], 3, 0.0, 1.0, 0.5, 1.0).is_err());
+        assert!(sweep_grids(&[f64::NAN, 0.0, 0.0], 3, 0.0, 1.0, 0.5, 1.0, false).is_err());
     }
 }

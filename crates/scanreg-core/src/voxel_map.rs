@@ -13,7 +13,7 @@
 use crate::error::{Error, Result};
 use crate::icp::NeighborSearch;
 use crate::knn::voxel_of;
-use crate::normals::eigen;
+use crate::normals::plane_covariance;
 use crate::points::check_points;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -370,41 +370,24 @@ impl VoxelMap {
     /// Recompute the shared, plane-regularised covariance of one voxel's points (its slot's
     /// single covariance row).
     fn refresh_voxel_covariance(&mut self, slot: usize) {
-        const EPSILON: f64 = 1e-3;
         let (dim, cap) = (self.dim, self.max_per_voxel);
         let count = self.counts[slot] as usize;
         let pts = &self.points[slot * cap * dim..(slot * cap + count) * dim];
-        let mut cov = [0.0; 9];
-        if count >= dim + 2 {
-            let mut mean = [0.0; 3];
-            for p in pts.chunks_exact(dim) {
-                for c in 0..dim {
-                    mean[c] += p[c] / count as f64;
-                }
-            }
-            let mut m = [0.0; 9];
-            for p in pts.chunks_exact(dim) {
-                for a in 0..dim {
-                    for b in 0..dim {
-                        m[a * dim + b] += (p[a] - mean[a]) * (p[b] - mean[b]);
-                    }
-                }
-            }
-            // Eigenvalues ascending: the first eigenvector is the normal.
-            let (_, vecs) = eigen(&m, dim);
-            for (k, v) in vecs.iter().enumerate().take(dim) {
-                let w = if k == 0 { EPSILON } else { 1.0 };
-                for a in 0..dim {
-                    for b in 0..dim {
-                        cov[a * dim + b] += w * v[a] * v[b];
-                    }
-                }
-            }
-        } else {
+        let mut mean = [0.0; 3];
+        for p in pts.chunks_exact(dim) {
             for c in 0..dim {
-                cov[c * dim + c] = 1.0;
+                mean[c] += p[c] / count as f64;
             }
         }
+        let mut m = [0.0; 9];
+        for p in pts.chunks_exact(dim) {
+            for a in 0..dim {
+                for b in 0..dim {
+                    m[a * dim + b] += (p[a] - mean[a]) * (p[b] - mean[b]);
+                }
+            }
+        }
+        let cov = plane_covariance(&m, count, dim);
         let d2 = dim * dim;
         self.covariances[slot * d2..(slot + 1) * d2].copy_from_slice(&cov[..d2]);
     }

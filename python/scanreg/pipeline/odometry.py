@@ -430,7 +430,7 @@ class Odometry:
 
         # 3. downsample
         t0 = time.perf_counter()
-        map_points, source = self._grids(pts)
+        map_points, source, source_covariances = self._grids(pts)
         t_down = time.perf_counter() - t0
 
         if not self._poses and self._builds_map:
@@ -472,6 +472,7 @@ class Odometry:
             ),
             thresholds=self._thresholds,
             step_projector=projector,
+            source_covariances=source_covariances,
         )
         t_align = time.perf_counter() - t0
         usable = reg.stop_reason not in FAILED_STOPS
@@ -579,21 +580,28 @@ class Odometry:
 
     def _grids(
         self, pts: FloatArray, times: FloatArray | None = None, velocity: Any = None
-    ) -> tuple[FloatArray, FloatArray]:
+    ) -> tuple[FloatArray, FloatArray, FloatArray | None]:
         """Deskewed (when ``velocity`` is given), range-cropped, on the fine grid (the map's
-        points) and the coarse grid (the registered points): one pass in the core."""
+        points) and the coarse grid (the registered points): one pass in the core. For GICP
+        also each coarse point's covariance, from the fine points it averages — the same
+        per-voxel, plane-regularised kind the map keeps, without a neighbour search."""
         c = self.config
         if velocity is not None and times is not None:
             pts = deskew(pts, times, velocity, reference_time=c.reference_time)
-        fine, coarse, kept = _core.sweep_grids(
-            pts, c.min_range, c.max_range, 0.5 * c.voxel_size, 1.5 * c.voxel_size
+        fine, coarse, kept, covs = _core.sweep_grids(
+            pts,
+            c.min_range,
+            c.max_range,
+            0.5 * c.voxel_size,
+            1.5 * c.voxel_size,
+            coarse_covariances=c.method == "gicp",
         )
         if kept < 10:
             raise ValueError(
                 f"points: only {kept} of {len(pts)} points lie within "
                 f"[{c.min_range}, {c.max_range}] m of the sensor; need at least 10"
             )
-        return fine, coarse
+        return fine, coarse, covs
 
     def _insert(self, pose: SE3, map_points: FloatArray) -> None:
         """Add a sweep's map points (sensor frame) to the map at ``pose``. Point-to-plane: with
