@@ -221,6 +221,20 @@ def metrics(poses: np.ndarray, gt: np.ndarray, ms: list[float]) -> dict[str, flo
     return out
 
 
+def _run(method: str, data: Path, args: argparse.Namespace) -> dict[str, Any] | None:
+    """One method over one sequence in a fresh subprocess (its own peak memory)."""
+    cmd = [sys.executable, __file__, "--worker", method, "--data", str(data)]
+    cmd += ["--threads", str(args.threads)]
+    if args.peers_site:
+        cmd += ["--peers-site", args.peers_site]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        print(f"# {data.stem} {method}: failed: {proc.stderr.strip()[-300:]}", file=sys.stderr)
+        return None
+    out: dict[str, Any] = json.loads(proc.stdout.strip().splitlines()[-1])
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--peers-site", default=None, help="site-packages holding kiss_icp/genz_icp")
@@ -228,6 +242,15 @@ def main() -> None:
     ap.add_argument("--sensor", default="hdl64", choices=["vlp16", "hdl32", "hdl64"])
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    ap.add_argument(
+        "--rounds",
+        type=int,
+        default=1,
+        help="run every method this many times, interleaved (round r runs each method once); "
+        "fps and the fps ratio are medians over rounds (ratios taken within each round)",
+    )
+    ap.add_argument("--sequences", default=None, help="comma-separated subset, e.g. kitti16")
+    ap.add_argument("--methods", default=None, help=f"comma-separated subset of {METHODS}")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--data", type=Path, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -237,27 +260,37 @@ def main() -> None:
         print(json.dumps(run_worker(args.worker, args.data, args.threads)))
         return
 
+    methods = METHODS if args.methods is None else tuple(args.methods.split(","))
+    wanted = None if args.sequences is None else set(args.sequences.split(","))
     rows = []
+    fps_ratios: dict[str, list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         inputs = build_inputs(Path(tmp), args.frames, args.sensor)
         for name, data in inputs.items():
+            if wanted is not None and name not in wanted:
+                continue
             gt = _ground_truth(data)
-            for method in METHODS:
-                if method == "scanreg+prior" and name != "sim-tunnel":
-                    continue
-                cmd = [sys.executable, __file__, "--worker", method, "--data", str(data)]
-                cmd += ["--threads", str(args.threads)]
-                if args.peers_site:
-                    cmd += ["--peers-site", args.peers_site]
-                proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-                if proc.returncode != 0:
-                    print(
-                        f"# {name} {method}: failed: {proc.stderr.strip()[-300:]}", file=sys.stderr
-                    )
-                    continue
-                res = json.loads(proc.stdout.strip().splitlines()[-1])
-                row = {"sequence": name, "method": method, "peak_mb": res["peak_mb"]}
-                row.update(metrics(np.array(res["poses"]), gt, res["ms"]))
+            runs: dict[str, list[dict[str, Any]]] = {}
+            for _ in range(max(1, args.rounds)):
+                for method in methods:
+                    if method == "scanreg+prior" and name != "sim-tunnel":
+                        continue
+                    res = _run(method, data, args)
+                    if res is not None:
+                        runs.setdefault(method, []).append(res)
+                if "scanreg" in runs and "kiss_icp" in runs:
+                    a, b = runs["scanreg"][-1], runs["kiss_icp"][-1]
+                    if len(runs["scanreg"]) == len(runs["kiss_icp"]):
+                        ratio = float(np.median(b["ms"][1:]) / np.median(a["ms"][1:]))
+                        fps_ratios.setdefault(name, []).append(ratio)
+            for method, results in runs.items():
+                first = results[0]
+                row = {"sequence": name, "method": method, "rounds": len(results)}
+                row.update(metrics(np.array(first["poses"]), gt, first["ms"]))
+                per_round = [float(np.median(r["ms"][1:])) for r in results]
+                row["median_ms"] = float(np.median(per_round))
+                row["fps"] = 1e3 / row["median_ms"]
+                row["peak_mb"] = float(np.median([r["peak_mb"] for r in results]))
                 rows.append(row)
                 print(f"# {name:11s} {method:14s} done", file=sys.stderr)
 
@@ -277,13 +310,16 @@ def main() -> None:
             f"{r['fps']:6.1f} {r['peak_mb']:8.0f}"
         )
     print("\nratios scanreg (gicp, no prior) / kiss_icp: drift, fps, peak memory")
+    print("(fps: median over rounds of the ratio within each round, with the range)")
     for name in sorted({r["sequence"] for r in rows}):
         by = {r["method"]: r for r in rows if r["sequence"] == name}
         if "scanreg" in by and "kiss_icp" in by:
             a, b = by["scanreg"], by["kiss_icp"]
+            fr = fps_ratios.get(name, [a["fps"] / b["fps"]])
             print(
                 f"{name:11s} drift {a['drift_pct'] / b['drift_pct']:.2f}  "
-                f"fps {a['fps'] / b['fps']:.2f}  memory {a['peak_mb'] / b['peak_mb']:.2f}"
+                f"fps {np.median(fr):.2f} ({min(fr):.2f}-{max(fr):.2f}, {len(fr)} rounds)  "
+                f"memory {a['peak_mb'] / b['peak_mb']:.2f}"
             )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2))
