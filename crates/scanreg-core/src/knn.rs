@@ -565,7 +565,7 @@ pub fn check_k(arg: &'static str, k: usize, n: usize) -> Result<()> {
 pub(crate) fn voxel_of(p: &[f64], inv: f64) -> Option<[i64; 3]> {
     let mut key = [0i64; 3];
     for (k, v) in key.iter_mut().zip(p) {
-        let c = (v * inv).floor();
+        let c = crate::points::floor(v * inv);
         if c.is_nan() || c.abs() >= 9.0e15 {
             return None;
         }

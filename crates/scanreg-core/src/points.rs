@@ -2,6 +2,22 @@
 
 use crate::error::{Error, Result};
 
+/// `x.floor()`, inlined: on the baseline x86-64 target (no SSE4.1 `roundsd`) `f64::floor` is
+/// a libm call, which showed at 3 % of an odometry profile (voxel keys of every point). Exact
+/// for |x| < 4e18 (the truncating cast is exact there); NaN, inf and larger take `floor`.
+#[inline]
+pub fn floor(x: f64) -> f64 {
+    if x.is_nan() || x.abs() >= 4.0e18 {
+        return x.floor();
+    }
+    let t = x as i64 as f64;
+    if t > x {
+        t - 1.0
+    } else {
+        t
+    }
+}
+
 /// Check that `data` holds whole `dim`-vectors, all finite, and return their count.
 pub fn check_points(arg: &'static str, data: &[f64], dim: usize) -> Result<usize> {
     if dim != 2 && dim != 3 {
@@ -77,4 +93,34 @@ pub fn split_pose(arg: &'static str, pose: &[f64], dim: usize) -> Result<(Vec<f6
         trans.push(pose[r * m + dim]);
     }
     Ok((rot, trans))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn floor_matches_std() {
+        let mut s = 7u64;
+        for _ in 0..100_000 {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let x = ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 2e6;
+            assert_eq!(super::floor(x), x.floor(), "{x}");
+        }
+        for x in [
+            0.0,
+            -0.5,
+            0.5,
+            -1.0,
+            1.0,
+            -1e-300,
+            4.5e18,
+            -4.5e18,
+            1e300,
+            f64::INFINITY,
+        ] {
+            assert_eq!(super::floor(x), x.floor(), "{x}");
+        }
+        assert!(super::floor(f64::NAN).is_nan());
+    }
 }

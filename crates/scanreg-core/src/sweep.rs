@@ -8,7 +8,7 @@
 
 use crate::error::{Error, Result};
 use crate::normals::plane_covariance;
-use crate::points::check_points;
+use crate::points::{check_points, floor};
 use rustc_hash::FxHashMap;
 
 /// The two grids of a sweep (row-major `N * dim`).
@@ -41,7 +41,7 @@ fn packed_key(p: &[f64], inv: f64) -> u64 {
     const OFF: i64 = 1 << 20;
     let mut key = 0u64;
     for &v in p {
-        key = key << 21 | ((v * inv).floor() as i64 + OFF) as u64;
+        key = key << 21 | (floor(v * inv) as i64 + OFF) as u64;
     }
     key
 }

@@ -14,7 +14,7 @@ use crate::error::{Error, Result};
 use crate::icp::NeighborSearch;
 use crate::knn::voxel_of;
 use crate::normals::plane_covariance;
-use crate::points::check_points;
+use crate::points::{check_points, floor};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::sync::OnceLock;
@@ -524,8 +524,8 @@ impl NeighborSearch for VoxelMap {
         let mut hi = [0i64; 3];
         let mut visits = 1.0;
         for c in 0..self.dim {
-            let a = ((q[c] - g) * self.inv).floor();
-            let b = ((q[c] + g) * self.inv).floor();
+            let a = floor((q[c] - g) * self.inv);
+            let b = floor((q[c] + g) * self.inv);
             visits *= b - a + 1.0;
             if !(a.abs() < 9.0e15 && b.abs() < 9.0e15) {
                 visits = f64::INFINITY;
@@ -552,7 +552,7 @@ impl NeighborSearch for VoxelMap {
         let mut below = [0.0f64; 3];
         let mut above = [0.0f64; 3];
         for c in 0..self.dim {
-            let f = (q[c] * self.inv).floor();
+            let f = floor(q[c] * self.inv);
             center[c] = f as i64;
             below[c] = (q[c] - f * self.voxel_size).max(0.0);
             above[c] = (self.voxel_size - below[c]).max(0.0);
