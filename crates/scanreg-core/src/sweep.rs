@@ -62,22 +62,33 @@ fn grid(
     keep: impl Fn(&[f64]) -> bool,
 ) -> Grid {
     // Sized for a typical sweep (a few points per voxel) so the table rarely grows mid-pass.
-    let guess = points.len() / dim / 4 + 16;
+    let guess = points.len() / dim / 16 + 16;
     let mut index: FxHashMap<u64, u32> =
         FxHashMap::with_capacity_and_hasher(guess, Default::default());
     let mut sums: Vec<[f64; 4]> = Vec::with_capacity(guess);
     let mut slots = Vec::with_capacity(if want_slots { points.len() / dim } else { 0 });
     let mut kept = 0;
+    // A sweep comes ring by ring: consecutive points mostly share a voxel, so the last
+    // voxel's slot is remembered and the table (a cache miss each) consulted only on a change.
+    let mut last: Option<(u64, u32)> = None;
     for p in points.chunks_exact(dim) {
         if !keep(p) {
             continue;
         }
         kept += 1;
-        let next = sums.len() as u32;
-        let slot = *index.entry(packed_key(p, inv)).or_insert(next);
-        if slot == next {
-            sums.push([0.0; 4]);
-        }
+        let key = packed_key(p, inv);
+        let slot = match last {
+            Some((k, s)) if k == key => s,
+            _ => {
+                let next = sums.len() as u32;
+                let slot = *index.entry(key).or_insert(next);
+                if slot == next {
+                    sums.push([0.0; 4]);
+                }
+                last = Some((key, slot));
+                slot
+            }
+        };
         if want_slots {
             slots.push(slot);
         }
