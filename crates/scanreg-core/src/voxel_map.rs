@@ -71,6 +71,12 @@ pub struct MapContents {
     pub covariances: Vec<f64>,
 }
 
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    slot: u32,
+    count: u32,
+}
+
 pub struct VoxelMap {
     dim: usize,
     voxel_size: f64,
@@ -78,7 +84,9 @@ pub struct VoxelMap {
     max_per_voxel: usize,
     min_spacing_sq: f64,
     attributes: Attributes,
-    slots: FxHashMap<u64, u32>,
+    /// Voxel key -> its slot and point count (the count here too, so a search reads one
+    /// table entry instead of the entry and then `counts`: a cache miss less per voxel).
+    slots: FxHashMap<u64, Entry>,
     /// Per slot: its voxel key and how many points it holds (0 for a free slot).
     keys: Vec<u64>,
     counts: Vec<u32>,
@@ -283,7 +291,7 @@ impl VoxelMap {
                 s
             }
         };
-        self.slots.insert(key, slot);
+        self.slots.insert(key, Entry { slot, count: 0 });
         slot
     }
 
@@ -326,7 +334,7 @@ impl VoxelMap {
         for (i, key) in keys.into_iter().enumerate() {
             let p = &points[i * dim..(i + 1) * dim];
             let slot = match self.slots.get(&key) {
-                Some(&s) => s as usize,
+                Some(e) => e.slot as usize,
                 None => self.allocate(key) as usize,
             };
             let count = self.counts[slot] as usize;
@@ -353,6 +361,9 @@ impl VoxelMap {
                 self.covariances[id * d2..(id + 1) * d2].copy_from_slice(&c[i * d2..(i + 1) * d2]);
             }
             self.counts[slot] += 1;
+            if let Some(e) = self.slots.get_mut(&key) {
+                e.count += 1;
+            }
             self.len += 1;
             kept += 1;
             if self.attributes == Attributes::VoxelCovariances {
@@ -405,7 +416,7 @@ impl VoxelMap {
         let (dim, cap) = (self.dim, self.max_per_voxel);
         let mut removed = 0;
         let mut freed = Vec::new();
-        self.slots.retain(|_, &mut slot| {
+        self.slots.retain(|_, &mut Entry { slot, .. }| {
             let s = slot as usize;
             let p = &self.points[s * cap * dim..(s * cap + 1) * dim];
             let d: f64 = p.iter().zip(center).map(|(a, b)| (a - b) * (a - b)).sum();
@@ -482,10 +493,10 @@ impl VoxelMap {
         Ok(found.into_iter().unzip())
     }
 
-    fn scan_nearest(&self, q: &[f64], max_sq: f64, slot: usize, best: &mut Option<(usize, f64)>) {
+    fn scan_nearest(&self, q: &[f64], max_sq: f64, e: &Entry, best: &mut Option<(usize, f64)>) {
         let (dim, cap) = (self.dim, self.max_per_voxel);
-        for k in 0..self.counts[slot] as usize {
-            let j = slot * cap + k;
+        for k in 0..e.count as usize {
+            let j = e.slot as usize * cap + k;
             let p = &self.points[j * dim..(j + 1) * dim];
             let d: f64 = p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
             if d <= max_sq && best.is_none_or(|(bi, bd)| d < bd || (d == bd && j < bi)) {
@@ -536,8 +547,8 @@ impl NeighborSearch for VoxelMap {
         }
         let mut best = None;
         if visits > self.slots.len() as f64 {
-            for &slot in self.slots.values() {
-                self.scan_nearest(q, max_sq, slot as usize, &mut best);
+            for e in self.slots.values() {
+                self.scan_nearest(q, max_sq, e, &mut best);
             }
             return best;
         }
@@ -579,8 +590,8 @@ impl NeighborSearch for VoxelMap {
                 continue;
             }
             let key = pack(center[0] + off[0], center[1] + off[1], center[2] + off[2]);
-            if let Some(&slot) = key.and_then(|k| self.slots.get(&k)) {
-                self.scan_nearest(q, max_sq, slot as usize, &mut best);
+            if let Some(e) = key.and_then(|k| self.slots.get(&k)) {
+                self.scan_nearest(q, max_sq, e, &mut best);
             }
         }
         let shell = self.voxel_size + margin;
@@ -599,8 +610,8 @@ impl NeighborSearch for VoxelMap {
                 for y in y0..=y1 {
                     let on_shell = x_edge || (y - center[1]).abs() == r;
                     let mut visit = |z: i64| {
-                        if let Some(&slot) = pack(x, y, z).and_then(|k| self.slots.get(&k)) {
-                            self.scan_nearest(q, max_sq, slot as usize, &mut best);
+                        if let Some(e) = pack(x, y, z).and_then(|k| self.slots.get(&k)) {
+                            self.scan_nearest(q, max_sq, e, &mut best);
                         }
                     };
                     if on_shell {
