@@ -372,15 +372,22 @@ impl VoxelMap {
         }
         touched.sort_unstable();
         touched.dedup();
-        for slot in touched {
-            self.refresh_voxel_covariance(slot);
+        // Each voxel's covariance depends on its own points only: computed in parallel, then
+        // written (the same values whatever the thread count).
+        let d2 = dim * dim;
+        let fresh: Vec<[f64; 9]> = touched
+            .par_iter()
+            .map(|&slot| self.voxel_covariance(slot))
+            .collect();
+        for (&slot, cov) in touched.iter().zip(&fresh) {
+            self.covariances[slot * d2..(slot + 1) * d2].copy_from_slice(&cov[..d2]);
         }
         Ok(kept)
     }
 
-    /// Recompute the shared, plane-regularised covariance of one voxel's points (its slot's
-    /// single covariance row).
-    fn refresh_voxel_covariance(&mut self, slot: usize) {
+    /// The plane-regularised covariance of one voxel's points (its slot's single covariance
+    /// row).
+    fn voxel_covariance(&self, slot: usize) -> [f64; 9] {
         let (dim, cap) = (self.dim, self.max_per_voxel);
         let count = self.counts[slot] as usize;
         let pts = &self.points[slot * cap * dim..(slot * cap + count) * dim];
@@ -398,9 +405,7 @@ impl VoxelMap {
                 }
             }
         }
-        let cov = plane_covariance(&m, count, dim);
-        let d2 = dim * dim;
-        self.covariances[slot * d2..(slot + 1) * d2].copy_from_slice(&cov[..d2]);
+        plane_covariance(&m, count, dim)
     }
 
     /// Drop every voxel whose first point is farther than `max_distance` from `center`.
