@@ -9,6 +9,7 @@
 use crate::error::{Error, Result};
 use crate::normals::plane_covariance;
 use crate::points::{check_points, floor};
+use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
 /// The two grids of a sweep (row-major `N * dim`).
@@ -59,8 +60,19 @@ fn grid(
     dim: usize,
     inv: f64,
     want_slots: bool,
-    keep: impl Fn(&[f64]) -> bool,
+    keep: impl Fn(&[f64]) -> bool + Sync,
 ) -> Grid {
+    const DROPPED: u64 = u64::MAX; // packed keys use 63 bits at most
+                                   // The per-point arithmetic (crop test, voxel key) in parallel chunks; the accumulation
+                                   // below stays in input order, so sums and output order do not depend on the threads.
+    let keys: Vec<u64> = points
+        .par_chunks(dim * 8192)
+        .flat_map_iter(|chunk| {
+            chunk
+                .chunks_exact(dim)
+                .map(|p| if keep(p) { packed_key(p, inv) } else { DROPPED })
+        })
+        .collect();
     // Sized for a typical sweep (a few points per voxel) so the table rarely grows mid-pass.
     let guess = points.len() / dim / 16 + 16;
     let mut index: FxHashMap<u64, u32> =
@@ -71,12 +83,11 @@ fn grid(
     // A sweep comes ring by ring: consecutive points mostly share a voxel, so the last
     // voxel's slot is remembered and the table (a cache miss each) consulted only on a change.
     let mut last: Option<(u64, u32)> = None;
-    for p in points.chunks_exact(dim) {
-        if !keep(p) {
+    for (p, &key) in points.chunks_exact(dim).zip(&keys) {
+        if key == DROPPED {
             continue;
         }
         kept += 1;
-        let key = packed_key(p, inv);
         let slot = match last {
             Some((k, s)) if k == key => s,
             _ => {
