@@ -113,8 +113,10 @@ class OdometryConfig:
     #: Frames moving less than this do not update the adaptive gate.
     min_motion: float = 0.1
     max_iterations: int = 50
-    #: Converged when a step moves less than this (m, and rad).
-    convergence_tolerance: float = 3e-4
+    #: Converged when a step moves less than this (m, and rad). 1 mm (as small_gicp's
+    #: default): against 0.3 mm it saved 13 % of the KITTI frames' GICP iterations (6.1 -> 5.3)
+    #: and 19 % on a simulated street, with drift and ATE equal to 0.1 %.
+    convergence_tolerance: float = 1e-3
     #: Hold the prediction along weakly constrained translation directions (a tunnel's axis):
     #: the estimate's correction along them is dropped and the covariance there becomes the
     #: prior's (``prior_sigma``). ``"prior"`` (default): only for frames given an external
