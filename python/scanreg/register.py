@@ -43,7 +43,6 @@ from .degeneracy import (
     Degeneracy,
     analyse_degeneracy,
     correspondence_normal_noise,
-    normal_noise,
     rotation_levers,
     sampled_normals,
 )
@@ -519,7 +518,7 @@ def register(
 
     # The target's own normal noise needs its k-d tree: not measured on a map.
     eps2, eps2_typical = (
-        normal_noise(prepared.points, prepared.normals, prepared.index)
+        prepared.normal_noise
         if isinstance(prepared, PreparedTarget) and prepared.normals is not None
         else (math.nan, math.nan)
     )
@@ -556,10 +555,7 @@ def register(
         if source_normals is not None and tn is not None:
             sample, sample_normals = source_normals
             normal_var = correspondence_normal_noise(
-                sample_normals,
-                tn,
-                np.array(out.pose)[:dim, :dim],
-                corr[sample],
+                sample_normals, tn, out.pose[:dim, :dim], corr[sample]
             )
             normal_var = normal_var if math.isfinite(normal_var) else 0.0
         # Unit variances: the meats scale linearly and are combined below, once the point

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from . import _core
 from ._validate import as_points
 from .degeneracy import Degeneracy
 from .local_map import LocalMap
@@ -151,27 +152,20 @@ def assess(
         gate = float(result.settings.max_correspondence_distance)
     start = type(pose).identity() if init is None else as_pose(init, "init", dim)
 
-    nearest = tgt.nearest(pose.apply(src), gate)
-    found = nearest.found
-    dist = np.sqrt(nearest.squared_distances[found])
-    overlap = float(found.mean())
-    if dist.size:
-        trimmed = np.sort(dist)[: max(1, math.ceil(0.9 * dist.size))]
-        stats = (
-            float(dist.mean()),
-            float(np.median(dist)),
-            float(np.sqrt(np.mean(dist**2))),
-            float(np.sqrt(np.mean(trimmed**2))),
-        )
-    else:
-        stats = (math.nan,) * 4
+    index = tgt.native if isinstance(tgt, LocalMap) else tgt.index
+    if isinstance(tgt, LocalMap) and not math.isfinite(gate):
+        raise ValueError(f"max_distance: must be finite and >= 0, got {gate}")
+    num_found, *stats = _core.overlap_statistics(index, src, pose.as_matrix(), gate)
+    overlap = num_found / src.shape[0]
     moved = start.inverse() @ pose  # type: ignore[operator]
-    cond = conditioning(
-        np.asarray(result.hessian, dtype=np.float64),
-        dim,
-        result.conditioning.length_scale,
-        weak_ratio=th.weak_ratio,
-    )
+    cond = result.conditioning
+    if not isinstance(cond, Conditioning) or cond.weak_ratio != th.weak_ratio:
+        cond = conditioning(
+            np.asarray(result.hessian, dtype=np.float64),
+            dim,
+            result.conditioning.length_scale,
+            weak_ratio=th.weak_ratio,
+        )
     report = QualityReport(
         overlap=overlap,
         gate=gate,
