@@ -32,7 +32,7 @@ import numpy as np
 from . import _core
 from ._validate import FloatArray
 from ._validate import frozen as _frozen
-from .quality import WeakDirection, describe_direction
+from .quality import WeakDirection, describe_direction, unit_directions
 
 #: Floor of the weak-direction threshold (a mean squared constraint per correspondence).
 DEFAULT_MIN_CONSTRAINT = 0.03
@@ -158,9 +158,11 @@ def analyse_degeneracy(
     top = max(float(vals[-1]), 1e-300)
     length = float(np.sqrt(np.mean(np.asarray(levers) ** 2)))
 
+    # Back to metres / radians, unit length in metres-equivalent.
+    units = unit_directions(vecs, s_inv, norm_scale=s_inv)
+
     def direction(i: int) -> WeakDirection:
-        v = vecs[:, i] * s_inv  # back to metres / radians
-        v = v / np.linalg.norm(v / s_inv)  # unit length in metres-equivalent
+        v = units[:, i]
         return WeakDirection(
             vector=_frozen(v),
             ratio=float(vals[i] / top),

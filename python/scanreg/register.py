@@ -61,7 +61,7 @@ from .quality import (
 from .robust import check_kernel
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose, pose_class
-from .verdict import QualityReport, Verdict, VerdictThresholds, assess
+from .verdict import QualityReport, Verdict, VerdictThresholds, _assess_checked
 
 Method = Literal["point_to_point", "point_to_plane", "point_to_line", "gicp"]
 Optimizer = Literal["gauss_newton", "levenberg_marquardt"]
@@ -74,6 +74,7 @@ CovarianceKind = Literal["calibrated", "hessian", "censi", "block"]
 METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "point_to_line", "gicp")
 COVARIANCE_KINDS: tuple[str, ...] = ("calibrated", "hessian", "censi", "block")
 OPTIMIZERS: tuple[str, ...] = ("gauss_newton", "levenberg_marquardt")
+_DEFAULT_THRESHOLDS = VerdictThresholds()
 
 
 def _positive_float(value: Any, name: str, *, allow_inf: bool = False) -> float:
@@ -603,9 +604,8 @@ def register(
         projector0 = as_matrix(step_projector, "step_projector", (dof, dof))
     out = run(projector0)
     ana, deg, sigma2_point, normal_var = analyse(out)
-    weak_projector = deg.weak_projector()
     if s.degeneracy_aware and deg.degenerate and len(out.correspondences):
-        out = run(np.ascontiguousarray(np.eye(dof) - weak_projector))
+        out = run(np.ascontiguousarray(np.eye(dof) - deg.weak_projector()))
         ana, _, sigma2_point, normal_var = analyse(out)
 
     t0 = time.perf_counter()
@@ -635,9 +635,26 @@ def register(
     )
     cond = conditioning(hessian, dim, _length_scale(src))
     t_post = time.perf_counter() - t0
+    t_total = time.perf_counter() - t_start  # the verdict's measurements are not counted
 
     stop: StopReason = out.stop_reason
-    result = RegistrationResult(
+    th = _DEFAULT_THRESHOLDS if thresholds is None else thresholds
+    # The verdict reads the same eigen-analysis unless it asks for another weak ratio.
+    checked = _assess_checked(
+        pose,
+        src,
+        prepared,
+        start=pose0,
+        gate=float(s.max_correspondence_distance) if th.overlap_gate is None else th.overlap_gate,
+        thresholds=th,
+        conditioning=cond
+        if th.weak_ratio == cond.weak_ratio
+        else conditioning(hessian, dim, cond.length_scale, weak_ratio=th.weak_ratio),
+        converged=stop == "converged",
+        stop_reason=str(stop),
+        degeneracy=deg,
+    )
+    return RegistrationResult(
         pose=pose,
         method=method_eff,
         kernel=s.kernel,
@@ -662,14 +679,14 @@ def register(
             iterations=tuple(float(x) for x in out.iteration_seconds),
             final_evaluation=float(out.final_evaluation_seconds),
             post_processing=t_post,
-            total=time.perf_counter() - t_start,
+            total=t_total,
         ),
         settings=s,
         covariances=estimates,
         degeneracy=deg,
+        quality=checked.report,
+        verdict=checked.verdict,
     )
-    checked = assess(result, src, prepared, init=pose0, thresholds=thresholds)
-    return dataclasses.replace(result, quality=checked.report, verdict=checked.verdict)
 
 
 def _prior(init_covariance: Any, dof: int, dim: int, gate: float, levers: FloatArray) -> FloatArray:

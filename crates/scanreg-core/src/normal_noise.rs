@@ -5,14 +5,12 @@
 
 use crate::error::{Error, Result};
 use crate::knn::KdTree;
+use crate::reduce::SEQUENTIAL_MAX;
 use crate::symeig::{sym2, sym3};
 use rayon::prelude::*;
 
 /// A normal shorter than this (squared) marks a point without one.
 const VALID_SQ: f64 = 0.25;
-
-/// Below this many queries the work stays on the calling thread: waking the pool costs more.
-const PARALLEL_MIN: usize = 4096;
 
 /// At most this many target points are sampled by [`target_normal_noise`].
 const TARGET_SAMPLE: usize = 2000;
@@ -136,7 +134,7 @@ pub fn sampled_normals(
     let step = (n / max_points.max(1)).max(1);
     let idx: Vec<usize> = (0..n).step_by(step).collect();
     let normal = |buf: &mut Vec<(u32, f64)>, &i: &usize| pca_normal(&tree, tree.point(i), k, buf);
-    let per_point: Vec<[f64; 3]> = if idx.len() < PARALLEL_MIN {
+    let per_point: Vec<[f64; 3]> = if idx.len() <= SEQUENTIAL_MAX {
         let mut buf = Vec::with_capacity(k + 1);
         idx.iter().map(|i| normal(&mut buf, i)).collect()
     } else {

@@ -7,10 +7,8 @@ use crate::error::{Error, Result};
 use crate::icp::NeighborSearch;
 use crate::normal_noise::median_sorted;
 use crate::points::split_pose;
+use crate::reduce::SEQUENTIAL_MAX;
 use rayon::prelude::*;
-
-/// Below this many points the search stays on the calling thread: waking the pool costs more.
-const PARALLEL_MIN: usize = 4096;
 
 /// Distances (not squared) to the nearest target point, over the source points that have one
 /// within the gate; every statistic is `NaN` when none has.
@@ -49,7 +47,7 @@ pub fn overlap(
             .nearest_within(&q[..dim], max_sq)
             .map(|(_, d2)| d2.sqrt())
     };
-    let mut found: Vec<f64> = if source.len() / dim < PARALLEL_MIN {
+    let mut found: Vec<f64> = if source.len() / dim <= SEQUENTIAL_MAX {
         source.chunks_exact(dim).filter_map(distance).collect()
     } else {
         source.par_chunks_exact(dim).filter_map(distance).collect()

@@ -1,12 +1,14 @@
 //! Binding of `scanreg_core::censi`: the per-point sums behind Censi's closed-form covariance,
 //! the block-score sandwich and the plane information, at one pose.
 
-use crate::convert::{c_slice, core_err, covariances, points_dim, pose, square};
+use crate::convert::{
+    c_slice, core_err, covariances, in_pool_unless_small, points_dim, pose, square,
+};
 use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use scanreg_core::censi::{self, Input, Options, NONE};
-use scanreg_core::icp::{in_pool, Method};
+use scanreg_core::icp::Method;
 use scanreg_core::Kernel;
 
 #[pyclass(frozen, module = "scanreg._core")]
@@ -98,7 +100,10 @@ fn censi_analysis(
         block_size,
     };
     let out = py
-        .detach(|| in_pool(num_threads, || censi::analyse(&input, pm, dim, &opts)).and_then(|r| r))
+        .detach(|| {
+            in_pool_unless_small(n, num_threads, || censi::analyse(&input, pm, dim, &opts))
+                .and_then(|r| r)
+        })
         .map_err(core_err)?;
     let dof = if dim == 2 { 3 } else { 6 };
     Ok(CensiAnalysis {

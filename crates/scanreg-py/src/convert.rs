@@ -6,7 +6,8 @@ use numpy::{Element, IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use scanreg_core::icp::NeighborSearch;
+use scanreg_core::icp::{in_pool, NeighborSearch};
+use scanreg_core::reduce::SEQUENTIAL_MAX;
 use scanreg_core::voxel_map::VoxelMap;
 use std::sync::RwLockReadGuard;
 
@@ -130,4 +131,19 @@ pub fn target_search<'a>(target: &'a Bound<'_, PyAny>) -> PyResult<TargetSearch<
         "target: expected a KdTree or LocalMap, got {}",
         target.get_type().name()?
     )))
+}
+
+/// Run `f` on a pool of `num_threads` threads (`icp::in_pool`), or on the calling thread for
+/// an input of `n <= SEQUENTIAL_MAX` points: the core's loops run sequentially there anyway
+/// (same chunks, same result), and handing the call to a pool thread cost more than the work
+/// on a 2D scan.
+pub fn in_pool_unless_small<T: Send>(
+    n: usize,
+    num_threads: Option<usize>,
+    f: impl FnOnce() -> T + Send,
+) -> scanreg_core::Result<T> {
+    if n <= SEQUENTIAL_MAX && num_threads != Some(0) {
+        return Ok(f());
+    }
+    in_pool(num_threads, f)
 }

@@ -1,12 +1,13 @@
 //! Binding of `scanreg_core::overlap` and `scanreg_core::normal_noise`: the measurements behind
 //! a registration's verdict (overlap) and its covariance and degeneracy threshold (normal noise).
 
-use crate::convert::{c_slice, core_err, points, points_dim, pose, target_search};
+use crate::convert::{
+    c_slice, core_err, in_pool_unless_small, points, points_dim, pose, target_search,
+};
 use crate::knn::KdTree;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use scanreg_core::icp::in_pool;
 use scanreg_core::knn::check_max_distance;
 use scanreg_core::{normal_noise, overlap};
 
@@ -29,7 +30,11 @@ fn overlap_statistics(
     let pm = pose(&pose_matrix, "pose_matrix", dim)?;
     let max_sq = check_max_distance("max_distance", max_distance).map_err(core_err)?;
     let o = py
-        .detach(|| in_pool(num_threads, || overlap::overlap(search, src, pm, max_sq)))
+        .detach(|| {
+            in_pool_unless_small(src.len() / dim, num_threads, || {
+                overlap::overlap(search, src, pm, max_sq)
+            })
+        })
         .and_then(|r| r)
         .map_err(core_err)?;
     Ok((o.num_found, o.mean, o.median, o.rmse, o.trimmed_rmse))

@@ -2,7 +2,8 @@
 //! the GIL released for the whole loop, on a pool of `num_threads` threads.
 
 use crate::convert::{
-    c_slice, core_err, covariances, points_dim, pose, square, target_search, TargetSearch,
+    c_slice, core_err, covariances, in_pool_unless_small, points_dim, pose, square, target_search,
+    TargetSearch,
 };
 use numpy::PyUntypedArrayMethods;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyReadonlyArray3};
@@ -150,7 +151,7 @@ fn register_icp(
     };
     let out = py
         .detach(|| {
-            icp::in_pool(num_threads, || {
+            in_pool_unless_small(src.len() / dim, num_threads, || {
                 if iterate {
                     icp::register(&src_in, &tgt_in, init, &settings)
                 } else {
