@@ -39,6 +39,7 @@ import numpy as np
 from . import _core
 from ._validate import FloatArray, as_matrix, as_points
 from ._validate import frozen as _frozen
+from ._validate import readonly as _readonly
 from .degeneracy import (
     Degeneracy,
     analyse_degeneracy,
@@ -50,8 +51,8 @@ from .local_map import LocalMap
 from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
 from .quality import (
     Conditioning,
-    block_covariance,
-    censi_covariance,
+    block_from_inverse,
+    censi_from_inverse,
     conditioning,
     covariance_upper_bound,
     information_from_covariance,
@@ -74,7 +75,6 @@ CovarianceKind = Literal["calibrated", "hessian", "censi", "block"]
 METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "point_to_line", "gicp")
 COVARIANCE_KINDS: tuple[str, ...] = ("calibrated", "hessian", "censi", "block")
 OPTIMIZERS: tuple[str, ...] = ("gauss_newton", "levenberg_marquardt")
-_DEFAULT_THRESHOLDS = VerdictThresholds()
 
 
 def _positive_float(value: Any, name: str, *, allow_inf: bool = False) -> float:
@@ -175,6 +175,10 @@ class RegistrationSettings:
             raise TypeError(
                 f"degeneracy_aware: expected a bool, got {type(self.degeneracy_aware).__name__}"
             )
+
+
+_DEFAULT_SETTINGS = RegistrationSettings()
+_DEFAULT_THRESHOLDS = VerdictThresholds()
 
 
 @dataclass(frozen=True)
@@ -354,6 +358,17 @@ def _prepared_target(
     return prepare(points, normals=True, covariances=want_covs, k=k)
 
 
+def _pose_from_core(matrix: FloatArray, dim: int) -> SE2 | SE3:
+    """The core's pose, its rotation projected onto SO(D) as ``from_matrix`` does (the same
+    SVD), without re-validating what the core built (finite, homogeneous, not a reflection)."""
+    r = matrix[:dim, :dim]
+    err = float(np.abs(r.T @ r - np.eye(dim)).max())
+    if err > 1e-6:  # a core bug, never the user's input
+        raise ValueError(f"pose: not orthonormal (max |RᵀR - I| = {err:.2e})")
+    u, _, vt = np.linalg.svd(r)
+    return pose_class(dim)._unchecked(u @ vt, matrix[:dim, dim])
+
+
 def _length_scale(points: FloatArray) -> float:
     """RMS distance of the points from their centroid (the conditioning's rotation lever)."""
     centred = points - points.mean(axis=0)
@@ -416,7 +431,7 @@ def register(
     """
     t_start = time.perf_counter()
     source_attributes = source_covariances
-    base = settings if settings is not None else RegistrationSettings()
+    base = settings if settings is not None else _DEFAULT_SETTINGS
     if not isinstance(base, RegistrationSettings):
         raise TypeError(f"settings: expected RegistrationSettings, got {type(base).__name__}")
     if overrides:
@@ -609,8 +624,8 @@ def register(
         ana, _, sigma2_point, normal_var = analyse(out)
 
     t0 = time.perf_counter()
-    pose = pose_class(dim).from_matrix(out.pose, atol=1e-6)
-    hessian = np.array(out.hessian)
+    pose = _pose_from_core(out.pose, dim)
+    hessian = _readonly(np.array(out.hessian))
     n_corr = int(out.num_correspondences)
     m = components * n_corr
     try:
@@ -667,11 +682,11 @@ def register(
         fitness=n_corr / len(src),
         inlier_rmse=math.sqrt(out.sum_squared_distances / n_corr) if n_corr else math.nan,
         cost=float(out.cost),
-        hessian=_frozen(hessian),
+        hessian=hessian,
         gradient=_frozen(out.gradient),
         sigma2=sigma2,
-        covariance=_frozen(chosen),
-        information=_frozen(info),
+        covariance=chosen,
+        information=_readonly(info),
         conditioning=cond,
         timing=RegistrationTiming(
             target_preparation=t_target,
@@ -738,8 +753,9 @@ def _estimates(
     meat = point_variance * (np.array(ana.source_meat) + np.array(ana.target_meat))
     meat = meat + normal_variance * np.array(ana.normal_meat)
     try:
-        censi = censi_covariance(h, meat)
-        blk = block_covariance(h, np.array(ana.block_meat), int(ana.num_blocks))
+        h_inv = np.linalg.inv(h)
+        censi = censi_from_inverse(h_inv, meat)
+        blk = block_from_inverse(h_inv, np.array(ana.block_meat), int(ana.num_blocks))
         if not (np.isfinite(censi).all() and np.isfinite(blk).all()):
             raise np.linalg.LinAlgError("non-finite covariance")
         calibrated = covariance_upper_bound(censi, blk)
@@ -748,10 +764,10 @@ def _estimates(
     if deg.degenerate and np.isfinite(calibrated).all():
         calibrated = _with_prior_along_weak(calibrated, deg, prior, aware)
     return CovarianceEstimates(
-        hessian=_frozen(hessian_cov),
-        censi=_frozen(censi),
-        block=_frozen(blk),
-        calibrated=_frozen(calibrated),
+        hessian=_readonly(hessian_cov),
+        censi=_readonly(censi),
+        block=_readonly(blk),
+        calibrated=_readonly(calibrated),
         point_variance=float(point_variance),
         normal_variance=float(normal_variance),
         block_size=float(block),
