@@ -1,5 +1,6 @@
 //! Binding of the local registration loop (`scanreg_core::icp`): one call per registration,
-//! the GIL released for the whole loop, on a pool of `num_threads` threads.
+//! the GIL released for the whole loop, on a pool of `num_threads` threads (a source of at most
+//! `SEQUENTIAL_MAX` points on the calling thread, where the loop is sequential anyway).
 
 use crate::convert::{
     c_slice, core_err, covariances, in_pool_unless_small, points_dim, pose, square, target_search,
