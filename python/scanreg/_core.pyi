@@ -307,6 +307,27 @@ def censi_analysis(
     num_threads: int | None = None,
 ) -> CensiAnalysis: ...
 
+# --- overlap and normal noise (crates/scanreg-py/src/measure.rs) ---
+
+def overlap_statistics(
+    target: KdTree | LocalMap,
+    source: NDArray[np.float64],
+    pose_matrix: NDArray[np.float64],
+    max_distance: float,
+    num_threads: int | None = None,
+) -> tuple[int, float, float, float, float]: ...
+def target_normal_noise(tree: KdTree, normals: NDArray[np.float64]) -> tuple[float, float]: ...
+def sampled_normals(
+    points_array: NDArray[np.float64], k: int, max_points: int
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]: ...
+def correspondence_normal_noise(
+    sample: NDArray[np.int64],
+    source_normals: NDArray[np.float64],
+    target_normals: NDArray[np.float64],
+    rotation: NDArray[np.float64],
+    correspondences: NDArray[np.int64],
+) -> float: ...
+
 # --- correlative scan matching (crates/scanreg-py/src/correlative.rs) ---
 
 @final

@@ -32,7 +32,7 @@ import numpy as np
 from . import _core
 from ._validate import FloatArray
 from ._validate import frozen as _frozen
-from .quality import WeakDirection, describe_direction
+from .quality import WeakDirection, describe_direction, unit_directions
 
 #: Floor of the weak-direction threshold (a mean squared constraint per correspondence).
 DEFAULT_MIN_CONSTRAINT = 0.03
@@ -121,29 +121,18 @@ def rotation_levers(points: FloatArray, dim: int) -> FloatArray:
 
 
 def normal_noise(
-    target_points: FloatArray, normals: FloatArray, index: object
+    target_points: FloatArray, normals: FloatArray, index: _core.KdTree
 ) -> tuple[float, float]:
     """``(ε̂², ε̃²)``: half the mean and half the median squared sine between a normal and its
-    nearest neighbour's.
+    nearest neighbour's (``index``: the k-d tree over ``target_points``).
 
     Two independent normal errors of variance ``ε²`` per tangent axis make a squared sine of
     about ``2ε²``; real creases and clutter add to the mean, not to the median. Up to 2000
     target points are sampled (deterministically). ``nan`` without valid normals.
     """
-    nan = (float("nan"), float("nan"))
-    valid = np.flatnonzero(np.einsum("ij,ij->i", normals, normals) > 0.25)
-    if valid.size < 2:
-        return nan
-    sample = valid[:: max(1, valid.size // 2000)]
-    idx, _ = index.knn(np.ascontiguousarray(target_points[sample]), 2)  # type: ignore[attr-defined]
-    j = np.asarray(idx)[:, 1]
-    nj = normals[j]
-    ok = np.einsum("ij,ij->i", nj, nj) > 0.25
-    if not ok.any():
-        return nan
-    cos = np.abs(np.einsum("ij,ij->i", normals[sample][ok], nj[ok]))
-    sin2 = 1.0 - np.minimum(cos, 1.0) ** 2
-    return float(0.5 * np.mean(sin2)), float(0.5 * np.median(sin2))
+    if len(index) != len(target_points) or index.dim != target_points.shape[1]:
+        raise ValueError("index: must be the k-d tree of target_points")
+    return _core.target_normal_noise(index, normals)
 
 
 def analyse_degeneracy(
@@ -169,9 +158,11 @@ def analyse_degeneracy(
     top = max(float(vals[-1]), 1e-300)
     length = float(np.sqrt(np.mean(np.asarray(levers) ** 2)))
 
+    # Back to metres / radians, unit length in metres-equivalent.
+    units = unit_directions(vecs, s_inv, norm_scale=s_inv)
+
     def direction(i: int) -> WeakDirection:
-        v = vecs[:, i] * s_inv  # back to metres / radians
-        v = v / np.linalg.norm(v / s_inv)  # unit length in metres-equivalent
+        v = units[:, i]
         return WeakDirection(
             vector=_frozen(v),
             ratio=float(vals[i] / top),
@@ -197,43 +188,30 @@ def sampled_normals(points: FloatArray, k: int, max_points: int = 1500) -> tuple
     """Unit normals (PCA of the ``k`` nearest neighbours) of at most ``max_points`` evenly
     spaced points of ``points``: ``(indices, normals)``. Enough to *measure* normal noise at a
     fraction of the cost of normals for every point."""
-    n = points.shape[0]
-    idx = np.arange(0, n, max(1, n // max_points))
-    nb, _ = _core.KdTree(points).knn(np.ascontiguousarray(points[idx]), min(k, n))
-    hood = points[np.asarray(nb)]
-    centred = hood - hood.mean(axis=1, keepdims=True)
-    _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", centred, centred))
-    normals: FloatArray = np.ascontiguousarray(vecs[:, :, 0])
-    return idx, normals
+    return _core.sampled_normals(points, k, max_points)
 
 
 def correspondence_normal_noise(
     source_normals: FloatArray,
     target_normals: FloatArray,
     rotation: FloatArray,
-    correspondences: FloatArray,
+    correspondences: Any,
 ) -> float:
     """Variance of a normal's direction per tangent axis (rad²), measured between two scans.
 
     The source normal (rotated into the target frame) and the target normal of each
-    correspondence come from different samplings of the same surface, so their disagreement
-    measures the error of normals *including* sampling effects a single scan cannot see (the
-    ring structure of a spinning LiDAR tilts all neighbouring normals alike). Each normal
-    errs by ``ε²`` per tangent axis, their difference by ``2ε²``: ``ε̂² = mean sin² /
-    (2 (D - 1))`` over the best 90 % (creases and wrong matches dropped). ``nan`` without
-    enough valid pairs.
+    correspondence (``correspondences[i]``: target row of source normal ``i``, -1 for none)
+    come from different samplings of the same surface, so their disagreement measures the
+    error of normals *including* sampling effects a single scan cannot see (the ring
+    structure of a spinning LiDAR tilts all neighbouring normals alike). Each normal errs by
+    ``ε²`` per tangent axis, their difference by ``2ε²``: ``ε̂² = mean sin² / (2 (D - 1))``
+    over the best 90 % (creases and wrong matches dropped). ``nan`` without enough valid pairs.
     """
-    j = np.asarray(correspondences)
-    i = np.flatnonzero(j >= 0)
-    if i.size < 10:
-        return float("nan")
-    ns = source_normals[i] @ np.asarray(rotation).T
-    nt = target_normals[j[i]]
-    ok = (np.einsum("ij,ij->i", ns, ns) > 0.25) & (np.einsum("ij,ij->i", nt, nt) > 0.25)
-    if ok.sum() < 10:
-        return float("nan")
-    cos = np.abs(np.einsum("ij,ij->i", ns[ok], nt[ok]))
-    sin2 = np.sort(1.0 - np.minimum(cos, 1.0) ** 2)
-    kept = sin2[: max(1, int(0.9 * sin2.size))]
-    dim = source_normals.shape[1]
-    return float(np.mean(kept) / (2.0 * (dim - 1)))
+    corr = np.ascontiguousarray(correspondences, dtype=np.int64)
+    return _core.correspondence_normal_noise(
+        np.arange(corr.size, dtype=np.int64),
+        source_normals,
+        target_normals,
+        np.ascontiguousarray(rotation),
+        corr,
+    )

@@ -7,9 +7,12 @@ Covariances are over the right-perturbation tangent ``δ`` of :mod:`scanreg.tran
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ._validate import FloatArray
 from ._validate import frozen as _frozen
@@ -96,35 +99,52 @@ class Conditioning:
         return bool(self.weak_directions)
 
 
-def _fmt(v: FloatArray) -> str:
+def _fmt(v: list[float]) -> str:
     # round first and add 0.0 so that -0.001 prints as 0.00, not -0.00
-    return "(" + ", ".join(f"{round(float(x), 2) + 0.0:.2f}" for x in v) + ")"
+    return "(" + ", ".join(f"{round(x, 2) + 0.0:.2f}" for x in v) + ")"
+
+
+def _norm(v: list[float]) -> float:
+    return math.sqrt(sum(x * x for x in v))
 
 
 def describe_direction(vector: FloatArray, dim: int, length_scale: float) -> str:
     """Name a tangent direction: translation, rotation, or a coupling of both."""
-    d = dim
-    trans = vector[:d]
-    rot = vector[d:]
+    # Plain floats: a handful of numbers, where NumPy's per-call cost would dominate.
+    values = [float(x) for x in vector]
+    trans, rot = values[:dim], values[dim:]
     # Compare in metres: a rotation of φ moves points at the length scale by about L·φ.
-    t_norm = float(np.linalg.norm(trans))
-    r_norm = float(np.linalg.norm(rot)) * length_scale
+    t_norm = _norm(trans)
+    rot_norm = _norm(rot)
+    r_norm = rot_norm * length_scale
     total = max(t_norm + r_norm, 1e-300)
-    sign = 1.0
     lead = trans if t_norm >= r_norm else rot
-    if lead[int(np.argmax(np.abs(lead)))] < 0:
-        sign = -1.0  # report a canonical sign
-    t_txt = f"translation along {_fmt(sign * trans / max(t_norm, 1e-300))}"
+    largest = max(range(len(lead)), key=lambda i: abs(lead[i]))  # the first of equals
+    sign = -1.0 if lead[largest] < 0 else 1.0  # report a canonical sign
+    t_den = max(t_norm, 1e-300)
+    t_txt = f"translation along {_fmt([sign * x / t_den for x in trans])}"
     if dim == 2:
         r_txt = "rotation (θ)"
     else:
-        r_txt = f"rotation about {_fmt(sign * rot / max(float(np.linalg.norm(rot)), 1e-300))}"
+        r_den = max(rot_norm, 1e-300)
+        r_txt = f"rotation about {_fmt([sign * x / r_den for x in rot])}"
     if r_norm / total < 0.1:
         return t_txt
     if t_norm / total < 0.1:
         return r_txt
     first, second = (t_txt, r_txt) if t_norm >= r_norm else (r_txt, t_txt)
     return f"{first} coupled with {second}"
+
+
+def unit_directions(
+    vectors: FloatArray, s_inv: FloatArray, norm_scale: FloatArray | None = None
+) -> FloatArray:
+    """Columns of ``vectors`` (scaled eigenvectors) back in metres / radians (``× s_inv``),
+    each divided by its norm (of the column ``/ norm_scale`` when given)."""
+    v = vectors * s_inv[:, None]
+    measured = v if norm_scale is None else v / norm_scale[:, None]
+    out: FloatArray = v / np.sqrt(np.sum(measured * measured, axis=0))
+    return out
 
 
 def conditioning(
@@ -146,16 +166,18 @@ def conditioning(
     top = float(vals[-1])
     ratios = vals / top if top > 0 else np.zeros_like(vals)
 
+    units = unit_directions(vecs, s_inv)
+
     def direction(i: int) -> WeakDirection:
-        v = vecs[:, i] * s_inv  # back to metres / radians
-        v = v / np.linalg.norm(v)
+        v = units[:, i]
         return WeakDirection(
             vector=_frozen(v),
             ratio=float(ratios[i]),
             description=describe_direction(v, dim, length),
         )
 
-    weak = tuple(direction(i) for i in range(dof) if ratios[i] < weak_ratio)
+    weakest = direction(0)
+    weak = tuple(weakest if i == 0 else direction(i) for i in range(dof) if ratios[i] < weak_ratio)
     return Conditioning(
         eigenvalues=_frozen(raw_vals),
         eigenvectors=_frozen(raw_vecs),
@@ -163,7 +185,7 @@ def conditioning(
         length_scale=length,
         scaled_eigenvalues=_frozen(vals),
         scaled_condition_number=float(1.0 / ratios[0]) if ratios[0] > 0 else float("inf"),
-        weakest=direction(0),
+        weakest=weakest,
         weak_directions=weak,
         weak_ratio=weak_ratio,
     )
@@ -278,7 +300,12 @@ def censi_covariance(hessian: FloatArray, meat: FloatArray) -> FloatArray:
 
     Raises ``numpy.linalg.LinAlgError`` when ``hessian`` is singular.
     """
-    h_inv = np.linalg.inv(hessian)
+    return censi_from_inverse(np.linalg.inv(hessian), meat)
+
+
+def censi_from_inverse(hessian_inverse: NDArray[np.floating[Any]], meat: FloatArray) -> FloatArray:
+    """:func:`censi_covariance` from ``H⁻¹`` already at hand (shared with the block one)."""
+    h_inv = hessian_inverse
     cov = h_inv @ meat @ h_inv
     out: FloatArray = 0.5 * (cov + cov.T)
     return out
@@ -292,7 +319,14 @@ def block_covariance(hessian: FloatArray, block_meat: FloatArray, num_blocks: in
     (Liang & Zeger 1986; Cameron & Miller 2015, §II.C). Raises ``numpy.linalg.LinAlgError``
     when ``hessian`` is singular.
     """
-    h_inv = np.linalg.inv(hessian)
+    return block_from_inverse(np.linalg.inv(hessian), block_meat, num_blocks)
+
+
+def block_from_inverse(
+    hessian_inverse: NDArray[np.floating[Any]], block_meat: FloatArray, num_blocks: int
+) -> FloatArray:
+    """:func:`block_covariance` from ``H⁻¹`` already at hand (shared with Censi's)."""
+    h_inv = hessian_inverse
     g = max(int(num_blocks), 2)
     cov = (g / (g - 1.0)) * h_inv @ block_meat @ h_inv
     out: FloatArray = 0.5 * (cov + cov.T)

@@ -39,11 +39,11 @@ import numpy as np
 from . import _core
 from ._validate import FloatArray, as_matrix, as_points
 from ._validate import frozen as _frozen
+from ._validate import readonly as _readonly
 from .degeneracy import (
     Degeneracy,
     analyse_degeneracy,
     correspondence_normal_noise,
-    normal_noise,
     rotation_levers,
     sampled_normals,
 )
@@ -51,8 +51,8 @@ from .local_map import LocalMap
 from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
 from .quality import (
     Conditioning,
-    block_covariance,
-    censi_covariance,
+    block_from_inverse,
+    censi_from_inverse,
     conditioning,
     covariance_upper_bound,
     information_from_covariance,
@@ -62,7 +62,7 @@ from .quality import (
 from .robust import check_kernel
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose, pose_class
-from .verdict import QualityReport, Verdict, VerdictThresholds, assess
+from .verdict import QualityReport, Verdict, VerdictThresholds, _assess_checked
 
 Method = Literal["point_to_point", "point_to_plane", "point_to_line", "gicp"]
 Optimizer = Literal["gauss_newton", "levenberg_marquardt"]
@@ -175,6 +175,10 @@ class RegistrationSettings:
             raise TypeError(
                 f"degeneracy_aware: expected a bool, got {type(self.degeneracy_aware).__name__}"
             )
+
+
+_DEFAULT_SETTINGS = RegistrationSettings()
+_DEFAULT_THRESHOLDS = VerdictThresholds()
 
 
 @dataclass(frozen=True)
@@ -354,6 +358,17 @@ def _prepared_target(
     return prepare(points, normals=True, covariances=want_covs, k=k)
 
 
+def _pose_from_core(matrix: FloatArray, dim: int) -> SE2 | SE3:
+    """The core's pose, its rotation projected onto SO(D) as ``from_matrix`` does (the same
+    SVD), without re-validating what the core built (finite, homogeneous, not a reflection)."""
+    r = matrix[:dim, :dim]
+    err = float(np.abs(r.T @ r - np.eye(dim)).max())
+    if err > 1e-6:  # a core bug, never the user's input
+        raise ValueError(f"pose: not orthonormal (max |RᵀR - I| = {err:.2e})")
+    u, _, vt = np.linalg.svd(r)
+    return pose_class(dim)._unchecked(u @ vt, matrix[:dim, dim])
+
+
 def _length_scale(points: FloatArray) -> float:
     """RMS distance of the points from their centroid (the conditioning's rotation lever)."""
     centred = points - points.mean(axis=0)
@@ -416,7 +431,7 @@ def register(
     """
     t_start = time.perf_counter()
     source_attributes = source_covariances
-    base = settings if settings is not None else RegistrationSettings()
+    base = settings if settings is not None else _DEFAULT_SETTINGS
     if not isinstance(base, RegistrationSettings):
         raise TypeError(f"settings: expected RegistrationSettings, got {type(base).__name__}")
     if overrides:
@@ -519,7 +534,7 @@ def register(
 
     # The target's own normal noise needs its k-d tree: not measured on a map.
     eps2, eps2_typical = (
-        normal_noise(prepared.points, prepared.normals, prepared.index)
+        prepared.normal_noise
         if isinstance(prepared, PreparedTarget) and prepared.normals is not None
         else (math.nan, math.nan)
     )
@@ -556,10 +571,7 @@ def register(
         if source_normals is not None and tn is not None:
             sample, sample_normals = source_normals
             normal_var = correspondence_normal_noise(
-                sample_normals,
-                tn,
-                np.array(out.pose)[:dim, :dim],
-                corr[sample],
+                sample_normals, tn, out.pose[:dim, :dim], corr[sample]
             )
             normal_var = normal_var if math.isfinite(normal_var) else 0.0
         # Unit variances: the meats scale linearly and are combined below, once the point
@@ -607,14 +619,13 @@ def register(
         projector0 = as_matrix(step_projector, "step_projector", (dof, dof))
     out = run(projector0)
     ana, deg, sigma2_point, normal_var = analyse(out)
-    weak_projector = deg.weak_projector()
     if s.degeneracy_aware and deg.degenerate and len(out.correspondences):
-        out = run(np.ascontiguousarray(np.eye(dof) - weak_projector))
+        out = run(np.ascontiguousarray(np.eye(dof) - deg.weak_projector()))
         ana, _, sigma2_point, normal_var = analyse(out)
 
     t0 = time.perf_counter()
-    pose = pose_class(dim).from_matrix(out.pose, atol=1e-6)
-    hessian = np.array(out.hessian)
+    pose = _pose_from_core(out.pose, dim)
+    hessian = _readonly(np.array(out.hessian))
     n_corr = int(out.num_correspondences)
     m = components * n_corr
     try:
@@ -639,9 +650,26 @@ def register(
     )
     cond = conditioning(hessian, dim, _length_scale(src))
     t_post = time.perf_counter() - t0
+    t_total = time.perf_counter() - t_start  # the verdict's measurements are not counted
 
     stop: StopReason = out.stop_reason
-    result = RegistrationResult(
+    th = _DEFAULT_THRESHOLDS if thresholds is None else thresholds
+    # The verdict reads the same eigen-analysis unless it asks for another weak ratio.
+    checked = _assess_checked(
+        pose,
+        src,
+        prepared,
+        start=pose0,
+        gate=float(s.max_correspondence_distance) if th.overlap_gate is None else th.overlap_gate,
+        thresholds=th,
+        conditioning=cond
+        if th.weak_ratio == cond.weak_ratio
+        else conditioning(hessian, dim, cond.length_scale, weak_ratio=th.weak_ratio),
+        converged=stop == "converged",
+        stop_reason=str(stop),
+        degeneracy=deg,
+    )
+    return RegistrationResult(
         pose=pose,
         method=method_eff,
         kernel=s.kernel,
@@ -654,11 +682,11 @@ def register(
         fitness=n_corr / len(src),
         inlier_rmse=math.sqrt(out.sum_squared_distances / n_corr) if n_corr else math.nan,
         cost=float(out.cost),
-        hessian=_frozen(hessian),
+        hessian=hessian,
         gradient=_frozen(out.gradient),
         sigma2=sigma2,
-        covariance=_frozen(chosen),
-        information=_frozen(info),
+        covariance=chosen,
+        information=_readonly(info),
         conditioning=cond,
         timing=RegistrationTiming(
             target_preparation=t_target,
@@ -666,14 +694,14 @@ def register(
             iterations=tuple(float(x) for x in out.iteration_seconds),
             final_evaluation=float(out.final_evaluation_seconds),
             post_processing=t_post,
-            total=time.perf_counter() - t_start,
+            total=t_total,
         ),
         settings=s,
         covariances=estimates,
         degeneracy=deg,
+        quality=checked.report,
+        verdict=checked.verdict,
     )
-    checked = assess(result, src, prepared, init=pose0, thresholds=thresholds)
-    return dataclasses.replace(result, quality=checked.report, verdict=checked.verdict)
 
 
 def _prior(init_covariance: Any, dof: int, dim: int, gate: float, levers: FloatArray) -> FloatArray:
@@ -725,8 +753,9 @@ def _estimates(
     meat = point_variance * (np.array(ana.source_meat) + np.array(ana.target_meat))
     meat = meat + normal_variance * np.array(ana.normal_meat)
     try:
-        censi = censi_covariance(h, meat)
-        blk = block_covariance(h, np.array(ana.block_meat), int(ana.num_blocks))
+        h_inv = np.linalg.inv(h)
+        censi = censi_from_inverse(h_inv, meat)
+        blk = block_from_inverse(h_inv, np.array(ana.block_meat), int(ana.num_blocks))
         if not (np.isfinite(censi).all() and np.isfinite(blk).all()):
             raise np.linalg.LinAlgError("non-finite covariance")
         calibrated = covariance_upper_bound(censi, blk)
@@ -735,10 +764,10 @@ def _estimates(
     if deg.degenerate and np.isfinite(calibrated).all():
         calibrated = _with_prior_along_weak(calibrated, deg, prior, aware)
     return CovarianceEstimates(
-        hessian=_frozen(hessian_cov),
-        censi=_frozen(censi),
-        block=_frozen(blk),
-        calibrated=_frozen(calibrated),
+        hessian=_readonly(hessian_cov),
+        censi=_readonly(censi),
+        block=_readonly(blk),
+        calibrated=_readonly(calibrated),
         point_variance=float(point_variance),
         normal_variance=float(normal_variance),
         block_size=float(block),

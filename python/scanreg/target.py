@@ -7,6 +7,7 @@ target of many registrations from different initial guesses); the result is immu
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -17,6 +18,7 @@ from numpy.typing import NDArray
 from . import _core
 from ._validate import FloatArray, as_points
 from ._validate import readonly as _readonly
+from .degeneracy import normal_noise
 from .preprocess import (
     DEFAULT_K,
     BoolArray,
@@ -114,6 +116,14 @@ class PreparedTarget:
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
+
+    @functools.cached_property
+    def normal_noise(self) -> tuple[float, float]:
+        """``(ε̂², ε̃²)`` of the normals (:func:`scanreg.degeneracy.normal_noise`), measured on
+        first use and kept: every registration against this target reads it. Needs normals."""
+        if self.normals is None:
+            raise ValueError("normal_noise: this target has no normals")
+        return normal_noise(self.points, self.normals, self.index)
 
     def nearest(self, query_points: FloatArray, max_distance: float = math.inf) -> Nearest:
         """Nearest target point of each query point within ``max_distance`` (not squared;

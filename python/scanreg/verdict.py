@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import as_points
+from . import _core
+from ._validate import FloatArray, as_points
 from .degeneracy import Degeneracy
 from .local_map import LocalMap
 from .quality import DEFAULT_WEAK_RATIO, Conditioning, conditioning
@@ -150,44 +151,66 @@ def assess(
     if gate is None:
         gate = float(result.settings.max_correspondence_distance)
     start = type(pose).identity() if init is None else as_pose(init, "init", dim)
-
-    nearest = tgt.nearest(pose.apply(src), gate)
-    found = nearest.found
-    dist = np.sqrt(nearest.squared_distances[found])
-    overlap = float(found.mean())
-    if dist.size:
-        trimmed = np.sort(dist)[: max(1, math.ceil(0.9 * dist.size))]
-        stats = (
-            float(dist.mean()),
-            float(np.median(dist)),
-            float(np.sqrt(np.mean(dist**2))),
-            float(np.sqrt(np.mean(trimmed**2))),
+    cond = result.conditioning
+    if not isinstance(cond, Conditioning) or cond.weak_ratio != th.weak_ratio:
+        cond = conditioning(
+            np.asarray(result.hessian, dtype=np.float64),
+            dim,
+            result.conditioning.length_scale,
+            weak_ratio=th.weak_ratio,
         )
-    else:
-        stats = (math.nan,) * 4
-    moved = start.inverse() @ pose  # type: ignore[operator]
-    cond = conditioning(
-        np.asarray(result.hessian, dtype=np.float64),
-        dim,
-        result.conditioning.length_scale,
-        weak_ratio=th.weak_ratio,
-    )
-    report = QualityReport(
-        overlap=overlap,
+    return _assess_checked(
+        pose,
+        src,
+        tgt,
+        start=start,
         gate=gate,
-        num_source_points=int(src.shape[0]),
+        thresholds=th,
+        conditioning=cond,
+        converged=bool(result.converged),
+        stop_reason=str(result.stop_reason),
+        degeneracy=getattr(result, "degeneracy", None),
+    )
+
+
+def _assess_checked(
+    pose: SE2 | SE3,
+    source: FloatArray,
+    target: PreparedTarget | LocalMap,
+    *,
+    start: SE2 | SE3,
+    gate: float,
+    thresholds: VerdictThresholds,
+    conditioning: Conditioning,
+    converged: bool,
+    stop_reason: str,
+    degeneracy: Degeneracy | None,
+) -> Assessment:
+    """:func:`assess` on inputs already checked (``source`` validated, ``target`` prepared
+    and of the pose's dimension, ``conditioning`` at ``thresholds.weak_ratio``): what
+    :func:`scanreg.register` calls, with no second validation of its own arrays."""
+    is_map = isinstance(target, LocalMap)
+    if is_map and not math.isfinite(gate):
+        raise ValueError(f"max_distance: must be finite and >= 0, got {gate}")
+    index = target.native if isinstance(target, LocalMap) else target.index
+    num_found, *stats = _core.overlap_statistics(index, source, pose.as_matrix(), gate)
+    moved = start.inverse() @ pose  # type: ignore[operator]
+    report = QualityReport(
+        overlap=num_found / source.shape[0],
+        gate=gate,
+        num_source_points=int(source.shape[0]),
         residual_mean=stats[0],
         residual_median=stats[1],
         residual_rmse=stats[2],
         residual_trimmed_rmse=stats[3],
         translation_from_init=float(np.linalg.norm(moved.translation)),
-        rotation_from_init=float(moved.angle) if dim == 3 else abs(float(moved.angle)),
-        converged=bool(result.converged),
-        stop_reason=str(result.stop_reason),
-        conditioning=cond,
-        degeneracy=getattr(result, "degeneracy", None),
+        rotation_from_init=float(moved.angle) if pose.DIM == 3 else abs(float(moved.angle)),
+        converged=converged,
+        stop_reason=stop_reason,
+        conditioning=conditioning,
+        degeneracy=degeneracy,
     )
-    return Assessment(report=report, verdict=judge(report, th))
+    return Assessment(report=report, verdict=judge(report, thresholds))
 
 
 def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:

@@ -34,6 +34,7 @@ use crate::error::{Error, Result};
 use crate::icp::Method;
 use crate::kernel::Kernel;
 use crate::points::{check_points, split_pose};
+use crate::reduce::SEQUENTIAL_MAX;
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
@@ -274,18 +275,23 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
     let r: SMatrix<f64, D, D> = SMatrix::from_fn(|i, j| pose[i * m + j]);
     let t: SVector<f64, D> = SVector::from_fn(|i, _| pose[i * m + D]);
     let n = input.correspondences.len();
-    // Per-point terms in parallel, collected in order (deterministic).
-    let terms: Vec<Option<(u32, Term<D, N>)>> = (0..n)
-        .into_par_iter()
-        .with_min_len(1024)
-        .map(|i| {
-            let j = input.correspondences[i];
-            if j == NONE {
-                return None;
-            }
-            term::<G, D, N>(input, opts, &r, &t, i, j as usize).map(|tm| (j, tm))
-        })
-        .collect();
+    // Per-point terms (in parallel for large inputs), collected in order (deterministic).
+    let per_point = |i: usize| {
+        let j = input.correspondences[i];
+        if j == NONE {
+            return None;
+        }
+        term::<G, D, N>(input, opts, &r, &t, i, j as usize).map(|tm| (j, tm))
+    };
+    let terms: Vec<Option<(u32, Term<D, N>)>> = if n <= SEQUENTIAL_MAX {
+        (0..n).map(per_point).collect()
+    } else {
+        (0..n)
+            .into_par_iter()
+            .with_min_len(1024)
+            .map(per_point)
+            .collect()
+    };
     let mut h = SMatrix::<f64, N, N>::zeros();
     let mut m_src = SMatrix::<f64, N, N>::zeros();
     let mut m_tgt = SMatrix::<f64, N, N>::zeros();

@@ -13,6 +13,7 @@
 
 use crate::error::{Error, Result};
 use crate::knn::{check_k, KdTree};
+use crate::reduce::SEQUENTIAL_MAX;
 use crate::symeig;
 use rayon::prelude::*;
 
@@ -136,91 +137,95 @@ pub fn local_geometry(
     // Points in the tree's leaf order: consecutive queries share most of their traversal, which
     // keeps it in cache. Each result is computed independently, then put back in input order.
     let order = tree.leaf_order();
-    let per_leaf: Vec<([f64; 3], [f64; 9], bool)> = order
-        .par_iter()
-        .map_init(
-            || Vec::with_capacity(k + 1),
-            |buf, &i| {
-                let i = i as usize;
-                buf.clear();
-                let p = tree.point(i);
-                tree.knn_into(p, k, f64::INFINITY, buf);
-                // Two passes: mean, then centred second moment (no cancellation far from 0).
-                let mut mean = [0.0; 3];
-                for &(j, _) in buf.iter() {
-                    let q = tree.point(j as usize);
-                    for c in 0..dim {
-                        mean[c] += q[c];
-                    }
+    let geometry = |buf: &mut Vec<(u32, f64)>, &i: &u32| {
+        let i = i as usize;
+        buf.clear();
+        let p = tree.point(i);
+        tree.knn_into(p, k, f64::INFINITY, buf);
+        // Two passes: mean, then centred second moment (no cancellation far from 0).
+        let mut mean = [0.0; 3];
+        for &(j, _) in buf.iter() {
+            let q = tree.point(j as usize);
+            for c in 0..dim {
+                mean[c] += q[c];
+            }
+        }
+        let m = buf.len() as f64;
+        for v in mean.iter_mut() {
+            *v /= m;
+        }
+        let mut cov = [0.0; 9];
+        for &(j, _) in buf.iter() {
+            let q = tree.point(j as usize);
+            let mut d = [0.0; 3];
+            for c in 0..dim {
+                d[c] = q[c] - mean[c];
+            }
+            for r in 0..dim {
+                for c in r..dim {
+                    cov[r * dim + c] += d[r] * d[c];
                 }
-                let m = buf.len() as f64;
-                for v in mean.iter_mut() {
-                    *v /= m;
-                }
-                let mut cov = [0.0; 9];
-                for &(j, _) in buf.iter() {
-                    let q = tree.point(j as usize);
-                    let mut d = [0.0; 3];
-                    for c in 0..dim {
-                        d[c] = q[c] - mean[c];
-                    }
-                    for r in 0..dim {
-                        for c in r..dim {
-                            cov[r * dim + c] += d[r] * d[c];
-                        }
-                    }
-                }
+            }
+        }
+        for r in 0..dim {
+            for c in r..dim {
+                cov[r * dim + c] /= m;
+                cov[c * dim + r] = cov[r * dim + c];
+            }
+        }
+        let (vals, vecs) = eigen(&cov, dim);
+        let lmax = vals[dim - 1];
+        let valid = lmax > 0.0 && (dim == 2 || vals[1] > DEGENERATE_RATIO * lmax);
+        let mut normal = [0.0; 3];
+        if valid {
+            normal[..dim].copy_from_slice(&vecs[0][..dim]);
+            let facing: f64 = (0..dim).map(|c| normal[c] * (viewpoint[c] - p[c])).sum();
+            if facing < 0.0 {
+                normal.iter_mut().for_each(|v| *v = -*v);
+            }
+        }
+        let mut out = [0.0; 9];
+        match (valid, covariances) {
+            (_, None) => {}
+            (false, Some(_)) => {
                 for r in 0..dim {
-                    for c in r..dim {
-                        cov[r * dim + c] /= m;
-                        cov[c * dim + r] = cov[r * dim + c];
-                    }
+                    out[r * dim + r] = 1.0;
                 }
-                let (vals, vecs) = eigen(&cov, dim);
-                let lmax = vals[dim - 1];
-                let valid = lmax > 0.0 && (dim == 2 || vals[1] > DEGENERATE_RATIO * lmax);
-                let mut normal = [0.0; 3];
-                if valid {
-                    normal[..dim].copy_from_slice(&vecs[0][..dim]);
-                    let facing: f64 = (0..dim).map(|c| normal[c] * (viewpoint[c] - p[c])).sum();
-                    if facing < 0.0 {
-                        normal.iter_mut().for_each(|v| *v = -*v);
+            }
+            (true, Some(reg)) => {
+                let lam: [f64; 3] = match reg {
+                    Regularization::None => vals,
+                    Regularization::Plane(eps) => [eps, 1.0, 1.0],
+                    Regularization::NormalizedMinEig(eps) => {
+                        [vals[0] / lmax, vals[1] / lmax, vals[2] / lmax].map(|l| l.max(eps))
                     }
-                }
-                let mut out = [0.0; 9];
-                match (valid, covariances) {
-                    (_, None) => {}
-                    (false, Some(_)) => {
+                };
+                if matches!(reg, Regularization::None) {
+                    out = cov;
+                } else {
+                    // C = Σ_j λ_j v_j v_jᵀ
+                    for (j, v) in vecs.iter().enumerate().take(dim) {
                         for r in 0..dim {
-                            out[r * dim + r] = 1.0;
-                        }
-                    }
-                    (true, Some(reg)) => {
-                        let lam: [f64; 3] = match reg {
-                            Regularization::None => vals,
-                            Regularization::Plane(eps) => [eps, 1.0, 1.0],
-                            Regularization::NormalizedMinEig(eps) => {
-                                [vals[0] / lmax, vals[1] / lmax, vals[2] / lmax].map(|l| l.max(eps))
-                            }
-                        };
-                        if matches!(reg, Regularization::None) {
-                            out = cov;
-                        } else {
-                            // C = Σ_j λ_j v_j v_jᵀ
-                            for (j, v) in vecs.iter().enumerate().take(dim) {
-                                for r in 0..dim {
-                                    for c in 0..dim {
-                                        out[r * dim + c] += lam[j] * v[r] * v[c];
-                                    }
-                                }
+                            for c in 0..dim {
+                                out[r * dim + c] += lam[j] * v[r] * v[c];
                             }
                         }
                     }
                 }
-                (normal, out, valid)
-            },
-        )
-        .collect();
+            }
+        }
+        (normal, out, valid)
+    };
+    // A small cloud (a 2D scan) stays on the calling thread: waking the pool costs more.
+    let per_leaf: Vec<([f64; 3], [f64; 9], bool)> = if n <= SEQUENTIAL_MAX {
+        let mut buf = Vec::with_capacity(k + 1);
+        order.iter().map(|i| geometry(&mut buf, i)).collect()
+    } else {
+        order
+            .par_iter()
+            .map_init(|| Vec::with_capacity(k + 1), geometry)
+            .collect()
+    };
     let mut per = vec![([0.0; 3], [0.0; 9], false); n];
     for (&i, r) in order.iter().zip(per_leaf) {
         per[i as usize] = r;

@@ -1,13 +1,14 @@
 //! Binding of `scanreg_core::censi`: the per-point sums behind Censi's closed-form covariance,
 //! the block-score sandwich and the plane information, at one pose.
 
-use crate::convert::{c_slice, core_err, points_dim, pose};
-use numpy::{IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
-use numpy::{PyReadonlyArray3, PyUntypedArrayMethods};
+use crate::convert::{
+    c_slice, core_err, covariances, in_pool_unless_small, points_dim, pose, square,
+};
+use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use scanreg_core::censi::{self, Input, Options, NONE};
-use scanreg_core::icp::{in_pool, Method};
+use scanreg_core::icp::Method;
 use scanreg_core::Kernel;
 
 #[pyclass(frozen, module = "scanreg._core")]
@@ -34,26 +35,6 @@ pub struct CensiAnalysis {
     num_plane_correspondences: usize,
     #[pyo3(get)]
     num_correspondences: usize,
-}
-
-fn square(py: Python<'_>, flat: Vec<f64>, n: usize) -> PyResult<Py<PyArray2<f64>>> {
-    Ok(flat.into_pyarray(py).reshape([n, n])?.unbind())
-}
-
-fn covs<'a>(
-    arr: &'a Option<PyReadonlyArray3<'_, f64>>,
-    name: &str,
-    n: usize,
-    dim: usize,
-) -> PyResult<Option<&'a [f64]>> {
-    let Some(a) = arr else { return Ok(None) };
-    let s = a.shape();
-    if s != [n, dim, dim] {
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({n}, {dim}, {dim}), got {s:?}"
-        )));
-    }
-    Ok(Some(c_slice(a, name)?))
 }
 
 #[pyfunction]
@@ -104,10 +85,10 @@ fn censi_analysis(
         .transpose()?;
     let input = Input {
         source: src,
-        source_covariances: covs(&source_covariances, "source_covariances", n, dim)?,
+        source_covariances: covariances(&source_covariances, "source_covariances", n, dim)?,
         target: tgt,
         target_normals: nrm,
-        target_covariances: covs(&target_covariances, "target_covariances", m, dim)?,
+        target_covariances: covariances(&target_covariances, "target_covariances", m, dim)?,
         correspondences: &corr,
     };
     let opts = Options {
@@ -119,7 +100,10 @@ fn censi_analysis(
         block_size,
     };
     let out = py
-        .detach(|| in_pool(num_threads, || censi::analyse(&input, pm, dim, &opts)).and_then(|r| r))
+        .detach(|| {
+            in_pool_unless_small(n, num_threads, || censi::analyse(&input, pm, dim, &opts))
+                .and_then(|r| r)
+        })
         .map_err(core_err)?;
     let dof = if dim == 2 { 3 } else { 6 };
     Ok(CensiAnalysis {

@@ -1,9 +1,15 @@
 //! Array conversion and validation shared by every binding.
 
-use numpy::{Element, PyReadonlyArray};
-use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
-use pyo3::exceptions::PyValueError;
+use crate::knn::KdTree;
+use crate::local_map::LocalMap;
+use numpy::{Element, IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray};
+use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
+use scanreg_core::icp::{in_pool, NeighborSearch};
+use scanreg_core::reduce::SEQUENTIAL_MAX;
+use scanreg_core::voxel_map::VoxelMap;
+use std::sync::RwLockReadGuard;
 
 /// Map a core error to `ValueError` (its message already names the argument).
 pub fn core_err(e: scanreg_core::Error) -> PyErr {
@@ -73,4 +79,71 @@ pub fn pose<'a>(arr: &'a PyReadonlyArray2<'_, f64>, name: &str, dim: usize) -> P
         )));
     }
     c_slice(arr, name)
+}
+
+/// A row-major `n x n` matrix as a numpy array.
+pub fn square(py: Python<'_>, flat: Vec<f64>, n: usize) -> PyResult<Py<PyArray2<f64>>> {
+    Ok(flat.into_pyarray(py).reshape([n, n])?.unbind())
+}
+
+/// Optional `(n, dim, dim)` per-point covariances as a flat slice.
+pub fn covariances<'a>(
+    arr: &'a Option<PyReadonlyArray3<'_, f64>>,
+    name: &str,
+    n: usize,
+    dim: usize,
+) -> PyResult<Option<&'a [f64]>> {
+    let Some(a) = arr else { return Ok(None) };
+    let s = a.shape();
+    if s != [n, dim, dim] {
+        return Err(PyValueError::new_err(format!(
+            "{name}: expected shape ({n}, {dim}, {dim}), got {s:?}"
+        )));
+    }
+    Ok(Some(c_slice(a, name)?))
+}
+
+/// The neighbour search behind a registration target: a `KdTree`, or a `LocalMap` held
+/// read-locked (no update can interleave) for as long as this lives.
+pub enum TargetSearch<'a> {
+    Tree(&'a KdTree),
+    Map(RwLockReadGuard<'a, VoxelMap>),
+}
+
+impl TargetSearch<'_> {
+    pub fn search(&self) -> &dyn NeighborSearch {
+        match self {
+            TargetSearch::Tree(t) => &t.inner,
+            TargetSearch::Map(g) => &**g,
+        }
+    }
+}
+
+/// `target` as a neighbour search; `TypeError` unless it is a `KdTree` or a `LocalMap`.
+pub fn target_search<'a>(target: &'a Bound<'_, PyAny>) -> PyResult<TargetSearch<'a>> {
+    if let Ok(t) = target.cast::<KdTree>() {
+        return Ok(TargetSearch::Tree(t.get()));
+    }
+    if let Ok(m) = target.cast::<LocalMap>() {
+        return Ok(TargetSearch::Map(m.get().read()));
+    }
+    Err(PyTypeError::new_err(format!(
+        "target: expected a KdTree or LocalMap, got {}",
+        target.get_type().name()?
+    )))
+}
+
+/// Run `f` on a pool of `num_threads` threads (`icp::in_pool`), or on the calling thread for
+/// an input of `n <= SEQUENTIAL_MAX` points: the core's loops run sequentially there anyway
+/// (same chunks, same result), and handing the call to a pool thread cost more than the work
+/// on a 2D scan.
+pub fn in_pool_unless_small<T: Send>(
+    n: usize,
+    num_threads: Option<usize>,
+    f: impl FnOnce() -> T + Send,
+) -> scanreg_core::Result<T> {
+    if n <= SEQUENTIAL_MAX && num_threads != Some(0) {
+        return Ok(f());
+    }
+    in_pool(num_threads, f)
 }

@@ -12,6 +12,7 @@ mod deskew;
 mod io;
 pub mod knn;
 mod local_map;
+mod measure;
 mod ndt2d;
 mod paired;
 mod preprocess;
@@ -34,5 +35,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     io::register(m)?;
     register::register(m)?;
     censi::register(m)?;
+    measure::register(m)?;
     Ok(())
 }

@@ -1,13 +1,13 @@
 //! Binding of the local registration loop (`scanreg_core::icp`): one call per registration,
-//! the GIL released for the whole loop, on a pool of `num_threads` threads.
+//! the GIL released for the whole loop, on a pool of `num_threads` threads (a source of at most
+//! `SEQUENTIAL_MAX` points on the calling thread, where the loop is sequential anyway).
 
-use crate::convert::{c_slice, core_err, points_dim, pose};
-use crate::knn::KdTree;
-use crate::local_map::LocalMap;
-use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2, PyReadonlyArray3,
-    PyUntypedArrayMethods,
+use crate::convert::{
+    c_slice, core_err, covariances, in_pool_unless_small, points_dim, pose, square, target_search,
+    TargetSearch,
 };
+use numpy::PyUntypedArrayMethods;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use scanreg_core::icp::{self, Method, Optimizer, Settings, Source, Target};
@@ -47,26 +47,6 @@ pub struct IcpOutcome {
     /// Target index per source point at `pose`, -1 for none.
     #[pyo3(get)]
     correspondences: Py<PyArray1<i64>>,
-}
-
-fn square(py: Python<'_>, flat: Vec<f64>, n: usize) -> PyResult<Py<PyArray2<f64>>> {
-    Ok(flat.into_pyarray(py).reshape([n, n])?.unbind())
-}
-
-fn covs<'a>(
-    arr: &'a Option<PyReadonlyArray3<'_, f64>>,
-    name: &str,
-    n: usize,
-    dim: usize,
-) -> PyResult<Option<&'a [f64]>> {
-    let Some(a) = arr else { return Ok(None) };
-    let s = a.shape();
-    if s != [n, dim, dim] {
-        return Err(PyValueError::new_err(format!(
-            "{name}: expected shape ({n}, {dim}, {dim}), got {s:?}"
-        )));
-    }
-    Ok(Some(c_slice(a, name)?))
 }
 
 fn projector(arr: &Option<PyReadonlyArray2<'_, f64>>, dim: usize) -> PyResult<Option<[f64; 36]>> {
@@ -114,18 +94,11 @@ fn register_icp(
 ) -> PyResult<IcpOutcome> {
     // The target is a k-d tree over a fixed cloud (attributes passed in) or a local map
     // (attributes stored in it, read under its lock for the whole registration).
-    let tree_ref = target.cast::<KdTree>().ok().map(|t| t.get());
-    let map_ref = target.cast::<LocalMap>().ok().map(|m| m.get());
-    let map_guard = map_ref.map(|m| m.read());
-    let search: &dyn icp::NeighborSearch = match (tree_ref, &map_guard) {
-        (Some(t), _) => &t.inner,
-        (None, Some(g)) => &**g,
-        (None, None) => {
-            return Err(pyo3::exceptions::PyTypeError::new_err(format!(
-                "target: expected a KdTree or LocalMap, got {}",
-                target.get_type().name()?
-            )))
-        }
+    let held = target_search(target)?;
+    let search = held.search();
+    let map_guard = match &held {
+        TargetSearch::Map(g) => Some(g),
+        TargetSearch::Tree(_) => None,
     };
     if map_guard.is_some() && (target_normals.is_some() || target_covariances.is_some()) {
         return Err(PyValueError::new_err(
@@ -144,14 +117,14 @@ fn register_icp(
     };
     let tcov = match &map_guard {
         Some(g) => g.covariances(),
-        None => covs(
+        None => covariances(
             &target_covariances,
             "target_covariances",
             search.id_count(),
             dim,
         )?,
     };
-    let scov = covs(
+    let scov = covariances(
         &source_covariances,
         "source_covariances",
         src.len() / dim,
@@ -179,7 +152,7 @@ fn register_icp(
     };
     let out = py
         .detach(|| {
-            icp::in_pool(num_threads, || {
+            in_pool_unless_small(src.len() / dim, num_threads, || {
                 if iterate {
                     icp::register(&src_in, &tgt_in, init, &settings)
                 } else {

@@ -1,0 +1,287 @@
+//! How much surface normals scatter, measured on the data: within one scan (a normal against
+//! its nearest neighbour's) and between two scans (matched normals). These set the degeneracy
+//! threshold and Censi's normal term; the Python side (`scanreg.degeneracy`) documents the
+//! models. One call each instead of a dozen array operations per registration.
+
+use crate::error::{Error, Result};
+use crate::knn::KdTree;
+use crate::reduce::SEQUENTIAL_MAX;
+use crate::symeig::{sym2, sym3};
+use rayon::prelude::*;
+
+/// A normal shorter than this (squared) marks a point without one.
+const VALID_SQ: f64 = 0.25;
+
+/// At most this many target points are sampled by [`target_normal_noise`].
+const TARGET_SAMPLE: usize = 2000;
+
+fn at(data: &[f64], i: usize, dim: usize) -> &[f64] {
+    &data[i * dim..(i + 1) * dim]
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// `1 − cos²` of two unit vectors (`cos` clamped to 1).
+fn sine_squared(a: &[f64], b: &[f64]) -> f64 {
+    let c = dot(a, b).abs().min(1.0);
+    1.0 - c * c
+}
+
+fn mean(values: &[f64]) -> f64 {
+    values.iter().sum::<f64>() / values.len() as f64
+}
+
+/// Median of ascending `sorted` (the mean of the middle two for an even count).
+pub fn median_sorted(sorted: &[f64]) -> f64 {
+    let n = sorted.len();
+    if n % 2 == 1 {
+        sorted[n / 2]
+    } else {
+        (sorted[n / 2 - 1] + sorted[n / 2]) / 2.0
+    }
+}
+
+fn check_normals(normals: &[f64], n: usize, dim: usize) -> Result<()> {
+    if normals.len() != n * dim {
+        return Err(Error::invalid(
+            "normals",
+            format!("expected {n} x {dim} values, got {}", normals.len()),
+        ));
+    }
+    Ok(())
+}
+
+/// `(ε̂², ε̃²)`: half the mean and half the median of `sin²` between each valid normal of the
+/// tree's points and its nearest neighbour's (the second entry of a 2-NN query), over up to
+/// 2000 evenly spaced valid points. `NaN` for both without two valid normals or a valid pair.
+pub fn target_normal_noise(tree: &KdTree, normals: &[f64]) -> Result<(f64, f64)> {
+    let dim = tree.dim();
+    check_normals(normals, tree.len(), dim)?;
+    let nan = (f64::NAN, f64::NAN);
+    let valid: Vec<usize> = (0..tree.len())
+        .filter(|&i| dot(at(normals, i, dim), at(normals, i, dim)) > VALID_SQ)
+        .collect();
+    if valid.len() < 2 {
+        return Ok(nan);
+    }
+    let step = (valid.len() / TARGET_SAMPLE).max(1);
+    let mut buf = Vec::with_capacity(3);
+    let mut sin2 = Vec::with_capacity(valid.len() / step + 1);
+    for &i in valid.iter().step_by(step) {
+        buf.clear();
+        tree.knn_into(tree.point(i), 2, f64::INFINITY, &mut buf);
+        let Some(&(j, _)) = buf.get(1) else { continue };
+        let nj = at(normals, j as usize, dim);
+        if dot(nj, nj) > VALID_SQ {
+            sin2.push(sine_squared(at(normals, i, dim), nj));
+        }
+    }
+    if sin2.is_empty() {
+        return Ok(nan);
+    }
+    let m = mean(&sin2);
+    sin2.sort_by(f64::total_cmp);
+    Ok((0.5 * m, 0.5 * median_sorted(&sin2)))
+}
+
+/// Unit normal (smallest principal axis) of the `k` nearest points of `q`; sign arbitrary.
+fn pca_normal(tree: &KdTree, q: &[f64], k: usize, buf: &mut Vec<(u32, f64)>) -> [f64; 3] {
+    let dim = tree.dim();
+    buf.clear();
+    tree.knn_into(q, k, f64::INFINITY, buf);
+    // Two passes: mean, then centred scatter (no cancellation far from the origin).
+    let mut centre = [0.0; 3];
+    for &(j, _) in buf.iter() {
+        for (c, v) in centre.iter_mut().zip(tree.point(j as usize)) {
+            *c += v;
+        }
+    }
+    let m = buf.len() as f64;
+    centre.iter_mut().for_each(|c| *c /= m);
+    let mut s = [0.0; 9];
+    for &(j, _) in buf.iter() {
+        let p = tree.point(j as usize);
+        for r in 0..dim {
+            for c in 0..dim {
+                s[r * 3 + c] += (p[r] - centre[r]) * (p[c] - centre[c]);
+            }
+        }
+    }
+    if dim == 2 {
+        let v = sym2(s[0], s[1], s[4]).1[0];
+        [v[0], v[1], 0.0]
+    } else {
+        sym3(&s).1[0]
+    }
+}
+
+/// Normals (PCA of the `k` nearest neighbours, `k` clamped to the point count) of at most
+/// `max_points` evenly spaced points: `(indices, normals)`, normals `len(indices) * dim`.
+pub fn sampled_normals(
+    points: &[f64],
+    dim: usize,
+    k: usize,
+    max_points: usize,
+) -> Result<(Vec<usize>, Vec<f64>)> {
+    let tree = KdTree::build(points, dim)?;
+    let n = tree.len();
+    if k == 0 {
+        return Err(Error::invalid("k", "must be >= 1"));
+    }
+    let k = k.min(n);
+    let step = (n / max_points.max(1)).max(1);
+    let idx: Vec<usize> = (0..n).step_by(step).collect();
+    let normal = |buf: &mut Vec<(u32, f64)>, &i: &usize| pca_normal(&tree, tree.point(i), k, buf);
+    let per_point: Vec<[f64; 3]> = if idx.len() <= SEQUENTIAL_MAX {
+        let mut buf = Vec::with_capacity(k + 1);
+        idx.iter().map(|i| normal(&mut buf, i)).collect()
+    } else {
+        idx.par_iter()
+            .map_init(|| Vec::with_capacity(k + 1), normal)
+            .collect()
+    };
+    let normals = per_point.iter().flat_map(|v| v[..dim].to_vec()).collect();
+    Ok((idx, normals))
+}
+
+/// Variance of a normal's direction per tangent axis (rad²) between two scans: over the
+/// sampled source points `sample` (normals `source_normals`, rotated by `rotation`,
+/// row-major `dim x dim`) matched to target `correspondences[sample[i]]` (`< 0`: none),
+/// the mean `sin²` of the best 90 % over `2 (D − 1)`. `NaN` with fewer than 10 valid pairs.
+pub fn correspondence_normal_noise(
+    sample: &[usize],
+    source_normals: &[f64],
+    target_normals: &[f64],
+    rotation: &[f64],
+    correspondences: &[i64],
+    dim: usize,
+) -> Result<f64> {
+    check_normals(source_normals, sample.len(), dim)?;
+    if rotation.len() != dim * dim {
+        return Err(Error::invalid(
+            "rotation",
+            format!("expected {dim} x {dim}"),
+        ));
+    }
+    let targets = target_normals.len() / dim;
+    let mut matched = 0;
+    let mut sin2 = Vec::with_capacity(sample.len());
+    for (s, &i) in sample.iter().enumerate() {
+        let Some(&j) = correspondences.get(i) else {
+            return Err(Error::invalid("sample", format!("index {i} out of range")));
+        };
+        if j < 0 {
+            continue;
+        }
+        let j = j as usize;
+        if j >= targets {
+            return Err(Error::invalid(
+                "correspondences",
+                format!("index {j} out of range"),
+            ));
+        }
+        matched += 1;
+        let ns = at(source_normals, s, dim);
+        let mut rotated = [0.0; 3];
+        for (r, out) in rotated.iter_mut().enumerate().take(dim) {
+            *out = dot(at(rotation, r, dim), ns);
+        }
+        let rotated = &rotated[..dim];
+        let nt = at(target_normals, j, dim);
+        if dot(rotated, rotated) > VALID_SQ && dot(nt, nt) > VALID_SQ {
+            sin2.push(sine_squared(rotated, nt));
+        }
+    }
+    if matched < 10 || sin2.len() < 10 {
+        return Ok(f64::NAN);
+    }
+    sin2.sort_by(f64::total_cmp);
+    let kept = ((0.9 * sin2.len() as f64) as usize).max(1);
+    Ok(mean(&sin2[..kept]) / (2.0 * (dim as f64 - 1.0)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on a line with normals along +y, every other one tilted by `tilt`.
+    fn line(n: usize, tilt: f64) -> (Vec<f64>, Vec<f64>) {
+        let pts = (0..n).flat_map(|i| [i as f64 * 0.1, 0.0]).collect();
+        let nrm = (0..n)
+            .flat_map(|i| {
+                let a = if i % 2 == 0 { tilt } else { 0.0 };
+                [a.sin(), a.cos()]
+            })
+            .collect();
+        (pts, nrm)
+    }
+
+    #[test]
+    fn target_noise_reads_the_tilt() {
+        let (pts, nrm) = line(400, 0.01);
+        let tree = KdTree::build(&pts, 2).unwrap();
+        let (m, med) = target_normal_noise(&tree, &nrm).unwrap();
+        // Every neighbour pair differs by the tilt.
+        let want = 0.5 * 0.01f64.sin().powi(2);
+        assert!(
+            (m - want).abs() < 1e-15 && (med - want).abs() < 1e-15,
+            "{m} {med}"
+        );
+    }
+
+    #[test]
+    fn target_noise_without_valid_normals_is_nan() {
+        let (pts, _) = line(10, 0.0);
+        let tree = KdTree::build(&pts, 2).unwrap();
+        let (m, med) = target_normal_noise(&tree, &[0.0; 20]).unwrap();
+        assert!(m.is_nan() && med.is_nan());
+        assert!(target_normal_noise(&tree, &[0.0; 3]).is_err());
+    }
+
+    #[test]
+    fn sampled_normals_of_a_line_are_perpendicular() {
+        let pts: Vec<f64> = (0..50).flat_map(|i| [i as f64 * 0.1, 2.0]).collect();
+        let (idx, nrm) = sampled_normals(&pts, 2, 5, 20).unwrap();
+        assert_eq!(idx, (0..50).step_by(2).collect::<Vec<_>>());
+        for v in nrm.chunks(2) {
+            assert!(
+                v[0].abs() < 1e-12 && (v[1].abs() - 1.0).abs() < 1e-12,
+                "{v:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn sampled_normals_in_3d_face_off_a_plane() {
+        let pts: Vec<f64> = (0..100)
+            .flat_map(|i| [(i % 10) as f64, (i / 10) as f64, 1.0])
+            .collect();
+        let (_, nrm) = sampled_normals(&pts, 3, 8, 1000).unwrap();
+        for v in nrm.chunks(3) {
+            assert!((v[2].abs() - 1.0).abs() < 1e-12, "{v:?}");
+        }
+    }
+
+    #[test]
+    fn correspondence_noise_of_matching_normals_is_zero_and_needs_ten_pairs() {
+        let (_, nrm) = line(40, 0.0);
+        let sample: Vec<usize> = (0..40).collect();
+        let corr: Vec<i64> = (0..40).collect();
+        let eye = [1.0, 0.0, 0.0, 1.0];
+        let v = correspondence_normal_noise(&sample, &nrm, &nrm, &eye, &corr, 2).unwrap();
+        assert!(v.abs() < 1e-15, "{v}");
+        let few: Vec<i64> = (0..40).map(|i| if i < 9 { i } else { -1 }).collect();
+        let v = correspondence_normal_noise(&sample, &nrm, &nrm, &eye, &few, 2).unwrap();
+        assert!(v.is_nan());
+        let bad: Vec<i64> = vec![99; 40];
+        assert!(correspondence_normal_noise(&sample, &nrm, &nrm, &eye, &bad, 2).is_err());
+    }
+
+    #[test]
+    fn median_of_even_and_odd_counts() {
+        assert_eq!(median_sorted(&[1.0, 2.0, 4.0]), 2.0);
+        assert_eq!(median_sorted(&[1.0, 2.0, 4.0, 8.0]), 3.0);
+    }
+}

@@ -1,0 +1,105 @@
+//! Binding of `scanreg_core::overlap` and `scanreg_core::normal_noise`: the measurements behind
+//! a registration's verdict (overlap) and its covariance and degeneracy threshold (normal noise).
+
+use crate::convert::{
+    c_slice, core_err, in_pool_unless_small, points, points_dim, pose, target_search,
+};
+use crate::knn::KdTree;
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use scanreg_core::knn::check_max_distance;
+use scanreg_core::{normal_noise, overlap};
+
+/// `(num_found, mean, median, rmse, trimmed_rmse)` of the distances from each source point,
+/// moved by `pose_matrix`, to its nearest target point within `max_distance`.
+#[pyfunction]
+#[pyo3(signature = (target, source, pose_matrix, max_distance, num_threads=None))]
+fn overlap_statistics(
+    py: Python<'_>,
+    target: &Bound<'_, PyAny>,
+    source: PyReadonlyArray2<'_, f64>,
+    pose_matrix: PyReadonlyArray2<'_, f64>,
+    max_distance: f64,
+    num_threads: Option<usize>,
+) -> PyResult<(usize, f64, f64, f64, f64)> {
+    let held = target_search(target)?;
+    let search = held.search();
+    let dim = search.dim();
+    let src = points_dim(&source, "source", dim)?;
+    let pm = pose(&pose_matrix, "pose_matrix", dim)?;
+    let max_sq = check_max_distance("max_distance", max_distance).map_err(core_err)?;
+    let o = py
+        .detach(|| {
+            in_pool_unless_small(src.len() / dim, num_threads, || {
+                overlap::overlap(search, src, pm, max_sq)
+            })
+        })
+        .and_then(|r| r)
+        .map_err(core_err)?;
+    Ok((o.num_found, o.mean, o.median, o.rmse, o.trimmed_rmse))
+}
+
+/// `(mean, median)` halves of `sin²` between the tree's normals and their nearest neighbour's.
+#[pyfunction]
+fn target_normal_noise(
+    py: Python<'_>,
+    tree: &Bound<'_, KdTree>,
+    normals: PyReadonlyArray2<'_, f64>,
+) -> PyResult<(f64, f64)> {
+    let tree = &tree.get().inner;
+    let nrm = points_dim(&normals, "normals", tree.dim())?;
+    py.detach(|| normal_noise::target_normal_noise(tree, nrm))
+        .map_err(core_err)
+}
+
+type Sampled = (Py<PyArray1<i64>>, Py<PyArray2<f64>>);
+
+/// `(indices, normals)` of at most `max_points` evenly spaced points (PCA of `k` neighbours).
+#[pyfunction]
+fn sampled_normals(
+    py: Python<'_>,
+    points_array: PyReadonlyArray2<'_, f64>,
+    k: usize,
+    max_points: usize,
+) -> PyResult<Sampled> {
+    let (pts, dim) = points(&points_array, "points")?;
+    let (idx, nrm) = py
+        .detach(|| normal_noise::sampled_normals(pts, dim, k, max_points))
+        .map_err(core_err)?;
+    let count = idx.len();
+    let idx: Vec<i64> = idx.into_iter().map(|i| i as i64).collect();
+    Ok((
+        idx.into_pyarray(py).unbind(),
+        nrm.into_pyarray(py).reshape([count, dim])?.unbind(),
+    ))
+}
+
+/// Normal direction variance per tangent axis between matched normals of two scans.
+#[pyfunction]
+fn correspondence_normal_noise(
+    sample: PyReadonlyArray1<'_, i64>,
+    source_normals: PyReadonlyArray2<'_, f64>,
+    target_normals: PyReadonlyArray2<'_, f64>,
+    rotation: PyReadonlyArray2<'_, f64>,
+    correspondences: PyReadonlyArray1<'_, i64>,
+) -> PyResult<f64> {
+    let (src, dim) = points(&source_normals, "source_normals")?;
+    let tgt = points_dim(&target_normals, "target_normals", dim)?;
+    let rot = c_slice(&rotation, "rotation")?;
+    let sample: Vec<usize> = c_slice(&sample, "sample")?
+        .iter()
+        .map(|&i| usize::try_from(i))
+        .collect::<Result<_, _>>()
+        .map_err(|_| PyValueError::new_err("sample: indices must be >= 0"))?;
+    let corr = c_slice(&correspondences, "correspondences")?;
+    normal_noise::correspondence_normal_noise(&sample, src, tgt, rot, corr, dim).map_err(core_err)
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(overlap_statistics, m)?)?;
+    m.add_function(wrap_pyfunction!(target_normal_noise, m)?)?;
+    m.add_function(wrap_pyfunction!(sampled_normals, m)?)?;
+    m.add_function(wrap_pyfunction!(correspondence_normal_noise, m)?)?;
+    Ok(())
+}
