@@ -11,11 +11,16 @@ pub fn floor(x: f64) -> f64 {
         return x.floor();
     }
     let t = x as i64 as f64;
-    if t > x {
-        t - 1.0
-    } else {
-        t
-    }
+    // Branch-free: the sign of x (so whether truncation rounded up) varies point to point.
+    t - f64::from(u8::from(t > x))
+}
+
+/// `floor(x)` as an integer, branch-free, for `x` known finite and well inside ±2^62 (voxel
+/// coordinates after a range check).
+#[inline]
+pub fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    t - i64::from((t as f64) > x)
 }
 
 /// Check that `data` holds whole `dim`-vectors, all finite, and return their count.
@@ -122,5 +127,8 @@ mod tests {
             assert_eq!(super::floor(x), x.floor(), "{x}");
         }
         assert!(super::floor(f64::NAN).is_nan());
+        for x in [0.0, -0.5, 0.5, -1.0, 1.0, -1e-300, 2.5e6, -2.5e6 - 0.25] {
+            assert_eq!(super::floor_i64(x), x.floor() as i64, "{x}");
+        }
     }
 }

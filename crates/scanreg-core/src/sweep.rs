@@ -8,7 +8,7 @@
 
 use crate::error::{Error, Result};
 use crate::normals::plane_covariance;
-use crate::points::{check_points, floor};
+use crate::points::{check_points, floor_i64};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
@@ -42,7 +42,7 @@ fn packed_key(p: &[f64], inv: f64) -> u64 {
     const OFF: i64 = 1 << 20;
     let mut key = 0u64;
     for &v in p {
-        key = key << 21 | (floor(v * inv) as i64 + OFF) as u64;
+        key = key << 21 | (floor_i64(v * inv) + OFF) as u64;
     }
     key
 }
