@@ -171,8 +171,8 @@ struct Term<const D: usize, const N: usize> {
     score: SVector<f64, N>,
     dp: SMatrix<f64, N, D>,
     dq: SMatrix<f64, N, D>,
-    /// `∂g/∂n` and `Σ_n` of the target normal (point-to-plane only).
-    dn: Option<(SMatrix<f64, N, D>, SMatrix<f64, D, D>)>,
+    /// `∂g/∂n` and the target normal `n` (point-to-plane only; `Σ_n ∝ I − n nᵀ`).
+    dn: Option<(SMatrix<f64, N, D>, SVector<f64, D>)>,
     plane: Option<(SMatrix<f64, N, N>, f64)>,
 }
 
@@ -217,8 +217,12 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
             let jt = a.transpose() * m; // N x 1
                                         // g = Aᵀ m d with m = Rᵀn, d = nᵀe: ∂g/∂n = Aᵀ (Rᵀ d + m eᵀ).
             let dgn = a.transpose() * (rt * d + m * e.transpose());
-            let tangent = SMatrix::<f64, D, D>::identity() - n * n.transpose();
-            dn = Some((dgn, tangent));
+            // The projector I − n nᵀ is applied in `run` as dn dnᵀ − (dn n)(dn n)ᵀ, never formed:
+            // rustc 1.95 at opt-level 3 with one codegen unit (the release profile) miscompiled
+            // `identity() - n * n.transpose()` here (the SLP vectoriser reused [n_x², n_y²] from
+            // the `norm_squared` filter above for the column [n_x², n_y n_x], so the off-diagonal
+            // came out −n_y² instead of −n_x n_y); tests::all_meats_match_finite_differences_*.
+            dn = Some((dgn, n));
             (
                 jt * jt.transpose(),
                 jt * d,
@@ -325,19 +329,21 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
         let j = shared[k].0;
         let mut d = SMatrix::<f64, N, D>::zeros();
         let mut dn = SMatrix::<f64, N, D>::zeros();
-        let mut cov_n = SMatrix::<f64, D, D>::zeros();
+        let mut normal = SVector::<f64, D>::zeros();
         while k < shared.len() && shared[k].0 == j {
             if let Some((_, tm)) = &terms[shared[k].1] {
                 d += tm.dq;
-                if let Some((dgn, c)) = &tm.dn {
+                if let Some((dgn, n)) = &tm.dn {
                     dn += dgn;
-                    cov_n = *c;
+                    normal = *n;
                 }
             }
             k += 1;
         }
         m_tgt += d * d.transpose();
-        m_nrm += dn * cov_n * dn.transpose();
+        // dn (I − n nᵀ) dnᵀ, the normal's direction noise within its tangent plane
+        let along = dn * normal;
+        m_nrm += dn * dn.transpose() - along * along.transpose();
     }
     let mut block_meat = SMatrix::<f64, N, N>::zeros();
     for s in blocks.values() {

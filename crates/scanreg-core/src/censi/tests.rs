@@ -226,3 +226,215 @@ fn rejects_bad_correspondences() {
     let pose = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
     assert!(analyse(&input, &pose, 2, &opts).is_err());
 }
+
+/// `Σ_i g_i` in any dimension (skipping [`NONE`]).
+fn total_score_dim<G: Geometry<D, N>, const D: usize, const N: usize>(
+    input: &Input<'_>,
+    opts: &Options,
+    pose: &[f64],
+) -> SVector<f64, N> {
+    let r: SMatrix<f64, D, D> = SMatrix::from_fn(|i, j| pose[i * (D + 1) + j]);
+    let t: SVector<f64, D> = SVector::from_fn(|i, _| pose[i * (D + 1) + D]);
+    let mut g = SVector::<f64, N>::zeros();
+    for (i, &j) in input.correspondences.iter().enumerate() {
+        if j == NONE {
+            continue;
+        }
+        if let Some(tm) = term::<G, D, N>(input, opts, &r, &t, i, j as usize) {
+            g += tm.score;
+        }
+    }
+    g
+}
+
+/// Orthonormal basis of the plane (line) orthogonal to the unit vector `n`.
+fn tangent_basis<const D: usize>(n: &SVector<f64, D>) -> Vec<SVector<f64, D>> {
+    let mut basis: Vec<SVector<f64, D>> = Vec::new();
+    for k in 0..D {
+        let mut v = SVector::<f64, D>::zeros();
+        v[k] = 1.0;
+        v -= n * n.dot(&v);
+        for b in &basis {
+            v -= b * b.dot(&v);
+        }
+        if v.norm() > 0.3 && basis.len() < D - 1 {
+            basis.push(v.normalize());
+        }
+    }
+    basis
+}
+
+/// `Σ_k (∂G/∂z_k)(∂G/∂z_k)ᵀ` by central differences, `G = Σ_i g_i`, over the directions
+/// `dirs` (each a perturbation of one of the three arrays: 0 source, 1 target, 2 normals).
+fn fd_meat<G: Geometry<D, N>, const D: usize, const N: usize>(
+    input: &Input<'_>,
+    opts: &Options,
+    pose: &[f64],
+    dirs: &[(usize, Vec<f64>)],
+) -> SMatrix<f64, N, N> {
+    let h = 1e-6;
+    let mut meat = SMatrix::<f64, N, N>::zeros();
+    for (which, dir) in dirs {
+        let base = match which {
+            0 => input.source,
+            1 => input.target,
+            _ => input.target_normals.unwrap(),
+        };
+        let shifted =
+            |s: f64| -> Vec<f64> { base.iter().zip(dir).map(|(b, d)| b + s * d).collect() };
+        let (plus, minus) = (shifted(h), shifted(-h));
+        let at = |data: &[f64]| {
+            let moved = match which {
+                0 => Input {
+                    source: data,
+                    ..*input
+                },
+                1 => Input {
+                    target: data,
+                    ..*input
+                },
+                _ => Input {
+                    target_normals: Some(data),
+                    ..*input
+                },
+            };
+            total_score_dim::<G, D, N>(&moved, opts, pose)
+        };
+        let d = (at(&plus) - at(&minus)) / (2.0 * h);
+        meat += d * d.transpose();
+    }
+    meat
+}
+
+/// A deterministic scene with generic (not axis-aligned) unit normals, shared target points
+/// and one source point without a correspondence.
+fn generic_scene<const D: usize>() -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<u32>) {
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut uniform = move || {
+        state = state
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    let targets = 9;
+    let mut tgt = Vec::new();
+    let mut nrm = Vec::new();
+    for _ in 0..targets {
+        let q: SVector<f64, D> = SVector::from_fn(|_, _| 3.0 * uniform());
+        let n: SVector<f64, D> = SVector::<f64, D>::from_fn(|_, _| uniform() + 0.1).normalize();
+        tgt.extend_from_slice(q.as_slice());
+        nrm.extend_from_slice(n.as_slice());
+    }
+    let mut src = Vec::new();
+    let mut corr = Vec::new();
+    for i in 0..2 * targets + 1 {
+        let p: SVector<f64, D> = SVector::from_fn(|_, _| 3.0 * uniform());
+        src.extend_from_slice(p.as_slice());
+        // two source points per target point (shared-target sum), the last one unmatched
+        corr.push(if i == 2 * targets {
+            NONE
+        } else {
+            (i / 2) as u32
+        });
+    }
+    (src, tgt, nrm, corr)
+}
+
+/// Every unit-variance meat (source, target, normal) against central differences of the
+/// summed score, for generic normals and a generic pose. Any profile: it compares the
+/// optimised analytic code with the plain score, so a wrong projector `I − n nᵀ` (as
+/// miscompiled at opt-level 3 with the axis-aligned normals of `scene`) fails here.
+fn check_all_meats<G: Geometry<D, N>, const D: usize, const N: usize>(
+    method: Method,
+    pose: &[f64],
+) -> Vec<String> {
+    let (src, tgt, nrm, corr) = generic_scene::<D>();
+    let opts = Options {
+        method,
+        kernel: Kernel::from_name("none", 1.0).unwrap(),
+        source_variance: 1.0,
+        target_variance: 1.0,
+        normal_variance: 1.0,
+        block_size: f64::INFINITY,
+    };
+    let input = Input {
+        source: &src,
+        source_covariances: None,
+        target: &tgt,
+        target_normals: Some(&nrm),
+        target_covariances: None,
+        correspondences: &corr,
+    };
+    let unit = |len: usize, c: usize| {
+        let mut v = vec![0.0; len];
+        v[c] = 1.0;
+        v
+    };
+    let src_dirs: Vec<_> = (0..src.len()).map(|c| (0, unit(src.len(), c))).collect();
+    let tgt_dirs: Vec<_> = (0..tgt.len()).map(|c| (1, unit(tgt.len(), c))).collect();
+    let mut nrm_dirs = Vec::new();
+    for j in 0..tgt.len() / D {
+        let n: SVector<f64, D> = vec_at(&nrm, j);
+        for t in tangent_basis(&n) {
+            let mut v = vec![0.0; nrm.len()];
+            v[j * D..(j + 1) * D].copy_from_slice(t.as_slice());
+            nrm_dirs.push((2, v));
+        }
+    }
+    let out = analyse(&input, pose, D, &opts).unwrap();
+    let meat = |flat: &[f64]| SMatrix::<f64, N, N>::from_row_slice(flat);
+    let mut cases = vec![
+        ("source", meat(&out.source_meat), src_dirs),
+        ("target", meat(&out.target_meat), tgt_dirs),
+    ];
+    if method == Method::PointToPlane {
+        cases.push(("normal", meat(&out.normal_meat), nrm_dirs));
+    }
+    let mut total = SMatrix::<f64, N, N>::zeros();
+    let mut failures = Vec::new();
+    for (name, analytic, dirs) in cases {
+        let fd = fd_meat::<G, D, N>(&input, &opts, pose, &dirs);
+        if !(fd.norm() > 1e-3 && (analytic - fd).norm() < 1e-5 * fd.norm()) {
+            failures.push(format!("{D}D {method:?} {name}: {analytic} vs {fd}"));
+        }
+        total += analytic;
+    }
+    // unit variances: the combined meat is the sum of the three
+    if (meat(&out.censi_meat) - total).norm() > 1e-12 * total.norm() {
+        failures.push(format!("{D}D {method:?}: censi_meat is not the sum"));
+    }
+    failures
+}
+
+#[test]
+fn all_meats_match_finite_differences_2d_and_3d() {
+    let th = 0.3f64;
+    let pose2 = [
+        th.cos(),
+        -th.sin(),
+        0.2,
+        th.sin(),
+        th.cos(),
+        -0.1,
+        0.0,
+        0.0,
+        1.0,
+    ];
+    let rot = nalgebra::Rotation3::from_scaled_axis(Vector3::new(0.2, -0.3, 0.25));
+    let mut pose3 = [0.0; 16];
+    for i in 0..3 {
+        for j in 0..3 {
+            pose3[i * 4 + j] = rot[(i, j)];
+        }
+    }
+    pose3[3] = 0.3;
+    pose3[7] = -0.2;
+    pose3[11] = 0.1;
+    pose3[15] = 1.0;
+    let mut failures = Vec::new();
+    for method in [Method::PointToPoint, Method::PointToPlane] {
+        failures.extend(check_all_meats::<Planar, 2, 3>(method, &pose2));
+        failures.extend(check_all_meats::<Spatial, 3, 6>(method, &pose3));
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
