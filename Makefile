@@ -34,6 +34,9 @@ lint: lint-rust lint-python
 
 test-rust:
 	cargo test -p scanreg-core
+	# Also as shipped (opt-level 3, one codegen unit): a miscompilation of the 2D Censi normal
+	# term showed only there (e778664).
+	cargo test -p scanreg-core --release
 
 test-python: dev
 	$(BIN)/python -m pytest
