@@ -65,13 +65,11 @@ fn grid(
     const DROPPED: u64 = u64::MAX; // packed keys use 63 bits at most
                                    // The per-point arithmetic (crop test, voxel key) in parallel chunks; the accumulation
                                    // below stays in input order, so sums and output order do not depend on the threads.
+                                   // An indexed iterator: the keys are written in place, with no per-chunk vectors to join.
     let keys: Vec<u64> = points
-        .par_chunks(dim * 8192)
-        .flat_map_iter(|chunk| {
-            chunk
-                .chunks_exact(dim)
-                .map(|p| if keep(p) { packed_key(p, inv) } else { DROPPED })
-        })
+        .par_chunks_exact(dim)
+        .with_min_len(4096)
+        .map(|p| if keep(p) { packed_key(p, inv) } else { DROPPED })
         .collect();
     // Sized for a typical sweep (a few points per voxel) so the table rarely grows mid-pass.
     let guess = points.len() / dim / 16 + 16;
@@ -140,13 +138,18 @@ fn voxel_covariances(points: &[f64], dim: usize, grid: &Grid) -> Vec<f64> {
         }
         counts[v] += 1;
     }
-    let mut out = Vec::with_capacity(voxels * d2);
-    for (m, &count) in moments.chunks_exact(d2).zip(&counts) {
-        let mut full = [0.0; 9];
-        full[..d2].copy_from_slice(m);
-        out.extend_from_slice(&plane_covariance(&full, count, dim)[..d2]);
-    }
-    out
+    // The eigen-decompositions, one per voxel, in parallel (in place: same values on any
+    // number of threads).
+    moments
+        .par_chunks_exact_mut(d2)
+        .zip(counts.par_iter())
+        .with_min_len(256)
+        .for_each(|(m, &count)| {
+            let mut full = [0.0; 9];
+            full[..d2].copy_from_slice(m);
+            m.copy_from_slice(&plane_covariance(&full, count, dim)[..d2]);
+        });
+    moments
 }
 
 /// Keep points with `min_range <= |p| <= max_range`, then centroid grids of `fine_voxel` over
