@@ -307,7 +307,8 @@ impl VoxelMap {
         let dim = self.dim;
         let n = check_points("points", points, dim)?;
         let keys = points
-            .chunks_exact(dim)
+            .par_chunks_exact(dim)
+            .with_min_len(4096)
             .map(|p| self.key(p))
             .collect::<Result<Vec<_>>>()?;
         match (self.attributes, normals, covariances) {
@@ -331,11 +332,22 @@ impl VoxelMap {
         let cap = self.max_per_voxel;
         let mut kept = 0;
         let mut touched: Vec<usize> = Vec::new();
+        // Sweeps arrive in scan order, so consecutive points mostly share a voxel: the last
+        // voxel's slot is remembered, and the table entries' counts are brought up to date once
+        // at the end (from `counts`, which this loop keeps).
+        let mut last: Option<(u64, usize)> = None;
         for (i, key) in keys.into_iter().enumerate() {
             let p = &points[i * dim..(i + 1) * dim];
-            let slot = match self.slots.get(&key) {
-                Some(e) => e.slot as usize,
-                None => self.allocate(key) as usize,
+            let slot = match last {
+                Some((k, s)) if k == key => s,
+                _ => {
+                    let s = match self.slots.get(&key) {
+                        Some(e) => e.slot as usize,
+                        None => self.allocate(key) as usize,
+                    };
+                    last = Some((key, s));
+                    s
+                }
             };
             let count = self.counts[slot] as usize;
             if count >= cap {
@@ -361,17 +373,22 @@ impl VoxelMap {
                 self.covariances[id * d2..(id + 1) * d2].copy_from_slice(&c[i * d2..(i + 1) * d2]);
             }
             self.counts[slot] += 1;
-            if let Some(e) = self.slots.get_mut(&key) {
-                e.count += 1;
-            }
             self.len += 1;
             kept += 1;
-            if self.attributes == Attributes::VoxelCovariances {
+            if touched.last() != Some(&slot) {
                 touched.push(slot);
             }
         }
         touched.sort_unstable();
         touched.dedup();
+        for &slot in &touched {
+            if let Some(e) = self.slots.get_mut(&self.keys[slot]) {
+                e.count = self.counts[slot];
+            }
+        }
+        if self.attributes != Attributes::VoxelCovariances {
+            return Ok(kept);
+        }
         // Each voxel's covariance depends on its own points only: computed in parallel, then
         // written (the same values whatever the thread count).
         let d2 = dim * dim;
