@@ -13,6 +13,31 @@ fn total_score(input: &Input<'_>, opts: &Options, pose: &[f64]) -> SVector<f64, 
     g
 }
 
+/// Options without a kernel, with the given per-coordinate source, target and normal variances
+/// and one block per point.
+fn unkernelled(method: Method, variances: [f64; 3]) -> Options {
+    Options {
+        method,
+        kernel: Kernel::from_name("none", 1.0).unwrap(),
+        source_variance: variances[0],
+        target_variance: variances[1],
+        normal_variance: variances[2],
+        block_size: f64::INFINITY,
+    }
+}
+
+/// Points with target normals (no covariances) and their correspondences.
+fn with_normals<'a>(src: &'a [f64], tgt: &'a [f64], nrm: &'a [f64], corr: &'a [u32]) -> Input<'a> {
+    Input {
+        source: src,
+        source_covariances: None,
+        target: tgt,
+        target_normals: Some(nrm),
+        target_covariances: None,
+        correspondences: corr,
+    }
+}
+
 fn scene() -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<u32>) {
     // Source points near two walls; target = the same points slightly displaced; normals fixed.
     let mut src = Vec::new();
@@ -40,22 +65,8 @@ fn check_method(method: Method) {
     let pose = [0.99, -0.141, 0.2, 0.141, 0.99, -0.1, 0.0, 0.0, 1.0];
     let (c, s) = (0.141f64.atan2(0.99).cos(), 0.141f64.atan2(0.99).sin());
     let pose = [c, -s, pose[2], s, c, pose[5], 0.0, 0.0, 1.0];
-    let opts = Options {
-        method,
-        kernel: Kernel::from_name("none", 1.0).unwrap(),
-        source_variance: 1.0,
-        target_variance: 0.0,
-        normal_variance: 0.0,
-        block_size: f64::INFINITY,
-    };
-    let input = Input {
-        source: &src,
-        source_covariances: None,
-        target: &tgt,
-        target_normals: Some(&nrm),
-        target_covariances: None,
-        correspondences: &corr,
-    };
+    let opts = unkernelled(method, [1.0, 0.0, 0.0]);
+    let input = with_normals(&src, &tgt, &nrm, &corr);
     // Finite differences of Σ g over every source coordinate: (∂g/∂p)(∂g/∂p)ᵀ summed.
     let mut meat_fd = SMatrix::<f64, 3, 3>::zeros();
     let h = 1e-6;
@@ -143,22 +154,8 @@ fn normal_term_matches_finite_differences() {
         0.0,
         1.0,
     ];
-    let opts = Options {
-        method: Method::PointToPlane,
-        kernel: Kernel::from_name("none", 1.0).unwrap(),
-        source_variance: 0.0,
-        target_variance: 0.0,
-        normal_variance: 1.0,
-        block_size: f64::INFINITY,
-    };
-    let input = Input {
-        source: &src,
-        source_covariances: None,
-        target: &tgt,
-        target_normals: Some(&nrm),
-        target_covariances: None,
-        correspondences: &corr,
-    };
+    let opts = unkernelled(Method::PointToPlane, [0.0, 0.0, 1.0]);
+    let input = with_normals(&src, &tgt, &nrm, &corr);
     // In 2D the normal turns about its one tangent t = (−n_y, n_x): Σ_n = t tᵀ.
     let mut meat_fd = SMatrix::<f64, 3, 3>::zeros();
     let h = 1e-6;
@@ -207,14 +204,7 @@ fn censi_meat_matches_finite_differences() {
 fn rejects_bad_correspondences() {
     let (src, tgt, nrm, mut corr) = scene();
     corr[0] = 99;
-    let input = Input {
-        source: &src,
-        source_covariances: None,
-        target: &tgt,
-        target_normals: Some(&nrm),
-        target_covariances: None,
-        correspondences: &corr,
-    };
+    let input = with_normals(&src, &tgt, &nrm, &corr);
     let opts = Options {
         method: Method::PointToPoint,
         kernel: Kernel::from_name("none", 1.0).unwrap(),
@@ -349,22 +339,8 @@ fn check_all_meats<G: Geometry<D, N>, const D: usize, const N: usize>(
     pose: &[f64],
 ) -> Vec<String> {
     let (src, tgt, nrm, corr) = generic_scene::<D>();
-    let opts = Options {
-        method,
-        kernel: Kernel::from_name("none", 1.0).unwrap(),
-        source_variance: 1.0,
-        target_variance: 1.0,
-        normal_variance: 1.0,
-        block_size: f64::INFINITY,
-    };
-    let input = Input {
-        source: &src,
-        source_covariances: None,
-        target: &tgt,
-        target_normals: Some(&nrm),
-        target_covariances: None,
-        correspondences: &corr,
-    };
+    let opts = unkernelled(method, [1.0, 1.0, 1.0]);
+    let input = with_normals(&src, &tgt, &nrm, &corr);
     let unit = |len: usize, c: usize| {
         let mut v = vec![0.0; len];
         v[c] = 1.0;
