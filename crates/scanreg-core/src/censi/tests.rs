@@ -13,6 +13,11 @@ fn total_score(input: &Input<'_>, opts: &Options, pose: &[f64]) -> SVector<f64, 
     g
 }
 
+/// Row-major homogeneous SE(2) pose rotating by `th` and translating by `(x, y)`.
+fn planar_pose(th: f64, x: f64, y: f64) -> [f64; 9] {
+    [th.cos(), -th.sin(), x, th.sin(), th.cos(), y, 0.0, 0.0, 1.0]
+}
+
 /// Options without a kernel, with the given per-coordinate source, target and normal variances
 /// and one block per point.
 fn unkernelled(method: Method, variances: [f64; 3]) -> Options {
@@ -143,17 +148,7 @@ fn check_method(method: Method) {
 fn normal_term_matches_finite_differences() {
     let (src, tgt, nrm, corr) = scene();
     let th = 0.141f64.atan2(0.99);
-    let pose = [
-        th.cos(),
-        -th.sin(),
-        0.2,
-        th.sin(),
-        th.cos(),
-        -0.1,
-        0.0,
-        0.0,
-        1.0,
-    ];
+    let pose = planar_pose(th, 0.2, -0.1);
     let opts = unkernelled(Method::PointToPlane, [0.0, 0.0, 1.0]);
     let input = with_normals(&src, &tgt, &nrm, &corr);
     // In 2D the normal turns about its one tangent t = (−n_y, n_x): Σ_n = t tᵀ.
@@ -385,17 +380,7 @@ fn check_all_meats<G: Geometry<D, N>, const D: usize, const N: usize>(
 #[test]
 fn all_meats_match_finite_differences_2d_and_3d() {
     let th = 0.3f64;
-    let pose2 = [
-        th.cos(),
-        -th.sin(),
-        0.2,
-        th.sin(),
-        th.cos(),
-        -0.1,
-        0.0,
-        0.0,
-        1.0,
-    ];
+    let pose2 = planar_pose(th, 0.2, -0.1);
     let rot = nalgebra::Rotation3::from_scaled_axis(Vector3::new(0.2, -0.3, 0.25));
     let mut pose3 = [0.0; 16];
     for i in 0..3 {
