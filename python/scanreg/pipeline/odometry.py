@@ -8,7 +8,9 @@ One :meth:`Odometry.step` per sweep, in the order the code reads:
 2. **deskew** — with per-point ``timestamps``, every point is re-expressed at the sweep's
    ``reference_time`` under that predicted motion (:func:`scanreg.deskew`);
 3. **downsample** — range crop, then a voxel grid at ``voxel_size / 2`` (the points that join the
-   map) and at ``1.5 × voxel_size`` (the points registered): dense map, sparse queries;
+   map) and at ``1.5 × voxel_size`` (the points registered): dense map, sparse queries; for
+   GICP each registered point's covariance is the plane fit of the fine points it averages
+   (one pass in the core, no neighbour search), as the map's voxels have theirs;
 4. **gate** — the correspondence gate is ``3σ`` of how far past estimates fell from their
    predictions (an adaptive threshold, as in KISS-ICP), ``initial_gate`` until enough motion has
    been seen; the robust kernel's scale is ``σ``;
