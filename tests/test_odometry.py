@@ -159,7 +159,24 @@ def test_bad_input_is_named() -> None:
         OdometryConfig(method="ndt")  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="config"):
         Odometry(dataclasses.asdict(OdometryConfig()))  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="source_covariances"):
+        OdometryConfig(source_covariances="knn")  # type: ignore[arg-type]
     assert odo.poses == ()  # nothing was recorded by the failed steps
+
+
+@pytest.mark.parametrize(("sensor", "dense"), [("vlp16", False), ("hdl64", True)])
+def test_auto_source_covariances_follow_the_sweep_density(sensor: str, dense: bool) -> None:
+    """``auto``: the sweep's own plane fits on a dense sweep (HDL-64: ~4.3 fine points per
+    coarse one), k-NN fits on a sparse one (VLP-16: ~3.0, one ring per voxel), where the
+    sweep's fits doubled the rotation drift."""
+    frame = SimulatedSequence("street", num_frames=1, sensor=sensor)[0]
+    odo = Odometry(OdometryConfig())
+    fine, coarse, covs = odo._grids(frame.points)
+    assert covs is not None and covs.shape == (len(coarse), 3, 3)
+    assert odo._sweep_covariances(fine, coarse) is dense
+    forced = Odometry(OdometryConfig(source_covariances="neighbors"))
+    assert forced._grids(frame.points)[2] is None  # not even computed
+    assert Odometry(OdometryConfig(source_covariances="sweep"))._sweep_covariances(fine, coarse)
 
 
 @pytest.mark.parametrize("suffix", [".ply", ".pcd"])
