@@ -31,7 +31,7 @@
 //! geometry-only matrix the degeneracy analysis uses for every method.
 
 use crate::error::{Error, Result};
-use crate::icp::Method;
+use crate::icp::{mat_at, vec_at, Method};
 use crate::kernel::Kernel;
 use crate::points::{check_points, split_pose};
 use crate::reduce::SEQUENTIAL_MAX;
@@ -153,16 +153,6 @@ impl Geometry<3, 6> for Spatial {
     fn inverse(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
         m.try_inverse()
     }
-}
-
-#[inline]
-fn vec_at<const D: usize>(data: &[f64], i: usize) -> SVector<f64, D> {
-    SVector::from_column_slice(&data[i * D..(i + 1) * D])
-}
-
-#[inline]
-fn mat_at<const D: usize>(data: &[f64], i: usize) -> SMatrix<f64, D, D> {
-    SMatrix::from_column_slice(&data[i * D * D..(i + 1) * D * D])
 }
 
 /// What one correspondence contributes.

@@ -406,13 +406,15 @@ struct Problem<'a> {
     cov_group: usize,
 }
 
+/// Row `i` of a flat `N * D` array as a vector.
 #[inline]
-fn vec_at<const D: usize>(data: &[f64], i: usize) -> SVector<f64, D> {
+pub(crate) fn vec_at<const D: usize>(data: &[f64], i: usize) -> SVector<f64, D> {
     SVector::from_column_slice(&data[i * D..(i + 1) * D])
 }
 
+/// Matrix `i` of a flat `N * D * D` array of symmetric matrices.
 #[inline]
-fn mat_at<const D: usize>(data: &[f64], i: usize) -> SMatrix<f64, D, D> {
+pub(crate) fn mat_at<const D: usize>(data: &[f64], i: usize) -> SMatrix<f64, D, D> {
     // Covariances are symmetric, so row- vs column-major does not matter.
     SMatrix::from_column_slice(&data[i * D * D..(i + 1) * D * D])
 }
