@@ -1,18 +1,5 @@
 use super::*;
 
-/// Σ_i g_i at `pose` over fixed correspondences (the quantity whose z-derivative Censi needs).
-fn total_score(input: &Input<'_>, opts: &Options, pose: &[f64]) -> SVector<f64, 3> {
-    let r: SMatrix<f64, 2, 2> = SMatrix::from_fn(|i, j| pose[i * 3 + j]);
-    let t: SVector<f64, 2> = SVector::from_fn(|i, _| pose[i * 3 + 2]);
-    let mut g = SVector::<f64, 3>::zeros();
-    for (i, &j) in input.correspondences.iter().enumerate() {
-        if let Some(tm) = term::<Planar, 2, 3>(input, opts, &r, &t, i, j as usize) {
-            g += tm.score;
-        }
-    }
-    g
-}
-
 /// Row-major homogeneous SE(2) pose rotating by `th` and translating by `(x, y)`.
 fn planar_pose(th: f64, x: f64, y: f64) -> [f64; 9] {
     [th.cos(), -th.sin(), x, th.sin(), th.cos(), y, 0.0, 0.0, 1.0]
@@ -65,128 +52,63 @@ fn scene() -> (Vec<f64>, Vec<f64>, Vec<f64>, Vec<u32>) {
     (src, tgt, nrm, corr)
 }
 
+/// One direction per coordinate of array `which` (0 source, 1 target, 2 normals) of `len`
+/// values, for [`fd_meat`].
+fn unit_dirs(which: usize, len: usize) -> Vec<(usize, Vec<f64>)> {
+    (0..len)
+        .map(|c| {
+            let mut v = vec![0.0; len];
+            v[c] = 1.0;
+            (which, v)
+        })
+        .collect()
+}
+
 fn check_method(method: Method) {
     let (src, tgt, nrm, corr) = scene();
-    let pose = [0.99, -0.141, 0.2, 0.141, 0.99, -0.1, 0.0, 0.0, 1.0];
-    let (c, s) = (0.141f64.atan2(0.99).cos(), 0.141f64.atan2(0.99).sin());
-    let pose = [c, -s, pose[2], s, c, pose[5], 0.0, 0.0, 1.0];
-    let opts = unkernelled(method, [1.0, 0.0, 0.0]);
+    let pose = planar_pose(0.141f64.atan2(0.99), 0.2, -0.1);
     let input = with_normals(&src, &tgt, &nrm, &corr);
-    // Finite differences of Σ g over every source coordinate: (∂g/∂p)(∂g/∂p)ᵀ summed.
-    let mut meat_fd = SMatrix::<f64, 3, 3>::zeros();
-    let h = 1e-6;
-    for c in 0..src.len() {
-        let mut plus = src.clone();
-        plus[c] += h;
-        let mut minus = src.clone();
-        minus[c] -= h;
-        let gp = total_score(
-            &Input {
-                source: &plus,
-                ..input
-            },
-            &opts,
-            &pose,
-        );
-        let gm = total_score(
-            &Input {
-                source: &minus,
-                ..input
-            },
-            &opts,
-            &pose,
-        );
-        let d = (gp - gm) / (2.0 * h);
-        meat_fd += d * d.transpose();
-    }
-    let out = analyse(&input, &pose, 2, &opts).unwrap();
-    let meat = SMatrix::<f64, 3, 3>::from_row_slice(&out.censi_meat);
+    let meat_of = |opts: &Options| {
+        let out = analyse(&input, &pose, 2, opts).unwrap();
+        SMatrix::<f64, 3, 3>::from_row_slice(&out.censi_meat)
+    };
+    // Source noise: (∂g/∂p)(∂g/∂p)ᵀ summed over every source coordinate.
+    let opts = unkernelled(method, [1.0, 0.0, 0.0]);
+    let fd = fd_meat::<Planar, 2, 3>(&input, &opts, &pose, &unit_dirs(0, src.len()));
+    let meat = meat_of(&opts);
     assert!(
-        (meat - meat_fd).norm() < 1e-5 * meat_fd.norm(),
-        "{method:?}: {meat} vs {meat_fd}"
+        (meat - fd).norm() < 1e-5 * fd.norm(),
+        "{method:?}: {meat} vs {fd}"
     );
     // Target noise: derivatives of the points sharing a target are summed before squaring.
-    let opts_t = Options {
-        source_variance: 0.0,
-        target_variance: 1.0,
-        ..opts
-    };
-    let mut meat_fd = SMatrix::<f64, 3, 3>::zeros();
-    for c in 0..tgt.len() {
-        let mut plus = tgt.clone();
-        plus[c] += h;
-        let mut minus = tgt.clone();
-        minus[c] -= h;
-        let gp = total_score(
-            &Input {
-                target: &plus,
-                ..input
-            },
-            &opts_t,
-            &pose,
-        );
-        let gm = total_score(
-            &Input {
-                target: &minus,
-                ..input
-            },
-            &opts_t,
-            &pose,
-        );
-        let d = (gp - gm) / (2.0 * h);
-        meat_fd += d * d.transpose();
-    }
-    let out = analyse(&input, &pose, 2, &opts_t).unwrap();
-    let meat = SMatrix::<f64, 3, 3>::from_row_slice(&out.censi_meat);
+    let opts_t = unkernelled(method, [0.0, 1.0, 0.0]);
+    let fd = fd_meat::<Planar, 2, 3>(&input, &opts_t, &pose, &unit_dirs(1, tgt.len()));
+    let meat = meat_of(&opts_t);
     assert!(
-        (meat - meat_fd).norm() < 1e-5 * meat_fd.norm(),
-        "{method:?} target: {meat} vs {meat_fd}"
+        (meat - fd).norm() < 1e-5 * fd.norm(),
+        "{method:?} target: {meat} vs {fd}"
     );
 }
 
 #[test]
 fn normal_term_matches_finite_differences() {
     let (src, tgt, nrm, corr) = scene();
-    let th = 0.141f64.atan2(0.99);
-    let pose = planar_pose(th, 0.2, -0.1);
+    let pose = planar_pose(0.141f64.atan2(0.99), 0.2, -0.1);
     let opts = unkernelled(Method::PointToPlane, [0.0, 0.0, 1.0]);
     let input = with_normals(&src, &tgt, &nrm, &corr);
     // In 2D the normal turns about its one tangent t = (−n_y, n_x): Σ_n = t tᵀ.
-    let mut meat_fd = SMatrix::<f64, 3, 3>::zeros();
-    let h = 1e-6;
-    for j in 0..tgt.len() / 2 {
-        let t = [-nrm[2 * j + 1], nrm[2 * j]];
-        let mut plus = nrm.clone();
-        let mut minus = nrm.clone();
-        for c in 0..2 {
-            plus[2 * j + c] += h * t[c];
-            minus[2 * j + c] -= h * t[c];
-        }
-        let gp = total_score(
-            &Input {
-                target_normals: Some(&plus),
-                ..input
-            },
-            &opts,
-            &pose,
-        );
-        let gm = total_score(
-            &Input {
-                target_normals: Some(&minus),
-                ..input
-            },
-            &opts,
-            &pose,
-        );
-        let d = (gp - gm) / (2.0 * h);
-        meat_fd += d * d.transpose();
-    }
+    let dirs: Vec<_> = (0..tgt.len() / 2)
+        .map(|j| {
+            let mut v = vec![0.0; nrm.len()];
+            v[2 * j] = -nrm[2 * j + 1];
+            v[2 * j + 1] = nrm[2 * j];
+            (2, v)
+        })
+        .collect();
+    let fd = fd_meat::<Planar, 2, 3>(&input, &opts, &pose, &dirs);
     let out = analyse(&input, &pose, 2, &opts).unwrap();
     let meat = SMatrix::<f64, 3, 3>::from_row_slice(&out.censi_meat);
-    assert!(
-        (meat - meat_fd).norm() < 1e-5 * meat_fd.norm(),
-        "{meat} vs {meat_fd}"
-    );
+    assert!((meat - fd).norm() < 1e-5 * fd.norm(), "{meat} vs {fd}");
 }
 
 #[test]
@@ -212,8 +134,9 @@ fn rejects_bad_correspondences() {
     assert!(analyse(&input, &pose, 2, &opts).is_err());
 }
 
-/// `Σ_i g_i` in any dimension (skipping [`NONE`]).
-fn total_score_dim<G: Geometry<D, N>, const D: usize, const N: usize>(
+/// `Σ_i g_i` at `pose` over fixed correspondences, skipping [`NONE`] (the quantity whose
+/// derivatives Censi needs).
+fn total_score<G: Geometry<D, N>, const D: usize, const N: usize>(
     input: &Input<'_>,
     opts: &Options,
     pose: &[f64],
@@ -283,7 +206,7 @@ fn fd_meat<G: Geometry<D, N>, const D: usize, const N: usize>(
                     ..*input
                 },
             };
-            total_score_dim::<G, D, N>(&moved, opts, pose)
+            total_score::<G, D, N>(&moved, opts, pose)
         };
         let d = (at(&plus) - at(&minus)) / (2.0 * h);
         meat += d * d.transpose();
@@ -336,13 +259,8 @@ fn check_all_meats<G: Geometry<D, N>, const D: usize, const N: usize>(
     let (src, tgt, nrm, corr) = generic_scene::<D>();
     let opts = unkernelled(method, [1.0, 1.0, 1.0]);
     let input = with_normals(&src, &tgt, &nrm, &corr);
-    let unit = |len: usize, c: usize| {
-        let mut v = vec![0.0; len];
-        v[c] = 1.0;
-        v
-    };
-    let src_dirs: Vec<_> = (0..src.len()).map(|c| (0, unit(src.len(), c))).collect();
-    let tgt_dirs: Vec<_> = (0..tgt.len()).map(|c| (1, unit(tgt.len(), c))).collect();
+    let src_dirs = unit_dirs(0, src.len());
+    let tgt_dirs = unit_dirs(1, tgt.len());
     let mut nrm_dirs = Vec::new();
     for j in 0..tgt.len() / D {
         let n: SVector<f64, D> = vec_at(&nrm, j);
