@@ -3,10 +3,10 @@
 //! measurements, `scanreg.verdict`). One pass and a sort, in place of a search plus a dozen
 //! array operations per registration.
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::icp::NeighborSearch;
 use crate::normal_noise::median_sorted;
-use crate::points::split_pose;
+use crate::points::{check_points, split_pose};
 use crate::reduce::SEQUENTIAL_MAX;
 use rayon::prelude::*;
 
@@ -31,12 +31,8 @@ pub fn overlap(
     max_sq: f64,
 ) -> Result<Overlap> {
     let dim = search.dim();
-    if !source.len().is_multiple_of(dim) {
-        return Err(Error::invalid(
-            "source",
-            format!("expected N x {dim} values"),
-        ));
-    }
+    // Finite too: a NaN point would find no neighbour and silently lower the overlap.
+    check_points("source", source, dim)?;
     let (r, t) = split_pose("pose", pose, dim)?;
     let distance = |p: &[f64]| {
         let mut q = [0.0; 3];
@@ -109,5 +105,14 @@ mod tests {
         let want = ((1..=9).map(|i| (i * i) as f64).sum::<f64>() / 9.0).sqrt();
         assert!((o.trimmed_rmse - want).abs() < 1e-12);
         assert_eq!(o.median, 5.5);
+    }
+
+    #[test]
+    fn refuses_non_finite_source_points() {
+        let tree = KdTree::build(&[0.0, 0.0, 1.0, 0.0], 2).unwrap();
+        let eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        let e = overlap(&tree, &[0.0, 0.0, f64::NAN, 1.0], &eye, 1.0).unwrap_err();
+        assert!(e.to_string().contains("source"), "{e}");
+        assert!(overlap(&tree, &[0.0, 0.0, 1.0], &eye, 1.0).is_err()); // not N x 2
     }
 }
