@@ -50,6 +50,14 @@ fn check_normals(normals: &[f64], n: usize, dim: usize) -> Result<()> {
             format!("expected {n} x {dim} values, got {}", normals.len()),
         ));
     }
+    // A point without a normal has a zero row; NaN would poison the statistics silently.
+    check_finite("normals", normals)
+}
+
+fn check_finite(arg: &'static str, data: &[f64]) -> Result<()> {
+    if data.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid(arg, "contains NaN or inf"));
+    }
     Ok(())
 }
 
@@ -165,6 +173,8 @@ pub fn correspondence_normal_noise(
             format!("expected {dim} x {dim}"),
         ));
     }
+    check_finite("rotation", rotation)?;
+    check_finite("target_normals", target_normals)?;
     let targets = target_normals.len() / dim;
     let mut matched = 0;
     let mut sin2 = Vec::with_capacity(sample.len());
@@ -238,6 +248,27 @@ mod tests {
         let (m, med) = target_normal_noise(&tree, &[0.0; 20]).unwrap();
         assert!(m.is_nan() && med.is_nan());
         assert!(target_normal_noise(&tree, &[0.0; 3]).is_err());
+        let mut nan = [0.0; 20];
+        nan[5] = f64::NAN;
+        let e = target_normal_noise(&tree, &nan).unwrap_err();
+        assert!(e.to_string().contains("normals"), "{e}");
+    }
+
+    #[test]
+    fn correspondence_noise_refuses_non_finite_input() {
+        let nrm = [0.0, 1.0, 0.0, 1.0];
+        let eye = [1.0, 0.0, 0.0, 1.0];
+        let ok = correspondence_normal_noise(&[0, 1], &nrm, &nrm, &eye, &[0, 1], 2);
+        assert!(ok.is_ok());
+        let nan_rot = [f64::NAN, 0.0, 0.0, 1.0];
+        for (arg, src, tgt, rot) in [
+            ("normals", [f64::NAN, 1.0, 0.0, 1.0], nrm, eye),
+            ("target_normals", nrm, [0.0, f64::NAN, 0.0, 1.0], eye),
+            ("rotation", nrm, nrm, nan_rot),
+        ] {
+            let e = correspondence_normal_noise(&[0, 1], &src, &tgt, &rot, &[0, 1], 2).unwrap_err();
+            assert!(e.to_string().starts_with(arg), "{arg}: {e}");
+        }
     }
 
     #[test]
