@@ -274,6 +274,88 @@ def test_prepared_target_gives_identical_result() -> None:
         assert np.array_equal(raw.hessian, again.hessian)
 
 
+def _trust_fields(res: scanreg.RegistrationResult) -> list[np.ndarray]:
+    """Every number of the trust analysis, as arrays."""
+    assert res.covariances is not None and res.degeneracy is not None
+    assert res.quality is not None and res.verdict is not None
+    c = res.covariances
+    return [
+        res.covariance,
+        res.information,
+        res.conditioning.eigenvalues,
+        c.hessian,
+        c.censi,
+        c.block,
+        c.calibrated,
+        np.array([c.point_variance, c.normal_variance, c.block_size, c.num_blocks]),
+        np.asarray(res.degeneracy.eigenvalues),
+        np.array([res.quality.overlap, res.quality.residual_trimmed_rmse]),
+        np.array([res.verdict.accepted]),
+    ]
+
+
+@pytest.mark.parametrize("method", ["point_to_plane", "gicp"])
+def test_lazy_analysis_reads_copies_not_the_callers_arrays(method: str) -> None:
+    # The analysis runs on first access, after register() returned: changing the caller's
+    # arrays in between must not change it (it equals the analysis of an untouched call).
+    target = street_cloud()
+    source = moved_copy(target, T_TRUE_3D)
+    init = np.eye(4)
+    prior = np.diag([0.1, 0.1, 0.1, 0.01, 0.01, 0.01]) ** 2
+    src_covs = None
+    if method == "gicp":
+        src_covs = scanreg.prepare(source, covariances=True).covariances.copy()
+    reference = register(
+        source.copy(), target, method=method, init=init, init_covariance=prior.copy(),
+        source_covariances=None if src_covs is None else src_covs.copy(),
+    )  # fmt: skip
+    lazy = register(
+        source, target, method=method, init=init, init_covariance=prior,
+        source_covariances=src_covs,
+    )  # fmt: skip
+    source += 0.5
+    prior *= 100.0
+    init[:3, 3] = 5.0
+    if src_covs is not None:
+        src_covs *= 10.0
+    for a, b in zip(_trust_fields(reference), _trust_fields(lazy), strict=True):
+        assert np.array_equal(a, b)
+    assert lazy.verdict is not None and lazy.verdict.accepted
+
+
+def test_analysis_runs_once_and_survives_pickling() -> None:
+    import pickle
+    import threading
+
+    target = floor_scan(1.0)
+    source = moved_copy(target, T_TRUE_2D)
+    res = register(source, target, method="point_to_line")
+    seen: list[object] = []
+    workers = [threading.Thread(target=lambda: seen.append(res.covariances)) for _ in range(4)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join()
+    assert all(c is seen[0] for c in seen) and res.covariances is seen[0]
+    assert res.analysis_seconds > 0
+    back = pickle.loads(pickle.dumps(res))
+    assert np.array_equal(back.pose.as_matrix(), res.pose.as_matrix())
+    for a, b in zip(_trust_fields(res), _trust_fields(back), strict=True):
+        assert np.array_equal(a, b)
+
+
+def test_local_map_and_degeneracy_aware_analyse_within_the_call() -> None:
+    # A LocalMap changes in place after the call (odometry inserts the scan), so its analysis
+    # cannot wait; the degeneracy-aware solve needs it to decide.
+    target = floor_scan(1.0)
+    source = moved_copy(target, T_TRUE_2D)
+    res = register(source, target, method="point_to_line", degeneracy_aware=True)
+    assert res._trust._value is not None
+    lazy = register(source, target, method="point_to_line")
+    assert lazy._trust._value is None
+    assert lazy.verdict is not None and lazy._trust._value is not None
+
+
 def test_identical_for_one_and_two_threads() -> None:
     src, tgt, _, _ = outdoor_pair()
     s = pp.voxel_downsample(src, 0.3).points

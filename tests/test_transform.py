@@ -166,3 +166,17 @@ def test_nearly_orthonormal_input_is_projected() -> None:
     r = so3_exp(np.array([0.1, 0.2, 0.3])) + 1e-8
     t = SE3(r, np.zeros(3))
     np.testing.assert_allclose(t.rotation.T @ t.rotation, np.eye(3), atol=1e-14)
+
+
+def test_poses_pickle_bit_identically() -> None:
+    import pickle
+
+    for pose in (
+        SE2.from_vector([1.0, -2.0, 0.3]),
+        SE3.from_vector([1.0, -2.0, 0.5, 0.1, -0.2, 0.3]),
+    ):
+        back = pickle.loads(pickle.dumps(pose))
+        assert type(back) is type(pose)
+        assert np.array_equal(back.as_matrix(), pose.as_matrix())
+        with pytest.raises(AttributeError, match="immutable"):
+            back._rotation = np.eye(pose.DIM)  # type: ignore[misc]

@@ -29,7 +29,9 @@ and the pose it had reached — never a silently wrong "converged" pose.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -235,6 +237,12 @@ class RegistrationResult:
     right-perturbation tangent ``δ`` (translation first, source frame): ``T_true = pose @ exp(δ)``.
     Everything below is evaluated at ``pose``: with the correspondences of the last search when
     the last step was below the tolerances (``converged``), else after a fresh search.
+
+    The trust analysis (``covariance``, ``information``, ``conditioning``, ``covariances``,
+    ``degeneracy``, ``quality``, ``verdict``) runs on first access of any of them, once, and
+    is kept: reading only the pose costs the registration alone. It reads copies, never the
+    caller's arrays, so it is the same whenever it runs; for a :class:`~scanreg.LocalMap`
+    target (updated in place by its owner) and for ``degeneracy_aware`` it runs within the call.
     """
 
     pose: SE2 | SE3
@@ -272,29 +280,82 @@ class RegistrationResult:
     gradient: FloatArray
     #: Residual variance per scalar residual: ``Σ r² / (m - dof)`` (kernel: IRLS-weighted).
     sigma2: float
-    #: The covariance of kind ``settings.covariance`` (default ``calibrated``: Censi ∨ block
-    #: sandwich, the prior along degenerate directions; ``docs/calibration.md``). The
-    #: classic ``σ̂² (JᵀWJ)⁻¹`` is ``covariances.hessian``. All ``inf`` when not determined.
-    covariance: FloatArray
-    #: ``covariance⁻¹`` (all ``inf`` for a noise-free fit).
-    information: FloatArray
-    conditioning: Conditioning
     timing: RegistrationTiming
     settings: RegistrationSettings = field(repr=False)
-    #: Every covariance kind; ``covariance`` is ``getattr(covariances, settings.covariance)``.
-    covariances: CovarianceEstimates | None = field(default=None, repr=False)
-    #: Weak directions of the scene, named (:mod:`scanreg.degeneracy`).
-    degeneracy: Degeneracy | None = field(default=None, repr=False)
-    #: Overlap, residuals, motion from the initial guess, convergence (:mod:`scanreg.verdict`).
-    quality: QualityReport | None = field(default=None, repr=False)
-    #: ``verdict.accepted`` and the readable ``verdict.reasons``.
-    verdict: Verdict | None = None
+    #: The trust analysis behind the properties below, computed on first access (once,
+    #: thread-safe) — or within the call for a LocalMap target or ``degeneracy_aware``.
+    _trust: _LazyTrust = field(repr=False, compare=False, kw_only=True)
+
+    @property
+    def covariance(self) -> FloatArray:
+        """The covariance of kind ``settings.covariance`` (default ``calibrated``: Censi ∨
+        block sandwich, the prior along degenerate directions; ``docs/calibration.md``). The
+        classic ``σ̂² (JᵀWJ)⁻¹`` is ``covariances.hessian``. All ``inf`` when not determined."""
+        return self._trust.get().covariance
+
+    @property
+    def information(self) -> FloatArray:
+        """``covariance⁻¹`` (all ``inf`` for a noise-free fit)."""
+        return self._trust.get().information
+
+    @property
+    def conditioning(self) -> Conditioning:
+        """Eigen-analysis of ``hessian`` with its weak directions named."""
+        return self._trust.get().conditioning
+
+    @property
+    def covariances(self) -> CovarianceEstimates | None:
+        """Every covariance kind; ``covariance`` is one of them (``settings.covariance``)."""
+        return self._trust.get().covariances
+
+    @property
+    def degeneracy(self) -> Degeneracy | None:
+        """Weak directions of the scene, named (:mod:`scanreg.degeneracy`)."""
+        return self._trust.get().degeneracy
+
+    @property
+    def quality(self) -> QualityReport | None:
+        """Overlap, residuals, motion from the initial guess, convergence
+        (:mod:`scanreg.verdict`)."""
+        return self._trust.get().quality
+
+    @property
+    def verdict(self) -> Verdict | None:
+        """``verdict.accepted`` and the readable ``verdict.reasons``."""
+        return self._trust.get().verdict
+
+    @property
+    def analysis_seconds(self) -> float:
+        """Wall-clock seconds the trust analysis took (running it now if it has not run)."""
+        return self._trust.get().seconds
 
     @property
     def standard_deviations(self) -> FloatArray:
         """Square roots of the covariance diagonal (m, m[, m], rad[, rad, rad])."""
         out: FloatArray = np.sqrt(np.diag(self.covariance))
         return out
+
+
+_SETTING_NAMES = frozenset(f.name for f in dataclasses.fields(RegistrationSettings))
+
+
+def _with_overrides(base: RegistrationSettings, overrides: dict[str, Any]) -> RegistrationSettings:
+    unknown = sorted(set(overrides) - _SETTING_NAMES)
+    if unknown:
+        raise TypeError(f"register: unknown setting(s) {', '.join(unknown)}")
+    try:
+        # The type is part of the key: True == 1 == 1.0 hash alike, but only some are valid.
+        return _replace_cached(base, tuple((k, type(v), v) for k, v in sorted(overrides.items())))
+    except TypeError:  # an unhashable value: validated (and refused) by the constructor
+        return dataclasses.replace(base, **overrides)
+
+
+@functools.lru_cache(maxsize=64)
+def _replace_cached(
+    base: RegistrationSettings, items: tuple[tuple[str, type, Any], ...]
+) -> RegistrationSettings:
+    # A loop calling register(..., gate=...) with the same keywords validates them once.
+    return dataclasses.replace(base, **{k: v for k, _, v in items})
 
 
 def _resolve_method(method: Any, dim: int) -> str:
@@ -365,8 +426,13 @@ def _pose_from_core(matrix: FloatArray, dim: int) -> SE2 | SE3:
     err = float(np.abs(r.T @ r - np.eye(dim)).max())
     if err > 1e-6:  # a core bug, never the user's input
         raise ValueError(f"pose: not orthonormal (max |RᵀR - I| = {err:.2e})")
+    if dim == 2:
+        # The nearest rotation to a 2×2 matrix, in closed form (what the SVD would give).
+        th = math.atan2(r[1, 0] - r[0, 1], r[0, 0] + r[1, 1])
+        c, sn = math.cos(th), math.sin(th)
+        return SE2._unchecked(np.array([[c, -sn], [sn, c]]), matrix[:2, 2])
     u, _, vt = np.linalg.svd(r)
-    return pose_class(dim)._unchecked(u @ vt, matrix[:dim, dim])
+    return SE3._unchecked(u @ vt, matrix[:3, 3])
 
 
 def _length_scale(points: FloatArray) -> float:
@@ -434,12 +500,7 @@ def register(
     base = settings if settings is not None else _DEFAULT_SETTINGS
     if not isinstance(base, RegistrationSettings):
         raise TypeError(f"settings: expected RegistrationSettings, got {type(base).__name__}")
-    if overrides:
-        unknown = sorted(set(overrides) - {f.name for f in dataclasses.fields(base)})
-        if unknown:
-            raise TypeError(f"register: unknown setting(s) {', '.join(unknown)}")
-        base = dataclasses.replace(base, **overrides)
-    s = base
+    s = _with_overrides(base, overrides) if overrides else base
     src = as_points(source, "source")
     dim = int(src.shape[1])
     method_eff = _resolve_method(method, dim)
@@ -492,8 +553,7 @@ def register(
         if not math.isfinite(k_scale):
             raise ValueError("kernel_scale: required with an infinite max_correspondence_distance")
 
-    levers = rotation_levers(src, dim)
-    prior = _prior(init_covariance, dof, dim, s.max_correspondence_distance, levers)
+    given_prior = _checked_init_covariance(init_covariance, dof)
     if thresholds is not None and not isinstance(thresholds, VerdictThresholds):
         raise TypeError(f"thresholds: expected VerdictThresholds, got {type(thresholds).__name__}")
 
@@ -532,143 +592,69 @@ def register(
             step_projector=projector,
         )
 
-    # The target's own normal noise needs its k-d tree: not measured on a map.
-    eps2, eps2_typical = (
-        prepared.normal_noise
-        if isinstance(prepared, PreparedTarget) and prepared.normals is not None
-        else (math.nan, math.nan)
-    )
-    block = s.block_size
-    if block is None:
-        block = 2.0 * s.max_correspondence_distance
-        if not math.isfinite(block):
-            block = float(np.sqrt(np.mean(levers**2))) / 5.0
-
-    source_normals = None
-    if planar and len(src) > dim:
-        # Normals of a sample of the source, only to measure the normal noise between the two
-        # scans (Censi's normal term); the registration itself does not use them.
-        source_normals = sampled_normals(
-            src, check_k(min(s.num_neighbors, len(src)), len(src), dim)
-        )
-
-    def target_rows(out: Any) -> tuple[Any, Any, Any, Any]:
-        """The target arrays the analysis reads and the correspondences into them. A map's
-        rows are gathered for the matched ids only (a few thousand, not the whole storage)."""
-        corr = np.asarray(out.correspondences)
-        if not isinstance(prepared, LocalMap):
-            return t_points, t_normals, t_covs, corr
-        used = corr >= 0
-        ids, compact = np.unique(corr[used], return_inverse=True)
-        rows = prepared.native.gather(np.ascontiguousarray(ids, dtype=np.int64))
-        remapped = np.full(corr.shape, -1, dtype=np.int64)
-        remapped[used] = compact
-        return rows[0], rows[1], rows[2], remapped
-
-    def analyse(out: Any) -> tuple[Any, Degeneracy, float, float]:
-        normal_var = 0.0
-        tp, tn, tc, corr = target_rows(out)
-        if source_normals is not None and tn is not None:
-            sample, sample_normals = source_normals
-            normal_var = correspondence_normal_noise(
-                sample_normals, tn, out.pose[:dim, :dim], corr[sample]
-            )
-            normal_var = normal_var if math.isfinite(normal_var) else 0.0
-        # Unit variances: the meats scale linearly and are combined below, once the point
-        # noise is known from the residuals of this very analysis.
-        ana = _core.censi_analysis(
-            src,
-            tp,
-            out.pose,
-            corr,
-            method=method_eff,
-            kernel=s.kernel,
-            kernel_scale=k_scale,
-            source_variance=1.0,
-            target_variance=1.0,
-            block_size=max(block, 1e-9),
-            normal_variance=1.0,
-            target_normals=tn,
-            source_covariances=source_covariances,
-            target_covariances=tc if method_eff == "gicp" else None,
-            num_threads=s.num_threads,
-        )
-        if ana.num_plane_correspondences > dof:
-            deg = analyse_degeneracy(
-                np.array(ana.plane_information),
-                ana.num_plane_correspondences,
-                dim,
-                levers,
-                normal_noise=eps2,
-                typical_normal_noise=eps2_typical,
-            )
-        else:
-            deg = analyse_degeneracy(
-                np.array(ana.hessian),
-                max(ana.num_correspondences, 1),
-                dim,
-                levers,
-                normal_noise=eps2,
-                typical_normal_noise=eps2_typical,
-                basis="hessian",
-            )
-        return ana, deg, _point_variance(out, ana, method_eff, dim, dof), normal_var
+    th = _DEFAULT_THRESHOLDS if thresholds is None else thresholds
 
     projector0 = None
     if step_projector is not None:
         projector0 = as_matrix(step_projector, "step_projector", (dof, dof))
     out = run(projector0)
-    ana, deg, sigma2_point, normal_var = analyse(out)
-    if s.degeneracy_aware and deg.degenerate and len(out.correspondences):
-        out = run(np.ascontiguousarray(np.eye(dof) - deg.weak_projector()))
-        ana, _, sigma2_point, normal_var = analyse(out)
+
+    # The trust analysis (covariances, degeneracy, conditioning, overlap, verdict) runs on first
+    # access unless the solve itself needs it (degeneracy-aware) or the target can change under
+    # it (a LocalMap is updated in place by its owner): reading only the pose costs the ICP.
+    lazy = not (is_map or s.degeneracy_aware)
+    if lazy:
+        # The analysis reads these later: never through a view of the caller's arrays.
+        if isinstance(source, np.ndarray) and np.may_share_memory(src, source):
+            src = src.copy()
+        if (
+            source_covariances is not None
+            and source_attributes is not None
+            and np.may_share_memory(source_covariances, source_attributes)
+        ):
+            source_covariances = source_covariances.copy()
+    ctx = _TrustInputs(
+        source=src,
+        target=prepared,
+        target_points=t_points,
+        target_normals=t_normals,
+        target_covariances=t_covs,
+        source_covariances=source_covariances,
+        method=method_eff,
+        settings=s,
+        kernel_scale=k_scale,
+        components=components,
+        init_covariance=given_prior,
+        start=pose0,
+        thresholds=th,
+    )
+    first: _CorrespondenceAnalysis | None = None
+    if s.degeneracy_aware:
+        first = _correspondence_analysis(ctx, out)
+        if first.degeneracy.degenerate and len(out.correspondences):
+            out = run(np.ascontiguousarray(np.eye(dof) - first.degeneracy.weak_projector()))
+            # The weak directions are the first solve's: the second is held along them.
+            first = dataclasses.replace(
+                _correspondence_analysis(ctx, out), degeneracy=first.degeneracy
+            )
 
     t0 = time.perf_counter()
     pose = _pose_from_core(out.pose, dim)
     hessian = _readonly(np.array(out.hessian))
     n_corr = int(out.num_correspondences)
     m = components * n_corr
-    try:
-        if s.kernel == "none":
-            sigma2 = float(out.sum_squares / (m - dof)) if m > dof else math.nan
-            cov = least_squares_covariance(hessian, sigma2)
-        else:
-            m_eff = components * float(out.irls_weight_sum)
-            sigma2 = float(out.irls_sum_squares / (m_eff - dof)) if m_eff > dof else math.nan
-            cov = sandwich_covariance(hessian, np.array(out.score_outer), m_eff, dof)
-        if not np.isfinite(cov).all():
-            raise np.linalg.LinAlgError("non-finite covariance")
-    except np.linalg.LinAlgError:
-        sigma2 = math.nan if m <= dof else sigma2
-        cov = np.full((dof, dof), np.inf)
-    estimates = _estimates(
-        cov, ana, deg, prior, sigma2_point, normal_var, block, dof, s.degeneracy_aware
-    )
-    chosen = getattr(estimates, s.covariance)
-    info = (
-        information_from_covariance(chosen) if np.isfinite(chosen).all() else np.zeros((dof, dof))
-    )
-    cond = conditioning(hessian, dim, _length_scale(src))
-    t_post = time.perf_counter() - t0
-    t_total = time.perf_counter() - t_start  # the verdict's measurements are not counted
-
+    if s.kernel == "none":
+        sigma2 = float(out.sum_squares / (m - dof)) if m > dof else math.nan
+    else:
+        m_eff = components * float(out.irls_weight_sum)
+        sigma2 = float(out.irls_sum_squares / (m_eff - dof)) if m_eff > dof else math.nan
     stop: StopReason = out.stop_reason
-    th = _DEFAULT_THRESHOLDS if thresholds is None else thresholds
-    # The verdict reads the same eigen-analysis unless it asks for another weak ratio.
-    checked = _assess_checked(
-        pose,
-        src,
-        prepared,
-        start=pose0,
-        gate=float(s.max_correspondence_distance) if th.overlap_gate is None else th.overlap_gate,
-        thresholds=th,
-        conditioning=cond
-        if th.weak_ratio == cond.weak_ratio
-        else conditioning(hessian, dim, cond.length_scale, weak_ratio=th.weak_ratio),
-        converged=stop == "converged",
-        stop_reason=str(stop),
-        degeneracy=deg,
-    )
+    trust = _LazyTrust(ctx, out, pose, hessian, first)
+    if not lazy:
+        trust.get()
+    t_post = time.perf_counter() - t0
+    t_total = time.perf_counter() - t_start  # a lazy analysis is not counted (see its field)
+
     return RegistrationResult(
         pose=pose,
         method=method_eff,
@@ -685,9 +671,6 @@ def register(
         hessian=hessian,
         gradient=_frozen(out.gradient),
         sigma2=sigma2,
-        covariance=chosen,
-        information=_readonly(info),
-        conditioning=cond,
         timing=RegistrationTiming(
             target_preparation=t_target,
             source_preparation=t_source,
@@ -697,19 +680,266 @@ def register(
             total=t_total,
         ),
         settings=s,
+        _trust=trust,
+    )
+
+
+@dataclass(frozen=True)
+class _TrustInputs:
+    """What the trust analysis of one :func:`register` call reads (none of it the caller's
+    mutable arrays: a lazy analysis runs after the call has returned)."""
+
+    source: FloatArray
+    target: PreparedTarget | LocalMap
+    target_points: Any
+    target_normals: Any
+    target_covariances: Any
+    source_covariances: Any
+    method: str
+    settings: RegistrationSettings
+    kernel_scale: float
+    components: int
+    #: Checked (and copied) ``init_covariance``, or None for the gate-wide prior.
+    init_covariance: FloatArray | None
+    start: SE2 | SE3
+    thresholds: VerdictThresholds
+
+    @functools.cached_property
+    def levers(self) -> FloatArray:
+        return rotation_levers(self.source, int(self.source.shape[1]))
+
+    @functools.cached_property
+    def prior(self) -> FloatArray:
+        """The covariance of the initial guess (see :func:`register`)."""
+        if self.init_covariance is not None:
+            return self.init_covariance
+        dim, levers = int(self.source.shape[1]), self.levers
+        gate = self.settings.max_correspondence_distance
+        g = gate if math.isfinite(gate) else float(np.sqrt(np.mean(levers**2)))
+        return np.diag(np.concatenate([np.full(dim, g**2), (g / levers) ** 2]))
+
+    @functools.cached_property
+    def block_size(self) -> float:
+        if self.settings.block_size is not None:
+            return self.settings.block_size
+        block = 2.0 * self.settings.max_correspondence_distance
+        if math.isfinite(block):
+            return block
+        return float(np.sqrt(np.mean(self.levers**2))) / 5.0
+
+
+@dataclass(frozen=True)
+class _CorrespondenceAnalysis:
+    """Censi's and the block meats at the final correspondences, the scene's degeneracy and
+    the noise levels measured from the residuals and normals."""
+
+    censi: Any
+    degeneracy: Degeneracy
+    point_variance: float
+    normal_variance: float
+
+
+@dataclass(frozen=True)
+class _Trust:
+    covariance: FloatArray
+    information: FloatArray
+    conditioning: Conditioning
+    covariances: CovarianceEstimates
+    degeneracy: Degeneracy
+    quality: QualityReport
+    verdict: Verdict
+    seconds: float
+
+
+class _LazyTrust:
+    """The trust analysis of one registration, computed once on first use (thread-safe)."""
+
+    __slots__ = ("_args", "_lock", "_value")
+
+    def __init__(
+        self,
+        ctx: _TrustInputs,
+        out: Any,
+        pose: SE2 | SE3,
+        hessian: FloatArray,
+        first: _CorrespondenceAnalysis | None,
+    ) -> None:
+        self._args: tuple[Any, ...] | None = (ctx, out, pose, hessian, first)
+        self._lock = threading.Lock()
+        self._value: _Trust | None = None
+
+    def get(self) -> _Trust:
+        value = self._value
+        if value is None:
+            with self._lock:
+                if self._value is None:
+                    assert self._args is not None
+                    self._value = _trust(*self._args)
+                    self._args = None  # the source, target and core outcome can go
+                value = self._value
+        return value
+
+    def __getstate__(self) -> _Trust:
+        return self.get()
+
+    def __setstate__(self, value: _Trust) -> None:
+        self._args = None
+        self._lock = threading.Lock()
+        self._value = value
+
+
+def _correspondence_analysis(ctx: _TrustInputs, out: Any) -> _CorrespondenceAnalysis:
+    s, src, prepared, method = ctx.settings, ctx.source, ctx.target, ctx.method
+    dim = int(src.shape[1])
+    dof = 3 if dim == 2 else 6
+    # The target's own normal noise needs its k-d tree: not measured on a map.
+    eps2, eps2_typical = (
+        prepared.normal_noise
+        if isinstance(prepared, PreparedTarget) and prepared.normals is not None
+        else (math.nan, math.nan)
+    )
+    corr = np.asarray(out.correspondences)
+    tp, tn, tc = ctx.target_points, ctx.target_normals, ctx.target_covariances
+    if isinstance(prepared, LocalMap):
+        # A map's rows are gathered for the matched ids only (a few thousand, not the storage).
+        used = corr >= 0
+        ids, compact = np.unique(corr[used], return_inverse=True)
+        tp, tn, tc = prepared.native.gather(np.ascontiguousarray(ids, dtype=np.int64))
+        corr = np.full(corr.shape, -1, dtype=np.int64)
+        corr[used] = compact
+    normal_var = 0.0
+    if method in ("point_to_plane", "point_to_line") and len(src) > dim and tn is not None:
+        # Normals of a sample of the source, only to measure the normal noise between the two
+        # scans (Censi's normal term); the registration itself does not use them.
+        sample, sample_normals = sampled_normals(
+            src, check_k(min(s.num_neighbors, len(src)), len(src), dim)
+        )
+        normal_var = correspondence_normal_noise(
+            sample_normals, tn, out.pose[:dim, :dim], corr[sample]
+        )
+        normal_var = normal_var if math.isfinite(normal_var) else 0.0
+    # Unit variances: the meats scale linearly and are combined once the point noise is known
+    # from the residuals of this very analysis.
+    ana = _core.censi_analysis(
+        src,
+        tp,
+        out.pose,
+        corr,
+        method=method,
+        kernel=s.kernel,
+        kernel_scale=ctx.kernel_scale,
+        source_variance=1.0,
+        target_variance=1.0,
+        block_size=max(ctx.block_size, 1e-9),
+        normal_variance=1.0,
+        target_normals=tn,
+        source_covariances=ctx.source_covariances,
+        target_covariances=tc if method == "gicp" else None,
+        num_threads=s.num_threads,
+    )
+    if ana.num_plane_correspondences > dof:
+        deg = analyse_degeneracy(
+            np.array(ana.plane_information),
+            ana.num_plane_correspondences,
+            dim,
+            ctx.levers,
+            normal_noise=eps2,
+            typical_normal_noise=eps2_typical,
+        )
+    else:
+        deg = analyse_degeneracy(
+            np.array(ana.hessian),
+            max(ana.num_correspondences, 1),
+            dim,
+            ctx.levers,
+            normal_noise=eps2,
+            typical_normal_noise=eps2_typical,
+            basis="hessian",
+        )
+    return _CorrespondenceAnalysis(
+        censi=ana,
+        degeneracy=deg,
+        point_variance=_point_variance(out, ana, method, dim, dof),
+        normal_variance=normal_var,
+    )
+
+
+def _trust(
+    ctx: _TrustInputs,
+    out: Any,
+    pose: SE2 | SE3,
+    hessian: FloatArray,
+    first: _CorrespondenceAnalysis | None,
+) -> _Trust:
+    t0 = time.perf_counter()
+    s, src = ctx.settings, ctx.source
+    dim = int(src.shape[1])
+    dof = 3 if dim == 2 else 6
+    corr = first if first is not None else _correspondence_analysis(ctx, out)
+    deg = corr.degeneracy
+    n_corr = int(out.num_correspondences)
+    m = ctx.components * n_corr
+    try:
+        if s.kernel == "none":
+            sigma2 = float(out.sum_squares / (m - dof)) if m > dof else math.nan
+            cov = least_squares_covariance(hessian, sigma2)
+        else:
+            m_eff = ctx.components * float(out.irls_weight_sum)
+            cov = sandwich_covariance(hessian, np.array(out.score_outer), m_eff, dof)
+        if not np.isfinite(cov).all():
+            raise np.linalg.LinAlgError("non-finite covariance")
+    except np.linalg.LinAlgError:
+        cov = np.full((dof, dof), np.inf)
+    estimates = _estimates(
+        cov,
+        corr.censi,
+        deg,
+        ctx.prior,
+        corr.point_variance,
+        corr.normal_variance,
+        ctx.block_size,
+        dof,
+        s.degeneracy_aware,
+    )
+    chosen = getattr(estimates, s.covariance)
+    info = (
+        information_from_covariance(chosen) if np.isfinite(chosen).all() else np.zeros((dof, dof))
+    )
+    cond = conditioning(hessian, dim, _length_scale(src))
+    th = ctx.thresholds
+    stop = str(out.stop_reason)
+    # The verdict reads the same eigen-analysis unless it asks for another weak ratio.
+    checked = _assess_checked(
+        pose,
+        src,
+        ctx.target,
+        start=ctx.start,
+        gate=float(s.max_correspondence_distance) if th.overlap_gate is None else th.overlap_gate,
+        thresholds=th,
+        conditioning=cond
+        if th.weak_ratio == cond.weak_ratio
+        else conditioning(hessian, dim, cond.length_scale, weak_ratio=th.weak_ratio),
+        converged=stop == "converged",
+        stop_reason=stop,
+        degeneracy=deg,
+    )
+    return _Trust(
+        covariance=chosen,
+        information=_readonly(info),
+        conditioning=cond,
         covariances=estimates,
         degeneracy=deg,
         quality=checked.report,
         verdict=checked.verdict,
+        seconds=time.perf_counter() - t0,
     )
 
 
-def _prior(init_covariance: Any, dof: int, dim: int, gate: float, levers: FloatArray) -> FloatArray:
-    """The covariance of the initial guess (see :func:`register`)."""
+def _checked_init_covariance(init_covariance: Any, dof: int) -> FloatArray | None:
+    """``init_covariance`` checked, as a copy (the analysis may read it after the call)."""
     if init_covariance is None:
-        g = gate if math.isfinite(gate) else float(np.sqrt(np.mean(levers**2)))
-        return np.diag(np.concatenate([np.full(dim, g**2), (g / levers) ** 2]))
-    p = np.asarray(init_covariance, dtype=np.float64)
+        return None
+    p = np.array(init_covariance, dtype=np.float64)
     if p.shape != (dof, dof):
         raise ValueError(f"init_covariance: expected shape ({dof}, {dof}), got {p.shape}")
     if not np.isfinite(p).all() or not np.allclose(p, p.T, rtol=1e-9, atol=1e-12):

@@ -158,6 +158,11 @@ class _Pose:
     def __setattr__(self, name: str, value: object) -> None:
         raise AttributeError(f"{type(self).__name__} is immutable")
 
+    def __reduce__(self) -> tuple[Any, tuple[FloatArray, FloatArray]]:
+        # Pickle (multiprocessing, caches) through the constructor path that skips the setattr
+        # guard; the arrays are stored exactly, so a round trip is bit-identical.
+        return (type(self)._unchecked, (self._rotation, self._translation))
+
     @classmethod
     def _unchecked(cls: type[P], rotation: FloatArray, translation: FloatArray) -> P:
         obj = cls.__new__(cls)
