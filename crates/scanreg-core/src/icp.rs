@@ -137,6 +137,12 @@ pub trait NeighborSearch: Sync {
     fn points(&self) -> &[f64];
     /// Nearest point within the squared gate `max_sq`, as `(id, squared distance)`.
     fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)>;
+    /// [`Self::nearest_within`] with a likely answer `hint` (the previous iteration's
+    /// correspondence); the same result, found faster where the index can use the hint.
+    fn nearest_within_hinted(&self, q: &[f64], max_sq: f64, hint: usize) -> Option<(usize, f64)> {
+        let _ = hint;
+        self.nearest_within(q, max_sq)
+    }
     /// True when the attributes were validated on the way in (no per-call finiteness scan).
     fn attributes_validated(&self) -> bool {
         false
@@ -160,6 +166,9 @@ impl NeighborSearch for KdTree {
     }
     fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
         KdTree::nearest_within(self, q, max_sq)
+    }
+    fn nearest_within_hinted(&self, q: &[f64], max_sq: f64, hint: usize) -> Option<(usize, f64)> {
+        KdTree::nearest_within_hinted(self, q, max_sq, hint)
     }
 }
 
@@ -461,14 +470,16 @@ fn factor<G: Group<D, N>, const D: usize, const N: usize>(
     }
 }
 
-/// Linearise at `pose`. Correspondences are searched in the tree, or taken from `fixed` (one
-/// target index per source point, `NONE` for none) and re-gated.
+/// Linearise at `pose`. Correspondences are searched in the tree (starting from `hints`, the
+/// previous iteration's correspondences, where given: same result, less search), or taken
+/// from `fixed` (one target index per source point, `NONE` for none) and re-gated.
 fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
     pr: &Problem<'_>,
     pose: &Pose<D>,
     with_scores: bool,
     keep_correspondences: bool,
     fixed: Option<&[u32]>,
+    hints: Option<&[u32]>,
 ) -> (Evaluation, Vec<u32>) {
     let n = pr.source.len() / D;
     let tree = pr.target.search;
@@ -482,7 +493,12 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                 let tp = pose.r * p + pose.t;
                 let mut used = NONE;
                 let found = match fixed {
-                    None => tree.nearest_within(tp.as_slice(), pr.max_sq),
+                    None => match hints.map(|h| h[i]) {
+                        Some(h) if h != NONE => {
+                            tree.nearest_within_hinted(tp.as_slice(), pr.max_sq, h as usize)
+                        }
+                        _ => tree.nearest_within(tp.as_slice(), pr.max_sq),
+                    },
                     Some(c) if c[i] != NONE => {
                         let j = c[i] as usize;
                         let d2 = (tp - vec_at::<D>(tree.points(), j)).norm_squared();
@@ -590,9 +606,11 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     let mut stop = StopReason::MaxIterations;
     let mut times = Vec::with_capacity(s.max_iterations);
     let mut last_corr: Vec<u32> = Vec::new();
+    // The previous iteration's correspondences: each search starts from them.
+    let mut prev_corr: Vec<u32> = Vec::new();
     for _ in 0..s.max_iterations {
         let t0 = Instant::now();
-        let (lin, corr) = evaluate::<G, D, N>(pr, &pose, false, true, None);
+        let (lin, corr) = evaluate::<G, D, N>(pr, &pose, false, true, None, hints(&prev_corr));
         if lin.num_correspondences < s.min_correspondences {
             stop = StopReason::TooFewCorrespondences;
             break;
@@ -671,12 +689,14 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
             last_corr = corr;
             break;
         }
+        prev_corr = corr;
     }
     let t0 = Instant::now();
     // After a converged (sub-tolerance) last step the correspondences cannot have changed
     // meaningfully: re-use them instead of a full search (saves one nearest-neighbour pass).
     let fixed = (stop == StopReason::Converged).then_some(last_corr.as_slice());
-    let (evaluation, correspondences) = evaluate::<G, D, N>(pr, &pose, true, true, fixed);
+    let (evaluation, correspondences) =
+        evaluate::<G, D, N>(pr, &pose, true, true, fixed, hints(&prev_corr));
     if evaluation.num_correspondences < s.min_correspondences {
         stop = StopReason::TooFewCorrespondences;
     }
@@ -804,10 +824,15 @@ pub fn evaluate_at(
     let pr = problem(source, target, settings)?;
     split_pose("pose", pose, dim)?;
     Ok(if dim == 2 {
-        evaluate::<Planar, 2, 3>(&pr, &Pose::from_flat(pose), true, false, None).0
+        evaluate::<Planar, 2, 3>(&pr, &Pose::from_flat(pose), true, false, None, None).0
     } else {
-        evaluate::<Spatial, 3, 6>(&pr, &Pose::from_flat(pose), true, false, None).0
+        evaluate::<Spatial, 3, 6>(&pr, &Pose::from_flat(pose), true, false, None, None).0
     })
+}
+
+/// The previous iteration's correspondences as search hints (none before the first).
+fn hints(prev: &[u32]) -> Option<&[u32]> {
+    (!prev.is_empty()).then_some(prev)
 }
 
 /// Run `f` on a rayon pool of `num_threads` threads (pools are built once per size and kept),

@@ -47,6 +47,18 @@ struct Inner<const D: usize> {
     nodes: Vec<Node>,
     pts: Vec<[f64; D]>,
     ids: Vec<u32>,
+    /// Every leaf's bucket and cell (the box its ancestors' splits bound; `±inf` at the
+    /// edges), for searches that start from a known point ([`Self::nearest_hinted`]).
+    leaves: Vec<Leaf<D>>,
+    /// The leaf holding each original point index.
+    leaf_of: Vec<u32>,
+}
+
+struct Leaf<const D: usize> {
+    lo: u32,
+    hi: u32,
+    cell_lo: [f64; D],
+    cell_hi: [f64; D],
 }
 
 #[inline(always)]
@@ -74,13 +86,34 @@ impl<const D: usize> Inner<D> {
             .collect();
         let n = items.len();
         let mut nodes = Vec::with_capacity(2 * n.div_ceil(LEAF_SIZE) + 1);
-        Self::build_rec(&mut items, 0, &mut nodes);
-        let (pts, ids) = items.into_iter().unzip();
-        Inner { nodes, pts, ids }
+        let mut leaves = Vec::with_capacity(2 * n.div_ceil(LEAF_SIZE) + 1);
+        let cell = ([f64::NEG_INFINITY; D], [f64::INFINITY; D]);
+        Self::build_rec(&mut items, 0, cell, &mut nodes, &mut leaves);
+        let (pts, ids): (Vec<[f64; D]>, Vec<u32>) = items.into_iter().unzip();
+        let mut leaf_of = vec![0u32; n];
+        for (l, leaf) in leaves.iter().enumerate() {
+            for &id in &ids[leaf.lo as usize..leaf.hi as usize] {
+                leaf_of[id as usize] = l as u32;
+            }
+        }
+        Inner {
+            nodes,
+            pts,
+            ids,
+            leaves,
+            leaf_of,
+        }
     }
 
-    /// Median split on the widest axis of the bounding box; returns the node's index.
-    fn build_rec(items: &mut [([f64; D], u32)], offset: usize, nodes: &mut Vec<Node>) -> usize {
+    /// Median split on the widest axis of the bounding box; returns the node's index. `cell`
+    /// is the region the ancestors' splits leave to this node.
+    fn build_rec(
+        items: &mut [([f64; D], u32)],
+        offset: usize,
+        cell: ([f64; D], [f64; D]),
+        nodes: &mut Vec<Node>,
+        leaves: &mut Vec<Leaf<D>>,
+    ) -> usize {
         let me = nodes.len();
         let n = items.len();
         let leaf = Node {
@@ -91,7 +124,16 @@ impl<const D: usize> Inner<D> {
             split: 0.0,
         };
         nodes.push(leaf);
+        let as_leaf = |leaves: &mut Vec<Leaf<D>>| {
+            leaves.push(Leaf {
+                lo: offset as u32,
+                hi: (offset + n) as u32,
+                cell_lo: cell.0,
+                cell_hi: cell.1,
+            })
+        };
         if n <= LEAF_SIZE {
+            as_leaf(leaves);
             return me;
         }
         let mut lo = [f64::INFINITY; D];
@@ -109,14 +151,18 @@ impl<const D: usize> Inner<D> {
             }
         }
         if hi[axis] - lo[axis] <= 0.0 {
+            as_leaf(leaves);
             return me; // all points identical: one (large) leaf
         }
         let mid = n / 2;
         items.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
         let split = items[mid].0[axis];
         let (l, r) = items.split_at_mut(mid);
-        Self::build_rec(l, offset, nodes);
-        let right = Self::build_rec(r, offset + mid, nodes);
+        let (mut left_cell, mut right_cell) = (cell, cell);
+        left_cell.1[axis] = split;
+        right_cell.0[axis] = split;
+        Self::build_rec(l, offset, left_cell, nodes, leaves);
+        let right = Self::build_rec(r, offset + mid, right_cell, nodes, leaves);
         nodes[me] = Node {
             axis: axis as u32,
             lo: offset as u32,
@@ -220,11 +266,20 @@ impl<const D: usize> Inner<D> {
 
     #[inline]
     fn nearest(&self, q: &[f64; D], max_sq: f64) -> Option<(usize, f64)> {
-        let mut bd = max_sq;
-        let mut bi = u32::MAX;
+        self.nearest_from(q, max_sq, u32::MAX)
+    }
+
+    /// [`Self::nearest`] starting from a known candidate `(bd, bi)` (`bi = u32::MAX`: none, `bd`
+    /// the gate): every cell farther than `bd` is pruned from the start. The result is the
+    /// same as a fresh search whenever the true nearest is within `bd`, which it is when `bd`
+    /// is the distance to a real point `bi` (ties still go to the lowest index: a cell at
+    /// exactly `bd` is visited).
+    #[inline]
+    fn nearest_from(&self, q: &[f64; D], bd: f64, bi: u32) -> Option<(usize, f64)> {
+        let (mut bd, mut bi) = (bd, bi);
         let pts = &self.pts;
         let ids = &self.ids;
-        let best = std::cell::Cell::new(max_sq);
+        let best = std::cell::Cell::new(bd);
         self.traverse_near(
             q,
             || best.get(),
@@ -240,6 +295,39 @@ impl<const D: usize> Inner<D> {
             },
         );
         (bi != u32::MAX).then_some((bi as usize, bd))
+    }
+
+    /// [`Self::nearest`] from a known point `hint` at squared distance `dh <= max_sq`: if `q`
+    /// lies in the hint's leaf cell and that leaf's best point is nearer than the cell's
+    /// boundary, no other leaf can hold a point as near (every other point lies outside the
+    /// cell or on its boundary), and the tree is not traversed at all; else a traversal bounded
+    /// by that best. Exactly [`Self::nearest`]'s answer (float subtraction and squaring are
+    /// monotonic, so an outside point is never computed nearer than the boundary).
+    #[inline]
+    fn nearest_hinted(&self, q: &[f64; D], hint: u32, dh: f64) -> Option<(usize, f64)> {
+        let leaf = &self.leaves[self.leaf_of[hint as usize] as usize];
+        let (mut bd, mut bi) = (dh, hint);
+        let mut margin = f64::INFINITY;
+        for c in 0..D {
+            let below = q[c] - leaf.cell_lo[c];
+            let above = leaf.cell_hi[c] - q[c];
+            if !(below >= 0.0 && above >= 0.0) {
+                return self.nearest_from(q, bd, bi); // q is outside the hint's cell
+            }
+            margin = margin.min(below.min(above));
+        }
+        let (lo, hi) = (leaf.lo as usize, leaf.hi as usize);
+        for (p, &id) in self.pts[lo..hi].iter().zip(&self.ids[lo..hi]) {
+            let d = sq_dist(p, q);
+            if d <= bd && before(d, id, bd, bi) {
+                bd = d;
+                bi = id;
+            }
+        }
+        if bd < margin * margin {
+            return Some((bi as usize, bd));
+        }
+        self.nearest_from(q, bd, bi)
     }
 
     /// `out[start..]` is kept sorted by (distance, index), at most `k` long.
@@ -444,6 +532,27 @@ impl KdTree {
     #[inline]
     pub fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
         with_tree!(self, t, D => t.nearest(&arr::<D>(q), max_sq))
+    }
+
+    /// [`Self::nearest_within`] given a likely answer `hint` (a point index, e.g. the previous
+    /// ICP iteration's correspondence): the search starts with the bound set by the hint, so
+    /// it prunes most of the tree at once. Exactly the same result as `nearest_within`.
+    #[inline]
+    pub fn nearest_within_hinted(
+        &self,
+        q: &[f64],
+        max_sq: f64,
+        hint: usize,
+    ) -> Option<(usize, f64)> {
+        let d = self.dim;
+        let Some(h) = self.points.get(hint * d..hint * d + d) else {
+            return self.nearest_within(q, max_sq);
+        };
+        let dh: f64 = h.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+        if dh.is_nan() || dh > max_sq {
+            return self.nearest_within(q, max_sq);
+        }
+        with_tree!(self, t, D => t.nearest_hinted(&arr::<D>(q), hint as u32, dh))
     }
 
     /// The `k` nearest points to `q` (fewer if `max_sq` is finite), appended to `out` sorted
@@ -789,6 +898,29 @@ mod tests {
                     assert_eq!(got, want);
                     let gated = tree.nearest_within(q, gate * gate).map(|x| x.1);
                     assert_eq!(gated, want.map(|x| x.1));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn hinted_nearest_equals_the_plain_search() {
+        // Any hint (the true answer, a far point, one beyond the gate, out of range), ties
+        // included (grid clouds): the same (index, distance) as the search without a hint.
+        for (dim, grid) in [(2, false), (2, true), (3, false), (3, true)] {
+            let pts = lcg_cloud(500, dim, 7 + dim as u64, grid);
+            let tree = KdTree::build(&pts, dim).unwrap();
+            let queries = lcg_cloud(200, dim, 99, grid);
+            for (n, q) in queries.chunks_exact(dim).enumerate() {
+                for max_sq in [f64::INFINITY, 0.5, 0.0] {
+                    let want = tree.nearest_within(q, max_sq);
+                    for hint in [n, (n * 37) % 500, 499, 10_000] {
+                        let got = tree.nearest_within_hinted(q, max_sq, hint);
+                        assert_eq!(got, want, "dim {dim} grid {grid} q {q:?} hint {hint}");
+                    }
+                    if let Some((best, _)) = want {
+                        assert_eq!(tree.nearest_within_hinted(q, max_sq, best), want);
+                    }
                 }
             }
         }
