@@ -315,6 +315,7 @@ def overlap_statistics(
     pose_matrix: NDArray[np.float64],
     max_distance: float,
     num_threads: int | None = None,
+    hints: NDArray[np.int64] | None = None,
 ) -> tuple[int, float, float, float, float]: ...
 def target_normal_noise(tree: KdTree, normals: NDArray[np.float64]) -> tuple[float, float]: ...
 def sampled_normals(

@@ -922,6 +922,7 @@ def _trust(
         converged=stop == "converged",
         stop_reason=stop,
         degeneracy=deg,
+        hints=None if isinstance(ctx.target, LocalMap) else out.correspondences,
     )
     return _Trust(
         covariance=chosen,

@@ -185,15 +185,18 @@ def _assess_checked(
     converged: bool,
     stop_reason: str,
     degeneracy: Degeneracy | None,
+    hints: Any = None,
 ) -> Assessment:
     """:func:`assess` on inputs already checked (``source`` validated, ``target`` prepared
     and of the pose's dimension, ``conditioning`` at ``thresholds.weak_ratio``): what
-    :func:`scanreg.register` calls, with no second validation of its own arrays."""
+    :func:`scanreg.register` calls, with no second validation of its own arrays. ``hints``:
+    the registration's final correspondences (int64, ``-1`` for none), where the overlap
+    search starts (same result, faster)."""
     is_map = isinstance(target, LocalMap)
     if is_map and not math.isfinite(gate):
         raise ValueError(f"max_distance: must be finite and >= 0, got {gate}")
     index = target.native if isinstance(target, LocalMap) else target.index
-    num_found, *stats = _core.overlap_statistics(index, source, pose.as_matrix(), gate)
+    num_found, *stats = _core.overlap_statistics(index, source, pose.as_matrix(), gate, hints=hints)
     moved = start.inverse() @ pose  # type: ignore[operator]
     report = QualityReport(
         overlap=num_found / source.shape[0],

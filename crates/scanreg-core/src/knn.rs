@@ -545,7 +545,10 @@ impl KdTree {
         hint: usize,
     ) -> Option<(usize, f64)> {
         let d = self.dim;
-        let Some(h) = self.points.get(hint * d..hint * d + d) else {
+        let Some(h) = hint
+            .checked_mul(d)
+            .and_then(|start| self.points.get(start..start + d))
+        else {
             return self.nearest_within(q, max_sq);
         };
         let dh: f64 = h.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();

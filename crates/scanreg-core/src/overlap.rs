@@ -3,7 +3,7 @@
 //! measurements, `scanreg.verdict`). One pass and a sort, in place of a search plus a dozen
 //! array operations per registration.
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::icp::NeighborSearch;
 use crate::normal_noise::median_sorted;
 use crate::points::{check_points, split_pose};
@@ -24,29 +24,57 @@ pub struct Overlap {
 
 /// Search the nearest target point of each source point moved by `pose` (row-major
 /// homogeneous), within `max_sq` (squared gate), and summarise the distances found.
+/// `hints`: one likely nearest target id per source point (`< 0`: none), e.g. the
+/// registration's final correspondences — the same result, searched faster.
 pub fn overlap(
     search: &dyn NeighborSearch,
     source: &[f64],
     pose: &[f64],
     max_sq: f64,
+    hints: Option<&[i64]>,
 ) -> Result<Overlap> {
     let dim = search.dim();
     // Finite too: a NaN point would find no neighbour and silently lower the overlap.
-    check_points("source", source, dim)?;
+    let n = check_points("source", source, dim)?;
     let (r, t) = split_pose("pose", pose, dim)?;
-    let distance = |p: &[f64]| {
+    if let Some(h) = hints {
+        if h.len() != n {
+            return Err(Error::invalid(
+                "hints",
+                format!("expected one per source point ({n}), got {}", h.len()),
+            ));
+        }
+        let ids = search.id_count() as i64;
+        if let Some(&bad) = h.iter().find(|&&v| v >= ids) {
+            return Err(Error::invalid(
+                "hints",
+                format!("index {bad} out of range for {ids} target points"),
+            ));
+        }
+    }
+    let distance = |(i, p): (usize, &[f64])| {
         let mut q = [0.0; 3];
         for (row, out) in q.iter_mut().enumerate().take(dim) {
             *out = (0..dim).map(|c| p[c] * r[row * dim + c]).sum::<f64>() + t[row];
         }
-        search
-            .nearest_within(&q[..dim], max_sq)
-            .map(|(_, d2)| d2.sqrt())
+        match hints.map(|h| h[i]) {
+            Some(h) if h >= 0 => search.nearest_within_hinted(&q[..dim], max_sq, h as usize),
+            _ => search.nearest_within(&q[..dim], max_sq),
+        }
+        .map(|(_, d2)| d2.sqrt())
     };
-    let mut found: Vec<f64> = if source.len() / dim <= SEQUENTIAL_MAX {
-        source.chunks_exact(dim).filter_map(distance).collect()
+    let mut found: Vec<f64> = if n <= SEQUENTIAL_MAX {
+        source
+            .chunks_exact(dim)
+            .enumerate()
+            .filter_map(distance)
+            .collect()
     } else {
-        source.par_chunks_exact(dim).filter_map(distance).collect()
+        source
+            .par_chunks_exact(dim)
+            .enumerate()
+            .filter_map(distance)
+            .collect()
     };
     let n = found.len();
     if n == 0 {
@@ -86,12 +114,12 @@ mod tests {
         let pose = [1.0, 0.0, 0.1, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
         let mut source = target.clone();
         source.extend([50.0, 50.0]); // far from everything
-        let o = overlap(&tree, &source, &pose, 0.2 * 0.2).unwrap();
+        let o = overlap(&tree, &source, &pose, 0.2 * 0.2, None).unwrap();
         assert_eq!(o.num_found, 100);
         for v in [o.mean, o.median, o.rmse, o.trimmed_rmse] {
             assert!((v - 0.1).abs() < 1e-12, "{o:?}");
         }
-        let none = overlap(&tree, &source, &pose, 0.05 * 0.05).unwrap();
+        let none = overlap(&tree, &source, &pose, 0.05 * 0.05, None).unwrap();
         assert_eq!(none.num_found, 0);
         assert!(none.mean.is_nan() && none.trimmed_rmse.is_nan());
     }
@@ -101,18 +129,42 @@ mod tests {
         let tree = KdTree::build(&[0.0, 0.0], 2).unwrap();
         let source: Vec<f64> = (1..=10).flat_map(|i| [i as f64, 0.0]).collect();
         let eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-        let o = overlap(&tree, &source, &eye, f64::INFINITY).unwrap();
+        let o = overlap(&tree, &source, &eye, f64::INFINITY, None).unwrap();
         let want = ((1..=9).map(|i| (i * i) as f64).sum::<f64>() / 9.0).sqrt();
         assert!((o.trimmed_rmse - want).abs() < 1e-12);
         assert_eq!(o.median, 5.5);
     }
 
     #[test]
+    fn hints_change_nothing_and_are_checked() {
+        let target: Vec<f64> = (0..400)
+            .flat_map(|i| [((i * 37) % 101) as f64 * 0.1, ((i * 53) % 97) as f64 * 0.1])
+            .collect();
+        let tree = KdTree::build(&target, 2).unwrap();
+        let pose = [0.99, -0.141, 0.03, 0.141, 0.99, -0.02, 0.0, 0.0, 1.0];
+        let source = target.clone();
+        let n = source.len() / 2;
+        let plain = overlap(&tree, &source, &pose, 0.3 * 0.3, None).unwrap();
+        for hints in [
+            (0..n as i64).collect::<Vec<_>>(),
+            (0..n as i64).map(|i| (i * 7) % n as i64).collect(),
+            vec![-1; n],
+        ] {
+            let hinted = overlap(&tree, &source, &pose, 0.3 * 0.3, Some(&hints)).unwrap();
+            assert_eq!(hinted, plain);
+        }
+        let e = overlap(&tree, &source, &pose, 1.0, Some(&[0, 1])).unwrap_err();
+        assert!(e.to_string().contains("hints"), "{e}");
+        let e = overlap(&tree, &source, &pose, 1.0, Some(&vec![n as i64; n])).unwrap_err();
+        assert!(e.to_string().contains("out of range"), "{e}");
+    }
+
+    #[test]
     fn refuses_non_finite_source_points() {
         let tree = KdTree::build(&[0.0, 0.0, 1.0, 0.0], 2).unwrap();
         let eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-        let e = overlap(&tree, &[0.0, 0.0, f64::NAN, 1.0], &eye, 1.0).unwrap_err();
+        let e = overlap(&tree, &[0.0, 0.0, f64::NAN, 1.0], &eye, 1.0, None).unwrap_err();
         assert!(e.to_string().contains("source"), "{e}");
-        assert!(overlap(&tree, &[0.0, 0.0, 1.0], &eye, 1.0).is_err()); // not N x 2
+        assert!(overlap(&tree, &[0.0, 0.0, 1.0], &eye, 1.0, None).is_err()); // not N x 2
     }
 }

@@ -14,7 +14,7 @@ use scanreg_core::{normal_noise, overlap};
 /// `(num_found, mean, median, rmse, trimmed_rmse)` of the distances from each source point,
 /// moved by `pose_matrix`, to its nearest target point within `max_distance`.
 #[pyfunction]
-#[pyo3(signature = (target, source, pose_matrix, max_distance, num_threads=None))]
+#[pyo3(signature = (target, source, pose_matrix, max_distance, num_threads=None, hints=None))]
 fn overlap_statistics(
     py: Python<'_>,
     target: &Bound<'_, PyAny>,
@@ -22,7 +22,9 @@ fn overlap_statistics(
     pose_matrix: PyReadonlyArray2<'_, f64>,
     max_distance: f64,
     num_threads: Option<usize>,
+    hints: Option<PyReadonlyArray1<'_, i64>>,
 ) -> PyResult<(usize, f64, f64, f64, f64)> {
+    let hints = hints.as_ref().map(|h| c_slice(h, "hints")).transpose()?;
     let held = target_search(target)?;
     let search = held.search();
     let dim = search.dim();
@@ -32,7 +34,7 @@ fn overlap_statistics(
     let o = py
         .detach(|| {
             in_pool_unless_small(src.len() / dim, num_threads, || {
-                overlap::overlap(search, src, pm, max_sq)
+                overlap::overlap(search, src, pm, max_sq, hints)
             })
         })
         .and_then(|r| r)
