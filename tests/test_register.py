@@ -305,6 +305,7 @@ def test_lazy_analysis_reads_copies_not_the_callers_arrays(method: str) -> None:
     src_covs = None
     if method == "gicp":
         src_covs = scanreg.prepare(source, covariances=True).covariances.copy()
+    target = scanreg.prepare(target, normals=True, covariances=True)  # analysed lazily
     reference = register(
         source.copy(), target, method=method, init=init, init_covariance=prior.copy(),
         source_covariances=None if src_covs is None else src_covs.copy(),
@@ -327,9 +328,9 @@ def test_analysis_runs_once_and_survives_pickling() -> None:
     import pickle
     import threading
 
-    target = floor_scan(1.0)
-    source = moved_copy(target, T_TRUE_2D)
-    res = register(source, target, method="point_to_line")
+    points = floor_scan(1.0)
+    source = moved_copy(points, T_TRUE_2D)
+    res = register(source, scanreg.prepare(points), method="point_to_line")
     seen: list[object] = []
     workers = [threading.Thread(target=lambda: seen.append(res.covariances)) for _ in range(4)]
     for w in workers:
@@ -344,14 +345,23 @@ def test_analysis_runs_once_and_survives_pickling() -> None:
         assert np.array_equal(a, b)
 
 
-def test_local_map_and_degeneracy_aware_analyse_within_the_call() -> None:
+def test_only_a_prepared_target_defers_the_analysis() -> None:
     # A LocalMap changes in place after the call (odometry inserts the scan), so its analysis
-    # cannot wait; the degeneracy-aware solve needs it to decide.
-    target = floor_scan(1.0)
-    source = moved_copy(target, T_TRUE_2D)
-    res = register(source, target, method="point_to_line", degeneracy_aware=True)
-    assert res._trust._value is not None
-    lazy = register(source, target, method="point_to_line")
+    # cannot wait; the degeneracy-aware solve needs it to decide; a raw target's index was
+    # built for the call alone, and an unread result would keep it alive.
+    points = floor_scan(1.0)
+    source = moved_copy(points, T_TRUE_2D)
+    prepared = scanreg.prepare(points)
+    local_map = scanreg.LocalMap(2, voxel_size=0.1, attributes="normals")
+    local_map.insert(points, normals=prepared.normals)
+    for target, kw in [
+        (points, {}),
+        (prepared, {"degeneracy_aware": True}),
+        (local_map, {}),
+    ]:
+        res = register(source, target, method="point_to_line", **kw)
+        assert res._trust._value is not None, (type(target).__name__, kw)
+    lazy = register(source, prepared, method="point_to_line")
     assert lazy._trust._value is None
     assert lazy.verdict is not None and lazy._trust._value is not None
 

@@ -195,7 +195,8 @@ class RegistrationTiming:
     iterations: tuple[float, ...]
     #: The final evaluation at the returned pose (fitness, H, scores).
     final_evaluation: float
-    #: Covariance and conditioning in Python.
+    #: Pose projection and, unless deferred to first access (a PreparedTarget), the trust
+    #: analysis (covariances, degeneracy, conditioning, overlap, verdict).
     post_processing: float
     total: float
 
@@ -241,8 +242,10 @@ class RegistrationResult:
     The trust analysis (``covariance``, ``information``, ``conditioning``, ``covariances``,
     ``degeneracy``, ``quality``, ``verdict``) runs on first access of any of them, once, and
     is kept: reading only the pose costs the registration alone. It reads copies, never the
-    caller's arrays, so it is the same whenever it runs; for a :class:`~scanreg.LocalMap`
-    target (updated in place by its owner) and for ``degeneracy_aware`` it runs within the call.
+    caller's arrays, so it is the same whenever it runs. This holds for a
+    :class:`~scanreg.PreparedTarget`; for a :class:`~scanreg.LocalMap` (updated in place by
+    its owner), a raw-array target (its index would stay pinned by the result) and
+    ``degeneracy_aware`` the analysis runs within the call.
     """
 
     pose: SE2 | SE3
@@ -283,7 +286,7 @@ class RegistrationResult:
     timing: RegistrationTiming
     settings: RegistrationSettings = field(repr=False)
     #: The trust analysis behind the properties below, computed on first access (once,
-    #: thread-safe) — or within the call for a LocalMap target or ``degeneracy_aware``.
+    #: thread-safe) for a PreparedTarget — within the call otherwise.
     _trust: _LazyTrust = field(repr=False, compare=False, kw_only=True)
 
     @property
@@ -600,9 +603,12 @@ def register(
     out = run(projector0)
 
     # The trust analysis (covariances, degeneracy, conditioning, overlap, verdict) runs on first
-    # access unless the solve itself needs it (degeneracy-aware) or the target can change under
-    # it (a LocalMap is updated in place by its owner): reading only the pose costs the ICP.
-    lazy = not (is_map or s.degeneracy_aware)
+    # access when the target is a PreparedTarget the caller holds anyway: reading only the pose
+    # then costs the ICP. Not when the solve needs it (degeneracy-aware), when the target can
+    # change under it (a LocalMap is updated in place by its owner), nor for a raw-array target,
+    # whose index and normals were built for this call alone: a result kept unread would pin
+    # them (megabytes per result in a pose graph's list of loop closures).
+    lazy = isinstance(target, PreparedTarget) and not s.degeneracy_aware
     if lazy:
         # The analysis reads these later: never through a view of the caller's arrays.
         if isinstance(source, np.ndarray) and np.may_share_memory(src, source):
