@@ -12,7 +12,8 @@ Pairs:
   (branch and bound) + point-to-line, the chain that scores 0.027 m on the local relations;
 * simulated: a SICK LMS200 in ``floor_plan(seed=3)`` driving a curve, exact truth, initial
   guess the truth perturbed by (0.05 m, -0.05 m, 2°).
-Each library gets raw (N, 2) arrays (small_gicp: (N, 3) with z = 0) and returns a pose:
+Each library gets raw (N, 2) arrays (small_gicp and Open3D, if importable: (N, 3) with z = 0)
+and returns a pose:
 building the target index, its normals (point-to-line / PLANE_ICP) or both clouds'
 covariances (GICP), then the alignment — end-to-end per pair; no downsampling. Shared settings:
 gate 0.3 m, k = 10, at most 30 iterations, convergence at 1e-4 m / 1e-4 rad, no robust
@@ -39,6 +40,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # Open3D's OpenMP: one thread, like everyone
 
 import numpy as np
 import scanreg
@@ -227,6 +230,48 @@ def theirs(
     return out
 
 
+def theirs_open3d(
+    o3d: Any, pairs: list[tuple[np.ndarray, np.ndarray, np.ndarray]], method: str
+) -> list[SE2]:
+    """Open3D on the same padded scans: point-to-point, point-to-plane (normals from k-NN, as
+    small_gicp's: in the z = 0 plane they are vertical) or GICP, its default relative
+    convergence criteria and the same iteration cap."""
+    reg = o3d.pipelines.registration
+    knn = o3d.geometry.KDTreeSearchParamKNN(K)
+    criteria = reg.ICPConvergenceCriteria(max_iteration=MAX_ITERATIONS)
+    out = []
+    for src, tgt, init in pairs:
+        t = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(tgt))
+        s = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(src))
+        if method == "point_to_line":
+            t.estimate_normals(knn)
+            res = reg.registration_icp(
+                s, t, GATE, init, reg.TransformationEstimationPointToPlane(), criteria
+            )
+        elif method == "gicp":
+            t.estimate_covariances(knn)
+            s.estimate_covariances(knn)
+            res = reg.registration_generalized_icp(
+                s, t, GATE, init, reg.TransformationEstimationForGeneralizedICP(), criteria
+            )
+        else:
+            res = reg.registration_icp(
+                s, t, GATE, init, reg.TransformationEstimationPointToPoint(), criteria
+            )
+        m = np.asarray(res.transformation)
+        if not np.isfinite(m).all():
+            # In the z = 0 plane its point-to-plane system is singular (vertical normals): it
+            # returns NaN. Scored as the initial guess, and counted.
+            OPEN3D_NON_FINITE[method] = OPEN3D_NON_FINITE.get(method, 0) + 1
+            m = init
+        out.append(SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])]))
+    return out
+
+
+#: Open3D results that were NaN, per method (all timed runs of every set).
+OPEN3D_NON_FINITE: dict[str, int] = {}
+
+
 def errors_mm(poses: list[SE2], pairs: list[Pair]) -> tuple[float, float]:
     e = [
         1e3 * float(np.linalg.norm((ref.inverse() @ p).translation))
@@ -262,12 +307,18 @@ def main() -> None:
         sys.path.append(args.peers_site)
     with contextlib.suppress(ImportError):
         import small_gicp as sg
+    o3d = None
+    with contextlib.suppress(ImportError, OSError):
+        import open3d as o3d
+
+        o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     log = read_carmen(DATA / "carmen-intel" / "intel_gfs_subset_clf_timestamps.clf")
     sets = {"intel": intel_pairs(log), "simulated": simulated_pairs()}
     print(
         f"load average: {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f}; "
         f"{'median' if args.median else 'best'} of {args.repeat}, "
-        f"{'CPU time' if args.cpu else 'wall clock'}; small_gicp: {sg is not None}"
+        f"{'CPU time' if args.cpu else 'wall clock'}; small_gicp: {sg is not None}; "
+        f"open3d: {o3d is not None}"
     )
     print(
         "| pairs | n | method | scanreg ms/pair | small_gicp ms/pair | ratio | "
@@ -292,6 +343,19 @@ def main() -> None:
                 )
             else:
                 row += f"– | – | {e_ours[0]:.1f} / {e_ours[1]:.1f} | – |"
+            if o3d is not None:
+                t_o3d, p_o3d = timed(
+                    lambda m=method, p=padded: theirs_open3d(o3d, p, m), args.repeat, best
+                )
+                e_o3d = errors_mm(p_o3d, pairs)
+                row += (
+                    f" open3d {t_o3d / len(pairs) * 1e3:.3f} ms/pair (ratio {t_ours / t_o3d:.2f}),"
+                    f" err {e_o3d[0]:.1f} / {e_o3d[1]:.1f} mm"
+                )
+                bad = OPEN3D_NON_FINITE.pop(method, 0)
+                if bad:
+                    row += f" ({bad} NaN poses over {args.repeat + 1} runs)"
+
             if args.trust:
                 t_trust, _ = timed(
                     lambda m=method, p=pairs: ours(p, m, trust=True), args.repeat, best
