@@ -655,7 +655,7 @@ def register(
         m_eff = components * float(out.irls_weight_sum)
         sigma2 = float(out.irls_sum_squares / (m_eff - dof)) if m_eff > dof else math.nan
     stop: StopReason = out.stop_reason
-    trust = _LazyTrust(ctx, out, pose, hessian, first)
+    trust = _LazyTrust(ctx, out, pose, hessian, sigma2, first)
     if not lazy:
         trust.get()
     t_post = time.perf_counter() - t0
@@ -725,6 +725,13 @@ class _TrustInputs:
         return np.diag(np.concatenate([np.full(dim, g**2), (g / levers) ** 2]))
 
     @functools.cached_property
+    def source_normals(self) -> tuple[Any, FloatArray]:
+        """Normals of a sample of the source, ``(indices, normals)``: once per call, even when
+        the degeneracy-aware solve analyses twice."""
+        n, dim = self.source.shape
+        return sampled_normals(self.source, check_k(min(self.settings.num_neighbors, n), n, dim))
+
+    @functools.cached_property
     def block_size(self) -> float:
         if self.settings.block_size is not None:
             return self.settings.block_size
@@ -768,9 +775,10 @@ class _LazyTrust:
         out: Any,
         pose: SE2 | SE3,
         hessian: FloatArray,
+        sigma2: float,
         first: _CorrespondenceAnalysis | None,
     ) -> None:
-        self._args: tuple[Any, ...] | None = (ctx, out, pose, hessian, first)
+        self._args: tuple[Any, ...] | None = (ctx, out, pose, hessian, sigma2, first)
         self._lock = threading.Lock()
         self._value: _Trust | None = None
 
@@ -817,9 +825,7 @@ def _correspondence_analysis(ctx: _TrustInputs, out: Any) -> _CorrespondenceAnal
     if method in ("point_to_plane", "point_to_line") and len(src) > dim and tn is not None:
         # Normals of a sample of the source, only to measure the normal noise between the two
         # scans (Censi's normal term); the registration itself does not use them.
-        sample, sample_normals = sampled_normals(
-            src, check_k(min(s.num_neighbors, len(src)), len(src), dim)
-        )
+        sample, sample_normals = ctx.source_normals
         normal_var = correspondence_normal_noise(
             sample_normals, tn, out.pose[:dim, :dim], corr[sample]
         )
@@ -875,6 +881,7 @@ def _trust(
     out: Any,
     pose: SE2 | SE3,
     hessian: FloatArray,
+    sigma2: float,
     first: _CorrespondenceAnalysis | None,
 ) -> _Trust:
     t0 = time.perf_counter()
@@ -883,11 +890,8 @@ def _trust(
     dof = 3 if dim == 2 else 6
     corr = first if first is not None else _correspondence_analysis(ctx, out)
     deg = corr.degeneracy
-    n_corr = int(out.num_correspondences)
-    m = ctx.components * n_corr
     try:
         if s.kernel == "none":
-            sigma2 = float(out.sum_squares / (m - dof)) if m > dof else math.nan
             cov = least_squares_covariance(hessian, sigma2)
         else:
             m_eff = ctx.components * float(out.irls_weight_sum)
