@@ -332,11 +332,13 @@ def main() -> None:
             t_ours, p_ours = timed(lambda m=method, p=pairs: ours(p, m), args.repeat, best)
             e_ours = errors_mm(p_ours, pairs)
             row = f"| {name} | {len(pairs)} | {method} | {t_ours / len(pairs) * 1e3:.3f} | "
+
+            def peer(run: Callable[[], list[SE2]], p: list[Pair] = pairs) -> tuple[float, Any]:
+                t, poses = timed(run, args.repeat, best)
+                return t, errors_mm(poses, p)
+
             if sg is not None:
-                t_them, p_them = timed(
-                    lambda m=method, p=padded: theirs(sg, p, m), args.repeat, best
-                )
-                e_them = errors_mm(p_them, pairs)
+                t_them, e_them = peer(lambda m=method, p=padded: theirs(sg, p, m))
                 row += (
                     f"{t_them / len(pairs) * 1e3:.3f} | {t_ours / t_them:.2f} | "
                     f"{e_ours[0]:.1f} / {e_ours[1]:.1f} | {e_them[0]:.1f} / {e_them[1]:.1f} |"
@@ -344,10 +346,7 @@ def main() -> None:
             else:
                 row += f"– | – | {e_ours[0]:.1f} / {e_ours[1]:.1f} | – |"
             if o3d is not None:
-                t_o3d, p_o3d = timed(
-                    lambda m=method, p=padded: theirs_open3d(o3d, p, m), args.repeat, best
-                )
-                e_o3d = errors_mm(p_o3d, pairs)
+                t_o3d, e_o3d = peer(lambda m=method, p=padded: theirs_open3d(o3d, p, m))
                 row += (
                     f" open3d {t_o3d / len(pairs) * 1e3:.3f} ms/pair (ratio {t_ours / t_o3d:.2f}),"
                     f" err {e_o3d[0]:.1f} / {e_o3d[1]:.1f} mm"
