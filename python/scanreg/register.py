@@ -1036,8 +1036,15 @@ def _with_prior_along_weak(
     # scaled covariance: δ_s = S δ
     cov_s = cov / np.outer(s_inv, s_inv)
     prior_s = prior / np.outer(s_inv, s_inv)
-    info_s = np.linalg.inv(cov_s)
-    strong = u @ np.linalg.inv(u.T @ info_s @ u) @ u.T if u.shape[1] else np.zeros((dof, dof))
+    if not u.shape[1]:
+        strong = np.zeros((dof, dof))
+    else:
+        try:
+            strong = u @ np.linalg.inv(u.T @ np.linalg.inv(cov_s) @ u) @ u.T
+        except np.linalg.LinAlgError:
+            # A singular data covariance (a noise-free fit: zero residuals): its conditional
+            # cannot be formed; the marginal U Uᵀ Σ U Uᵀ covers it (and is 0 when Σ is).
+            strong = u @ (u.T @ cov_s @ u) @ u.T
     weak = w @ (w.T @ prior_s @ w) @ w.T * (1.0 if aware else 2.0)
     out = (strong + weak) * np.outer(s_inv, s_inv)
     return np.asarray(0.5 * (out + out.T), dtype=np.float64)
