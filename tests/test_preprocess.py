@@ -257,3 +257,27 @@ def test_hostile_points(fn: object) -> None:
         fn(np.zeros(10))  # type: ignore[operator]
     with pytest.raises(ValueError, match="points: array is not C-contiguous"):
         fn(np.zeros((3, 10)).T)  # type: ignore[operator]
+
+
+def test_drop_linear_leaves_lidar_rings_without_normals() -> None:
+    """A thin strip (a LiDAR ring on a wall: every neighbourhood is a line) gets no normal with
+    ``drop_linear``, a regular grid keeps its exact normal; 2D is unaffected; the flag is typed."""
+    strip = np.array([[0.1 * i, 5.0 + 0.03 * (i % 2), 1.0] for i in range(40)])
+    gx, gy = np.meshgrid(np.arange(10) * 0.1, np.arange(10) * 0.1)
+    grid = np.column_stack([gx.ravel(), gy.ravel(), np.ones(100)])
+    pts = np.vstack([strip, grid])
+    kept = pp.estimate_normals(pts, k=8)
+    dropped = pp.estimate_normals(pts, k=8, drop_linear=True)
+    assert kept.num_linear == 0 and kept.num_invalid == 0
+    assert not dropped.valid[:40].any() and np.all(dropped.normals[:40] == 0.0)
+    interior = np.array([0 < i % 10 < 9 and 0 < i // 10 < 9 for i in range(100)])
+    assert dropped.valid[40:][interior].all()
+    np.testing.assert_allclose(np.abs(dropped.normals[40:][interior, 2]), 1.0, atol=1e-12)
+    assert dropped.num_invalid == dropped.num_linear == int((~dropped.valid).sum()) >= 40
+    target = scanreg.prepare(pts, k=8, drop_linear=True)
+    assert target.valid is not None and target.valid.all(), "valid still means non-degenerate"
+    assert target.normals is not None and np.all(target.normals[:40] == 0.0)
+    flat = np.column_stack([np.arange(30) * 0.1, 0.01 * (np.arange(30) % 2)])
+    assert pp.estimate_normals(flat, k=5, drop_linear=True).num_invalid == 0
+    with pytest.raises(TypeError, match="drop_linear: expected a bool"):
+        pp.estimate_normals(pts, k=8, drop_linear=1)  # type: ignore[arg-type]

@@ -89,6 +89,7 @@ class KdTree:
         normals: bool = True,
         regularization: str | None = None,
         epsilon: float = 1e-3,
+        drop_linear: bool = False,
     ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None, NDArray[np.bool_]]: ...
     def statistical_outliers(
         self, k: int, std_ratio: float
@@ -224,6 +225,8 @@ class IcpOutcome:
     def cost(self) -> float: ...
     @property
     def num_correspondences(self) -> int: ...
+    @property
+    def num_in_gate(self) -> int: ...
     @property
     def sum_squares(self) -> float: ...
     @property

@@ -106,16 +106,26 @@ class Normals:
     """Unit normals by k-NN PCA, oriented towards ``viewpoint`` (``n · (viewpoint - p) >= 0``).
 
     Where a neighbourhood is degenerate (all points coincide, or in 3D all collinear) the normal
-    is undefined: ``valid`` is False there and the normal is the zero vector.
+    is undefined: ``valid`` is False there and the normal is the zero vector. With
+    ``drop_linear`` (off by default) the same holds where a 3D neighbourhood is *linear* — a
+    LiDAR ring, a pole, an edge: its "normal" is any direction across the line, picked by the
+    noise (rule: Demantké et al. 2011, ``a1D`` the largest dimensionality feature). In a
+    simulated street it cuts point-to-plane's error along the road 4×; on the real outdoor pair
+    it improves translation but costs 0.1–0.6° of rotation, hence off
+    (``docs/calibration.md``, "Linear neighbourhoods").
     """
 
     #: ``(N, D)`` unit normals (zero rows where not ``valid``). Read-only.
     normals: FloatArray
-    #: ``(N,)`` whether the neighbourhood spanned a line (2D) / plane (3D).
+    #: ``(N,)`` whether the point has a normal: its neighbourhood spanned a line (2D) / plane
+    #: (3D), and was not linear (3D, with ``drop_linear``).
     valid: BoolArray
+    #: Points without a normal (``~valid``), the linear ones included.
     num_invalid: int
     k: int
     viewpoint: FloatArray
+    #: Of ``num_invalid``, the points left out because their 3D neighbourhood is linear.
+    num_linear: int = 0
 
 
 @dataclass(frozen=True)
@@ -303,23 +313,37 @@ def check_regularization(regularization: Any, epsilon: Any) -> float:
     return positive(epsilon, "epsilon")
 
 
-def estimate_normals(points: FloatArray, *, k: int = DEFAULT_K, viewpoint: Any = None) -> Normals:
+def estimate_normals(
+    points: FloatArray, *, k: int = DEFAULT_K, viewpoint: Any = None, drop_linear: bool = False
+) -> Normals:
     """Unit normals from the ``k`` nearest neighbours (the point itself included): the
     eigenvector of the smallest eigenvalue of the neighbourhood covariance, flipped to face
-    ``viewpoint`` (default: the origin). In 2D, the normal of the local line."""
+    ``viewpoint`` (default: the origin). In 2D, the normal of the local line. ``drop_linear``:
+    no normal where a 3D neighbourhood is linear (see :class:`Normals`; no effect in 2D)."""
     pts = as_points(points, "points")
     dim = int(pts.shape[1])
     kk = check_k(k, int(pts.shape[0]), dim)
     vp = as_viewpoint(viewpoint, dim)
-    normals, _, valid = _core.KdTree(pts).local_geometry(kk, vp, normals=True)
+    normals, _, spans = _core.KdTree(pts).local_geometry(
+        kk, vp, normals=True, drop_linear=check_flag(drop_linear, "drop_linear")
+    )
     assert normals is not None
+    valid = spans & np.any(normals != 0.0, axis=1)
     return Normals(
         normals=_readonly(normals),
         valid=_readonly(valid),
         num_invalid=int((~valid).sum()),
         k=kk,
         viewpoint=_readonly(vp),
+        num_linear=int((spans & ~valid).sum()),
     )
+
+
+def check_flag(value: Any, name: str) -> bool:
+    """``value`` as a bool; anything else (``1``, ``"yes"``) is a TypeError naming ``name``."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name}: expected a bool, got {type(value).__name__}")
+    return bool(value)
 
 
 def estimate_covariances(

@@ -270,7 +270,10 @@ class RegistrationResult:
     num_correspondences: int
     #: Source points registered (after any downsampling).
     num_source_points: int
-    #: ``num_correspondences / num_source_points``, in [0, 1].
+    #: The fraction of source points whose nearest target point is inside the gate at
+    #: ``pose``, in [0, 1] (Open3D's fitness). It counts the points left without a factor
+    #: because their target point has no normal — a linear 3D neighbourhood, see
+    #: :func:`scanreg.prepare` — so it can exceed ``num_correspondences / num_source_points``.
     fitness: float
     #: RMS Euclidean distance ``|R p + t - q|`` over the correspondences (every method), or
     #: ``nan`` without any.
@@ -671,7 +674,7 @@ def register(
         stop_reason=stop,
         num_correspondences=n_corr,
         num_source_points=len(src),
-        fitness=n_corr / len(src),
+        fitness=int(out.num_in_gate) / len(src),
         inlier_rmse=math.sqrt(out.sum_squared_distances / n_corr) if n_corr else math.nan,
         cost=float(out.cost),
         hessian=hessian,

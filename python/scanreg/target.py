@@ -25,6 +25,7 @@ from .preprocess import (
     IndexArray,
     Regularization,
     as_viewpoint,
+    check_flag,
     check_k,
     check_regularization,
     positive_int,
@@ -98,7 +99,8 @@ class PreparedTarget:
     points: FloatArray
     #: The native k-d tree (``scanreg._core.KdTree``); registration code passes it to the core.
     index: _core.KdTree
-    #: ``(N, D)`` unit normals facing ``viewpoint`` (zero where not ``valid``), or None.
+    #: ``(N, D)`` unit normals facing ``viewpoint`` (zero where not ``valid`` and, with
+    #: ``drop_linear``, where a 3D neighbourhood is linear), or None.
     normals: FloatArray | None
     #: ``(N, D, D)`` regularised covariances (identity where not ``valid``), or None.
     covariances: FloatArray | None
@@ -162,6 +164,7 @@ def prepare(
     viewpoint: Any = None,
     regularization: Regularization = "plane",
     epsilon: float = 1e-3,
+    drop_linear: bool = False,
 ) -> PreparedTarget:
     """Build a reusable registration target.
 
@@ -179,6 +182,12 @@ def prepare(
         ``D <= k <= N``.
     viewpoint : (D,) array or None
         Normals face this point; default the origin (the sensor, for a scan in its own frame).
+    drop_linear : bool
+        In 3D, no normal (zero: the point never corresponds under point-to-plane) where the
+        neighbourhood is linear — a LiDAR ring, a pole, an edge — whose normal the noise picks
+        (see :class:`scanreg.preprocess.Normals`: it removes a bias of sparse ring scans in
+        simulation, and costs rotation accuracy on a real pair, hence off). Covariances are
+        unaffected.
     """
     pts = as_points(points, "points")
     dim = int(pts.shape[1])
@@ -195,6 +204,7 @@ def prepare(
             normals=bool(normals),
             regularization=regularization if covariances else None,
             epsilon=eps,
+            drop_linear=check_flag(drop_linear, "drop_linear"),
         )
         for a in (nrm, cov, valid):
             if a is not None:

@@ -198,7 +198,11 @@ pub struct Evaluation {
     pub score_outer: Vec<f64>,
     /// `Σ rho(|r|)` over correspondences.
     pub cost: f64,
+    /// Source points that formed a factor.
     pub num_correspondences: usize,
+    /// Source points whose nearest target point is inside the gate: the correspondences and
+    /// those whose target point has no normal (point-to-plane) or no invertible covariance.
+    pub num_in_gate: usize,
     /// `Σ |r|²` (whitened for GICP).
     pub sum_squares: f64,
     /// `Σ k |r|²`.
@@ -225,7 +229,8 @@ pub struct Outcome {
     /// Wall time of the final evaluation, seconds.
     pub final_evaluation_seconds: f64,
     /// Target index of each source point at the returned pose (`u32::MAX`: none), as used by
-    /// `evaluation`.
+    /// `evaluation`: its nearest target point inside the gate, whether or not that formed a
+    /// factor (a target point without a normal forms none).
     pub correspondences: Vec<u32>,
 }
 
@@ -324,6 +329,7 @@ struct Acc<const N: usize> {
     m: SMatrix<f64, N, N>,
     cost: f64,
     count: usize,
+    in_gate: usize,
     ss: f64,
     irls_ss: f64,
     irls_w: f64,
@@ -339,6 +345,7 @@ impl<const N: usize> Acc<N> {
             m: SMatrix::zeros(),
             cost: 0.0,
             count: 0,
+            in_gate: 0,
             ss: 0.0,
             irls_ss: 0.0,
             irls_w: 0.0,
@@ -353,6 +360,7 @@ impl<const N: usize> Acc<N> {
         self.m += o.m;
         self.cost += o.cost;
         self.count += o.count;
+        self.in_gate += o.in_gate;
         self.ss += o.ss;
         self.irls_ss += o.irls_ss;
         self.irls_w += o.irls_w;
@@ -507,6 +515,10 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                     Some(_) => None,
                 };
                 if let Some((j, d2)) = found {
+                    acc.in_gate += 1;
+                    // Kept even without a factor (a target point with no normal): the next
+                    // search's hint, and the final evaluation's count of points in the gate.
+                    used = j as u32;
                     let q: SVector<f64, D> = vec_at(tree.points(), j);
                     let e = tp - q;
                     if let Some((h, g, norm)) = factor::<G, D, N>(pr, pose, i, j, &p, &e) {
@@ -523,7 +535,6 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                         acc.irls_ss += k * norm * norm;
                         acc.irls_w += k;
                         acc.dist_ss += d2;
-                        used = j as u32;
                     }
                 }
                 if keep_correspondences {
@@ -540,6 +551,7 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
         score_outer: acc.m.transpose().iter().copied().collect(),
         cost: acc.cost,
         num_correspondences: acc.count,
+        num_in_gate: acc.in_gate,
         sum_squares: acc.ss,
         irls_sum_squares: acc.irls_ss,
         irls_weight_sum: acc.irls_w,

@@ -107,9 +107,10 @@ impl KdTree {
     }
 
     /// k-NN PCA of every indexed point: `(normals (N, D) | None, covariances (N, D, D) | None,
-    /// valid (N,))`. `regularization=None` skips covariances.
-    #[pyo3(signature = (k, viewpoint, *, normals=true, regularization=None, epsilon=1e-3))]
-    #[allow(clippy::type_complexity)]
+    /// valid (N,))`. `regularization=None` skips covariances. `drop_linear`: no normal (zero)
+    /// where a 3D neighbourhood is linear (`valid` unchanged).
+    #[pyo3(signature = (k, viewpoint, *, normals=true, regularization=None, epsilon=1e-3, drop_linear=false))]
+    #[allow(clippy::type_complexity, clippy::too_many_arguments)]
     fn local_geometry(
         &self,
         py: Python<'_>,
@@ -118,6 +119,7 @@ impl KdTree {
         normals: bool,
         regularization: Option<&str>,
         epsilon: f64,
+        drop_linear: bool,
     ) -> PyResult<(
         Option<Py<PyArray2<f64>>>,
         Option<Py<PyArray3<f64>>>,
@@ -129,7 +131,7 @@ impl KdTree {
             .transpose()
             .map_err(core_err)?;
         let g = py
-            .detach(|| normals::local_geometry(&self.inner, k, vp, normals, reg))
+            .detach(|| normals::local_geometry_with(&self.inner, k, vp, normals, reg, drop_linear))
             .map_err(core_err)?;
         let dim = self.inner.dim();
         let n = self.inner.len();

@@ -32,6 +32,10 @@ pub struct IcpOutcome {
     cost: f64,
     #[pyo3(get)]
     num_correspondences: usize,
+    /// Source points with their nearest target point inside the gate (with or without a
+    /// factor: a target point without a normal forms none).
+    #[pyo3(get)]
+    num_in_gate: usize,
     #[pyo3(get)]
     sum_squares: f64,
     #[pyo3(get)]
@@ -183,6 +187,7 @@ fn register_icp(
         score_outer: square(py, ev.score_outer, dof)?,
         cost: ev.cost,
         num_correspondences: ev.num_correspondences,
+        num_in_gate: ev.num_in_gate,
         sum_squares: ev.sum_squares,
         irls_sum_squares: ev.irls_sum_squares,
         irls_weight_sum: ev.irls_weight_sum,
