@@ -16,6 +16,7 @@ Two protocols:
 
     .venv/bin/python benchmarks/covariance_calibration.py [--realisations 200] [--quick]
         [--methods point_to_plane gicp] [--scenes "2D room" ...] [--json out.json]
+        [--drop-linear]
 
 Scenes: 2D square room, 2D long corridor (degenerate along x), 3D street, 3D tunnel
 (degenerate along x). Also printed: how often each scene was flagged degenerate.
@@ -82,7 +83,9 @@ def motion_prior(dim: int) -> np.ndarray:
     return np.diag([0.1**2] * dim + [np.deg2rad(1.0) ** 2] * (dof - dim))
 
 
-def run_scene(scene: Scene, method: str, reps: int, protocol: str) -> dict[str, object]:
+def run_scene(
+    scene: Scene, method: str, reps: int, protocol: str, drop_linear: bool = False
+) -> dict[str, object]:
     """Mean NEES per covariance kind over ``reps`` realisations (seeded: realisation k uses
     scan seeds 2k, 2k+1 and init seed k)."""
     dof = 3 if scene.dim == 2 else 6
@@ -96,7 +99,7 @@ def run_scene(scene: Scene, method: str, reps: int, protocol: str) -> dict[str, 
     for k in range(reps):
         src = scene.scan(scene.pose_a, 2 * k)
         tgt = scene.scan(pose_b, 2 * k + 1)
-        target = scanreg.prepare(tgt, covariances=method == "gicp")
+        target = scanreg.prepare(tgt, covariances=method == "gicp", drop_linear=drop_linear)
         if protocol == "prior":
             rng = np.random.default_rng(10_000 + k)
             init = truth @ type(truth).exp(rng.multivariate_normal(np.zeros(dof), prior))  # type: ignore[operator]
@@ -155,6 +158,11 @@ def main() -> None:
     parser.add_argument("--scenes", nargs="+", default=None)
     parser.add_argument("--protocols", nargs="+", default=["identity", "prior"])
     parser.add_argument("--json", default=None, help="also write the rows to this file")
+    parser.add_argument(
+        "--drop-linear",
+        action="store_true",
+        help="targets without normals at linear 3D neighbourhoods (scanreg.prepare)",
+    )
     args = parser.parse_args()
     reps = 20 if args.quick else args.realisations
     rows = []
@@ -169,7 +177,7 @@ def main() -> None:
             continue
         for method in args.methods:
             for protocol in args.protocols:
-                row = run_scene(scene, method, reps, protocol)
+                row = run_scene(scene, method, reps, protocol, args.drop_linear)
                 rows.append(row)
                 lo, hi = row["band"]  # type: ignore[misc]
                 means = row["mean_nees"]
