@@ -93,6 +93,13 @@ def positive(value: float, name: str) -> float:
     return v
 
 
+def check_flag(value: Any, name: str) -> bool:
+    """``value`` as a bool; anything else (``1``, ``"yes"``) is a TypeError naming ``name``."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name}: expected a bool, got {type(value).__name__}")
+    return bool(value)
+
+
 def frozen(value: Any) -> FloatArray:
     """A read-only float64 copy of ``value``: what result dataclasses hold, so that a frozen
     result is immutable all the way down."""

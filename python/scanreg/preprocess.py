@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _core
-from ._validate import FloatArray, as_matrix, as_points, positive
+from ._validate import FloatArray, as_matrix, as_points, check_flag, positive
 from ._validate import readonly as _readonly
 
 IndexArray = NDArray[np.int64]
@@ -324,11 +324,11 @@ def estimate_normals(
     dim = int(pts.shape[1])
     kk = check_k(k, int(pts.shape[0]), dim)
     vp = as_viewpoint(viewpoint, dim)
-    normals, _, spans = _core.KdTree(pts).local_geometry(
-        kk, vp, normals=True, drop_linear=check_flag(drop_linear, "drop_linear")
-    )
+    drop = check_flag(drop_linear, "drop_linear")
+    normals, _, spans = _core.KdTree(pts).local_geometry(kk, vp, normals=True, drop_linear=drop)
     assert normals is not None
-    valid = spans & np.any(normals != 0.0, axis=1)
+    # Only a dropped linear neighbourhood has a zero normal while spanning a plane.
+    valid = spans & np.any(normals != 0.0, axis=1) if drop else spans
     return Normals(
         normals=_readonly(normals),
         valid=_readonly(valid),
@@ -337,13 +337,6 @@ def estimate_normals(
         viewpoint=_readonly(vp),
         num_linear=int((spans & ~valid).sum()),
     )
-
-
-def check_flag(value: Any, name: str) -> bool:
-    """``value`` as a bool; anything else (``1``, ``"yes"``) is a TypeError naming ``name``."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise TypeError(f"{name}: expected a bool, got {type(value).__name__}")
-    return bool(value)
 
 
 def estimate_covariances(

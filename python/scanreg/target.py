@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _core
-from ._validate import FloatArray, as_points
+from ._validate import FloatArray, as_points, check_flag
 from ._validate import readonly as _readonly
 from .degeneracy import normal_noise
 from .preprocess import (
@@ -25,7 +25,6 @@ from .preprocess import (
     IndexArray,
     Regularization,
     as_viewpoint,
-    check_flag,
     check_k,
     check_regularization,
     positive_int,
