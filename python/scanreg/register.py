@@ -346,22 +346,24 @@ _SETTING_NAMES = frozenset(f.name for f in dataclasses.fields(RegistrationSettin
 
 
 def _with_overrides(base: RegistrationSettings, overrides: dict[str, Any]) -> RegistrationSettings:
-    unknown = sorted(set(overrides) - _SETTING_NAMES)
-    if unknown:
+    if not _SETTING_NAMES.issuperset(overrides):
+        unknown = sorted(set(overrides) - _SETTING_NAMES)
         raise TypeError(f"register: unknown setting(s) {', '.join(unknown)}")
     try:
         # The type is part of the key: True == 1 == 1.0 hash alike, but only some are valid.
-        return _replace_cached(base, tuple((k, type(v), v) for k, v in sorted(overrides.items())))
+        # In the caller's keyword order (no sort: a loop repeats its own order).
+        key = (*overrides.items(), *map(type, overrides.values()))
+        return _replace_cached(base, key)
     except TypeError:  # an unhashable value: validated (and refused) by the constructor
         return dataclasses.replace(base, **overrides)
 
 
 @functools.lru_cache(maxsize=64)
-def _replace_cached(
-    base: RegistrationSettings, items: tuple[tuple[str, type, Any], ...]
-) -> RegistrationSettings:
-    # A loop calling register(..., gate=...) with the same keywords validates them once.
-    return dataclasses.replace(base, **{k: v for k, _, v in items})
+def _replace_cached(base: RegistrationSettings, key: tuple[Any, ...]) -> RegistrationSettings:
+    # A loop calling register(..., gate=...) with the same keywords validates them once. The
+    # key is the (name, value) pairs then the values' types.
+    items = key[: len(key) // 2]
+    return dataclasses.replace(base, **dict(items))
 
 
 def _resolve_method(method: Any, dim: int) -> str:
@@ -437,13 +439,13 @@ def _pose_from_core(matrix: FloatArray, dim: int) -> SE2 | SE3:
         # The nearest rotation to a 2×2 matrix, in closed form (what the SVD would give).
         th = math.atan2(c - b, a + d)
         co, sn = math.cos(th), math.sin(th)
-        return SE2._unchecked(np.array([[co, -sn], [sn, co]]), np.array([tx, ty]))
+        return SE2._adopt(np.array([[co, -sn], [sn, co]]), np.array([tx, ty]))
     r = matrix[:dim, :dim]
     err = float(np.abs(r.T @ r - np.eye(dim)).max())
     if err > 1e-6:  # a core bug, never the user's input
         raise ValueError(f"pose: not orthonormal (max |RᵀR - I| = {err:.2e})")
     u, _, vt = np.linalg.svd(r)
-    return SE3._unchecked(u @ vt, matrix[:3, 3])
+    return SE3._adopt(u @ vt, np.array(matrix[:3, 3]))
 
 
 def _length_scale(points: FloatArray) -> float:
@@ -654,7 +656,7 @@ def register(
 
     t0 = time.perf_counter()
     pose = _pose_from_core(out.pose, dim)
-    hessian = _readonly(np.array(out.hessian))
+    hessian = _readonly(out.hessian)  # the core's own fresh array: no copy needed
     n_corr = int(out.num_correspondences)
     m = components * n_corr
     if s.kernel == "none":
@@ -683,12 +685,12 @@ def register(
         inlier_rmse=math.sqrt(out.sum_squared_distances / n_corr) if n_corr else math.nan,
         cost=float(out.cost),
         hessian=hessian,
-        gradient=_frozen(out.gradient),
+        gradient=_readonly(out.gradient),
         sigma2=sigma2,
         timing=RegistrationTiming(
             target_preparation=t_target,
             source_preparation=t_source,
-            iterations=tuple(float(x) for x in out.iteration_seconds),
+            iterations=tuple(out.iteration_seconds.tolist()),
             final_evaluation=float(out.final_evaluation_seconds),
             post_processing=t_post,
             total=t_total,

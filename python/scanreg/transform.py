@@ -165,9 +165,15 @@ class _Pose:
 
     @classmethod
     def _unchecked(cls: type[P], rotation: FloatArray, translation: FloatArray) -> P:
+        return cls._adopt(
+            np.array(rotation, dtype=np.float64), np.array(translation, dtype=np.float64)
+        )
+
+    @classmethod
+    def _adopt(cls: type[P], rotation: FloatArray, translation: FloatArray) -> P:
+        """Wrap float64 arrays that nothing else references (fresh results of numpy
+        operations) without copying them: they are made read-only in place."""
         obj = cls.__new__(cls)
-        rotation = np.array(rotation, dtype=np.float64)
-        translation = np.array(translation, dtype=np.float64)
         rotation.setflags(write=False)
         translation.setflags(write=False)
         object.__setattr__(obj, "_rotation", rotation)
@@ -209,23 +215,24 @@ class _Pose:
     def as_matrix(self) -> FloatArray:
         """Homogeneous ``(D+1, D+1)`` matrix (a new, writable array)."""
         d = self.DIM
-        m = np.eye(d + 1)
+        m = np.zeros((d + 1, d + 1))  # (np.eye costs twice as much; poses go out per call)
         m[:d, :d] = self._rotation
         m[:d, d] = self._translation
+        m[d, d] = 1.0
         return m
 
     # --- group operations ---------------------------------------------------------------
     def __matmul__(self: P, other: P) -> P:
         if type(other) is not type(self):
             return NotImplemented
-        return self._unchecked(
+        return self._adopt(
             self._rotation @ other._rotation,
             self._rotation @ other._translation + self._translation,
         )
 
     def inverse(self: P) -> P:
         rt = self._rotation.T
-        return self._unchecked(rt, -rt @ self._translation)
+        return self._unchecked(rt, -rt @ self._translation)  # rt is a view: copied
 
     def apply(self, points: Any) -> FloatArray:
         """Map ``(N, D)`` points from the source frame into the target frame."""
