@@ -142,6 +142,44 @@ pub fn local_geometry(
     local_geometry_with(tree, k, viewpoint, want_normals, covariances, false)
 }
 
+/// One worker's k-NN buffer and its previous query (point, k-th squared distance). Queries run
+/// in leaf order, so consecutive points are close: the k neighbours of the previous point `p'`
+/// lie within `√d'_k + |p − p'|` of `p`, a bound that prunes the search from its first node on
+/// (the unbounded search accepts every point of the first leaves until it holds k). Exact: when
+/// the bounded search finds k points they are the k nearest, and if rounding ever left it
+/// short the query is repeated unbounded.
+struct Scratch {
+    buf: Vec<(u32, f64)>,
+    prev: Option<(usize, f64)>,
+}
+
+impl Scratch {
+    fn new(k: usize) -> Self {
+        Scratch {
+            buf: Vec::with_capacity(k + 1),
+            prev: None,
+        }
+    }
+
+    fn neighbours(&mut self, tree: &KdTree, i: usize, k: usize) -> &[(u32, f64)] {
+        self.buf.clear();
+        let p = tree.point(i);
+        let bound = self.prev.map_or(f64::INFINITY, |(j, dk)| {
+            let q = tree.point(j);
+            let step: f64 = p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+            let r = dk.sqrt() + step.sqrt();
+            r * r * (1.0 + 1e-9) + f64::MIN_POSITIVE
+        });
+        tree.knn_into(p, k, bound, &mut self.buf);
+        if self.buf.len() < k && bound < f64::INFINITY {
+            self.buf.clear();
+            tree.knn_into(p, k, f64::INFINITY, &mut self.buf);
+        }
+        self.prev = self.buf.last().map(|&(_, dk)| (i, dk));
+        &self.buf
+    }
+}
+
 /// [`local_geometry`], and with `drop_linear` no normal (zero) where a 3D neighbourhood is
 /// linear (module docs).
 pub fn local_geometry_with(
@@ -173,11 +211,10 @@ pub fn local_geometry_with(
     // Points in the tree's leaf order: consecutive queries share most of their traversal, which
     // keeps it in cache. Each result is computed independently, then put back in input order.
     let order = tree.leaf_order();
-    let geometry = |buf: &mut Vec<(u32, f64)>, &i: &u32| {
+    let geometry = |state: &mut Scratch, &i: &u32| {
         let i = i as usize;
-        buf.clear();
         let p = tree.point(i);
-        tree.knn_into(p, k, f64::INFINITY, buf);
+        let buf = state.neighbours(tree, i, k);
         // Two passes: mean, then centred second moment (no cancellation far from 0).
         let mut mean = [0.0; 3];
         for &(j, _) in buf.iter() {
@@ -255,12 +292,12 @@ pub fn local_geometry_with(
     };
     // A small cloud (a 2D scan) stays on the calling thread: waking the pool costs more.
     let per_leaf: Vec<([f64; 3], [f64; 9], bool, bool)> = if n <= SEQUENTIAL_MAX {
-        let mut buf = Vec::with_capacity(k + 1);
-        order.iter().map(|i| geometry(&mut buf, i)).collect()
+        let mut state = Scratch::new(k);
+        order.iter().map(|i| geometry(&mut state, i)).collect()
     } else {
         order
             .par_iter()
-            .map_init(|| Vec::with_capacity(k + 1), geometry)
+            .map_init(|| Scratch::new(k), geometry)
             .collect()
     };
     let mut per = vec![([0.0; 3], [0.0; 9], false, false); n];
@@ -319,6 +356,40 @@ mod tests {
             // (ε, 1, 1) with the ε axis along z.
             assert!((cov[9 * i + 8] - 1e-3).abs() < 1e-12);
             assert!((cov[9 * i] - 1.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn bounded_neighbour_search_equals_the_unbounded_one() {
+        // Scratch bounds each query by the previous one's k-th distance: the neighbour lists
+        // must be exactly the unbounded k-NN, on random clouds and on grids (ties, duplicates).
+        let mut seed = 99u64;
+        let mut unit = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for (dim, grid) in [(2, false), (2, true), (3, false), (3, true)] {
+            let pts: Vec<f64> = (0..600 * dim)
+                .map(|_| {
+                    if grid {
+                        (unit() * 6.0).floor()
+                    } else {
+                        unit() * 20.0
+                    }
+                })
+                .collect();
+            let tree = KdTree::build(&pts, dim).unwrap();
+            for k in [3, 10, 20] {
+                let mut state = Scratch::new(k);
+                for &i in tree.leaf_order() {
+                    let got = state.neighbours(&tree, i as usize, k).to_vec();
+                    let mut want = Vec::new();
+                    tree.knn_into(tree.point(i as usize), k, f64::INFINITY, &mut want);
+                    assert_eq!(got, want, "dim {dim} grid {grid} k {k} point {i}");
+                }
+            }
         }
     }
 
