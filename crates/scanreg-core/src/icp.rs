@@ -496,16 +496,19 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
         Acc::<N>::new(if keep_correspondences { n } else { 0 }),
         |range| {
             let mut acc = Acc::<N>::new(if keep_correspondences { range.len() } else { 0 });
+            // The previous source point's correspondence: the hint for a point that has none of
+            // its own (the first iteration, or none inside the gate last time). Scans come in
+            // beam order, so neighbouring source points usually match neighbouring target
+            // points; where they do not, the hint only costs its distance (same result).
+            let mut last = NONE;
             for i in range {
                 let p: SVector<f64, D> = vec_at(pr.source, i);
                 let tp = pose.r * p + pose.t;
                 let mut used = NONE;
                 let found = match fixed {
-                    None => match hints.map(|h| h[i]) {
-                        Some(h) if h != NONE => {
-                            tree.nearest_within_hinted(tp.as_slice(), pr.max_sq, h as usize)
-                        }
-                        _ => tree.nearest_within(tp.as_slice(), pr.max_sq),
+                    None => match hints.map_or(last, |h| if h[i] != NONE { h[i] } else { last }) {
+                        NONE => tree.nearest_within(tp.as_slice(), pr.max_sq),
+                        h => tree.nearest_within_hinted(tp.as_slice(), pr.max_sq, h as usize),
                     },
                     Some(c) if c[i] != NONE => {
                         let j = c[i] as usize;
@@ -515,6 +518,7 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                     Some(_) => None,
                 };
                 if let Some((j, d2)) = found {
+                    last = j as u32;
                     acc.in_gate += 1;
                     // Kept even without a factor (a target point with no normal): the next
                     // search's hint, and the final evaluation's count of points in the gate.
