@@ -21,6 +21,10 @@ kernel, identical initial guesses. Time: the whole set of pairs, best of --repea
 warm-up (--median for medians; --cpu: process CPU time instead of wall clock). Ratio = our
 time / theirs (< 1: scanreg faster). Accuracy: median and 95th percentile translation error
 (mm) against the reference / the truth.
+``--interleave N``: instead, N rounds in which every library runs the whole set once, in an
+order rotated each round; reports each library's median ms/pair and the median over rounds of
+the per-round ratio (each from runs seconds apart: the statistic a loaded, shared machine moves
+least).
 ``--trust`` adds the time with the covariance and verdict read (``register`` analyses lazily:
 the plain column reads the pose only).
 Also: scans per second of ``scanreg.pipeline.Odometry2D`` on the 902 Intel scans. ``--floor``
@@ -280,6 +284,58 @@ def errors_mm(poses: list[SE2], pairs: list[Pair]) -> tuple[float, float]:
     return float(np.median(e)), float(np.percentile(e, 95))
 
 
+def _median_cell(times: dict[str, list[float]], lib: str) -> str:
+    return f"{statistics.median(times[lib]):.3f}" if lib in times else "–"
+
+
+def _ratio_cell(times: dict[str, list[float]], lib: str) -> str:
+    """Median over rounds of our time / theirs in the same round."""
+    if lib not in times:
+        return "–"
+    per_round = [a / b for a, b in zip(times["scanreg"], times[lib], strict=True)]
+    return f"{statistics.median(per_round):.2f}"
+
+
+def interleaved(sets: dict[str, list[Pair]], sg: Any, o3d: Any, rounds: int) -> None:
+    """Every library once per round on the whole set, the order rotated each round."""
+    print(f"interleaved, {rounds} rounds ({'CPU time' if CLOCK is time.process_time else 'wall'})")
+    print(
+        "| pairs | method | scanreg ms/pair | small_gicp ms/pair | open3d ms/pair | "
+        "scanreg / small_gicp | scanreg / open3d | err mm (median) ours / sg / o3d |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for name, pairs in sets.items():
+        padded = [(pad(s), pad(t), mat4(i)) for s, t, i, _ in pairs]
+        for method in OURS:
+            fns: dict[str, Callable[[], list[SE2]]] = {
+                "scanreg": lambda m=method, p=pairs: ours(p, m)
+            }
+            if sg is not None:
+                fns["small_gicp"] = lambda m=method, p=padded: theirs(sg, p, m)
+            if o3d is not None:
+                fns["open3d"] = lambda m=method, p=padded: theirs_open3d(o3d, p, m)
+            libs = list(fns)
+            times: dict[str, list[float]] = {lib: [] for lib in libs}
+            errs = {lib: errors_mm(fns[lib](), pairs)[0] for lib in libs}  # also the warm-up
+            for r in range(rounds):
+                for lib in libs[r % len(libs) :] + libs[: r % len(libs)]:
+                    t0 = CLOCK()
+                    fns[lib]()
+                    times[lib].append((CLOCK() - t0) / len(pairs) * 1e3)
+            OPEN3D_NON_FINITE.pop(method, None)
+
+            err = " / ".join(
+                f"{errs[lib]:.1f}" if lib in errs else "–"
+                for lib in ("scanreg", "small_gicp", "open3d")
+            )
+            print(
+                f"| {name} | {method} | {_median_cell(times, 'scanreg')} | "
+                f"{_median_cell(times, 'small_gicp')} | {_median_cell(times, 'open3d')} | "
+                f"{_ratio_cell(times, 'small_gicp')} | {_ratio_cell(times, 'open3d')} | {err} |",
+                flush=True,
+            )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--peers-site", default=None, help="site-packages holding small_gicp")
@@ -297,6 +353,9 @@ def main() -> None:
     )
     ap.add_argument(
         "--cpu", action="store_true", help="time with process CPU time instead of wall clock"
+    )
+    ap.add_argument(
+        "--interleave", type=int, default=0, help="N interleaved rounds instead of the table"
     )
     args = ap.parse_args()
     global CLOCK
@@ -320,6 +379,9 @@ def main() -> None:
         f"{'CPU time' if args.cpu else 'wall clock'}; small_gicp: {sg is not None}; "
         f"open3d: {o3d is not None}"
     )
+    if args.interleave:
+        interleaved(sets, sg, o3d, args.interleave)
+        return
     print(
         "| pairs | n | method | scanreg ms/pair | small_gicp ms/pair | ratio | "
         "scanreg err mm (median / p95) | small_gicp err mm |"
