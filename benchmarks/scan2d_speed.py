@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")  # Open3D's OpenMP: one thread, like everyone
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # numpy's BLAS thread server showed in profiles
 
 import numpy as np
 import scanreg
