@@ -169,7 +169,7 @@ def core_only(pairs: list[Pair], method: str) -> list[np.ndarray]:
         )
         source_covs = None
         if method == "gicp":
-            _, source_covs, _ = _core.KdTree(src).local_geometry(
+            _, source_covs, _, _ = _core.KdTree(src).local_geometry(
                 K, np.zeros(2), normals=False, regularization="plane", epsilon=1e-3
             )
         res = _core.register_icp(

@@ -90,7 +90,9 @@ class KdTree:
         regularization: str | None = None,
         epsilon: float = 1e-3,
         drop_linear: bool = False,
-    ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None, NDArray[np.bool_]]: ...
+    ) -> tuple[
+        NDArray[np.float64] | None, NDArray[np.float64] | None, NDArray[np.bool_], NDArray[np.bool_]
+    ]: ...
     def statistical_outliers(
         self, k: int, std_ratio: float
     ) -> tuple[NDArray[np.int64], NDArray[np.float64], float]: ...

@@ -325,17 +325,18 @@ def estimate_normals(
     kk = check_k(k, int(pts.shape[0]), dim)
     vp = as_viewpoint(viewpoint, dim)
     drop = check_flag(drop_linear, "drop_linear")
-    normals, _, spans = _core.KdTree(pts).local_geometry(kk, vp, normals=True, drop_linear=drop)
+    normals, _, spans, linear = _core.KdTree(pts).local_geometry(
+        kk, vp, normals=True, drop_linear=drop
+    )
     assert normals is not None
-    # Only a dropped linear neighbourhood has a zero normal while spanning a plane.
-    valid = spans & np.any(normals != 0.0, axis=1) if drop else spans
+    valid = spans & ~linear if drop else spans
     return Normals(
         normals=_readonly(normals),
         valid=_readonly(valid),
         num_invalid=int((~valid).sum()),
         k=kk,
         viewpoint=_readonly(vp),
-        num_linear=int((spans & ~valid).sum()),
+        num_linear=int(linear.sum()),
     )
 
 
@@ -352,7 +353,7 @@ def estimate_covariances(
     dim = int(pts.shape[1])
     kk = check_k(k, int(pts.shape[0]), dim)
     eps = check_regularization(regularization, epsilon)
-    _, covs, valid = _core.KdTree(pts).local_geometry(
+    _, covs, valid, _ = _core.KdTree(pts).local_geometry(
         kk, np.zeros(dim), normals=False, regularization=regularization, epsilon=eps
     )
     assert covs is not None

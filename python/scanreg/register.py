@@ -546,7 +546,7 @@ def register(
             reg = "plane" if prepared.regularization == "none" else prepared.regularization
             eps = prepared.epsilon
         k = check_k(min(s.num_neighbors, len(src)), len(src), dim)
-        _, source_covariances, _ = _core.KdTree(src).local_geometry(
+        _, source_covariances, _, _ = _core.KdTree(src).local_geometry(
             k, np.zeros(dim), normals=False, regularization=reg, epsilon=eps
         )
     t_source = time.perf_counter() - t0

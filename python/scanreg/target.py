@@ -197,7 +197,7 @@ def prepare(
     if normals or covariances:
         kk = check_k(kk, int(pts.shape[0]), dim)
         vp = as_viewpoint(viewpoint, dim)
-        nrm, cov, valid = index.local_geometry(
+        nrm, cov, valid, _ = index.local_geometry(
             kk,
             vp,
             normals=bool(normals),

@@ -73,8 +73,10 @@ pub struct LocalGeometry {
     /// Whether the neighbourhood of each point was non-degenerate.
     pub valid: Vec<bool>,
     pub num_invalid: usize,
-    /// Valid points left without a normal because their 3D neighbourhood is linear (only
-    /// counted with `drop_linear`).
+    /// Valid points left without a normal because their 3D neighbourhood is linear (only with
+    /// `drop_linear`; all false otherwise).
+    pub linear: Vec<bool>,
+    /// How many of `linear` are true.
     pub num_linear: usize,
 }
 
@@ -306,7 +308,8 @@ pub fn local_geometry_with(
     }
     let valid: Vec<bool> = per.iter().map(|x| x.2).collect();
     let num_invalid = valid.iter().filter(|v| !**v).count();
-    let num_linear = per.iter().filter(|x| x.3).count();
+    let linear: Vec<bool> = per.iter().map(|x| x.3).collect();
+    let num_linear = linear.iter().filter(|v| **v).count();
     let normals = want_normals.then(|| {
         per.iter()
             .flat_map(|x| x.0[..dim].iter().copied())
@@ -322,6 +325,7 @@ pub fn local_geometry_with(
         covariances: covs,
         valid,
         num_invalid,
+        linear,
         num_linear,
     })
 }
@@ -446,6 +450,8 @@ mod tests {
                 );
             }
         }
+        assert_eq!(drop.linear.iter().filter(|v| **v).count(), drop.num_linear);
+        assert!(drop.linear[..40].iter().all(|v| *v));
         assert!(
             drop.num_linear >= 40 && drop.num_linear <= 44,
             "{}",

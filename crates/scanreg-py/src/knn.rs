@@ -107,8 +107,9 @@ impl KdTree {
     }
 
     /// k-NN PCA of every indexed point: `(normals (N, D) | None, covariances (N, D, D) | None,
-    /// valid (N,))`. `regularization=None` skips covariances. `drop_linear`: no normal (zero)
-    /// where a 3D neighbourhood is linear (`valid` unchanged).
+    /// valid (N,), linear (N,))`. `regularization=None` skips covariances. `drop_linear`: no
+    /// normal (zero) where a 3D neighbourhood is linear, marked in `linear` (`valid`, a
+    /// non-degenerate neighbourhood, unchanged).
     #[pyo3(signature = (k, viewpoint, *, normals=true, regularization=None, epsilon=1e-3, drop_linear=false))]
     #[allow(clippy::type_complexity, clippy::too_many_arguments)]
     fn local_geometry(
@@ -123,6 +124,7 @@ impl KdTree {
     ) -> PyResult<(
         Option<Py<PyArray2<f64>>>,
         Option<Py<PyArray3<f64>>>,
+        Py<PyArray1<bool>>,
         Py<PyArray1<bool>>,
     )> {
         let vp = vector(&viewpoint, "viewpoint")?;
@@ -142,7 +144,12 @@ impl KdTree {
                 Ok(v.into_pyarray(py).reshape([n, dim, dim])?.unbind())
             })
             .transpose()?;
-        Ok((nrm, cov, g.valid.into_pyarray(py).unbind()))
+        Ok((
+            nrm,
+            cov,
+            g.valid.into_pyarray(py).unbind(),
+            g.linear.into_pyarray(py).unbind(),
+        ))
     }
 
     /// Statistical outlier removal: `(kept (K,), mean_distance (N,), threshold)`.
