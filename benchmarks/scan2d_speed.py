@@ -358,7 +358,13 @@ def main() -> None:
     ap.add_argument(
         "--interleave", type=int, default=0, help="N interleaved rounds instead of the table"
     )
+    ap.add_argument(
+        "--methods", nargs="+", choices=list(OURS), default=list(OURS), help="methods to time"
+    )
     args = ap.parse_args()
+    for m in list(OURS):
+        if m not in args.methods:
+            del OURS[m]
     global CLOCK
     if args.cpu:
         CLOCK = time.process_time

@@ -23,7 +23,8 @@ use rustc_hash::FxHashMap;
 const LEAF_SIZE: usize = 16;
 /// Traversal stack depth: the tree is balanced (median splits), so its depth is
 /// `ceil(log2(N / LEAF_SIZE)) + 1 <= 33` for `N < 2^32`; each level pushes at most one node.
-const STACK: usize = 64;
+/// No larger: the stacks are zeroed on every query.
+const STACK: usize = 34;
 const LEAF: u32 = u32::MAX;
 /// Lower bounds are shrunk by this before pruning, so that their rounding (they are updated
 /// incrementally) can never prune a cell holding a point at the bound: queries stay exact.
@@ -275,16 +276,17 @@ impl<const D: usize> Inner<D> {
 
     #[inline]
     fn nearest(&self, q: &[f64; D], max_sq: f64) -> Option<(usize, f64)> {
-        self.nearest_from(q, max_sq, u32::MAX)
+        self.nearest_from(q, max_sq, u32::MAX, usize::MAX)
     }
 
     /// [`Self::nearest`] starting from a known candidate `(bd, bi)` (`bi = u32::MAX`: none, `bd`
     /// the gate): every cell farther than `bd` is pruned from the start. The result is the
     /// same as a fresh search whenever the true nearest is within `bd`, which it is when `bd`
     /// is the distance to a real point `bi` (ties still go to the lowest index: a cell at
-    /// exactly `bd` is visited).
+    /// exactly `bd` is visited). The leaf starting at `skip` (`usize::MAX`: none) has been
+    /// scanned already and is not scanned again.
     #[inline]
-    fn nearest_from(&self, q: &[f64; D], bd: f64, bi: u32) -> Option<(usize, f64)> {
+    fn nearest_from(&self, q: &[f64; D], bd: f64, bi: u32, skip: usize) -> Option<(usize, f64)> {
         let (mut bd, mut bi) = (bd, bi);
         let pts = &self.pts;
         let ids = &self.ids;
@@ -293,6 +295,9 @@ impl<const D: usize> Inner<D> {
             q,
             || best.get(),
             |lo, hi| {
+                if lo == skip {
+                    return;
+                }
                 for (p, &id) in pts[lo..hi].iter().zip(&ids[lo..hi]) {
                     let d = sq_dist(p, q);
                     if d <= bd && before(d, id, bd, bi) {
@@ -321,7 +326,7 @@ impl<const D: usize> Inner<D> {
             let below = q[c] - leaf.cell_lo[c];
             let above = leaf.cell_hi[c] - q[c];
             if !(below >= 0.0 && above >= 0.0) {
-                return self.nearest_from(q, bd, bi); // q is outside the hint's cell
+                return self.nearest_from(q, bd, bi, usize::MAX); // q is outside the hint's cell
             }
             margin = margin.min(below.min(above));
         }
@@ -336,7 +341,7 @@ impl<const D: usize> Inner<D> {
         if bd < margin * margin {
             return Some((bi as usize, bd));
         }
-        self.nearest_from(q, bd, bi)
+        self.nearest_from(q, bd, bi, lo)
     }
 
     /// `out[start..]` is kept sorted by (distance, index), at most `k` long.
