@@ -61,6 +61,8 @@ K = 10
 MAX_ITERATIONS = 30
 EPS = 1e-4
 OURS = {"point_to_line": "point_to_line", "point_to_point": "point_to_point", "gicp": "gicp"}
+#: The methods timed (``--methods``).
+METHODS = list(OURS)
 THEIRS = {"point_to_line": "PLANE_ICP", "point_to_point": "ICP", "gicp": "GICP"}
 
 Pair = tuple[np.ndarray, np.ndarray, SE2, SE2]  # source, target, init, reference
@@ -307,7 +309,7 @@ def interleaved(sets: dict[str, list[Pair]], sg: Any, o3d: Any, rounds: int) -> 
     print("|---|---|---|---|---|---|---|---|")
     for name, pairs in sets.items():
         padded = [(pad(s), pad(t), mat4(i)) for s, t, i, _ in pairs]
-        for method in OURS:
+        for method in METHODS:
             fns: dict[str, Callable[[], list[SE2]]] = {
                 "scanreg": lambda m=method, p=pairs: ours(p, m)
             }
@@ -362,9 +364,7 @@ def main() -> None:
         "--methods", nargs="+", choices=list(OURS), default=list(OURS), help="methods to time"
     )
     args = ap.parse_args()
-    for m in list(OURS):
-        if m not in args.methods:
-            del OURS[m]
+    METHODS[:] = args.methods
     global CLOCK
     if args.cpu:
         CLOCK = time.process_time
@@ -397,7 +397,7 @@ def main() -> None:
     best = not args.median
     for name, pairs in sets.items():
         padded = [(pad(s), pad(t), mat4(i)) for s, t, i, _ in pairs]
-        for method in OURS:
+        for method in METHODS:
             t_ours, p_ours = timed(lambda m=method, p=pairs: ours(p, m), args.repeat, best)
             e_ours = errors_mm(p_ours, pairs)
             row = f"| {name} | {len(pairs)} | {method} | {t_ours / len(pairs) * 1e3:.3f} | "
