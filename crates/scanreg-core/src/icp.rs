@@ -242,6 +242,13 @@ trait Group<const D: usize, const N: usize> {
     fn exp(delta: &SVector<f64, N>) -> (SMatrix<f64, D, D>, SVector<f64, D>);
     fn inverse(m: &SMatrix<f64, D, D>) -> Option<SMatrix<f64, D, D>>;
     fn solve(h: &SMatrix<f64, N, N>, rhs: &SVector<f64, N>) -> Option<SVector<f64, N>>;
+    /// The rotation block of `A(p)ᵀA(p)` (`[p]×ᵀ[p]×` in 3D; `|p|²` at `[0, 0]` in 2D), each
+    /// entry as a sum of products (no `|p|² − x²` cancellation far from the origin).
+    fn rotation_moment(p: &SVector<f64, D>) -> SMatrix<f64, D, D>;
+    /// `Σ kᵢ A(pᵢ)ᵀA(pᵢ)` from `Σ kᵢ`, `Σ kᵢ pᵢ` and `Σ kᵢ rotation_moment(pᵢ)`: the
+    /// point-to-point Hessian without a `N × N` product per point.
+    fn moment_hessian(k: f64, kp: &SVector<f64, D>, rot: &SMatrix<f64, D, D>)
+        -> SMatrix<f64, N, N>;
 }
 
 struct Planar;
@@ -272,6 +279,15 @@ impl Group<2, 3> for Planar {
 
     fn solve(h: &SMatrix<f64, 3, 3>, rhs: &SVector<f64, 3>) -> Option<SVector<f64, 3>> {
         h.cholesky().map(|c| c.solve(rhs))
+    }
+
+    #[inline]
+    fn rotation_moment(p: &Vector2<f64>) -> Matrix2<f64> {
+        Matrix2::new(p.x * p.x + p.y * p.y, 0.0, 0.0, 0.0)
+    }
+
+    fn moment_hessian(k: f64, kp: &Vector2<f64>, rot: &Matrix2<f64>) -> SMatrix<f64, 3, 3> {
+        SMatrix::<f64, 3, 3>::new(k, 0.0, -kp.y, 0.0, k, kp.x, -kp.y, kp.x, rot[(0, 0)])
     }
 }
 
@@ -318,13 +334,44 @@ impl Group<3, 6> for Spatial {
     fn solve(h: &SMatrix<f64, 6, 6>, rhs: &SVector<f64, 6>) -> Option<SVector<f64, 6>> {
         h.cholesky().map(|c| c.solve(rhs))
     }
+
+    #[inline]
+    fn rotation_moment(p: &Vector3<f64>) -> Matrix3<f64> {
+        let (x, y, z) = (p.x, p.y, p.z);
+        #[rustfmt::skip]
+        let b = Matrix3::new(
+            y * y + z * z, -x * y, -x * z,
+            -x * y, x * x + z * z, -y * z,
+            -x * z, -y * z, x * x + y * y,
+        );
+        b
+    }
+
+    fn moment_hessian(k: f64, kp: &Vector3<f64>, rot: &Matrix3<f64>) -> SMatrix<f64, 6, 6> {
+        // A = [I, −[p]×]: AᵀA = [[I, −[p]×], [[p]×, [p]×ᵀ[p]×]].
+        let mut h = SMatrix::<f64, 6, 6>::zeros();
+        let c = hat(kp);
+        h.fixed_view_mut::<3, 3>(0, 0).fill_with_identity();
+        h.fixed_view_mut::<3, 3>(0, 0).scale_mut(k);
+        h.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-c));
+        h.fixed_view_mut::<3, 3>(3, 0).copy_from(&c);
+        h.fixed_view_mut::<3, 3>(3, 3).copy_from(rot);
+        h
+    }
 }
 
 /// Marker for "no correspondence" in the per-point correspondence list.
 const NONE: u32 = u32::MAX;
 
-struct Acc<const N: usize> {
+struct Acc<const D: usize, const N: usize> {
     h: SMatrix<f64, N, N>,
+    /// Rank-one terms, lower triangle only (mirrored at the end).
+    hl: SMatrix<f64, N, N>,
+    /// Point-to-point's Hessian as moments (`Group::moment_hessian`): `Σk`, `Σkp`, and
+    /// `Σk rotation_moment(p)`, added to `h` once at the end.
+    mk: f64,
+    mkp: SVector<f64, D>,
+    mrot: SMatrix<f64, D, D>,
     g: SVector<f64, N>,
     m: SMatrix<f64, N, N>,
     cost: f64,
@@ -337,10 +384,14 @@ struct Acc<const N: usize> {
     corr: Vec<u32>,
 }
 
-impl<const N: usize> Acc<N> {
+impl<const D: usize, const N: usize> Acc<D, N> {
     fn new(keep: usize) -> Self {
         Acc {
             h: SMatrix::zeros(),
+            hl: SMatrix::zeros(),
+            mk: 0.0,
+            mkp: SVector::zeros(),
+            mrot: SMatrix::zeros(),
             g: SVector::zeros(),
             m: SMatrix::zeros(),
             cost: 0.0,
@@ -356,6 +407,10 @@ impl<const N: usize> Acc<N> {
 
     fn merge(mut self, o: Self) -> Self {
         self.h += o.h;
+        self.hl += o.hl;
+        self.mk += o.mk;
+        self.mkp += o.mkp;
+        self.mrot += o.mrot;
         self.g += o.g;
         self.m += o.m;
         self.cost += o.cost;
@@ -437,7 +492,18 @@ pub(crate) fn mat_at<const D: usize>(data: &[f64], i: usize) -> SMatrix<f64, D, 
 }
 
 /// One factor: `(J, W-weighted pieces)` reduced to what the accumulator needs. Returns
-/// `(JᵀWJ, JᵀWr, |r|, |e|²)` or `None` when the pair cannot form a factor.
+/// How one correspondence's `JᵀWJ` is added: the per-point `N × N` products were a third of a
+/// 3D iteration's time.
+enum Curvature<const N: usize> {
+    /// Point-to-point: `A(p)ᵀA(p)`, which depends on `p` alone (the caller keeps moments).
+    Moments,
+    /// Point-to-plane/line: `jᵀj` for the one Jacobian row `j` (lower triangle only).
+    RankOne(SVector<f64, N>),
+    /// GICP: the full matrix.
+    Full(SMatrix<f64, N, N>),
+}
+
+/// `(JᵀWJ, JᵀWr, |r|)` or `None` when the pair cannot form a factor.
 #[inline]
 #[allow(clippy::type_complexity)]
 fn factor<G: Group<D, N>, const D: usize, const N: usize>(
@@ -447,13 +513,13 @@ fn factor<G: Group<D, N>, const D: usize, const N: usize>(
     j: usize,
     p: &SVector<f64, D>,
     e: &SVector<f64, D>,
-) -> Option<(SMatrix<f64, N, N>, SVector<f64, N>, f64)> {
+) -> Option<(Curvature<N>, SVector<f64, N>, f64)> {
     let a = G::point_jacobian(p);
     let rt = pose.r.transpose();
     match pr.method {
         Method::PointToPoint => {
             let r = rt * e;
-            Some((a.transpose() * a, a.transpose() * r, e.norm()))
+            Some((Curvature::Moments, a.transpose() * r, e.norm()))
         }
         Method::PointToPlane => {
             let n: SVector<f64, D> = vec_at(pr.target.normals?, j);
@@ -461,8 +527,8 @@ fn factor<G: Group<D, N>, const D: usize, const N: usize>(
                 return None; // no normal at this target point
             }
             let d = n.dot(e);
-            let jrow = (rt * n).transpose() * a; // 1 x N
-            Some((jrow.transpose() * jrow, jrow.transpose() * d, d.abs()))
+            let j = a.transpose() * (rt * n); // the Jacobian row, as a column
+            Some((Curvature::RankOne(j), j * d, d.abs()))
         }
         Method::Gicp => {
             let cq: SMatrix<f64, D, D> = mat_at(pr.target.covariances?, j / pr.cov_group);
@@ -473,7 +539,11 @@ fn factor<G: Group<D, N>, const D: usize, const N: usize>(
             let el = rt * e;
             let wa = wl * a;
             let m2 = el.dot(&(wl * el)).max(0.0);
-            Some((a.transpose() * wa, wa.transpose() * el, m2.sqrt()))
+            Some((
+                Curvature::Full(a.transpose() * wa),
+                wa.transpose() * el,
+                m2.sqrt(),
+            ))
         }
     }
 }
@@ -493,9 +563,9 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
     let tree = pr.target.search;
     let acc = chunked_sum(
         n,
-        Acc::<N>::new(if keep_correspondences { n } else { 0 }),
+        Acc::<D, N>::new(if keep_correspondences { n } else { 0 }),
         |range| {
-            let mut acc = Acc::<N>::new(if keep_correspondences { range.len() } else { 0 });
+            let mut acc = Acc::<D, N>::new(if keep_correspondences { range.len() } else { 0 });
             // The previous source point's correspondence: the hint for a point that has none of
             // its own (the first iteration, or none inside the gate last time). Scans come in
             // beam order, so neighbouring source points usually match neighbouring target
@@ -527,7 +597,22 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                     let e = tp - q;
                     if let Some((h, g, norm)) = factor::<G, D, N>(pr, pose, i, j, &p, &e) {
                         let k = pr.kernel.weight(norm);
-                        acc.h += h * k;
+                        match h {
+                            Curvature::Full(h) => acc.h += h * k,
+                            Curvature::RankOne(j) => {
+                                let kj = j * k;
+                                for c in 0..N {
+                                    for r in c..N {
+                                        acc.hl[(r, c)] += kj[r] * j[c];
+                                    }
+                                }
+                            }
+                            Curvature::Moments => {
+                                acc.mk += k;
+                                acc.mkp += p * k;
+                                acc.mrot += G::rotation_moment(&p) * k;
+                            }
+                        }
                         let score = g * k;
                         acc.g += score;
                         if with_scores {
@@ -549,8 +634,11 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
         },
         Acc::merge,
     );
+    let mut hl = acc.hl;
+    hl.fill_upper_triangle_with_lower_triangle();
+    let h = acc.h + hl + G::moment_hessian(acc.mk, &acc.mkp, &acc.mrot);
     let eval = Evaluation {
-        hessian: acc.h.transpose().iter().copied().collect(),
+        hessian: h.transpose().iter().copied().collect(),
         gradient: acc.g.iter().copied().collect(),
         score_outer: acc.m.transpose().iter().copied().collect(),
         cost: acc.cost,

@@ -329,3 +329,35 @@ fn rejects_bad_input() {
     assert!(Method::from_name("icp").is_err());
     assert!(Optimizer::from_name("newton").is_err());
 }
+
+/// The point-to-point Hessian assembled from moments equals the sum of `A(p)ᵀA(p)` per point,
+/// also far from the origin (where `|p|² − x²` would cancel).
+#[test]
+fn moment_hessian_equals_per_point_products() {
+    fn check<G: Group<D, N>, const D: usize, const N: usize>(offset: f64) {
+        let (mut h, mut k, mut kp, mut rot) = (
+            SMatrix::<f64, N, N>::zeros(),
+            0.0,
+            SVector::<f64, D>::zeros(),
+            SMatrix::<f64, D, D>::zeros(),
+        );
+        for i in 0..50 {
+            let p = SVector::<f64, D>::from_fn(|r, _| {
+                offset * (r as f64 + 1.0) + ((i * (r + 3)) as f64 * 0.37).sin() * 5.0
+            });
+            let w = 0.5 + (i as f64 * 0.11).cos().abs();
+            let a = G::point_jacobian(&p);
+            h += a.transpose() * a * w;
+            k += w;
+            kp += p * w;
+            rot += G::rotation_moment(&p) * w;
+        }
+        let m = G::moment_hessian(k, &kp, &rot);
+        let scale = h.amax();
+        assert!((m - h).amax() <= 1e-14 * scale, "{}", (m - h).amax() / scale);
+    }
+    for offset in [0.0, 1e5] {
+        check::<Planar, 2, 3>(offset);
+        check::<Spatial, 3, 6>(offset);
+    }
+}
