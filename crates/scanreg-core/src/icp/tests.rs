@@ -354,7 +354,11 @@ fn moment_hessian_equals_per_point_products() {
         }
         let m = G::moment_hessian(k, &kp, &rot);
         let scale = h.amax();
-        assert!((m - h).amax() <= 1e-14 * scale, "{}", (m - h).amax() / scale);
+        assert!(
+            (m - h).amax() <= 1e-14 * scale,
+            "{}",
+            (m - h).amax() / scale
+        );
     }
     for offset in [0.0, 1e5] {
         check::<Planar, 2, 3>(offset);
