@@ -621,7 +621,7 @@ def register(
     lazy = isinstance(target, PreparedTarget) and not s.degeneracy_aware
     if lazy:
         # The analysis reads these later: never through a view of the caller's arrays.
-        if isinstance(source, np.ndarray) and np.may_share_memory(src, source):
+        if src is source or (isinstance(source, np.ndarray) and np.may_share_memory(src, source)):
             src = src.copy()
         if (
             source_covariances is not None
