@@ -195,6 +195,50 @@ def test_outdoor_pair_full_resolution_gicp() -> None:
     assert dt < 0.03 and dr < 0.3, (dt, dr)
 
 
+def test_point_to_point_extrapolation_fewer_iterations_no_higher_cost() -> None:
+    """The safeguarded step extrapolation (default) against the textbook loop, point-to-point
+    on the outdoor pair at 0.25 m voxels (measured: 17 → 10 iterations, the same pose): fewer
+    iterations, a final truncated cost no higher, and the pose within 5 mm / 0.05° of it."""
+    src, tgt, ref, _ = outdoor_pair()
+    s = pp.voxel_downsample(src, 0.25).points
+    target = prepare(pp.voxel_downsample(tgt, 0.25).points, normals=False)
+    runs = {
+        on: register(s, target, method="point_to_point", extrapolate=on) for on in (True, False)
+    }
+
+    def truncated_cost(r: scanreg.RegistrationResult) -> float:
+        # Points outside the 1 m gate count as at the gate (0.5 · 1²).
+        return r.cost + 0.5 * (r.num_source_points - r.fitness * r.num_source_points)
+
+    on, off = runs[True], runs[False]
+    assert on.converged and off.converged
+    assert on.iterations < off.iterations, (on.iterations, off.iterations)
+    assert truncated_cost(on) <= truncated_cost(off) * (1 + 1e-6)
+    dt, dr = pose_error(on.pose, off.pose)
+    assert dt < 0.005 and dr < 0.05, (dt, dr)
+    dt, dr = pose_error(on.pose, ref)
+    assert dt < 0.08 and dr < 0.5, (dt, dr)
+
+
+def test_extrapolation_matches_the_plain_loop_on_simulated_scans() -> None:
+    """2D scans of a simulated floor plan 0.3 m apart, point-to-point: with and without the
+    extrapolation both land within 3 cm of the truth, with no more iterations in total."""
+    target, source = floor_scan(1.0), floor_scan(1.3)
+    truth = SE2.from_vector([0.3, 0, 0])
+    runs = [
+        register(
+            source, target, method="point_to_point", max_correspondence_distance=0.5, extrapolate=on
+        )
+        for on in (True, False)
+    ]
+    for r in runs:
+        dt, _ = pose_error(r.pose, truth)
+        assert r.converged and dt < 0.03, (r.stop_reason, dt)
+    assert runs[0].iterations <= runs[1].iterations
+    with pytest.raises(TypeError, match="extrapolate: expected a bool"):
+        RegistrationSettings(extrapolate=1)  # type: ignore[arg-type]
+
+
 @functools.cache
 def kitti_frame(i: int) -> np.ndarray:
     path = data_dir("kitti-odometry-00-frames-000-015", "velodyne", f"{i:06d}.bin")

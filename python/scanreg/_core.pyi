@@ -264,6 +264,7 @@ def register_icp(
     target_covariances: NDArray[np.float64] | None = None,
     iterate: bool = True,
     step_projector: NDArray[np.float64] | None = None,
+    extrapolate: bool = True,
 ) -> IcpOutcome: ...
 
 # --- Censi covariance and block scores (crates/scanreg-py/src/censi.rs) ---

@@ -97,6 +97,9 @@ pub struct Settings {
     /// projector onto the well-constrained directions along the weak ones, so the estimate
     /// keeps its initial value along weak directions. `None`: plain steps.
     pub step_projector: Option<[f64; 36]>,
+    /// Point-to-point under Gauss–Newton: stretch steps along a consistent direction
+    /// (safeguarded Besl–McKay extrapolation, see `Extrapolation`).
+    pub extrapolate: bool,
 }
 
 /// Why the iteration loop stopped.
@@ -426,6 +429,7 @@ impl<const D: usize, const N: usize> Acc<D, N> {
 }
 
 /// The pose as `(R, t)`.
+#[derive(Clone)]
 struct Pose<const D: usize> {
     r: SMatrix<f64, D, D>,
     t: SVector<f64, D>,
@@ -698,6 +702,78 @@ fn fixed_cost<G: Group<D, N>, const D: usize, const N: usize>(
     )
 }
 
+/// Besl & McKay's (1992, §IV.C) accelerated ICP, with a safeguard: when two successive
+/// steps point the same way and shrink by `ρ`, the step is stretched by up to `ρ/(1 − ρ)` (the
+/// rest of the geometric series, at most 2×), and the next iteration keeps the stretched pose
+/// only if its truncated cost is no higher than the cost where the step started; else it
+/// falls back to the plain step (one extra search) and waits two steps. Point-to-point only:
+/// its iterations slide along walls in small, parallel steps; the plane methods converge in
+/// a few steps and gain nothing.
+struct Extrapolation<const D: usize, const N: usize> {
+    on: bool,
+    /// The rotation rows of a step times this (the source's RMS radius), so the angle between
+    /// two steps weighs a radian as the motion it gives the points.
+    lever: f64,
+    previous: Option<SVector<f64, N>>,
+    wait: usize,
+    /// The plain pose and the truncated cost where the stretched step started.
+    fallback: Option<(Pose<D>, f64)>,
+}
+
+impl<const D: usize, const N: usize> Extrapolation<D, N> {
+    fn new(on: bool, source: &[f64]) -> Self {
+        let n = (source.len() / D).max(1) as f64;
+        let ss: f64 = source.iter().map(|v| v * v).sum();
+        Extrapolation {
+            on,
+            lever: (ss / n).sqrt().max(1e-12),
+            previous: None,
+            wait: 0,
+            fallback: None,
+        }
+    }
+
+    /// At a pose reached by a stretched step: the plain pose to use instead when `energy`
+    /// is higher than where the step started.
+    fn check(&mut self, energy: f64) -> Option<Pose<D>> {
+        let (plain, before) = self.fallback.take()?;
+        if energy <= before {
+            return None;
+        }
+        self.wait = 2;
+        self.previous = None;
+        Some(plain)
+    }
+
+    fn pending(&mut self, plain: Pose<D>, energy: f64) {
+        self.fallback = Some((plain, energy));
+    }
+
+    /// The stretch for the step `d` (1: none).
+    fn factor(&mut self, d: &SVector<f64, N>) -> f64 {
+        if !self.on {
+            return 1.0;
+        }
+        let mut v = *d;
+        for k in D..N {
+            v[k] *= self.lever;
+        }
+        let previous = self.previous.replace(v);
+        if self.wait > 0 {
+            self.wait -= 1;
+            return 1.0;
+        }
+        let Some(p) = previous else { return 1.0 };
+        let (a, b) = (v.norm(), p.norm());
+        let rho = a / b;
+        if !(v.dot(&p) > 0.95 * a * b && rho < 0.9) {
+            return 1.0;
+        }
+        self.wait = 1; // never two stretched steps in a row
+        1.0 + (rho / (1.0 - rho)).min(2.0)
+    }
+}
+
 fn run<G: Group<D, N>, const D: usize, const N: usize>(
     pr: &Problem<'_>,
     init: &[f64],
@@ -712,9 +788,23 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     let mut last_corr: Vec<u32> = Vec::new();
     // The previous iteration's correspondences: each search starts from them.
     let mut prev_corr: Vec<u32> = Vec::new();
+    let mut accel = Extrapolation::<D, N>::new(
+        pr.method == Method::PointToPoint && !lm && s.extrapolate,
+        pr.source,
+    );
+    let n_source = pr.source.len() / D;
+    let outside = pr.kernel.rho(pr.max_sq.sqrt());
     for _ in 0..s.max_iterations {
         let t0 = Instant::now();
-        let (lin, corr) = evaluate::<G, D, N>(pr, &pose, false, true, None, hints(&prev_corr));
+        let (mut lin, mut corr) =
+            evaluate::<G, D, N>(pr, &pose, false, true, None, hints(&prev_corr));
+        // The truncated cost: a point outside the gate counts as at the gate.
+        let energy = |e: &Evaluation| e.cost + (n_source - e.num_in_gate) as f64 * outside;
+        if let Some(plain) = accel.check(energy(&lin)) {
+            // The extrapolated pose is worse than the one it left: take the plain step.
+            pose = plain;
+            (lin, corr) = evaluate::<G, D, N>(pr, &pose, false, true, None, hints(&corr));
+        }
         if lin.num_correspondences < s.min_correspondences {
             stop = StopReason::TooFewCorrespondences;
             break;
@@ -781,14 +871,27 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
             stop = StopReason::Diverged;
             break;
         }
+        let converged = dt < s.translation_tolerance && dr < s.rotation_tolerance;
         let (rd, td) = G::exp(&d);
         let next = pose.compose(&rd, &td);
         if !next.is_finite() {
             stop = StopReason::Diverged;
             break;
         }
-        pose = next;
-        if dt < s.translation_tolerance && dr < s.rotation_tolerance {
+        let factor = if converged { 1.0 } else { accel.factor(&d) };
+        if factor > 1.0 {
+            let (re, te) = G::exp(&(d * factor));
+            let far = pose.compose(&re, &te);
+            if far.is_finite() {
+                accel.pending(next.clone(), energy(&lin));
+                pose = far;
+            } else {
+                pose = next;
+            }
+        } else {
+            pose = next;
+        }
+        if converged {
             stop = StopReason::Converged;
             last_corr = corr;
             break;

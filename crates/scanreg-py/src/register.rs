@@ -72,7 +72,7 @@ fn projector(arr: &Option<PyReadonlyArray2<'_, f64>>, dim: usize) -> PyResult<Op
     source, target, init_pose, *, method, kernel, kernel_scale, max_correspondence_distance,
     max_iterations, translation_tolerance, rotation_tolerance, optimizer, min_correspondences,
     num_threads=None, source_covariances=None, target_normals=None, target_covariances=None,
-    iterate=true, step_projector=None
+    iterate=true, step_projector=None, extrapolate=true
 ))]
 #[allow(clippy::too_many_arguments)]
 fn register_icp(
@@ -95,6 +95,7 @@ fn register_icp(
     target_covariances: Option<PyReadonlyArray3<'_, f64>>,
     iterate: bool,
     step_projector: Option<PyReadonlyArray2<'_, f64>>,
+    extrapolate: bool,
 ) -> PyResult<IcpOutcome> {
     // The target is a k-d tree over a fixed cloud (attributes passed in) or a local map
     // (attributes stored in it, read under its lock for the whole registration).
@@ -144,6 +145,7 @@ fn register_icp(
         optimizer: Optimizer::from_name(optimizer).map_err(core_err)?,
         min_correspondences,
         step_projector: projector(&step_projector, dim)?,
+        extrapolate,
     };
     let src_in = Source {
         points: src,

@@ -93,6 +93,7 @@ fn settings(method: Method, kernel: Kernel, optimizer: Optimizer) -> Settings {
         optimizer,
         min_correspondences: 10,
         step_projector: None,
+        extrapolate: true,
     }
 }
 
@@ -363,5 +364,69 @@ fn moment_hessian_equals_per_point_products() {
     for offset in [0.0, 1e5] {
         check::<Planar, 2, 3>(offset);
         check::<Spatial, 3, 6>(offset);
+    }
+}
+
+/// The safeguarded extrapolation: the same pose as the plain loop on exact data, in fewer
+/// point-to-point iterations, and nothing changes for the other methods or under LM.
+#[test]
+fn extrapolation_recovers_the_pose_in_fewer_iterations() {
+    for dim in [2, 3] {
+        let (tgt, truth_flat, src) = if dim == 3 {
+            let t = room_3d();
+            let s = source_of(&t, &truth_3d());
+            (t, pose_flat(&truth_3d()), s)
+        } else {
+            let t = room_2d();
+            let s = source_of(&t, &truth_2d());
+            (t, pose_flat(&truth_2d()), s)
+        };
+        let tree = KdTree::build(&tgt, dim).unwrap();
+        let vp = vec![0.3; dim];
+        let g = local_geometry(&tree, 10, &vp, true, None).unwrap();
+        let target = Target {
+            search: &tree,
+            normals: g.normals.as_deref(),
+            covariances: None,
+        };
+        let source = Source {
+            points: &src,
+            covariances: None,
+        };
+        for (method, opt) in [
+            (Method::PointToPoint, Optimizer::GaussNewton),
+            (Method::PointToPoint, Optimizer::LevenbergMarquardt),
+            (Method::PointToPlane, Optimizer::GaussNewton),
+        ] {
+            let run = |extrapolate: bool| {
+                let s = Settings {
+                    extrapolate,
+                    ..settings(method, Kernel::None, opt)
+                };
+                register(&source, &target, &identity(dim), &s).unwrap()
+            };
+            let (on, off) = (run(true), run(false));
+            for out in [&on, &off] {
+                assert_eq!(out.stop_reason, StopReason::Converged);
+                assert!(
+                    max_abs_diff(&out.pose, &truth_flat) < 1e-6,
+                    "{dim}D {method:?}"
+                );
+            }
+            if method == Method::PointToPoint && opt == Optimizer::GaussNewton {
+                assert!(
+                    on.iterations < off.iterations,
+                    "{dim}D: {} iterations with extrapolation, {} without",
+                    on.iterations,
+                    off.iterations
+                );
+            } else {
+                assert_eq!(
+                    on.pose, off.pose,
+                    "{dim}D {method:?} {opt:?}: not extrapolated"
+                );
+                assert_eq!(on.iterations, off.iterations);
+            }
+        }
     }
 }

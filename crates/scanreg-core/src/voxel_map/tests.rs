@@ -126,6 +126,7 @@ fn registration_against_map_equals_kd_tree() {
         optimizer: Optimizer::GaussNewton,
         min_correspondences: 10,
         step_projector: None,
+        extrapolate: true,
     };
     let init = [
         1.0, 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1.,
