@@ -714,6 +714,10 @@ struct Extrapolation<const D: usize, const N: usize> {
     /// The rotation rows of a step times this (the source's RMS radius), so the angle between
     /// two steps weighs a radian as the motion it gives the points.
     lever: f64,
+    /// Only steps that move the points by less than this are stretched (a tenth of the
+    /// gate): the final slide along the surfaces, not the first large steps, whose stretch
+    /// can jump to another basin (measured: the outdoor pair's basin lost 4 of 120 starts).
+    small: f64,
     previous: Option<SVector<f64, N>>,
     wait: usize,
     /// The plain pose and the truncated cost where the stretched step started.
@@ -721,12 +725,13 @@ struct Extrapolation<const D: usize, const N: usize> {
 }
 
 impl<const D: usize, const N: usize> Extrapolation<D, N> {
-    fn new(on: bool, source: &[f64]) -> Self {
+    fn new(on: bool, source: &[f64], gate: f64) -> Self {
         let n = (source.len() / D).max(1) as f64;
         let ss: f64 = source.iter().map(|v| v * v).sum();
         Extrapolation {
             on,
             lever: (ss / n).sqrt().max(1e-12),
+            small: 0.1 * gate,
             previous: None,
             wait: 0,
             fallback: None,
@@ -766,7 +771,7 @@ impl<const D: usize, const N: usize> Extrapolation<D, N> {
         let Some(p) = previous else { return 1.0 };
         let (a, b) = (v.norm(), p.norm());
         let rho = a / b;
-        if !(v.dot(&p) > 0.95 * a * b && rho < 0.9) {
+        if !(v.dot(&p) > 0.95 * a * b && rho < 0.9 && a < self.small) {
             return 1.0;
         }
         self.wait = 1; // never two stretched steps in a row
@@ -791,6 +796,7 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     let mut accel = Extrapolation::<D, N>::new(
         pr.method == Method::PointToPoint && !lm && s.extrapolate,
         pr.source,
+        pr.max_sq.sqrt(),
     );
     let n_source = pr.source.len() / D;
     let outside = pr.kernel.rho(pr.max_sq.sqrt());
