@@ -495,7 +495,6 @@ pub(crate) fn mat_at<const D: usize>(data: &[f64], i: usize) -> SMatrix<f64, D, 
     SMatrix::from_column_slice(&data[i * D * D..(i + 1) * D * D])
 }
 
-/// One factor: `(J, W-weighted pieces)` reduced to what the accumulator needs. Returns
 /// How one correspondence's `JᵀWJ` is added: the per-point `N × N` products were a third of a
 /// 3D iteration's time.
 enum Curvature<const N: usize> {
@@ -507,7 +506,8 @@ enum Curvature<const N: usize> {
     Full(SMatrix<f64, N, N>),
 }
 
-/// `(JᵀWJ, JᵀWr, |r|)` or `None` when the pair cannot form a factor.
+/// One factor reduced to what the accumulator needs: `(JᵀWJ, JᵀWr, |r|)`, or `None` when
+/// the pair cannot form a factor.
 #[inline]
 #[allow(clippy::type_complexity)]
 fn factor<G: Group<D, N>, const D: usize, const N: usize>(
@@ -702,13 +702,15 @@ fn fixed_cost<G: Group<D, N>, const D: usize, const N: usize>(
     )
 }
 
-/// Besl & McKay's (1992, §IV.C) accelerated ICP, with a safeguard: when two successive
-/// steps point the same way and shrink by `ρ`, the step is stretched by up to `ρ/(1 − ρ)` (the
-/// rest of the geometric series, at most 2×), and the next iteration keeps the stretched pose
-/// only if its truncated cost is no higher than the cost where the step started; else it
-/// falls back to the plain step (one extra search) and waits two steps. Point-to-point only:
-/// its iterations slide along walls in small, parallel steps; the plane methods converge in
-/// a few steps and gain nothing.
+/// Besl & McKay's (1992, §IV.C) accelerated ICP, with a safeguard: when two successive small
+/// steps point the same way and shrink by `ρ`, the step is lengthened by the rest of the
+/// geometric series, `ρ/(1 − ρ)` of it (at most twice, so at most 3× in all), and the next
+/// evaluation keeps the stretched pose only if its truncated cost is no higher than the cost
+/// where the step started; else it falls back to the plain step (one extra search) and waits
+/// two steps. Point-to-point only: its iterations end in a long slide of small parallel steps
+/// along the surfaces. The plane methods are left as they are: few steps, and on the outdoor
+/// pair a slide whose steps grow rather than shrink (KITTI point-to-plane did go 9 → 6, not
+/// enabled without a basin-of-convergence run).
 struct Extrapolation<const D: usize, const N: usize> {
     on: bool,
     /// The rotation rows of a step times this (the source's RMS radius), so the angle between
@@ -908,8 +910,15 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     // After a converged (sub-tolerance) last step the correspondences cannot have changed
     // meaningfully: re-use them instead of a full search (saves one nearest-neighbour pass).
     let fixed = (stop == StopReason::Converged).then_some(last_corr.as_slice());
-    let (evaluation, correspondences) =
+    let (mut evaluation, mut correspondences) =
         evaluate::<G, D, N>(pr, &pose, true, true, fixed, hints(&prev_corr));
+    // The iteration cap right after a stretched step: it is checked here, like any other.
+    let truncated = evaluation.cost + (n_source - evaluation.num_in_gate) as f64 * outside;
+    if let Some(plain) = accel.check(truncated) {
+        pose = plain;
+        (evaluation, correspondences) =
+            evaluate::<G, D, N>(pr, &pose, true, true, None, hints(&correspondences));
+    }
     if evaluation.num_correspondences < s.min_correspondences {
         stop = StopReason::TooFewCorrespondences;
     }
