@@ -60,7 +60,7 @@ struct Inner<const D: usize> {
 struct Leaf<const D: usize> {
     lo: u32,
     hi: u32,
-    /// The leaf's points are sorted along this axis (the widest of their box), so a scan
+    /// 2D: the leaf's points are sorted along this axis (the widest of their box), so a scan
     /// from a known point outward stops once the gap along it alone exceeds the best.
     axis: u32,
     cell_lo: [f64; D],
@@ -147,11 +147,14 @@ impl<const D: usize> Inner<D> {
         let mut leaves = Vec::with_capacity(2 * n.div_ceil(LEAF_SIZE) + 1);
         let cell = ([f64::NEG_INFINITY; D], [f64::INFINITY; D]);
         Self::build_rec(&mut items, 0, cell, &mut nodes, &mut leaves);
-        for leaf in &mut leaves {
-            let bucket = &mut items[leaf.lo as usize..leaf.hi as usize];
-            let axis = widest_axis(bucket);
-            bucket.sort_unstable_by(|a, b| a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1)));
-            leaf.axis = axis as u32;
+        if D == 2 {
+            // Only 2D searches scan a leaf outward from the hint (see `nearest_hinted`).
+            for leaf in &mut leaves {
+                let bucket = &mut items[leaf.lo as usize..leaf.hi as usize];
+                let axis = widest_axis(bucket);
+                bucket.sort_unstable_by(|a, b| a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1)));
+                leaf.axis = axis as u32;
+            }
         }
         let (pts, ids): (Vec<[f64; D]>, Vec<u32>) = items.into_iter().unzip();
         let mut leaf_of = vec![0u32; n];
