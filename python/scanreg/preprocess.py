@@ -329,7 +329,7 @@ def estimate_normals(
         kk, vp, normals=True, drop_linear=drop
     )
     assert normals is not None
-    valid = spans & ~linear if drop else spans
+    valid = spans & ~linear  # `linear` is all false without drop_linear
     return Normals(
         normals=_readonly(normals),
         valid=_readonly(valid),

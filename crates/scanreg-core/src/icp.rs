@@ -140,9 +140,14 @@ pub trait NeighborSearch: Sync {
     fn points(&self) -> &[f64];
     /// Nearest point within the squared gate `max_sq`, as `(id, squared distance)`.
     fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)>;
-    /// [`Self::nearest_within`] with a likely answer `hint` (the previous iteration's
-    /// correspondence); the same result, found faster where the index can use the hint.
-    fn nearest_within_hinted(&self, q: &[f64], max_sq: f64, hint: usize) -> Option<(usize, f64)> {
+    /// [`Self::nearest_within`] with a likely answer `hint` when there is one (the previous
+    /// iteration's correspondence); the same result, found faster where the index can use it.
+    fn nearest_within_hinted(
+        &self,
+        q: &[f64],
+        max_sq: f64,
+        hint: Option<usize>,
+    ) -> Option<(usize, f64)> {
         let _ = hint;
         self.nearest_within(q, max_sq)
     }
@@ -170,8 +175,16 @@ impl NeighborSearch for KdTree {
     fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
         KdTree::nearest_within(self, q, max_sq)
     }
-    fn nearest_within_hinted(&self, q: &[f64], max_sq: f64, hint: usize) -> Option<(usize, f64)> {
-        KdTree::nearest_within_hinted(self, q, max_sq, hint)
+    fn nearest_within_hinted(
+        &self,
+        q: &[f64],
+        max_sq: f64,
+        hint: Option<usize>,
+    ) -> Option<(usize, f64)> {
+        match hint {
+            Some(h) => KdTree::nearest_within_hinted(self, q, max_sq, h),
+            None => KdTree::nearest_within(self, q, max_sq),
+        }
     }
 }
 
@@ -580,10 +593,11 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                 let tp = pose.r * p + pose.t;
                 let mut used = NONE;
                 let found = match fixed {
-                    None => match hints.map_or(last, |h| if h[i] != NONE { h[i] } else { last }) {
-                        NONE => tree.nearest_within(tp.as_slice(), pr.max_sq),
-                        h => tree.nearest_within_hinted(tp.as_slice(), pr.max_sq, h as usize),
-                    },
+                    None => {
+                        let h = hints.map_or(last, |h| if h[i] != NONE { h[i] } else { last });
+                        let hint = (h != NONE).then_some(h as usize);
+                        tree.nearest_within_hinted(tp.as_slice(), pr.max_sq, hint)
+                    }
                     Some(c) if c[i] != NONE => {
                         let j = c[i] as usize;
                         let d2 = (tp - vec_at::<D>(tree.points(), j)).norm_squared();

@@ -57,11 +57,10 @@ pub fn overlap(
         for (row, out) in q.iter_mut().enumerate().take(dim) {
             *out = (0..dim).map(|c| p[c] * r[row * dim + c]).sum::<f64>() + t[row];
         }
-        match hints.map(|h| h[i]) {
-            Some(h) if h >= 0 => search.nearest_within_hinted(&q[..dim], max_sq, h as usize),
-            _ => search.nearest_within(&q[..dim], max_sq),
-        }
-        .map(|(_, d2)| d2.sqrt())
+        let hint = hints.and_then(|h| usize::try_from(h[i]).ok());
+        search
+            .nearest_within_hinted(&q[..dim], max_sq, hint)
+            .map(|(_, d2)| d2.sqrt())
     };
     let mut found: Vec<f64> = if n <= SEQUENTIAL_MAX {
         source

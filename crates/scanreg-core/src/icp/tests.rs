@@ -82,6 +82,24 @@ fn source_of<const D: usize>(target: &[f64], truth: &Pose<D>) -> Vec<f64> {
         .collect()
 }
 
+/// A target with `g`'s normals (no covariances) and a source of bare points.
+fn with_normals<'a>(
+    tree: &'a KdTree,
+    g: &'a crate::normals::LocalGeometry,
+    src: &'a [f64],
+) -> (Target<'a>, Source<'a>) {
+    let target = Target {
+        search: tree,
+        normals: g.normals.as_deref(),
+        covariances: None,
+    };
+    let source = Source {
+        points: src,
+        covariances: None,
+    };
+    (target, source)
+}
+
 fn settings(method: Method, kernel: Kernel, optimizer: Optimizer) -> Settings {
     Settings {
         method,
@@ -182,15 +200,7 @@ fn gradient_matches_finite_difference_of_cost() {
         let src = source_of(&tgt, &truth_3d());
         let tree = KdTree::build(&tgt, 3).unwrap();
         let g = local_geometry(&tree, 10, &[0.3; 3], true, None).unwrap();
-        let target = Target {
-            search: &tree,
-            normals: g.normals.as_deref(),
-            covariances: None,
-        };
-        let source = Source {
-            points: &src,
-            covariances: None,
-        };
+        let (target, source) = with_normals(&tree, &g, &src);
         let s = settings(method, Kernel::None, Optimizer::GaussNewton);
         let base = truth_3d();
         let (rd, td) = Spatial::exp(&SVector::<f64, 6>::from_column_slice(&[
@@ -384,15 +394,7 @@ fn extrapolation_recovers_the_pose_in_fewer_iterations() {
         let tree = KdTree::build(&tgt, dim).unwrap();
         let vp = vec![0.3; dim];
         let g = local_geometry(&tree, 10, &vp, true, None).unwrap();
-        let target = Target {
-            search: &tree,
-            normals: g.normals.as_deref(),
-            covariances: None,
-        };
-        let source = Source {
-            points: &src,
-            covariances: None,
-        };
+        let (target, source) = with_normals(&tree, &g, &src);
         for (method, opt) in [
             (Method::PointToPoint, Optimizer::GaussNewton),
             (Method::PointToPoint, Optimizer::LevenbergMarquardt),
