@@ -410,6 +410,27 @@ def test_only_a_prepared_target_defers_the_analysis() -> None:
     assert lazy.verdict is not None and lazy._trust._value is not None
 
 
+def test_results_built_without_init_hold_exactly_their_fields() -> None:
+    # register() and prepare() build their frozen results with _validate.build, which skips
+    # the generated __init__: a field added to a dataclass and not to its caller's dict (or a
+    # stray key) would go unnoticed without this.
+    points = floor_scan(1.0)
+    source = moved_copy(points, T_TRUE_2D)
+    prepared = scanreg.prepare(points)
+    res = register(source, prepared, method="point_to_line")
+    assert res._trust._args is not None  # not analysed yet: its inputs are still there
+    ctx = res._trust._args[0]
+    for obj in (prepared, res, res.timing, ctx):
+        names = {f.name for f in dataclasses.fields(obj)}
+        assert set(vars(obj)) == names, type(obj).__name__
+    # Equal to (and hashed like) the same values through __init__.
+    assert dataclasses.replace(res.timing) == res.timing
+    assert hash(dataclasses.replace(res.timing)) == hash(res.timing)
+    assert dataclasses.replace(res) == res
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        res.iterations = 0  # type: ignore[misc]
+
+
 def test_identical_for_one_and_two_threads() -> None:
     src, tgt, _, _ = outdoor_pair()
     s = pp.voxel_downsample(src, 0.3).points

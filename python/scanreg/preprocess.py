@@ -31,9 +31,12 @@ Regularization = Literal["plane", "normalized_min_eig", "none"]
 DEFAULT_K = 20
 
 
+_INTS = (int, np.integer)  # a tuple once: `int | np.integer` builds a union at every call
+
+
 def positive_int(value: Any, name: str, *, minimum: int = 1) -> int:
     """An ``int`` (not bool) ``>= minimum``."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+    if isinstance(value, bool) or not isinstance(value, _INTS):
         raise TypeError(f"{name}: expected an int, got {type(value).__name__}")
     if value < minimum:
         raise ValueError(f"{name}: must be >= {minimum}, got {value}")

@@ -39,7 +39,8 @@ from typing import Any, Literal
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray, as_matrix, as_points
+from ._validate import FloatArray, as_matrix, as_points, check_finite_points
+from ._validate import build as _build
 from ._validate import frozen as _frozen
 from ._validate import readonly as _readonly
 from .degeneracy import (
@@ -441,14 +442,15 @@ def _pose_from_core(matrix: FloatArray, dim: int) -> SE2 | SE3:
     SVD), without re-validating what the core built (finite, homogeneous, not a reflection)."""
     if dim == 2:
         # In plain floats (a 2D scan registers in ~0.2 ms; numpy's fixed costs showed here).
-        (a, b, tx), (c, d, ty) = matrix[0].tolist(), matrix[1].tolist()
+        (a, b, tx), (c, d, ty), _ = matrix.tolist()
         err = max(abs(a * a + c * c - 1.0), abs(b * b + d * d - 1.0), abs(a * b + c * d))
         if err > 1e-6:  # a core bug, never the user's input
             raise ValueError(f"pose: not orthonormal (max |RᵀR - I| = {err:.2e})")
         # The nearest rotation to a 2×2 matrix, in closed form (what the SVD would give).
         th = math.atan2(c - b, a + d)
         co, sn = math.cos(th), math.sin(th)
-        return SE2._adopt(np.array([[co, -sn], [sn, co]]), np.array([tx, ty]))
+        # A flat tuple, then a view: numpy parses nested lists slowly.
+        return SE2._adopt(np.array((co, -sn, sn, co)).reshape(2, 2), np.array((tx, ty)))
     r = matrix[:dim, :dim]
     err = float(np.abs(r.T @ r - np.eye(dim)).max())
     if err > 1e-6:  # a core bug, never the user's input
@@ -523,9 +525,13 @@ def register(
     if not isinstance(base, RegistrationSettings):
         raise TypeError(f"settings: expected RegistrationSettings, got {type(base).__name__}")
     s = _with_overrides(base, overrides) if overrides else base
-    src = as_points(source, "source")
+    src = as_points(source, "source", finite=False)
     dim = int(src.shape[1])
     method_eff = _resolve_method(method, dim)
+    if s.voxel_size is not None or (method_eff == "gicp" and source_covariances is None):
+        # Downsampled or given covariances here first; otherwise register_icp's own scan
+        # refuses a NaN/inf with the same message.
+        check_finite_points(src, "source")
     pose0 = pose_class(dim).identity() if init is None else as_pose(init, "init", dim)
 
     t0 = time.perf_counter()
@@ -639,20 +645,23 @@ def register(
             and np.may_share_memory(source_covariances, source_attributes)
         ):
             source_covariances = source_covariances.copy()
-    ctx = _TrustInputs(
-        source=src,
-        target=prepared,
-        target_points=t_points,
-        target_normals=t_normals,
-        target_covariances=t_covs,
-        source_covariances=source_covariances,
-        method=method_eff,
-        settings=s,
-        kernel_scale=k_scale,
-        components=components,
-        init_covariance=given_prior,
-        start=pose0,
-        thresholds=th,
+    ctx = _build(
+        _TrustInputs,
+        {
+            "source": src,
+            "target": prepared,
+            "target_points": t_points,
+            "target_normals": t_normals,
+            "target_covariances": t_covs,
+            "source_covariances": source_covariances,
+            "method": method_eff,
+            "settings": s,
+            "kernel_scale": k_scale,
+            "components": components,
+            "init_covariance": given_prior,
+            "start": pose0,
+            "thresholds": th,
+        },
     )
     first: _CorrespondenceAnalysis | None = None
     if s.degeneracy_aware:
@@ -681,32 +690,39 @@ def register(
     t_post = time.perf_counter() - t0
     t_total = time.perf_counter() - t_start  # a lazy analysis is not counted (see its field)
 
-    return RegistrationResult(
-        pose=pose,
-        method=method_eff,
-        kernel=s.kernel,
-        kernel_scale=k_scale if s.kernel != "none" else math.nan,
-        iterations=int(out.iterations),
-        converged=stop == "converged",
-        stop_reason=stop,
-        num_correspondences=n_corr,
-        num_source_points=len(src),
-        fitness=int(out.num_in_gate) / len(src),
-        inlier_rmse=math.sqrt(out.sum_squared_distances / n_corr) if n_corr else math.nan,
-        cost=float(out.cost),
-        hessian=hessian,
-        gradient=_readonly(out.gradient),
-        sigma2=sigma2,
-        timing=RegistrationTiming(
-            target_preparation=t_target,
-            source_preparation=t_source,
-            iterations=tuple(out.iteration_seconds.tolist()),
-            final_evaluation=float(out.final_evaluation_seconds),
-            post_processing=t_post,
-            total=t_total,
-        ),
-        settings=s,
-        _trust=trust,
+    timing = _build(
+        RegistrationTiming,
+        {
+            "target_preparation": t_target,
+            "source_preparation": t_source,
+            "iterations": tuple(out.iteration_seconds.tolist()),
+            "final_evaluation": float(out.final_evaluation_seconds),
+            "post_processing": t_post,
+            "total": t_total,
+        },
+    )
+    return _build(
+        RegistrationResult,
+        {
+            "pose": pose,
+            "method": method_eff,
+            "kernel": s.kernel,
+            "kernel_scale": k_scale if s.kernel != "none" else math.nan,
+            "iterations": int(out.iterations),
+            "converged": stop == "converged",
+            "stop_reason": stop,
+            "num_correspondences": n_corr,
+            "num_source_points": len(src),
+            "fitness": int(out.num_in_gate) / len(src),
+            "inlier_rmse": math.sqrt(out.sum_squared_distances / n_corr) if n_corr else math.nan,
+            "cost": float(out.cost),
+            "hessian": hessian,
+            "gradient": _readonly(out.gradient),
+            "sigma2": sigma2,
+            "timing": timing,
+            "settings": s,
+            "_trust": trust,
+        },
     )
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _core
-from ._validate import FloatArray, as_points, check_flag
+from ._validate import FloatArray, as_points, build, check_flag
 from ._validate import readonly as _readonly
 from .degeneracy import normal_noise
 from .preprocess import (
@@ -188,7 +188,7 @@ def prepare(
         simulation, and costs rotation accuracy on a real pair, hence off). Covariances are
         unaffected.
     """
-    pts = as_points(points, "points")
+    pts = as_points(points, "points", finite=False)  # the k-d tree's build refuses NaN/inf
     dim = int(pts.shape[1])
     index = _core.KdTree(pts)
     kk = positive_int(k, "k")
@@ -208,13 +208,16 @@ def prepare(
         for a in (nrm, cov, valid):
             if a is not None:
                 a.setflags(write=False)
-    return PreparedTarget(
-        points=_readonly(index.points),
-        index=index,
-        normals=nrm,
-        covariances=cov,
-        valid=valid,
-        k=kk,
-        regularization=regularization,
-        epsilon=eps,
+    return build(
+        PreparedTarget,
+        {
+            "points": _readonly(index.points),
+            "index": index,
+            "normals": nrm,
+            "covariances": cov,
+            "valid": valid,
+            "k": kk,
+            "regularization": regularization,
+            "epsilon": eps,
+        },
     )

@@ -118,7 +118,7 @@ fn check_points(points: &[f64], arg: &'static str) -> Result<usize> {
     if let Some(bad) = points.iter().position(|v| !v.is_finite()) {
         return Err(Error::invalid(
             arg,
-            format!("point {} has a non-finite coordinate", bad / 2),
+            format!("point {} has a non-finite coordinate (NaN or inf)", bad / 2),
         ));
     }
     Ok(n)

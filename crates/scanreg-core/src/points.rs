@@ -51,7 +51,7 @@ pub fn check_points(arg: &'static str, data: &[f64], dim: usize) -> Result<usize
     {
         return Err(Error::invalid(
             arg,
-            format!("point {} has a non-finite coordinate", i / dim),
+            format!("point {} has a non-finite coordinate (NaN or inf)", i / dim),
         ));
     }
     Ok(data.len() / dim)
