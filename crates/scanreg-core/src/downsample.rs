@@ -7,6 +7,7 @@
 use crate::error::{Error, Result};
 use crate::knn::voxel_of;
 use crate::points::check_points;
+use crate::reduce::MIN_PAR_ITEMS;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
@@ -203,6 +204,7 @@ where
 {
     points
         .par_chunks_exact(dim)
+        .with_min_len(MIN_PAR_ITEMS)
         .enumerate()
         .filter(|(_, p)| pred(p))
         .map(|(i, _)| i)

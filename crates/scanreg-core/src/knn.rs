@@ -16,6 +16,7 @@
 
 use crate::error::{Error, Result};
 use crate::points::check_points;
+use crate::reduce::MIN_PAR_ITEMS;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
@@ -670,6 +671,7 @@ impl KdTree {
         let max_sq = check_max_distance("max_distance", max_distance)?;
         let res: Vec<(i64, f64)> = queries
             .par_chunks_exact(self.dim)
+            .with_min_len(MIN_PAR_ITEMS)
             .map(|q| match self.nearest_within(q, max_sq) {
                 Some((i, d)) => (i as i64, d),
                 None => (-1, f64::INFINITY),
@@ -689,6 +691,7 @@ impl KdTree {
         check_k("k", k, self.len())?;
         let rows: Vec<Vec<(u32, f64)>> = queries
             .par_chunks_exact(self.dim)
+            .with_min_len(MIN_PAR_ITEMS)
             .map(|q| {
                 let mut v = Vec::with_capacity(k);
                 self.knn_into(q, k, f64::INFINITY, &mut v);
@@ -718,6 +721,7 @@ impl KdTree {
         let sq = radius * radius;
         let rows: Vec<Vec<(u32, f64)>> = queries
             .par_chunks_exact(self.dim)
+            .with_min_len(MIN_PAR_ITEMS)
             .map(|q| {
                 let mut v = Vec::new();
                 self.radius_into(q, sq, &mut v);
@@ -797,6 +801,7 @@ impl VoxelIndex {
         let inv = 1.0 / voxel_size;
         let keys: Vec<Option<[i64; 3]>> = points
             .par_chunks_exact(dim)
+            .with_min_len(MIN_PAR_ITEMS)
             .map(|p| voxel_of(p, inv))
             .collect();
         let mut map: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
@@ -907,6 +912,7 @@ impl VoxelIndex {
         let max_sq = max_distance * max_distance;
         let res: Vec<(i64, f64)> = queries
             .par_chunks_exact(self.dim)
+            .with_min_len(MIN_PAR_ITEMS)
             .map(|q| match self.nearest_within(q, max_sq) {
                 Some((i, d)) => (i as i64, d),
                 None => (-1, f64::INFINITY),

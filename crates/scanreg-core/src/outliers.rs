@@ -2,7 +2,7 @@
 
 use crate::error::{Error, Result};
 use crate::knn::{check_k, KdTree};
-use crate::reduce::chunked_sum;
+use crate::reduce::{chunked_sum, MIN_PAR_ITEMS};
 use rayon::prelude::*;
 
 /// Result of [`statistical_outliers`].
@@ -34,6 +34,7 @@ pub fn statistical_outliers(
     }
     let mean_distance: Vec<f64> = (0..n)
         .into_par_iter()
+        .with_min_len(MIN_PAR_ITEMS)
         .map_init(Vec::new, |buf, i| {
             buf.clear();
             tree.knn_into(tree.point(i), k + 1, f64::INFINITY, buf);
@@ -94,6 +95,7 @@ pub fn radius_outliers(tree: &KdTree, radius: f64, min_neighbors: usize) -> Resu
     let sq = radius * radius;
     Ok((0..tree.len())
         .into_par_iter()
+        .with_min_len(MIN_PAR_ITEMS)
         .map_init(Vec::new, |buf, i| {
             buf.clear();
             // The point itself is always within the radius, so `min_neighbors + 1` hits

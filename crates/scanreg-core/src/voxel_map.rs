@@ -15,6 +15,7 @@ use crate::icp::NeighborSearch;
 use crate::knn::voxel_of;
 use crate::normals::plane_covariance;
 use crate::points::{check_points, floor};
+use crate::reduce::MIN_PAR_ITEMS;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::sync::OnceLock;
@@ -394,6 +395,7 @@ impl VoxelMap {
         let d2 = dim * dim;
         let fresh: Vec<[f64; 9]> = touched
             .par_iter()
+            .with_min_len(MIN_PAR_ITEMS)
             .map(|&slot| self.voxel_covariance(slot))
             .collect();
         for (&slot, cov) in touched.iter().zip(&fresh) {
@@ -507,6 +509,7 @@ impl VoxelMap {
         let max_sq = max_distance * max_distance;
         let found: Vec<(i64, f64)> = queries
             .par_chunks_exact(self.dim)
+            .with_min_len(MIN_PAR_ITEMS)
             .map(|q| match self.nearest_within(q, max_sq) {
                 Some((j, d)) => (j as i64, d),
                 None => (-1, f64::INFINITY),
