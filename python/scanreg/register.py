@@ -437,26 +437,19 @@ def _prepared_target(
     return prepare(points, normals=True, covariances=want_covs, k=k)
 
 
-def _pose_from_core(matrix: FloatArray, dim: int) -> SE2 | SE3:
-    """The core's pose, its rotation projected onto SO(D) as ``from_matrix`` does (the same
-    SVD), without re-validating what the core built (finite, homogeneous, not a reflection)."""
+def _pose_from_core(out: Any, dim: int) -> SE2 | SE3:
+    """The core's pose, its rotation projected onto SO(D) as ``from_matrix`` does, without
+    re-validating what the core built (finite, homogeneous, not a reflection). In 2D the
+    binding has projected it (closed form) and checked it orthonormal: its read-only arrays
+    are adopted as they are (a 2D scan registers in ~0.2 ms; numpy's fixed costs showed)."""
     if dim == 2:
-        # In plain floats (a 2D scan registers in ~0.2 ms; numpy's fixed costs showed here).
-        (a, b, tx), (c, d, ty), _ = matrix.tolist()
-        err = max(abs(a * a + c * c - 1.0), abs(b * b + d * d - 1.0), abs(a * b + c * d))
-        if err > 1e-6:  # a core bug, never the user's input
-            raise ValueError(f"pose: not orthonormal (max |RᵀR - I| = {err:.2e})")
-        # The nearest rotation to a 2×2 matrix, in closed form (what the SVD would give).
-        th = math.atan2(c - b, a + d)
-        co, sn = math.cos(th), math.sin(th)
-        # A flat tuple, then a view: numpy parses nested lists slowly.
-        return SE2._adopt(np.array((co, -sn, sn, co)).reshape(2, 2), np.array((tx, ty)))
-    r = matrix[:dim, :dim]
+        return SE2._wrap(out.rotation, out.translation)
+    r = out.rotation
     err = float(np.abs(r.T @ r - np.eye(dim)).max())
     if err > 1e-6:  # a core bug, never the user's input
         raise ValueError(f"pose: not orthonormal (max |RᵀR - I| = {err:.2e})")
     u, _, vt = np.linalg.svd(r)
-    return SE3._adopt(u @ vt, np.array(matrix[:3, 3]))
+    return SE3._adopt(u @ vt, np.array(out.translation))
 
 
 def _length_scale(points: FloatArray) -> float:
@@ -674,8 +667,8 @@ def register(
             )
 
     t0 = time.perf_counter()
-    pose = _pose_from_core(out.pose, dim)
-    hessian = _readonly(out.hessian)  # the core's own fresh array: no copy needed
+    pose = _pose_from_core(out, dim)
+    hessian = out.hessian  # the core's own fresh array, read-only: no copy needed
     n_corr = int(out.num_correspondences)
     m = components * n_corr
     if s.kernel == "none":
@@ -717,7 +710,7 @@ def register(
             "inlier_rmse": math.sqrt(out.sum_squared_distances / n_corr) if n_corr else math.nan,
             "cost": float(out.cost),
             "hessian": hessian,
-            "gradient": _readonly(out.gradient),
+            "gradient": out.gradient,  # read-only, fresh
             "sigma2": sigma2,
             "timing": timing,
             "settings": s,

@@ -180,6 +180,15 @@ class _Pose:
         object.__setattr__(obj, "_translation", translation)
         return obj
 
+    @classmethod
+    def _wrap(cls: type[P], rotation: FloatArray, translation: FloatArray) -> P:
+        """Wrap float64 arrays that are already read-only and referenced nowhere else (the
+        core's fresh results), as they are."""
+        obj = cls.__new__(cls)
+        object.__setattr__(obj, "_rotation", rotation)
+        object.__setattr__(obj, "_translation", translation)
+        return obj
+
     # --- construction -------------------------------------------------------------------
     @classmethod
     def identity(cls: type[P]) -> P:

@@ -100,6 +100,13 @@ pub fn se3_exp(rho: Vector3<f64>, phi: Vector3<f64>) -> Rigid {
     }
 }
 
+/// The rotation nearest (in the Frobenius norm) to the 2×2 matrix `[[a, b], [c, d]]`, as
+/// `(cos θ, sin θ)`: the SVD projection onto SO(2) in closed form.
+pub fn nearest_rotation_2d(a: f64, b: f64, c: f64, d: f64) -> (f64, f64) {
+    let (s, co) = (c - b).atan2(a + d).sin_cos();
+    (co, s)
+}
+
 /// `exp` of an se(2) tangent `[ρx, ρy, θ]`: `R = R(θ)`, `t = V(θ) ρ`.
 pub fn se2_exp(rho: Vector2<f64>, theta: f64) -> (Matrix2<f64>, Vector2<f64>) {
     let (s, c) = theta.sin_cos();

@@ -2,7 +2,8 @@
 
 use crate::knn::KdTree;
 use crate::local_map::LocalMap;
-use numpy::{Element, IntoPyArray, PyArray2, PyArrayMethods, PyReadonlyArray};
+use numpy::ndarray::{Array2, Dimension};
+use numpy::{Element, IntoPyArray, PyArray, PyArray2, PyArrayMethods, PyReadonlyArray};
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
@@ -81,9 +82,19 @@ pub fn pose<'a>(arr: &'a PyReadonlyArray2<'_, f64>, name: &str, dim: usize) -> P
     c_slice(arr, name)
 }
 
-/// A row-major `n x n` matrix as a numpy array.
+/// A row-major `n x n` matrix as a numpy array (made in its shape: a reshape would make a
+/// second array object around the first).
 pub fn square(py: Python<'_>, flat: Vec<f64>, n: usize) -> PyResult<Py<PyArray2<f64>>> {
-    Ok(flat.into_pyarray(py).reshape([n, n])?.unbind())
+    let arr = Array2::from_shape_vec((n, n), flat)
+        .map_err(|e| PyValueError::new_err(format!("internal: {e}")))?;
+    Ok(arr.into_pyarray(py).unbind())
+}
+
+/// `arr` (freshly made, referenced nowhere else) marked read-only, as the Python side keeps
+/// results: one Python call less per array.
+pub fn read_only<T: Element, D: Dimension>(arr: Bound<'_, PyArray<T, D>>) -> Py<PyArray<T, D>> {
+    drop(arr.readwrite().make_nonwriteable());
+    arr.unbind()
 }
 
 /// Optional `(n, dim, dim)` per-point covariances as a flat slice.

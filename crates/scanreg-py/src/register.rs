@@ -3,14 +3,15 @@
 //! `SEQUENTIAL_MAX` points on the calling thread, where the loop is sequential anyway).
 
 use crate::convert::{
-    c_slice, core_err, covariances, in_pool_unless_small, points_dim, pose, square, target_search,
-    TargetSearch,
+    c_slice, core_err, covariances, in_pool_unless_small, points_dim, pose, read_only, square,
+    target_search, TargetSearch,
 };
 use numpy::PyUntypedArrayMethods;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use scanreg_core::icp::{self, Method, Optimizer, Settings, Source, Target};
+use scanreg_core::lie::nearest_rotation_2d;
 use scanreg_core::Kernel;
 
 /// What the core returns for one registration (or one evaluation).
@@ -18,6 +19,13 @@ use scanreg_core::Kernel;
 pub struct IcpOutcome {
     #[pyo3(get)]
     pose: Py<PyArray2<f64>>,
+    /// `pose`'s rotation, read-only; in 2D projected onto SO(2) (`[[c, -s], [s, c]]`, what
+    /// `SE2` holds), in 3D as computed (the Python side projects it).
+    #[pyo3(get)]
+    rotation: Py<PyArray2<f64>>,
+    /// `pose`'s translation, read-only.
+    #[pyo3(get)]
+    translation: Py<PyArray1<f64>>,
     #[pyo3(get)]
     iterations: usize,
     #[pyo3(get)]
@@ -51,6 +59,32 @@ pub struct IcpOutcome {
     /// Target index per source point at `pose`, -1 for none.
     #[pyo3(get)]
     correspondences: Py<PyArray1<i64>>,
+}
+
+/// The rotation and translation of a homogeneous `(dim+1)²` pose. In 2D the rotation is
+/// the nearest one (closed form), after checking the core kept it orthonormal to 1e-6 (a
+/// core bug otherwise, never the user's input).
+fn rigid_parts(pose: &[f64], dim: usize) -> PyResult<(Vec<f64>, Vec<f64>)> {
+    let m = dim + 1;
+    let translation: Vec<f64> = (0..dim).map(|i| pose[i * m + dim]).collect();
+    if dim != 2 {
+        let rotation = (0..dim)
+            .flat_map(|i| pose[i * m..i * m + dim].iter().copied())
+            .collect();
+        return Ok((rotation, translation));
+    }
+    let (a, b, c, d) = (pose[0], pose[1], pose[m], pose[m + 1]);
+    let err = (a * a + c * c - 1.0)
+        .abs()
+        .max((b * b + d * d - 1.0).abs())
+        .max((a * b + c * d).abs());
+    if err.is_nan() || err > 1e-6 {
+        return Err(PyValueError::new_err(format!(
+            "pose: not orthonormal (max |RᵀR - I| = {err:.2e})"
+        )));
+    }
+    let (co, s) = nearest_rotation_2d(a, b, c, d);
+    Ok((vec![co, -s, s, co], translation))
 }
 
 fn projector(arr: &Option<PyReadonlyArray2<'_, f64>>, dim: usize) -> PyResult<Option<[f64; 36]>> {
@@ -179,13 +213,16 @@ fn register_icp(
         })
         .map_err(core_err)?;
     let dof = out.evaluation.gradient.len();
+    let (rotation, translation) = rigid_parts(&out.pose, dim)?;
     let ev = out.evaluation;
     Ok(IcpOutcome {
         pose: square(py, out.pose, dim + 1)?,
+        rotation: read_only(square(py, rotation, dim)?.into_bound(py)),
+        translation: read_only(translation.into_pyarray(py)),
         iterations: out.iterations,
         stop_reason: out.stop_reason.name(),
-        hessian: square(py, ev.hessian, dof)?,
-        gradient: ev.gradient.into_pyarray(py).unbind(),
+        hessian: read_only(square(py, ev.hessian, dof)?.into_bound(py)),
+        gradient: read_only(ev.gradient.into_pyarray(py)),
         score_outer: square(py, ev.score_outer, dof)?,
         cost: ev.cost,
         num_correspondences: ev.num_correspondences,
