@@ -569,6 +569,29 @@ def test_settings_are_validated_on_construction(
         s.max_iterations = 3  # type: ignore[misc]
 
 
+def test_keyword_settings_are_cached_per_base_value_and_type() -> None:
+    # register(..., max_iterations=5) caches the settings it builds, keyed by the base's
+    # identity and each value with its type: a hit must never hand back another base's or
+    # another type's settings.
+    from scanreg.register import _with_overrides
+
+    base = RegistrationSettings()
+    other = RegistrationSettings(kernel="huber")
+    a = _with_overrides(base, {"max_iterations": 5})
+    assert a.max_iterations == 5 and a.kernel == "none"
+    assert _with_overrides(base, {"max_iterations": 5}) is a
+    b = _with_overrides(other, {"max_iterations": 5})
+    assert b.max_iterations == 5 and b.kernel == "huber"
+    assert _with_overrides(base, {"max_iterations": 6}).max_iterations == 6
+    assert _with_overrides(base, {"extrapolate": False}).extrapolate is False
+    with pytest.raises(TypeError, match="extrapolate"):
+        _with_overrides(base, {"extrapolate": 0})  # == False, hashes alike, refused
+    with pytest.raises(TypeError, match="unknown setting"):
+        _with_overrides(base, {"max_iteration": 5})
+    with pytest.raises(TypeError, match="max_iterations"):
+        _with_overrides(base, {"max_iterations": [5]})  # unhashable: the constructor refuses
+
+
 def test_step_projector_keeps_the_initial_guess_along_projected_directions() -> None:
     import scanreg
 

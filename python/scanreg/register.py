@@ -359,21 +359,26 @@ def _with_overrides(base: RegistrationSettings, overrides: dict[str, Any]) -> Re
     if not _SETTING_NAMES.issuperset(overrides):
         unknown = sorted(set(overrides) - _SETTING_NAMES)
         raise TypeError(f"register: unknown setting(s) {', '.join(unknown)}")
+    # A loop calling register(..., gate=...) with the same keywords validates them once. The
+    # type is part of the key: True == 1 == 1.0 hash alike, but only some are valid. In the
+    # caller's keyword order (no sort: a loop repeats its own order). The base is keyed by
+    # identity (hashing a frozen dataclass hashes every field, at every call) and kept alive by
+    # its entry, so its id cannot be reused while the entry exists.
+    key = (id(base), *overrides.items(), *map(type, overrides.values()))
     try:
-        # The type is part of the key: True == 1 == 1.0 hash alike, but only some are valid.
-        # In the caller's keyword order (no sort: a loop repeats its own order).
-        key = (*overrides.items(), *map(type, overrides.values()))
-        return _replace_cached(base, key)
+        hit = _OVERRIDDEN.get(key)
     except TypeError:  # an unhashable value: validated (and refused) by the constructor
         return dataclasses.replace(base, **overrides)
+    if hit is not None and hit[0] is base:
+        return hit[1]
+    out = dataclasses.replace(base, **overrides)
+    if len(_OVERRIDDEN) >= 64:
+        _OVERRIDDEN.clear()
+    _OVERRIDDEN[key] = (base, out)
+    return out
 
 
-@functools.lru_cache(maxsize=64)
-def _replace_cached(base: RegistrationSettings, key: tuple[Any, ...]) -> RegistrationSettings:
-    # A loop calling register(..., gate=...) with the same keywords validates them once. The
-    # key is the (name, value) pairs then the values' types.
-    items = key[: len(key) // 2]
-    return dataclasses.replace(base, **dict(items))
+_OVERRIDDEN: dict[tuple[Any, ...], tuple[RegistrationSettings, RegistrationSettings]] = {}
 
 
 def _resolve_method(method: Any, dim: int) -> str:
@@ -688,7 +693,7 @@ def register(
         {
             "target_preparation": t_target,
             "source_preparation": t_source,
-            "iterations": tuple(out.iteration_seconds.tolist()),
+            "iterations": out.iteration_seconds,
             "final_evaluation": float(out.final_evaluation_seconds),
             "post_processing": t_post,
             "total": t_total,

@@ -10,6 +10,7 @@ use numpy::PyUntypedArrayMethods;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyTuple;
 use scanreg_core::icp::{self, Method, Optimizer, Settings, Source, Target};
 use scanreg_core::lie::nearest_rotation_2d;
 use scanreg_core::Kernel;
@@ -52,8 +53,9 @@ pub struct IcpOutcome {
     irls_weight_sum: f64,
     #[pyo3(get)]
     sum_squared_distances: f64,
+    /// Seconds per iteration, a tuple (what `RegistrationTiming.iterations` holds).
     #[pyo3(get)]
-    iteration_seconds: Py<PyArray1<f64>>,
+    iteration_seconds: Py<PyTuple>,
     #[pyo3(get)]
     final_evaluation_seconds: f64,
     /// Target index per source point at `pose`, -1 for none.
@@ -231,7 +233,7 @@ fn register_icp(
         irls_sum_squares: ev.irls_sum_squares,
         irls_weight_sum: ev.irls_weight_sum,
         sum_squared_distances: ev.sum_squared_distances,
-        iteration_seconds: out.iteration_seconds.into_pyarray(py).unbind(),
+        iteration_seconds: PyTuple::new(py, out.iteration_seconds)?.unbind(),
         final_evaluation_seconds: out.final_evaluation_seconds,
         correspondences: out
             .correspondences
