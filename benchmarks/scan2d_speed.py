@@ -24,7 +24,12 @@ time / theirs (< 1: scanreg faster). Accuracy: median and 95th percentile transl
 ``--interleave N``: instead, N rounds in which every library runs the whole set once, in an
 order rotated each round; reports each library's median ms/pair and the median over rounds of
 the per-round ratio (each from runs seconds apart: the statistic a loaded, shared machine moves
-least).
+least). ``--per-pair`` with it: within a round the libraries alternate pair by pair (order
+rotated per pair), each library's time summed over the set; the ratio's spread across rounds
+falls from about ±0.13 to ±0.03 (every library then also starts each pair with caches the
+others have used, as in a program that does more than registration between scans). Each
+peer is then timed in its own rounds against scanreg: Open3D's worker threads outlive its
+calls, and pair by pair would be charged to whichever library runs next.
 ``--trust`` adds the time with the covariance and verdict read (``register`` analyses lazily:
 the plain column reads the pose only).
 Also: scans per second of ``scanreg.pipeline.Odometry2D`` on the 902 Intel scans. ``--floor``
@@ -292,16 +297,43 @@ def _median_cell(times: dict[str, list[float]], lib: str) -> str:
 
 
 def _ratio_cell(times: dict[str, list[float]], lib: str) -> str:
-    """Median over rounds of our time / theirs in the same round."""
+    """Median over rounds of our time / theirs in the same round (our times from the rounds
+    run against ``lib`` when each peer had its own)."""
     if lib not in times:
         return "–"
-    per_round = [a / b for a, b in zip(times["scanreg"], times[lib], strict=True)]
+    mine = times.get(f"scanreg/{lib}", times["scanreg"])
+    per_round = [a / b for a, b in zip(mine, times[lib], strict=True)]
     return f"{statistics.median(per_round):.2f}"
 
 
-def interleaved(sets: dict[str, list[Pair]], sg: Any, o3d: Any, rounds: int) -> None:
-    """Every library once per round on the whole set, the order rotated each round."""
-    print(f"interleaved, {rounds} rounds ({'CPU time' if CLOCK is time.process_time else 'wall'})")
+def _rounds(
+    fns: dict[str, Callable[[int, int], Any]], n: int, rounds: int, per_pair: bool, libs: list[str]
+) -> dict[str, list[float]]:
+    """ms/pair of each of ``libs`` per round; the order rotated each round (and each pair)."""
+    times: dict[str, list[float]] = {lib: [] for lib in libs}
+    blocks = [(k, k + 1) for k in range(n)] if per_pair else [(0, n)]
+    for r in range(rounds):
+        spent = dict.fromkeys(libs, 0.0)
+        for b, (lo, hi) in enumerate(blocks):
+            turn = (r + b) % len(libs)
+            for lib in libs[turn:] + libs[:turn]:
+                t0 = CLOCK()
+                fns[lib](lo, hi)
+                spent[lib] += CLOCK() - t0
+        for lib in libs:
+            times[lib].append(spent[lib] / n * 1e3)
+    return times
+
+
+def interleaved(
+    sets: dict[str, list[Pair]], sg: Any, o3d: Any, rounds: int, per_pair: bool = False
+) -> None:
+    """Every library once per round on the whole set, the order rotated each round (or, with
+    ``per_pair``, pair by pair, the order rotated each pair)."""
+    print(
+        f"interleaved {'pair by pair' if per_pair else 'set by set'}, {rounds} rounds "
+        f"({'CPU time' if CLOCK is time.process_time else 'wall'})"
+    )
     print(
         "| pairs | method | scanreg ms/pair | small_gicp ms/pair | open3d ms/pair | "
         "scanreg / small_gicp | scanreg / open3d | err mm (median) ours / sg / o3d |"
@@ -310,21 +342,33 @@ def interleaved(sets: dict[str, list[Pair]], sg: Any, o3d: Any, rounds: int) -> 
     for name, pairs in sets.items():
         padded = [(pad(s), pad(t), mat4(i)) for s, t, i, _ in pairs]
         for method in METHODS:
-            fns: dict[str, Callable[[], list[SE2]]] = {
-                "scanreg": lambda m=method, p=pairs: ours(p, m)
+            # Each runs pairs[lo:hi] of the set.
+            fns: dict[str, Callable[[int, int], list[SE2]]] = {
+                "scanreg": lambda lo, hi, m=method, p=pairs: ours(p[lo:hi], m)
             }
             if sg is not None:
-                fns["small_gicp"] = lambda m=method, p=padded: theirs(sg, p, m)
+                fns["small_gicp"] = lambda lo, hi, m=method, p=padded: theirs(sg, p[lo:hi], m)
             if o3d is not None:
-                fns["open3d"] = lambda m=method, p=padded: theirs_open3d(o3d, p, m)
-            libs = list(fns)
-            times: dict[str, list[float]] = {lib: [] for lib in libs}
-            errs = {lib: errors_mm(fns[lib](), pairs)[0] for lib in libs}  # also the warm-up
-            for r in range(rounds):
-                for lib in libs[r % len(libs) :] + libs[: r % len(libs)]:
-                    t0 = CLOCK()
-                    fns[lib]()
-                    times[lib].append((CLOCK() - t0) / len(pairs) * 1e3)
+                fns["open3d"] = lambda lo, hi, m=method, p=padded: theirs_open3d(o3d, p[lo:hi], m)
+            n = len(pairs)
+            # Also the warm-up.
+            errs = {lib: errors_mm(fns[lib](0, n), pairs)[0] for lib in fns}
+
+            peers = [lib for lib in fns if lib != "scanreg"]
+            if per_pair:
+                # One peer at a time: Open3D's worker threads outlive its calls and, pair by
+                # pair, would be charged to (and compete with) whichever library runs next.
+                times: dict[str, list[float]] = {}
+                for i, peer in enumerate(peers):
+                    got = _rounds(fns, n, rounds, per_pair, ["scanreg", peer])
+                    times[peer] = got[peer]
+                    times[f"scanreg/{peer}"] = got["scanreg"]
+                    if i == 0:
+                        times["scanreg"] = got["scanreg"]
+                if not peers:
+                    times = _rounds(fns, n, rounds, per_pair, ["scanreg"])
+            else:
+                times = _rounds(fns, n, rounds, per_pair, list(fns))
             OPEN3D_NON_FINITE.pop(method, None)
 
             err = " / ".join(
@@ -361,6 +405,11 @@ def main() -> None:
         "--interleave", type=int, default=0, help="N interleaved rounds instead of the table"
     )
     ap.add_argument(
+        "--per-pair",
+        action="store_true",
+        help="with --interleave: alternate the libraries pair by pair within each round",
+    )
+    ap.add_argument(
         "--methods", nargs="+", choices=list(OURS), default=list(OURS), help="methods to time"
     )
     args = ap.parse_args()
@@ -387,7 +436,7 @@ def main() -> None:
         f"open3d: {o3d is not None}"
     )
     if args.interleave:
-        interleaved(sets, sg, o3d, args.interleave)
+        interleaved(sets, sg, o3d, args.interleave, per_pair=args.per_pair)
         return
     print(
         "| pairs | n | method | scanreg ms/pair | small_gicp ms/pair | ratio | "
