@@ -434,6 +434,17 @@ def test_results_built_without_init_hold_exactly_their_fields() -> None:
     assert dataclasses.replace(res) == res
     with pytest.raises(dataclasses.FrozenInstanceError):
         res.iterations = 0  # type: ignore[misc]
+    # The arrays the core hands over are read-only all the way down: no writable numpy base
+    # (a reshape's) through which the result or the target could be changed.
+    for arr in (
+        prepared.points,
+        res.hessian,
+        res.gradient,
+        res.pose.rotation,
+        res.pose.translation,
+    ):
+        assert not arr.flags.writeable
+        assert not (isinstance(arr.base, np.ndarray) and arr.base.flags.writeable)
 
 
 def test_identical_for_one_and_two_threads() -> None:

@@ -211,7 +211,7 @@ def prepare(
     return build(
         PreparedTarget,
         {
-            "points": _readonly(index.points),
+            "points": index.points,  # a fresh read-only copy
             "index": index,
             "normals": nrm,
             "covariances": cov,

@@ -5,7 +5,7 @@
 //! threads; every query releases the GIL. Other bindings (registration) reach the Rust index
 //! through the public `inner` field.
 
-use crate::convert::{core_err, points, points_dim, vector};
+use crate::convert::{core_err, points, points_dim, read_only, vector};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
 };
@@ -26,7 +26,10 @@ pub struct KdTree {
 
 fn rows<T: numpy::Element>(py: Python<'_>, flat: Vec<T>, cols: usize) -> PyResult<Py<PyArray2<T>>> {
     let n = flat.len().checked_div(cols).unwrap_or(0);
-    Ok(flat.into_pyarray(py).reshape([n, cols])?.unbind())
+    // Made in its shape: a reshape would wrap a second (writable) array around the first.
+    let arr = numpy::ndarray::Array2::from_shape_vec((n, cols), flat)
+        .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("internal: {e}")))?;
+    Ok(arr.into_pyarray(py).unbind())
 }
 
 #[pymethods]
@@ -49,10 +52,11 @@ impl KdTree {
         self.inner.len()
     }
 
-    /// A copy of the indexed points, `(N, dim)`.
+    /// A read-only copy of the indexed points, `(N, dim)` (what `PreparedTarget.points` keeps).
     #[getter]
     fn points(&self, py: Python<'_>) -> PyResult<Py<PyArray2<f64>>> {
-        rows(py, self.inner.points().to_vec(), self.inner.dim())
+        let arr = rows(py, self.inner.points().to_vec(), self.inner.dim())?;
+        Ok(read_only(arr.into_bound(py)))
     }
 
     /// Nearest neighbour within `max_distance`: `(index (M,), squared_distance (M,))`,
