@@ -124,3 +124,35 @@ pub fn se2_exp(rho: Vector2<f64>, theta: f64) -> (Matrix2<f64>, Vector2<f64>) {
         Vector2::new(a * rho.x - b * rho.y, b * rho.x + a * rho.y),
     )
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The closed form equals the SVD projection `U Vᵀ` (nalgebra) on perturbed rotations, and
+    /// returns an exact rotation's own angle.
+    #[test]
+    fn nearest_rotation_2d_is_the_svd_projection() {
+        let angles: [f64; 6] = [-3.1, -1.0, 0.0, 0.3, std::f64::consts::FRAC_PI_2, 2.9];
+        for (i, &th) in angles.iter().enumerate() {
+            let (s, c) = th.sin_cos();
+            let (co, si) = nearest_rotation_2d(c, -s, s, c);
+            assert!((co - c).abs() < 1e-15 && (si - s).abs() < 1e-15, "{th}");
+            // A perturbed (non-orthonormal) matrix: compare with the SVD's U Vᵀ.
+            let e = 1e-3 * (i as f64 + 1.0);
+            let m = Matrix2::new(c + e, -s + 0.5 * e, s - 0.3 * e, c + 0.7 * e);
+            let svd = m.svd(true, true);
+            let r = svd.u.unwrap() * svd.v_t.unwrap();
+            let (co, si) = nearest_rotation_2d(m[(0, 0)], m[(0, 1)], m[(1, 0)], m[(1, 1)]);
+            assert!(r.determinant() > 0.0);
+            for (got, want) in [
+                (co, r[(0, 0)]),
+                (-si, r[(0, 1)]),
+                (si, r[(1, 0)]),
+                (co, r[(1, 1)]),
+            ] {
+                assert!((got - want).abs() < 1e-12, "{th}: {got} vs {want}");
+            }
+        }
+    }
+}
