@@ -15,16 +15,14 @@ import argparse
 
 import numpy as np
 import scanreg
-from covariance_calibration import motion_prior, scenes
+from covariance_calibration import motion_prior, scene_named
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realisations", type=int, default=60)
     args = ap.parse_args()
-    scene = next(s for s in scenes() if s.name == "2D corridor")
-    pose_b = scene.pose_a @ scene.step  # type: ignore[operator]
-    truth = scene.step.inverse()
+    scene, pose_b, truth = scene_named("2D corridor")
     prior = motion_prior(2)
     init_err, err, sigma, weak = [], [], [], []
     for k in range(args.realisations):

@@ -78,6 +78,12 @@ def scenes() -> list[Scene]:
     ]
 
 
+def scene_named(name: str) -> tuple[Scene, SE2 | SE3, SE2 | SE3]:
+    """The scene ``name``, the target's pose ``B = A · step`` and the truth ``T_B_A``."""
+    scene = next(s for s in scenes() if s.name == name)
+    return scene, scene.pose_a @ scene.step, scene.step.inverse()  # type: ignore[operator]
+
+
 def motion_prior(dim: int) -> np.ndarray:
     dof = 3 if dim == 2 else 6
     return np.diag([0.1**2] * dim + [np.deg2rad(1.0) ** 2] * (dof - dim))

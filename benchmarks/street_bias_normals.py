@@ -28,7 +28,7 @@ import argparse
 
 import numpy as np
 import scanreg
-from covariance_calibration import scenes
+from covariance_calibration import scene_named
 from scanreg import SE3
 
 VARIANTS = ("target", "source", "symmetric", "agree>0.95", "agree>0.99", "agree>0.995")
@@ -80,9 +80,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--realisations", type=int, default=6)
     args = ap.parse_args()
-    scene = next(s for s in scenes() if s.name == "3D street")
-    pose_b = scene.pose_a @ scene.step  # type: ignore[operator]
-    truth = scene.step.inverse()
+    scene, pose_b, truth = scene_named("3D street")
     errors: dict[str, list[np.ndarray]] = {k: [] for k in ("scanreg", *VARIANTS, "gicp")}
     for k in range(args.realisations):
         src = scene.scan(scene.pose_a, 2 * k)
