@@ -182,8 +182,8 @@ class _Pose:
 
     @classmethod
     def _wrap(cls: type[P], rotation: FloatArray, translation: FloatArray) -> P:
-        """Wrap float64 arrays that are already read-only and referenced nowhere else (the
-        core's fresh results), as they are."""
+        """Wrap read-only float64 arrays as they are (the core's fresh results: shared with
+        the core's outcome, never written)."""
         obj = cls.__new__(cls)
         object.__setattr__(obj, "_rotation", rotation)
         object.__setattr__(obj, "_translation", translation)

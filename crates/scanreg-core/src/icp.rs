@@ -818,12 +818,12 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     );
     let n_source = pr.source.len() / D;
     let outside = pr.kernel.rho(pr.max_sq.sqrt());
+    // The truncated cost: a point outside the gate counts as at the gate.
+    let energy = |e: &Evaluation| e.cost + (n_source - e.num_in_gate) as f64 * outside;
     for _ in 0..s.max_iterations {
         let t0 = Instant::now();
         let (mut lin, mut corr) =
             evaluate::<G, D, N>(pr, &pose, false, true, None, hints(&prev_corr));
-        // The truncated cost: a point outside the gate counts as at the gate.
-        let energy = |e: &Evaluation| e.cost + (n_source - e.num_in_gate) as f64 * outside;
         if let Some(plain) = accel.check(energy(&lin)) {
             // The extrapolated pose is worse than the one it left: take the plain step.
             pose = plain;
@@ -929,8 +929,7 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     let (mut evaluation, mut correspondences) =
         evaluate::<G, D, N>(pr, &pose, true, true, fixed, hints(&prev_corr));
     // The iteration cap right after a stretched step: it is checked here, like any other.
-    let truncated = evaluation.cost + (n_source - evaluation.num_in_gate) as f64 * outside;
-    if let Some(plain) = accel.check(truncated) {
+    if let Some(plain) = accel.check(energy(&evaluation)) {
         pose = plain;
         (evaluation, correspondences) =
             evaluate::<G, D, N>(pr, &pose, true, true, None, hints(&correspondences));

@@ -82,12 +82,18 @@ pub fn pose<'a>(arr: &'a PyReadonlyArray2<'_, f64>, name: &str, dim: usize) -> P
     c_slice(arr, name)
 }
 
-/// A row-major `n x n` matrix as a numpy array (made in its shape: a reshape would make a
-/// second array object around the first).
-pub fn square(py: Python<'_>, flat: Vec<f64>, n: usize) -> PyResult<Py<PyArray2<f64>>> {
-    let arr = Array2::from_shape_vec((n, n), flat)
+/// Row-major `flat` as an `(len / cols, cols)` numpy array, made in its shape: a reshape
+/// would wrap a second (writable) array object around the first.
+pub fn rows<T: Element>(py: Python<'_>, flat: Vec<T>, cols: usize) -> PyResult<Py<PyArray2<T>>> {
+    let n = flat.len().checked_div(cols).unwrap_or(0);
+    let arr = Array2::from_shape_vec((n, cols), flat)
         .map_err(|e| PyValueError::new_err(format!("internal: {e}")))?;
     Ok(arr.into_pyarray(py).unbind())
+}
+
+/// A row-major `n x n` matrix as a numpy array.
+pub fn square(py: Python<'_>, flat: Vec<f64>, n: usize) -> PyResult<Py<PyArray2<f64>>> {
+    rows(py, flat, n)
 }
 
 /// `arr` (freshly made, referenced nowhere else) marked read-only, as the Python side keeps

@@ -5,7 +5,7 @@
 //! threads; every query releases the GIL. Other bindings (registration) reach the Rust index
 //! through the public `inner` field.
 
-use crate::convert::{core_err, points, points_dim, read_only, vector};
+use crate::convert::{core_err, points, points_dim, read_only, rows, vector};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
 };
@@ -22,14 +22,6 @@ type Rows<T> = Py<PyArray2<T>>;
 #[pyclass(frozen, module = "scanreg._core")]
 pub struct KdTree {
     pub inner: knn::KdTree,
-}
-
-fn rows<T: numpy::Element>(py: Python<'_>, flat: Vec<T>, cols: usize) -> PyResult<Py<PyArray2<T>>> {
-    let n = flat.len().checked_div(cols).unwrap_or(0);
-    // Made in its shape: a reshape would wrap a second (writable) array around the first.
-    let arr = numpy::ndarray::Array2::from_shape_vec((n, cols), flat)
-        .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("internal: {e}")))?;
-    Ok(arr.into_pyarray(py).unbind())
 }
 
 #[pymethods]

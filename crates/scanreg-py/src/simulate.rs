@@ -1,9 +1,8 @@
 //! Binding of the ray caster (`scanreg_core::simulate`).
 
-use crate::convert::core_err;
+use crate::convert::{core_err, rows};
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
-    PyUntypedArrayMethods,
+    IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
 };
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -53,11 +52,6 @@ fn table<'a>(arr: &'a PyReadonlyArray2<'_, f64>, name: &str, cols: usize) -> PyR
 /// A contiguous float64 vector as a slice.
 fn vector<'a>(arr: &'a PyReadonlyArray1<'_, f64>, name: &str) -> PyResult<&'a [f64]> {
     arr.as_slice().map_err(|_| not_contiguous(name))
-}
-
-fn rows(py: Python<'_>, flat: Vec<f64>, cols: usize) -> PyResult<Py<PyArray2<f64>>> {
-    let n = flat.len() / cols;
-    Ok(flat.into_pyarray(py).reshape([n, cols])?.unbind())
 }
 
 #[pyfunction]
