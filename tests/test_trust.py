@@ -184,29 +184,73 @@ def test_censi_matches_monte_carlo_on_a_small_problem(method: str) -> None:
     assert np.all((ratio > 0.7) & (ratio < 1.4)), ratio
 
 
-def _mean_nees(scene: sim.Scene, pose_a: SE2, reps: int, **kwargs: object) -> float:
+def _mean_nees(
+    scene: sim.Scene,
+    pose_a: SE2,
+    reps: int,
+    *,
+    randomise: bool = False,
+    prior: np.ndarray | None = None,
+    **kwargs: object,
+) -> float:
+    """Mean NEES of ``reps`` seeded realisations. ``randomise``: the sensor moved per
+    realisation by ±0.15 m and ±2.9° of yaw (``covariance_calibration.py --randomise-pose``);
+    ``prior``: the initial guess drawn from it, passed with the degeneracy-aware solve."""
     truth = STEP2.inverse()
     out = []
     for k in range(reps):
-        src, tgt = _pair(scene, pose_a, 100 + k)
-        res = scanreg.register(src, tgt, max_correspondence_distance=1.0, **kwargs)  # type: ignore[arg-type]
+        pose = pose_a
+        if randomise:
+            rng = np.random.default_rng(20_000 + k)
+            pose = pose_a @ SE2.from_vector(
+                [rng.uniform(-0.15, 0.15), rng.uniform(-0.15, 0.15), rng.uniform(-0.05, 0.05)]
+            )
+        src, tgt = _pair(scene, pose, 100 + k)
+        extra: dict[str, object] = dict(kwargs)
+        if prior is not None:
+            rng = np.random.default_rng(10_000 + k)
+            extra.update(
+                init=truth @ SE2.exp(rng.multivariate_normal(np.zeros(3), prior)),
+                init_covariance=prior,
+                degeneracy_aware=True,
+            )
+        res = scanreg.register(src, tgt, max_correspondence_distance=1.0, **extra)  # type: ignore[arg-type]
         d = (res.pose.inverse() @ truth).log()
         out.append(float(d @ res.information @ d))
     return float(np.mean(out))
 
 
+PRIOR2 = np.diag([0.1**2, 0.1**2, np.deg2rad(1.0) ** 2])
+
+
 @pytest.mark.parametrize(
-    ("scene", "pose"), [(ROOM, ROOM_POSE), (CORRIDOR, CORRIDOR_POSE)], ids=["room", "corridor"]
+    ("scene", "pose", "randomise", "prior"),
+    [
+        (ROOM, ROOM_POSE, False, None),
+        (CORRIDOR, CORRIDOR_POSE, False, None),
+        (CORRIDOR, CORRIDOR_POSE, True, None),
+        (CORRIDOR, CORRIDOR_POSE, False, PRIOR2),
+        (CORRIDOR, CORRIDOR_POSE, True, PRIOR2),
+    ],
+    ids=["room", "corridor", "corridor-at-a-heading", "corridor-prior", "corridor-heading-prior"],
 )
-def test_default_covariance_is_consistent(scene: sim.Scene, pose: SE2) -> None:
+def test_default_covariance_is_consistent(
+    scene: sim.Scene, pose: SE2, randomise: bool, prior: np.ndarray | None
+) -> None:
     # Seeded reduced version of benchmarks/covariance_calibration.py (the published table uses
     # 200 realisations; see docs/calibration.md).
     # Acceptance (issue 5): mean NEES inside the 95 % band or at worst within a factor 2 of
-    # the dimension; the room sits at ~1.4 (sampling error, docs/calibration.md).
+    # the dimension; the room sits at ~1.4 (sampling error, docs/calibration.md). The corridor
+    # from the identity is over-cautious by design (0.4 × dof): along its axis the prior is
+    # the gate's, counted twice, 5× the actual 0.3 m error. At a heading (a corridor not along
+    # the sensor's x axis) the weak axis snapped to x used to give 27; with a motion prior the
+    # converged lateral estimate follows the held along-axis one (2.4 × dof before the
+    # valley term).
     reps = 40
     lo, hi = nees_band(3, reps)
-    mean = _mean_nees(scene, pose, reps)
-    assert min(lo, 1.5) <= mean <= max(hi, 6.0), (mean, lo, hi)
+    mean = _mean_nees(scene, pose, reps, randomise=randomise, prior=prior)
+    low = 1.5 if scene is ROOM or prior is not None else 1.0
+    assert min(lo, low) <= mean <= max(hi, 6.0), (mean, lo, hi)
 
 
 def test_hessian_covariance_is_overconfident_in_the_corridor() -> None:
@@ -273,13 +317,28 @@ def _sweep(scene: sim.Scene, pose: SE3, seed: int) -> np.ndarray:
 STEP3 = SE3.from_vector([0.5, 0.1, 0.0, 0.0, 0.0, np.deg2rad(2.0)])
 
 
+def _moved(pose_a: SE3, k: int) -> SE3:
+    """``pose_a`` moved for realisation ``k`` by ±0.15 m and ±2.9° of yaw, as in
+    ``covariance_calibration.py --randomise-pose``."""
+    rng = np.random.default_rng(20_000 + k)
+    x, y, yaw = rng.uniform(-0.15, 0.15), rng.uniform(-0.15, 0.15), rng.uniform(-0.05, 0.05)
+    return pose_a @ SE3.from_vector([x, y, 0, 0, 0, yaw])
+
+
 @pytest.mark.parametrize(
-    ("name", "method"), [("tunnel", "point_to_plane"), ("street", "gicp")], ids=str
+    ("name", "method", "randomise"),
+    [
+        ("tunnel", "point_to_plane", False),
+        ("tunnel", "point_to_plane", True),
+        ("street", "gicp", False),
+    ],
+    ids=str,
 )
-def test_default_covariance_is_consistent_in_3d(name: str, method: str) -> None:
+def test_default_covariance_is_consistent_in_3d(name: str, method: str, randomise: bool) -> None:
     # Reduced, seeded version of the 3D rows of docs/calibration.md: the tunnel with a motion
-    # prior and the degeneracy-aware solve (200 realisations: 1.02 × dof), the street with GICP
-    # (1.00 × dof). The street with point-to-plane is the documented failure (6.9 ×, a bias).
+    # prior and the degeneracy-aware solve (200 realisations: 0.83 × dof; with the sensor
+    # moved per realisation, 1.29 × dof, where the weak axis snapped to the sensor's x gave
+    # 2.4 ×), the street with GICP (1.00 × dof).
     scene, pose_a = (
         (sim.tunnel(), SE3.from_vector([0, 0, 1.8, 0, 0, 0]))
         if name == "tunnel"
@@ -290,8 +349,9 @@ def test_default_covariance_is_consistent_in_3d(name: str, method: str) -> None:
     reps = 12
     nees = []
     for k in range(reps):
-        src = _sweep(scene, pose_a, 2 * k)
-        tgt = scanreg.prepare(_sweep(scene, pose_a @ STEP3, 2 * k + 1), covariances=True)
+        pose = _moved(pose_a, k) if randomise else pose_a
+        src = _sweep(scene, pose, 2 * k)
+        tgt = scanreg.prepare(_sweep(scene, pose @ STEP3, 2 * k + 1), covariances=True)
         init = truth @ SE3.exp(np.random.default_rng(k).multivariate_normal(np.zeros(6), prior))
         res = scanreg.register(
             src,
@@ -307,3 +367,60 @@ def test_default_covariance_is_consistent_in_3d(name: str, method: str) -> None:
         d = (res.pose.inverse() @ truth).log()
         nees.append(float(d @ res.information @ d))
     assert 3.0 <= float(np.mean(nees)) <= 12.0, nees
+
+
+def _street_pair(k: int) -> tuple[np.ndarray, scanreg.PreparedTarget]:
+    """The calibration street, the sensor moved per realisation (:func:`_moved`)."""
+    pose_a = _moved(SE3.from_vector([0, 1.75, 1.73, 0, 0, 0]), k)
+    street = sim.street(seed=4)
+    return _sweep(street, pose_a, 2 * k), scanreg.prepare(_sweep(street, pose_a @ STEP3, 2 * k + 1))
+
+
+def test_model_shift_covers_the_street_point_to_plane_bias() -> None:
+    # The street's point-to-plane estimate is 2.5–2.8 cm short along the road, 10× its noise
+    # (docs/calibration.md): the pairs whose source and target normals disagree pull it. The
+    # model-error term (one step without them) points the same way and brings the default
+    # covariance within the factor 2; without it (censi ∨ block) the NEES is several × dof.
+    truth = STEP3.inverse()
+    with_term, without = [], []
+    for k in range(6):
+        src, tgt = _street_pair(k)
+        res = scanreg.register(src, tgt, method="point_to_plane", max_correspondence_distance=1.0)
+        assert res.covariances is not None
+        d = (res.pose.inverse() @ truth).log()
+        shift = np.asarray(res.covariances.model_shift)
+        assert d[0] < -0.015 and shift[0] < -0.01, (d, shift)
+        cal = np.asarray(res.covariances.calibrated)
+        with_term.append(float(d @ np.linalg.solve(cal, d)))
+        without.append(float(d @ np.linalg.solve(cal - np.outer(shift, shift), d)))
+    assert float(np.mean(with_term)) <= 12.0, with_term
+    assert float(np.mean(without)) > 18.0, without
+
+
+def test_model_shift_is_small_where_there_is_no_bias_and_zero_for_gicp() -> None:
+    src, tgt = _pair(ROOM, ROOM_POSE, 3)
+    res = scanreg.register(src, tgt, max_correspondence_distance=1.0)
+    assert res.covariances is not None
+    shift = np.asarray(res.covariances.model_shift)
+    sigma = np.sqrt(np.diag(res.covariances.calibrated))
+    assert shift.shape == (3,) and np.any(shift != 0)
+    assert np.all(np.abs(shift) < sigma), (shift, sigma)  # below the noise: no inflation
+    g = scanreg.register(src, tgt, method="gicp", max_correspondence_distance=1.0)
+    assert g.covariances is not None
+    np.testing.assert_array_equal(g.covariances.model_shift, np.zeros(3))
+    # Along a corridor's weak axis the term is left out (the prior speaks there).
+    src, tgt = _pair(CORRIDOR, CORRIDOR_POSE, 3)
+    c = scanreg.register(src, tgt, max_correspondence_distance=1.0)
+    assert c.covariances is not None and c.degeneracy is not None and c.degeneracy.degenerate
+    assert abs(float(np.asarray(c.covariances.model_shift)[0])) < 1e-4
+
+
+def test_point_to_point_model_shift_reaches_its_sampling_bias() -> None:
+    # Point-to-point's minimum sits ~12 cm along the road in the street (a sampling bias): its
+    # distance to the point-to-plane minimum of the agreeing pairs says so.
+    src, tgt = _street_pair(0)
+    res = scanreg.register(src, tgt, method="point_to_point", max_correspondence_distance=1.0)
+    assert res.covariances is not None
+    d = (res.pose.inverse() @ STEP3.inverse()).log()
+    shift = np.asarray(res.covariances.model_shift)
+    assert d[0] < -0.05 and 0.5 * d[0] > shift[0] > 2.0 * d[0], (d, shift)

@@ -338,6 +338,20 @@ def correspondence_normal_noise(
     rotation: NDArray[np.float64],
     correspondences: NDArray[np.int64],
 ) -> float: ...
+def normal_agreement_systems(
+    sample: NDArray[np.int64],
+    sample_normals: NDArray[np.float64],
+    source: NDArray[np.float64],
+    target: NDArray[np.float64],
+    target_normals: NDArray[np.float64],
+    correspondences: NDArray[np.int64],
+    pose_matrix: NDArray[np.float64],
+    min_agreement: float,
+    kernel: str = "none",
+    kernel_scale: float = 1.0,
+) -> tuple[
+    NDArray[np.float64], NDArray[np.float64], int, NDArray[np.float64], NDArray[np.float64], int
+]: ...
 
 # --- correlative scan matching (crates/scanreg-py/src/correlative.rs) ---
 

@@ -63,6 +63,8 @@ class Degeneracy:
     #: ``"plane_information"`` (target normals available) or ``"hessian"`` (the method's own
     #: ``JᵀWJ``, when the target has no normals).
     basis: str
+    #: Correspondences ``n`` behind ``information`` (sets how well its eigenvectors are known).
+    num_correspondences: int = 0
 
     @property
     def degenerate(self) -> bool:
@@ -75,28 +77,34 @@ class Degeneracy:
         out: FloatArray = np.concatenate([np.ones(dim), 1.0 / self.levers])
         return out
 
-    def weak_basis(self) -> FloatArray:
-        """``(dof, w)`` orthonormal basis of the weak subspace in *scaled* coordinates.
+    def _eigen(self) -> tuple[FloatArray, FloatArray]:
+        vals, vecs = np.linalg.eigh(self.information)
+        return vals, vecs
 
-        Components of a weak direction (scaled, unit length) smaller than the normal noise
-        ``ε̂`` (radians, from ``normal_noise``) are not resolved by the data and are set to zero
-        first: a corridor's weak direction is the translation along its axis, not a
-        noise-tilted version of it (a tilt would tie the well-determined directions to the
-        drift along the axis).
+    def weak_basis(self) -> FloatArray:
+        """``(dof, w)`` orthonormal basis of the weak subspace in *scaled* coordinates: the
+        eigenvectors of ``information`` below the threshold, as measured. (Until 2026-12-02
+        components below the normal noise were zeroed, which is right only for a corridor
+        along a sensor axis: see :meth:`tilt_variances` for what replaced it.)"""
+        return self._eigen()[1][:, : len(self.weak_directions)]
+
+    def tilt_variances(self, normal_noise: float) -> FloatArray:
+        """``(w, dof − w)`` variance of each weak eigenvector's tilt towards each strong one
+        (scaled coordinates), from normal noise ``ε²`` (rad² per tangent axis).
+
+        First-order perturbation of ``Ĝ = (1/n) Σ J Jᵀ``: a normal error ``δn`` changes
+        ``u_jᵀ Ĝ w`` by ``(1/n) Σ (u_jᵀ J)(δJᵀ w)`` (the other term vanishes, ``Jᵀ w ≈ 0``
+        along a weak ``w``), of variance ``ε² λ_j / n``; the tilt is that over
+        ``λ_j − λ_w``. Along a corridor known to ``±σ`` the estimate can be off across it by
+        ``σ · tilt``: without this the well-determined directions claim what a slightly
+        mis-estimated axis contradicts (the tunnel, ``docs/calibration.md``).
         """
-        dof = self.information.shape[0]
-        if not self.weak_directions:
-            return np.zeros((dof, 0))
-        s_inv = self.scaling()
-        eps = float(np.sqrt(self.normal_noise)) if np.isfinite(self.normal_noise) else 0.0
-        cols = []
-        for w in self.weak_directions:
-            v = np.array(w.vector) / s_inv
-            v = v / np.linalg.norm(v)
-            snapped = np.where(np.abs(v) < eps, 0.0, v)
-            cols.append(snapped if np.any(snapped) else v)
-        basis, _ = np.linalg.qr(np.array(cols).T)
-        out: FloatArray = basis
+        vals, _ = self._eigen()
+        nw = len(self.weak_directions)
+        n = max(self.num_correspondences, 1)
+        eps2 = normal_noise if np.isfinite(normal_noise) and normal_noise > 0 else 0.0
+        gap = vals[None, nw:] - vals[:nw, None]
+        out: FloatArray = eps2 * vals[None, nw:] / (n * np.maximum(gap, 1e-12) ** 2)
         return out
 
     def weak_projector(self) -> FloatArray:
@@ -181,6 +189,7 @@ def analyse_degeneracy(
         normal_noise=float(normal_noise),
         typical_normal_noise=float(typical_normal_noise),
         basis=basis,
+        num_correspondences=int(count),
     )
 
 

@@ -192,6 +192,12 @@ class RegistrationSettings:
 
 
 _DEFAULT_SETTINGS = RegistrationSettings()
+
+#: Pairs whose source and target normals agree less than this (``|cos|``, about 5.7°) are the
+#: ones the model-error term leaves out (``CovarianceEstimates.model_shift``): on the simulated
+#: street, keeping ``≥ 0.95 / 0.99 / 0.995`` left −1.23 / −0.66 / −0.42 cm of its −2.5 cm
+#: point-to-plane bias (``benchmarks/street_bias_normals.py``).
+MIN_NORMAL_AGREEMENT = 0.995
 _DEFAULT_THRESHOLDS = VerdictThresholds()
 
 
@@ -229,7 +235,8 @@ class CovarianceEstimates:
     censi: FloatArray
     #: Cluster-robust sandwich over ``num_blocks`` spatial blocks of ``block_size``.
     block: FloatArray
-    #: ``censi`` ∨ ``block``, with the prior variance along degenerate directions.
+    #: ``censi`` ∨ ``block``, with the prior variance along degenerate directions, plus
+    #: ``model_shift`` as ``δδᵀ``.
     calibrated: FloatArray
     #: Variance of each coordinate of a source or target point used by ``censi`` (units²).
     point_variance: float
@@ -240,6 +247,15 @@ class CovarianceEstimates:
     num_blocks: int
     #: The prior used along degenerate directions (``init_covariance``, or the gate's).
     prior: FloatArray
+    #: ``(dof,)`` model-error term of ``calibrated``: how far the estimate would move (one
+    #: Gauss–Newton step at the final correspondences, a sample of them) under the
+    #: point-to-plane/line objective of the pairs whose source and target normals agree
+    #: (``|n_s·n_t| ≥ MIN_NORMAL_AGREEMENT``). Point-to-plane/line: the step with those pairs
+    #: minus the step with all sampled pairs (the shift the disagreeing pairs cause);
+    #: point-to-point: the step itself (its distance to that objective's minimum). Zeros for
+    #: GICP, without target normals, or with too few agreeing pairs; never along weak
+    #: directions. See ``docs/calibration.md``.
+    model_shift: FloatArray
 
 
 @dataclass(frozen=True)
@@ -599,11 +615,11 @@ def register(
         index = prepared.index
         t_points, t_normals, t_covs = prepared.points, prepared.normals, prepared.covariances
 
-    def run(projector: FloatArray | None) -> Any:
+    def run(projector: FloatArray | None, start: SE2 | SE3 = pose0) -> Any:
         return _core.register_icp(
             src,
             index,
-            pose0.as_matrix(),
+            start.as_matrix(),
             method=method_eff,
             kernel=s.kernel,
             kernel_scale=k_scale,
@@ -667,10 +683,19 @@ def register(
     if s.degeneracy_aware:
         first = _correspondence_analysis(ctx, out)
         if first.degeneracy.degenerate and len(out.correspondences):
-            out = run(np.ascontiguousarray(np.eye(dof) - first.degeneracy.weak_projector()))
+            held = np.ascontiguousarray(np.eye(dof) - first.degeneracy.weak_projector())
+            out = run(held)
             # The weak directions are the first solve's: the second is held along them.
             first = dataclasses.replace(
-                _correspondence_analysis(ctx, out), degeneracy=first.degeneracy
+                _correspondence_analysis(ctx, out),
+                degeneracy=first.degeneracy,
+                valley=_valley_moment(
+                    lambda start: run(held, start),
+                    _pose_from_core(out, dim),
+                    first.degeneracy,
+                    ctx.prior,
+                    s.max_correspondence_distance,
+                ),
             )
 
     t0 = time.perf_counter()
@@ -786,6 +811,11 @@ class _CorrespondenceAnalysis:
     degeneracy: Degeneracy
     point_variance: float
     normal_variance: float
+    #: ``(all, agreeing)`` point-to-plane/line systems ``(H, g, count)`` of the sampled
+    #: pairs, or None.
+    agreement: tuple[Any, Any] | None
+    #: The degeneracy-aware solve's :func:`_valley_moment`, or None.
+    valley: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -858,14 +888,30 @@ def _correspondence_analysis(ctx: _TrustInputs, out: Any) -> _CorrespondenceAnal
         corr = np.full(corr.shape, -1, dtype=np.int64)
         corr[used] = compact
     normal_var = 0.0
-    if method in ("point_to_plane", "point_to_line") and len(src) > dim and tn is not None:
-        # Normals of a sample of the source, only to measure the normal noise between the two
-        # scans (Censi's normal term); the registration itself does not use them.
+    agreement = None
+    if method != "gicp" and len(src) > dim and tn is not None:
+        # Normals of a sample of the source, to measure the normal noise between the two scans
+        # (Censi's normal term) and which pairs' normals disagree (the model-error term); the
+        # registration itself does not use them.
         sample, sample_normals = ctx.source_normals
-        normal_var = correspondence_normal_noise(
-            sample_normals, tn, out.pose[:dim, :dim], corr[sample]
+        if method != "point_to_point":
+            normal_var = correspondence_normal_noise(
+                sample_normals, tn, out.pose[:dim, :dim], corr[sample]
+            )
+            normal_var = normal_var if math.isfinite(normal_var) else 0.0
+        ha, ga, na, hk, gk, nk = _core.normal_agreement_systems(
+            sample,
+            sample_normals,
+            src,
+            tp,
+            tn,
+            corr,
+            out.pose,
+            MIN_NORMAL_AGREEMENT,
+            kernel=s.kernel,
+            kernel_scale=ctx.kernel_scale,
         )
-        normal_var = normal_var if math.isfinite(normal_var) else 0.0
+        agreement = ((ha, ga, na), (hk, gk, nk))
     # Unit variances: the meats scale linearly and are combined once the point noise is known
     # from the residuals of this very analysis.
     ana = _core.censi_analysis(
@@ -909,6 +955,7 @@ def _correspondence_analysis(ctx: _TrustInputs, out: Any) -> _CorrespondenceAnal
         degeneracy=deg,
         point_variance=_point_variance(out, ana, method, dim, dof),
         normal_variance=normal_var,
+        agreement=agreement,
     )
 
 
@@ -946,6 +993,8 @@ def _trust(
         ctx.block_size,
         dof,
         s.degeneracy_aware,
+        _model_shift(corr.agreement, deg, ctx.method, dof),
+        corr.valley,
     )
     chosen = getattr(estimates, s.covariance)
     info = (
@@ -1024,6 +1073,8 @@ def _estimates(
     block: float,
     dof: int,
     aware: bool,
+    shift: FloatArray,
+    valley: FloatArray | None,
 ) -> CovarianceEstimates:
     bad = np.full((dof, dof), np.inf)
     h = np.array(ana.hessian)
@@ -1039,7 +1090,11 @@ def _estimates(
     except np.linalg.LinAlgError:
         censi = blk = calibrated = bad
     if deg.degenerate and np.isfinite(calibrated).all():
-        calibrated = _with_prior_along_weak(calibrated, deg, prior, aware)
+        # The tilt of the weak axis comes from the target's normal noise; on a map (not
+        # measured there) from the noise between the two scans.
+        eps2 = deg.normal_noise if math.isfinite(deg.normal_noise) else normal_variance
+        calibrated = _with_prior_along_weak(calibrated, deg, prior, aware, eps2, valley)
+    calibrated = calibrated + np.outer(shift, shift)
     return CovarianceEstimates(
         hessian=_readonly(hessian_cov),
         censi=_readonly(censi),
@@ -1050,25 +1105,105 @@ def _estimates(
         block_size=float(block),
         num_blocks=int(ana.num_blocks),
         prior=_frozen(prior),
+        model_shift=_frozen(shift),
     )
 
 
-def _with_prior_along_weak(
-    cov: FloatArray, deg: Degeneracy, prior: FloatArray, aware: bool
-) -> FloatArray:
-    """Replace the data's say along the weak directions by the prior's.
+def _model_shift(agreement: Any, deg: Degeneracy, method: str, dof: int) -> FloatArray:
+    """The model-error shift of :class:`CovarianceEstimates` (``model_shift``).
 
-    In scaled coordinates with ``W`` the weak basis and ``U`` its orthogonal complement: the
-    well-determined part is the data's covariance of ``U``-coordinates *given* the weak ones
-    (``(Uᵀ Λ U)⁻¹``, ``Λ = cov⁻¹``): the solve fixes (aware) or drifts (not aware) along ``W``
-    and solves the rest for that value. Along ``W`` the variance is the prior's; without the
-    degeneracy-aware solve it is counted twice (the initial error plus the drift).
+    Each step is solved on the well-constrained subspace only (scaled coordinates, the weak
+    directions left out: along them the covariance is the prior's, and a step there is not
+    determined). Too few agreeing pairs (``< 10 dof``) or a singular system: zeros.
+    """
+    zero = np.zeros(dof)
+    if agreement is None:
+        return zero
+    (h_all, g_all, _), (h_ok, g_ok, n_ok) = agreement
+    if n_ok < 10 * dof:
+        return zero
+    s_inv = deg.scaling()
+    w = deg.weak_basis()
+    basis = np.linalg.svd(w, full_matrices=True)[0][:, w.shape[1] :] if w.shape[1] else np.eye(dof)
+    t = s_inv[:, None] * basis  # tangent directions of the strong subspace
+
+    def step(h: Any, g: Any) -> FloatArray:
+        c = np.linalg.solve(t.T @ np.asarray(h) @ t, -(t.T @ np.asarray(g)))
+        out: FloatArray = t @ c
+        return out
+
+    try:
+        shift = step(h_ok, g_ok)
+        if method != "point_to_point":
+            shift = shift - step(h_all, g_all)
+    except np.linalg.LinAlgError:
+        return zero
+    return shift if np.isfinite(shift).all() else zero
+
+
+def _valley_moment(
+    solve: Any, pose: SE2 | SE3, deg: Degeneracy, prior: FloatArray, gate: float
+) -> FloatArray:
+    """How the well-determined coordinates follow the held weak ones, over the prior's range.
+
+    The degeneracy-aware solve holds the weak coordinates at the initial guess and solves the
+    rest *for that value*. Where the truth lies elsewhere along the axis (by ``σ_w``, the
+    prior's), the rest would have come out differently: as the held value moves, the matched
+    points and their normals change (a corridor's lateral estimate follows the along-axis
+    one by ~0.008 m/m, ``benchmarks/corridor_coupling.py``), which no linearisation at the
+    final pose sees. Measured by solving again, held, from ``±h`` along each weak direction
+    (``h = min(σ_w, gate / 2)``, inside the basin): the second moment of where the strong
+    coordinates land, per unit ``h²`` and times ``σ_w²`` (scaled coordinates, strong subspace;
+    a linear coupling and a curved valley alike). A held solve that fails is left out.
     """
     s_inv = deg.scaling()
     w = deg.weak_basis()
     dof = s_inv.size
-    full, _, _ = np.linalg.svd(w, full_matrices=True)
-    u = full[:, w.shape[1] :]
+    dim = 2 if dof == 3 else 3
+    u = np.linalg.eigh(deg.information)[1][:, w.shape[1] :]
+    prior_s = prior / np.outer(s_inv, s_inv)
+    out = np.zeros((dof, dof))
+    inverse = pose.inverse()
+    for i in range(w.shape[1]):
+        var = float(w[:, i] @ prior_s @ w[:, i])
+        h = math.sqrt(var)
+        if math.isfinite(gate):
+            h = min(h, gate / 2.0)
+        if not h > 0.0:
+            continue
+        for sign in (1.0, -1.0):
+            held = solve(pose @ type(pose).exp(sign * h * w[:, i] * s_inv))  # type: ignore[operator]
+            if str(held.stop_reason) not in ("converged", "max_iterations"):
+                continue
+            e = (inverse @ _pose_from_core(held, dim)).log() / s_inv  # type: ignore[operator]
+            e_u = u @ (u.T @ e)
+            out += 0.5 * var * np.outer(e_u, e_u) / h**2
+    return out
+
+
+def _with_prior_along_weak(
+    cov: FloatArray,
+    deg: Degeneracy,
+    prior: FloatArray,
+    aware: bool,
+    normal_noise: float,
+    valley: FloatArray | None = None,
+) -> FloatArray:
+    """Replace the data's say along the weak directions by the prior's.
+
+    In scaled coordinates with ``W`` the weak eigenvectors and ``U`` the strong ones: the
+    well-determined part is the data's covariance of ``U``-coordinates *given* the weak ones
+    (``(Uᵀ Λ U)⁻¹``, ``Λ = cov⁻¹``): the solve fixes (aware) or drifts (not aware) along ``W``
+    and solves the rest for that value. Along ``W`` the variance is the prior's; without the
+    degeneracy-aware solve it is counted twice (the initial error plus the drift). ``W`` is
+    itself estimated from noisy normals: an error of ``σ_w`` along the true axis shows as
+    ``σ_w · tilt_j`` along each ``u_j`` (:meth:`Degeneracy.tilt_variances`), added there.
+    With the degeneracy-aware solve, ``valley`` (:func:`_valley_moment`) is added as well.
+    """
+    s_inv = deg.scaling()
+    w = deg.weak_basis()
+    dof = s_inv.size
+    u = np.linalg.eigh(deg.information)[1][:, w.shape[1] :]
     # scaled covariance: δ_s = S δ
     cov_s = cov / np.outer(s_inv, s_inv)
     prior_s = prior / np.outer(s_inv, s_inv)
@@ -1081,7 +1216,12 @@ def _with_prior_along_weak(
             # A singular data covariance (a noise-free fit: zero residuals): its conditional
             # cannot be formed; the marginal U Uᵀ Σ U Uᵀ covers it (and is 0 when Σ is).
             strong = u @ (u.T @ cov_s @ u) @ u.T
-    weak = w @ (w.T @ prior_s @ w) @ w.T * (1.0 if aware else 2.0)
+    weak_prior = w.T @ prior_s @ w
+    tilt = deg.tilt_variances(normal_noise)  # (weak, strong)
+    weak = w @ weak_prior @ w.T + u @ np.diag(np.diag(weak_prior) @ tilt) @ u.T
+    if valley is not None:
+        weak = weak + valley
+    weak = weak * (1.0 if aware else 2.0)
     out = (strong + weak) * np.outer(s_inv, s_inv)
     return np.asarray(0.5 * (out + out.T), dtype=np.float64)
 

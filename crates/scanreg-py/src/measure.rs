@@ -8,7 +8,9 @@ use crate::knn::KdTree;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use scanreg_core::kernel::Kernel;
 use scanreg_core::knn::check_max_distance;
+use scanreg_core::normal_agreement::{self, AgreementInput};
 use scanreg_core::{normal_noise, overlap};
 
 /// `(num_found, mean, median, rmse, trimmed_rmse)` of the distances from each source point,
@@ -98,7 +100,66 @@ fn correspondence_normal_noise(
     normal_noise::correspondence_normal_noise(&sample, src, tgt, rot, corr, dim).map_err(core_err)
 }
 
+/// `(H_all, g_all, n_all, H_agreeing, g_agreeing, n_agreeing)`: point-to-plane/line normal
+/// equations of the sampled pairs at `pose_matrix`, all of them and those whose normals agree.
+#[pyfunction]
+#[pyo3(signature = (sample, sample_normals, source, target, target_normals, correspondences, pose_matrix, min_agreement, kernel="none", kernel_scale=1.0))]
+#[allow(clippy::too_many_arguments)]
+fn normal_agreement_systems<'py>(
+    py: Python<'py>,
+    sample: PyReadonlyArray1<'_, i64>,
+    sample_normals: PyReadonlyArray2<'_, f64>,
+    source: PyReadonlyArray2<'_, f64>,
+    target: PyReadonlyArray2<'_, f64>,
+    target_normals: PyReadonlyArray2<'_, f64>,
+    correspondences: PyReadonlyArray1<'_, i64>,
+    pose_matrix: PyReadonlyArray2<'_, f64>,
+    min_agreement: f64,
+    kernel: &str,
+    kernel_scale: f64,
+) -> PyResult<Systems<'py>> {
+    let (src, dim) = points(&source, "source")?;
+    let input = AgreementInput {
+        sample: &c_slice(&sample, "sample")?
+            .iter()
+            .map(|&i| usize::try_from(i))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|_| PyValueError::new_err("sample: indices must be >= 0"))?,
+        sample_normals: points_dim(&sample_normals, "sample_normals", dim)?,
+        source: src,
+        target: points_dim(&target, "target", dim)?,
+        target_normals: points_dim(&target_normals, "target_normals", dim)?,
+        correspondences: c_slice(&correspondences, "correspondences")?,
+        pose: pose(&pose_matrix, "pose_matrix", dim)?,
+        dim,
+    };
+    let kernel = Kernel::from_name(kernel, kernel_scale).map_err(core_err)?;
+    let out = normal_agreement::normal_agreement_systems(&input, min_agreement, kernel)
+        .map_err(core_err)?;
+    let dof = if dim == 2 { 3 } else { 6 };
+    let system = |s: normal_agreement::NormalSystem| -> PyResult<_> {
+        Ok((
+            s.hessian.into_pyarray(py).reshape([dof, dof])?,
+            s.gradient.into_pyarray(py),
+            s.count,
+        ))
+    };
+    let (ha, ga, na) = system(out.all)?;
+    let (hk, gk, nk) = system(out.agreeing)?;
+    Ok((ha, ga, na, hk, gk, nk))
+}
+
+type Systems<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    usize,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
+    usize,
+);
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(normal_agreement_systems, m)?)?;
     m.add_function(wrap_pyfunction!(overlap_statistics, m)?)?;
     m.add_function(wrap_pyfunction!(target_normal_noise, m)?)?;
     m.add_function(wrap_pyfunction!(sampled_normals, m)?)?;
