@@ -424,3 +424,27 @@ def test_point_to_point_model_shift_reaches_its_sampling_bias() -> None:
     d = (res.pose.inverse() @ STEP3.inverse()).log()
     shift = np.asarray(res.covariances.model_shift)
     assert d[0] < -0.05 and 0.5 * d[0] > shift[0] > 2.0 * d[0], (d, shift)
+
+
+def test_noise_free_degenerate_fit_gives_finite_spd_information() -> None:
+    # A noise-free line: zero residuals, the aware solve holds x. The covariance is ~0 across
+    # the line (round-off of ±1e-54 used to give a negative variance, a NaN standard deviation
+    # and an information matrix with a −4e92 diagonal); along it, the prior's.
+    x = np.linspace(0, 10, 200)
+    line = np.c_[x, np.zeros_like(x)]
+    res = scanreg.register(
+        line,
+        line + np.array([0.01, 0.02]),
+        method="point_to_line",
+        degeneracy_aware=True,
+        init_covariance=np.diag([0.01, 0.01, 0.001]),
+    )
+    assert res.covariances is not None
+    for kind in ("hessian", "censi", "block", "calibrated"):
+        c = getattr(res.covariances, kind)
+        assert np.all(np.diag(c) >= 0.0), kind
+        assert np.linalg.eigvalsh(c)[0] >= -1e-12 * np.abs(c).max(), kind
+    assert np.all(np.isfinite(res.standard_deviations))
+    assert res.standard_deviations[0] == pytest.approx(0.1)
+    info = res.information
+    assert np.all(np.isfinite(info)) and np.linalg.eigvalsh(info)[0] > 0

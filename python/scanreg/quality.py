@@ -218,12 +218,24 @@ def sandwich_covariance(
     return out
 
 
+#: Eigenvalues of a covariance below this fraction of its largest are floored there when it is
+#: inverted: round-off, not information (a plain inverse of such a matrix has entries of
+#: ±1e90 and negative diagonals).
+_MIN_RELATIVE_VARIANCE = 1e-14
+
+
 def information_from_covariance(cov: FloatArray) -> FloatArray:
-    """``cov⁻¹``, or all-``inf`` for a zero (noise-free) covariance."""
-    try:
-        return np.asarray(np.linalg.inv(cov), dtype=np.float64)
-    except np.linalg.LinAlgError:
+    """``cov⁻¹``, symmetric positive definite, or all-``inf`` for a zero (noise-free)
+    covariance. A (near-)singular ``cov`` — a noise-free fit along some directions — gets
+    its variances floored at ``1e-14`` of the largest first."""
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    top = float(vals[-1])
+    if not top > 0.0:
         return np.full_like(cov, np.inf)
+    if vals[0] > _MIN_RELATIVE_VARIANCE * top:
+        return np.asarray(np.linalg.inv(cov), dtype=np.float64)
+    floored = np.maximum(vals, _MIN_RELATIVE_VARIANCE * top)
+    return np.asarray((vecs / floored) @ vecs.T, dtype=np.float64)
 
 
 def chi2_quantile(dof: float, prob: float) -> float:

@@ -1095,8 +1095,9 @@ def _estimates(
         eps2 = deg.normal_noise if math.isfinite(deg.normal_noise) else normal_variance
         calibrated = _with_prior_along_weak(calibrated, deg, prior, aware, eps2, valley)
     calibrated = calibrated + np.outer(shift, shift)
+    censi, blk, calibrated = _psd(censi), _psd(blk), _psd(calibrated)
     return CovarianceEstimates(
-        hessian=_readonly(hessian_cov),
+        hessian=_readonly(_psd(hessian_cov)),
         censi=_readonly(censi),
         block=_readonly(blk),
         calibrated=_readonly(calibrated),
@@ -1107,6 +1108,18 @@ def _estimates(
         prior=_frozen(prior),
         model_shift=_frozen(shift),
     )
+
+
+def _psd(cov: FloatArray) -> FloatArray:
+    """``cov`` with round-off negative eigenvalues set to zero (a noise-free fit leaves
+    variances of ±1e-54: a negative one would make its standard deviation NaN)."""
+    if not np.isfinite(cov).all():
+        return cov
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    if vals[0] >= 0.0:
+        return cov
+    out: FloatArray = (vecs * np.maximum(vals, 0.0)) @ vecs.T
+    return out
 
 
 def _model_shift(agreement: Any, deg: Degeneracy, method: str, dof: int) -> FloatArray:
