@@ -24,6 +24,7 @@
 
 use crate::error::{Error, Result};
 use rayon::prelude::*;
+use std::sync::OnceLock;
 
 /// Largest grid (cells per level) accepted: 2D maps beyond this need a coarser resolution.
 pub const MAX_CELLS: usize = 64 * 1024 * 1024;
@@ -60,8 +61,12 @@ pub struct LikelihoodGrid {
     height: usize,
     /// Squared distance to the nearest occupied cell, in cells², row-major (y rows).
     dist2: Vec<f32>,
-    /// `levels[0]` is the likelihood itself; `levels[h]` pools `2^h × 2^h`.
-    levels: Vec<Level>,
+    /// The likelihood itself (level 0).
+    base: Level,
+    /// `pooled[h − 1]` pools `2^h × 2^h` windows of level `h − 1`. Built on first use: a search
+    /// needs only as many levels as its window is wide (an odometry window of ±6 cells uses
+    /// 4 of the default 7), and each costs about a third of the base grid's build.
+    pooled: Vec<OnceLock<Level>>,
 }
 
 /// A search window around an initial pose.
@@ -295,18 +300,13 @@ impl LikelihoodGrid {
             .par_iter()
             .map(|&d| (-0.5 * d / s2).exp() as f32)
             .collect();
-        let dist2: Vec<f32> = d2.iter().map(|&d| d.min(1e30) as f32).collect();
-        let mut all = vec![Level {
+        let dist2: Vec<f32> = d2.par_iter().map(|&d| d.min(1e30) as f32).collect();
+        let base = Level {
             shift: 0,
             width: width as i64,
             height: height as i64,
             data: likelihood,
-        }];
-        for h in 1..=levels {
-            let half = 1i64 << (h - 1);
-            let next = pool(&all[h - 1], half, width as i64, height as i64);
-            all.push(next);
-        }
+        };
         Ok(LikelihoodGrid {
             origin,
             resolution,
@@ -314,7 +314,24 @@ impl LikelihoodGrid {
             width,
             height,
             dist2,
-            levels: all,
+            base,
+            pooled: (0..levels).map(|_| OnceLock::new()).collect(),
+        })
+    }
+
+    /// Level `h` (`0`: the likelihood), pooling it on first use.
+    fn level(&self, h: usize) -> &Level {
+        if h == 0 {
+            return &self.base;
+        }
+        self.pooled[h - 1].get_or_init(|| {
+            let half = 1i64 << (h - 1);
+            pool(
+                self.level(h - 1),
+                half,
+                self.width as i64,
+                self.height as i64,
+            )
         })
     }
 
@@ -333,11 +350,11 @@ impl LikelihoodGrid {
     }
     /// Pooled levels available for branch and bound.
     pub fn levels(&self) -> usize {
-        self.levels.len() - 1
+        self.pooled.len()
     }
     /// The likelihood, row-major `height × width` (row = y).
     pub fn likelihood(&self) -> &[f32] {
-        &self.levels[0].data
+        &self.base.data
     }
     /// Squared distance to the nearest occupied cell (cells²), row-major `height × width`.
     pub fn dist2(&self) -> &[f32] {
@@ -370,7 +387,7 @@ impl LikelihoodGrid {
 
     #[inline]
     fn sum(&self, level: usize, slice: &Slice, i: i64, j: i64) -> f64 {
-        let g = &self.levels[level];
+        let g = self.level(level);
         slice
             .cells
             .iter()
@@ -671,6 +688,9 @@ pub fn match_branch_and_bound(
         depth += 1;
     }
     let slices = grid.slices(source, w);
+    // Pool every level the search reads here, before the parallel sections: a level first
+    // pooled inside a rayon task could re-enter its own OnceLock from a stolen task.
+    let _ = grid.level(depth);
     let step = 1i64 << depth;
     // Root nodes: bounds in parallel (they dominate the work for shallow trees).
     let keys: Vec<[i64; 3]> = (-w.ntheta..=w.ntheta)
@@ -790,8 +810,9 @@ mod tests {
     #[test]
     fn pooled_levels_are_window_maxima() {
         let g = LikelihoodGrid::build(&room(), 0.1, 0.1, 3).unwrap();
-        let base = &g.levels[0];
-        for (h, lvl) in g.levels.iter().enumerate().skip(1) {
+        let base = g.level(0);
+        for h in 1..=g.levels() {
+            let lvl = g.level(h);
             let w = 1i64 << h;
             for y in (-(w - 1)..base.height).step_by(7) {
                 for x in (-(w - 1)..base.width).step_by(5) {
