@@ -207,25 +207,58 @@ fn transpose(data: &[f64], width: usize, height: usize) -> Vec<f64> {
     out
 }
 
+/// `out = max(a, b)` elementwise where `b` is `a` shifted right by `half` (zeros outside), over
+/// `a.len() + half` outputs: the 1-D step of a 2 × 2 max with stride `half`. Likelihoods are
+/// ≥ 0, so the zero padding never wins a maximum it should not.
+fn max_with_shifted(a: &[f32], half: usize, out: &mut [f32]) {
+    let n = a.len();
+    debug_assert_eq!(out.len(), n + half);
+    let lead = half.min(n);
+    out[..lead].copy_from_slice(&a[..lead]);
+    for c in lead..n {
+        out[c] = a[c].max(a[c - half]);
+    }
+    for c in n.max(half)..n + half {
+        out[c] = if c - half < n { a[c - half] } else { 0.0 };
+    }
+    for o in out.iter_mut().take(half).skip(n) {
+        *o = 0.0; // only when the level is narrower than the stride
+    }
+}
+
+/// Level `h` from level `h − 1` (`prev`, stride `half = 2^(h−1)`): each cell the maximum of the
+/// 2 × 2 cells `half` apart, i.e. of a `2^h × 2^h` window of the likelihood. Separable: rows
+/// first, then pairs of rows, without per-cell bounds checks.
 fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64) -> Level {
     let w = 2 * half;
     let shift = w - 1;
     let width = base_w + shift;
     let height = base_h + shift;
-    let mut data = vec![0.0f32; (width * height) as usize];
-    data.par_chunks_mut(width as usize)
-        .enumerate()
-        .for_each(|(row, out)| {
-            let y = row as i64 - shift;
-            for (col, o) in out.iter_mut().enumerate() {
-                let x = col as i64 - shift;
-                *o = prev
-                    .at(x, y)
-                    .max(prev.at(x + half, y))
-                    .max(prev.at(x, y + half))
-                    .max(prev.at(x + half, y + half));
+    let (wp, hp, h) = (prev.width as usize, prev.height as usize, half as usize);
+    debug_assert_eq!(width as usize, wp + h);
+    debug_assert_eq!(height as usize, hp + h);
+    let wu = width as usize;
+    let mut rows = vec![0.0f32; hp * wu];
+    rows.par_chunks_mut(wu)
+        .zip(prev.data.par_chunks(wp))
+        .for_each(|(out, a)| max_with_shifted(a, h, out));
+    let mut data = vec![0.0f32; wu * height as usize];
+    data.par_chunks_mut(wu).enumerate().for_each(|(r, out)| {
+        let upper = r
+            .checked_sub(h)
+            .filter(|&j| j < hp)
+            .map(|j| &rows[j * wu..(j + 1) * wu]);
+        let lower = (r < hp).then(|| &rows[r * wu..(r + 1) * wu]);
+        match (upper, lower) {
+            (Some(a), Some(b)) => {
+                for ((o, x), y) in out.iter_mut().zip(a).zip(b) {
+                    *o = x.max(*y);
+                }
             }
-        });
+            (Some(a), None) | (None, Some(a)) => out.copy_from_slice(a),
+            (None, None) => {}
+        }
+    });
     Level {
         shift,
         width,
@@ -803,6 +836,27 @@ mod tests {
                     .map(|c| (x as f64 - c[0]).powi(2) + (y as f64 - c[1]).powi(2))
                     .fold(f64::INFINITY, f64::min);
                 assert_eq!(g.dist2()[y * w + x] as f64, brute, "cell {x},{y}");
+            }
+        }
+    }
+
+    #[test]
+    fn pooled_levels_are_window_maxima_on_a_grid_narrower_than_the_stride() {
+        // Two points: an ~11 × 12 cell grid, levels up to a 64-cell window (stride 32 > width).
+        let g = LikelihoodGrid::build(&[0.0, 0.0, 0.15, 0.05], 0.1, 0.1, 6).unwrap();
+        let base = g.level(0);
+        for h in 1..=g.levels() {
+            let (lvl, w) = (g.level(h), 1i64 << h);
+            for y in -(w + 1)..base.height + 2 {
+                for x in -(w + 1)..base.width + 2 {
+                    let mut m = 0.0f32;
+                    for dy in 0..w {
+                        for dx in 0..w {
+                            m = m.max(base.at(x + dx, y + dy));
+                        }
+                    }
+                    assert_eq!(lvl.at(x, y), m, "level {h} at {x},{y}");
+                }
             }
         }
     }
