@@ -243,7 +243,7 @@ def test_default_covariance_is_consistent(
     # the dimension; the room sits at ~1.4 (sampling error, docs/calibration.md). The corridor
     # from the identity is over-cautious by design (0.4 × dof): along its axis the prior is
     # the gate's, counted twice, 5× the actual 0.3 m error. At a heading (a corridor not along
-    # the sensor's x axis) the weak axis snapped to x used to give 27; with a motion prior the
+    # the sensor's x axis) the weak axis snapped to x gave 35 here; with a motion prior the
     # converged lateral estimate follows the held along-axis one (2.4 × dof before the
     # valley term).
     reps = 40

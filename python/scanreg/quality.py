@@ -227,7 +227,13 @@ _MIN_RELATIVE_VARIANCE = 1e-14
 def information_from_covariance(cov: FloatArray) -> FloatArray:
     """``cov⁻¹``, symmetric positive definite, or all-``inf`` for a zero (noise-free)
     covariance. A (near-)singular ``cov`` — a noise-free fit along some directions — gets
-    its variances floored at ``1e-14`` of the largest first."""
+    its variances floored at ``1e-14`` of the largest first. A non-finite ``cov`` is inverted
+    as it is."""
+    if not np.isfinite(cov).all():
+        try:
+            return np.asarray(np.linalg.inv(cov), dtype=np.float64)
+        except np.linalg.LinAlgError:
+            return np.full_like(cov, np.inf)
     vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
     top = float(vals[-1])
     if not top > 0.0:

@@ -192,13 +192,13 @@ class RegistrationSettings:
 
 
 _DEFAULT_SETTINGS = RegistrationSettings()
+_DEFAULT_THRESHOLDS = VerdictThresholds()
 
 #: Pairs whose source and target normals agree less than this (``|cos|``, about 5.7°) are the
 #: ones the model-error term leaves out (``CovarianceEstimates.model_shift``): on the simulated
 #: street, keeping ``≥ 0.95 / 0.99 / 0.995`` left −1.23 / −0.66 / −0.42 cm of its −2.5 cm
 #: point-to-plane bias (``benchmarks/street_bias_normals.py``).
 MIN_NORMAL_AGREEMENT = 0.995
-_DEFAULT_THRESHOLDS = VerdictThresholds()
 
 
 @dataclass(frozen=True)
