@@ -142,6 +142,9 @@ class RegistrationSettings:
     #: (:mod:`scanreg.degeneracy`), solve again from ``init`` with every step restricted to the
     #: well-constrained directions (solution remapping, Zhang, Kaess & Singh 2016), so the
     #: estimate keeps the initial guess along the weak ones; their variance is the prior's.
+    #: Then two more held solves per weak direction, from ±min(σ_w, gate/2) along it, measure
+    #: how the rest of the pose follows the held value (the covariance's valley term): a
+    #: degenerate aware call costs about four solves.
     degeneracy_aware: bool = False
     #: Point-to-point and point-to-plane/line under Gauss–Newton: when two successive small
     #: steps (moving the points by under a tenth of the gate) point the same way and shrink,
