@@ -184,6 +184,13 @@ def test_censi_matches_monte_carlo_on_a_small_problem(method: str) -> None:
     assert np.all((ratio > 0.7) & (ratio < 1.4)), ratio
 
 
+def _jitter(k: int) -> list[float]:
+    """``[x, y, yaw]`` of realisation ``k``'s sensor offset, ±0.15 m and ±2.9°, as in
+    ``covariance_calibration.py --randomise-pose``."""
+    rng = np.random.default_rng(20_000 + k)
+    return [rng.uniform(-0.15, 0.15), rng.uniform(-0.15, 0.15), rng.uniform(-0.05, 0.05)]
+
+
 def _mean_nees(
     scene: sim.Scene,
     pose_a: SE2,
@@ -199,12 +206,7 @@ def _mean_nees(
     truth = STEP2.inverse()
     out = []
     for k in range(reps):
-        pose = pose_a
-        if randomise:
-            rng = np.random.default_rng(20_000 + k)
-            pose = pose_a @ SE2.from_vector(
-                [rng.uniform(-0.15, 0.15), rng.uniform(-0.15, 0.15), rng.uniform(-0.05, 0.05)]
-            )
+        pose = pose_a @ SE2.from_vector(_jitter(k)) if randomise else pose_a
         src, tgt = _pair(scene, pose, 100 + k)
         extra: dict[str, object] = dict(kwargs)
         if prior is not None:
@@ -318,10 +320,8 @@ STEP3 = SE3.from_vector([0.5, 0.1, 0.0, 0.0, 0.0, np.deg2rad(2.0)])
 
 
 def _moved(pose_a: SE3, k: int) -> SE3:
-    """``pose_a`` moved for realisation ``k`` by ±0.15 m and ±2.9° of yaw, as in
-    ``covariance_calibration.py --randomise-pose``."""
-    rng = np.random.default_rng(20_000 + k)
-    x, y, yaw = rng.uniform(-0.15, 0.15), rng.uniform(-0.15, 0.15), rng.uniform(-0.05, 0.05)
+    """``pose_a`` moved for realisation ``k`` by :func:`_jitter` (in the ground plane)."""
+    x, y, yaw = _jitter(k)
     return pose_a @ SE3.from_vector([x, y, 0, 0, 0, yaw])
 
 

@@ -24,6 +24,7 @@ measurements that support both are in ``docs/calibration.md``.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -77,7 +78,9 @@ class Degeneracy:
         out: FloatArray = np.concatenate([np.ones(dim), 1.0 / self.levers])
         return out
 
+    @functools.cached_property
     def _eigen(self) -> tuple[FloatArray, FloatArray]:
+        # Once per analysis: the weak and strong bases and the tilts all read it.
         vals, vecs = np.linalg.eigh(self.information)
         return vals, vecs
 
@@ -86,7 +89,12 @@ class Degeneracy:
         eigenvectors of ``information`` below the threshold, as measured. (Until 2026-12-02
         components below the normal noise were zeroed, which is right only for a corridor
         along a sensor axis: see :meth:`tilt_variances` for what replaced it.)"""
-        return self._eigen()[1][:, : len(self.weak_directions)]
+        return self._eigen[1][:, : len(self.weak_directions)]
+
+    def strong_basis(self) -> FloatArray:
+        """``(dof, dof − w)`` the other eigenvectors of ``information`` (scaled coordinates),
+        orthonormal and orthogonal to :meth:`weak_basis`."""
+        return self._eigen[1][:, len(self.weak_directions) :]
 
     def tilt_variances(self, normal_noise: float) -> FloatArray:
         """``(w, dof − w)`` variance of each weak eigenvector's tilt towards each strong one
@@ -99,7 +107,7 @@ class Degeneracy:
         ``σ · tilt``: without this the well-determined directions claim what a slightly
         mis-estimated axis contradicts (the tunnel, ``docs/calibration.md``).
         """
-        vals, _ = self._eigen()
+        vals, _ = self._eigen
         nw = len(self.weak_directions)
         n = max(self.num_correspondences, 1)
         eps2 = normal_noise if np.isfinite(normal_noise) and normal_noise > 0 else 0.0

@@ -1138,10 +1138,7 @@ def _model_shift(agreement: Any, deg: Degeneracy, method: str, dof: int) -> Floa
     (h_all, g_all, _), (h_ok, g_ok, n_ok) = agreement
     if n_ok < 10 * dof:
         return zero
-    s_inv = deg.scaling()
-    w = deg.weak_basis()
-    basis = np.linalg.svd(w, full_matrices=True)[0][:, w.shape[1] :] if w.shape[1] else np.eye(dof)
-    t = s_inv[:, None] * basis  # tangent directions of the strong subspace
+    t = deg.scaling()[:, None] * deg.strong_basis()  # tangent directions of the strong subspace
 
     def step(h: Any, g: Any) -> FloatArray:
         c = np.linalg.solve(t.T @ np.asarray(h) @ t, -(t.T @ np.asarray(g)))
@@ -1176,7 +1173,7 @@ def _valley_moment(
     w = deg.weak_basis()
     dof = s_inv.size
     dim = 2 if dof == 3 else 3
-    u = np.linalg.eigh(deg.information)[1][:, w.shape[1] :]
+    u = deg.strong_basis()
     prior_s = prior / np.outer(s_inv, s_inv)
     out = np.zeros((dof, dof))
     inverse = pose.inverse()
@@ -1219,7 +1216,7 @@ def _with_prior_along_weak(
     s_inv = deg.scaling()
     w = deg.weak_basis()
     dof = s_inv.size
-    u = np.linalg.eigh(deg.information)[1][:, w.shape[1] :]
+    u = deg.strong_basis()
     # scaled covariance: δ_s = S δ
     cov_s = cov / np.outer(s_inv, s_inv)
     prior_s = prior / np.outer(s_inv, s_inv)

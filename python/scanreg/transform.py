@@ -173,12 +173,9 @@ class _Pose:
     def _adopt(cls: type[P], rotation: FloatArray, translation: FloatArray) -> P:
         """Wrap float64 arrays that nothing else references (fresh results of numpy
         operations) without copying them: they are made read-only in place."""
-        obj = cls.__new__(cls)
         rotation.setflags(write=False)
         translation.setflags(write=False)
-        object.__setattr__(obj, "_rotation", rotation)
-        object.__setattr__(obj, "_translation", translation)
-        return obj
+        return cls._wrap(rotation, translation)
 
     @classmethod
     def _wrap(cls: type[P], rotation: FloatArray, translation: FloatArray) -> P:

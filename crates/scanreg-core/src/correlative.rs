@@ -218,9 +218,8 @@ fn max_with_shifted(a: &[f32], half: usize, out: &mut [f32]) {
     for c in lead..n {
         out[c] = a[c].max(a[c - half]);
     }
-    for c in n.max(half)..n + half {
-        out[c] = if c - half < n { a[c - half] } else { 0.0 };
-    }
+    let tail = n.max(half);
+    out[tail..n + half].copy_from_slice(&a[tail - half..n]);
     for o in out.iter_mut().take(half).skip(n) {
         *o = 0.0; // only when the level is narrower than the stride
     }
