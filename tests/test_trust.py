@@ -448,3 +448,28 @@ def test_noise_free_degenerate_fit_gives_finite_spd_information() -> None:
     assert res.standard_deviations[0] == pytest.approx(0.1)
     info = res.information
     assert np.all(np.isfinite(info)) and np.linalg.eigvalsh(info)[0] > 0
+
+
+def test_trust_helpers_refuse_hostile_input_naming_the_argument() -> None:
+    from scanreg.quality import information_from_covariance
+
+    for bad in (np.zeros((0, 0)), np.ones((2, 3)), np.ones(3)):
+        with pytest.raises(ValueError, match="cov: expected a square"):
+            information_from_covariance(bad)
+    with pytest.raises(TypeError, match="cov: expected a matrix of numbers"):
+        information_from_covariance([["x", 0.0], [0.0, 1.0]])
+    np.testing.assert_allclose(
+        information_from_covariance(np.diag([4.0, 0.25])), [[0.25, 0], [0, 4]]
+    )
+    src, tgt = _pair(CORRIDOR, CORRIDOR_POSE, 4)
+    deg = scanreg.register(src, tgt, max_correspondence_distance=1.0).degeneracy
+    assert deg is not None and deg.degenerate
+    for bad in (-1e-4, float("inf")):
+        with pytest.raises(ValueError, match="normal_noise: must be finite and >= 0"):
+            deg.tilt_variances(bad)
+    with pytest.raises(TypeError, match="normal_noise: expected a number"):
+        deg.tilt_variances("0.01")  # type: ignore[arg-type]
+    np.testing.assert_array_equal(deg.tilt_variances(float("nan")), np.zeros((1, 2)))
+    tilt = deg.tilt_variances(1e-3)
+    assert tilt.shape == (1, 2) and np.all(tilt > 0)
+    np.testing.assert_allclose(deg.tilt_variances(2e-3), 2 * tilt)  # linear in the noise

@@ -25,6 +25,7 @@ measurements that support both are in ``docs/calibration.md``.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -105,12 +106,23 @@ class Degeneracy:
         along a weak ``w``), of variance ``ε² λ_j / n``; the tilt is that over
         ``λ_j − λ_w``. Along a corridor known to ``±σ`` the estimate can be off across it by
         ``σ · tilt``: without this the well-determined directions claim what a slightly
-        mis-estimated axis contradicts (the tunnel, ``docs/calibration.md``).
+        mis-estimated axis contradicts (the tunnel, ``docs/calibration.md``). ``NaN`` (not
+        measured) gives zeros.
         """
+        if isinstance(normal_noise, bool) or not isinstance(
+            normal_noise, (int, float, np.integer, np.floating)
+        ):
+            raise TypeError(f"normal_noise: expected a number, got {type(normal_noise).__name__}")
+        eps2 = float(normal_noise)
+        if math.isnan(eps2):
+            eps2 = 0.0
+        elif not (math.isfinite(eps2) and eps2 >= 0.0):
+            raise ValueError(
+                f"normal_noise: must be finite and >= 0 (NaN: not measured), got {eps2}"
+            )
         vals, _ = self._eigen
         nw = len(self.weak_directions)
         n = max(self.num_correspondences, 1)
-        eps2 = normal_noise if np.isfinite(normal_noise) and normal_noise > 0 else 0.0
         gap = vals[None, nw:] - vals[:nw, None]
         out: FloatArray = eps2 * vals[None, nw:] / (n * np.maximum(gap, 1e-12) ** 2)
         return out
