@@ -199,7 +199,14 @@ def main() -> None:
         action="store_true",
         help="move the sensor per realisation (±0.15 m, ±2.9° yaw; see the docstring)",
     )
+    parser.add_argument(
+        "--markdown-from", default=None, help="only print the table of a --json file"
+    )
     args = parser.parse_args()
+    if args.markdown_from:
+        with open(args.markdown_from) as f:
+            print(markdown_table(json.load(f)))
+        return
     reps = 20 if args.quick else args.realisations
     rows = []
     print(f"{reps} realisations per row; mean NEES (dof: 3 in 2D, 6 in 3D)\n")
@@ -228,6 +235,36 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
+    print("\n" + markdown_table(rows))
+
+
+def markdown_table(rows: list[dict[str, object]]) -> str:
+    """The rows as the table of ``docs/calibration.md``."""
+    out = [
+        "| scene | method | protocol | 95 % band | hessian | censi | block | **calibrated** "
+        "| calibrated / dof | flagged degenerate |",
+        "|---|---|---|---|---:|---:|---:|---:|---:|---|",
+    ]
+    for row in rows:
+        lo, hi = row["band"]  # type: ignore[misc]
+        means: dict[str, float] = row["mean_nees"]  # type: ignore[assignment]
+        dof = int(row["dof"])  # type: ignore[call-overload]
+        cal = means["calibrated"]
+        ratio = cal / dof
+        mark = "in band" if lo <= cal <= hi else ("in ×2" if 0.5 <= ratio <= 2.0 else None)
+        judged = f"{ratio:.2f} ({mark})" if mark else f"{ratio:.2f} ✗"
+        names: dict[str, int] = row["weak_directions"]  # type: ignore[assignment]
+        flagged = f"{row['flagged']}/{row['realisations']}"
+        if names:
+            top, count = max(names.items(), key=lambda kv: kv[1])
+            flagged += f" {top} ×{count}" + (", …" if len(names) > 1 else "")
+        cells = [f"{means[k]:.3g}" for k in KINDS if k != "calibrated"]
+        out.append(
+            f"| {row['scene']} | {row['method']} | {row['protocol']} | {lo:.2f}–{hi:.2f} | "
+            + " | ".join(cells)
+            + f" | **{cal:.3g}** | {judged} | {flagged} |"
+        )
+    return "\n".join(out)
 
 
 if __name__ == "__main__":

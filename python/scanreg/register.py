@@ -523,8 +523,9 @@ def register(
     init_covariance
         ``(dof, dof)`` covariance of ``init`` over the tangent (the motion model's), used as
         the variance along degenerate directions. ``None``: a gate-wide prior,
-        ``diag(δ², …, (δ/L_a)², …)`` with ``δ = max_correspondence_distance`` and ``L_a`` the
-        rotation levers (ICP only converges from within about a gate of the truth).
+        ``diag(δ², …, (δ/L_a)², …) / 3`` with ``δ = max_correspondence_distance`` and ``L_a``
+        the rotation levers (ICP only converges from within about a gate of the truth: an
+        error uniform within ``±δ``).
     thresholds
         :class:`~scanreg.VerdictThresholds` for ``result.verdict``; default thresholds if
         ``None``.
@@ -786,7 +787,9 @@ class _TrustInputs:
         dim, levers = int(self.source.shape[1]), self.levers
         gate = self.settings.max_correspondence_distance
         g = gate if math.isfinite(gate) else float(np.sqrt(np.mean(levers**2)))
-        return np.diag(np.concatenate([np.full(dim, g**2), (g / levers) ** 2]))
+        # ICP converges only from within about a gate of the truth: the error is taken as
+        # uniform within ±δ per axis (the least informative law with that bound), variance δ²/3.
+        return np.diag(np.concatenate([np.full(dim, g**2), (g / levers) ** 2])) / 3.0
 
     @functools.cached_property
     def source_normals(self) -> tuple[Any, FloatArray]:
@@ -995,7 +998,7 @@ def _trust(
         corr.normal_variance,
         ctx.block_size,
         dof,
-        s.degeneracy_aware,
+        (ctx.start.inverse() @ pose).log(),  # type: ignore[operator]
         _model_shift(corr.agreement, deg, ctx.method, dof),
         corr.valley,
     )
@@ -1075,7 +1078,7 @@ def _estimates(
     normal_variance: float,
     block: float,
     dof: int,
-    aware: bool,
+    drift: FloatArray,
     shift: FloatArray,
     valley: FloatArray | None,
 ) -> CovarianceEstimates:
@@ -1096,7 +1099,7 @@ def _estimates(
         # The tilt of the weak axis comes from the target's normal noise; on a map (not
         # measured there) from the noise between the two scans.
         eps2 = deg.normal_noise if math.isfinite(deg.normal_noise) else normal_variance
-        calibrated = _with_prior_along_weak(calibrated, deg, prior, aware, eps2, valley)
+        calibrated = _with_prior_along_weak(calibrated, deg, prior, drift, eps2, valley)
     calibrated = calibrated + np.outer(shift, shift)
     censi, blk, calibrated = _psd(censi), _psd(blk), _psd(calibrated)
     return CovarianceEstimates(
@@ -1198,7 +1201,7 @@ def _with_prior_along_weak(
     cov: FloatArray,
     deg: Degeneracy,
     prior: FloatArray,
-    aware: bool,
+    drift: FloatArray,
     normal_noise: float,
     valley: FloatArray | None = None,
 ) -> FloatArray:
@@ -1207,10 +1210,12 @@ def _with_prior_along_weak(
     In scaled coordinates with ``W`` the weak eigenvectors and ``U`` the strong ones: the
     well-determined part is the data's covariance of ``U``-coordinates *given* the weak ones
     (``(Uᵀ Λ U)⁻¹``, ``Λ = cov⁻¹``): the solve fixes (aware) or drifts (not aware) along ``W``
-    and solves the rest for that value. Along ``W`` the variance is the prior's; without the
-    degeneracy-aware solve it is counted twice (the initial error plus the drift). ``W`` is
-    itself estimated from noisy normals: an error of ``σ_w`` along the true axis shows as
-    ``σ_w · tilt_j`` along each ``u_j`` (:meth:`Degeneracy.tilt_variances`), added there.
+    and solves the rest for that value. Along ``W`` the variance is the prior's plus the
+    square of the solve's own move along ``W`` (``drift``, tangent ``log(start⁻¹ · pose)``:
+    the data do not determine it; zero when held). ``W`` is itself estimated from noisy
+    normals: an error of ``σ_w`` along the true axis shows as ``σ_w · tilt_j`` along each
+    ``u_j`` (:meth:`Degeneracy.tilt_variances`) or, for a translation, as its rotation rows
+    (:func:`_axis_cover`), added there.
     With the degeneracy-aware solve, ``valley`` (:func:`_valley_moment`) is added as well.
     """
     s_inv = deg.scaling()
@@ -1230,13 +1235,46 @@ def _with_prior_along_weak(
             # cannot be formed; the marginal U Uᵀ Σ U Uᵀ covers it (and is 0 when Σ is).
             strong = u @ (u.T @ cov_s @ u) @ u.T
     weak_prior = w.T @ prior_s @ w
+    d_w = w.T @ (np.asarray(drift) / s_inv)
+    weak_prior = weak_prior + np.outer(d_w, d_w)
+    var_w = np.diag(weak_prior)
     tilt = deg.tilt_variances(normal_noise)  # (weak, strong)
-    weak = w @ weak_prior @ w.T + u @ np.diag(np.diag(weak_prior) @ tilt) @ u.T
+    weak = w @ weak_prior @ w.T
+    for i in range(w.shape[1]):
+        weak = weak + var_w[i] * _axis_cover(w[:, i], u, tilt[i])
     if valley is not None:
         weak = weak + valley
-    weak = weak * (1.0 if aware else 2.0)
     out = (strong + weak) * np.outer(s_inv, s_inv)
     return np.asarray(0.5 * (out + out.T), dtype=np.float64)
+
+
+def _axis_cover(w: FloatArray, u: FloatArray, tilt: FloatArray) -> FloatArray:
+    """Where a unit error along the true weak axis lands in the strong subspace, for the
+    estimated axis ``w`` (scaled coordinates): the second moment, ``(dof, dof)``.
+
+    ``w`` is estimated from noisy normals; an error ``a`` along the true axis ``w*`` shows
+    across ``w`` as ``a · Uᵀ (w* − w)``. In general ``w*`` is ``w`` tilted at random towards
+    each ``u_j`` by ``tilt_j`` (:meth:`Degeneracy.tilt_variances`). A weak direction that is
+    mostly translation (``|t|² ≥ 1/2``) is taken to be a surface symmetry — a corridor, a
+    tunnel, a plane: exactly a translation, ``w* = (t*, 0)``. Its rotation rows are then a
+    known deviation, not noise: biased normals put them there (the ring pattern in a
+    tunnel: −0.6 to −1.0 mrad of pitch per metre along the axis in every realisation,
+    ``docs/calibration.md``), and only the translation rows keep the random tilt.
+    """
+    dof = w.size
+    dim = 2 if dof == 3 else 3
+    cover = u @ np.diag(tilt) @ u.T
+    t = w[:dim]
+    if float(t @ t) < 0.5:
+        return cover
+    rows = np.zeros((dof, dof))
+    rows[:dim, :dim] = np.eye(dim)
+    cover = u @ (u.T @ rows @ cover @ rows @ u) @ u.T
+    v = np.zeros(dof)
+    v[:dim] = t / np.linalg.norm(t)
+    d = u @ (u.T @ (v - w))
+    out: FloatArray = cover + np.outer(d, d)
+    return out
 
 
 @dataclass(frozen=True)
