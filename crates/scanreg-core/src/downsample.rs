@@ -6,8 +6,8 @@
 
 use crate::error::{Error, Result};
 use crate::knn::voxel_of;
-use crate::points::check_points;
-use crate::reduce::MIN_PAR_ITEMS;
+use crate::points::{check_points, floor_i64};
+use crate::reduce::{chunk_len, MIN_PAR_ITEMS, SEQUENTIAL_MAX};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
@@ -54,10 +54,14 @@ fn check_voxel_size(voxel_size: f64) -> Result<f64> {
 /// voxel, voxels in the order of their first (lowest-index) point; each centroid sums its points
 /// in input order. An empty input gives an empty output.
 ///
-/// One sequential pass over the points with a hash map from voxel key to voxel slot: a voxel's
-/// slot is assigned when its first point is seen, so the output comes out ordered by first
-/// index with no sort (a sort of `(key, index)` pairs, which this replaced, cost ~2x more than
-/// the whole pass). The result does not depend on the thread count.
+/// A hash map from voxel key to voxel slot: a voxel's slot is assigned when its first point is
+/// seen, so the output comes out ordered by first index with no sort (a sort of `(key, index)`
+/// pairs, which this replaced, cost ~2x more). Where every voxel coordinate fits the packed
+/// key (any cloud of sensor range at any sane voxel size) it runs in three passes: the keys
+/// in parallel, the slots (one sequential pass over the map), the sums in input order. One
+/// fused loop doing all three per point took 2–3× as long (70k points: 3.0 ms against
+/// 1.4 ms sequential). Either way the result is the same, to the bit, and does not depend on
+/// the thread count.
 pub fn voxel_downsample(
     points: &[f64],
     dim: usize,
@@ -69,19 +73,27 @@ pub fn voxel_downsample(
     if n > u32::MAX as usize {
         return Err(Error::invalid("points", "more than 2^32 - 1 points"));
     }
-    let too_small = || {
+    if let Some(keys) = packed_keys(points, dim, inv) {
+        return Ok(group_by_key(&keys, points, dim, method));
+    }
+    one_pass(points, dim, inv, method).ok_or_else(|| {
         Error::invalid(
             "voxel_size",
             format!("{voxel_size} is too small for the extent of the points"),
         )
-    };
+    })
+}
+
+/// [`voxel_downsample`] in one pass per point (the general path: any voxel coordinate below
+/// `9e15`; `None` beyond, where `voxel_size` is too small for the points).
+fn one_pass(points: &[f64], dim: usize, inv: f64, method: VoxelMethod) -> Option<VoxelGrid> {
+    let n = points.len() / dim;
     // Pack the key into one u64 (21 bits per axis) when every voxel coordinate fits (the
     // packing is injective); otherwise key by the three i64 coordinates. Same output either way.
-    const HALF: i64 = 1 << 20;
     let mut packed = Grouper::<u64>::new(n, dim, method);
     let mut fits = true;
     for (i, p) in points.chunks_exact(dim).enumerate() {
-        let k = voxel_of(p, inv).ok_or_else(too_small)?;
+        let k = voxel_of(p, inv)?;
         if !k.iter().all(|&c| (-HALF..HALF).contains(&c)) {
             fits = false;
             break;
@@ -91,14 +103,105 @@ pub fn voxel_downsample(
         packed.add(key, i, p);
     }
     if fits {
-        return Ok(packed.finish());
+        return Some(packed.finish());
     }
     drop(packed);
     let mut wide = Grouper::<[i64; 3]>::new(n, dim, method);
     for (i, p) in points.chunks_exact(dim).enumerate() {
-        wide.add(voxel_of(p, inv).ok_or_else(too_small)?, i, p);
+        wide.add(voxel_of(p, inv)?, i, p);
     }
-    Ok(wide.finish())
+    Some(wide.finish())
+}
+
+/// Half the range of a packed voxel coordinate: 21 bits per axis in one `u64`.
+const HALF: i64 = 1 << 20;
+
+/// The packed voxel key of every point, in parallel; `None` if any coordinate `p · inv` is
+/// outside `(−2^20, 2^20)` (then the general path decides: a wider key, or an error).
+fn packed_keys(points: &[f64], dim: usize, inv: f64) -> Option<Vec<u64>> {
+    const LIMIT: f64 = HALF as f64;
+    let key = |p: &[f64]| -> Option<u64> {
+        let mut k = [HALF as u64; 3]; // a 2D point's third coordinate is 0
+        for (slot, v) in k.iter_mut().zip(p) {
+            let c = v * inv;
+            if c.is_nan() || c.abs() >= LIMIT {
+                return None;
+            }
+            *slot = (floor_i64(c) + HALF) as u64;
+        }
+        Some(k[0] << 42 | k[1] << 21 | k[2])
+    };
+    let n = points.len() / dim;
+    let mut keys = vec![0u64; n];
+    let fits = if n <= SEQUENTIAL_MAX {
+        keys.iter_mut()
+            .zip(points.chunks_exact(dim))
+            .all(|(out, p)| key(p).map(|k| *out = k).is_some())
+    } else {
+        let piece = chunk_len(n);
+        keys.par_chunks_mut(piece)
+            .zip(points.par_chunks(piece * dim))
+            .all(|(out, pts)| {
+                out.iter_mut()
+                    .zip(pts.chunks_exact(dim))
+                    .all(|(o, p)| key(p).map(|k| *o = k).is_some())
+            })
+    };
+    fits.then_some(keys)
+}
+
+/// [`voxel_downsample`] from the points' keys: slots by first appearance, then counts and
+/// sums in input order (the same additions, in the same order, as [`Grouper`]).
+fn group_by_key(keys: &[u64], points: &[f64], dim: usize, method: VoxelMethod) -> VoxelGrid {
+    let guess = keys.len() / 8 + 16;
+    let mut slots: FxHashMap<u64, u32> =
+        FxHashMap::with_capacity_and_hasher(guess, Default::default());
+    let mut index: Vec<i64> = Vec::with_capacity(guess);
+    let slot_of: Vec<u32> = keys
+        .iter()
+        .enumerate()
+        .map(|(i, &k)| {
+            let next = index.len() as u32;
+            let s = *slots.entry(k).or_insert(next);
+            if s == next {
+                index.push(i as i64);
+            }
+            s
+        })
+        .collect();
+    let mut count = vec![0i64; index.len()];
+    // Each voxel starts as its first point (not 0 + it: a −0.0 coordinate stays −0.0).
+    let firsts: Vec<usize> = index.iter().map(|&i| i as usize).collect();
+    let mut out = gather(points, dim, &firsts);
+    match method {
+        VoxelMethod::Centroid => {
+            for (i, (p, &s)) in points.chunks_exact(dim).zip(&slot_of).enumerate() {
+                let s = s as usize;
+                count[s] += 1;
+                if index[s] as usize != i {
+                    for (a, b) in out[s * dim..(s + 1) * dim].iter_mut().zip(p) {
+                        *a += b;
+                    }
+                }
+            }
+            for (rep, &c) in out.chunks_exact_mut(dim).zip(&count) {
+                if c > 1 {
+                    let c = c as f64;
+                    rep.iter_mut().for_each(|v| *v /= c);
+                }
+            }
+        }
+        VoxelMethod::First => {
+            for &s in &slot_of {
+                count[s as usize] += 1;
+            }
+        }
+    }
+    VoxelGrid {
+        points: out,
+        index,
+        count,
+    }
 }
 
 /// Voxels in order of first appearance: key -> slot, and per slot the first index, the count
@@ -341,6 +444,39 @@ mod tests {
         }
         let empty = voxel_downsample(&[], 3, 1.0, VoxelMethod::Centroid).unwrap();
         assert!(empty.points.is_empty() && empty.index.is_empty());
+    }
+
+    #[test]
+    fn three_pass_path_equals_the_one_pass_path_to_the_bit() {
+        // 20k points (parallel keys) on a coarse grid with many repeats, negative coordinates
+        // and values on voxel boundaries; 2D and 3D, both methods.
+        let mut s = 99u64;
+        let mut next = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for dim in [2, 3] {
+            let mut pts: Vec<f64> = (0..20_000 * dim).map(|_| next() * 12.0 - 6.0).collect();
+            for v in pts.iter_mut().step_by(7) {
+                *v = (*v * 4.0).round() / 4.0; // exactly on a 0.25 boundary
+            }
+            for method in [VoxelMethod::Centroid, VoxelMethod::First] {
+                let inv = 1.0 / 0.25;
+                let keys = packed_keys(&pts, dim, inv).expect("in range");
+                let fast = group_by_key(&keys, &pts, dim, method);
+                let slow = one_pass(&pts, dim, inv, method).unwrap();
+                assert_eq!(fast.index, slow.index);
+                assert_eq!(fast.count, slow.count);
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&fast.points), bits(&slow.points));
+                assert_eq!(voxel_downsample(&pts, dim, 0.25, method).unwrap(), fast);
+            }
+        }
+        // At ±2^20 voxels the packed range ends: the general path takes over, same answer.
+        let edge = [-((1u64 << 20) as f64), 0.0, 5.0, 5.0];
+        assert!(packed_keys(&edge, 2, 1.0).is_none());
+        let g = voxel_downsample(&edge, 2, 1.0, VoxelMethod::First).unwrap();
+        assert_eq!(g.index, vec![0, 1]);
     }
 
     #[test]
