@@ -73,8 +73,8 @@ pub fn voxel_downsample(
     if n > u32::MAX as usize {
         return Err(Error::invalid("points", "more than 2^32 - 1 points"));
     }
-    if let Some(keys) = packed_keys(points, dim, inv) {
-        return Ok(group_by_key(&keys, points, dim, method));
+    if let Some(mut keys) = packed_keys(points, dim, inv) {
+        return Ok(group_by_key(&mut keys, points, dim, method));
     }
     one_pass(points, dim, inv, method).ok_or_else(|| {
         Error::invalid(
@@ -151,31 +151,30 @@ fn packed_keys(points: &[f64], dim: usize, inv: f64) -> Option<Vec<u64>> {
 }
 
 /// [`voxel_downsample`] from the points' keys: slots by first appearance, then counts and
-/// sums in input order (the same additions, in the same order, as [`Grouper`]).
-fn group_by_key(keys: &[u64], points: &[f64], dim: usize, method: VoxelMethod) -> VoxelGrid {
+/// sums in input order (the same additions, in the same order, as [`Grouper`]). Each key is
+/// replaced by its point's slot (no second buffer: 8 bytes per point in all).
+fn group_by_key(keys: &mut [u64], points: &[f64], dim: usize, method: VoxelMethod) -> VoxelGrid {
     let guess = keys.len() / 8 + 16;
     let mut slots: FxHashMap<u64, u32> =
         FxHashMap::with_capacity_and_hasher(guess, Default::default());
     let mut index: Vec<i64> = Vec::with_capacity(guess);
-    let slot_of: Vec<u32> = keys
-        .iter()
-        .enumerate()
-        .map(|(i, &k)| {
-            let next = index.len() as u32;
-            let s = *slots.entry(k).or_insert(next);
-            if s == next {
-                index.push(i as i64);
-            }
-            s
-        })
-        .collect();
+    for (i, k) in keys.iter_mut().enumerate() {
+        let next = index.len() as u32;
+        let s = *slots.entry(*k).or_insert(next);
+        if s == next {
+            index.push(i as i64);
+        }
+        *k = u64::from(s);
+    }
+    drop(slots);
+    let slot_of: &[u64] = keys;
     let mut count = vec![0i64; index.len()];
     // Each voxel starts as its first point (not 0 + it: a −0.0 coordinate stays −0.0).
     let firsts: Vec<usize> = index.iter().map(|&i| i as usize).collect();
     let mut out = gather(points, dim, &firsts);
     match method {
         VoxelMethod::Centroid => {
-            for (i, (p, &s)) in points.chunks_exact(dim).zip(&slot_of).enumerate() {
+            for (i, (p, &s)) in points.chunks_exact(dim).zip(slot_of).enumerate() {
                 let s = s as usize;
                 count[s] += 1;
                 if index[s] as usize != i {
@@ -192,7 +191,7 @@ fn group_by_key(keys: &[u64], points: &[f64], dim: usize, method: VoxelMethod) -
             }
         }
         VoxelMethod::First => {
-            for &s in &slot_of {
+            for &s in slot_of {
                 count[s as usize] += 1;
             }
         }
@@ -462,8 +461,8 @@ mod tests {
             }
             for method in [VoxelMethod::Centroid, VoxelMethod::First] {
                 let inv = 1.0 / 0.25;
-                let keys = packed_keys(&pts, dim, inv).expect("in range");
-                let fast = group_by_key(&keys, &pts, dim, method);
+                let mut keys = packed_keys(&pts, dim, inv).expect("in range");
+                let fast = group_by_key(&mut keys, &pts, dim, method);
                 let slow = one_pass(&pts, dim, inv, method).unwrap();
                 assert_eq!(fast.index, slow.index);
                 assert_eq!(fast.count, slow.count);
