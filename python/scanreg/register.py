@@ -254,10 +254,11 @@ class CovarianceEstimates:
     #: Gauss–Newton step at the final correspondences, a sample of them) under the
     #: point-to-plane/line objective of the pairs whose source and target normals agree
     #: (``|n_s·n_t| ≥ MIN_NORMAL_AGREEMENT``). Point-to-plane/line: the step with those pairs
-    #: minus the step with all sampled pairs (the shift the disagreeing pairs cause);
-    #: point-to-point: the step itself (its distance to that objective's minimum). Zeros for
-    #: GICP, without target normals, or with too few agreeing pairs; never along weak
-    #: directions. See ``docs/calibration.md``.
+    #: minus the step with all sampled pairs (the shift the disagreeing pairs cause).
+    #: Point-to-point: the offset to the point-to-plane/line estimate re-solved from its pose
+    #: (and ``calibrated`` is that estimate's plus ``δδᵀ``); if that re-solve fails, the
+    #: agreeing step itself. Zeros for GICP, without target normals, or with too few agreeing
+    #: pairs; never along weak directions. See ``docs/calibration.md``.
     model_shift: FloatArray
 
 
@@ -619,12 +620,14 @@ def register(
         index = prepared.index
         t_points, t_normals, t_covs = prepared.points, prepared.normals, prepared.covariances
 
-    def run(projector: FloatArray | None, start: SE2 | SE3 = pose0) -> Any:
+    def run(
+        projector: FloatArray | None, start: SE2 | SE3 = pose0, method: str = method_eff
+    ) -> Any:
         return _core.register_icp(
             src,
             index,
             start.as_matrix(),
-            method=method_eff,
+            method=method,
             kernel=s.kernel,
             kernel_scale=k_scale,
             max_correspondence_distance=s.max_correspondence_distance,
@@ -635,8 +638,8 @@ def register(
             min_correspondences=min_corr,
             num_threads=s.num_threads,
             source_covariances=source_covariances,
-            target_normals=t_normals if planar and not is_map else None,
-            target_covariances=t_covs if method_eff == "gicp" and not is_map else None,
+            target_normals=t_normals if method in _PLANAR and not is_map else None,
+            target_covariances=t_covs if method == "gicp" and not is_map else None,
             step_projector=projector,
             extrapolate=s.extrapolate,
         )
@@ -647,6 +650,7 @@ def register(
     if step_projector is not None:
         projector0 = as_matrix(step_projector, "step_projector", (dof, dof))
     out = run(projector0)
+    held_by: list[FloatArray | None] = [projector0]  # the aware solve's projector, once known
 
     # The trust analysis (covariances, degeneracy, conditioning, overlap, verdict) runs on first
     # access when the target is a PreparedTarget the caller holds anyway: reading only the pose
@@ -681,6 +685,11 @@ def register(
             "init_covariance": given_prior,
             "start": pose0,
             "thresholds": th,
+            "plane_solve": (
+                (lambda start: run(held_by[0], start, _PLANE_METHOD[dim]))
+                if method_eff == "point_to_point" and _has_normals(prepared)
+                else None
+            ),
         },
     )
     first: _CorrespondenceAnalysis | None = None
@@ -688,6 +697,7 @@ def register(
         first = _correspondence_analysis(ctx, out)
         if first.degeneracy.degenerate and len(out.correspondences):
             held = np.ascontiguousarray(np.eye(dof) - first.degeneracy.weak_projector())
+            held_by[0] = held
             out = run(held)
             # The weak directions are the first solve's: the second is held along them.
             first = dataclasses.replace(
@@ -774,6 +784,10 @@ class _TrustInputs:
     init_covariance: FloatArray | None
     start: SE2 | SE3
     thresholds: VerdictThresholds
+    #: Point-to-point with target normals: ``solve(pose)``, the core's point-to-plane/line
+    #: registration from ``pose`` (held along the weak directions where the solve was), for
+    #: ``calibrated`` (:func:`_via_plane_reference`); None otherwise.
+    plane_solve: Any = None
 
     @functools.cached_property
     def levers(self) -> FloatArray:
@@ -1002,6 +1016,8 @@ def _trust(
         _model_shift(corr.agreement, deg, ctx.method, dof),
         corr.valley,
     )
+    if ctx.plane_solve is not None:
+        estimates = _via_plane_reference(ctx, pose, first, estimates, deg, dof)
     chosen = getattr(estimates, s.covariance)
     info = (
         information_from_covariance(chosen) if np.isfinite(chosen).all() else np.zeros((dof, dof))
@@ -1034,6 +1050,69 @@ def _trust(
         quality=checked.report,
         verdict=checked.verdict,
         seconds=time.perf_counter() - t0,
+    )
+
+
+_PLANAR = ("point_to_plane", "point_to_line")
+_PLANE_METHOD = {2: "point_to_line", 3: "point_to_plane"}
+
+
+def _has_normals(target: PreparedTarget | LocalMap) -> bool:
+    if isinstance(target, LocalMap):
+        return target.attributes == "normals"
+    return target.normals is not None
+
+
+def _via_plane_reference(
+    ctx: _TrustInputs,
+    pose: SE2 | SE3,
+    first: _CorrespondenceAnalysis | None,
+    estimates: CovarianceEstimates,
+    deg: Degeneracy,
+    dof: int,
+) -> CovarianceEstimates:
+    """Point-to-point's ``calibrated``: the point-to-plane/line estimate's, plus the offset
+    between the two as ``δδᵀ`` (``model_shift``).
+
+    Two scans sample a surface at different places; point-to-point pairs each point with a
+    neighbour up to half a spacing along the surface and settles where those offsets balance,
+    a bias no noise model at its pose sees (its ``censi`` and ``block`` are 10× over-confident
+    in the simulated room). The point-to-plane/line estimate does not carry it (its own
+    ``calibrated`` is consistent there). So: re-solve point-to-plane/line from the
+    point-to-point pose (held where the solve was), analyse that as any registration (the
+    same start, so the same drift and prior along weak directions), and add the offset
+    ``log(T̂⁻¹ T̂_plane)`` on the well-determined subspace. The error is that offset plus the
+    reference's error. If the re-solve fails, the one-step estimate stays.
+    """
+    out = ctx.plane_solve(pose)
+    if str(out.stop_reason) not in ("converged", "max_iterations"):
+        return estimates
+    dim = int(ctx.source.shape[1])
+    ref_ctx = dataclasses.replace(ctx, method=_PLANE_METHOD[dim], components=1, plane_solve=None)
+    ref_first = None
+    if first is not None:  # aware: the solve's weak directions and valley, as register does
+        ref_first = dataclasses.replace(
+            _correspondence_analysis(ref_ctx, out), degeneracy=first.degeneracy, valley=first.valley
+        )
+    if ctx.settings.kernel == "none":
+        m = float(out.num_correspondences)
+        sigma2 = float(out.sum_squares / (m - dof)) if m > dof else math.nan
+    else:
+        m = float(out.irls_weight_sum)
+        sigma2 = float(out.irls_sum_squares / (m - dof)) if m > dof else math.nan
+    ref_pose = _pose_from_core(out, dim)
+    ref = _trust(ref_ctx, out, ref_pose, out.hessian, sigma2, ref_first)
+    cal = np.asarray(ref.covariances.calibrated)
+    if not np.isfinite(cal).all():
+        return estimates
+    s_inv = deg.scaling()
+    u = deg.strong_basis()
+    offset = (pose.inverse() @ ref_pose).log() / s_inv  # type: ignore[operator]
+    shift = (u @ (u.T @ offset)) * s_inv
+    return dataclasses.replace(
+        estimates,
+        calibrated=_readonly(_psd(cal + np.outer(shift, shift))),
+        model_shift=_frozen(shift),
     )
 
 
