@@ -203,6 +203,10 @@ _DEFAULT_THRESHOLDS = VerdictThresholds()
 #: point-to-plane bias (``benchmarks/street_bias_normals.py``).
 MIN_NORMAL_AGREEMENT = 0.995
 
+_PLANAR = ("point_to_plane", "point_to_line")
+#: The point-to-plane/line method of each dimension (point-to-point's reference estimate).
+_PLANE_METHOD = {2: "point_to_line", 3: "point_to_plane"}
+
 
 @dataclass(frozen=True)
 class RegistrationTiming:
@@ -588,8 +592,7 @@ def register(
     t_source = time.perf_counter() - t0
 
     dof = 3 if dim == 2 else 6
-    planar = method_eff in ("point_to_plane", "point_to_line")
-    components = 1 if planar else dim  # scalar residuals per correspondence
+    components = 1 if method_eff in _PLANAR else dim  # scalar residuals per correspondence
     min_corr = s.min_correspondences
     if min_corr is None:
         min_corr = dof // components + 1
@@ -1051,10 +1054,6 @@ def _trust(
         verdict=checked.verdict,
         seconds=time.perf_counter() - t0,
     )
-
-
-_PLANAR = ("point_to_plane", "point_to_line")
-_PLANE_METHOD = {2: "point_to_line", 3: "point_to_plane"}
 
 
 def _has_normals(target: PreparedTarget | LocalMap) -> bool:
