@@ -653,7 +653,9 @@ def register(
     if step_projector is not None:
         projector0 = as_matrix(step_projector, "step_projector", (dof, dof))
     out = run(projector0)
-    held_by: list[FloatArray | None] = [projector0]  # the aware solve's projector, once known
+    # The projector the solve ran with (rebound below by the degeneracy-aware solve): the
+    # point-to-point analysis's reference solve reads it through its closure.
+    held: FloatArray | None = projector0
 
     # The trust analysis (covariances, degeneracy, conditioning, overlap, verdict) runs on first
     # access when the target is a PreparedTarget the caller holds anyway: reading only the pose
@@ -689,7 +691,7 @@ def register(
             "start": pose0,
             "thresholds": th,
             "plane_solve": (
-                (lambda start: run(held_by[0], start, _PLANE_METHOD[dim]))
+                (lambda start: run(held, start, _PLANE_METHOD[dim]))
                 if method_eff == "point_to_point" and _has_normals(prepared)
                 else None
             ),
@@ -700,7 +702,6 @@ def register(
         first = _correspondence_analysis(ctx, out)
         if first.degeneracy.degenerate and len(out.correspondences):
             held = np.ascontiguousarray(np.eye(dof) - first.degeneracy.weak_projector())
-            held_by[0] = held
             out = run(held)
             # The weak directions are the first solve's: the second is held along them.
             first = dataclasses.replace(
@@ -719,12 +720,7 @@ def register(
     pose = _pose_from_core(out, dim)
     hessian = out.hessian  # the core's own fresh array, read-only: no copy needed
     n_corr = int(out.num_correspondences)
-    m = components * n_corr
-    if s.kernel == "none":
-        sigma2 = float(out.sum_squares / (m - dof)) if m > dof else math.nan
-    else:
-        m_eff = components * float(out.irls_weight_sum)
-        sigma2 = float(out.irls_sum_squares / (m_eff - dof)) if m_eff > dof else math.nan
+    sigma2 = _residual_variance(out, components, s.kernel, dof)
     stop: StopReason = out.stop_reason
     trust = _LazyTrust(ctx, out, pose, hessian, sigma2, first)
     if not lazy:
@@ -982,19 +978,18 @@ def _correspondence_analysis(ctx: _TrustInputs, out: Any) -> _CorrespondenceAnal
     )
 
 
-def _trust(
+def _covariance_estimates(
     ctx: _TrustInputs,
     out: Any,
     pose: SE2 | SE3,
     hessian: FloatArray,
     sigma2: float,
-    first: _CorrespondenceAnalysis | None,
-) -> _Trust:
-    t0 = time.perf_counter()
-    s, src = ctx.settings, ctx.source
-    dim = int(src.shape[1])
-    dof = 3 if dim == 2 else 6
-    corr = first if first is not None else _correspondence_analysis(ctx, out)
+    corr: _CorrespondenceAnalysis,
+) -> CovarianceEstimates:
+    """Every covariance kind of one outcome (:class:`CovarianceEstimates`), from its
+    correspondence analysis ``corr``."""
+    s = ctx.settings
+    dof = 3 if ctx.source.shape[1] == 2 else 6
     deg = corr.degeneracy
     try:
         if s.kernel == "none":
@@ -1020,7 +1015,25 @@ def _trust(
         corr.valley,
     )
     if ctx.plane_solve is not None:
-        estimates = _via_plane_reference(ctx, pose, first, estimates, deg, dof)
+        estimates = _via_plane_reference(ctx, pose, corr, estimates, dof)
+    return estimates
+
+
+def _trust(
+    ctx: _TrustInputs,
+    out: Any,
+    pose: SE2 | SE3,
+    hessian: FloatArray,
+    sigma2: float,
+    first: _CorrespondenceAnalysis | None,
+) -> _Trust:
+    t0 = time.perf_counter()
+    s, src = ctx.settings, ctx.source
+    dim = int(src.shape[1])
+    dof = 3 if dim == 2 else 6
+    corr = first if first is not None else _correspondence_analysis(ctx, out)
+    deg = corr.degeneracy
+    estimates = _covariance_estimates(ctx, out, pose, hessian, sigma2, corr)
     chosen = getattr(estimates, s.covariance)
     info = (
         information_from_covariance(chosen) if np.isfinite(chosen).all() else np.zeros((dof, dof))
@@ -1056,6 +1069,16 @@ def _trust(
     )
 
 
+def _residual_variance(out: Any, components: int, kernel: str, dof: int) -> float:
+    """σ̂² of the core's outcome: the residual sum of squares over ``m − dof`` scalar
+    residuals (``m`` IRLS-weighted under a kernel); NaN with too few."""
+    if kernel == "none":
+        m = components * float(out.num_correspondences)
+        return float(out.sum_squares / (m - dof)) if m > dof else math.nan
+    m = components * float(out.irls_weight_sum)
+    return float(out.irls_sum_squares / (m - dof)) if m > dof else math.nan
+
+
 def _has_normals(target: PreparedTarget | LocalMap) -> bool:
     if isinstance(target, LocalMap):
         return target.attributes == "normals"
@@ -1065,9 +1088,8 @@ def _has_normals(target: PreparedTarget | LocalMap) -> bool:
 def _via_plane_reference(
     ctx: _TrustInputs,
     pose: SE2 | SE3,
-    first: _CorrespondenceAnalysis | None,
+    corr: _CorrespondenceAnalysis,
     estimates: CovarianceEstimates,
-    deg: Degeneracy,
     dof: int,
 ) -> CovarianceEstimates:
     """Point-to-point's ``calibrated``: the point-to-plane/line estimate's, plus the offset
@@ -1088,24 +1110,17 @@ def _via_plane_reference(
         return estimates
     dim = int(ctx.source.shape[1])
     ref_ctx = dataclasses.replace(ctx, method=_PLANE_METHOD[dim], components=1, plane_solve=None)
-    ref_first = None
-    if first is not None:  # aware: the solve's weak directions and valley, as register does
-        ref_first = dataclasses.replace(
-            _correspondence_analysis(ref_ctx, out), degeneracy=first.degeneracy, valley=first.valley
-        )
-    if ctx.settings.kernel == "none":
-        m = float(out.num_correspondences)
-        sigma2 = float(out.sum_squares / (m - dof)) if m > dof else math.nan
-    else:
-        m = float(out.irls_weight_sum)
-        sigma2 = float(out.irls_sum_squares / (m - dof)) if m > dof else math.nan
+    ref_corr = _correspondence_analysis(ref_ctx, out)
+    if ctx.settings.degeneracy_aware:  # the solve's weak directions and valley, as register's
+        ref_corr = dataclasses.replace(ref_corr, degeneracy=corr.degeneracy, valley=corr.valley)
     ref_pose = _pose_from_core(out, dim)
-    ref = _trust(ref_ctx, out, ref_pose, out.hessian, sigma2, ref_first)
-    cal = np.asarray(ref.covariances.calibrated)
+    sigma2 = _residual_variance(out, 1, ctx.settings.kernel, dof)
+    ref = _covariance_estimates(ref_ctx, out, ref_pose, out.hessian, sigma2, ref_corr)
+    cal = np.asarray(ref.calibrated)
     if not np.isfinite(cal).all():
         return estimates
-    s_inv = deg.scaling()
-    u = deg.strong_basis()
+    s_inv = corr.degeneracy.scaling()
+    u = corr.degeneracy.strong_basis()
     offset = (pose.inverse() @ ref_pose).log() / s_inv  # type: ignore[operator]
     shift = (u @ (u.T @ offset)) * s_inv
     return dataclasses.replace(
