@@ -514,6 +514,12 @@ def test_trust_helpers_refuse_hostile_input_naming_the_argument() -> None:
             information_from_covariance(bad)
     with pytest.raises(TypeError, match="cov: expected a matrix of numbers"):
         information_from_covariance([["x", 0.0], [0.0, 1.0]])
+    with pytest.raises(ValueError, match="cov: contains NaN"):
+        information_from_covariance(np.array([[np.nan, 0.0], [0.0, 1.0]]))
+    # An infinite variance is an undetermined direction: no information along it.
+    np.testing.assert_array_equal(
+        information_from_covariance(np.diag([np.inf, 4.0])), [[0.0, 0.0], [0.0, 0.25]]
+    )
     np.testing.assert_allclose(
         information_from_covariance(np.diag([4.0, 0.25])), [[0.25, 0], [0, 4]]
     )

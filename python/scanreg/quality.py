@@ -227,14 +227,16 @@ _MIN_RELATIVE_VARIANCE = 1e-14
 def information_from_covariance(cov: FloatArray) -> FloatArray:
     """``cov⁻¹``, symmetric positive definite, or all-``inf`` for a zero (noise-free)
     covariance. A (near-)singular ``cov`` — a noise-free fit along some directions — gets
-    its variances floored at ``1e-14`` of the largest first. A non-finite ``cov`` is inverted
-    as it is."""
+    its variances floored at ``1e-14`` of the largest first. A ``cov`` with infinite entries
+    (undetermined directions) is inverted as it is; a NaN is refused."""
     try:
         cov = np.asarray(cov, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise TypeError(f"cov: expected a matrix of numbers: {exc}") from None
     if cov.ndim != 2 or cov.shape[0] != cov.shape[1] or cov.shape[0] == 0:
         raise ValueError(f"cov: expected a square (n, n) matrix with n >= 1, got shape {cov.shape}")
+    if np.isnan(cov).any():
+        raise ValueError("cov: contains NaN")
     if not np.isfinite(cov).all():
         try:
             return np.asarray(np.linalg.inv(cov), dtype=np.float64)
