@@ -27,6 +27,9 @@ const LEAF_SIZE: usize = 16;
 /// No larger: the stacks are zeroed on every query.
 const STACK: usize = 34;
 const LEAF: u32 = u32::MAX;
+/// Nodes of at least this many points build their two halves in parallel (below it a join
+/// costs more than the half it would move to another thread).
+const PAR_BUILD_MIN: usize = 8192;
 /// Lower bounds are shrunk by this before pruning, so that their rounding (they are updated
 /// incrementally) can never prune a cell holding a point at the bound: queries stay exact.
 const SHRINK: f64 = 1.0 - 1e-12;
@@ -127,6 +130,11 @@ fn bounds<const D: usize>(items: &[([f64; D], u32)]) -> ([f64; D], [f64; D]) {
 /// The axis along which `items` spread widest (the first of equals; 0 when empty).
 fn widest_axis<const D: usize>(items: &[([f64; D], u32)]) -> usize {
     let (lo, hi) = bounds(items);
+    widest_of(&lo, &hi)
+}
+
+/// The widest axis of the box `lo..hi` (the first of equals).
+fn widest_of<const D: usize>(lo: &[f64; D], hi: &[f64; D]) -> usize {
     let mut axis = 0;
     for c in 1..D {
         if hi[c] - lo[c] > hi[axis] - lo[axis] {
@@ -137,7 +145,9 @@ fn widest_axis<const D: usize>(items: &[([f64; D], u32)]) -> usize {
 }
 
 impl<const D: usize> Inner<D> {
-    fn build(points: &[f64]) -> Self {
+    /// `par_min`: nodes of at least this many points build their halves in parallel (the
+    /// layout does not depend on it; tests compare against `usize::MAX`, all sequential).
+    fn build(points: &[f64], par_min: usize) -> Self {
         let mut items: Vec<([f64; D], u32)> = points
             .chunks_exact(D)
             .enumerate()
@@ -147,7 +157,7 @@ impl<const D: usize> Inner<D> {
         let mut nodes = Vec::with_capacity(2 * n.div_ceil(LEAF_SIZE) + 1);
         let mut leaves = Vec::with_capacity(2 * n.div_ceil(LEAF_SIZE) + 1);
         let cell = ([f64::NEG_INFINITY; D], [f64::INFINITY; D]);
-        Self::build_rec(&mut items, 0, cell, &mut nodes, &mut leaves);
+        Self::build_rec(&mut items, 0, cell, &mut nodes, &mut leaves, par_min);
         if D == 2 {
             // Only 2D searches scan a leaf outward from the hint (see `nearest_hinted`).
             for leaf in &mut leaves {
@@ -185,6 +195,7 @@ impl<const D: usize> Inner<D> {
         cell: ([f64; D], [f64; D]),
         nodes: &mut Vec<Node>,
         leaves: &mut Vec<Leaf<D>>,
+        par_min: usize,
     ) -> usize {
         let me = nodes.len();
         let n = items.len();
@@ -209,8 +220,8 @@ impl<const D: usize> Inner<D> {
             as_leaf(leaves);
             return me;
         }
-        let axis = widest_axis(items);
-        let (lo, hi) = bounds(items);
+        let (lo, hi) = bounds(items); // once per node: it gives the axis and the spread
+        let axis = widest_of(&lo, &hi);
         if hi[axis] - lo[axis] <= 0.0 {
             as_leaf(leaves);
             return me; // all points identical: one (large) leaf
@@ -222,8 +233,35 @@ impl<const D: usize> Inner<D> {
         let (mut left_cell, mut right_cell) = (cell, cell);
         left_cell.1[axis] = split;
         right_cell.0[axis] = split;
-        Self::build_rec(l, offset, left_cell, nodes, leaves);
-        let right = Self::build_rec(r, offset + mid, right_cell, nodes, leaves);
+        let right = if n >= par_min {
+            // The halves are independent: build each into its own arrays on the pool, then
+            // lay them out exactly as the sequential recursion would (left subtree right after
+            // this node, then the right one; node links shifted by where each lands).
+            let sub = |items: &mut [([f64; D], u32)], offset: usize, cell| {
+                let (mut ns, mut ls) = (Vec::new(), Vec::new());
+                Self::build_rec(items, offset, cell, &mut ns, &mut ls, par_min);
+                (ns, ls)
+            };
+            let ((nl, ll), (nr, lr)) = rayon::join(
+                || sub(l, offset, left_cell),
+                || sub(r, offset + mid, right_cell),
+            );
+            let right = me + 1 + nl.len();
+            for (sub_nodes, base) in [(nl, me + 1), (nr, right)] {
+                nodes.extend(sub_nodes.into_iter().map(|mut nd| {
+                    if nd.axis != LEAF {
+                        nd.right += base as u32;
+                    }
+                    nd
+                }));
+            }
+            leaves.extend(ll);
+            leaves.extend(lr);
+            right
+        } else {
+            Self::build_rec(l, offset, left_cell, nodes, leaves, par_min);
+            Self::build_rec(r, offset + mid, right_cell, nodes, leaves, par_min)
+        };
         nodes[me] = Node {
             axis: axis as u32,
             lo: offset as u32,
@@ -570,9 +608,9 @@ impl KdTree {
             return Err(Error::invalid("points", "more than 2^32 - 2 points"));
         }
         let tree = if dim == 2 {
-            Tree::D2(Inner::<2>::build(points))
+            Tree::D2(Inner::<2>::build(points, PAR_BUILD_MIN))
         } else {
-            Tree::D3(Inner::<3>::build(points))
+            Tree::D3(Inner::<3>::build(points, PAR_BUILD_MIN))
         };
         Ok(KdTree {
             dim,
@@ -958,6 +996,46 @@ mod tests {
             .collect();
         canonical(&mut v);
         v
+    }
+
+    /// The parallel build lays the tree out exactly as the sequential one: same nodes, same
+    /// point order, same leaves (so every query, ties included, answers the same).
+    #[test]
+    fn parallel_build_is_the_sequential_tree() {
+        fn same<const D: usize>(a: &Inner<D>, b: &Inner<D>) {
+            assert_eq!(a.nodes.len(), b.nodes.len());
+            for (x, y) in a.nodes.iter().zip(&b.nodes) {
+                assert_eq!(
+                    (x.axis, x.lo, x.hi, x.right, x.split.to_bits()),
+                    (y.axis, y.lo, y.hi, y.right, y.split.to_bits())
+                );
+            }
+            assert!(a.pts == b.pts && a.ids == b.ids);
+            assert!(a.leaf_of == b.leaf_of && a.slot_of == b.slot_of);
+            assert_eq!(a.leaves.len(), b.leaves.len());
+            for (x, y) in a.leaves.iter().zip(&b.leaves) {
+                assert_eq!((x.lo, x.hi, x.axis), (y.lo, y.hi, y.axis));
+                assert!(x.cell_lo == y.cell_lo && x.cell_hi == y.cell_hi);
+            }
+        }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        for grid in [false, true] {
+            let p2 = lcg_cloud(20_000, 2, 3, grid);
+            let p3 = lcg_cloud(20_000, 3, 4, grid);
+            pool.install(|| {
+                same(
+                    &Inner::<2>::build(&p2, 1000),
+                    &Inner::<2>::build(&p2, usize::MAX),
+                );
+                same(
+                    &Inner::<3>::build(&p3, 1000),
+                    &Inner::<3>::build(&p3, usize::MAX),
+                );
+            });
+        }
     }
 
     #[test]
