@@ -96,6 +96,27 @@ fn consider<const D: usize>(p: &[f64; D], id: u32, q: &[f64; D], best: &mut (f64
     }
 }
 
+/// [`consider`], also keeping `second`: the nearest point seen other than the best (a best
+/// displaced by a nearer point becomes a candidate for it; the gate sentinel does not).
+#[inline(always)]
+fn consider_second<const D: usize>(
+    p: &[f64; D],
+    id: u32,
+    q: &[f64; D],
+    best: &mut (f64, u32),
+    second: &mut f64,
+) {
+    let d = sq_dist(p, q);
+    if d <= best.0 && before(d, id, best.0, best.1) {
+        if best.1 != u32::MAX {
+            *second = second.min(best.0);
+        }
+        *best = (d, id);
+    } else if id != best.1 {
+        *second = second.min(d);
+    }
+}
+
 /// [`consider`] the points of a sorted leaf in order away from the query, until `gap(p)` (the
 /// offset along the sort axis, growing along the iteration) alone puts them beyond the best.
 #[inline(always)]
@@ -330,12 +351,16 @@ impl<const D: usize> Inner<D> {
     /// for the nearest neighbour (few leaves: the cheap bound wins). No shrink needed: floating
     /// subtraction and squaring are monotonic, so a point beyond the split is never computed
     /// closer than `diff²`.
+    ///
+    /// `pruned(lb)` is told the lower bound of every cell it skips (the certified search keeps
+    /// their minimum; the plain one passes a no-op).
     #[inline(always)]
     fn traverse_near(
         &self,
         q: &[f64; D],
         mut bound: impl FnMut() -> f64,
         mut leaf: impl FnMut(usize, usize),
+        mut pruned: impl FnMut(f64),
     ) {
         // Two arrays of plain numbers rather than one of (u32, f64) pairs: their zeroing, paid
         // on every call, compiles to a short memset instead of 128 separate stores (it was
@@ -347,6 +372,7 @@ impl<const D: usize> Inner<D> {
             top -= 1;
             let (mut node, lb) = (stack_node[top], stack_lb[top]);
             if lb > bound() {
+                pruned(lb);
                 continue;
             }
             loop {
@@ -366,6 +392,8 @@ impl<const D: usize> Inner<D> {
                     stack_node[top] = far;
                     stack_lb[top] = far_lb;
                     top += 1;
+                } else {
+                    pruned(far_lb);
                 }
                 node = near;
             }
@@ -401,9 +429,79 @@ impl<const D: usize> Inner<D> {
                 }
                 bound.set(best.0);
             },
+            |_| {},
         );
         let (bd, bi) = best;
         (bi != u32::MAX).then_some((bi as usize, bd))
+    }
+
+    /// [`Self::nearest`] (the same answer, ties included) and a certificate for it: a lower
+    /// bound `clear` on the squared distance from `q` to every point but the answer (to every
+    /// point when there is none within `max_sq`). Cells are searched out to `slack` beyond the
+    /// best so far, which makes `clear >= (√best + slack)²` unless a point lies nearer: a query
+    /// that has since moved by less than `slack / 2` can then be answered without a search
+    /// (see `icp::Cert`). `hint`: a known point and its squared distance `<= max_sq`.
+    fn nearest_certified(
+        &self,
+        q: &[f64; D],
+        max_sq: f64,
+        hint: Option<(u32, f64)>,
+        slack: f64,
+    ) -> (Option<(usize, f64)>, f64) {
+        let grow = |b: f64| {
+            let r = b.sqrt() + slack;
+            r * r
+        };
+        let mut best = hint.map_or((max_sq, u32::MAX), |(h, dh)| (dh, h));
+        let mut second = f64::INFINITY; // nearest scanned point other than `best`
+        let mut skip = usize::MAX;
+        if let Some((h, _)) = hint {
+            // The hint's leaf first; when q lies in its cell, everything outside the cell is at
+            // least the cell margin away, which may settle the search at once.
+            let leaf = &self.leaves[self.leaf_of[h as usize] as usize];
+            let mut margin = f64::INFINITY;
+            for ((&x, &lo), &hi) in q.iter().zip(&leaf.cell_lo).zip(&leaf.cell_hi) {
+                let (below, above) = (x - lo, hi - x);
+                if !(below >= 0.0 && above >= 0.0) {
+                    margin = -1.0; // q is outside the hint's cell
+                    break;
+                }
+                margin = margin.min(below.min(above));
+            }
+            if margin >= 0.0 {
+                let (lo, hi) = (leaf.lo as usize, leaf.hi as usize);
+                for (p, &id) in self.pts[lo..hi].iter().zip(&self.ids[lo..hi]) {
+                    consider_second(p, id, q, &mut best, &mut second);
+                }
+                skip = lo;
+                let m2 = margin * margin;
+                if grow(best.0) < m2 {
+                    return (Some((best.1 as usize, best.0)), second.min(m2));
+                }
+            }
+        }
+        let bound = std::cell::Cell::new(grow(best.0));
+        let mut floor = f64::INFINITY; // the nearest skipped cell
+        let (pts, ids) = (&self.pts, &self.ids);
+        self.traverse_near(
+            q,
+            || bound.get(),
+            |lo, hi| {
+                if lo == skip {
+                    return;
+                }
+                for (p, &id) in pts[lo..hi].iter().zip(&ids[lo..hi]) {
+                    consider_second(p, id, q, &mut best, &mut second);
+                }
+                bound.set(grow(best.0));
+            },
+            |lb| floor = floor.min(lb),
+        );
+        let (bd, bi) = best;
+        (
+            (bi != u32::MAX).then_some((bi as usize, bd)),
+            second.min(floor),
+        )
     }
 
     /// [`Self::nearest`] from a known point `hint` at squared distance `dh <= max_sq`: if `q`
@@ -680,6 +778,26 @@ impl KdTree {
             return self.nearest_within(q, max_sq);
         }
         with_tree!(self, t, D => t.nearest_hinted(&arr::<D>(q), hint as u32, dh))
+    }
+
+    /// [`Self::nearest_within_hinted`] with a certificate: also a lower bound on the squared
+    /// distance from `q` to every point but the answer (every point when there is none), the
+    /// search reaching `slack` beyond the answer (see `Inner::nearest_certified`).
+    #[inline]
+    pub fn nearest_certified(
+        &self,
+        q: &[f64],
+        max_sq: f64,
+        hint: Option<usize>,
+        slack: f64,
+    ) -> (Option<(usize, f64)>, f64) {
+        let d = self.dim;
+        let hint = hint.and_then(|h| {
+            let p = self.points.get(h.checked_mul(d)?..h * d + d)?;
+            let dh: f64 = p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+            (dh <= max_sq).then_some((h as u32, dh))
+        });
+        with_tree!(self, t, D => t.nearest_certified(&arr::<D>(q), max_sq, hint, slack))
     }
 
     /// The `k` nearest points to `q` (fewer if `max_sq` is finite), appended to `out` sorted
@@ -996,6 +1114,54 @@ mod tests {
             .collect();
         canonical(&mut v);
         v
+    }
+
+    /// The certified search answers exactly as the plain one, ties included, and its bound is
+    /// sound (no other point is nearer than it) and as strong as promised: at least the true
+    /// runner-up, or the answer grown by the slack, whichever is nearer.
+    #[test]
+    fn certified_nearest_is_exact_and_its_bound_sound() {
+        for dim in [2, 3] {
+            for grid in [false, true] {
+                let pts = lcg_cloud(700, dim, 11 + dim as u64, grid);
+                let qs = lcg_cloud(150, dim, 5, grid);
+                let tree = KdTree::build(&pts, dim).unwrap();
+                for (k, q) in qs.chunks_exact(dim).enumerate() {
+                    let b = brute(&pts, dim, q);
+                    for (max_sq, slack) in
+                        [(0.3, 0.0), (0.3, 0.2), (2.0, 0.05), (f64::INFINITY, 0.5)]
+                    {
+                        // A hint that is the answer, a neighbour of it, or none.
+                        let hint = match k % 3 {
+                            0 => None,
+                            1 => Some(b[0].0 as usize),
+                            _ => Some(b[3].0 as usize),
+                        };
+                        let (got, clear) = tree.nearest_certified(q, max_sq, hint, slack);
+                        assert_eq!(got, tree.nearest_within(q, max_sq), "{dim}D q{k}");
+                        let grow = |d: f64| (d.sqrt() + slack).powi(2);
+                        let (others, promised) = match got {
+                            Some((i, d)) => (
+                                b.iter()
+                                    .filter(|&&(j, _)| j as usize != i)
+                                    .collect::<Vec<_>>(),
+                                grow(d),
+                            ),
+                            None => (b.iter().collect(), grow(max_sq)),
+                        };
+                        let runner_up = others[0].1;
+                        assert!(
+                            runner_up >= clear,
+                            "{dim}D q{k}: a point at {runner_up} < {clear}"
+                        );
+                        assert!(
+                            clear >= runner_up.min(promised) * (1.0 - 1e-12),
+                            "{dim}D q{k}: bound {clear}, runner-up {runner_up}, promised {promised}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     /// The parallel build lays the tree out exactly as the sequential one: same nodes, same
