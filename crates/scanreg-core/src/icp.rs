@@ -409,19 +409,22 @@ impl Group<3, 6> for Spatial {
 /// Marker for "no correspondence" in the per-point correspondence list.
 const NONE: u32 = u32::MAX;
 
-/// What a source point's last search proved ([`NeighborSearch::nearest_certified`]): from
-/// `at`, every target point but `id` (every point, when `id` is `NONE`) lies at least `clear`
-/// away. Queried again from `tp`, `δ = |tp − at|`: by the triangle inequality every other
-/// point is at least `clear − δ` away, so when `|tp − q_id| < clear − δ` the nearest is still
-/// `id` (and when `id` is `NONE` and the gate is below `clear − δ`, still none) and the search
-/// is skipped. Near convergence the points move by millimetres between iterations, and most
-/// searches are. The answer is the search's exactly (the same point, the distance computed
-/// the same way); `CERT_MARGIN` absorbs the rounding of the bound.
+/// What a source point's last search proved ([`NeighborSearch::nearest_certified`]): from the
+/// anchor `a` (where the point was), every target point but the answer `id` (every point, when
+/// there was none) lies at least `clear` away. Queried again from `tp`, `δ = |tp − a|`: by the
+/// triangle inequality every other point is at least `clear − δ` away, so when
+/// `|tp − q_id| < clear − δ` the nearest is still `id` (when there is none and the gate is below
+/// `clear − δ`, still none) and the search is skipped. Near convergence the points move by
+/// millimetres between iterations, and most searches are. The answer is the search's exactly
+/// (the same point, the distance computed the same way); `CERT_MARGIN` absorbs the rounding.
+///
+/// Compact (16 bytes in 3D): `id` is the correspondence list's entry, and the anchor is kept
+/// in `f32` as an offset from the answer (`≤` the gate, so micrometre-exact at any map scale),
+/// `clear` shrunk by that rounding and rounded down.
 #[derive(Clone, Copy)]
 struct Cert<const D: usize> {
-    at: SVector<f64, D>,
-    clear: f64,
-    id: u32,
+    offset: [f32; D],
+    clear: f32,
 }
 
 /// Relative margin on both sides of a certificate's test (rounding is ~1e-16 relative).
@@ -432,24 +435,61 @@ const CERT_MARGIN: f64 = 1e-9;
 const CERT_SLACK_MAX: f64 = 0.05;
 
 impl<const D: usize> Cert<D> {
-    /// The nearest point within the gate from `tp`, `delta = |tp − at|` away, if this
-    /// certificate settles it (`Some(None)`: settled, none), `None` if a search is needed.
+    /// The anchor: the answer's point (the origin when none) plus the stored offset.
+    #[inline]
+    fn anchor(offset: &[f32; D], id: u32, pts: &[f64]) -> SVector<f64, D> {
+        let mut a = SVector::<f64, D>::from_fn(|c, _| f64::from(offset[c]));
+        if id != NONE {
+            a += vec_at::<D>(pts, id as usize);
+        }
+        a
+    }
+
+    /// The certificate of a search from `tp` that found `id` (`NONE`: none) with bound `clear`.
+    fn new(tp: &SVector<f64, D>, id: u32, clear: f64, pts: &[f64]) -> Self {
+        let base = if id == NONE {
+            SVector::<f64, D>::zeros()
+        } else {
+            vec_at::<D>(pts, id as usize)
+        };
+        let offset: [f32; D] = std::array::from_fn(|c| (tp[c] - base[c]) as f32);
+        // Stated from the rounded anchor: shrink the bound by the rounding, then round it down
+        // (f32's relative rounding is 6e-8).
+        let moved = (tp - Self::anchor(&offset, id, pts)).norm();
+        let c = (clear - moved * (1.0 + CERT_MARGIN)) * (1.0 - 1e-6);
+        Cert {
+            offset,
+            clear: if c > 0.0 {
+                c.min(f64::from(f32::MAX)) as f32
+            } else {
+                0.0
+            },
+        }
+    }
+
+    /// From `tp`, the nearest point within the gate if this certificate (for answer `id`)
+    /// settles it (`Ok(None)`: settled, none); `Err(δ)`, the move since the search, if not.
     #[inline]
     fn answer(
         &self,
         tp: &SVector<f64, D>,
-        delta: f64,
+        id: u32,
         pts: &[f64],
         max_sq: f64,
-    ) -> Option<Option<(usize, f64)>> {
-        let room = self.clear * (1.0 - CERT_MARGIN) - delta * (1.0 + CERT_MARGIN);
+    ) -> std::result::Result<Option<(usize, f64)>, f64> {
+        let delta = (tp - Self::anchor(&self.offset, id, pts)).norm();
+        let room = f64::from(self.clear) * (1.0 - CERT_MARGIN) - delta * (1.0 + CERT_MARGIN);
         if room.is_nan() || room <= 0.0 {
-            return None;
+            return Err(delta);
         }
-        if self.id == NONE {
-            return (max_sq.sqrt() * (1.0 + CERT_MARGIN) < room).then_some(None);
+        if id == NONE {
+            return if max_sq.sqrt() * (1.0 + CERT_MARGIN) < room {
+                Ok(None)
+            } else {
+                Err(delta)
+            };
         }
-        let j = self.id as usize;
+        let j = id as usize;
         // As the k-d tree computes it (coordinate order, point minus query), so the distance
         // is the search's to the bit.
         let mut d2 = 0.0;
@@ -457,7 +497,11 @@ impl<const D: usize> Cert<D> {
             let e = pts[j * D + c] - tp[c];
             d2 += e * e;
         }
-        (d2.sqrt() * (1.0 + CERT_MARGIN) < room).then_some((d2 <= max_sq).then_some((j, d2)))
+        if d2.sqrt() * (1.0 + CERT_MARGIN) < room {
+            Ok((d2 <= max_sq).then_some((j, d2)))
+        } else {
+            Err(delta)
+        }
     }
 }
 
@@ -669,13 +713,17 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
     // Certificates for the next evaluation: only the iterations' searches need them.
     let certify = pr.certify && tree.certifies() && keep_correspondences && fixed.is_none();
     let gate = pr.max_sq.sqrt();
+    let mut whole = Acc::<D, N>::new(if keep_correspondences { n } else { 0 });
+    if certify {
+        whole.certs.reserve_exact(n);
+    }
     let acc = chunked_sum(
         n,
-        Acc::<D, N>::new(if keep_correspondences { n } else { 0 }),
+        whole,
         |range| {
             let mut acc = Acc::<D, N>::new(if keep_correspondences { range.len() } else { 0 });
             if certify {
-                acc.certs.reserve(range.len());
+                acc.certs.reserve_exact(range.len());
             }
             // The previous source point's correspondence: the hint for a point that has none of
             // its own (the first iteration, or none inside the gate last time). Scans come in
@@ -688,34 +736,34 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                 let mut used = NONE;
                 let found = match fixed {
                     None if certify => {
-                        let prior = certs.map(|c| &c[i]);
-                        let moved = prior.map(|c| (tp - c.at).norm());
-                        let settled = prior
-                            .zip(moved)
-                            .and_then(|(c, d)| c.answer(&tp, d, tree.points(), pr.max_sq));
+                        // A certificate goes with the correspondence its search found.
+                        let prior = certs.zip(hints).map(|(c, h)| (c[i], h[i]));
+                        let settled = match prior {
+                            Some((c, id)) => c.answer(&tp, id, tree.points(), pr.max_sq),
+                            None => Err(f64::INFINITY),
+                        };
                         match settled {
-                            Some(answer) => {
-                                acc.certs.push(*prior.expect("settled by a certificate"));
+                            Ok(answer) => {
+                                acc.certs.push(prior.expect("settled by a certificate").0);
                                 answer
                             }
-                            None => {
+                            Err(moved) => {
                                 let h =
                                     hints.map_or(last, |h| if h[i] != NONE { h[i] } else { last });
                                 let hint = (h != NONE).then_some(h as usize);
                                 // Search past the answer by twice the point's last move, so the
                                 // certificate outlasts a next move as large; while the points
                                 // still move far (or before they have moved), no further.
-                                let slack = moved
-                                    .map(|d| 2.0 * d)
-                                    .filter(|&sl| sl <= CERT_SLACK_MAX * gate)
-                                    .unwrap_or(0.0);
+                                let slack = if 2.0 * moved <= CERT_SLACK_MAX * gate {
+                                    2.0 * moved
+                                } else {
+                                    0.0
+                                };
                                 let (answer, clear_sq) =
                                     tree.nearest_certified(tp.as_slice(), pr.max_sq, hint, slack);
-                                acc.certs.push(Cert {
-                                    at: tp,
-                                    clear: clear_sq.sqrt(),
-                                    id: answer.map_or(NONE, |(j, _)| j as u32),
-                                });
+                                let id = answer.map_or(NONE, |(j, _)| j as u32);
+                                acc.certs
+                                    .push(Cert::new(&tp, id, clear_sq.sqrt(), tree.points()));
                                 answer
                             }
                         }
@@ -1076,7 +1124,7 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     // The iteration cap right after a stretched step: it is checked here, like any other.
     if let Some(plain) = accel.check(energy(&evaluation)) {
         pose = plain;
-        let c = if fixed.is_some() { &prev_certs } else { &cert };
+        // (After a fixed evaluation there are no certificates for its correspondences.)
         (evaluation, correspondences, _) = evaluate::<G, D, N>(
             pr,
             &pose,
@@ -1084,7 +1132,7 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
             true,
             None,
             hints(&correspondences),
-            certs(c),
+            certs(&cert),
         );
     }
     if evaluation.num_correspondences < s.min_correspondences {
