@@ -182,6 +182,22 @@ impl Scratch {
     }
 }
 
+/// `f` over the points in the tree's leaf order (`order`), in parallel unless the cloud is
+/// small (a 2D scan: waking the pool costs more), each worker with its own [`Scratch`].
+fn in_leaf_order<T: Send>(
+    n: usize,
+    order: &[u32],
+    k: usize,
+    f: &(impl Fn(&mut Scratch, &u32) -> T + Sync),
+) -> Vec<T> {
+    if n <= SEQUENTIAL_MAX {
+        let mut state = Scratch::new(k);
+        order.iter().map(|i| f(&mut state, i)).collect()
+    } else {
+        order.par_iter().map_init(|| Scratch::new(k), f).collect()
+    }
+}
+
 /// [`local_geometry`], and with `drop_linear` no normal (zero) where a 3D neighbourhood is
 /// linear (module docs).
 pub fn local_geometry_with(
@@ -292,34 +308,37 @@ pub fn local_geometry_with(
         }
         (normal, out, valid, linear)
     };
-    // A small cloud (a 2D scan) stays on the calling thread: waking the pool costs more.
-    let per_leaf: Vec<([f64; 3], [f64; 9], bool, bool)> = if n <= SEQUENTIAL_MAX {
-        let mut state = Scratch::new(k);
-        order.iter().map(|i| geometry(&mut state, i)).collect()
-    } else {
-        order
-            .par_iter()
-            .map_init(|| Scratch::new(k), geometry)
-            .collect()
+    // Results in leaf order, then each put in its input slot. Only what was asked for is
+    // kept per point (a covariance is 72 bytes): this buffer is the call's peak memory.
+    let mut normals = want_normals.then(|| vec![0.0; n * dim]);
+    let mut covs = covariances.map(|_| vec![0.0; n * dim * dim]);
+    let mut valid = vec![false; n];
+    let mut linear = vec![false; n];
+    let mut place = |i: usize, normal: &[f64; 3], cov: Option<&[f64; 9]>, ok: bool, lin: bool| {
+        if let Some(out) = normals.as_mut() {
+            out[i * dim..(i + 1) * dim].copy_from_slice(&normal[..dim]);
+        }
+        if let (Some(out), Some(c)) = (covs.as_mut(), cov) {
+            out[i * dim * dim..(i + 1) * dim * dim].copy_from_slice(&c[..dim * dim]);
+        }
+        valid[i] = ok;
+        linear[i] = lin;
     };
-    let mut per = vec![([0.0; 3], [0.0; 9], false, false); n];
-    for (&i, r) in order.iter().zip(per_leaf) {
-        per[i as usize] = r;
+    if covariances.is_some() {
+        for (&i, (nrm, cov, ok, lin)) in order.iter().zip(in_leaf_order(n, order, k, &geometry)) {
+            place(i as usize, &nrm, Some(&cov), ok, lin);
+        }
+    } else {
+        let without_cov = |st: &mut Scratch, i: &u32| {
+            let (nrm, _, ok, lin) = geometry(st, i);
+            (nrm, ok, lin)
+        };
+        for (&i, (nrm, ok, lin)) in order.iter().zip(in_leaf_order(n, order, k, &without_cov)) {
+            place(i as usize, &nrm, None, ok, lin);
+        }
     }
-    let valid: Vec<bool> = per.iter().map(|x| x.2).collect();
     let num_invalid = valid.iter().filter(|v| !**v).count();
-    let linear: Vec<bool> = per.iter().map(|x| x.3).collect();
     let num_linear = linear.iter().filter(|v| **v).count();
-    let normals = want_normals.then(|| {
-        per.iter()
-            .flat_map(|x| x.0[..dim].iter().copied())
-            .collect()
-    });
-    let covs = covariances.map(|_| {
-        per.iter()
-            .flat_map(|x| x.1[..dim * dim].iter().copied())
-            .collect()
-    });
     Ok(LocalGeometry {
         normals,
         covariances: covs,
