@@ -2,7 +2,8 @@
 //! against a k-d tree, with robust kernels, Gauss–Newton or Levenberg–Marquardt on the manifold.
 //!
 //! One iteration = for every source point, transform it by the current pose, find its nearest
-//! target point within the gate, linearise one *factor* (its residual and Jacobian in the
+//! target point within the gate (without a search when the last one's certificate settles it,
+//! see `Cert`), linearise one *factor* (its residual and Jacobian in the
 //! right-perturbation convention of [`crate::paired`]) and add it into the normal equations
 //! `H = Σ k JᵀWJ`, `g = Σ k JᵀW r` with the deterministic chunked sum of [`crate::reduce`];
 //! then solve for `δ` and update `T ← T · exp(δ)`. The whole loop runs here, so a registration is

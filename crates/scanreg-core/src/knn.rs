@@ -3,8 +3,9 @@
 //! * [`KdTree`]: an immutable k-d tree of our own (median split on the widest axis, points
 //!   reordered into contiguous 16-point leaf buckets, iterative traversal with a fixed stack,
 //!   no allocation per query), built once and queried many times. Exact queries: nearest
-//!   neighbour within a gate (the gate prunes from the start), k nearest (a sorted array of at
-//!   most `k`, in the caller's buffer), all within a radius.
+//!   neighbour within a gate (the gate prunes from the start; optionally with a certificate, a
+//!   lower bound on every other point's distance, which lets ICP skip the next search), k
+//!   nearest (a sorted array of at most `k`, in the caller's buffer), all within a radius.
 //! * [`VoxelIndex`]: a voxel hash map (point indices bucketed by voxel), the structure
 //!   KISS-ICP searches for scan-to-map correspondences. Cheap to build and to extend, and
 //!   exact here: a query with gate `r` visits every voxel within `ceil(r / voxel_size)`.
