@@ -735,6 +735,10 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                 let p: SVector<f64, D> = vec_at(pr.source, i);
                 let tp = pose.r * p + pose.t;
                 let mut used = NONE;
+                let hint = || {
+                    let h = hints.map_or(last, |h| if h[i] != NONE { h[i] } else { last });
+                    (h != NONE).then_some(h as usize)
+                };
                 let found = match fixed {
                     None if certify => {
                         // A certificate goes with the correspondence its search found.
@@ -749,9 +753,6 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                                 answer
                             }
                             Err(moved) => {
-                                let h =
-                                    hints.map_or(last, |h| if h[i] != NONE { h[i] } else { last });
-                                let hint = (h != NONE).then_some(h as usize);
                                 // Search past the answer by twice the point's last move, so the
                                 // certificate outlasts a next move as large; while the points
                                 // still move far (or before they have moved), no further.
@@ -761,7 +762,7 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                                     0.0
                                 };
                                 let (answer, clear_sq) =
-                                    tree.nearest_certified(tp.as_slice(), pr.max_sq, hint, slack);
+                                    tree.nearest_certified(tp.as_slice(), pr.max_sq, hint(), slack);
                                 let id = answer.map_or(NONE, |(j, _)| j as u32);
                                 acc.certs
                                     .push(Cert::new(&tp, id, clear_sq.sqrt(), tree.points()));
@@ -769,11 +770,7 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
                             }
                         }
                     }
-                    None => {
-                        let h = hints.map_or(last, |h| if h[i] != NONE { h[i] } else { last });
-                        let hint = (h != NONE).then_some(h as usize);
-                        tree.nearest_within_hinted(tp.as_slice(), pr.max_sq, hint)
-                    }
+                    None => tree.nearest_within_hinted(tp.as_slice(), pr.max_sq, hint()),
                     Some(c) if c[i] != NONE => {
                         let j = c[i] as usize;
                         let d2 = (tp - vec_at::<D>(tree.points(), j)).norm_squared();

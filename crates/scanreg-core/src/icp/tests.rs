@@ -129,6 +129,44 @@ fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The target's tree, normals and covariances, and the source's covariances (k = 10, plane
+/// regularisation, viewpoint 0.3 on every axis).
+fn geometry(
+    tgt: &[f64],
+    src: &[f64],
+    dim: usize,
+) -> (
+    KdTree,
+    crate::normals::LocalGeometry,
+    crate::normals::LocalGeometry,
+) {
+    let tree = KdTree::build(tgt, dim).unwrap();
+    let vp = vec![0.3; dim];
+    let g = local_geometry(&tree, 10, &vp, true, Some(Regularization::Plane(1e-3))).unwrap();
+    let stree = KdTree::build(src, dim).unwrap();
+    let sg = local_geometry(&stree, 10, &vp, false, Some(Regularization::Plane(1e-3))).unwrap();
+    (tree, g, sg)
+}
+
+/// [`geometry`]'s parts as a target and a source.
+fn with_geometry<'a>(
+    tree: &'a KdTree,
+    g: &'a crate::normals::LocalGeometry,
+    src: &'a [f64],
+    sg: &'a crate::normals::LocalGeometry,
+) -> (Target<'a>, Source<'a>) {
+    let target = Target {
+        search: tree,
+        normals: g.normals.as_deref(),
+        covariances: g.covariances.as_deref(),
+    };
+    let source = Source {
+        points: src,
+        covariances: sg.covariances.as_deref(),
+    };
+    (target, source)
+}
+
 fn run_case(
     dim: usize,
     method: Method,
@@ -145,20 +183,8 @@ fn run_case(
     } else {
         source_of(&tgt, &truth_2d())
     };
-    let tree = KdTree::build(&tgt, dim).unwrap();
-    let vp = vec![0.3; dim];
-    let g = local_geometry(&tree, 10, &vp, true, Some(Regularization::Plane(1e-3))).unwrap();
-    let stree = KdTree::build(&src, dim).unwrap();
-    let sg = local_geometry(&stree, 10, &vp, false, Some(Regularization::Plane(1e-3))).unwrap();
-    let target = Target {
-        search: &tree,
-        normals: g.normals.as_deref(),
-        covariances: g.covariances.as_deref(),
-    };
-    let source = Source {
-        points: &src,
-        covariances: sg.covariances.as_deref(),
-    };
+    let (tree, g, sg) = geometry(&tgt, &src, dim);
+    let (target, source) = with_geometry(&tree, &g, &src, &sg);
     let out = register(
         &source,
         &target,
@@ -481,22 +507,8 @@ fn certified_searches_change_nothing() {
                 truth[r * (dim + 1) + dim] += shift - rot * shift;
             }
             let full = shift == 0.0; // every case at the origin, Gauss-Newton far from it
-            let tree = KdTree::build(&tgt, dim).unwrap();
-            let vp = vec![0.3; dim];
-            let g =
-                local_geometry(&tree, 10, &vp, true, Some(Regularization::Plane(1e-3))).unwrap();
-            let stree = KdTree::build(&src, dim).unwrap();
-            let sg =
-                local_geometry(&stree, 10, &vp, false, Some(Regularization::Plane(1e-3))).unwrap();
-            let target = Target {
-                search: &tree,
-                normals: g.normals.as_deref(),
-                covariances: g.covariances.as_deref(),
-            };
-            let source = Source {
-                points: &src,
-                covariances: sg.covariances.as_deref(),
-            };
+            let (tree, g, sg) = geometry(&tgt, &src, dim);
+            let (target, source) = with_geometry(&tree, &g, &src, &sg);
             for method in [Method::PointToPoint, Method::PointToPlane, Method::Gicp] {
                 for kernel in [Kernel::None, Kernel::Huber(0.05)] {
                     for opt in [Optimizer::GaussNewton, Optimizer::LevenbergMarquardt] {
