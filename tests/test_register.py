@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -424,8 +425,11 @@ def test_results_built_without_init_hold_exactly_their_fields() -> None:
     prepared = scanreg.prepare(points)
     res = register(source, prepared, method="point_to_line")
     assert res._trust._args is not None  # not analysed yet: its inputs are still there
-    ctx = res._trust._args[0]
-    for obj in (prepared, res, res.timing, ctx):
+    # The trust inputs, as the fields of the _TrustInputs the analysis builds when it runs.
+    ctx_fields = res._trust._args[0]
+    trust_inputs = sys.modules["scanreg.register"]._TrustInputs
+    assert set(ctx_fields) == {f.name for f in dataclasses.fields(trust_inputs)}
+    for obj in (prepared, res, res.timing):
         names = {f.name for f in dataclasses.fields(obj)}
         assert set(vars(obj)) == names, type(obj).__name__
     # Equal to (and hashed like) the same values through __init__.

@@ -252,7 +252,6 @@ def register_icp(
     source: NDArray[np.float64],
     target: KdTree | LocalMap,
     init_pose: NDArray[np.float64],
-    *,
     method: str,
     kernel: str,
     kernel_scale: float,

@@ -417,6 +417,55 @@ def _resolve_method(method: Any, dim: int) -> str:
     return str(method)
 
 
+@dataclass(frozen=True, slots=True)
+class _Plan:
+    """What :func:`register` derives from the settings, the method and the dimension alone,
+    worked out once per combination: a loop registering scan after scan repeats them, and on a
+    2D scan these lines were a tenth of the call's Python."""
+
+    method: str  # as run
+    dof: int
+    #: Scalar residuals per correspondence.
+    components: int
+    min_correspondences: int
+    #: The kernel's scale (1 without a kernel); NaN when it cannot be set (an infinite gate
+    #: and no ``kernel_scale``: refused when the call reaches it).
+    kernel_scale: float
+
+
+def _plan(s: RegistrationSettings, method: Any, dim: int) -> _Plan:
+    # Keyed by the settings' identity (kept alive by the entry), as in _with_overrides.
+    key = (id(s), method, dim)
+    try:
+        hit = _PLANS.get(key)
+    except TypeError:  # an unhashable method: refused by _resolve_method
+        hit = None
+    if hit is not None and hit[0] is s:
+        return hit[1]
+    method_eff = _resolve_method(method, dim)
+    dof = 3 if dim == 2 else 6
+    components = 1 if method_eff in _PLANAR else dim
+    min_corr = s.min_correspondences
+    if min_corr is None:
+        min_corr = dof // components + 1
+    if s.kernel == "none":
+        k_scale = 1.0
+    elif s.kernel_scale is not None:
+        k_scale = s.kernel_scale
+    else:
+        k_scale = 1.0 if method_eff == "gicp" else s.max_correspondence_distance / 3.0
+        if not math.isfinite(k_scale):
+            k_scale = math.nan
+    plan = _Plan(method_eff, dof, components, min_corr, k_scale)
+    if len(_PLANS) >= 64:
+        _PLANS.clear()
+    _PLANS[key] = (s, plan)
+    return plan
+
+
+_PLANS: dict[tuple[Any, ...], tuple[RegistrationSettings, _Plan]] = {}
+
+
 def _check_local_map(target: LocalMap, dim: int, method: str) -> LocalMap:
     if target.dim != dim:
         raise ValueError(f"target: a {target.dim}D LocalMap cannot register {dim}D source points")
@@ -551,8 +600,9 @@ def register(
         raise TypeError(f"settings: expected RegistrationSettings, got {type(base).__name__}")
     s = _with_overrides(base, overrides) if overrides else base
     src = as_points(source, "source", finite=False)
-    dim = int(src.shape[1])
-    method_eff = _resolve_method(method, dim)
+    dim = src.shape[1]
+    plan = _plan(s, method, dim)
+    method_eff = plan.method
     if s.voxel_size is not None or (method_eff == "gicp" and source_covariances is None):
         # Downsampled or given covariances here first; otherwise register_icp's own scan
         # refuses a NaN/inf with the same message.
@@ -591,21 +641,18 @@ def register(
         )
     t_source = time.perf_counter() - t0
 
-    dof = 3 if dim == 2 else 6
-    components = 1 if method_eff in _PLANAR else dim  # scalar residuals per correspondence
-    min_corr = s.min_correspondences
-    if min_corr is None:
-        min_corr = dof // components + 1
-    if s.kernel == "none":
-        k_scale = 1.0
-    elif s.kernel_scale is not None:
-        k_scale = s.kernel_scale
-    else:
-        k_scale = 1.0 if method_eff == "gicp" else s.max_correspondence_distance / 3.0
-        if not math.isfinite(k_scale):
-            raise ValueError("kernel_scale: required with an infinite max_correspondence_distance")
+    dof, components, min_corr, k_scale = (
+        plan.dof,
+        plan.components,
+        plan.min_correspondences,
+        plan.kernel_scale,
+    )
+    if k_scale != k_scale:  # NaN: see _Plan
+        raise ValueError("kernel_scale: required with an infinite max_correspondence_distance")
 
-    given_prior = _checked_init_covariance(init_covariance, dof)
+    given_prior = None
+    if init_covariance is not None:
+        given_prior = _checked_init_covariance(init_covariance, dof)
     if thresholds is not None and not isinstance(thresholds, VerdictThresholds):
         raise TypeError(f"thresholds: expected VerdictThresholds, got {type(thresholds).__name__}")
 
@@ -626,25 +673,27 @@ def register(
     def run(
         projector: FloatArray | None, start: SE2 | SE3 = pose0, method: str = method_eff
     ) -> Any:
+        # By position, in the binding's order (keywords cost 1.2 µs a call: _core.pyi).
         return _core.register_icp(
             src,
             index,
-            start.as_matrix(),
-            method=method,
-            kernel=s.kernel,
-            kernel_scale=k_scale,
-            max_correspondence_distance=s.max_correspondence_distance,
-            max_iterations=s.max_iterations,
-            translation_tolerance=s.translation_tolerance,
-            rotation_tolerance=s.rotation_tolerance,
-            optimizer=s.optimizer,
-            min_correspondences=min_corr,
-            num_threads=s.num_threads,
-            source_covariances=source_covariances,
-            target_normals=t_normals if method in _PLANAR and not is_map else None,
-            target_covariances=t_covs if method == "gicp" and not is_map else None,
-            step_projector=projector,
-            extrapolate=s.extrapolate,
+            start.as_matrix(),  # init_pose
+            method,
+            s.kernel,
+            k_scale,  # kernel_scale
+            s.max_correspondence_distance,
+            s.max_iterations,
+            s.translation_tolerance,
+            s.rotation_tolerance,
+            s.optimizer,
+            min_corr,  # min_correspondences
+            s.num_threads,
+            source_covariances,
+            t_normals if method in _PLANAR and not is_map else None,  # target_normals
+            t_covs if method == "gicp" and not is_map else None,  # target_covariances
+            True,  # iterate
+            projector,  # step_projector
+            s.extrapolate,
         )
 
     th = _DEFAULT_THRESHOLDS if thresholds is None else thresholds
@@ -674,31 +723,31 @@ def register(
             and np.may_share_memory(source_covariances, source_attributes)
         ):
             source_covariances = source_covariances.copy()
-    ctx = _build(
-        _TrustInputs,
-        {
-            "source": src,
-            "target": prepared,
-            "target_points": t_points,
-            "target_normals": t_normals,
-            "target_covariances": t_covs,
-            "source_covariances": source_covariances,
-            "method": method_eff,
-            "settings": s,
-            "kernel_scale": k_scale,
-            "components": components,
-            "init_covariance": given_prior,
-            "start": pose0,
-            "thresholds": th,
-            "plane_solve": (
-                (lambda start: run(held, start, _PLANE_METHOD[dim]))
-                if method_eff == "point_to_point" and _has_normals(prepared)
-                else None
-            ),
-        },
-    )
+    ctx_fields = {
+        "source": src,
+        "target": prepared,
+        "target_points": t_points,
+        "target_normals": t_normals,
+        "target_covariances": t_covs,
+        "source_covariances": source_covariances,
+        "method": method_eff,
+        "settings": s,
+        "kernel_scale": k_scale,
+        "components": components,
+        "init_covariance": given_prior,
+        "start": pose0,
+        "thresholds": th,
+        "plane_solve": (
+            (lambda start: run(held, start, _PLANE_METHOD[dim]))
+            if method_eff == "point_to_point" and _has_normals(prepared)
+            else None
+        ),
+    }
+    # Built here only when the solve needs it; a lazy analysis builds it on first use.
+    ctx: _TrustInputs | dict[str, Any] = ctx_fields
     first: _CorrespondenceAnalysis | None = None
     if s.degeneracy_aware:
+        ctx = _build(_TrustInputs, ctx_fields)
         first = _correspondence_analysis(ctx, out)
         if first.degeneracy.degenerate and len(out.correspondences):
             held = np.ascontiguousarray(np.eye(dof) - first.degeneracy.weak_projector())
@@ -719,7 +768,7 @@ def register(
     t0 = time.perf_counter()
     pose = _pose_from_core(out, dim)
     hessian = out.hessian  # the core's own fresh array, read-only: no copy needed
-    n_corr = int(out.num_correspondences)
+    n_corr = out.num_correspondences  # the core's ints and floats are Python's already
     sigma2 = _residual_variance(out, components, s.kernel, dof)
     stop: StopReason = out.stop_reason
     trust = _LazyTrust(ctx, out, pose, hessian, sigma2, first)
@@ -734,7 +783,7 @@ def register(
             "target_preparation": t_target,
             "source_preparation": t_source,
             "iterations": out.iteration_seconds,
-            "final_evaluation": float(out.final_evaluation_seconds),
+            "final_evaluation": out.final_evaluation_seconds,
             "post_processing": t_post,
             "total": t_total,
         },
@@ -746,14 +795,14 @@ def register(
             "method": method_eff,
             "kernel": s.kernel,
             "kernel_scale": k_scale if s.kernel != "none" else math.nan,
-            "iterations": int(out.iterations),
+            "iterations": out.iterations,
             "converged": stop == "converged",
             "stop_reason": stop,
             "num_correspondences": n_corr,
             "num_source_points": len(src),
-            "fitness": int(out.num_in_gate) / len(src),
+            "fitness": out.num_in_gate / len(src),
             "inlier_rmse": math.sqrt(out.sum_squared_distances / n_corr) if n_corr else math.nan,
-            "cost": float(out.cost),
+            "cost": out.cost,
             "hessian": hessian,
             "gradient": out.gradient,  # read-only, fresh
             "sigma2": sigma2,
@@ -856,7 +905,7 @@ class _LazyTrust:
 
     def __init__(
         self,
-        ctx: _TrustInputs,
+        ctx: _TrustInputs | dict[str, Any],
         out: Any,
         pose: SE2 | SE3,
         hessian: FloatArray,
@@ -873,7 +922,10 @@ class _LazyTrust:
             with self._lock:
                 if self._value is None:
                     assert self._args is not None
-                    self._value = _trust(*self._args)
+                    ctx, *rest = self._args
+                    if isinstance(ctx, dict):  # its fields, as register() gathered them
+                        ctx = _build(_TrustInputs, ctx)
+                    self._value = _trust(ctx, *rest)
                     self._args = None  # the source, target and core outcome can go
                 value = self._value
         return value
