@@ -819,10 +819,14 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
             }
             // Phase 2, accumulation, in the same order (the same sums to the bit); one loop
             // per method, each free of the others' branches and registers.
-            let phase2 = match pr.method {
-                Method::PointToPoint => accumulate::<G, D, N, 0>,
-                Method::PointToPlane => accumulate::<G, D, N, 1>,
-                Method::Gicp => accumulate::<G, D, N, 2>,
+            let plain = pr.kernel == Kernel::None;
+            let phase2 = match (pr.method, plain) {
+                (Method::PointToPoint, false) => accumulate::<G, D, N, 0, false>,
+                (Method::PointToPlane, false) => accumulate::<G, D, N, 1, false>,
+                (Method::Gicp, false) => accumulate::<G, D, N, 2, false>,
+                (Method::PointToPoint, true) => accumulate::<G, D, N, 0, true>,
+                (Method::PointToPlane, true) => accumulate::<G, D, N, 1, true>,
+                (Method::Gicp, true) => accumulate::<G, D, N, 2, true>,
             };
             let sums = phase2(pr, pose, pts, range, &matches, with_scores);
             acc.sums = sums;
@@ -852,9 +856,10 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
 /// Phase 2 of [`evaluate`]: the sums over one chunk's `matches` (`(target id, squared
 /// distance)` per source point of `range`, `NONE`: none), for the method numbered `M` (0
 /// point-to-point, 1 point-to-plane/line, 2 GICP: a constant, so each method compiles to its
-/// own loop).
+/// own loop); `PLAIN`: no kernel (weights 1, `ρ = r²/2`, as `Kernel::None` computes them,
+/// without its branches).
 #[inline(always)]
-fn accumulate<G: Group<D, N>, const D: usize, const N: usize, const M: u8>(
+fn accumulate<G: Group<D, N>, const D: usize, const N: usize, const M: u8, const PLAIN: bool>(
     pr: &Problem<'_>,
     pose: &Pose<D>,
     pts: &[f64],
@@ -873,7 +878,7 @@ fn accumulate<G: Group<D, N>, const D: usize, const N: usize, const M: u8>(
         let tp = pose.r * p + pose.t;
         let e = tp - vec_at::<D>(pts, j);
         if let Some((h, g, norm)) = factor::<G, D, N>(pr, method, pose, i, j, &p, &e) {
-            let k = pr.kernel.weight(norm);
+            let k = if PLAIN { 1.0 } else { pr.kernel.weight(norm) };
             match h {
                 Curvature::Full(h) => sums.h += h * k,
                 Curvature::RankOne(j) => {
@@ -895,7 +900,11 @@ fn accumulate<G: Group<D, N>, const D: usize, const N: usize, const M: u8>(
             if with_scores {
                 sums.m += score * score.transpose();
             }
-            sums.cost += pr.kernel.rho(norm);
+            sums.cost += if PLAIN {
+                0.5 * (norm * norm)
+            } else {
+                pr.kernel.rho(norm)
+            };
             sums.count += 1;
             sums.ss += norm * norm;
             sums.irls_ss += k * norm * norm;
