@@ -23,7 +23,7 @@ use crate::error::{Error, Result};
 use crate::kernel::Kernel;
 use crate::knn::{check_max_distance, KdTree};
 use crate::points::{check_points, split_pose};
-use crate::reduce::chunked_sum;
+use crate::reduce::{chunk_len, chunked_sum};
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
 use rayon::ThreadPool;
 use std::collections::HashMap;
@@ -584,8 +584,17 @@ impl<const D: usize, const N: usize> Acc<D, N> {
     fn merge(mut self, o: Self) -> Self {
         self.sums.add(&o.sums);
         self.in_gate += o.in_gate;
-        self.corr.extend(o.corr);
-        self.certs.extend(o.certs);
+        // Into lists made for them, or (none made: the first chunk) its own taken over.
+        if self.corr.capacity() == 0 {
+            self.corr = o.corr;
+        } else {
+            self.corr.extend(o.corr);
+        }
+        if self.certs.capacity() == 0 {
+            self.certs = o.certs;
+        } else {
+            self.certs.extend(o.certs);
+        }
         self
     }
 }
@@ -737,8 +746,11 @@ fn evaluate<G: Group<D, N>, const D: usize, const N: usize>(
     // Certificates for the next evaluation: only the iterations' searches need them.
     let certify = pr.certify && tree.certifies() && keep_correspondences && fixed.is_none();
     let gate = pr.max_sq.sqrt();
-    let mut whole = Acc::<D, N>::new(if keep_correspondences { n } else { 0 });
-    if certify {
+    // Several chunks are gathered into `whole`'s lists; a single one (a 2D scan) hands its
+    // own over (`Acc::merge`), without a second allocation and copy.
+    let many = n > chunk_len(n);
+    let mut whole = Acc::<D, N>::new(if keep_correspondences && many { n } else { 0 });
+    if certify && many {
         whole.certs.reserve_exact(n);
     }
     let acc = chunked_sum(
