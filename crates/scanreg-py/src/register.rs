@@ -132,8 +132,8 @@ fn projector(arr: &Option<PyReadonlyArray2<'_, f64>>, dim: usize) -> PyResult<Op
 
 #[pyfunction]
 // No `*`: `register()` passes every argument by position, in this order (PyO3 matches each
-// keyword against the names one by one: the 17 keywords of a call cost 1.2 µs, a sixth of a
-// 2D scan's fixed cost); other callers name them.
+// keyword against the names one by one: a call with all 20 arguments took 2.39 µs with 17 of
+// them named, 1.65 µs by position); other callers name them.
 #[pyo3(signature = (
     source, target, init_pose, method, kernel, kernel_scale, max_correspondence_distance,
     max_iterations, translation_tolerance, rotation_tolerance, optimizer, min_correspondences,
