@@ -75,7 +75,7 @@ def main() -> None:
             init=guess,
             window=(0.3, 0.3, math.radians(10)),
             resolution=0.05,
-            method="branch_and_bound",
+            search="branch_and_bound",
         )
         res = scanreg.register(
             points[j],

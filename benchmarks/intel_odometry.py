@@ -34,7 +34,7 @@ def scan_to_map(log: Any, config: OdometryConfig2D) -> tuple[list[SE2], float, i
     t0 = time.perf_counter()
     for k, pts in enumerate(points):
         prior = None if k == 0 else log.motion_prior(k - 1, k)
-        frame = odo.step(pts, timestamp=log.scans[k].timestamp, prior=prior)
+        frame = odo.step(pts, stamp=log.scans[k].timestamp, prior=prior)
         poses.append(frame.pose)
         rejected += not frame.verdict.accepted
     return poses, (time.perf_counter() - t0) / len(points), rejected

@@ -67,7 +67,7 @@ def scan_to_scan(
             init=prior,
             window=window,
             resolution=resolution,
-            method="branch_and_bound",
+            search="branch_and_bound",
         )
         pose = res.pose
         if refine == "ndt":

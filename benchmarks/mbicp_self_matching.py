@@ -38,7 +38,7 @@ def correlative(src: Any, ref: Any) -> SE2:
         window=(0.2, 0.2, math.radians(45)),
         resolution=RESOLUTION,
         angular_resolution=ANGULAR,
-        method="branch_and_bound",
+        search="branch_and_bound",
     ).pose
 
 

@@ -110,7 +110,7 @@ def main() -> None:
     assert ref is not None
     s = pp.voxel_downsample(src, VOXEL).points
     t = pp.voxel_downsample(tgt, VOXEL).points
-    prepared = scanreg.prepare(t, normals=True, k=K)
+    prepared = scanreg.prepare(t, normals=True, num_neighbors=K)
     normals = np.asarray(prepared.normals)
     print(f"outdoor pair ({DATA.name}): {len(s)} source, {len(t)} target points after {VOXEL} m")
 

@@ -83,9 +83,9 @@ def main() -> None:
         "voxel downsample (centroid)": lambda: pp.voxel_downsample(frame, VOXEL),
         "kd-tree build": lambda: scanreg.prepare(down, normals=False),
         "batch nearest (full frame)": lambda: target.nearest(queries, MAX_DISTANCE),
-        "normals (incl. tree)": lambda: scanreg.prepare(down, normals=True, k=K),
+        "normals (incl. tree)": lambda: scanreg.prepare(down, normals=True, num_neighbors=K),
         "normals+covariances (incl. tree)": lambda: scanreg.prepare(
-            down, normals=True, covariances=True, k=K
+            down, normals=True, covariances=True, num_neighbors=K
         ),
     }
     theirs: dict[str, dict[str, Callable[[], Any]]] = {}

@@ -101,7 +101,7 @@ def intel_pairs(log: Any) -> list[Pair]:
             init=init,
             window=(0.3, 0.3, math.radians(10)),
             resolution=0.05,
-            method="branch_and_bound",
+            search="branch_and_bound",
         )
         r = scanreg.register(
             pts[k],

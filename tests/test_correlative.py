@@ -32,8 +32,8 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
-@pytest.mark.parametrize("method", ["exhaustive", "branch_and_bound"])
-def test_recovers_known_offsets_on_simulated_scans(method: str) -> None:
+@pytest.mark.parametrize("search", ["exhaustive", "branch_and_bound"])
+def test_recovers_known_offsets_on_simulated_scans(search: str) -> None:
     scene, reference = _office_map()
     grid = scanreg.prepare_correlative(reference, resolution=0.05)
     rng = np.random.default_rng(1)
@@ -52,7 +52,7 @@ def test_recovers_known_offsets_on_simulated_scans(method: str) -> None:
             init=init,
             window=(0.4, 0.4, 0.3),
             angular_resolution=0.02,
-            method=method,
+            search=search,
         )
         err = res.pose.as_vector() - truth.as_vector()
         assert abs(err[0]) <= 0.05 and abs(err[1]) <= 0.05, (n, err)
@@ -79,8 +79,8 @@ def test_branch_and_bound_equals_exhaustive_on_random_cases() -> None:
         window = (rng.uniform(0, 0.7), rng.uniform(0, 0.7), rng.uniform(0, 0.6))
         kw = dict(window=window, angular_resolution=float(rng.uniform(0.005, 0.03)))
         init = SE2.from_vector(rng.normal(0, 0.1, 3))
-        ex = grid.match(_c(src), init=init, method="exhaustive", **kw)
-        bb = grid.match(_c(src), init=init, method="branch_and_bound", **kw)
+        ex = grid.match(_c(src), init=init, search="exhaustive", **kw)
+        bb = grid.match(_c(src), init=init, search="branch_and_bound", **kw)
         assert bb.pose == ex.pose, (case, bb.pose, ex.pose)
         assert bb.score == ex.score and bb.fitness == ex.fitness
         assert ex.num_evaluated == ex.num_candidates and ex.num_bounds == 0
@@ -98,7 +98,9 @@ def test_covariance_is_olsons_estimate_over_the_window() -> None:
     grid = scanreg.prepare_correlative(ref, resolution=0.1, sigma=0.25)
     init = SE2.from_vector([0.05, 0.0, 0.3])
     dth = 0.02
-    res = grid.match(src, init=init, window=(0.3, 0.3, 0.1), angular_resolution=dth)
+    res = grid.match(
+        src, init=init, window=(0.3, 0.3, 0.1), angular_resolution=dth, search="exhaustive"
+    )
     like = grid.likelihood.astype(np.float64)
     origin = np.array(grid.origin)
     c0 = init.as_vector()
@@ -172,7 +174,7 @@ def test_mbicp_laserazos_self_matching_protocol() -> None:
                 window=(0.2, 0.2, math.radians(45)),
                 resolution=res_m,
                 angular_resolution=dth,
-                method="branch_and_bound",
+                search="branch_and_bound",
             )
             e = (truth.inverse() @ res.pose).as_vector()
             errors.append([math.hypot(e[0], e[1]), abs(e[2])])
@@ -205,7 +207,7 @@ def test_hostile_input_names_the_problem() -> None:
         (ValueError, "source: point 1 has a non-finite", {"source": _c([[0, 0], [np.nan, 1.0]])}),
         (ValueError, "source: is empty", {"source": _c(np.zeros((0, 2)))}),
         (TypeError, "source: expected dtype float64", {"source": src.astype(np.float32)}),
-        (ValueError, "method: unknown 'icp'", {"method": "icp"}),
+        (ValueError, "search: unknown 'icp'", {"search": "icp"}),
         (ValueError, "window: half-widths", {"window": (0.1, -0.1, 0.1)}),
         (ValueError, "window: expected", {"window": (0.1, 0.1)}),
         (ValueError, "window: dθ must be", {"window": (0.1, 0.1, 4.0)}),
@@ -226,7 +228,7 @@ def test_hostile_input_names_the_problem() -> None:
         scanreg.prepare_correlative(ref, levels=13)
     with pytest.raises(ValueError, match="resolution: the reference spans"):
         scanreg.prepare_correlative(_c([[0.0, 0.0], [1e5, 1e5]]), resolution=0.01)
-    with pytest.raises(ValueError, match="reference: expected shape"):
+    with pytest.raises(ValueError, match="points: expected shape"):
         scanreg.prepare_correlative(_c(np.zeros((4, 3))))
     with pytest.raises(ValueError, match="reference: expected shape"):
         scanreg._core.CorrelativeGrid(_c(np.zeros((4, 3))), 0.1, 0.1, 1)
@@ -257,7 +259,7 @@ def test_intel_local_relations_scan_to_scan() -> None:
                 init=log.motion_prior(k - 1, k),
                 window=(0.3, 0.3, math.radians(10)),
                 resolution=0.05,
-                method="branch_and_bound",
+                search="branch_and_bound",
             ).pose
         return cache[k]
 
@@ -296,8 +298,8 @@ ref = np.ascontiguousarray(sim.simulate_scan(scene, laser, a, seed=0).points)
 src = np.ascontiguousarray(
     sim.simulate_scan(scene, laser, a @ SE2.from_vector([0.2, -0.1, 0.05]), seed=1).points
 )
-for method in ("exhaustive", "branch_and_bound"):
-    r = scanreg.match_correlative(src, ref, window=(0.4, 0.4, 0.2), method=method)
+for search in ("exhaustive", "branch_and_bound"):
+    r = scanreg.match_correlative(src, ref, window=(0.4, 0.4, 0.2), search=search)
     print(r.pose.as_vector().tobytes().hex(), r.covariance.tobytes().hex(), r.num_evaluated)
 n = scanreg.match_ndt(src, ref, cell_size=1.0)
 print(n.pose.as_vector().tobytes().hex(), n.covariance.tobytes().hex())

@@ -130,14 +130,12 @@ def test_g2o_round_trip_2d(tmp_path: Path) -> None:
     np.testing.assert_array_equal(back.edges[0].information, info)
 
 
-def test_information_from_covariance() -> None:
+def test_g2o_information() -> None:
     cov = np.diag([0.01, 0.04, 0.09, 1e-4, 4e-4, 9e-4])
-    info = sio.information_from_covariance(cov)
+    info = sio.g2o_information(cov)
     # the rotation block is over the quaternion's imaginary part (≈ φ/2): 4× the information
     np.testing.assert_allclose(np.diag(info), [100, 25, 1 / 0.09, 4e4, 1e4, 4 / 9e-4])
-    np.testing.assert_allclose(
-        sio.information_from_covariance(np.diag([1.0, 2, 4])), np.diag([1, 0.5, 0.25])
-    )
+    np.testing.assert_allclose(sio.g2o_information(np.diag([1.0, 2, 4])), np.diag([1, 0.5, 0.25]))
 
 
 @settings(

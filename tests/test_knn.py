@@ -109,7 +109,7 @@ def test_results_do_not_depend_on_thread_count() -> None:
 
 def test_prepared_target_is_immutable() -> None:
     pts = np.random.default_rng(0).normal(size=(50, 3))
-    target = scanreg.prepare(pts, covariances=True, k=8)
+    target = scanreg.prepare(pts, covariances=True, num_neighbors=8)
     assert target.points is not pts and np.array_equal(target.points, pts)
     assert target.normals is not None and target.covariances is not None
     assert target.covariances.shape == (50, 3, 3)
@@ -117,7 +117,7 @@ def test_prepared_target_is_immutable() -> None:
         with pytest.raises(ValueError, match="read-only"):
             a[0] = 0.0
     with pytest.raises(AttributeError):
-        target.k = 3  # type: ignore[misc]
+        target.num_neighbors = 3  # type: ignore[misc]
     pts[0] = 99.0  # the caller's array is not shared
     assert not np.array_equal(target.points[0], pts[0])
 
@@ -129,8 +129,8 @@ def test_prepared_target_is_immutable() -> None:
         (lambda t: t.nearest(np.full((2, 3), np.nan), 1.0), "query_points: point 0"),
         (lambda t: t.nearest(np.zeros((2, 3)), -1.0), "max_distance"),
         (lambda t: t.nearest(np.zeros((2, 3)), float("nan")), "max_distance"),
-        (lambda t: t.knn(np.zeros((2, 3)), 0), "k: must be >= 1"),
-        (lambda t: t.knn(np.zeros((2, 3)), 11), "k: is 11"),
+        (lambda t: t.knn(np.zeros((2, 3)), 0), "num_neighbors: must be >= 1"),
+        (lambda t: t.knn(np.zeros((2, 3)), 11), "num_neighbors: is 11"),
         (lambda t: t.radius(np.zeros((2, 3)), -0.5), "radius"),
     ],
 )
@@ -149,8 +149,8 @@ def test_hostile_prepare() -> None:
         scanreg.prepare(np.zeros((5, 3), np.float32))
     with pytest.raises(ValueError, match="points: point 2 has a non-finite"):
         scanreg.prepare(np.array([[0.0, 0, 0], [1, 0, 0], [np.inf, 0, 0]]))
-    with pytest.raises(ValueError, match="k: is 30 but points has only 5"):
-        scanreg.prepare(np.random.default_rng(0).normal(size=(5, 3)), k=30)
+    with pytest.raises(ValueError, match="num_neighbors: is 30 but points has only 5"):
+        scanreg.prepare(np.random.default_rng(0).normal(size=(5, 3)), num_neighbors=30)
     with pytest.raises(ValueError, match="regularization"):
         scanreg.prepare(np.zeros((5, 3)), regularization="bogus")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="voxel_size"):

@@ -50,7 +50,7 @@ def test_normal_noise_matches_numpy(dim: int) -> None:
     cos = np.abs(np.einsum("ij,ij->i", nrm, ref_nrm))  # sign is arbitrary
     np.testing.assert_allclose(cos, 1.0, atol=1e-9)
 
-    target = scanreg.prepare(pts, normals=True, k=10)
+    target = scanreg.prepare(pts, normals=True, num_neighbors=10)
     assert target.normals is not None
     got = normal_noise(target.points, target.normals, target.index)
     np.testing.assert_allclose(

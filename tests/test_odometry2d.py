@@ -28,7 +28,7 @@ def test_square_room_loop_final_drift(front_end: str) -> None:
     traj = sim.Trajectory.from_speed_and_yaw_rate(0.5, 0.3, duration=25.0, start=start)
     run = sim.simulate_run(sim.square_room(5.0), SICK, traj, num_scans=200, scan_rate=8.0, seed=2)
     odo = Odometry2D(OdometryConfig2D(front_end=front_end))  # type: ignore[arg-type]
-    frames = [odo.step(_points(s), timestamp=0.125 * k) for k, s in enumerate(run.scans)]
+    frames = [odo.step(_points(s), stamp=0.125 * k) for k, s in enumerate(run.scans)]
     truth = run.poses[0].inverse() @ run.poses[-1]
     err = truth.inverse() @ frames[-1].pose
     # Travelled about 12.5 m and turned 430°: final drift below 3 cm and 0.3°.
@@ -36,12 +36,17 @@ def test_square_room_loop_final_drift(front_end: str) -> None:
     assert abs(err.angle) < math.radians(0.3)
     # A few steps stop at max_iterations (Huber IRLS creeping below the tolerance).
     assert sum(f.verdict.accepted for f in frames) >= 0.9 * len(frames)
-    assert sum(f.keyframe for f in frames) > 10
-    assert frames[0].prediction == "first" and frames[1].prediction == "constant_velocity"
+    assert sum(f.map_updated for f in frames) > 10
+    assert frames[0].prediction_source == "first"
+    assert frames[1].prediction_source == "constant_velocity"
     f = frames[-1]
     assert isinstance(f, Frame2D) and f.covariance.shape == (3, 3)
     assert not f.covariance.flags.writeable
-    assert f.timing.total >= f.timing.align > 0 and 0.9 < f.fitness <= 1.0
+    assert (
+        f.timing.total >= f.timing.align > 0
+        and f.quality is not None
+        and 0.9 < f.quality.overlap <= 1.0
+    )
     with pytest.raises(AttributeError):
         f.pose = SE2.identity()  # type: ignore[misc]
 
@@ -59,7 +64,7 @@ def test_wheel_prior_is_used_and_corrected() -> None:
             prior = SE2.from_vector(true_step * [1.1, 1.1, 1.0])
         frame = odo.step(_points(s), prior=prior)
         if k:
-            assert frame.prediction == "prior"
+            assert frame.prediction_source == "prior"
     truth = run.poses[0].inverse() @ run.poses[-1]
     assert np.linalg.norm((truth.inverse() @ frame.pose).translation) < 0.02
 
@@ -97,7 +102,7 @@ def test_intel_subset_relations() -> None:
     poses = []
     for k, scan in enumerate(log.scans):
         prior = None if k == 0 else log.motion_prior(k - 1, k)
-        poses.append(odo.step(scan.to_points(0.1, 40.0), timestamp=scan.timestamp, prior=prior))
+        poses.append(odo.step(scan.to_points(0.1, 40.0), stamp=scan.timestamp, prior=prior))
     matrices = np.tile(np.eye(4), (len(poses), 1, 1))
     for m, f in zip(matrices, poses, strict=True):
         m[:2, :2] = f.pose.rotation
@@ -167,21 +172,25 @@ def test_hostile_input() -> None:
         odo.step(bad)
     with pytest.raises(ValueError, match="points"):
         odo.step(pts[:2].copy())
-    with pytest.raises(ValueError, match="timestamp"):
-        odo.step(pts, timestamp=math.inf)
-    with pytest.raises(TypeError, match="timestamp"):
-        odo.step(pts, timestamp="1.0")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="stamp"):
+        odo.step(pts, stamp=math.inf)
+    with pytest.raises(TypeError, match="stamp"):
+        odo.step(pts, stamp="1.0")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="timestamps: Odometry2D takes each scan as instantaneous"):
+        odo.step(pts, np.zeros(len(pts)))
     with pytest.raises(ValueError, match="prior"):
         odo.step(pts, prior=np.array([0.1, 0.0, 0.0]))
     with pytest.raises(ValueError, match="prior"):
         odo.step(pts, prior=np.eye(3) * 2.0)
     # Nothing was consumed by the refused calls.
     assert odo.pose is None
-    f0 = odo.step(pts, timestamp=1.0)
-    assert f0.pose == SE2.identity() and f0.report is None and f0.keyframe
-    with pytest.raises(ValueError, match="timestamp"):
-        odo.step(pts, timestamp=0.5)
-    f1 = odo.step(pts, timestamp=2.0)
+    f0 = odo.step(pts, stamp=1.0)
+    assert f0.pose == SE2.identity() and f0.quality is None and f0.map_updated
+    assert f0.registration is None and not f0.covariance.any() and f0.stamp == 1.0
+    with pytest.raises(ValueError, match="stamp"):
+        odo.step(pts, stamp=0.5)
+    f1 = odo.step(pts, stamp=2.0)
+    assert f1.registration is not None and f1.motion == f0.pose.inverse() @ f1.pose
     assert np.linalg.norm(f1.pose.translation) < 1e-6
     assert odo.map_points is not None and not odo.map_points.flags.writeable
 

@@ -49,8 +49,8 @@ def test_noise_free_point_to_plane_from_offset_init(seed: int, dim: int) -> None
     target = truth.apply(source)
     normals = rng.normal(size=(n, dim))
     init = truth @ type(truth).exp(rng.normal(size=truth.DOF) * 0.05)
-    objective = "point_to_line" if dim == 2 else "point_to_plane"
-    result = align_paired(source, target, objective=objective, target_normals=normals, init=init)
+    method = "point_to_line" if dim == 2 else "point_to_plane"
+    result = align_paired(source, target, method=method, target_normals=normals, init=init)
     assert result.converged
     assert result.pose.is_close(truth, atol=1e-9)
 
@@ -193,7 +193,7 @@ def test_point_to_line_ignores_sliding_along_the_line() -> None:
     target = truth.apply(source)
     tangents = normals @ np.array([[0.0, 1.0], [-1.0, 0.0]])
     target += tangents * rng.uniform(-0.5, 0.5, (n, 1))
-    result = align_paired(source, target, objective="point_to_line", target_normals=normals)
+    result = align_paired(source, target, method="point_to_line", target_normals=normals)
     assert result.pose.is_close(truth, atol=1e-9)
     assert not align_paired(source, target).pose.is_close(truth, atol=1e-3)
 
@@ -242,7 +242,7 @@ def test_degenerate_point_to_line_flags_the_free_translation() -> None:
     normals = np.tile([0.0, 1.0], (100, 1))
     target = source + np.array([0.0, 0.1])
     with pytest.raises(ValueError, match=r"translation along \(1.00, 0.00\) is unobservable"):
-        align_paired(source, target, objective="point_to_line", target_normals=normals)
+        align_paired(source, target, method="point_to_line", target_normals=normals)
 
 
 # --- hostile input --------------------------------------------------------------------------
@@ -345,25 +345,25 @@ GOOD = np.random.default_rng(0).normal(size=(10, 3))
             "kernel_scale: must be finite and > 0",
         ),
         (
-            {"source": GOOD, "target": GOOD, "objective": "point_to_plane"},
+            {"source": GOOD, "target": GOOD, "method": "point_to_plane"},
             ValueError,
             "target_normals: required",
         ),
         (
-            {"source": GOOD, "target": GOOD, "objective": "point_to_line", "target_normals": GOOD},
+            {"source": GOOD, "target": GOOD, "method": "point_to_line", "target_normals": GOOD},
             ValueError,
-            "objective: 'point_to_line' is for 2D points",
+            "method: 'point_to_line' is for 2D points",
         ),
         (
-            {"source": GOOD, "target": GOOD, "objective": "plane"},
+            {"source": GOOD, "target": GOOD, "method": "plane"},
             ValueError,
-            "objective: unknown 'plane'",
+            "method: unknown 'plane'",
         ),
         (
             {
                 "source": GOOD,
                 "target": GOOD,
-                "objective": "point_to_plane",
+                "method": "point_to_plane",
                 "target_normals": np.zeros((10, 3)),
             },
             ValueError,

@@ -44,7 +44,7 @@ def test_voxel_centroid_matches_numpy_groupby(dim: int, n: int, size: float, see
     np.testing.assert_array_equal(got.indices, want_first)
     np.testing.assert_array_equal(got.counts, want_counts)
     np.testing.assert_allclose(got.points, want_pts, rtol=0, atol=1e-12)
-    first = pp.voxel_downsample(pts, size, method="first")
+    first = pp.voxel_downsample(pts, size, keep="first")
     np.testing.assert_array_equal(first.points, pts[want_first])
     assert got.counts.sum() == n
 
@@ -89,7 +89,7 @@ def test_outlier_removal_removes_planted_outliers() -> None:
     inliers = rng.uniform(-1, 1, (3000, 3)) * [5, 5, 0.05]  # a noisy slab
     outliers = rng.uniform(-1, 1, (30, 3)) * 20 + [0, 0, 30]  # far, sparse
     pts = np.vstack([inliers, outliers])
-    s = pp.remove_statistical_outliers(pts, k=10, std_ratio=2.0)
+    s = pp.remove_statistical_outliers(pts, num_neighbors=10, std_ratio=2.0)
     assert set(range(3000, 3030)).isdisjoint(s.indices.tolist())
     assert s.num_kept >= 2950  # at most ~1.7% of inliers lost
     assert np.all(s.mean_distances[s.indices] <= s.threshold)
@@ -114,7 +114,7 @@ def test_normals_of_planes_and_lines(dim: int) -> None:
     coords = rng.uniform(-2, 2, (500, dim - 1))
     pts = offset * normal + coords @ basis[:, 1:].T
     for viewpoint, sign in ((np.zeros(dim), -1.0), (10 * normal, 1.0)):
-        res = pp.estimate_normals(pts, k=10, viewpoint=viewpoint)
+        res = pp.estimate_normals(pts, num_neighbors=10, viewpoint=viewpoint)
         assert res.num_invalid == 0
         np.testing.assert_allclose(res.normals, np.tile(sign * normal, (500, 1)), atol=1e-9)
         facing = np.einsum("ij,ij->i", res.normals, viewpoint - pts)
@@ -132,7 +132,7 @@ def test_normals_of_spheres_and_circles(dim: int) -> None:
     u = rng.normal(size=(n, dim))
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     pts = center + u
-    res = pp.estimate_normals(pts, k=10, viewpoint=center)
+    res = pp.estimate_normals(pts, num_neighbors=10, viewpoint=center)
     cos = np.einsum("ij,ij->i", res.normals, -u)
     assert cos.min() > np.cos(np.deg2rad(6.0))
     assert np.median(cos) > np.cos(np.deg2rad(1.0))
@@ -142,20 +142,22 @@ def test_normals_of_spheres_and_circles(dim: int) -> None:
 def test_covariance_regularisation_eigenvalues(dim: int) -> None:
     rng = np.random.default_rng(30 + dim)
     pts = rng.normal(size=(300, dim)) * np.array([3.0, 1.0, 0.2][:dim])
-    plane = pp.estimate_covariances(pts, k=12, regularization="plane", epsilon=1e-3)
+    plane = pp.estimate_covariances(pts, num_neighbors=12, regularization="plane", epsilon=1e-3)
     want = np.array([1e-3] + [1.0] * (dim - 1))
     ev = np.linalg.eigvalsh(plane.covariances)
     np.testing.assert_allclose(ev, np.tile(want, (300, 1)), atol=1e-12)
     # Its thin axis is the normal.
-    normals = pp.estimate_normals(pts, k=12).normals
+    normals = pp.estimate_normals(pts, num_neighbors=12).normals
     thin = np.einsum("ni,nij,nj->n", normals, plane.covariances, normals)
     np.testing.assert_allclose(thin, 1e-3, atol=1e-12)
-    raw = pp.estimate_covariances(pts, k=12, regularization="none")
+    raw = pp.estimate_covariances(pts, num_neighbors=12, regularization="none")
     # Raw covariance of point 0's neighbourhood, computed independently.
     d2 = ((pts - pts[0]) ** 2).sum(axis=1)
     nb = pts[np.argsort(d2, kind="stable")[:12]]
     np.testing.assert_allclose(raw.covariances[0], np.cov(nb.T, bias=True), atol=1e-12)
-    nme = pp.estimate_covariances(pts, k=12, regularization="normalized_min_eig", epsilon=0.05)
+    nme = pp.estimate_covariances(
+        pts, num_neighbors=12, regularization="normalized_min_eig", epsilon=0.05
+    )
     ev = np.linalg.eigvalsh(nme.covariances)
     np.testing.assert_allclose(ev[:, -1], 1.0, atol=1e-12)
     assert ev.min() >= 0.05 - 1e-12
@@ -164,10 +166,10 @@ def test_covariance_regularisation_eigenvalues(dim: int) -> None:
 
 def test_degenerate_neighbourhoods_are_flagged() -> None:
     line = np.outer(np.arange(20.0), [1.0, 2.0, -1.0])  # collinear in 3D: no plane normal
-    res = pp.estimate_normals(line, k=5)
+    res = pp.estimate_normals(line, num_neighbors=5)
     assert res.num_invalid == 20 and not res.valid.any()
     assert np.all(res.normals == 0.0)
-    cov = pp.estimate_covariances(line, k=5)
+    cov = pp.estimate_covariances(line, num_neighbors=5)
     np.testing.assert_array_equal(cov.covariances, np.tile(np.eye(3), (20, 1, 1)))
 
 
@@ -179,10 +181,10 @@ pts = rng.normal(0, 4, (20000, 3))
 h = hashlib.sha256()
 v = pp.voxel_downsample(pts, 0.5)
 h.update(v.points.tobytes()); h.update(v.indices.tobytes())
-t = scanreg.prepare(v.points, covariances=True, k=10)
+t = scanreg.prepare(v.points, covariances=True, num_neighbors=10)
 h.update(t.normals.tobytes()); h.update(t.covariances.tobytes())
 h.update(t.nearest(pts, 0.3).indices.tobytes())
-h.update(pp.remove_statistical_outliers(pts, k=8).indices.tobytes())
+h.update(pp.remove_statistical_outliers(pts, num_neighbors=8).indices.tobytes())
 print(json.dumps(h.hexdigest()))
 """
 
@@ -205,16 +207,36 @@ def test_deterministic_across_thread_counts() -> None:
         (lambda p: pp.voxel_downsample(p, -1.0), ValueError, "voxel_size"),
         (lambda p: pp.voxel_downsample(p, float("nan")), ValueError, "voxel_size"),
         (lambda p: pp.voxel_downsample(p, 1e-300), ValueError, "voxel_size: .* too small"),
-        (lambda p: pp.voxel_downsample(p, 1.0, method="mean"), ValueError, "method"),
-        (lambda p: pp.estimate_normals(p, k=0), ValueError, "k: must be >= 1"),
-        (lambda p: pp.estimate_normals(p, k=2), ValueError, "k: must be >= 3"),
-        (lambda p: pp.estimate_normals(p, k=11), ValueError, "k: is 11"),
-        (lambda p: pp.estimate_normals(p, k=2.5), TypeError, "k: expected an int"),
-        (lambda p: pp.estimate_normals(p, k=5, viewpoint=[0, 0]), ValueError, "viewpoint"),
-        (lambda p: pp.estimate_covariances(p, k=5, epsilon=0), ValueError, "epsilon"),
-        (lambda p: pp.remove_statistical_outliers(p, k=10), ValueError, "k: is 10"),
+        (lambda p: pp.voxel_downsample(p, 1.0, keep="mean"), ValueError, "keep"),
         (
-            lambda p: pp.remove_statistical_outliers(p, k=5, std_ratio=np.inf),
+            lambda p: pp.estimate_normals(p, num_neighbors=0),
+            ValueError,
+            "num_neighbors: must be >= 1",
+        ),
+        (
+            lambda p: pp.estimate_normals(p, num_neighbors=2),
+            ValueError,
+            "num_neighbors: must be >= 3",
+        ),
+        (lambda p: pp.estimate_normals(p, num_neighbors=11), ValueError, "num_neighbors: is 11"),
+        (
+            lambda p: pp.estimate_normals(p, num_neighbors=2.5),
+            TypeError,
+            "num_neighbors: expected an int",
+        ),
+        (
+            lambda p: pp.estimate_normals(p, num_neighbors=5, viewpoint=[0, 0]),
+            ValueError,
+            "viewpoint",
+        ),
+        (lambda p: pp.estimate_covariances(p, num_neighbors=5, epsilon=0), ValueError, "epsilon"),
+        (
+            lambda p: pp.remove_statistical_outliers(p, num_neighbors=10),
+            ValueError,
+            "num_neighbors: is 10",
+        ),
+        (
+            lambda p: pp.remove_statistical_outliers(p, num_neighbors=5, std_ratio=np.inf),
             ValueError,
             "std_ratio",
         ),
@@ -266,18 +288,18 @@ def test_drop_linear_leaves_lidar_rings_without_normals() -> None:
     gx, gy = np.meshgrid(np.arange(10) * 0.1, np.arange(10) * 0.1)
     grid = np.column_stack([gx.ravel(), gy.ravel(), np.ones(100)])
     pts = np.vstack([strip, grid])
-    kept = pp.estimate_normals(pts, k=8)
-    dropped = pp.estimate_normals(pts, k=8, drop_linear=True)
+    kept = pp.estimate_normals(pts, num_neighbors=8)
+    dropped = pp.estimate_normals(pts, num_neighbors=8, drop_linear=True)
     assert kept.num_linear == 0 and kept.num_invalid == 0
     assert not dropped.valid[:40].any() and np.all(dropped.normals[:40] == 0.0)
     interior = np.array([0 < i % 10 < 9 and 0 < i // 10 < 9 for i in range(100)])
     assert dropped.valid[40:][interior].all()
     np.testing.assert_allclose(np.abs(dropped.normals[40:][interior, 2]), 1.0, atol=1e-12)
     assert dropped.num_invalid == dropped.num_linear == int((~dropped.valid).sum()) >= 40
-    target = scanreg.prepare(pts, k=8, drop_linear=True)
+    target = scanreg.prepare(pts, num_neighbors=8, drop_linear=True)
     assert target.valid is not None and target.valid.all(), "valid still means non-degenerate"
     assert target.normals is not None and np.all(target.normals[:40] == 0.0)
     flat = np.column_stack([np.arange(30) * 0.1, 0.01 * (np.arange(30) % 2)])
-    assert pp.estimate_normals(flat, k=5, drop_linear=True).num_invalid == 0
+    assert pp.estimate_normals(flat, num_neighbors=5, drop_linear=True).num_invalid == 0
     with pytest.raises(TypeError, match="drop_linear: expected a bool"):
-        pp.estimate_normals(pts, k=8, drop_linear=1)  # type: ignore[arg-type]
+        pp.estimate_normals(pts, num_neighbors=8, drop_linear=1)  # type: ignore[arg-type]

@@ -4,6 +4,10 @@ Conventions: poses are ``T_target_source`` (``p_T = R p_S + t``); tangent vector
 translation-first and perturb on the right (``T @ exp(δ)``); see :mod:`scanreg.transform`.
 """
 
+import importlib
+from types import ModuleType
+from typing import TYPE_CHECKING
+
 from . import preprocess, simulate
 from ._core import __version__
 from .correlative import (
@@ -74,3 +78,24 @@ __all__ = [
     "simulate",
     "transform_covariance",
 ]
+
+# Submodules a user reaches as ``scanreg.io.…`` after a plain ``import scanreg``, loaded on first
+# access: ``io`` and ``eval`` pull in readers and tables that most registration code never uses.
+_LAZY_SUBMODULES = frozenset(
+    {"config", "eval", "interop", "io", "pipeline", "plot", "quality", "robust", "verdict"}
+)
+
+if TYPE_CHECKING:
+    from . import config, eval, interop, io, pipeline, plot, quality, robust, verdict  # noqa: F401
+
+
+def __getattr__(name: str) -> ModuleType:
+    if name in _LAZY_SUBMODULES:
+        module = importlib.import_module(f".{name}", __name__)
+        globals()[name] = module
+        return module
+    raise AttributeError(f"module 'scanreg' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | _LAZY_SUBMODULES)

@@ -1,12 +1,12 @@
 """Correlative 2D scan matching (Olson 2009) with branch and bound (Hess et al. 2016).
 
-The reference (a scan or a map, ``(N, 2)`` points in its own frame) is rasterised once into a
+The target (a scan or a map, ``(N, 2)`` points in its own frame) is rasterised once into a
 likelihood grid — ``g = exp(−d²/2σ²)`` with ``d`` the distance from a cell to the nearest
 occupied cell — and every candidate pose of a window is scored by summing ``g`` under the
 transformed source points. The per-cell work (distance transform, max-pooled levels, the
 search) runs in the Rust core (:mod:`scanreg-core` ``correlative``), parallel over rotations.
 
->>> grid = scanreg.prepare_correlative(reference_points, resolution=0.05)
+>>> grid = scanreg.prepare_correlative(target_points, resolution=0.05)
 >>> res = scanreg.match_correlative(source_points, grid, init=T_guess,
 ...                                 window=(0.5, 0.5, np.deg2rad(20)))
 >>> res.pose, res.covariance, res.fitness
@@ -14,13 +14,13 @@ search) runs in the Rust core (:mod:`scanreg-core` ``correlative``), parallel ov
 The search lattice
     Rotations ``θ₀ + k·δθ`` for ``|k| ≤ ⌈dθ/δθ⌉`` and translations ``t₀ + (i, j)·r`` for
     ``|i| ≤ ⌈dx/r⌉``, ``|j| ≤ ⌈dy/r⌉``, around ``init = (t₀, θ₀)``; ``r`` is the grid
-    resolution. ``method="branch_and_bound"`` explores the same lattice through max-pooled
-    grids and returns the same candidate as ``"exhaustive"`` (same pose, same score; ties go to
-    the smallest ``(k, i, j)``), usually after far fewer evaluations.
+    resolution. ``search="branch_and_bound"`` (the default) explores the same lattice through
+    max-pooled grids and returns the same candidate as ``"exhaustive"`` (same pose, same score;
+    ties go to the smallest ``(k, i, j)``), usually after far fewer evaluations.
 
 The covariance
     Olson's estimate over the scored candidates ``x = [x, y, θ]`` (the *window frame*: the
-    pose vector of ``T_reference_source``), with ``p = exp(S − S_max)`` and ``S = Σ g``
+    pose vector of ``T_target_source``), with ``p = exp(S − S_max)`` and ``S = Σ g``
     (``g ≈ 1 − d²/2σ²`` near a wall, so ``S`` is the Gaussian log-likelihood of the points to
     second order): ``Σ_w = Σ p x xᵀ / Σ p − μ μᵀ`` — over the whole window for the exhaustive
     search, over a ``±covariance_radius``-step neighbourhood of the optimum for branch and
@@ -48,8 +48,9 @@ from ._validate import frozen as _frozen
 from .quality import Conditioning, conditioning
 from .transform import SE2, as_pose
 
-Method = Literal["exhaustive", "branch_and_bound"]
-METHODS: tuple[str, ...] = ("exhaustive", "branch_and_bound")
+#: How the lattice is searched (not a cost function: the score is the same either way).
+Search = Literal["branch_and_bound", "exhaustive"]
+SEARCHES: tuple[str, ...] = ("branch_and_bound", "exhaustive")
 
 #: Default grid resolution (m/cell).
 DEFAULT_RESOLUTION = 0.05
@@ -79,7 +80,7 @@ class CorrelativeResult:
     Attributes
     ----------
     pose : SE2
-        ``T_reference_source`` of the best lattice candidate.
+        ``T_target_source`` of the best lattice candidate.
     score : float
         Mean likelihood of the source points at ``pose``, in ``[0, 1]`` (1: every point in an
         occupied cell).
@@ -88,7 +89,7 @@ class CorrelativeResult:
         module docstring for how it comes from the window-frame estimate.
     window_covariance : (3, 3) float64
         Olson's estimate over the window frame ``[x, y, θ]`` (pose-vector offsets in the
-        reference frame), quantisation term included.
+        target frame), quantisation term included.
     mean : (3,) float64
         ``[x, y, θ]``: the ``p``-weighted mean of the candidates (a sub-lattice estimate).
     fitness : float
@@ -101,7 +102,8 @@ class CorrelativeResult:
         Size of the lattice window.
     at_window_edge : bool
         The optimum lies on the border of the window: the true pose may be outside it.
-    method : str
+    search : str
+        ``"branch_and_bound"`` or ``"exhaustive"``.
     resolution, angular_resolution : float
         The lattice steps (m, rad).
     timing : CorrelativeTiming
@@ -117,7 +119,7 @@ class CorrelativeResult:
     num_bounds: int
     num_candidates: int
     at_window_edge: bool
-    method: str
+    search: str
     resolution: float
     angular_resolution: float
     timing: CorrelativeTiming
@@ -131,7 +133,7 @@ class CorrelativeResult:
 
 @dataclass(frozen=True, eq=False)
 class CorrelativeGrid:
-    """A reference rasterised once for :func:`match_correlative` (see
+    """A target rasterised once for :func:`match_correlative` (see
     :func:`prepare_correlative`).
 
     Attributes
@@ -143,11 +145,11 @@ class CorrelativeGrid:
     levels : int
         Max-pooled levels available to branch and bound.
     origin : (float, float)
-        Reference-frame coordinates of the lower-left corner of cell ``(0, 0)``.
+        Target-frame coordinates of the lower-left corner of cell ``(0, 0)``.
     shape : (int, int)
         ``(width, height)`` in cells.
     num_points : int
-        Reference points rasterised.
+        Target points rasterised.
     """
 
     resolution: float
@@ -170,13 +172,13 @@ class CorrelativeGrid:
 
 
 def prepare_correlative(
-    reference: Any,
+    points: Any,
     *,
     resolution: float = DEFAULT_RESOLUTION,
     sigma: float | None = None,
     levels: int = DEFAULT_LEVELS,
 ) -> CorrelativeGrid:
-    """Rasterise ``reference`` ``(N, 2)`` (metres) once, for many matches against it.
+    """Rasterise the target ``points`` ``(N, 2)`` (metres) once, for many matches against it.
 
     Parameters
     ----------
@@ -187,7 +189,7 @@ def prepare_correlative(
     levels : int
         Max-pooled levels for branch and bound (0: exhaustive only); at most 12.
     """
-    ref = as_points(reference, "reference", dim=2)
+    ref = as_points(points, "points", dim=2)
     res = positive(resolution, "resolution")
     sig = res if sigma is None else positive(sigma, "sigma")
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)):
@@ -237,25 +239,25 @@ def _steps(half_width: float, step: float) -> int:
 
 def match_correlative(
     source: Any,
-    reference: Any,
+    target: Any,
     *,
     init: Any = None,
     window: Any = DEFAULT_WINDOW,
     resolution: float | None = None,
     angular_resolution: float | None = None,
-    method: Method = "exhaustive",
+    search: Search = "branch_and_bound",
     sigma: float | None = None,
     levels: int = DEFAULT_LEVELS,
     covariance_radius: int = 4,
 ) -> CorrelativeResult:
-    """Find ``T_reference_source`` by correlative search over a window around ``init``.
+    """Find ``T_target_source`` by correlative search over a window around ``init``.
 
     Parameters
     ----------
     source : (N, 2) float64
         Source scan points in the source frame (metres).
-    reference : (M, 2) float64 or CorrelativeGrid
-        Reference points (its frame is the target frame), or a grid from
+    target : (M, 2) float64 or CorrelativeGrid
+        Target points (in the target frame), or a grid from
         :func:`prepare_correlative` (then ``resolution``/``sigma``/``levels`` must be left
         unset or agree).
     init : SE2 or (3, 3) matrix, optional
@@ -266,7 +268,9 @@ def match_correlative(
         Grid cell and translation step (m); default 0.05.
     angular_resolution : float, optional
         Rotation step (rad); default :func:`default_angular_resolution`.
-    method : "exhaustive" or "branch_and_bound"
+    search : "branch_and_bound" (default) or "exhaustive"
+        How the window is searched: both return the same candidate (same pose and score);
+        branch and bound scores far fewer of them.
     covariance_radius : int
         Branch and bound: half-width in steps of the dense neighbourhood used for the
         covariance.
@@ -274,12 +278,12 @@ def match_correlative(
     Raises
     ------
     ValueError, TypeError
-        Naming the argument: bad shapes, non-finite points, unknown method, a window or step
+        Naming the argument: bad shapes, non-finite points, unknown search, a window or step
         that is not positive, an ``init`` that is not a rigid transform.
     """
     src = as_points(source, "source", dim=2)
-    if method not in METHODS:
-        raise ValueError(f"method: unknown {method!r}; expected one of {', '.join(METHODS)}")
+    if search not in SEARCHES:
+        raise ValueError(f"search: unknown {search!r}; expected one of {', '.join(SEARCHES)}")
     pose0 = SE2.identity() if init is None else as_pose(init, "init", 2)
     assert isinstance(pose0, SE2)
     dx, dy, dtheta = _window(window)
@@ -287,8 +291,8 @@ def match_correlative(
         raise TypeError("covariance_radius: expected an int")
     if covariance_radius < 0:
         raise ValueError(f"covariance_radius: must be >= 0, got {covariance_radius}")
-    if isinstance(reference, CorrelativeGrid):
-        grid = reference
+    if isinstance(target, CorrelativeGrid):
+        grid = target
         if resolution is not None and positive(resolution, "resolution") != grid.resolution:
             raise ValueError(
                 f"resolution: {resolution} differs from the prepared grid's {grid.resolution}"
@@ -298,7 +302,7 @@ def match_correlative(
         grid_seconds = 0.0
     else:
         res = DEFAULT_RESOLUTION if resolution is None else resolution
-        grid = prepare_correlative(reference, resolution=res, sigma=sigma, levels=levels)
+        grid = prepare_correlative(target, resolution=res, sigma=sigma, levels=levels)
         grid_seconds = grid.build_seconds
     r = grid.resolution
     dth = (
@@ -310,7 +314,7 @@ def match_correlative(
     center = pose0.as_vector()
     t0 = time.perf_counter()
     m = grid._native.search(
-        src, (center[0], center[1], center[2]), nx, ny, nt, dth, method, int(covariance_radius)
+        src, (center[0], center[1], center[2]), nx, ny, nt, dth, search, int(covariance_radius)
     )
     search_seconds = time.perf_counter() - t0
     pose = SE2.from_vector(m.pose)
@@ -334,7 +338,7 @@ def match_correlative(
         at_window_edge=bool(
             (nx > 0 and abs(i) == nx) or (ny > 0 and abs(j) == ny) or (nt > 0 and abs(k) == nt)
         ),
-        method=method,
+        search=search,
         resolution=r,
         angular_resolution=dth,
         timing=CorrelativeTiming(grid_seconds=grid_seconds, search_seconds=search_seconds),
@@ -343,7 +347,7 @@ def match_correlative(
 
 
 __all__ = [
-    "METHODS",
+    "SEARCHES",
     "CorrelativeGrid",
     "CorrelativeResult",
     "CorrelativeTiming",

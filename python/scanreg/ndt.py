@@ -1,12 +1,12 @@
 """2D Normal Distributions Transform registration (Biber & Straßer 2003).
 
-The reference is summarised by a Gaussian per cell in four grids shifted by half a cell (built
+The target is summarised by a Gaussian per cell in four grids shifted by half a cell (built
 once, in the Rust core); a source scan is aligned by Newton's method on the NDT cost
 ``f(p) = −Σ exp(−½ qᵀΣ⁻¹q)`` over the pose vector ``p = [tx, ty, θ]`` of
-``T_reference_source``. The per-point sums (cost, analytic gradient and Hessian) run in the
+``T_target_source``. The per-point sums (cost, analytic gradient and Hessian) run in the
 core; the iteration policy is here.
 
->>> target = scanreg.prepare_ndt(reference_points, cell_size=1.0)
+>>> target = scanreg.prepare_ndt(target_points, cell_size=1.0)
 >>> res = scanreg.match_ndt(source_points, target, init=T_guess)
 >>> res.pose, res.covariance, res.converged
 
@@ -41,7 +41,7 @@ StopReason = Literal["converged", "max_iterations", "no_overlap"]
 
 @dataclass(frozen=True, eq=False)
 class NdtTarget:
-    """A reference prepared for :func:`match_ndt` (see :func:`prepare_ndt`).
+    """A target prepared for :func:`match_ndt` (see :func:`prepare_ndt`).
 
     ``cell_sizes`` are the levels matched coarse to fine (``cell_size · 2^k``, …,
     ``cell_size``); ``num_cells`` counts the cells of the four shifted grids of the finest.
@@ -66,7 +66,7 @@ class NdtResult:
     Attributes
     ----------
     pose : SE2
-        ``T_reference_source``.
+        ``T_target_source``.
     covariance : (3, 3)
         Over the right perturbation ``[ρx, ρy, θ]`` (see the module docstring); all ``inf``
         when the information is singular.
@@ -80,7 +80,7 @@ class NdtResult:
     score : float
         ``−cost / N``: mean NDT score per source point, in ``[0, 4]``.
     fitness : float
-        Fraction of source points inside at least one reference cell.
+        Fraction of source points inside at least one target cell.
     iterations : int
     converged : bool
     stop_reason : "converged", "max_iterations" or "no_overlap"
@@ -110,21 +110,21 @@ class NdtResult:
 
 
 def prepare_ndt(
-    reference: Any,
+    points: Any,
     *,
     cell_size: float = 1.0,
     levels: int = 2,
     min_points: int = 3,
     min_eigen_ratio: float = 1e-3,
 ) -> NdtTarget:
-    """Build the four shifted NDT grids of ``reference`` ``(N, 2)`` (metres) at ``levels``
-    cell sizes ``cell_size · 2^(levels−1)``, …, ``cell_size`` (coarse to fine: the coarse
+    """Build the four shifted NDT grids of the target ``points`` ``(N, 2)`` (metres) at
+    ``levels`` cell sizes ``cell_size · 2^(levels−1)``, …, ``cell_size`` (coarse to fine: the coarse
     levels widen the basin, the finest sets the detail).
 
     Cells with fewer than ``min_points`` points are dropped; covariance eigenvalues below
     ``min_eigen_ratio`` × the larger one are raised to it (Biber & Straßer use 0.001).
     """
-    ref = as_points(reference, "reference", dim=2)
+    ref = as_points(points, "points", dim=2)
     size = positive(cell_size, "cell_size")
     for name, value in (("levels", levels), ("min_points", min_points)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
@@ -134,9 +134,7 @@ def prepare_ndt(
     sizes = tuple(size * 2.0**k for k in range(int(levels) - 1, -1, -1))
     natives = tuple(_core.NdtGrid(ref, c, int(min_points), float(min_eigen_ratio)) for c in sizes)
     if sum(natives[-1].num_cells) == 0:
-        raise ValueError(
-            f"reference: no cell of {size} m holds {min_points} points; use larger cells"
-        )
+        raise ValueError(f"points: no cell of {size} m holds {min_points} points; use larger cells")
     return NdtTarget(
         cell_size=size,
         cell_sizes=sizes,
@@ -196,7 +194,7 @@ def _levenberg_marquardt(
 
 def match_ndt(
     source: Any,
-    reference: Any,
+    target: Any,
     *,
     init: Any = None,
     cell_size: float | None = None,
@@ -204,15 +202,15 @@ def match_ndt(
     translation_tolerance: float = 1e-5,
     rotation_tolerance: float = 1e-5,
 ) -> NdtResult:
-    """Align ``source`` ``(N, 2)`` to ``reference`` (points or an :class:`NdtTarget`) by NDT.
+    """Align ``source`` ``(N, 2)`` to ``target`` (points or an :class:`NdtTarget`) by NDT.
 
     Parameters
     ----------
     init : SE2 or (3, 3) matrix, optional
-        Initial ``T_reference_source`` (default identity). NDT is local: the basin is about
+        Initial ``T_target_source`` (default identity). NDT is local: the basin is about
         half a cell.
     cell_size : float, optional
-        For a raw reference (default 1.0 m); must agree with a prepared one.
+        For a raw target (default 1.0 m); must agree with a prepared one.
     max_iterations, translation_tolerance, rotation_tolerance
         Newton stops when a step is below both tolerances (m, rad).
     """
@@ -225,21 +223,21 @@ def match_ndt(
         raise ValueError(f"max_iterations: must be >= 1, got {max_iterations}")
     tol_t = positive(translation_tolerance, "translation_tolerance")
     tol_r = positive(rotation_tolerance, "rotation_tolerance")
-    if isinstance(reference, NdtTarget):
-        target = reference
-        if cell_size is not None and positive(cell_size, "cell_size") != target.cell_size:
+    if isinstance(target, NdtTarget):
+        ndt = target
+        if cell_size is not None and positive(cell_size, "cell_size") != ndt.cell_size:
             raise ValueError(
-                f"cell_size: {cell_size} differs from the prepared target's {target.cell_size}"
+                f"cell_size: {cell_size} differs from the prepared target's {ndt.cell_size}"
             )
     else:
-        target = prepare_ndt(reference, cell_size=1.0 if cell_size is None else cell_size)
-    if not target._natives:
-        raise ValueError("reference: the NdtTarget has no grid")
+        ndt = prepare_ndt(target, cell_size=1.0 if cell_size is None else cell_size)
+    if not ndt._natives:
+        raise ValueError("target: the NdtTarget has no grid")
     t0 = time.perf_counter()
     p = pose0.as_vector()
     stop: StopReason = "max_iterations"
     iterations = 0
-    for native in target._natives:
+    for native in ndt._natives:
         p, stop, used = _levenberg_marquardt(native, src, p, int(max_iterations), tol_t, tol_r)
         iterations += used
     seconds = time.perf_counter() - t0

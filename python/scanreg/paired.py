@@ -27,7 +27,7 @@ from .quality import (
 from .robust import check_kernel, default_scale, robust_sigma
 from .transform import SE2, SE3, as_pose, pose_class
 
-Objective = Literal["point_to_point", "point_to_plane", "point_to_line"]
+Method = Literal["point_to_point", "point_to_plane", "point_to_line"]
 
 
 @dataclass(frozen=True)
@@ -44,7 +44,8 @@ class PairedAlignment:
     closed_form_pose: SE2 | SE3
     #: Umeyama scale ``s`` (``p_T = s R p_S + t``); 1.0 unless ``with_scale=True``.
     scale: float
-    objective: str
+    #: The cost function: ``point_to_point``, ``point_to_plane`` or ``point_to_line``.
+    method: str
     kernel: str
     #: Kernel scale used (in the points' units); ``nan`` for ``kernel="none"``.
     kernel_scale: float
@@ -107,7 +108,7 @@ def align_paired(
     target: Any,
     weights: Any = None,
     *,
-    objective: Objective = "point_to_point",
+    method: Method = "point_to_point",
     target_normals: Any = None,
     kernel: str = "none",
     kernel_scale: float | None = None,
@@ -126,16 +127,17 @@ def align_paired(
         ``(N, D)`` float64, C-contiguous, ``D`` = 2 or 3, in their own frames.
     weights
         Optional ``(N,)`` non-negative weights (inverse variances up to a common factor).
-    objective
-        ``"point_to_point"`` (default), or ``"point_to_plane"`` (3D) / ``"point_to_line"``
-        (2D), which need ``target_normals`` ``(N, D)`` (target frame; normalised here).
+    method
+        The cost function: ``"point_to_point"`` (default), or ``"point_to_plane"`` (3D) /
+        ``"point_to_line"`` (2D), which need ``target_normals`` ``(N, D)`` (target frame;
+        normalised here).
     kernel, kernel_scale
         Robust kernel (``none``, ``huber``, ``cauchy``, ``tukey``, ``geman_mcclure``,
         ``welsch``) applied by IRLS. ``kernel_scale=None`` estimates it from the residuals
         (see :mod:`scanreg.robust`), re-estimating until it settles.
     refine
         Run Gauss–Newton from the closed form (or ``init``). ``None``: only when needed
-        (a kernel, or a point-to-plane/line objective). Point-to-point least squares is
+        (a kernel, or a point-to-plane/line method). Point-to-point least squares is
         already optimal in closed form.
     with_scale
         Also estimate a similarity scale (Umeyama). Closed form only.
@@ -165,18 +167,17 @@ def align_paired(
     w = None if weights is None else as_weights(weights, "weights", src.shape[0])
     n_used = src.shape[0] if w is None else int(np.count_nonzero(w))
     kernel = check_kernel(kernel)
-    if objective not in ("point_to_point", "point_to_plane", "point_to_line"):
+    if method not in ("point_to_point", "point_to_plane", "point_to_line"):
         raise ValueError(
-            f"objective: unknown {objective!r}; expected point_to_point, point_to_plane or "
-            "point_to_line"
+            f"method: unknown {method!r}; expected point_to_point, point_to_plane or point_to_line"
         )
-    planar = objective != "point_to_point"
+    planar = method != "point_to_point"
     if planar:
         expected = "point_to_line" if dim == 2 else "point_to_plane"
-        if objective != expected:
-            raise ValueError(f"objective: {objective!r} is for {5 - dim}D points; use {expected!r}")
+        if method != expected:
+            raise ValueError(f"method: {method!r} is for {5 - dim}D points; use {expected!r}")
         if target_normals is None:
-            raise ValueError(f"target_normals: required for objective {objective!r}")
+            raise ValueError(f"target_normals: required for method {method!r}")
         normals = as_points(target_normals, "target_normals", dim=dim)
         if normals.shape[0] != src.shape[0]:
             raise ValueError(
@@ -197,7 +198,7 @@ def align_paired(
     min_pairs = dof // components + 1
     if n_used < min_pairs:
         raise ValueError(
-            f"source: {objective} in {dim}D needs at least {min_pairs} pairs with positive "
+            f"source: {method} in {dim}D needs at least {min_pairs} pairs with positive "
             f"weight, got {n_used}"
         )
     if kernel_scale is not None:
@@ -279,7 +280,7 @@ def align_paired(
         pose=pose,
         closed_form_pose=closed,
         scale=scale,
-        objective=objective,
+        method=method,
         kernel=kernel,
         kernel_scale=k_scale if kernel != "none" else float("nan"),
         refined=do_refine,

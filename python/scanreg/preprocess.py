@@ -24,7 +24,7 @@ from ._validate import readonly as _readonly
 IndexArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
-VoxelMethod = Literal["centroid", "first"]
+VoxelKeep = Literal["centroid", "first"]
 Regularization = Literal["plane", "normalized_min_eig", "none"]
 
 #: Default neighbourhood size for normals, covariances and statistical outlier removal.
@@ -78,15 +78,16 @@ class VoxelDownsampled:
     """One point per occupied voxel of a grid with cell ``voxel_size`` (cells
     ``floor(p / voxel_size)``, aligned with the origin of the points' frame)."""
 
-    #: ``(M, D)``: the centroid of each voxel's points (``method="centroid"``) or its point with
-    #: the lowest input index (``method="first"``). Read-only.
+    #: ``(M, D)``: the centroid of each voxel's points (``keep="centroid"``) or its point with
+    #: the lowest input index (``keep="first"``). Read-only.
     points: FloatArray
     #: ``(M,)`` lowest input index in each voxel, increasing (voxels in order of first appearance).
     indices: IndexArray
     #: ``(M,)`` number of input points in each voxel.
     counts: IndexArray
     voxel_size: float
-    method: str
+    #: Which point stands for a voxel: ``"centroid"`` or ``"first"``.
+    keep: str
     num_input: int
 
     @property
@@ -98,7 +99,7 @@ class VoxelDownsampled:
 class StatisticalOutliers(Filtered):
     """:class:`Filtered` plus the statistic each point was judged by."""
 
-    #: ``(N,)`` per input point: mean distance to its ``k`` nearest other points.
+    #: ``(N,)`` per input point: mean distance to its ``num_neighbors`` nearest other points.
     mean_distances: FloatArray
     #: Points with ``mean_distances <= threshold`` were kept.
     threshold: float
@@ -125,7 +126,7 @@ class Normals:
     valid: BoolArray
     #: Points without a normal (``~valid``), the linear ones included.
     num_invalid: int
-    k: int
+    num_neighbors: int
     viewpoint: FloatArray
     #: Of ``num_invalid``, the points left out because their 3D neighbourhood is linear.
     num_linear: int = 0
@@ -139,7 +140,7 @@ class Covariances:
     ``"plane"`` (default; Segal et al. 2009) — eigenvalues replaced by ``(ε, 1, 1)`` (3D) or
     ``(ε, 1)`` (2D), eigenvectors kept: a unit disc/segment of thickness ``ε`` along the normal;
     ``"normalized_min_eig"`` — eigenvalues divided by the largest and clamped below at ``ε``;
-    ``"none"`` — the raw sample covariance ``(1/k) Σ (q - q̄)(q - q̄)ᵀ`` (m²).
+    ``"none"`` — the raw sample covariance ``(1/num_neighbors) Σ (q - q̄)(q - q̄)ᵀ`` (m²).
     Degenerate neighbourhoods (``valid`` False) get the identity.
     """
 
@@ -147,7 +148,7 @@ class Covariances:
     covariances: FloatArray
     valid: BoolArray
     num_invalid: int
-    k: int
+    num_neighbors: int
     regularization: str
     epsilon: float
 
@@ -166,7 +167,7 @@ def _filtered(points: FloatArray, kept: IndexArray) -> Filtered:
 
 
 def voxel_downsample(
-    points: FloatArray, voxel_size: float, *, method: VoxelMethod = "centroid"
+    points: FloatArray, voxel_size: float, *, keep: VoxelKeep = "centroid"
 ) -> VoxelDownsampled:
     """Voxel-grid downsampling: one point per occupied voxel.
 
@@ -175,21 +176,22 @@ def voxel_downsample(
     points : (N, 2) or (N, 3) float64, N >= 1
     voxel_size : float
         Edge of the cubic (square) cells, in the points' units; finite, > 0.
-    method : {"centroid", "first"}
+    keep : {"centroid", "first"}
+        Which point stands for a voxel (not a cost function, hence not ``method``):
         ``"centroid"``: the mean of each voxel's points. ``"first"``: the voxel's point with the
         lowest input index (an actual measured point; deterministic).
     """
     pts = as_points(points, "points")
     size = positive(voxel_size, "voxel_size")
-    if method not in ("centroid", "first"):
-        raise ValueError(f"method: unknown {method!r}; expected 'centroid' or 'first'")
-    out, idx, counts = _core.voxel_downsample(pts, size, method)
+    if keep not in ("centroid", "first"):
+        raise ValueError(f"keep: unknown {keep!r}; expected 'centroid' or 'first'")
+    out, idx, counts = _core.voxel_downsample(pts, size, keep)
     return VoxelDownsampled(
         points=_readonly(out),
         indices=_readonly(idx),
         counts=_readonly(counts),
         voxel_size=size,
-        method=method,
+        keep=keep,
         num_input=int(pts.shape[0]),
     )
 
@@ -253,21 +255,24 @@ def crop_box(points: FloatArray, min_corner: Any, max_corner: Any) -> Filtered:
 
 
 def remove_statistical_outliers(
-    points: FloatArray, *, k: int = DEFAULT_K, std_ratio: float = 2.0
+    points: FloatArray, *, num_neighbors: int = DEFAULT_K, std_ratio: float = 2.0
 ) -> StatisticalOutliers:
     """Statistical outlier removal (Rusu et al. 2008).
 
-    For each point, ``d_i`` = mean distance to its ``k`` nearest *other* points; keep the points
-    with ``d_i <= mean(d) + std_ratio · std(d)`` (sample standard deviation over all points).
-    Needs ``1 <= k < N``.
+    For each point, ``d_i`` = mean distance to its ``num_neighbors`` nearest *other* points; keep
+    the points with ``d_i <= mean(d) + std_ratio · std(d)`` (sample standard deviation over all
+    points).
+    Needs ``1 <= num_neighbors < N``.
     """
     pts = as_points(points, "points")
-    kk = positive_int(k, "k")
+    kk = positive_int(num_neighbors, "num_neighbors")
     if kk >= pts.shape[0]:
-        raise ValueError(f"k: is {kk} but needs to be < the number of points ({pts.shape[0]})")
+        raise ValueError(
+            f"num_neighbors: is {kk} but needs to be < the number of points ({pts.shape[0]})"
+        )
     ratio = _finite(std_ratio, "std_ratio")
     kept, mean_d, thr = _core.KdTree(pts).statistical_outliers(kk, ratio)
-    _nonempty(kept, f"remove_statistical_outliers(k={kk}, std_ratio={ratio})")
+    _nonempty(kept, f"remove_statistical_outliers(num_neighbors={kk}, std_ratio={ratio})")
     return StatisticalOutliers(
         points=_readonly(pts[kept]),
         indices=_readonly(kept),
@@ -291,12 +296,13 @@ def remove_radius_outliers(
 
 
 def check_k(k: Any, n: int, dim: int) -> int:
-    """``dim <= k <= n`` for a PCA neighbourhood of ``k`` points (the point itself included)."""
-    kk = positive_int(k, "k")
+    """``dim <= k <= n`` for a PCA neighbourhood of ``k`` points (the point itself included);
+    errors name the public argument, ``num_neighbors``."""
+    kk = positive_int(k, "num_neighbors")
     if kk < dim:
-        raise ValueError(f"k: must be >= {dim} to fit a normal in {dim}D, got {kk}")
+        raise ValueError(f"num_neighbors: must be >= {dim} to fit a normal in {dim}D, got {kk}")
     if kk > n:
-        raise ValueError(f"k: is {kk} but points has only {n} points")
+        raise ValueError(f"num_neighbors: is {kk} but points has only {n} points")
     return kk
 
 
@@ -317,15 +323,19 @@ def check_regularization(regularization: Any, epsilon: Any) -> float:
 
 
 def estimate_normals(
-    points: FloatArray, *, k: int = DEFAULT_K, viewpoint: Any = None, drop_linear: bool = False
+    points: FloatArray,
+    *,
+    num_neighbors: int = DEFAULT_K,
+    viewpoint: Any = None,
+    drop_linear: bool = False,
 ) -> Normals:
-    """Unit normals from the ``k`` nearest neighbours (the point itself included): the
+    """Unit normals from the ``num_neighbors`` nearest neighbours (the point itself included): the
     eigenvector of the smallest eigenvalue of the neighbourhood covariance, flipped to face
     ``viewpoint`` (default: the origin). In 2D, the normal of the local line. ``drop_linear``:
     no normal where a 3D neighbourhood is linear (see :class:`Normals`; no effect in 2D)."""
     pts = as_points(points, "points")
     dim = int(pts.shape[1])
-    kk = check_k(k, int(pts.shape[0]), dim)
+    kk = check_k(num_neighbors, int(pts.shape[0]), dim)
     vp = as_viewpoint(viewpoint, dim)
     drop = check_flag(drop_linear, "drop_linear")
     normals, _, spans, linear = _core.KdTree(pts).local_geometry(
@@ -337,7 +347,7 @@ def estimate_normals(
         normals=_readonly(normals),
         valid=_readonly(valid),
         num_invalid=int((~valid).sum()),
-        k=kk,
+        num_neighbors=kk,
         viewpoint=_readonly(vp),
         num_linear=int(linear.sum()),
     )
@@ -346,15 +356,15 @@ def estimate_normals(
 def estimate_covariances(
     points: FloatArray,
     *,
-    k: int = DEFAULT_K,
+    num_neighbors: int = DEFAULT_K,
     regularization: Regularization = "plane",
     epsilon: float = 1e-3,
 ) -> Covariances:
-    """Per-point covariances from the ``k`` nearest neighbours, regularised as GICP needs
-    (see :class:`Covariances`)."""
+    """Per-point covariances from the ``num_neighbors`` nearest neighbours, regularised as GICP
+    needs (see :class:`Covariances`)."""
     pts = as_points(points, "points")
     dim = int(pts.shape[1])
-    kk = check_k(k, int(pts.shape[0]), dim)
+    kk = check_k(num_neighbors, int(pts.shape[0]), dim)
     eps = check_regularization(regularization, epsilon)
     _, covs, valid, _ = _core.KdTree(pts).local_geometry(
         kk, np.zeros(dim), normals=False, regularization=regularization, epsilon=eps
@@ -364,7 +374,7 @@ def estimate_covariances(
         covariances=_readonly(covs),
         valid=_readonly(valid),
         num_invalid=int((~valid).sum()),
-        k=kk,
+        num_neighbors=kk,
         regularization=regularization,
         epsilon=eps,
     )

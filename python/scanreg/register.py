@@ -514,7 +514,7 @@ def _prepared_target(
     if len(points) < dim + 1 and not (want_normals or want_covs):
         return prepare(points, normals=False)
     k = check_k(min(settings.num_neighbors, len(points)), len(points), dim)
-    return prepare(points, normals=True, covariances=want_covs, k=k)
+    return prepare(points, normals=True, covariances=want_covs, num_neighbors=k)
 
 
 def _pose_from_core(out: Any, dim: int) -> SE2 | SE3:

@@ -64,11 +64,12 @@ class Nearest:
 
 @dataclass(frozen=True)
 class Neighbors:
-    """``k`` nearest target points of each query point, each row sorted by (distance, index)."""
+    """``num_neighbors`` nearest target points of each query point, each row sorted by
+    (distance, index)."""
 
-    #: ``(M, k)`` target rows.
+    #: ``(M, num_neighbors)`` target rows.
     indices: NDArray[np.int64]
-    #: ``(M, k)`` squared distances, non-decreasing along each row.
+    #: ``(M, num_neighbors)`` squared distances, non-decreasing along each row.
     squared_distances: FloatArray
 
 
@@ -107,7 +108,7 @@ class PreparedTarget:
     #: nor covariances were computed).
     valid: BoolArray | None
     #: Neighbourhood size used for normals/covariances.
-    k: int
+    num_neighbors: int
     regularization: str
     epsilon: float
 
@@ -133,12 +134,13 @@ class PreparedTarget:
         idx, d2 = self.index.nearest(q, _gate(max_distance, "max_distance"))
         return Nearest(indices=_readonly(idx), squared_distances=_readonly(d2))
 
-    def knn(self, query_points: FloatArray, k: int) -> Neighbors:
-        """The ``k`` nearest target points of each query point (``1 <= k <= N``)."""
+    def knn(self, query_points: FloatArray, num_neighbors: int) -> Neighbors:
+        """The ``num_neighbors`` nearest target points of each query point
+        (``1 <= num_neighbors <= N``)."""
         q = as_points(query_points, "query_points", dim=self.dim, min_points=0)
-        kk = positive_int(k, "k")
+        kk = positive_int(num_neighbors, "num_neighbors")
         if kk > len(self):
-            raise ValueError(f"k: is {kk} but the target has only {len(self)} points")
+            raise ValueError(f"num_neighbors: is {kk} but the target has only {len(self)} points")
         idx, d2 = self.index.knn(q, kk)
         return Neighbors(indices=_readonly(idx), squared_distances=_readonly(d2))
 
@@ -159,7 +161,7 @@ def prepare(
     *,
     normals: bool = True,
     covariances: bool = False,
-    k: int = DEFAULT_K,
+    num_neighbors: int = DEFAULT_K,
     viewpoint: Any = None,
     regularization: Regularization = "plane",
     epsilon: float = 1e-3,
@@ -176,9 +178,9 @@ def prepare(
     covariances : bool
         Compute GICP covariances, regularised by ``regularization`` / ``epsilon``
         (see :class:`scanreg.preprocess.Covariances`).
-    k : int
+    num_neighbors : int
         Neighbourhood size for normals and covariances (the point itself included),
-        ``D <= k <= N``.
+        ``D <= num_neighbors <= N``.
     viewpoint : (D,) array or None
         Normals face this point; default the origin (the sensor, for a scan in its own frame).
     drop_linear : bool
@@ -191,7 +193,7 @@ def prepare(
     pts = as_points(points, "points", finite=False)  # the k-d tree's build refuses NaN/inf
     dim = int(pts.shape[1])
     index = _core.KdTree(pts)
-    kk = positive_int(k, "k")
+    kk = positive_int(num_neighbors, "num_neighbors")
     nrm = cov = valid = None
     eps = check_regularization(regularization, epsilon)
     if normals or covariances:
@@ -216,7 +218,7 @@ def prepare(
             "normals": nrm,
             "covariances": cov,
             "valid": valid,
-            "k": kk,
+            "num_neighbors": kk,
             "regularization": regularization,
             "epsilon": eps,
         },

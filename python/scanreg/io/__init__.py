@@ -35,7 +35,7 @@ from .arrays import (
     write_xyz,
 )
 from .carmen import CarmenLog, LaserScan, Odometry, read_carmen
-from .g2o import PoseGraph, PoseGraphEdge, information_from_covariance, read_g2o, write_g2o
+from .g2o import PoseGraph, PoseGraphEdge, g2o_information, read_g2o, write_g2o
 from .pcd import read_pcd, write_pcd
 from .ply import read_ply, write_ply
 from .rosbag import (
@@ -186,7 +186,7 @@ __all__ = [
     "SimulatedSequence",
     "Trajectory",
     "describe_sequence",
-    "information_from_covariance",
+    "g2o_information",
     "lidar_to_camera_poses",
     "list_topics",
     "open_sequence",

@@ -14,7 +14,7 @@ The information matrix is over g2o's error ordering, translation first: ``[x, y,
 and ``[x, y, z, qx, qy, qz]`` in 3D, where the rotation part is the imaginary part of the error
 quaternion (≈ half the rotation vector). scanreg's covariances are over the
 translation-first tangent ``[ρ, φ]`` (right perturbation, the same frame as g2o's error);
-:func:`information_from_covariance` converts one to the other (the 3D rotation block is
+:func:`g2o_information` converts one to the other (the 3D rotation block is
 scaled by 2 on each side).
 """
 
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from .._validate import FloatArray, as_matrix
+from ..quality import information_from_covariance
 from ..transform import SE2, SE3
 from ._common import FileFormatError, PathLike
 from .trajectory import ROTATION_TOLERANCE, quaternion_to_rotation, rotation_to_quaternion
@@ -76,18 +77,19 @@ class PoseGraph:
         object.__setattr__(self, "fixed", frozenset(self.fixed))
 
 
-def information_from_covariance(covariance: Any) -> FloatArray:
-    """g2o information matrix from a scanreg covariance over ``[ρ, φ]`` (3×3 or 6×6).
+def g2o_information(covariance: Any) -> FloatArray:
+    """g2o's information matrix for a scanreg covariance over ``[ρ, φ]`` (3×3 or 6×6).
 
-    In 3D g2o's rotation error is the quaternion's imaginary part ``≈ φ / 2``, so with
-    ``D = diag(1, 1, 1, 2, 2, 2)`` the result is ``D Σ⁻¹ D``; in 2D it is ``Σ⁻¹``.
+    The inverse is :func:`scanreg.quality.information_from_covariance` (the one inversion:
+    an infinite variance is a direction with no information). In 3D, g2o's rotation error is
+    the quaternion's imaginary part ``≈ φ / 2``, so with ``D = diag(1, 1, 1, 2, 2, 2)`` the
+    result is ``D Σ⁻¹ D`` — a rescaling for g2o's parametrisation, hence its own name; in 2D
+    it is ``Σ⁻¹``.
     """
     cov = np.asarray(covariance, dtype=np.float64)
     if cov.shape not in ((3, 3), (6, 6)):
         raise ValueError(f"covariance: expected shape (3, 3) or (6, 6), got {cov.shape}")
-    info: FloatArray = np.asarray(
-        np.linalg.inv(as_matrix(cov, "covariance", cov.shape)), dtype=np.float64
-    )
+    info = information_from_covariance(as_matrix(cov, "covariance", cov.shape))
     if cov.shape == (6, 6):
         d = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
         info = np.asarray(d[:, None] * info * d[None, :], dtype=np.float64)

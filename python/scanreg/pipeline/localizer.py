@@ -71,7 +71,7 @@ class Localizer(Odometry):
             pts,
             normals=c.method == "point_to_plane",
             covariances=c.method == "gicp",
-            k=min(c.num_neighbors, len(pts)),
+            num_neighbors=min(c.num_neighbors, len(pts)),
             # A map has no single viewpoint; normals' sign does not matter to the point-to-plane
             # residual.
         )

@@ -220,14 +220,19 @@ class FrameResult:
     """The outcome of one sweep (see the module docstring for frames and the covariance)."""
 
     index: int
+    #: The sweep's time (s) as passed to ``step(..., stamp=...)``, or ``None``.
+    stamp: float | None
     #: ``T_world_sensor`` of this sweep (at its ``reference_time``).
     pose: SE3
     #: ``T_prev_curr``: this sweep's motion since the previous one.
     motion: SE3
     #: Where the prediction put the sweep (``T_world_sensor``).
     prediction: SE3
+    #: ``"prior"``, ``"constant_velocity"`` or ``"first"``.
+    prediction_source: str
     #: ``(6, 6)`` over the right-perturbation tangent of ``pose`` given the map (translation
-    #: first); ``inf`` where unknown (the first sweep, a failed registration).
+    #: first); zeros for the first sweep of a map it defines, ``inf`` where unknown (a failed
+    #: registration).
     covariance: FloatArray
     verdict: Verdict
     #: ``None`` for the first sweep (nothing to register against).
@@ -249,8 +254,10 @@ class FrameResult:
 
     @property
     def degenerate(self) -> bool:
-        """Whether the registration found weak directions (named in ``quality``)."""
-        return bool(self.quality is not None and self.quality.conditioning.weak_directions)
+        """Whether the registration named weak directions (its :class:`~scanreg.Degeneracy`, the
+        one verdict on weakness), or the update held a direction to the prediction."""
+        deg = None if self.registration is None else self.registration.degeneracy
+        return bool(self.held_directions) or bool(deg is not None and deg.degenerate)
 
 
 def weak_translation_directions(hessian: FloatArray, ratio: float) -> list[FloatArray]:
@@ -269,7 +276,7 @@ def scan_translation_information(points: FloatArray, k: int) -> FloatArray:
     down each translation direction, in the sensor frame. The translation block of the
     point-to-plane information — independent of the method registering the scan (GICP's
     whitened information and point-to-point's, which is isotropic, cannot show it)."""
-    nrm = estimate_normals(points, k=min(k, len(points)))
+    nrm = estimate_normals(points, num_neighbors=min(k, len(points)))
     n = nrm.normals[nrm.valid]
     out: FloatArray = n.T @ n
     return out
@@ -540,9 +547,11 @@ class Odometry:
 
         return FrameResult(
             index=index,
+            stamp=None if stamp is None else float(stamp),
             pose=pose,
             motion=motion,
             prediction=prediction,
+            prediction_source="prior" if has_prior else "constant_velocity",
             covariance=cov,
             verdict=verdict,
             quality=quality,
@@ -639,7 +648,7 @@ class Odometry:
         if c.method != "point_to_plane":
             self.map.insert(world)
         elif len(map_points) >= c.num_neighbors:
-            nrm = estimate_normals(map_points, k=c.num_neighbors)
+            nrm = estimate_normals(map_points, num_neighbors=c.num_neighbors)
             ok = nrm.valid
             self.map.insert(world[ok], normals=nrm.normals[ok] @ pose.rotation.T)
 
@@ -666,10 +675,12 @@ class Odometry:
         t_update = time.perf_counter() - t0
         return FrameResult(
             index=index,
+            stamp=None if stamp is None else float(stamp),
             pose=pose,
             motion=SE3.identity(),
             prediction=pose,
-            covariance=np.full((6, 6), np.inf),
+            prediction_source="first",
+            covariance=np.zeros((6, 6)),
             verdict=Verdict(accepted=True, reasons=()),
             quality=None,
             registration=None,

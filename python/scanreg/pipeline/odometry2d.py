@@ -140,28 +140,45 @@ class FrameTiming2D:
 
 @dataclass(frozen=True)
 class Frame2D:
-    """The outcome of one :meth:`Odometry2D.step`."""
+    """The outcome of one :meth:`Odometry2D.step`; the same fields as the 3D
+    :class:`~scanreg.FrameResult` (SE2 poses, 3×3 covariances)."""
 
     index: int
-    timestamp: float | None
+    #: The scan's time (s) as passed to ``step(..., stamp=...)``, or ``None``.
+    stamp: float | None
     #: ``T_world_scan``.
     pose: SE2
-    #: The prediction the alignment started from.
-    predicted: SE2
-    #: 3×3 over the right-perturbation tangent [ρx, ρy, θ] of ``pose`` (the point-to-line
-    #: covariance against the map; not calibrated, see the README); zeros for the first scan.
+    #: ``T_prev_curr``: this scan's motion since the previous one (identity for the first).
+    motion: SE2
+    #: Where the prediction put the scan (``T_world_scan``); the alignment starts here.
+    prediction: SE2
+    #: ``"prior"``, ``"constant_velocity"`` or ``"first"``.
+    prediction_source: str
+    #: 3×3 over the right-perturbation tangent [ρx, ρy, θ] of ``pose`` given the map (the
+    #: point-to-line covariance against it); zeros for the first scan, which defines the map
+    #: frame.
     covariance: FloatArray
     verdict: Verdict
     #: ``None`` for the first scan (nothing to align to).
-    report: QualityReport | None
-    #: Fraction of scan points with a map point within the gate (1.0 for the first scan).
-    fitness: float
-    #: The scan joined the map.
-    keyframe: bool
-    #: ``"prior"``, ``"constant_velocity"`` or ``"first"``.
-    prediction: str
+    quality: QualityReport | None
+    #: The point-to-line registration against the map (``None`` for the first scan).
+    registration: RegistrationResult | None
+    #: Points aligned (after ``scan_voxel_size``).
+    num_source_points: int
+    #: Map size after this scan's update.
     num_map_points: int
+    #: Whether the scan joined the map (as a keyframe).
+    map_updated: bool
     timing: FrameTiming2D
+    #: Directions held to the prediction; the 2D pipeline holds none (kept for the shared shape).
+    held_directions: tuple[str, ...] = ()
+
+    @property
+    def degenerate(self) -> bool:
+        """Whether the registration named weak directions (:class:`~scanreg.Degeneracy`)."""
+        reg = self.registration
+        deg = None if reg is None else reg.degeneracy
+        return bool(deg is not None and deg.degenerate)
 
 
 class Odometry2D:
@@ -170,6 +187,7 @@ class Odometry2D:
     >>> odo = Odometry2D(OdometryConfig2D(front_end="icp"))
     >>> frame = odo.step(points)                     # (N, 2) float64, scan frame
     >>> frame = odo.step(points, prior=motion)       # SE2 T_prev_curr from wheel odometry
+    >>> frame = odo.step(points, stamp=t)            # the scan's time (s), non-decreasing
     """
 
     def __init__(self, config: OdometryConfig2D | None = None) -> None:
@@ -210,22 +228,48 @@ class Odometry2D:
         self._last_keyframe = pose
         self._rebuild()
 
-    def step(self, points: Any, *, timestamp: float | None = None, prior: Any = None) -> Frame2D:
-        """Register one scan (``(N, 2)`` float64 points in its own frame) to the local map."""
+    def step(
+        self,
+        points: Any,
+        timestamps: Any = None,
+        prior: Any = None,
+        *,
+        stamp: float | None = None,
+    ) -> Frame2D:
+        """Register one scan to the local map; the signature of :meth:`scanreg.Odometry.step`.
+
+        Parameters
+        ----------
+        points
+            ``(N, 2)`` points in the scan's own frame (metres).
+        timestamps
+            Per-point times: a 2D scan is taken as instantaneous, so only ``None`` is accepted
+            (deskew a rotating 2D sweep first with :func:`scanreg.deskew`).
+        prior
+            ``T_prev_curr`` motion from wheel odometry (``SE2`` or ``3x3``), used as the
+            prediction instead of constant velocity.
+        stamp
+            The scan's time (s); must not decrease from scan to scan.
+        """
         t_start = time.perf_counter()
         pts = as_points(points, "points", dim=2)
         if pts.shape[0] < 3:
             raise ValueError(f"points: need at least 3 points, got {pts.shape[0]}")
-        if timestamp is not None:
-            if isinstance(timestamp, bool) or not isinstance(
-                timestamp, (int, float, np.integer, np.floating)
+        if timestamps is not None:
+            raise ValueError(
+                "timestamps: Odometry2D takes each scan as instantaneous; deskew it first "
+                "(scanreg.deskew) and pass timestamps=None"
+            )
+        if stamp is not None:
+            if isinstance(stamp, bool) or not isinstance(
+                stamp, (int, float, np.integer, np.floating)
             ):
-                raise TypeError(f"timestamp: expected a number, got {type(timestamp).__name__}")
-            if not math.isfinite(float(timestamp)):
-                raise ValueError(f"timestamp: must be finite, got {timestamp!r}")
-            if self._last_time is not None and float(timestamp) < self._last_time:
+                raise TypeError(f"stamp: expected a number, got {type(stamp).__name__}")
+            if not math.isfinite(float(stamp)):
+                raise ValueError(f"stamp: must be finite, got {stamp!r}")
+            if self._last_time is not None and float(stamp) < self._last_time:
                 raise ValueError(
-                    f"timestamp: {timestamp} is earlier than the previous scan's {self._last_time}"
+                    f"stamp: {stamp} is earlier than the previous scan's {self._last_time}"
                 )
         motion = None if prior is None else as_pose(prior, "prior", 2)
         assert motion is None or isinstance(motion, SE2)
@@ -234,8 +278,8 @@ class Odometry2D:
             pts = np.ascontiguousarray(voxel_downsample(pts, cfg.scan_voxel_size).points)
         index = self._index
         self._index += 1
-        if timestamp is not None:
-            self._last_time = float(timestamp)
+        if stamp is not None:
+            self._last_time = float(stamp)
 
         if self._pose is None:
             pose = SE2.identity()
@@ -246,16 +290,18 @@ class Odometry2D:
             assert self._map_points is not None
             return Frame2D(
                 index=index,
-                timestamp=None if timestamp is None else float(timestamp),
+                stamp=None if stamp is None else float(stamp),
                 pose=pose,
-                predicted=pose,
+                motion=SE2.identity(),
+                prediction=pose,
+                prediction_source="first",
                 covariance=frozen(np.zeros((3, 3))),
                 verdict=Verdict(accepted=True),
-                report=None,
-                fitness=1.0,
-                keyframe=True,
-                prediction="first",
+                quality=None,
+                registration=None,
+                num_source_points=int(pts.shape[0]),
                 num_map_points=int(self._map_points.shape[0]),
+                map_updated=True,
                 timing=FrameTiming2D(
                     align=0.0, judge=0.0, map_update=t_map, total=time.perf_counter() - t_start
                 ),
@@ -285,7 +331,7 @@ class Odometry2D:
                 self._grid,
                 init=predicted,
                 window=cfg.correlative_window,
-                method="branch_and_bound",
+                search="branch_and_bound",
             )
             start = coarse.pose
         res = register(
@@ -325,16 +371,18 @@ class Odometry2D:
         self._pose = pose
         return Frame2D(
             index=index,
-            timestamp=None if timestamp is None else float(timestamp),
+            stamp=None if stamp is None else float(stamp),
             pose=pose,
-            predicted=predicted,
+            motion=velocity,
+            prediction=predicted,
+            prediction_source=how,
             covariance=frozen(np.array(res.covariance, dtype=np.float64)),
             verdict=out.verdict,
-            report=out.report,
-            fitness=out.report.overlap,
-            keyframe=keyframe,
-            prediction=how,
+            quality=out.report,
+            registration=res,
+            num_source_points=int(pts.shape[0]),
             num_map_points=int(self._map_points.shape[0]),
+            map_updated=keyframe,
             timing=FrameTiming2D(
                 align=t_align, judge=t_judge, map_update=t_map, total=time.perf_counter() - t_start
             ),
