@@ -206,7 +206,7 @@ def test_hostile_input_names_the_problem() -> None:
         (ValueError, r"source: expected shape \(N, 2\)", {"source": _c(np.zeros((5, 3)))}),
         (ValueError, "source: point 1 has a non-finite", {"source": _c([[0, 0], [np.nan, 1.0]])}),
         (ValueError, "source: is empty", {"source": _c(np.zeros((0, 2)))}),
-        (TypeError, "source: expected dtype float64", {"source": src.astype(np.float32)}),
+        (TypeError, "source: expected real numbers", {"source": src.astype(complex)}),
         (ValueError, "search: unknown 'icp'", {"search": "icp"}),
         (ValueError, "window: half-widths", {"window": (0.1, -0.1, 0.1)}),
         (ValueError, "window: expected", {"window": (0.1, 0.1)}),
@@ -232,8 +232,6 @@ def test_hostile_input_names_the_problem() -> None:
         scanreg.prepare_correlative(_c(np.zeros((4, 3))))
     with pytest.raises(ValueError, match="reference: expected shape"):
         scanreg._core.CorrelativeGrid(_c(np.zeros((4, 3))), 0.1, 0.1, 1)
-    with pytest.raises(ValueError, match="not C-contiguous"):
-        scanreg.match_correlative(np.asfortranarray(np.ones((4, 2))), grid)
 
 
 def test_intel_local_relations_scan_to_scan() -> None:

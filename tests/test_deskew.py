@@ -129,10 +129,10 @@ def test_public_name() -> None:
             "reference_time: must be finite",
         ),
         (
-            (np.zeros((3, 3), dtype=np.float32), np.zeros(3), np.zeros(6)),
+            (np.zeros((3, 3), dtype=np.complex128), np.zeros(3), np.zeros(6)),
             {},
             TypeError,
-            "points: expected dtype float64",
+            "points: expected real numbers",
         ),
     ],
 )

@@ -145,8 +145,8 @@ def test_hostile_prepare() -> None:
         scanreg.prepare(np.zeros((0, 3)))
     with pytest.raises(ValueError, match=r"points: expected shape"):
         scanreg.prepare(np.zeros((5, 4)))
-    with pytest.raises(TypeError, match="points: expected dtype float64"):
-        scanreg.prepare(np.zeros((5, 3), np.float32))
+    with pytest.raises(TypeError, match="points: expected real numbers"):
+        scanreg.prepare(np.zeros((5, 3), np.complex128))
     with pytest.raises(ValueError, match="points: point 2 has a non-finite"):
         scanreg.prepare(np.array([[0.0, 0, 0], [1, 0, 0], [np.inf, 0, 0]]))
     with pytest.raises(ValueError, match="num_neighbors: is 30 but points has only 5"):

@@ -309,31 +309,16 @@ GOOD = np.random.default_rng(0).normal(size=(10, 3))
             "needs at least 3 pairs with positive weight, got 2",
         ),
         (
-            {"source": GOOD.astype(np.int64), "target": GOOD},
-            TypeError,
-            "source: expected dtype float64, got int64",
-        ),
-        (
             {"source": GOOD.astype(object), "target": GOOD},
             TypeError,
-            "source: expected dtype float64, got object",
+            "source: expected real numbers",
         ),
         (
-            {"source": GOOD.astype(np.float32), "target": GOOD},
+            {"source": GOOD.astype(complex), "target": GOOD},
             TypeError,
-            "source: expected dtype float64, got float32",
+            "source: expected real numbers",
         ),
-        ({"source": GOOD.tolist(), "target": GOOD}, TypeError, "source: expected a numpy.ndarray"),
-        (
-            {"source": np.asfortranarray(GOOD), "target": GOOD},
-            ValueError,
-            "source: array is not C-contiguous",
-        ),
-        (
-            {"source": GOOD[::2], "target": GOOD[:5]},
-            ValueError,
-            "source: array is not C-contiguous",
-        ),
+        ({"source": "points", "target": GOOD}, TypeError, "source: expected an array of numbers"),
         (
             {"source": GOOD, "target": GOOD, "kernel": "hubber"},
             ValueError,

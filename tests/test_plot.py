@@ -130,7 +130,7 @@ def test_refuses_bad_input(tmp_path: Path, scan_pair: tuple) -> None:
     with pytest.raises(ValueError, match="source"):
         plot.plot_scan_alignment(tmp_path / "a.png", np.zeros((5, 3)), target, pose)
     with pytest.raises(TypeError, match="target"):
-        plot.plot_scan_alignment(tmp_path / "a.png", source, target.tolist(), pose)  # type: ignore[arg-type]
+        plot.plot_scan_alignment(tmp_path / "a.png", source, "target", pose)  # type: ignore[arg-type]
     ref = _trajectory()
     with pytest.raises(TypeError, match=r"estimate: expected a scanreg\.io\.Trajectory"):
         plot.plot_trajectories(tmp_path / "t.png", ref.poses)  # type: ignore[arg-type]

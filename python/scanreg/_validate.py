@@ -1,7 +1,10 @@
 """One validator for every array that crosses the public API.
 
 Errors name the argument and the problem ("source: expected shape (N, 3), got (10, 4)").
-Inputs are never mutated and never silently converted: float64, C-contiguous, finite.
+Inputs are taken as users have them — float32 scans (KITTI ``.bin``), strided views
+(``scan[::2]``), Fortran order, lists, any array-like of real numbers — and converted once, here,
+to C-contiguous float64 (no copy when they already are). The caller's array is never mutated.
+Points must be finite.
 """
 
 from __future__ import annotations
@@ -18,18 +21,25 @@ T = TypeVar("T")
 
 
 def _as_float64_array(value: Any, name: str) -> FloatArray:
-    if not isinstance(value, np.ndarray):
+    """``value`` as a C-contiguous float64 array: itself when it already is one (the common case
+    costs two checks), else one converted copy."""
+    if isinstance(value, np.ndarray):
+        dtype = value.dtype
+        if (dtype is _F64 or dtype == _F64) and value.flags.c_contiguous:  # identity first
+            return value
+        if dtype.kind not in "fiu" or dtype == np.float16:
+            raise TypeError(f"{name}: expected real numbers (float or int), got dtype {dtype}")
+        return np.ascontiguousarray(value, dtype=np.float64)
+    if isinstance(value, (str, bytes)) or value is None:
+        raise TypeError(f"{name}: expected an array of numbers, got {type(value).__name__}")
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name}: expected an array of numbers: {exc}") from None
+    if arr.dtype.kind not in "fiu" or arr.dtype == np.float16:
         kind = type(value).__name__
-        raise TypeError(f"{name}: expected a numpy.ndarray of float64, got {kind}")
-    dtype = value.dtype
-    if dtype is not _F64 and dtype != _F64:  # identity first: the comparison costs 3×
-        raise TypeError(
-            f"{name}: expected dtype float64, got {value.dtype}; "
-            f"convert with {name}.astype(np.float64)"
-        )
-    if not value.flags.c_contiguous:
-        raise ValueError(f"{name}: array is not C-contiguous; pass numpy.ascontiguousarray({name})")
-    return value
+        raise TypeError(f"{name}: expected an array of real numbers, got {kind} of {arr.dtype}")
+    return np.ascontiguousarray(arr, dtype=np.float64)
 
 
 def as_points(
