@@ -1,12 +1,12 @@
 # scanreg developer tasks. `make demo` and `make test` are the README's two commands: each
 # creates .venv (if missing), builds the Rust core in release mode and installs scanreg
-# editable into it.
+# editable into it — `demo` with no optional extra, `test` (through `dev`) with every extra.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 PY_SRC := python tests benchmarks examples docs
 
-.PHONY: dev demo test lint lint-rust lint-python test-rust test-python bench clean
+.PHONY: build dev demo test lint lint-rust lint-python test-rust test-python bench clean system-check
 
 $(BIN)/maturin:
 	$(PYTHON) -m venv $(VENV)
@@ -14,10 +14,18 @@ $(BIN)/maturin:
 	$(BIN)/python -m pip install -q 'maturin>=1.7,<2'
 
 # Re-running is cheap: cargo rebuilds only what changed.
-dev: $(BIN)/maturin
+build: $(BIN)/maturin
+	$(BIN)/python -m pip install -q --no-build-isolation -e .
+
+# Debian packages some tests load (open3d-cpu: libusb-1.0; the report's browser test: chromium):
+# installed when missing and running as root, else named with the command to run.
+system-check:
+	.ci/system-packages
+
+dev: $(BIN)/maturin system-check
 	$(BIN)/python -m pip install -q --no-build-isolation -e '.[dev]'
 
-demo: dev
+demo: build
 	$(BIN)/scanreg demo
 
 lint-rust:
