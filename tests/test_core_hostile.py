@@ -86,12 +86,6 @@ def test_kdtree(a: np.ndarray, q: np.ndarray, s: float, k: int) -> None:
 def test_voxels_and_crops(a: np.ndarray, q: np.ndarray, size: float, s: float) -> None:
     for method in ("centroid", "first"):
         call(_core.voxel_downsample, a, size, method)
-    try:
-        index = _core.VoxelIndex(a, size)
-    except ALLOWED:
-        index = None
-    if index is not None:
-        call(index.nearest, q, s)
     call(_core.crop_range, a, s, size)
     call(_core.crop_box, a, np.full(max(a.shape[1], 1), s), np.full(max(a.shape[1], 1), size))
 
@@ -101,7 +95,6 @@ def test_voxels_and_crops(a: np.ndarray, q: np.ndarray, size: float, s: float) -
 def test_tiny_voxels_on_large_coordinates(a: np.ndarray, size: float) -> None:
     # 1e6 m / 1e-300 m overflows any integer voxel key: must be refused, not wrap or panic.
     call(_core.voxel_downsample, np.ascontiguousarray(a * 1e6), size, "centroid")
-    call(_core.VoxelIndex, np.ascontiguousarray(a * 1e6), size)
 
 
 @FAST

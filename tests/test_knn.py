@@ -9,7 +9,6 @@ import pytest
 import scanreg
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scanreg import _core
 
 
 def brute_d2(points: np.ndarray, queries: np.ndarray) -> np.ndarray:
@@ -52,12 +51,6 @@ def test_nearest_matches_brute_force(data: tuple[np.ndarray, np.ndarray], gate: 
     np.testing.assert_array_equal(gated.found, inside)
     assert np.all(gated.indices[~inside] == -1)
     assert np.all(np.isinf(gated.squared_distances[~inside]))
-    # Voxel index: exact within the gate, ties to the lowest index (np.argmin's rule).
-    vox = _core.VoxelIndex(pts, 0.8)
-    vi, _ = vox.nearest(qs, gate)
-    if len(qs):
-        want = np.where(inside, d2.argmin(axis=1), -1)
-        np.testing.assert_array_equal(vi, want)
 
 
 @settings(max_examples=60, deadline=None)
@@ -153,5 +146,3 @@ def test_hostile_prepare() -> None:
         scanreg.prepare(np.random.default_rng(0).normal(size=(5, 3)), num_neighbors=30)
     with pytest.raises(ValueError, match="regularization"):
         scanreg.prepare(np.zeros((5, 3)), regularization="bogus")  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="voxel_size"):
-        _core.VoxelIndex(np.zeros((5, 3)), 0.0)

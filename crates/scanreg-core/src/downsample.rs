@@ -5,8 +5,7 @@
 //! i.e. their lowest input index; filters in input order).
 
 use crate::error::{Error, Result};
-use crate::knn::voxel_of;
-use crate::points::{check_points, floor_i64};
+use crate::points::{check_points, floor_i64, voxel_of};
 use crate::reduce::{chunk_len, MIN_PAR_ITEMS, SEQUENTIAL_MAX};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;

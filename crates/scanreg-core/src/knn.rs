@@ -6,12 +6,9 @@
 //!   neighbour within a gate (the gate prunes from the start; optionally with a certificate, a
 //!   lower bound on every other point's distance, which lets ICP skip the next search), k
 //!   nearest (a sorted array of at most `k`, in the caller's buffer), all within a radius.
-//! * [`VoxelIndex`]: a voxel hash map (point indices bucketed by voxel), the structure
-//!   KISS-ICP searches for scan-to-map correspondences. Cheap to build and to extend, and
-//!   exact here: a query with gate `r` visits every voxel within `ceil(r / voxel_size)`.
 //!
 //! Distances are **squared** Euclidean throughout. Ties (equal distances) are broken by the
-//! lower point index everywhere (k-d tree nearest, k-NN, radius, voxel-index nearest), so results
+//! lower point index everywhere (nearest, k-NN, radius), so results
 //! are reproducible; batch queries run in parallel with rayon, one result per query, in input
 //! order, so they do not depend on the thread count.
 
@@ -19,7 +16,6 @@ use crate::error::{Error, Result};
 use crate::points::check_points;
 use crate::reduce::MIN_PAR_ITEMS;
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 
 /// Points per leaf bucket (at most; a leaf is split while it holds more).
 const LEAF_SIZE: usize = 16;
@@ -917,172 +913,6 @@ pub fn check_k(arg: &'static str, k: usize, n: usize) -> Result<()> {
     Ok(())
 }
 
-/// Integer voxel coordinates of a point (`floor(p / voxel_size)`), or an error if they would
-/// not fit comfortably in an `i64` (voxel far too small for the extent).
-#[inline]
-pub(crate) fn voxel_of(p: &[f64], inv: f64) -> Option<[i64; 3]> {
-    let mut key = [0i64; 3];
-    for (k, v) in key.iter_mut().zip(p) {
-        let c = crate::points::floor(v * inv);
-        if c.is_nan() || c.abs() >= 9.0e15 {
-            return None;
-        }
-        *k = c as i64;
-    }
-    Some(key)
-}
-
-/// A voxel hash map over points: exact nearest-neighbour search within a gate by visiting the
-/// voxels the gate can reach (`(2r+1)^D` voxels with `r = ceil(gate / voxel_size)`: 27 in 3D
-/// when the gate is at most one voxel).
-pub struct VoxelIndex {
-    dim: usize,
-    voxel_size: f64,
-    inv: f64,
-    points: Vec<f64>,
-    map: FxHashMap<[i64; 3], Vec<u32>>,
-}
-
-impl VoxelIndex {
-    pub fn build(points: &[f64], dim: usize, voxel_size: f64) -> Result<Self> {
-        let n = check_points("points", points, dim)?;
-        if !voxel_size.is_finite() || voxel_size <= 0.0 {
-            return Err(Error::invalid(
-                "voxel_size",
-                format!("must be finite and > 0, got {voxel_size}"),
-            ));
-        }
-        if n > u32::MAX as usize {
-            return Err(Error::invalid("points", "more than 2^32 - 1 points"));
-        }
-        let inv = 1.0 / voxel_size;
-        let keys: Vec<Option<[i64; 3]>> = points
-            .par_chunks_exact(dim)
-            .with_min_len(MIN_PAR_ITEMS)
-            .map(|p| voxel_of(p, inv))
-            .collect();
-        let mut map: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
-        for (i, key) in keys.into_iter().enumerate() {
-            let key = key.ok_or_else(|| {
-                Error::invalid(
-                    "voxel_size",
-                    format!("{voxel_size} is too small for the extent of the points"),
-                )
-            })?;
-            map.entry(key).or_default().push(i as u32);
-        }
-        Ok(VoxelIndex {
-            dim,
-            voxel_size,
-            inv,
-            points: points.to_vec(),
-            map,
-        })
-    }
-
-    pub fn len(&self) -> usize {
-        self.points.len() / self.dim
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.points.is_empty()
-    }
-
-    pub fn num_voxels(&self) -> usize {
-        self.map.len()
-    }
-
-    pub fn voxel_size(&self) -> f64 {
-        self.voxel_size
-    }
-
-    /// Exact nearest point within `max_sq` (squared gate, finite), ties to the lower index.
-    ///
-    /// When the gate reaches more voxels than are occupied (a gate of many voxel sizes, or a
-    /// query outside the key range) every point is scanned instead: still exact, and bounded
-    /// by `O(N)` rather than by the gate's volume (a 1e6 m gate over 1 m voxels would
-    /// otherwise visit 8e18 voxels).
-    pub fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
-        let dim = self.dim;
-        let reach_f = (max_sq.sqrt() * self.inv).ceil();
-        let span = 2.0 * reach_f + 1.0;
-        let visits = if dim == 3 {
-            span * span * span
-        } else {
-            span * span
-        };
-        let center = match voxel_of(q, self.inv) {
-            Some(c) if visits <= self.map.len() as f64 => c,
-            _ => return self.nearest_by_scan(q, max_sq),
-        };
-        let reach = reach_f as i64;
-        let mut best: Option<(usize, f64)> = None;
-        let zr = if dim == 3 { reach } else { 0 };
-        for dx in -reach..=reach {
-            for dy in -reach..=reach {
-                for dz in -zr..=zr {
-                    let key = [center[0] + dx, center[1] + dy, center[2] + dz];
-                    let Some(bucket) = self.map.get(&key) else {
-                        continue;
-                    };
-                    for &j in bucket {
-                        let j = j as usize;
-                        let p = &self.points[j * dim..(j + 1) * dim];
-                        let mut d = 0.0;
-                        for c in 0..dim {
-                            let e = p[c] - q[c];
-                            d += e * e;
-                        }
-                        if d <= max_sq && best.is_none_or(|(bi, bd)| d < bd || (d == bd && j < bi))
-                        {
-                            best = Some((j, d));
-                        }
-                    }
-                }
-            }
-        }
-        best
-    }
-
-    /// Exact nearest point within `max_sq` by scanning every point (same tie rule).
-    fn nearest_by_scan(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
-        let dim = self.dim;
-        let mut best: Option<(usize, f64)> = None;
-        for (j, p) in self.points.chunks_exact(dim).enumerate() {
-            let d: f64 = p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
-            if d <= max_sq && best.is_none_or(|(_, bd)| d < bd) {
-                best = Some((j, d));
-            }
-        }
-        best
-    }
-
-    /// Batch form of [`VoxelIndex::nearest_within`]; `max_distance` must be finite.
-    pub fn nearest_batch(&self, queries: &[f64], max_distance: f64) -> Result<NearestBatch> {
-        check_points("query_points", queries, self.dim)?;
-        if !max_distance.is_finite() || max_distance < 0.0 {
-            return Err(Error::invalid(
-                "max_distance",
-                format!("must be finite and >= 0 for a voxel index, got {max_distance}"),
-            ));
-        }
-        let max_sq = max_distance * max_distance;
-        let res: Vec<(i64, f64)> = queries
-            .par_chunks_exact(self.dim)
-            .with_min_len(MIN_PAR_ITEMS)
-            .map(|q| match self.nearest_within(q, max_sq) {
-                Some((i, d)) => (i as i64, d),
-                None => (-1, f64::INFINITY),
-            })
-            .collect();
-        let (index, squared_distance) = res.into_iter().unzip();
-        Ok(NearestBatch {
-            index,
-            squared_distance,
-        })
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1212,7 +1042,6 @@ mod tests {
                 let pts = lcg_cloud(500, dim, 7 + dim as u64, grid);
                 let qs = lcg_cloud(60, dim, 99, grid);
                 let tree = KdTree::build(&pts, dim).unwrap();
-                let vox = VoxelIndex::build(&pts, dim, 0.7).unwrap();
                 for q in qs.chunks_exact(dim) {
                     let b = brute(&pts, dim, q);
                     let (i, d) = tree.nearest_within(q, f64::INFINITY).unwrap();
@@ -1227,14 +1056,12 @@ mod tests {
                     tree.radius_into(q, 1.5, &mut r);
                     let br: Vec<(u32, f64)> = b.iter().copied().filter(|x| x.1 <= 1.5).collect();
                     assert_eq!(r, br);
-                    // Voxel index: exact nearest within the gate, ties to the lower index.
+                    // Gated: the nearest within the gate, ties to the lower index.
                     let gate = 1.3f64;
-                    let got = vox.nearest_within(q, gate * gate);
                     let want = b
                         .iter()
                         .find(|x| x.1 <= gate * gate)
                         .map(|x| (x.0 as usize, x.1));
-                    assert_eq!(got, want);
                     let gated = tree.nearest_within(q, gate * gate).map(|x| x.1);
                     assert_eq!(gated, want.map(|x| x.1));
                 }
@@ -1303,15 +1130,5 @@ mod tests {
         assert!(t.knn_batch(&[0.0, 0.0], 0).is_err());
         assert!(t.nearest_batch(&[0.0, 0.0], -1.0).is_err());
         assert!(t.nearest_batch(&[0.0, 0.0], f64::NAN).is_err());
-        assert!(VoxelIndex::build(&[0.0, 0.0], 2, 0.0).is_err());
-        assert!(VoxelIndex::build(&[0.0, 0.0], 2, 1e-300).is_ok());
-        assert!(VoxelIndex::build(&[1e10, 0.0], 2, 1e-300).is_err());
-        // A gate of a million voxels scans the points instead of the gate's volume.
-        let vox = VoxelIndex::build(&[0.0, 0.0, 0.0, 5.0, 0.0, 0.0], 3, 1.0).unwrap();
-        assert_eq!(
-            vox.nearest_within(&[1e5, 0.0, 0.0], 1e12),
-            Some((1, (1e5f64 - 5.0).powi(2)))
-        );
-        assert_eq!(vox.nearest_within(&[1e300, 0.0, 0.0], 1e12), None);
     }
 }

@@ -108,6 +108,21 @@ pub fn split_pose(arg: &'static str, pose: &[f64], dim: usize) -> Result<(Vec<f6
     Ok((rot, trans))
 }
 
+/// Integer voxel coordinates of a point (`floor(p / voxel_size)`), or an error if they would
+/// not fit comfortably in an `i64` (voxel far too small for the extent).
+#[inline]
+pub(crate) fn voxel_of(p: &[f64], inv: f64) -> Option<[i64; 3]> {
+    let mut key = [0i64; 3];
+    for (k, v) in key.iter_mut().zip(p) {
+        let c = floor(v * inv);
+        if c.is_nan() || c.abs() >= 9.0e15 {
+            return None;
+        }
+        *k = c as i64;
+    }
+    Some(key)
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

@@ -12,8 +12,8 @@
 
 use crate::error::{Error, Result};
 use crate::icp::NeighborSearch;
-use crate::knn::voxel_of;
 use crate::normals::plane_covariance;
+use crate::points::voxel_of;
 use crate::points::{check_points, floor};
 use crate::reduce::MIN_PAR_ITEMS;
 use rayon::prelude::*;

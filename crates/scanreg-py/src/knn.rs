@@ -1,7 +1,7 @@
 //! Bindings for neighbour search and per-point local geometry (`scanreg_core::{knn, normals,
 //! outliers}`).
 //!
-//! `KdTree` and `VoxelIndex` are frozen (immutable) pyclasses: safe to share between Python
+//! `KdTree` is a frozen (immutable) pyclass: safe to share between Python
 //! threads; every query releases the GIL. Other bindings (registration) reach the Rust index
 //! through the public `inner` field.
 
@@ -181,66 +181,7 @@ impl KdTree {
     }
 }
 
-/// A voxel hash map over points (KISS-ICP style); exact nearest neighbour within a gate.
-#[pyclass(frozen, module = "scanreg._core")]
-pub struct VoxelIndex {
-    pub inner: knn::VoxelIndex,
-    dim: usize,
-}
-
-#[pymethods]
-impl VoxelIndex {
-    #[new]
-    fn new(
-        py: Python<'_>,
-        points_array: PyReadonlyArray2<'_, f64>,
-        voxel_size: f64,
-    ) -> PyResult<Self> {
-        let (data, dim) = points(&points_array, "points")?;
-        let inner = py
-            .detach(|| knn::VoxelIndex::build(data, dim, voxel_size))
-            .map_err(core_err)?;
-        Ok(VoxelIndex { inner, dim })
-    }
-
-    #[getter]
-    fn dim(&self) -> usize {
-        self.dim
-    }
-
-    #[getter]
-    fn voxel_size(&self) -> f64 {
-        self.inner.voxel_size()
-    }
-
-    #[getter]
-    fn num_voxels(&self) -> usize {
-        self.inner.num_voxels()
-    }
-
-    fn __len__(&self) -> usize {
-        self.inner.len()
-    }
-
-    fn nearest(
-        &self,
-        py: Python<'_>,
-        query_points: PyReadonlyArray2<'_, f64>,
-        max_distance: f64,
-    ) -> PyResult<(IndexArray, DistArray)> {
-        let q = points_dim(&query_points, "query_points", self.dim)?;
-        let r = py
-            .detach(|| self.inner.nearest_batch(q, max_distance))
-            .map_err(core_err)?;
-        Ok((
-            r.index.into_pyarray(py).unbind(),
-            r.squared_distance.into_pyarray(py).unbind(),
-        ))
-    }
-}
-
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<KdTree>()?;
-    m.add_class::<VoxelIndex>()?;
     Ok(())
 }
