@@ -422,3 +422,21 @@ class NdtGrid:
     def evaluate(
         self, source: NDArray[np.float64], pose: tuple[float, float, float]
     ) -> tuple[float, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], int]: ...
+
+@final
+class NdtGrid3:
+    def __new__(
+        cls,
+        target: NDArray[np.float64],
+        cell_size: float,
+        min_points: int,
+        min_eigen_ratio: float,
+    ) -> NdtGrid3: ...
+    @property
+    def cell_size(self) -> float: ...
+    @property
+    def num_cells(self) -> int: ...
+    def cells(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+    def evaluate(
+        self, source: NDArray[np.float64], pose_matrix: NDArray[np.float64]
+    ) -> tuple[float, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], int]: ...

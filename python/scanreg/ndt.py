@@ -1,4 +1,8 @@
-"""2D Normal Distributions Transform registration (Biber & Straßer 2003).
+"""Normal Distributions Transform registration: 2D (Biber & Straßer 2003) and 3D (Magnusson
+2009, point to distribution; the solver is :mod:`scanreg._ndt3d`). ``prepare_ndt`` and
+``match_ndt`` take ``(N, 2)`` or ``(N, 3)`` clouds; what follows describes 2D, and 3D differs
+only where :mod:`scanreg._ndt3d` says (one voxel grid per level, seven neighbouring voxels per
+point, the pose updated on the right).
 
 The target is summarised by a Gaussian per cell in four grids shifted by half a cell (built
 once, in the Rust core); a source scan is aligned by Newton's method on the NDT cost
@@ -30,11 +34,11 @@ from typing import Any, Literal
 
 import numpy as np
 
-from . import _core
+from . import _core, _ndt3d
 from ._validate import FloatArray, as_points, positive
 from ._validate import frozen as _frozen
 from .quality import Conditioning, conditioning
-from .transform import SE2, as_pose
+from .transform import SE2, SE3, as_pose
 
 StopReason = Literal["converged", "max_iterations", "no_overlap"]
 
@@ -49,14 +53,22 @@ class NdtTarget:
 
     cell_size: float
     cell_sizes: tuple[float, ...]
-    num_cells: tuple[int, int, int, int]
+    #: Cells of the finest level: one count per shifted grid in 2D (four), one in 3D.
+    num_cells: tuple[int, ...]
     num_points: int
-    _natives: tuple[_core.NdtGrid, ...]
+    _natives: tuple[_core.NdtGrid, ...] | tuple[_core.NdtGrid3, ...]
+    #: 2 or 3.
+    dim: int = 2
 
     def cells(self, grid: int = 0) -> tuple[FloatArray, FloatArray]:
-        """Means ``(K, 2)`` and covariances ``(K, 2, 2)`` of one of the four shifted grids of
-        the finest level."""
-        return self._natives[-1].cells(grid)
+        """Means ``(K, D)`` and covariances ``(K, D, D)`` of the finest level (2D: of one of
+        its four shifted grids)."""
+        native = self._natives[-1]
+        if isinstance(native, _core.NdtGrid3):
+            if grid != 0:
+                raise ValueError(f"grid: a 3D target has one grid per level, got {grid}")
+            return native.cells()
+        return native.cells(grid)
 
 
 @dataclass(frozen=True)
@@ -65,15 +77,15 @@ class NdtResult:
 
     Attributes
     ----------
-    pose : SE2
+    pose : SE2 or SE3
         ``T_target_source``.
-    covariance : (3, 3)
-        Over the right perturbation ``[ρx, ρy, θ]`` (see the module docstring); all ``inf``
-        when the information is singular.
-    hessian : (3, 3)
-        ``∇²f`` over the pose vector ``[tx, ty, θ]`` at ``pose`` (may be indefinite: the cost
-        has kinks where points cross cell borders).
-    information : (3, 3)
+    covariance : (3, 3) or (6, 6)
+        Over the right perturbation ``[ρx, ρy, θ]`` / ``[ρ, φ]`` (see the module docstring);
+        all ``inf`` when the information is singular.
+    hessian : (3, 3) or (6, 6)
+        ``∇²f`` at ``pose``: over the pose vector ``[tx, ty, θ]`` in 2D, over the tangent in
+        3D (may be indefinite: the cost has kinks where points cross cell borders).
+    information : (3, 3) or (6, 6)
         ``covariance⁻¹``: the Fisher information ``Σ e·JᵀΣ⁻¹J`` in the tangent.
     cost : float
         ``f`` at ``pose`` (``−Σ exp(−½ qᵀΣ⁻¹q)`` over points and the four grids).
@@ -91,7 +103,7 @@ class NdtResult:
         Wall time of the iterations.
     """
 
-    pose: SE2
+    pose: SE2 | SE3
     covariance: FloatArray
     hessian: FloatArray
     information: FloatArray
@@ -114,33 +126,44 @@ def prepare_ndt(
     *,
     cell_size: float = 1.0,
     levels: int = 2,
-    min_points: int = 3,
+    min_points: int | None = None,
     min_eigen_ratio: float = 1e-3,
 ) -> NdtTarget:
-    """Build the four shifted NDT grids of the target ``points`` ``(N, 2)`` (metres) at
-    ``levels`` cell sizes ``cell_size · 2^(levels−1)``, …, ``cell_size`` (coarse to fine: the coarse
-    levels widen the basin, the finest sets the detail).
+    """Build the NDT Gaussians of the target ``points`` (metres) at ``levels`` cell sizes
+    ``cell_size · 2^(levels−1)``, …, ``cell_size`` (coarse to fine: the coarse levels widen the
+    basin, the finest sets the detail). ``(N, 2)``: four grids shifted by half a cell per level;
+    ``(N, 3)``: one voxel grid per level.
 
-    Cells with fewer than ``min_points`` points are dropped; covariance eigenvalues below
-    ``min_eigen_ratio`` × the larger one are raised to it (Biber & Straßer use 0.001).
+    Cells with fewer than ``min_points`` points (default 3 in 2D, 6 in 3D) are dropped;
+    covariance eigenvalues below ``min_eigen_ratio`` × the largest are raised to it (Biber &
+    Straßer and Magnusson use 0.001).
     """
-    ref = as_points(points, "points", dim=2)
+    ref = as_points(points, "points")
+    dim = int(ref.shape[1])
     size = positive(cell_size, "cell_size")
-    for name, value in (("levels", levels), ("min_points", min_points)):
+    min_pts = (3 if dim == 2 else 6) if min_points is None else min_points
+    for name, value in (("levels", levels), ("min_points", min_pts)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise TypeError(f"{name}: expected an int, got {type(value).__name__}")
     if not 1 <= levels <= 8:
         raise ValueError(f"levels: must be in [1, 8], got {levels}")
     sizes = tuple(size * 2.0**k for k in range(int(levels) - 1, -1, -1))
-    natives = tuple(_core.NdtGrid(ref, c, int(min_points), float(min_eigen_ratio)) for c in sizes)
-    if sum(natives[-1].num_cells) == 0:
-        raise ValueError(f"points: no cell of {size} m holds {min_points} points; use larger cells")
+    natives: tuple[_core.NdtGrid, ...] | tuple[_core.NdtGrid3, ...]
+    if dim == 3:
+        natives = _ndt3d.build_levels(ref, sizes, int(min_pts), float(min_eigen_ratio))
+        num_cells: tuple[int, ...] = (natives[-1].num_cells,)
+    else:
+        natives = tuple(_core.NdtGrid(ref, c, int(min_pts), float(min_eigen_ratio)) for c in sizes)
+        num_cells = natives[-1].num_cells
+    if sum(num_cells) == 0:
+        raise ValueError(f"points: no cell of {size} m holds {min_pts} points; use larger cells")
     return NdtTarget(
         cell_size=size,
         cell_sizes=sizes,
-        num_cells=natives[-1].num_cells,
+        num_cells=num_cells,
         num_points=len(ref),
         _natives=natives,
+        dim=dim,
     )
 
 
@@ -202,11 +225,12 @@ def match_ndt(
     translation_tolerance: float = 1e-5,
     rotation_tolerance: float = 1e-5,
 ) -> NdtResult:
-    """Align ``source`` ``(N, 2)`` to ``target`` (points or an :class:`NdtTarget`) by NDT.
+    """Align ``source`` ``(N, 2)`` or ``(N, 3)`` to ``target`` (points or an
+    :class:`NdtTarget` of the same dimension) by NDT.
 
     Parameters
     ----------
-    init : SE2 or (3, 3) matrix, optional
+    init : SE2 / SE3 or a homogeneous matrix, optional
         Initial ``T_target_source`` (default identity). NDT is local: the basin is about
         half a cell.
     cell_size : float, optional
@@ -214,9 +238,10 @@ def match_ndt(
     max_iterations, translation_tolerance, rotation_tolerance
         Newton stops when a step is below both tolerances (m, rad).
     """
-    src = as_points(source, "source", dim=2)
-    pose0 = SE2.identity() if init is None else as_pose(init, "init", 2)
-    assert isinstance(pose0, SE2)
+    src = as_points(source, "source")
+    dim = int(src.shape[1])
+    pose0 = (SE2.identity() if dim == 2 else SE3.identity()) if init is None else None
+    pose0 = pose0 or as_pose(init, "init", dim)
     if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)):
         raise TypeError("max_iterations: expected an int")
     if max_iterations < 1:
@@ -233,11 +258,33 @@ def match_ndt(
         ndt = prepare_ndt(target, cell_size=1.0 if cell_size is None else cell_size)
     if not ndt._natives:
         raise ValueError("target: the NdtTarget has no grid")
+    if ndt.dim != dim:
+        raise ValueError(f"target: a {ndt.dim}D NDT target for {dim}D source points")
+    if isinstance(pose0, SE3):
+        natives3 = tuple(n for n in ndt._natives if isinstance(n, _core.NdtGrid3))
+        f = _ndt3d.match(src, natives3, pose0, int(max_iterations), tol_t, tol_r)
+        length = float(np.sqrt(((src - src.mean(axis=0)) ** 2).sum(axis=1).mean())) or 1.0
+        return NdtResult(
+            pose=f["pose"],
+            covariance=_frozen(f["covariance"]),
+            hessian=_frozen(f["hessian"]),
+            information=_frozen(f["information"]),
+            cost=f["cost"],
+            score=f["score"],
+            fitness=f["fitness"],
+            iterations=f["iterations"],
+            converged=f["stop_reason"] == "converged",
+            stop_reason=f["stop_reason"],
+            conditioning=conditioning(_frozen(f["information"]), 3, length),
+            seconds=f["seconds"],
+        )
+    assert isinstance(pose0, SE2)
+    natives2 = tuple(n for n in ndt._natives if isinstance(n, _core.NdtGrid))
     t0 = time.perf_counter()
     p = pose0.as_vector()
     stop: StopReason = "max_iterations"
     iterations = 0
-    for native in ndt._natives:
+    for native in natives2:
         p, stop, used = _levenberg_marquardt(native, src, p, int(max_iterations), tol_t, tol_r)
         iterations += used
     seconds = time.perf_counter() - t0

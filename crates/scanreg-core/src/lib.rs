@@ -23,6 +23,7 @@ pub mod knn;
 pub mod lie;
 pub mod lzf;
 pub mod ndt2d;
+pub mod ndt3d;
 pub mod normal_agreement;
 pub mod normal_noise;
 pub mod normals;

@@ -14,6 +14,7 @@ pub mod knn;
 mod local_map;
 mod measure;
 mod ndt2d;
+mod ndt3d;
 mod paired;
 mod preprocess;
 mod register;
@@ -26,6 +27,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     paired::register(m)?;
     correlative::register(m)?;
     ndt2d::register(m)?;
+    ndt3d::register(m)?;
     deskew::register(m)?;
     knn::register(m)?;
     local_map::register(m)?;
