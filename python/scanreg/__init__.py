@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from . import preprocess, simulate
 from ._core import __version__
+from .budget import MemoryBudgetExceeded, memory_budget, set_memory_budget
 from .correlative import (
     CorrelativeGrid,
     CorrelativeResult,
@@ -48,6 +49,7 @@ __all__ = [
     "FrameResult",
     "LocalMap",
     "Localizer",
+    "MemoryBudgetExceeded",
     "NdtResult",
     "NdtTarget",
     "Odometry",
@@ -69,12 +71,14 @@ __all__ = [
     "deskew",
     "match_correlative",
     "match_ndt",
+    "memory_budget",
     "prepare",
     "prepare_correlative",
     "prepare_ndt",
     "preprocess",
     "register",
     "sampling_covariance",
+    "set_memory_budget",
     "simulate",
     "transform_covariance",
 ]

@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from . import _core
+from . import _core, budget
 from ._validate import FloatArray, as_points, readonly
 from .preprocess import BoolArray, positive_int
 
@@ -124,6 +124,8 @@ class LocalMap:
         """Add world-frame points (and their normals or covariances, as the map stores).
         Returns how many were kept; validates everything before changing the map."""
         pts = as_points(points, "points", dim=self.dim, min_points=0)
+        if budget.LIMIT is not None:
+            budget.check("LocalMap.insert: points", len(pts), ("local_map",))
         nrm = None if normals is None else as_points(normals, "normals", dim=self.dim, min_points=0)
         cov = None
         if covariances is not None:

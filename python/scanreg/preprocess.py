@@ -17,7 +17,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from . import _core
+from . import _core, budget
 from ._validate import FloatArray, as_matrix, as_points, check_flag, positive
 from ._validate import readonly as _readonly
 
@@ -182,6 +182,8 @@ def voxel_downsample(
         lowest input index (an actual measured point; deterministic).
     """
     pts = as_points(points, "points")
+    if budget.LIMIT is not None:
+        budget.check("voxel_downsample: points", len(pts), ("voxel_downsample",))
     size = positive(voxel_size, "voxel_size")
     if keep not in ("centroid", "first"):
         raise ValueError(f"keep: unknown {keep!r}; expected 'centroid' or 'first'")

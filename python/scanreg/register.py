@@ -38,7 +38,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from . import _core
+from . import _core, budget
 from ._validate import FloatArray, as_matrix, as_points, check_finite_points
 from ._validate import build as _build
 from ._validate import frozen as _frozen
@@ -603,6 +603,9 @@ def register(
     dim = src.shape[1]
     plan = _plan(s, method, dim)
     method_eff = plan.method
+    if budget.LIMIT is not None:
+        gicp = method_eff == "gicp" and source_covariances is None
+        budget.check("register: source", len(src), ("source", "source_covariances")[: 1 + gicp])
     if s.voxel_size is not None or (method_eff == "gicp" and source_covariances is None):
         # Downsampled or given covariances here first; otherwise register_icp's own scan
         # refuses a NaN/inf with the same message.

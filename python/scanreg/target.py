@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from . import _core
+from . import _core, budget
 from ._validate import FloatArray, as_points, build, check_flag
 from ._validate import readonly as _readonly
 from .degeneracy import normal_noise
@@ -191,6 +191,9 @@ def prepare(
         unaffected.
     """
     pts = as_points(points, "points", finite=False)  # the k-d tree's build refuses NaN/inf
+    if budget.LIMIT is not None:
+        parts = ("index",) + ("normals",) * bool(normals) + ("covariances",) * bool(covariances)
+        budget.check("prepare: points", len(pts), parts)
     dim = int(pts.shape[1])
     index = _core.KdTree(pts)
     kk = positive_int(num_neighbors, "num_neighbors")
