@@ -7,7 +7,6 @@ from collections.abc import Iterator
 
 import numpy as np
 import pytest
-
 import scanreg
 from scanreg import LocalMap, MemoryBudgetExceeded, budget
 from scanreg.preprocess import voxel_downsample

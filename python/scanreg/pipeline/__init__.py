@@ -1,7 +1,9 @@
 """Pipelines built from scanreg's pieces: 3D LiDAR odometry (:class:`Odometry`), localization
-in a prior map (:class:`Localizer`) and 2D scan-to-map odometry (:class:`Odometry2D`)."""
+in a prior map (:class:`Localizer`, 3D; :class:`Localizer2D`, 2D, with global relocalization) and
+2D scan-to-map odometry (:class:`Odometry2D`)."""
 
 from .localizer import Localizer, Relocalization
+from .localizer2d import GlobalFix, LocalizationConfig2D, Localizer2D
 from .odometry import AdaptiveGate, FrameResult, FrameTiming, Odometry, OdometryConfig
 from .odometry2d import Frame2D, FrameTiming2D, Odometry2D, OdometryConfig2D
 
@@ -11,7 +13,10 @@ __all__ = [
     "FrameResult",
     "FrameTiming",
     "FrameTiming2D",
+    "GlobalFix",
+    "LocalizationConfig2D",
     "Localizer",
+    "Localizer2D",
     "Odometry",
     "Odometry2D",
     "OdometryConfig",

@@ -1,0 +1,369 @@
+"""2D localization in a fixed map: track a laser in a saved map without changing it, and find it
+again, from no guess at all, when the track is lost (as Cartographer's and slam_toolbox's
+localization modes do).
+
+``Localizer2D(map_points)`` (or :meth:`Localizer2D.from_map_server` on a ``map.yaml`` + image
+as ``scanreg map`` and ROS ``map_server`` write), then one :meth:`Localizer2D.step` per scan,
+with the :class:`~scanreg.pipeline.Odometry2D` signature and its :class:`Frame2D` results:
+
+1. **predict** — from the wheel-odometry ``prior`` when given, else constant velocity;
+   before the first fix there is no prediction, and the scan is located globally (3.);
+2. **track** — point-to-line :func:`scanreg.register` against the map from the prediction,
+   judged by :func:`scanreg.verdict.assess`;
+3. **relocalize** — when there is no fix yet, or ``lost_after`` consecutive scans were
+   rejected: :func:`scanreg.match_correlative` by branch and bound over the whole map (every
+   position, every heading) on a coarse grid, the best refined by point-to-line and judged.
+   The global search also reports the best candidate elsewhere (more than
+   ``ambiguity_distance`` away): a runner-up scoring nearly as well is an ambiguous place,
+   rejected with a reason rather than guessed.
+
+Poses are ``T_map_scan``. The map is never modified.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._validate import FloatArray, as_points, frozen
+from ..correlative import CorrelativeGrid, match_correlative, prepare_correlative
+from ..register import RegistrationResult, register
+from ..target import PreparedTarget, prepare
+from ..transform import SE2, as_pose
+from ..verdict import Verdict, VerdictThresholds, assess
+from .odometry2d import Frame2D, FrameTiming2D, _count, _positive
+
+
+@dataclass(frozen=True)
+class LocalizationConfig2D:
+    """How :class:`Localizer2D` runs. Frozen; validated on construction. Metres, radians."""
+
+    #: Point-to-line correspondence gate when tracking.
+    max_correspondence_distance: float = 0.3
+    kernel: str = "huber"
+    max_iterations: int = 30
+    #: Consecutive rejected scans after which the track is lost and the next scan is located
+    #: globally.
+    lost_after: int = 3
+    #: Grid of the global search (coarser than tracking: the whole map is searched).
+    global_resolution: float = 0.1
+    #: A global fix is refused when another place, farther than ``ambiguity_distance``, scores
+    #: at least ``ambiguity_ratio`` of the best.
+    ambiguity_distance: float = 1.0
+    ambiguity_ratio: float = 0.95
+    thresholds: VerdictThresholds = field(default_factory=VerdictThresholds)
+
+    def __post_init__(self) -> None:
+        _positive(self.max_correspondence_distance, "max_correspondence_distance")
+        _count(self.max_iterations, "max_iterations", 1)
+        _count(self.lost_after, "lost_after", 1)
+        _positive(self.global_resolution, "global_resolution")
+        _positive(self.ambiguity_distance, "ambiguity_distance")
+        if not 0.0 < float(self.ambiguity_ratio) <= 1.0:
+            raise ValueError(f"ambiguity_ratio: must be in (0, 1], got {self.ambiguity_ratio}")
+        if not isinstance(self.thresholds, VerdictThresholds):
+            raise TypeError(
+                f"thresholds: expected VerdictThresholds, got {type(self.thresholds).__name__}"
+            )
+
+
+def read_map_server(path: str | Path) -> tuple[FloatArray, float]:
+    """Occupied cells of a ROS ``map_server`` map (``map.yaml`` and the PGM/PNG-free image it
+    names) as ``(M, 2)`` points in the map frame (cell centres), and the resolution.
+
+    A cell is occupied when its occupancy ``p`` (``(255 − v)/255``, or ``v/255`` with
+    ``negate: 1``) exceeds ``occupied_thresh``. The origin's yaw rotates the grid about the
+    origin, as ``map_server`` defines it. Only binary PGM (``P5``) images are read.
+    """
+    yaml_path = Path(path)
+    try:
+        text = yaml_path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ValueError(f"path: cannot read {yaml_path}: {exc}") from None
+    fields = dict(
+        (m.group(1), m.group(2).strip())
+        for m in re.finditer(r"^\s*(\w+)\s*:\s*(.+?)\s*$", text, flags=re.MULTILINE)
+    )
+    missing = [k for k in ("image", "resolution", "origin") if k not in fields]
+    if missing:
+        raise ValueError(f"path: {yaml_path} lacks {', '.join(missing)} (not a map_server map)")
+    try:
+        resolution = float(fields["resolution"])
+        origin = [float(v) for v in fields["origin"].strip("[]").split(",")]
+        negate = int(fields.get("negate", "0"))
+        occupied = float(fields.get("occupied_thresh", "0.65"))
+    except ValueError as exc:
+        raise ValueError(f"path: {yaml_path}: {exc}") from None
+    if len(origin) != 3 or not math.isfinite(resolution) or resolution <= 0:
+        raise ValueError(f"path: {yaml_path}: bad resolution or origin")
+    image_path = yaml_path.parent / fields["image"].strip("'\"")
+    image = _read_pgm(image_path)
+    value = image.astype(np.float64) / 255.0
+    p = value if negate else 1.0 - value
+    rows, cols = np.nonzero(p > occupied)
+    height = image.shape[0]
+    # Row 0 of the image is the top: y grows upwards from the last row.
+    local = np.c_[(cols + 0.5) * resolution, (height - 1 - rows + 0.5) * resolution]
+    c, s = math.cos(origin[2]), math.sin(origin[2])
+    pts = local @ np.array([[c, s], [-s, c]]) + np.array(origin[:2])
+    return np.ascontiguousarray(pts), resolution
+
+
+def _read_pgm(path: Path) -> np.ndarray[Any, np.dtype[np.uint8]]:
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"image: cannot read {path}: {exc}") from None
+    tokens = re.match(rb"P5\s+(?:#[^\n]*\n\s*)*(\d+)\s+(\d+)\s+(\d+)\s", data)
+    if tokens is None:
+        raise ValueError(f"image: {path} is not a binary PGM (P5)")
+    width, height, maxval = (int(t) for t in tokens.groups())
+    if maxval != 255:
+        raise ValueError(f"image: {path} has maxval {maxval}; only 8-bit PGM is read")
+    body = data[tokens.end() : tokens.end() + width * height]
+    if len(body) != width * height:
+        raise ValueError(f"image: {path} is truncated ({len(body)} of {width * height} bytes)")
+    return np.frombuffer(body, dtype=np.uint8).reshape(height, width)
+
+
+@dataclass(frozen=True)
+class GlobalFix:
+    """What a global search found (:meth:`Localizer2D.relocalize`)."""
+
+    frame: Frame2D
+    #: Correlative score of the best pose and of the best pose elsewhere.
+    score: float
+    runner_up_score: float
+    search_seconds: float
+
+
+class Localizer2D:
+    """Track a 2D laser in a fixed map (see the module docstring).
+
+    Parameters
+    ----------
+    map_points
+        ``(M, 2)`` the map in its own frame (e.g. the occupied cells of a saved occupancy grid).
+    config
+        :class:`LocalizationConfig2D`.
+    initial_pose
+        ``T_map_scan`` of the first scan if known; ``None``: the first scan is located globally.
+    """
+
+    def __init__(
+        self,
+        map_points: Any,
+        config: LocalizationConfig2D | None = None,
+        *,
+        initial_pose: Any = None,
+    ) -> None:
+        cfg = LocalizationConfig2D() if config is None else config
+        if not isinstance(cfg, LocalizationConfig2D):
+            raise TypeError(f"config: expected LocalizationConfig2D, got {type(cfg).__name__}")
+        self.config = cfg
+        pts = as_points(map_points, "map_points", dim=2, min_points=3)
+        self.map_points = frozen(np.array(pts))
+        self._target: PreparedTarget = prepare(self.map_points, normals=True)
+        self._grid: CorrelativeGrid | None = None  # the whole-map grid, built on first need
+        self._pose: SE2 | None = (
+            None if initial_pose is None else _se2(as_pose(initial_pose, "initial_pose", 2))
+        )
+        self._velocity = SE2.identity()
+        self._rejected = 0
+        self._index = 0
+
+    @classmethod
+    def from_map_server(
+        cls, path: str | Path, config: LocalizationConfig2D | None = None, **kwargs: Any
+    ) -> Localizer2D:
+        """A localizer in the occupancy map ``path`` (``map.yaml``; :func:`read_map_server`)."""
+        points, _ = read_map_server(path)
+        return cls(points, config, **kwargs)
+
+    @property
+    def pose(self) -> SE2 | None:
+        """The latest ``T_map_scan`` (``None`` before the first fix)."""
+        return self._pose
+
+    def step(
+        self,
+        points: Any,
+        timestamps: Any = None,
+        prior: Any = None,
+        *,
+        stamp: float | None = None,
+    ) -> Frame2D:
+        """Locate one scan (``(N, 2)``, scan frame) in the map; the :class:`Odometry2D` call."""
+        t_start = time.perf_counter()
+        pts = as_points(points, "points", dim=2, min_points=3)
+        if timestamps is not None:
+            raise ValueError("timestamps: a 2D scan is taken as instantaneous; pass None")
+        motion = None if prior is None else _se2(as_pose(prior, "prior", 2))
+        index = self._index
+        self._index += 1
+        lost = self._pose is None or self._rejected >= self.config.lost_after
+        if lost:
+            fix = self.relocalize(pts, stamp=stamp, index=index)
+            return fix.frame
+        assert self._pose is not None
+        previous = self._pose
+        if motion is not None:
+            predicted, how = previous @ motion, "prior"
+        else:
+            predicted, how = previous @ self._velocity, "constant_velocity"
+        t0 = time.perf_counter()
+        res = self._register(pts, predicted)
+        t_align = time.perf_counter() - t0
+        frame = self._judged(pts, res, predicted, how, index, stamp, t_start, t_align)
+        if frame.verdict.accepted:
+            self._velocity = previous.inverse() @ frame.pose
+            self._pose = frame.pose
+            self._rejected = 0
+        else:
+            self._pose = predicted  # dead-reckon on the prediction until found again
+            self._rejected += 1
+        return frame
+
+    def relocalize(
+        self, points: Any, *, stamp: float | None = None, index: int | None = None
+    ) -> GlobalFix:
+        """Locate ``points`` anywhere in the map, at any heading (branch and bound), refine and
+        judge it; an accepted fix becomes the tracked pose."""
+        cfg = self.config
+        t_start = time.perf_counter()
+        pts = as_points(points, "points", dim=2, min_points=3)
+        if self._grid is None:
+            self._grid = prepare_correlative(self.map_points, resolution=cfg.global_resolution)
+        lo, hi = self.map_points.min(axis=0), self.map_points.max(axis=0)
+        centre = 0.5 * (lo + hi)
+        half = 0.5 * (hi - lo) + cfg.global_resolution
+        t0 = time.perf_counter()
+        window = (float(half[0]), float(half[1]), math.pi)
+        best = match_correlative(
+            pts, self._grid, init=SE2.from_vector([centre[0], centre[1], 0.0]), window=window
+        )
+        runner_up = self._runner_up(pts, best.pose)
+        search = time.perf_counter() - t0
+        res = self._register(pts, best.pose)
+        t_align = time.perf_counter() - t_start
+        frame = self._judged(
+            pts,
+            res,
+            best.pose,
+            "global",
+            self._index - 1 if index is None else index,
+            stamp,
+            t_start,
+            t_align,
+        )
+        score = float(best.score)
+        ambiguous = runner_up >= cfg.ambiguity_ratio * score
+        if ambiguous:
+            reason = (
+                f"ambiguous: another place scores {runner_up:.2f} against {score:.2f} "
+                f"(>= {cfg.ambiguity_ratio:.2f} of it)"
+            )
+            verdict = Verdict(accepted=False, reasons=(*frame.verdict.reasons, reason))
+            frame = _replace_verdict(frame, verdict)
+        if frame.verdict.accepted:
+            self._pose = frame.pose
+            self._velocity = SE2.identity()
+            self._rejected = 0
+        return GlobalFix(frame=frame, score=score, runner_up_score=runner_up, search_seconds=search)
+
+    def _runner_up(self, pts: FloatArray, best: SE2) -> float:
+        """The best correlative score at least ``ambiguity_distance`` from ``best``: a second
+        exhaustive pass is too slow on a whole map, so the map's other places are probed by a
+        branch and bound over each quadrant of the map that does not contain ``best``."""
+        assert self._grid is not None
+        cfg = self.config
+        lo, hi = self.map_points.min(axis=0), self.map_points.max(axis=0)
+        top = 0.0
+        for qx in (0, 1):
+            for qy in (0, 1):
+                a = lo + (hi - lo) * np.array([qx, qy]) / 2.0
+                b = a + (hi - lo) / 2.0
+                centre = 0.5 * (a + b)
+                # Skip the part of the quadrant near the best pose by searching around a
+                # centre at least ambiguity_distance away; a quadrant holding `best` is
+                # searched too, its result kept only when far enough from `best`.
+                half = 0.5 * (b - a) + cfg.global_resolution
+                res = match_correlative(
+                    pts,
+                    self._grid,
+                    init=SE2.from_vector([centre[0], centre[1], 0.0]),
+                    window=(float(half[0]), float(half[1]), math.pi),
+                )
+                if np.linalg.norm(res.pose.translation - best.translation) > (
+                    cfg.ambiguity_distance
+                ):
+                    top = max(top, float(res.score))
+        return top
+
+    def _register(self, pts: FloatArray, start: SE2) -> RegistrationResult:
+        cfg = self.config
+        return register(
+            pts,
+            self._target,
+            method="point_to_line",
+            init=start,
+            max_correspondence_distance=cfg.max_correspondence_distance,
+            kernel=cfg.kernel,
+            max_iterations=cfg.max_iterations,
+        )
+
+    def _judged(
+        self,
+        pts: FloatArray,
+        res: RegistrationResult,
+        predicted: SE2,
+        how: str,
+        index: int,
+        stamp: float | None,
+        t_start: float,
+        t_align: float,
+    ) -> Frame2D:
+        t0 = time.perf_counter()
+        out = assess(res, pts, self._target, init=predicted, thresholds=self.config.thresholds)
+        t_judge = time.perf_counter() - t0
+        pose = res.pose
+        assert isinstance(pose, SE2)
+        previous = self._pose if self._pose is not None else pose
+        return Frame2D(
+            index=index,
+            stamp=None if stamp is None else float(stamp),
+            pose=pose,
+            motion=previous.inverse() @ pose,
+            prediction=predicted,
+            prediction_source=how,
+            covariance=frozen(np.array(res.covariance, dtype=np.float64)),
+            verdict=out.verdict,
+            quality=out.report,
+            registration=res,
+            num_source_points=int(pts.shape[0]),
+            num_map_points=int(self.map_points.shape[0]),
+            map_updated=False,
+            timing=FrameTiming2D(
+                align=t_align, judge=t_judge, map_update=0.0, total=time.perf_counter() - t_start
+            ),
+        )
+
+
+def _se2(pose: Any) -> SE2:
+    assert isinstance(pose, SE2)
+    return pose
+
+
+def _replace_verdict(frame: Frame2D, verdict: Verdict) -> Frame2D:
+    import dataclasses
+
+    return dataclasses.replace(frame, verdict=verdict)
+
+
+__all__ = ["GlobalFix", "LocalizationConfig2D", "Localizer2D", "read_map_server"]
