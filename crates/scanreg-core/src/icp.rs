@@ -22,6 +22,7 @@
 use crate::error::{Error, Result};
 use crate::kernel::Kernel;
 use crate::knn::{check_max_distance, KdTree};
+use crate::lie;
 use crate::points::{check_points, split_pose};
 use crate::reduce::{chunk_len, chunked_sum};
 use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
@@ -308,16 +309,7 @@ impl Group<2, 3> for Planar {
     }
 
     fn exp(d: &SVector<f64, 3>) -> (Matrix2<f64>, Vector2<f64>) {
-        let th = d[2];
-        let (s, c) = th.sin_cos();
-        // V(θ) = [[sinθ/θ, −(1−cosθ)/θ], [(1−cosθ)/θ, sinθ/θ]]; series near 0.
-        let (a, b) = if th.abs() < 1e-4 {
-            (1.0 - th * th / 6.0, th / 2.0 - th * th * th / 24.0)
-        } else {
-            (s / th, (1.0 - c) / th)
-        };
-        let v = Matrix2::new(a, -b, b, a);
-        (Matrix2::new(c, -s, s, c), v * Vector2::new(d[0], d[1]))
+        lie::se2_exp(Vector2::new(d[0], d[1]), d[2])
     }
 
     fn inverse(m: &Matrix2<f64>) -> Option<Matrix2<f64>> {
@@ -338,11 +330,6 @@ impl Group<2, 3> for Planar {
     }
 }
 
-#[inline]
-fn hat(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
 impl Group<3, 6> for Spatial {
     #[inline]
     fn point_jacobian(p: &Vector3<f64>) -> SMatrix<f64, 3, 6> {
@@ -356,22 +343,11 @@ impl Group<3, 6> for Spatial {
     }
 
     fn exp(d: &SVector<f64, 6>) -> (Matrix3<f64>, Vector3<f64>) {
-        let rho = Vector3::new(d[0], d[1], d[2]);
-        let phi = Vector3::new(d[3], d[4], d[5]);
-        let th2 = phi.norm_squared();
-        let th = th2.sqrt();
-        // Rodrigues: R = I + a K + b K², V = I + b K + c K² (Barfoot 2017, eqs. 7.14, 7.86).
-        let (a, b, c) = if th < 1e-4 {
-            (1.0 - th2 / 6.0, 0.5 - th2 / 24.0, 1.0 / 6.0 - th2 / 120.0)
-        } else {
-            let (s, co) = th.sin_cos();
-            (s / th, (1.0 - co) / th2, (th - s) / (th2 * th))
-        };
-        let k = hat(&phi);
-        let k2 = k * k;
-        let r = Matrix3::identity() + k * a + k2 * b;
-        let v = Matrix3::identity() + k * b + k2 * c;
-        (r, v * rho)
+        let t = lie::se3_exp(
+            Vector3::new(d[0], d[1], d[2]),
+            Vector3::new(d[3], d[4], d[5]),
+        );
+        (t.r, t.t)
     }
 
     fn inverse(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
@@ -397,7 +373,7 @@ impl Group<3, 6> for Spatial {
     fn moment_hessian(k: f64, kp: &Vector3<f64>, rot: &Matrix3<f64>) -> SMatrix<f64, 6, 6> {
         // A = [I, −[p]×]: AᵀA = [[I, −[p]×], [[p]×, [p]×ᵀ[p]×]].
         let mut h = SMatrix::<f64, 6, 6>::zeros();
-        let c = hat(kp);
+        let c = lie::hat(kp);
         h.fixed_view_mut::<3, 3>(0, 0).fill_with_identity();
         h.fixed_view_mut::<3, 3>(0, 0).scale_mut(k);
         h.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-c));
