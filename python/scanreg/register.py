@@ -43,6 +43,7 @@ from ._validate import FloatArray, as_matrix, as_points, check_finite_points
 from ._validate import build as _build
 from ._validate import frozen as _frozen
 from ._validate import readonly as _readonly
+from .basin import probe_basin
 from .degeneracy import (
     Degeneracy,
     analyse_degeneracy,
@@ -65,7 +66,7 @@ from .quality import (
 from .robust import check_kernel
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose, pose_class
-from .verdict import QualityReport, Verdict, VerdictThresholds, _assess_checked
+from .verdict import QualityReport, Verdict, VerdictThresholds, _assess_checked, judge
 
 Method = Literal["point_to_point", "point_to_plane", "point_to_line", "gicp"]
 Optimizer = Literal["gauss_newton", "levenberg_marquardt"]
@@ -674,7 +675,10 @@ def register(
         t_points, t_normals, t_covs = prepared.points, prepared.normals, prepared.covariances
 
     def run(
-        projector: FloatArray | None, start: SE2 | SE3 = pose0, method: str = method_eff
+        projector: FloatArray | None,
+        start: SE2 | SE3 = pose0,
+        method: str = method_eff,
+        max_iterations: int = s.max_iterations,
     ) -> Any:
         # By position, in the binding's order (17 keywords cost 0.7 µs a call).
         return _core.register_icp(
@@ -685,7 +689,7 @@ def register(
             s.kernel,
             k_scale,  # kernel_scale
             s.max_correspondence_distance,
-            s.max_iterations,
+            max_iterations,
             s.translation_tolerance,
             s.rotation_tolerance,
             s.optimizer,
@@ -745,6 +749,7 @@ def register(
             if method_eff == "point_to_point" and _has_normals(prepared)
             else None
         ),
+        "solve": lambda start, iterations: run(held, start, max_iterations=iterations),
     }
     # Built here only when the solve needs it; a lazy analysis builds it on first use.
     ctx: _TrustInputs | dict[str, Any] = ctx_fields
@@ -839,6 +844,10 @@ class _TrustInputs:
     #: registration from ``pose`` (held along the weak directions where the solve was), for
     #: ``calibrated`` (:func:`_via_plane_reference`); None otherwise.
     plane_solve: Any = None
+    #: ``solve(start, max_iterations)``: the registration's own solve from another start (held
+    #: where it was),
+    #: for the verdict's wrong-basin probe (:mod:`scanreg.basin`).
+    solve: Any = None
 
     @functools.cached_property
     def levers(self) -> FloatArray:
@@ -1112,6 +1121,21 @@ def _trust(
         degeneracy=deg,
         hints=None if isinstance(ctx.target, LocalMap) else out.correspondences,
     )
+    if checked.verdict.accepted and th.probes_basin(dim) and ctx.solve is not None:
+        # Only a result every other check accepts is probed: the restarts cost about as much
+        # as the rest of the analysis in 2D, and cannot turn a rejection into an acceptance.
+        index = ctx.target.native if isinstance(ctx.target, LocalMap) else ctx.target.index
+        probe = probe_basin(
+            ctx.solve,
+            index,
+            src,
+            pose,
+            chosen,
+            float(s.max_correspondence_distance),
+            stop_ratio=th.basin_wrong_ratio,
+        )
+        report = dataclasses.replace(checked.report, basin=probe)
+        checked = dataclasses.replace(checked, report=report, verdict=judge(report, th))
     return _Trust(
         covariance=chosen,
         information=_readonly(info),

@@ -15,6 +15,14 @@ from 0.24; half the gate accepted 28 of 80 wrong office registrations), but with
 set ``max_inlier_rmse`` from the sensor when the gate is generous; degeneracy
 comes from the registration's own analysis (:mod:`scanreg.degeneracy`), whose threshold is
 set by the measured normal noise, or else the conditioning's scaled eigenvalue ratio.
+
+The contract: **an accepted result's error lies inside its covariance** (χ² at the stated
+confidence), **or the verdict rejects it**. None of the checks above sees a result that
+converged, tightly, in the wrong basin (a start turned by 50°; a square room turned by 90°):
+:mod:`scanreg.basin` restarts the registration around the result, and the verdict rejects
+with ``"wrong basin: …"`` when another pose explains clearly more of the scan
+(``basin_wrong_ratio``), ``"ambiguous: …"`` when one explains about as much
+(``basin_ambiguous_ratio``).
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ import numpy as np
 
 from . import _core
 from ._validate import FloatArray, as_points
+from .basin import BasinProbe
 from .degeneracy import Degeneracy
 from .local_map import LocalMap
 from .quality import DEFAULT_WEAK_RATIO, Conditioning, conditioning
@@ -62,6 +71,17 @@ class VerdictThresholds:
     #: Reject results with a weak direction (``result.degeneracy``, whose threshold is derived
     #: from the measured normal noise; results without one fall back to ``weak_ratio``).
     reject_degenerate: bool = True
+    #: Probe for other basins (:mod:`scanreg.basin`, a dozen restarts of the solve): ``None``
+    #: (default) in 2D only, where it costs about as much as the rest of the analysis and a
+    #: wrong start converges with high fitness (in 3D the benchmark's wrong starts did not
+    #: converge, and a restart costs a registration); ``True``/``False``: always / never.
+    basin_probe: bool | None = None
+    #: Reject as a wrong basin when a distinct alternative explains more than this times the
+    #: result's fraction of the source within the probe's tight gate.
+    basin_wrong_ratio: float = 1.05
+    #: Reject as ambiguous when it explains at least this times as much (and not more than
+    #: ``basin_wrong_ratio``).
+    basin_ambiguous_ratio: float = 0.95
 
     def __post_init__(self) -> None:
         if not 0.0 <= float(self.min_overlap) <= 1.0:
@@ -76,6 +96,21 @@ class VerdictThresholds:
             raise ValueError(f"weak_ratio: must be in (0, 1), got {self.weak_ratio}")
         _nonnegative(self.max_translation, "max_translation")
         _nonnegative(self.max_rotation, "max_rotation")
+        if self.basin_probe is not None and not isinstance(self.basin_probe, bool):
+            raise TypeError(
+                f"basin_probe: expected a bool or None, got {type(self.basin_probe).__name__}"
+            )
+        _nonnegative(self.basin_wrong_ratio, "basin_wrong_ratio", allow_inf=True)
+        _nonnegative(self.basin_ambiguous_ratio, "basin_ambiguous_ratio", allow_inf=True)
+        if self.basin_ambiguous_ratio > self.basin_wrong_ratio:
+            raise ValueError(
+                f"basin_ambiguous_ratio: must be <= basin_wrong_ratio "
+                f"({self.basin_ambiguous_ratio} > {self.basin_wrong_ratio})"
+            )
+
+    def probes_basin(self, dim: int) -> bool:
+        """Whether a ``dim``-D result is probed for other basins."""
+        return dim == 2 if self.basin_probe is None else self.basin_probe
 
 
 @dataclass(frozen=True)
@@ -99,6 +134,8 @@ class QualityReport:
     conditioning: Conditioning
     #: The registration's degeneracy analysis, when it has one.
     degeneracy: Degeneracy | None = None
+    #: The wrong-basin / ambiguity probe (:mod:`scanreg.basin`), when it ran.
+    basin: BasinProbe | None = None
 
 
 @dataclass(frozen=True)
@@ -170,7 +207,16 @@ def assess(
         converged=bool(result.converged),
         stop_reason=str(result.stop_reason),
         degeneracy=getattr(result, "degeneracy", None),
+        basin=_registration_probe(result, pose) if th.probes_basin(dim) else None,
     )
+
+
+def _registration_probe(result: Any, pose: SE2 | SE3) -> BasinProbe | None:
+    """The probe :func:`scanreg.register` ran on this very pose (the restarts need its solve),
+    or None."""
+    quality = getattr(result, "quality", None)
+    probe = getattr(quality, "basin", None)
+    return probe if isinstance(probe, BasinProbe) else None
 
 
 def _assess_checked(
@@ -186,6 +232,7 @@ def _assess_checked(
     stop_reason: str,
     degeneracy: Degeneracy | None,
     hints: Any = None,
+    basin: BasinProbe | None = None,
 ) -> Assessment:
     """:func:`assess` on inputs already checked (``source`` validated, ``target`` prepared
     and of the pose's dimension, ``conditioning`` at ``thresholds.weak_ratio``): what
@@ -212,6 +259,7 @@ def _assess_checked(
         stop_reason=stop_reason,
         conditioning=conditioning,
         degeneracy=degeneracy,
+        basin=basin,
     )
     return Assessment(report=report, verdict=judge(report, thresholds))
 
@@ -249,4 +297,11 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
             f"rotated {math.degrees(report.rotation_from_init):.3g}° from the initial guess "
             f"> bound {math.degrees(th.max_rotation):.3g}°"
         )
+    probe = report.basin
+    if probe is not None and probe.alternative is not None:
+        ratio = probe.ratio
+        if ratio > th.basin_wrong_ratio:
+            reasons.append(f"wrong basin: {probe.describe()}")
+        elif ratio >= th.basin_ambiguous_ratio:
+            reasons.append(f"ambiguous: {probe.describe()}")
     return Verdict(accepted=not reasons, reasons=tuple(reasons))
