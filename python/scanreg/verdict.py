@@ -207,11 +207,11 @@ def assess(
         converged=bool(result.converged),
         stop_reason=str(result.stop_reason),
         degeneracy=getattr(result, "degeneracy", None),
-        basin=_registration_probe(result, pose) if th.probes_basin(dim) else None,
+        basin=_registration_probe(result) if th.probes_basin(dim) else None,
     )
 
 
-def _registration_probe(result: Any, pose: SE2 | SE3) -> BasinProbe | None:
+def _registration_probe(result: Any) -> BasinProbe | None:
     """The probe :func:`scanreg.register` ran on this very pose (the restarts need its solve),
     or None."""
     quality = getattr(result, "quality", None)

@@ -20,6 +20,8 @@ Poses are ``T_world_scan`` with the world frame that of the first scan.
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 import time
 from collections import deque
@@ -342,6 +344,7 @@ class Odometry2D:
             max_correspondence_distance=cfg.max_correspondence_distance,
             kernel=cfg.kernel,
             max_iterations=cfg.max_iterations,
+            thresholds=_without_default_probe(cfg.thresholds),
         )
         t_align = time.perf_counter() - t0
         pose = _accepted_pose(res, start, cfg)
@@ -387,6 +390,15 @@ class Odometry2D:
                 align=t_align, judge=t_judge, map_update=t_map, total=time.perf_counter() - t_start
             ),
         )
+
+
+def _without_default_probe(thresholds: VerdictThresholds) -> VerdictThresholds:
+    """The pipeline's thresholds with the wrong-basin probe (:mod:`scanreg.basin`) off unless
+    asked for: its alternatives are not weighed against the motion prediction yet, and in a
+    square room every scan has a 90° twin that the prediction already rules out."""
+    if thresholds.basin_probe is None:
+        return dataclasses.replace(thresholds, basin_probe=False)
+    return thresholds
 
 
 def _accepted_pose(res: RegistrationResult, start: SE2, cfg: OdometryConfig2D) -> SE2:
