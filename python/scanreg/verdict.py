@@ -50,6 +50,10 @@ def _nonnegative(value: float, name: str, *, allow_inf: bool = True) -> float:
     return v
 
 
+#: χ²(D) at 99.9 % for the translation of D = 2, 3.
+_CHI2_999 = {2: 13.816, 3: 16.266}
+
+
 @dataclass(frozen=True)
 class VerdictThresholds:
     """What a registration must satisfy to be accepted (validated on construction)."""
@@ -82,6 +86,13 @@ class VerdictThresholds:
     #: Reject as ambiguous when it explains at least this times as much (and not more than
     #: ``basin_wrong_ratio``).
     basin_ambiguous_ratio: float = 0.95
+    #: Reject a translation from the initial guess beyond this χ²(D) of its covariance (99.9 %
+    #: for D = 2 and 3 by default; ``inf``: never). With the default gate-wide prior
+    #: (σ = gate/√3 per axis) that is about 2.1 gates in 2D: ICP converges only from within
+    #: about a gate, so a result that slid further ran along something (MbICP self-matches
+    #: accepted 3-4.6 m off from starts 0.6 m away). Rotation is not tested: a correct result
+    #: from a start turned by 70° turns 70°.
+    max_motion_chi2: float | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= float(self.min_overlap) <= 1.0:
@@ -102,6 +113,8 @@ class VerdictThresholds:
             )
         _nonnegative(self.basin_wrong_ratio, "basin_wrong_ratio", allow_inf=True)
         _nonnegative(self.basin_ambiguous_ratio, "basin_ambiguous_ratio", allow_inf=True)
+        if self.max_motion_chi2 is not None:
+            _nonnegative(self.max_motion_chi2, "max_motion_chi2")
         if self.basin_ambiguous_ratio > self.basin_wrong_ratio:
             raise ValueError(
                 f"basin_ambiguous_ratio: must be <= basin_wrong_ratio "
@@ -136,6 +149,10 @@ class QualityReport:
     degeneracy: Degeneracy | None = None
     #: The wrong-basin / ambiguity probe (:mod:`scanreg.basin`), when it ran.
     basin: BasinProbe | None = None
+    #: ``tᵀ P_t⁻¹ t`` of the translation from the initial guess against the translation block
+    #: of the initial guess's covariance (``init_covariance``, or the gate-wide prior), when
+    #: known.
+    motion_nees: float | None = None
 
 
 @dataclass(frozen=True)
@@ -233,6 +250,7 @@ def _assess_checked(
     degeneracy: Degeneracy | None,
     hints: Any = None,
     basin: BasinProbe | None = None,
+    prior: FloatArray | None = None,
 ) -> Assessment:
     """:func:`assess` on inputs already checked (``source`` validated, ``target`` prepared
     and of the pose's dimension, ``conditioning`` at ``thresholds.weak_ratio``): what
@@ -245,6 +263,15 @@ def _assess_checked(
     index = target.native if isinstance(target, LocalMap) else target.index
     num_found, *stats = _core.overlap_statistics(index, source, pose.as_matrix(), gate, hints=hints)
     moved = start.inverse() @ pose  # type: ignore[operator]
+    motion_nees = None
+    if prior is not None:
+        d = pose.DIM
+        block = np.asarray(prior, dtype=np.float64)[:d, :d]
+        t = np.asarray(moved.translation, dtype=np.float64)
+        try:
+            motion_nees = float(t @ np.linalg.solve(block, t))
+        except np.linalg.LinAlgError:
+            motion_nees = None
     report = QualityReport(
         overlap=num_found / source.shape[0],
         gate=gate,
@@ -260,6 +287,7 @@ def _assess_checked(
         conditioning=conditioning,
         degeneracy=degeneracy,
         basin=basin,
+        motion_nees=motion_nees,
     )
     return Assessment(report=report, verdict=judge(report, thresholds))
 
@@ -297,6 +325,14 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
             f"rotated {math.degrees(report.rotation_from_init):.3g}° from the initial guess "
             f"> bound {math.degrees(th.max_rotation):.3g}°"
         )
+    if report.motion_nees is not None:
+        dim = 2 if report.conditioning.eigenvalues.size == 3 else 3
+        bound = _CHI2_999[dim] if th.max_motion_chi2 is None else th.max_motion_chi2
+        if report.motion_nees > bound:
+            reasons.append(
+                f"moved {report.translation_from_init:.3g} from the initial guess: beyond its "
+                f"uncertainty (χ² {report.motion_nees:.3g} > {bound:.3g})"
+            )
     probe = report.basin
     if probe is not None and probe.alternative is not None:
         ratio = probe.ratio
