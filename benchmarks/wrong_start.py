@@ -23,7 +23,7 @@ own error added to the covariance (``REFERENCE_SIGMA``; mbicp's truth is exact) 
 rejected-and-correct, and the median time of the call with its verdict read.
 
     .venv/bin/python benchmarks/wrong_start.py [--all] [--datasets intel,mbicp,kitti,outdoor]
-        [--jsonl out.jsonl]
+        [--jsonl out.jsonl] [--timing ROUNDS]
 
 Default: every 15th Intel pair, 40 MbICP scans, 5 KITTI pairs; ``--all``: every pair.
 """
@@ -243,12 +243,46 @@ def _counts(rs: list[dict[str, Any]], dim: int) -> list[int]:
     return [n, correct, ac, aw, ao, aor, rc]
 
 
+def timing(rounds: int) -> None:
+    """The default 2D call (raw arrays, verdict read) with and without the probe, alternated
+    pair by pair in this process: medians of the per-round totals and their ratio."""
+    from scanreg.verdict import VerdictThresholds
+
+    pairs = list(intel_pairs(15))
+    off = VerdictThresholds(basin_probe=False)
+    totals: dict[str, list[float]] = {"default": [], "probe off": []}
+    for rnd in range(rounds):
+        sums = dict.fromkeys(totals, 0.0)
+        for i, (src, tgt, ref) in enumerate(pairs):
+            order = [("default", None), ("probe off", off)]
+            if (i + rnd) % 2:
+                order.reverse()
+            for name, th in order:
+                t0 = time.perf_counter()
+                res = scanreg.register(src, tgt, method="point_to_line", init=ref, thresholds=th)
+                assert res.verdict is not None
+                sums[name] += time.perf_counter() - t0
+        for name in totals:
+            totals[name].append(sums[name] / len(pairs))
+    med = {k: float(np.median(v)) for k, v in totals.items()}
+    ratio = float(np.median(np.array(totals["default"]) / np.array(totals["probe off"])))
+    print(
+        f"Intel point-to-line, {len(pairs)} pairs x {rounds} rounds: default "
+        f"{med['default'] * 1e3:.2f} ms, probe off {med['probe off'] * 1e3:.2f} ms, "
+        f"ratio {ratio:.2f}"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--all", action="store_true", help="every pair (slow)")
     parser.add_argument("--datasets", default="intel,mbicp,kitti,outdoor")
     parser.add_argument("--jsonl", type=Path, help="write one record per registration")
+    parser.add_argument("--timing", type=int, default=0, help="only the A/B timing, N rounds")
     args = parser.parse_args()
+    if args.timing:
+        timing(args.timing)
+        return
     chosen = args.datasets.split(",")
     records: list[dict[str, Any]] = []
     sources = {

@@ -56,6 +56,7 @@ NEAR_ROTATION_DEG = 10.0
 RESTART_ITERATIONS = 10
 #: The correlative start (2D): cell and blur as a fraction of the gate, translation half-width
 #: in gates, heading step in degrees.
+CORRELATIVE_START = True
 CORRELATIVE_CELL_FRACTION = 0.2
 CORRELATIVE_WINDOW_GATES = 2.0
 CORRELATIVE_ANGLE_DEG = 2.0
@@ -202,7 +203,13 @@ def probe_basin(
     distinct = 0
     covered = 0
     starts: list[SE2 | SE3] = []
-    if dim == 2 and target_points is not None and math.isfinite(gate) and len(target_points):
+    if (
+        CORRELATIVE_START
+        and dim == 2
+        and target_points is not None
+        and math.isfinite(gate)
+        and len(target_points)
+    ):
         starts.append(_correlative_start(pose, source, target_points, gate))
     starts += [pose @ offset for offset in restart_offsets(dim, gate)]  # type: ignore[misc]
     ran = 0
