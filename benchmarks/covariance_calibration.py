@@ -257,7 +257,9 @@ CHI2_999 = {3: 16.266, 6: 22.458}
 def _split_beam_2d(name: str, count: int, rng: np.random.Generator) -> list[tuple]:
     from scanreg.io import read_carmen
 
-    data = os.environ.get("SCANREG_DATA", os.path.join(os.path.dirname(__file__), "../../shared/data"))
+    data = os.environ.get(
+        "SCANREG_DATA", os.path.join(os.path.dirname(__file__), "../../shared/data")
+    )
     path = {
         "intel": "carmen-intel/intel_gfs_subset_clf_timestamps.clf",
         "mbicp": "carmen-mbicp-laserazos/laserazosSM3.log",
@@ -277,22 +279,32 @@ def _split_beam_2d(name: str, count: int, rng: np.random.Generator) -> list[tupl
         pts = np.c_[ro * np.cos(a[odd]), ro * np.sin(a[odd])]
         lim = np.array([0.2, 0.2, np.deg2rad(3.0)])
         truth = SE2.from_vector(rng.uniform(-lim, lim))
-        out.append((np.ascontiguousarray(truth.inverse().apply(pts)), np.ascontiguousarray(tgt), truth))
+        out.append(
+            (np.ascontiguousarray(truth.inverse().apply(pts)), np.ascontiguousarray(tgt), truth)
+        )
     return out
 
 
 def _split_beam_3d(name: str, count: int, rng: np.random.Generator) -> list[tuple]:
     from scanreg import io
 
-    data = os.environ.get("SCANREG_DATA", os.path.join(os.path.dirname(__file__), "../../shared/data"))
+    data = os.environ.get(
+        "SCANREG_DATA", os.path.join(os.path.dirname(__file__), "../../shared/data")
+    )
     if name == "kitti":
         files = sorted(os.listdir(os.path.join(data, "kitti-odometry-00-frames-000-015/velodyne")))
         clouds = [
-            io.read_points(os.path.join(data, "kitti-odometry-00-frames-000-015/velodyne", f)).finite().points
+            io.read_points(os.path.join(data, "kitti-odometry-00-frames-000-015/velodyne", f))
+            .finite()
+            .points
             for f in files[: max(1, min(count, len(files)))]
         ]
     else:
-        clouds = [io.read_points(os.path.join(data, "gicp-outdoor-scan-pair/small_gicp/source.ply")).points]
+        clouds = [
+            io.read_points(
+                os.path.join(data, "gicp-outdoor-scan-pair/small_gicp/source.ply")
+            ).points
+        ]
     out = []
     vox = scanreg.preprocess.voxel_downsample
     for k in range(count):
@@ -334,7 +346,11 @@ def split_beam(count: int, methods: list[str]) -> None:
         dof = 3 if dim == 2 else 6
         for method in methods:
             planar = ("point_to_plane", "point_to_line")
-            m = method if method not in planar else ("point_to_line" if dim == 2 else "point_to_plane")
+            m = (
+                method
+                if method not in planar
+                else ("point_to_line" if dim == 2 else "point_to_plane")
+            )
             nees: dict[str, list[float]] = {k: [] for k in KINDS}
             accepted = 0
             for src, tgt, truth in pairs:

@@ -49,7 +49,10 @@ from scanreg.io import read_carmen
 DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
 CORRECT_M, CORRECT_DEG = 0.15, 2.0
 CHI2_999 = {3: 16.266, 6: 22.458}
-METHODS = {2: ("point_to_point", "point_to_line", "gicp"), 3: ("point_to_point", "point_to_plane", "gicp")}
+METHODS = {
+    2: ("point_to_point", "point_to_line", "gicp"),
+    3: ("point_to_point", "point_to_plane", "gicp"),
+}
 OFFSETS = {
     2: [(y, t) for t in (0.0, 0.6) for y in (0, 35, -35, 70, -70)],
     3: [(y, t) for t in (0.0, 2.0) for y in (0, 30, -30, 60, -60)],
@@ -201,7 +204,11 @@ def table(records: list[dict[str, Any]]) -> None:
     for name in datasets:
         dim = 2 if name in ("intel", "mbicp") else 3
         for yaw, trans in OFFSETS[dim]:
-            rs = [r for r in records if r["dataset"] == name and (r["yaw"], r["trans"]) == (yaw, trans)]
+            rs = [
+                r
+                for r in records
+                if r["dataset"] == name and (r["yaw"], r["trans"]) == (yaw, trans)
+            ]
             if not rs:
                 continue
             row = _counts(rs, dim)
@@ -218,9 +225,7 @@ def table(records: list[dict[str, Any]]) -> None:
     for name in datasets:
         dim = 2 if name in ("intel", "mbicp") else 3
         for method in (*METHODS[dim], "all"):
-            rs = [
-                r for r in records if r["dataset"] == name and method in ("all", r["method"])
-            ]
+            rs = [r for r in records if r["dataset"] == name and method in ("all", r["method"])]
             n, c, ac, aw, ao, aor, rc = _counts(rs, dim)
             acc = ac + aw
             ms = 1e3 * float(np.median([r["seconds"] for r in rs]))

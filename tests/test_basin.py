@@ -15,11 +15,10 @@ from typing import Any
 import numpy as np
 import pytest
 import scanreg
+from conftest import data_dir
 from scanreg import SE2
 from scanreg import simulate as sim
 from scanreg.verdict import VerdictThresholds
-
-from conftest import data_dir
 
 LASER = sim.LaserModel.preset("laser_360")
 CHI2_3_999 = 16.266

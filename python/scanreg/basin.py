@@ -211,7 +211,7 @@ def probe_basin(
         and len(target_points)
     ):
         starts.append(_correlative_start(pose, source, target_points, gate))
-    starts += [pose @ offset for offset in restart_offsets(dim, gate)]  # type: ignore[misc]
+    starts += [pose @ offset for offset in restart_offsets(dim, gate)]  # type: ignore[operator]
     ran = 0
     for start in starts:
         ran += 1
@@ -249,6 +249,8 @@ def probe_basin(
         restarts=ran,
         distinct=distinct,
         covered=covered,
-        growth=_frozen(0.5 * ((cover - cov) + (cover - cov).T)) if finite else _frozen(np.zeros((dof, dof))),
+        growth=_frozen(0.5 * ((cover - cov) + (cover - cov).T))
+        if finite
+        else _frozen(np.zeros((dof, dof))),
         seconds=time.perf_counter() - t0,
     )

@@ -21,7 +21,6 @@ Poses are ``T_world_scan`` with the world frame that of the first scan.
 from __future__ import annotations
 
 import dataclasses
-
 import math
 import time
 from collections import deque
