@@ -140,3 +140,35 @@ def test_basin_thresholds_are_validated() -> None:
         VerdictThresholds(basin_probe="yes")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="basin_wrong_ratio"):
         VerdictThresholds(basin_wrong_ratio=-1.0)
+
+
+def test_odometry2d_falls_back_when_a_step_is_in_the_wrong_basin() -> None:
+    """A simulated office drive whose wheel prior for one step is turned by 60°: with the probe
+    the step is registered again from a better start and lands on the truth; without it the
+    step converges 89° off (and is rejected, but the pose is kept and the drive is lost)."""
+    from scanreg.pipeline import Odometry2D, OdometryConfig2D
+
+    sick = sim.LaserModel.preset("sick_lms200")
+    scene = sim.floor_plan(seed=3, num_people=0)
+    traj = sim.Trajectory.from_speed_and_yaw_rate(
+        0.5, 0.1, duration=6.0, start=SE2.from_vector([2.0, 3.0, 0.0])
+    )
+    run = sim.simulate_run(scene, sick, traj, num_scans=20, scan_rate=5.0, seed=1)
+    errors = {}
+    for probe in (True, False):
+        odo = Odometry2D(OdometryConfig2D(thresholds=VerdictThresholds(basin_probe=probe)))
+        frames = []
+        for k, scan in enumerate(run.scans):
+            prior = None if k == 0 else run.poses[k - 1].inverse() @ run.poses[k]
+            if k == 15:
+                prior = prior @ SE2.from_vector([0.0, 0.0, math.radians(60.0)])  # type: ignore[operator]
+            frames.append(odo.step(np.ascontiguousarray(scan.points), prior=prior))
+        truth = run.poses[0].inverse() @ run.poses[15]
+        e = (truth.inverse() @ frames[15].pose).as_vector()  # type: ignore[operator]
+        errors[probe] = (math.hypot(e[0], e[1]), abs(e[2]))
+        if probe:
+            assert frames[15].basin_fallback and frames[15].verdict.accepted
+        else:
+            assert not frames[15].basin_fallback and not frames[15].verdict.accepted
+    assert errors[True][0] < 0.05 and errors[True][1] < math.radians(2.0), errors
+    assert errors[False][1] > math.radians(30.0), errors

@@ -225,7 +225,15 @@ def assess(
         stop_reason=str(result.stop_reason),
         degeneracy=getattr(result, "degeneracy", None),
         basin=_registration_probe(result) if th.probes_basin(dim) else None,
+        prior=_registration_prior(result),
     )
+
+
+def _registration_prior(result: Any) -> FloatArray | None:
+    """The covariance of the start the registration used (its ``init_covariance`` or the
+    gate-wide prior), for the motion check; None when the result has none."""
+    prior = getattr(getattr(result, "covariances", None), "prior", None)
+    return None if prior is None else np.asarray(prior, dtype=np.float64)
 
 
 def _registration_probe(result: Any) -> BasinProbe | None:
