@@ -149,9 +149,9 @@ class QualityReport:
     degeneracy: Degeneracy | None = None
     #: The wrong-basin / ambiguity probe (:mod:`scanreg.basin`), when it ran.
     basin: BasinProbe | None = None
-    #: ``tᵀ P_t⁻¹ t`` of the translation from the initial guess against the translation block
-    #: of the initial guess's covariance (``init_covariance``, or the gate-wide prior), when
-    #: known.
+    #: ``tᵀ P_t⁻¹ t`` of the registration's translation from its own start against the
+    #: translation block of that start's covariance (``init_covariance``, or the gate-wide
+    #: prior), when known.
     motion_nees: float | None = None
 
 
@@ -225,15 +225,8 @@ def assess(
         stop_reason=str(result.stop_reason),
         degeneracy=getattr(result, "degeneracy", None),
         basin=_registration_probe(result) if th.probes_basin(dim) else None,
-        prior=_registration_prior(result),
+        motion_nees=getattr(getattr(result, "quality", None), "motion_nees", None),
     )
-
-
-def _registration_prior(result: Any) -> FloatArray | None:
-    """The covariance of the start the registration used (its ``init_covariance`` or the
-    gate-wide prior), for the motion check; None when the result has none."""
-    prior = getattr(getattr(result, "covariances", None), "prior", None)
-    return None if prior is None else np.asarray(prior, dtype=np.float64)
 
 
 def _registration_probe(result: Any) -> BasinProbe | None:
@@ -259,10 +252,13 @@ def _assess_checked(
     hints: Any = None,
     basin: BasinProbe | None = None,
     prior: FloatArray | None = None,
+    motion_nees: float | None = None,
 ) -> Assessment:
     """:func:`assess` on inputs already checked (``source`` validated, ``target`` prepared
     and of the pose's dimension, ``conditioning`` at ``thresholds.weak_ratio``): what
-    :func:`scanreg.register` calls, with no second validation of its own arrays. ``hints``:
+    :func:`scanreg.register` calls, with no second validation of its own arrays. ``prior``:
+    the covariance of ``start`` (the motion check is measured from it); else ``motion_nees``,
+    the registration's own (measured from *its* start). ``hints``:
     the registration's final correspondences (int64, ``-1`` for none), where the overlap
     search starts (same result, faster)."""
     is_map = isinstance(target, LocalMap)
@@ -271,7 +267,6 @@ def _assess_checked(
     index = target.native if isinstance(target, LocalMap) else target.index
     num_found, *stats = _core.overlap_statistics(index, source, pose.as_matrix(), gate, hints=hints)
     moved = start.inverse() @ pose  # type: ignore[operator]
-    motion_nees = None
     if prior is not None:
         d = pose.DIM
         block = np.asarray(prior, dtype=np.float64)[:d, :d]
@@ -338,8 +333,8 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
         bound = _CHI2_999[dim] if th.max_motion_chi2 is None else th.max_motion_chi2
         if report.motion_nees > bound:
             reasons.append(
-                f"moved {report.translation_from_init:.3g} from the initial guess: beyond its "
-                f"uncertainty (χ² {report.motion_nees:.3g} > {bound:.3g})"
+                f"slid beyond the uncertainty of its start: translation χ² "
+                f"{report.motion_nees:.3g} > {bound:.3g}"
             )
     probe = report.basin
     if probe is not None and probe.alternative is not None:

@@ -354,7 +354,7 @@ class Odometry2D:
         probe = None if res.quality is None else res.quality.basin
         reasons = () if res.verdict is None else res.verdict.reasons
         wrong_basin = any(r.startswith("wrong basin:") for r in reasons)
-        slid = any("beyond its uncertainty" in r for r in reasons)
+        slid = any(r.startswith("slid beyond") for r in reasons)
         if cfg.front_end == "icp" and cfg.thresholds.basin_probe and (wrong_basin or slid):
             # Rejected as a wrong basin (the probe found a pose that explains the scan clearly
             # better) or slid beyond the prediction's uncertainty: start again from the
