@@ -15,6 +15,14 @@ from 0.24; half the gate accepted 28 of 80 wrong office registrations), but with
 set ``max_inlier_rmse`` from the sensor when the gate is generous; degeneracy
 comes from the registration's own analysis (:mod:`scanreg.degeneracy`), whose threshold is
 set by the measured normal noise, or else the conditioning's scaled eigenvalue ratio.
+
+The contract: **an accepted result's error lies inside its covariance** (χ² at the stated
+confidence), **or the verdict rejects it**. None of the checks above sees a result that
+converged, tightly, in the wrong basin (a start turned by 50°; a square room turned by 90°):
+:mod:`scanreg.basin` restarts the registration around the result, and the verdict rejects
+with ``"wrong basin: …"`` when another pose explains clearly more of the scan
+(``basin_wrong_ratio``), ``"ambiguous: …"`` when one explains about as much
+(``basin_ambiguous_ratio``).
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ import numpy as np
 
 from . import _core
 from ._validate import FloatArray, as_points
+from .basin import BasinProbe
 from .degeneracy import Degeneracy
 from .local_map import LocalMap
 from .quality import DEFAULT_WEAK_RATIO, Conditioning, conditioning
@@ -39,6 +48,10 @@ def _nonnegative(value: float, name: str, *, allow_inf: bool = True) -> float:
     if math.isnan(v) or v < 0 or (not allow_inf and math.isinf(v)):
         raise ValueError(f"{name}: must be >= 0{'' if allow_inf else ' and finite'}, got {value}")
     return v
+
+
+#: χ²(D) at 99.9 % for the translation of D = 2, 3.
+_CHI2_999 = {2: 13.816, 3: 16.266}
 
 
 @dataclass(frozen=True)
@@ -62,6 +75,24 @@ class VerdictThresholds:
     #: Reject results with a weak direction (``result.degeneracy``, whose threshold is derived
     #: from the measured normal noise; results without one fall back to ``weak_ratio``).
     reject_degenerate: bool = True
+    #: Probe for other basins (:mod:`scanreg.basin`, a dozen restarts of the solve): ``None``
+    #: (default) in 2D only, where it costs about as much as the rest of the analysis and a
+    #: wrong start converges with high fitness (in 3D the benchmark's wrong starts did not
+    #: converge, and a restart costs a registration); ``True``/``False``: always / never.
+    basin_probe: bool | None = None
+    #: Reject as a wrong basin when a distinct alternative explains more than this times the
+    #: result's fraction of the source within the probe's tight gate.
+    basin_wrong_ratio: float = 1.05
+    #: Reject as ambiguous when it explains at least this times as much (and not more than
+    #: ``basin_wrong_ratio``).
+    basin_ambiguous_ratio: float = 0.95
+    #: Reject a translation from the initial guess beyond this χ²(D) of its covariance (99.9 %
+    #: for D = 2 and 3 by default; ``inf``: never). With the default gate-wide prior
+    #: (σ = gate/√3 per axis) that is about 2.1 gates in 2D: ICP converges only from within
+    #: about a gate, so a result that slid further ran along something (MbICP self-matches
+    #: accepted 3-4.6 m off from starts 0.6 m away). Rotation is not tested: a correct result
+    #: from a start turned by 70° turns 70°.
+    max_motion_chi2: float | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= float(self.min_overlap) <= 1.0:
@@ -76,6 +107,23 @@ class VerdictThresholds:
             raise ValueError(f"weak_ratio: must be in (0, 1), got {self.weak_ratio}")
         _nonnegative(self.max_translation, "max_translation")
         _nonnegative(self.max_rotation, "max_rotation")
+        if self.basin_probe is not None and not isinstance(self.basin_probe, bool):
+            raise TypeError(
+                f"basin_probe: expected a bool or None, got {type(self.basin_probe).__name__}"
+            )
+        _nonnegative(self.basin_wrong_ratio, "basin_wrong_ratio", allow_inf=True)
+        _nonnegative(self.basin_ambiguous_ratio, "basin_ambiguous_ratio", allow_inf=True)
+        if self.max_motion_chi2 is not None:
+            _nonnegative(self.max_motion_chi2, "max_motion_chi2")
+        if self.basin_ambiguous_ratio > self.basin_wrong_ratio:
+            raise ValueError(
+                f"basin_ambiguous_ratio: must be <= basin_wrong_ratio "
+                f"({self.basin_ambiguous_ratio} > {self.basin_wrong_ratio})"
+            )
+
+    def probes_basin(self, dim: int) -> bool:
+        """Whether a ``dim``-D result is probed for other basins."""
+        return dim == 2 if self.basin_probe is None else self.basin_probe
 
 
 @dataclass(frozen=True)
@@ -99,6 +147,12 @@ class QualityReport:
     conditioning: Conditioning
     #: The registration's degeneracy analysis, when it has one.
     degeneracy: Degeneracy | None = None
+    #: The wrong-basin / ambiguity probe (:mod:`scanreg.basin`), when it ran.
+    basin: BasinProbe | None = None
+    #: ``tᵀ P_t⁻¹ t`` of the registration's translation from its own start against the
+    #: translation block of that start's covariance (``init_covariance``, or the gate-wide
+    #: prior), when known.
+    motion_nees: float | None = None
 
 
 @dataclass(frozen=True)
@@ -170,7 +224,17 @@ def assess(
         converged=bool(result.converged),
         stop_reason=str(result.stop_reason),
         degeneracy=getattr(result, "degeneracy", None),
+        basin=_registration_probe(result) if th.probes_basin(dim) else None,
+        motion_nees=getattr(getattr(result, "quality", None), "motion_nees", None),
     )
+
+
+def _registration_probe(result: Any) -> BasinProbe | None:
+    """The probe :func:`scanreg.register` ran on this very pose (the restarts need its solve),
+    or None."""
+    quality = getattr(result, "quality", None)
+    probe = getattr(quality, "basin", None)
+    return probe if isinstance(probe, BasinProbe) else None
 
 
 def _assess_checked(
@@ -186,10 +250,15 @@ def _assess_checked(
     stop_reason: str,
     degeneracy: Degeneracy | None,
     hints: Any = None,
+    basin: BasinProbe | None = None,
+    prior: FloatArray | None = None,
+    motion_nees: float | None = None,
 ) -> Assessment:
     """:func:`assess` on inputs already checked (``source`` validated, ``target`` prepared
     and of the pose's dimension, ``conditioning`` at ``thresholds.weak_ratio``): what
-    :func:`scanreg.register` calls, with no second validation of its own arrays. ``hints``:
+    :func:`scanreg.register` calls, with no second validation of its own arrays. ``prior``:
+    the covariance of ``start`` (the motion check is measured from it); else ``motion_nees``,
+    the registration's own (measured from *its* start). ``hints``:
     the registration's final correspondences (int64, ``-1`` for none), where the overlap
     search starts (same result, faster)."""
     is_map = isinstance(target, LocalMap)
@@ -198,6 +267,14 @@ def _assess_checked(
     index = target.native if isinstance(target, LocalMap) else target.index
     num_found, *stats = _core.overlap_statistics(index, source, pose.as_matrix(), gate, hints=hints)
     moved = start.inverse() @ pose  # type: ignore[operator]
+    if prior is not None:
+        d = pose.DIM
+        block = np.asarray(prior, dtype=np.float64)[:d, :d]
+        t = np.asarray(moved.translation, dtype=np.float64)
+        try:
+            motion_nees = float(t @ np.linalg.solve(block, t))
+        except np.linalg.LinAlgError:
+            motion_nees = None
     report = QualityReport(
         overlap=num_found / source.shape[0],
         gate=gate,
@@ -212,6 +289,8 @@ def _assess_checked(
         stop_reason=stop_reason,
         conditioning=conditioning,
         degeneracy=degeneracy,
+        basin=basin,
+        motion_nees=motion_nees,
     )
     return Assessment(report=report, verdict=judge(report, thresholds))
 
@@ -249,4 +328,19 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
             f"rotated {math.degrees(report.rotation_from_init):.3g}° from the initial guess "
             f"> bound {math.degrees(th.max_rotation):.3g}°"
         )
+    if report.motion_nees is not None:
+        dim = 2 if report.conditioning.eigenvalues.size == 3 else 3
+        bound = _CHI2_999[dim] if th.max_motion_chi2 is None else th.max_motion_chi2
+        if report.motion_nees > bound:
+            reasons.append(
+                f"slid beyond the uncertainty of its start: translation χ² "
+                f"{report.motion_nees:.3g} > {bound:.3g}"
+            )
+    probe = report.basin
+    if probe is not None and probe.alternative is not None:
+        ratio = probe.ratio
+        if ratio > th.basin_wrong_ratio:
+            reasons.append(f"wrong basin: {probe.describe()}")
+        elif ratio >= th.basin_ambiguous_ratio:
+            reasons.append(f"ambiguous: {probe.describe()}")
     return Verdict(accepted=not reasons, reasons=tuple(reasons))

@@ -37,7 +37,7 @@ from ..register import RegistrationResult, register
 from ..target import PreparedTarget, prepare
 from ..transform import SE2, as_pose
 from ..verdict import Verdict, VerdictThresholds, assess
-from .odometry2d import Frame2D, FrameTiming2D, _count, _positive
+from .odometry2d import Frame2D, FrameTiming2D, _count, _positive, _without_default_probe
 
 
 @dataclass(frozen=True)
@@ -316,6 +316,9 @@ class Localizer2D:
             max_correspondence_distance=cfg.max_correspondence_distance,
             kernel=cfg.kernel,
             max_iterations=cfg.max_iterations,
+            # Its own ambiguity test runs on the map; the basin probe would build a correlative
+            # grid of the whole map per frame.
+            thresholds=_without_default_probe(cfg.thresholds),
         )
 
     def _judged(

@@ -20,6 +20,7 @@ Poses are ``T_world_scan`` with the world frame that of the first scan.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections import deque
@@ -172,6 +173,11 @@ class Frame2D:
     timing: FrameTiming2D
     #: Directions held to the prediction; the 2D pipeline holds none (kept for the shared shape).
     held_directions: tuple[str, ...] = ()
+    #: The ICP front end's first result was rejected as a wrong basin or as a slide beyond
+    #: the prediction's uncertainty (with ``thresholds.basin_probe=True``) and the scan was
+    #: registered again from the probe's better pose or a correlative search over every
+    #: heading (:mod:`scanreg.basin`).
+    basin_fallback: bool = False
 
     @property
     def degenerate(self) -> bool:
@@ -342,7 +348,45 @@ class Odometry2D:
             max_correspondence_distance=cfg.max_correspondence_distance,
             kernel=cfg.kernel,
             max_iterations=cfg.max_iterations,
+            thresholds=_without_default_probe(cfg.thresholds),
         )
+        fallback = False
+        probe = None if res.quality is None else res.quality.basin
+        reasons = () if res.verdict is None else res.verdict.reasons
+        wrong_basin = any(r.startswith("wrong basin:") for r in reasons)
+        slid = any(r.startswith("slid beyond") for r in reasons)
+        if cfg.front_end == "icp" and cfg.thresholds.basin_probe and (wrong_basin or slid):
+            # Rejected as a wrong basin (the probe found a pose that explains the scan clearly
+            # better) or slid beyond the prediction's uncertainty: start again from the
+            # probe's pose, or from a correlative search around the prediction over every
+            # heading, rather than keep a pose the verdict rejected.
+            if wrong_basin and probe is not None and isinstance(probe.alternative, SE2):
+                start = probe.alternative
+            else:
+                if self._grid is None:
+                    self._grid = prepare_correlative(
+                        self._map_points, resolution=cfg.correlative_resolution
+                    )
+                gate = cfg.max_correspondence_distance
+                start = match_correlative(
+                    pts,
+                    self._grid,
+                    init=predicted,
+                    window=(2.0 * gate, 2.0 * gate, math.pi),
+                    angular_resolution=math.radians(1.0),
+                    search="branch_and_bound",
+                ).pose
+            fallback = True
+            res = register(
+                pts,
+                self._target,
+                method="point_to_line",
+                init=start,
+                max_correspondence_distance=cfg.max_correspondence_distance,
+                kernel=cfg.kernel,
+                max_iterations=cfg.max_iterations,
+                thresholds=_without_default_probe(cfg.thresholds),
+            )
         t_align = time.perf_counter() - t0
         pose = _accepted_pose(res, start, cfg)
 
@@ -386,7 +430,19 @@ class Odometry2D:
             timing=FrameTiming2D(
                 align=t_align, judge=t_judge, map_update=t_map, total=time.perf_counter() - t_start
             ),
+            basin_fallback=fallback,
         )
+
+
+def _without_default_probe(thresholds: VerdictThresholds) -> VerdictThresholds:
+    """The pipeline's thresholds with the wrong-basin probe (:mod:`scanreg.basin`) off unless
+    asked for (``basin_probe=True``: then a step rejected as a wrong basin is registered again
+    from the probe's better pose): its alternatives are not weighed against the motion
+    prediction yet, and in a square room every scan has a 90° twin that the prediction already
+    rules out."""
+    if thresholds.basin_probe is None:
+        return dataclasses.replace(thresholds, basin_probe=False)
+    return thresholds
 
 
 def _accepted_pose(res: RegistrationResult, start: SE2, cfg: OdometryConfig2D) -> SE2:
