@@ -204,10 +204,10 @@ def test_nearly_collinear_3d_reports_the_weak_rotation() -> None:
     target = SE3.from_vector([1.0, 2.0, 3.0, 0.0, 0.0, 0.3]).apply(source)
     result = align_paired(source, target)
     cond = result.conditioning
-    assert cond.degenerate
-    assert cond.condition_number > 1e8
+    assert cond.condition_number > 1e8 and cond.weakest.ratio < 1e-8
     assert cond.weakest.description == "rotation about (1.00, 0.00, 0.00)"
-    assert [d.description for d in cond.weak_directions] == ["rotation about (1.00, 0.00, 0.00)"]
+    # Conditioning is numbers only: no verdict on weakness of its own.
+    assert not hasattr(cond, "weak_directions") and not hasattr(cond, "degenerate")
     # The covariance says so: the roll standard deviation dwarfs the others.
     sd = result.standard_deviations
     assert sd[3] > 1e3 * max(sd[4], sd[5])
@@ -217,7 +217,7 @@ def test_well_spread_points_are_not_degenerate() -> None:
     rng = np.random.default_rng(9)
     source = rng.uniform(-5, 5, (100, 3))
     res = align_paired(source, random_pose(rng, 3).apply(source) + 0.01 * rng.normal(size=(100, 3)))
-    assert not res.conditioning.degenerate
+    assert res.conditioning.weakest.ratio > 0.1
     assert res.conditioning.scaled_condition_number < 10
 
 

@@ -343,7 +343,7 @@ def _register(args: argparse.Namespace) -> dict[str, Any]:
         "weak_directions": (
             [d.description for d in res.degeneracy.weak_directions]
             if res.degeneracy is not None
-            else [d.description for d in res.conditioning.weak_directions]
+            else []
         ),
         "accepted": bool(res.verdict.accepted) if res.verdict is not None else None,
         "reasons": list(res.verdict.reasons) if res.verdict is not None else [],

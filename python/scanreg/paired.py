@@ -15,7 +15,6 @@ from . import _core
 from ._validate import FloatArray, as_points, as_weights, positive
 from ._validate import frozen as _frozen
 from .quality import (
-    DEFAULT_WEAK_RATIO,
     SINGULAR_RATIO,
     Conditioning,
     ResidualStats,
@@ -117,7 +116,6 @@ def align_paired(
     init: Any = None,
     max_iterations: int = 50,
     tolerance: float = 1e-10,
-    weak_ratio: float = DEFAULT_WEAK_RATIO,
 ) -> PairedAlignment:
     """Estimate ``T_target_source`` from paired points ``source[i] ↔ target[i]``.
 
@@ -147,8 +145,6 @@ def align_paired(
     max_iterations, tolerance
         Gauss–Newton stops when ``|δ| < tolerance`` (metres / radians) or after
         ``max_iterations``.
-    weak_ratio
-        Scaled-eigenvalue ratio below which a direction is reported weak.
 
     Raises
     ------
@@ -254,7 +250,7 @@ def align_paired(
     length = _length_scale(src_eff, w)
     if length <= 1e-12 * (1.0 + float(np.abs(src_eff).max())):
         raise ValueError("source: all points coincide; the rotation is unobservable")
-    cond = conditioning(hessian, dim, length, weak_ratio=weak_ratio)
+    cond = conditioning(hessian, dim, length)
     if cond.scaled_eigenvalues[0] <= SINGULAR_RATIO * cond.scaled_eigenvalues[-1]:
         raise ValueError(
             "source: the point geometry does not determine the pose: "

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ._validate import FloatArray, as_matrix, as_points
+from .degeneracy import Degeneracy
 from .io import Trajectory
 from .io._common import PathLike
 from .quality import Conditioning
@@ -331,6 +332,7 @@ def plot_weak_directions(
     points: FloatArray,
     conditioning: Conditioning,
     *,
+    degeneracy: Degeneracy | None = None,
     all_directions: bool = False,
     max_arrows: int = 60,
     title: str | None = None,
@@ -349,9 +351,13 @@ def plot_weak_directions(
         The source points in the source frame (where ``δ`` acts), matching the conditioning.
     conditioning : Conditioning
         From a registration result (``result.conditioning``).
+    degeneracy : Degeneracy, optional
+        The result's verdict on weakness (``result.degeneracy``): its weak directions are
+        drawn, and the title says whether the result is degenerate. Without it, the weakest
+        direction of ``conditioning``.
     all_directions : bool
-        Draw every eigen-direction, not only ``weak_directions`` (or, when there are none,
-        the weakest).
+        Draw every eigen-direction, not only the weak ones (or, when there are none, the
+        weakest).
     """
     out = _check_path(path)
     pts = as_points(points, "points")
@@ -378,7 +384,8 @@ def plot_weak_directions(
             for v, r in _scaled_directions(conditioning, dim)
         ]
     else:
-        chosen = conditioning.weak_directions or (conditioning.weakest,)
+        weak = () if degeneracy is None else degeneracy.weak_directions
+        chosen = weak or (conditioning.weakest,)
         shown = [(w.vector, w.ratio, w.description) for w in chosen]
     cols = min(len(shown), 3)
     rows = -(-len(shown) // cols)
@@ -426,7 +433,10 @@ def plot_weak_directions(
         ax.set_title(f"{text}\nscaled ratio {ratio:.3g}{note}", fontsize=9)
     for ax in axes[len(shown) :]:
         ax.set_visible(False)
-    state = "degenerate" if conditioning.degenerate else "well conditioned"
+    if degeneracy is None:
+        state = "weakest direction"
+    else:
+        state = "degenerate" if degeneracy.degenerate else "well conditioned"
     fig.suptitle(
         title
         or f"{state} (scaled condition number {conditioning.scaled_condition_number:.3g})\n"

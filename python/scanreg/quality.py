@@ -21,9 +21,10 @@ from ._validate import frozen as _frozen
 #: is not determined at all (numerically singular): scanreg raises instead of returning it.
 SINGULAR_RATIO = 1e-12
 
-#: Default ratio under which a scaled eigen-direction is reported as weak (degenerate).
-#: A ratio r means the pose is 1/sqrt(r) times less certain along that direction than along
-#: the best one; 1e-4 is 100× (issue 5 derives thresholds from the noise level).
+#: The verdict's weakness threshold for results that carry no :class:`~scanreg.Degeneracy`
+#: (whose threshold is derived from the measured normal noise): the weakest scaled direction of
+#: ``conditioning`` below this ratio of the best. A ratio r means the pose is 1/sqrt(r) times
+#: less certain along that direction than along the best one; 1e-4 is 100×.
 DEFAULT_WEAK_RATIO = 1e-4
 
 
@@ -71,7 +72,8 @@ class WeakDirection:
 
 @dataclass(frozen=True)
 class Conditioning:
-    """Eigen-analysis of the information matrix ``JᵀJ``.
+    """Eigen-analysis of the information matrix ``JᵀJ``: numbers only. Which directions are
+    weak — a verdict — is :class:`~scanreg.Degeneracy`'s to say (``result.degeneracy``).
 
     The raw eigenvalues mix units (m⁻² for translation, rad⁻² for rotation). The *scaled*
     analysis expresses rotation in metres at ``length_scale`` (the RMS distance of the points
@@ -88,15 +90,8 @@ class Conditioning:
     #: Eigenvalues of ``S⁻¹ JᵀJ S⁻¹`` with ``S = diag(1.., L..)``, ascending.
     scaled_eigenvalues: FloatArray
     scaled_condition_number: float
-    #: The least constrained direction, always reported.
+    #: The least constrained direction (always reported; its ``ratio`` to the best).
     weakest: WeakDirection
-    #: Directions whose scaled ratio is below ``weak_ratio``.
-    weak_directions: tuple[WeakDirection, ...]
-    weak_ratio: float
-
-    @property
-    def degenerate(self) -> bool:
-        return bool(self.weak_directions)
 
 
 def _fmt(v: list[float]) -> str:
@@ -151,8 +146,6 @@ def conditioning(
     hessian: FloatArray,
     dim: int,
     length_scale: float,
-    *,
-    weak_ratio: float = DEFAULT_WEAK_RATIO,
 ) -> Conditioning:
     """Eigen-analysis of ``JᵀJ`` (``hessian``) for a ``dim``-D pose."""
     dof = hessian.shape[0]
@@ -177,7 +170,6 @@ def conditioning(
         )
 
     weakest = direction(0)
-    weak = tuple(weakest if i == 0 else direction(i) for i in range(dof) if ratios[i] < weak_ratio)
     return Conditioning(
         eigenvalues=_frozen(raw_vals),
         eigenvectors=_frozen(raw_vecs),
@@ -186,8 +178,6 @@ def conditioning(
         scaled_eigenvalues=_frozen(vals),
         scaled_condition_number=float(1.0 / ratios[0]) if ratios[0] > 0 else float("inf"),
         weakest=weakest,
-        weak_directions=weak,
-        weak_ratio=weak_ratio,
     )
 
 

@@ -1138,9 +1138,7 @@ def _trust(
         start=ctx.start,
         gate=float(s.max_correspondence_distance) if th.overlap_gate is None else th.overlap_gate,
         thresholds=th,
-        conditioning=cond
-        if th.weak_ratio == cond.weak_ratio
-        else conditioning(hessian, dim, cond.length_scale, weak_ratio=th.weak_ratio),
+        conditioning=cond,
         converged=stop == "converged",
         stop_reason=stop,
         degeneracy=deg,

@@ -206,13 +206,8 @@ def assess(
         gate = float(result.settings.max_correspondence_distance)
     start = type(pose).identity() if init is None else as_pose(init, "init", dim)
     cond = result.conditioning
-    if not isinstance(cond, Conditioning) or cond.weak_ratio != th.weak_ratio:
-        cond = conditioning(
-            np.asarray(result.hessian, dtype=np.float64),
-            dim,
-            result.conditioning.length_scale,
-            weak_ratio=th.weak_ratio,
-        )
+    if not isinstance(cond, Conditioning):
+        cond = conditioning(np.asarray(result.hessian, dtype=np.float64), dim, cond.length_scale)
     return _assess_checked(
         pose,
         src,
@@ -315,9 +310,10 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
                         f"degenerate: {weak.description} "
                         f"(constraint {lam:.2g} < {deg.threshold:.2g})"
                     )
-        else:
-            for weak in report.conditioning.weak_directions:
-                reasons.append(f"degenerate: {weak.description} (ratio {weak.ratio:.1e})")
+        elif report.conditioning.weakest.ratio < th.weak_ratio:
+            # No Degeneracy analysis behind this result: the one number that stands in for it.
+            weak = report.conditioning.weakest
+            reasons.append(f"degenerate: {weak.description} (ratio {weak.ratio:.1e})")
     if report.translation_from_init > th.max_translation:
         reasons.append(
             f"moved {report.translation_from_init:.3g} from the initial guess "
