@@ -5,6 +5,7 @@ a 3D frame and the registration behind it agree on the corridor, tunnel, room an
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import scanreg
 from scanreg import SE2
 from scanreg import simulate as sim
@@ -52,6 +53,13 @@ def test_tunnel_and_street_in_3d() -> None:
         frame = odo.step(f.points, f.timestamps, prior, stamp=f.stamp)
     # The tunnel's axis is held to the prior: the frame is degenerate, and says along what.
     assert frame.held_directions and frame.degenerate
+    # One way to hold: the registration's solve held the axis, so the pose returned is the one
+    # its verdict judged; only the covariance along the axis becomes the prior's.
+    reg = frame.registration
+    assert reg is not None and frame.pose == reg.pose and frame.verdict is reg.verdict
+    sigma = OdometryConfig().prior_sigma
+    assert frame.covariance[0, 0] == pytest.approx(sigma**2, rel=1e-3)
+    assert frame.covariance[0, 0] > 10 * reg.covariance[0, 0]
     run = _run("street", 10.0, 4)
     frames = _odometry(run, OdometryConfig())
     for frame in frames[1:]:

@@ -283,30 +283,25 @@ def scan_translation_information(points: FloatArray, k: int) -> FloatArray:
 
 
 def hold_weak_translation(
-    prediction: SE3,
-    estimate: SE3,
-    information: FloatArray,
     covariance: FloatArray,
-    ratio: float,
+    weak: list[FloatArray],
     prior_sigma: float,
-) -> tuple[SE3, FloatArray, tuple[str, ...]]:
-    """Keep the prediction along weak translation directions (solution remapping).
+) -> tuple[FloatArray, tuple[str, ...]]:
+    """The covariance of a pose held to its prediction along the weak translation directions
+    ``weak`` (sensor frame), and their names.
 
-    Weak directions are those of ``information`` (its translation block; e.g.
-    :func:`scan_translation_information`). The correction ``δ = log(prediction⁻¹ · estimate)``
-    loses its translation components along the weak directions ``v`` (sensor frame); the
-    covariance is projected off them and gets the
-    prior's ``prior_sigma² v vᵀ`` there instead."""
-    weak = weak_translation_directions(information, ratio)
+    The hold itself happens inside the registration (its ``step_projector`` keeps every step
+    off those directions, so the pose it returns — the one its verdict judged — is the held
+    one). Here the covariance is projected off them and gets the prior's ``prior_sigma² v vᵀ``
+    there instead: along a direction the scan cannot see, the pose is as uncertain as the
+    prediction."""
     if not weak:
-        return estimate, covariance, ()
-    delta = _se3(prediction.inverse() @ estimate).log()
+        return covariance, ()
     proj = np.eye(6)
     for v in weak:
         p = np.zeros(6)
         p[:3] = v
         proj -= np.outer(p, p)
-    held = _se3(prediction @ SE3.exp(proj @ delta))
     cov = proj @ covariance @ proj.T if np.isfinite(covariance).all() else covariance.copy()
     for v in weak:
         cov[:3, :3] += prior_sigma**2 * np.outer(v, v)
@@ -316,7 +311,7 @@ def hold_weak_translation(
         )
         for v in weak
     )
-    return held, cov, names
+    return cov, names
 
 
 class AdaptiveGate:
@@ -508,10 +503,10 @@ class Odometry:
         pose = _se3(reg.pose) if usable else prediction
         cov = np.array(reg.covariance) if usable else np.full((6, 6), np.inf)
         held: tuple[str, ...] = ()
-        if usable and info is not None:
-            pose, cov, held = hold_weak_translation(
-                prediction, pose, info, cov, c.weak_translation_ratio, c.prior_sigma
-            )
+        if usable and weak:
+            # The pose is the registration's own (held by its step projector; its verdict
+            # judged this pose); only the covariance takes the prior along the held directions.
+            cov, held = hold_weak_translation(cov, weak, c.prior_sigma)
         if self._first_sweep is not None and times is not None and c.deskew:
             # The first sweep joined the map undeskewed (no motion was known), and this one was
             # matched undeskewed too: consistent, so `reg` is a sound first motion. Re-seed the
