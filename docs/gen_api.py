@@ -23,6 +23,7 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.transform", "SE(2)/SE(3) poses, exp/log, adjoints"),
     ("scanreg.paired", "closed-form and robust alignment of paired points"),
     ("scanreg.register", "local registration: ICP, point-to-plane/line, GICP"),
+    ("scanreg.trust", "the trust analysis: covariance kinds, degeneracy, verdict orchestration"),
     ("scanreg.target", "prepared targets (k-d tree, normals, covariances)"),
     ("scanreg.preprocess", "downsampling, cropping, outliers, normals, covariances"),
     ("scanreg.correlative", "2D correlative scan matching (global within a window)"),

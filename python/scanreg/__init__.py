@@ -26,7 +26,6 @@ from .pipeline.localizer import Localizer, Relocalization
 from .pipeline.odometry import FrameResult, Odometry, OdometryConfig
 from .quality import Conditioning, ResidualStats, WeakDirection, transform_covariance
 from .register import (
-    CovarianceEstimates,
     RegistrationResult,
     RegistrationSettings,
     RegistrationTiming,
@@ -35,6 +34,7 @@ from .register import (
     sampling_covariance,
 )
 from .target import PreparedTarget, prepare
+from .trust import CovarianceEstimates
 from .transform import SE2, SE3
 from .verdict import QualityReport, Verdict, VerdictThresholds
 
