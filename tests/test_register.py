@@ -427,9 +427,9 @@ def test_results_built_without_init_hold_exactly_their_fields() -> None:
     prepared = scanreg.prepare(points)
     res = register(source, prepared, method="point_to_line")
     assert res._trust._args is not None  # not analysed yet: its inputs are still there
-    # The trust inputs, as the fields of the _TrustInputs the analysis builds when it runs.
+    # The trust inputs, as the fields of the TrustInputs the analysis builds when it runs.
     ctx_fields = res._trust._args[0]
-    trust_inputs = sys.modules["scanreg.register"]._TrustInputs
+    trust_inputs = sys.modules["scanreg.trust"].TrustInputs
     assert set(ctx_fields) == {f.name for f in dataclasses.fields(trust_inputs)}
     for obj in (prepared, res, res.timing):
         names = {f.name for f in dataclasses.fields(obj)}
