@@ -48,7 +48,9 @@ impl ScanContextParams {
     /// `max_radius`. Sector `j` spans azimuths `[-π + jΔ, -π + (j+1)Δ)`, `Δ = 2π / num_sectors`.
     #[inline]
     pub fn bin(&self, x: f64, y: f64) -> Option<usize> {
-        let r = x.hypot(y);
+        // sqrt, not hypot: libm's hypot (overflow-safe) costs as much as the atan2 below, and
+        // finite sensor coordinates are far from overflowing.
+        let r = (x * x + y * y).sqrt();
         if r >= self.max_radius {
             return None;
         }
@@ -58,6 +60,12 @@ impl ScanContextParams {
         Some(ring * self.num_sectors + sector)
     }
 }
+
+/// Below this many points the descriptor is built on the calling thread. One keyframe of a
+/// VLP-16 (~28k points) takes 0.7 ms serially; handing it to the pool measured 1.8 ms
+/// back to back and 6 ms when called between other work on the loaded 2-core machine (the
+/// workers must be woken and scheduled), so only an HDL-64-sized sweep is split.
+pub const PARALLEL_MIN_POINTS: usize = 65_536;
 
 /// The `num_rings × num_sectors` descriptor (row-major, ring-major) of `points` (`N * 3`
 /// values, sensor frame, z up): per bin the largest `z + height_offset` of its points, 0 for
@@ -87,16 +95,24 @@ pub fn scan_context(points: &[f64], params: &ScanContextParams) -> Result<Vec<f6
     }
     let n = points.len() / 3;
     let bins = params.num_rings * params.num_sectors;
+    let fill = |part: &mut [f64], range: std::ops::Range<usize>| {
+        for p in points[range.start * 3..range.end * 3].chunks_exact(3) {
+            if let Some(b) = params.bin(p[0], p[1]) {
+                part[b] = f64::max(part[b], p[2] + params.height_offset);
+            }
+        }
+    };
+    if n < PARALLEL_MIN_POINTS {
+        let mut desc = vec![0.0; bins];
+        fill(&mut desc, 0..n);
+        return Ok(desc);
+    }
     let desc = chunked_sum(
         n,
         vec![0.0; bins],
         |range| {
             let mut part = vec![0.0; bins];
-            for p in points[range.start * 3..range.end * 3].chunks_exact(3) {
-                if let Some(b) = params.bin(p[0], p[1]) {
-                    part[b] = f64::max(part[b], p[2] + params.height_offset);
-                }
-            }
+            fill(&mut part, range);
             part
         },
         |mut acc, part| {
@@ -146,6 +162,22 @@ mod tests {
         // The point beyond max_radius is left out; all other bins empty.
         assert_eq!(d.iter().filter(|v| **v != 0.0).count(), 2);
         assert_eq!(ring_key(&d, 4, 8), vec![0.0, 3.5 / 8.0, 0.0, 1.0 / 8.0]);
+    }
+
+    #[test]
+    fn parallel_path_equals_a_serial_loop() {
+        let n = PARALLEL_MIN_POINTS + 1000;
+        let pts: Vec<f64> = (0..3 * n)
+            .map(|i| ((i * 7919 % 2003) as f64) / 100.0 - 10.0)
+            .collect();
+        let p = params();
+        let mut serial = vec![0.0; 32];
+        for q in pts.chunks_exact(3) {
+            if let Some(b) = p.bin(q[0], q[1]) {
+                serial[b] = f64::max(serial[b], q[2] + p.height_offset);
+            }
+        }
+        assert_eq!(scan_context(&pts, &p).unwrap(), serial);
     }
 
     #[test]
