@@ -215,3 +215,24 @@ def test_through_waypoints_refuses_bad_input() -> None:
         sim.Trajectory.through_waypoints([[0, 0]])
     with pytest.raises(ValueError, match="speed: must be > 0"):
         sim.Trajectory.through_waypoints([[0, 0], [1, 0]], speed=0.0)
+
+
+# --- as a sequence ---------------------------------------------------------------------------
+def test_loop_sequences_open_from_a_sim_spec() -> None:
+    from scanreg.io import open_sequence
+    from scanreg.io.sequences import SimulatedSequence
+
+    seq = open_sequence("sim:loop,lap_length=250,laps=2")
+    assert isinstance(seq, SimulatedSequence) and seq.course is not None
+    assert len(seq) == 500  # the whole 500 m drive at 10 m/s, 10 sweeps a second
+    # Truth relative to the first sweep: a lap later the sensor is back at the identity.
+    np.testing.assert_allclose(seq.ground_truth[250], np.eye(4), atol=1e-9)
+    assert seq.course.revisits(seq.stamps[::50], radius=1.0, min_time_gap=20.0) == [
+        (i, i + 5) for i in range(5)
+    ]
+    trap = open_sequence("sim:loop-repeated,frames=2")
+    assert isinstance(trap, SimulatedSequence) and trap.course is not None
+    assert len(trap) == 2 and len(trap.course.repeated_frames) == 4
+    assert trap[1].points.shape[1] == 3
+    with pytest.raises(ValueError, match="ramp, weave: not supported on sim:loop"):
+        open_sequence("sim:loop,ramp=2")
