@@ -579,7 +579,8 @@ def parse_sim_spec(spec: str) -> dict[str, Any]:
     """Parse ``sim:NAME[,key=value,...]`` (e.g. ``sim:street,frames=150,sensor=hdl64``).
 
     Returns the keyword arguments of :class:`SimulatedSequence` (``scene`` and the options of
-    :data:`SIM_OPTIONS`: ``frames``, ``sensor``, ``speed``, ``weave``, ``ramp``, ``seed``).
+    :data:`SIM_OPTIONS`: ``frames``, ``sensor``, ``speed``, ``weave``, ``ramp``, ``seed``,
+    ``laps``, ``lap_length``).
     """
     if not spec.startswith("sim:"):
         raise ValueError(f"{spec!r}: a simulated sequence is written sim:NAME[,key=value...]")
@@ -799,8 +800,9 @@ def open_sequence(
 ) -> ScanSequence:
     """Open a sequence, choosing the loader from what ``source`` is.
 
-    * ``"sim:street"``, ``"sim:tunnel"`` (options: ``sim:street,frames=200,sensor=hdl64``,
-      see :func:`parse_sim_spec`) → :class:`SimulatedSequence`;
+    * ``"sim:street"``, ``"sim:tunnel"``, ``"sim:loop"``, ``"sim:loop-repeated"`` (options:
+      ``sim:street,frames=200,sensor=hdl64``, ``sim:loop,laps=3,lap_length=250``, see
+      :func:`parse_sim_spec`) → :class:`SimulatedSequence`;
     * a folder with ``velodyne/`` (or that ``velodyne/`` folder itself, next to a
       ``calib.txt``) → :class:`KittiSequence` (``ground_truth``: a camera-0 pose file that
       replaces the one found next to it);
