@@ -7,9 +7,9 @@ block, and one whose four sides are copies (``symmetry=4``: every place has thre
 a quarter lap apart). Keyframes every ``spacing`` seconds (2 m); each is queried against the
 keyframes before it, excluding the last ``exclude`` seconds, then added — as a mapping
 front end would. A lap is 30.5 s, so second-lap keyframes fall halfway between first-lap
-ones (1 m from the nearest at the default spacing). A query has a true revisit when some searchable keyframe lies within
-``radius`` (3 m); its top-1 is correct when it lies within ``radius`` of the query. At each
-distance threshold τ a top-1 with distance ≤ τ is a proposed loop:
+ones (1 m from the nearest at the default spacing). A query has a true revisit when some
+searchable keyframe lies within ``radius`` (3 m); its top-1 is correct when it lies within
+``radius`` of the query. At each distance threshold τ a top-1 with distance ≤ τ is a proposed loop:
 precision = correct proposed / proposed, recall = correct proposed / queries with a revisit.
 
 Times (median ms): ``ScanContext.from_points`` on one sweep and ``PlaceDatabase.query`` on

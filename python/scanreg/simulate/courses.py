@@ -74,7 +74,7 @@ class Course:
         xy = np.array([p.translation[:2] for p in self.trajectory.poses_at(t)])
         out: list[tuple[int, int]] = []
         for j in range(t.size):
-            earlier = np.flatnonzero(t[: j + 1] <= t[j] - gap)
+            earlier = np.flatnonzero(t[:j] <= t[j] - gap)
             if earlier.size:
                 close = earlier[np.hypot(*(xy[earlier] - xy[j]).T) <= r]
                 out.extend((int(i), j) for i in close)

@@ -229,8 +229,7 @@ class Trajectory:
             raise ValueError("lifted: the trajectory is already 3D")
         z = finite(height, "height")
         poses = tuple(
-            SE3.from_vector([*p.translation, z, 0.0, 0.0, p.angle])
-            for p in self.knot_poses
+            SE3.from_vector([*p.translation, z, 0.0, 0.0, p.angle]) for p in self.knot_poses
         )
         twists = np.zeros((len(poses), 6))
         twists[:, 0:2] = self.twists[:, 0:2]
