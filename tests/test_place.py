@@ -194,4 +194,8 @@ def test_bad_input_raises_named_errors() -> None:
         db.query(desc, exclude_recent=-1)
     with pytest.raises(ValueError, match="candidate: layout"):
         desc.distance(coarse)
+    with pytest.raises(ValueError, match="descriptor: values must be finite and >= 0"):
+        place.ScanContext(np.full((20, 60), np.nan), np.zeros(20), 80.0, 2.0)
+    with pytest.raises(ValueError, match="descriptor: need >= 1 ring and >= 3 sectors"):
+        place.ScanContext(np.zeros((20, 0)), np.zeros(20), 80.0, 2.0)
     assert len(db) == 0  # nothing half-added

@@ -71,6 +71,34 @@ class ScanContext:
     max_radius: float
     height_offset: float
 
+    def __post_init__(self) -> None:
+        # Built by from_points the arrays are already right; a hand-made one is checked here
+        # so that a malformed descriptor fails by name, not inside a query.
+        desc = self.descriptor
+        if not (
+            isinstance(desc, np.ndarray)
+            and desc.dtype == np.float64
+            and desc.ndim == 2
+            and desc.flags.c_contiguous
+        ):
+            desc = np.ascontiguousarray(np.asarray(desc, dtype=np.float64))
+            if desc.ndim != 2:
+                raise ValueError(f"descriptor: expected shape (rings, sectors), got {desc.shape}")
+        if desc.shape[0] < 1 or desc.shape[1] < 3:
+            raise ValueError(f"descriptor: need >= 1 ring and >= 3 sectors, got {desc.shape}")
+        if not (np.isfinite(desc).all() and (desc >= 0).all()):
+            raise ValueError("descriptor: values must be finite and >= 0")
+        key = np.asarray(self.ring_key, dtype=np.float64)
+        if key.shape != (desc.shape[0],):
+            raise ValueError(f"ring_key: expected shape ({desc.shape[0]},), got {key.shape}")
+        for arr, field in ((desc, "descriptor"), (key, "ring_key")):
+            if arr.flags.writeable:
+                arr = arr.copy()
+                arr.setflags(write=False)
+            object.__setattr__(self, field, arr)
+        object.__setattr__(self, "max_radius", _real(self.max_radius, "max_radius", positive=True))
+        object.__setattr__(self, "height_offset", _real(self.height_offset, "height_offset"))
+
     @classmethod
     def from_points(
         cls,

@@ -75,7 +75,9 @@ fn scan_context_distance(
         descriptor(&query, "query", None)?,
         descriptor(&candidate, "candidate", None)?,
     );
-    let m = py.detach(|| place::scan_context_distance(q, c, shape[0], shape[1]));
+    let m = py
+        .detach(|| place::checked_scan_context_distance(q, c, shape[0], shape[1]))
+        .map_err(core_err)?;
     Ok((m.distance, m.yaw, m.shift))
 }
 

@@ -1,6 +1,7 @@
 //! The Scan Context distance (Kim & Kim 2018, Eq. 5–6): the mean cosine distance of matching
 //! sector columns, minimised over every column shift, whose argmin is the yaw between scans.
 
+use crate::error::{Error, Result};
 use std::f64::consts::PI;
 
 /// The best column shift between two descriptors.
@@ -57,9 +58,38 @@ fn shifted_distance(
     }
 }
 
+/// [`scan_context_distance`] after checking the inputs: `rings >= 1`, `sectors >= 3`, both
+/// descriptors `rings * sectors` long with finite values `>= 0`.
+pub fn checked_scan_context_distance(
+    query: &[f64],
+    candidate: &[f64],
+    rings: usize,
+    sectors: usize,
+) -> Result<ShiftMatch> {
+    if rings == 0 || sectors < 3 {
+        return Err(Error::invalid(
+            "query",
+            format!("need >= 1 ring and >= 3 sectors, got {rings} × {sectors}"),
+        ));
+    }
+    for (name, d) in [("query", query), ("candidate", candidate)] {
+        if d.len() != rings * sectors {
+            return Err(Error::invalid(
+                name,
+                format!("expected {} values, got {}", rings * sectors, d.len()),
+            ));
+        }
+        if !d.iter().all(|v| v.is_finite() && *v >= 0.0) {
+            return Err(Error::invalid(name, "values must be finite and >= 0"));
+        }
+    }
+    Ok(scan_context_distance(query, candidate, rings, sectors))
+}
+
 /// Compare two `rings × sectors` descriptors under every column shift (the paper narrows the
 /// search with the sector key; all `sectors` shifts cost ~`rings · sectors²` products, a few
-/// tens of microseconds at 20 × 60, so the search here is exhaustive and exact).
+/// tens of microseconds at 20 × 60, so the search here is exhaustive and exact). The inputs
+/// must be valid (see [`checked_scan_context_distance`]).
 pub fn scan_context_distance(
     query: &[f64],
     candidate: &[f64],
@@ -119,6 +149,14 @@ mod tests {
         assert_eq!(m.shift, 3);
         assert!(m.distance.abs() < 1e-12);
         assert!((m.yaw - 3.0 * 2.0 * PI / 10.0).abs() < 0.5 * 2.0 * PI / 10.0);
+    }
+
+    #[test]
+    fn checked_refuses_bad_layouts() {
+        assert!(checked_scan_context_distance(&[], &[], 20, 0).is_err());
+        assert!(checked_scan_context_distance(&[1.0; 6], &[1.0; 5], 2, 3).is_err());
+        assert!(checked_scan_context_distance(&[f64::NAN; 6], &[1.0; 6], 2, 3).is_err());
+        assert!(checked_scan_context_distance(&[1.0; 6], &[1.0; 6], 2, 3).is_ok());
     }
 
     #[test]

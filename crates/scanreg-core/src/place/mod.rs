@@ -13,5 +13,5 @@ pub mod distance;
 pub mod scan_context;
 
 pub use database::{PlaceMatch, ScanContextDatabase};
-pub use distance::{scan_context_distance, ShiftMatch};
+pub use distance::{checked_scan_context_distance, scan_context_distance, ShiftMatch};
 pub use scan_context::{ring_key, scan_context, ScanContextParams};
