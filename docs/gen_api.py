@@ -39,6 +39,8 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.config", "TOML/dict configs into frozen dataclasses, strictly; presets"),
     ("scanreg.eval", "ATE, RPE, the KITTI metric, Kümmerle relations"),
     ("scanreg.simulate", "scenes, sensors, trajectories and ray-cast scans with truth"),
+    ("scanreg.simulate.courses", "loops and revisits with truth: block_loop, room_tour"),
+    ("scanreg.place", "place recognition: Scan Context descriptors and their database"),
     ("scanreg.interop", "Open3D and ROS message layouts"),
     ("scanreg.plot", "figures (matplotlib)"),
     ("scanreg.pipeline", "odometry pipelines"),

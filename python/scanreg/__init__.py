@@ -86,11 +86,22 @@ __all__ = [
 # Submodules a user reaches as ``scanreg.io.…`` after a plain ``import scanreg``, loaded on first
 # access: ``io`` and ``eval`` pull in readers and tables that most registration code never uses.
 _LAZY_SUBMODULES = frozenset(
-    {"config", "eval", "interop", "io", "pipeline", "plot", "quality", "robust", "verdict"}
+    {"config", "eval", "interop", "io", "pipeline", "place", "plot", "quality", "robust", "verdict"}
 )
 
 if TYPE_CHECKING:
-    from . import config, eval, interop, io, pipeline, plot, quality, robust, verdict  # noqa: F401
+    from . import (  # noqa: F401
+        config,
+        eval,
+        interop,
+        io,
+        pipeline,
+        place,
+        plot,
+        quality,
+        robust,
+        verdict,
+    )
 
 
 def __getattr__(name: str) -> ModuleType:

@@ -440,3 +440,32 @@ class NdtGrid3:
     def evaluate(
         self, source: NDArray[np.float64], pose_matrix: NDArray[np.float64]
     ) -> tuple[float, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], int]: ...
+
+# --- place recognition (crates/scanreg-py/src/place.rs) ---
+
+def scan_context(
+    points_array: NDArray[np.float64],
+    num_rings: int,
+    num_sectors: int,
+    max_radius: float,
+    height_offset: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+def scan_context_distance(
+    query: NDArray[np.float64], candidate: NDArray[np.float64]
+) -> tuple[float, float, int]: ...
+
+@final
+class ScanContextIndex:
+    def __new__(cls, num_rings: int, num_sectors: int) -> ScanContextIndex: ...
+    def __len__(self) -> int: ...
+    def add(self, descriptor_array: NDArray[np.float64]) -> int: ...
+    def query(
+        self,
+        descriptor_array: NDArray[np.float64],
+        num_candidates: int,
+        top_k: int,
+        exclude_recent: int,
+        max_distance: float,
+    ) -> tuple[
+        NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
+    ]: ...

@@ -30,6 +30,7 @@ pub mod normals;
 pub mod outliers;
 pub mod overlap;
 pub mod paired;
+pub mod place;
 pub mod points;
 pub mod reduce;
 pub mod simulate;

@@ -16,6 +16,7 @@ mod measure;
 mod ndt2d;
 mod ndt3d;
 mod paired;
+mod place;
 mod preprocess;
 mod register;
 mod simulate;
@@ -38,5 +39,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     register::register(m)?;
     censi::register(m)?;
     measure::register(m)?;
+    place::register(m)?;
     Ok(())
 }

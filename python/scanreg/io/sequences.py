@@ -557,6 +557,10 @@ class RosbagSequence(ScanSequence):
 SIMULATED_SCENES: dict[str, dict[str, Any]] = {
     "street": {"start": (0.0, 1.75, 1.73), "speed": 10.0, "weave": 0.04},
     "tunnel": {"start": (0.0, 0.0, 1.73), "speed": 10.0, "weave": 0.0},
+    # Courses of scanreg.simulate.block_loop (laps around a city block, exact closure); the
+    # repeated one has four identical sides (look-alike places: false loops).
+    "loop": {"speed": 10.0, "weave": 0.0, "symmetry": 1},
+    "loop-repeated": {"speed": 10.0, "weave": 0.0, "symmetry": 4},
 }
 #: Keys accepted after ``sim:NAME,`` (see :func:`parse_sim_spec`), with their types.
 SIM_OPTIONS: dict[str, type] = {
@@ -566,6 +570,8 @@ SIM_OPTIONS: dict[str, type] = {
     "weave": float,
     "ramp": float,
     "seed": int,
+    "laps": int,
+    "lap_length": float,
 }
 
 
@@ -573,7 +579,8 @@ def parse_sim_spec(spec: str) -> dict[str, Any]:
     """Parse ``sim:NAME[,key=value,...]`` (e.g. ``sim:street,frames=150,sensor=hdl64``).
 
     Returns the keyword arguments of :class:`SimulatedSequence` (``scene`` and the options of
-    :data:`SIM_OPTIONS`: ``frames``, ``sensor``, ``speed``, ``weave``, ``ramp``, ``seed``).
+    :data:`SIM_OPTIONS`: ``frames``, ``sensor``, ``speed``, ``weave``, ``ramp``, ``seed``,
+    ``laps``, ``lap_length``).
     """
     if not spec.startswith("sim:"):
         raise ValueError(f"{spec!r}: a simulated sequence is written sim:NAME[,key=value...]")
@@ -608,6 +615,11 @@ class SimulatedSequence(ScanSequence):
     ``seq[k]`` casts the rays again, deterministically: the noise is keyed by
     ``(seed, k)``).
 
+    ``"loop"`` and ``"loop-repeated"``: ``laps`` laps of ``lap_length`` m around a city block
+    (:func:`scanreg.simulate.block_loop`; the repeated one with four identical sides and no
+    moving objects); ``num_frames`` defaults to the whole drive, :attr:`course` holds the
+    course (its :meth:`~scanreg.simulate.Course.revisits` are the true loops).
+
     Frames: points motion-distorted exactly as a driver reports them, ``timestamps`` seconds
     since the sweep start (``stamp``). ``ground_truth[k]`` is ``T_lidar0_lidark`` at the start
     of sweep ``k`` (the first is the identity). :meth:`sweep` gives the full simulator output
@@ -618,22 +630,43 @@ class SimulatedSequence(ScanSequence):
         self,
         scene: str = "street",
         *,
-        num_frames: int = 100,
+        num_frames: int | None = None,
         sensor: str = "vlp16",
         speed: float | None = None,
         weave: float | None = None,
         ramp: float = 0.0,
         seed: int = 0,
+        laps: int = 2,
+        lap_length: float = 300.0,
     ) -> None:
         from .. import simulate as sim
         from ..transform import SE3
 
         if scene not in SIMULATED_SCENES:
             raise ValueError(f"scene: unknown {scene!r} (known: {', '.join(SIMULATED_SCENES)})")
-        if isinstance(num_frames, bool) or not isinstance(num_frames, int) or num_frames < 1:
-            raise ValueError(f"num_frames: must be an int >= 1, got {num_frames!r}")
         preset = SIMULATED_SCENES[scene]
         self.lidar = sim.LidarModel.preset(sensor)
+        self.course: sim.Course | None = None
+        if "symmetry" in preset:
+            if ramp or weave:
+                raise ValueError(f"ramp, weave: not supported on sim:{scene}")
+            repeated = preset["symmetry"] > 1
+            self.course = sim.block_loop(
+                seed,
+                lap_length=lap_length,
+                laps=laps,
+                speed=preset["speed"] if speed is None else speed,
+                symmetry=preset["symmetry"],
+                aspect=1.0 if repeated else 0.5,
+                num_pedestrians=0 if repeated else 4,
+                num_moving_cars=0 if repeated else 1,
+            )
+            if num_frames is None:
+                num_frames = self.course.num_scans(1.0 / self.lidar.sweep_duration)
+        if num_frames is None:
+            num_frames = 100
+        if isinstance(num_frames, bool) or not isinstance(num_frames, int) or num_frames < 1:
+            raise ValueError(f"num_frames: must be an int >= 1, got {num_frames!r}")
         self.scene_name = scene
         self.num_frames = num_frames
         self.seed = seed
@@ -651,19 +684,24 @@ class SimulatedSequence(ScanSequence):
         travel = self.speed * duration
         # the scene reaches beyond the sensor's range at both ends of the drive
         length = travel + 2.0 * (self.lidar.max_range + 20.0)
-        x0, y0, z0 = preset["start"]
-        x0 -= travel / 2
-        if scene == "street":
-            self.scene = sim.street(seed=seed, length=max(200.0, length))
+        self.trajectory: Any
+        if self.course is not None:
+            self.scene = self.course.scene
+            self.trajectory = self.course.trajectory
         else:
-            self.scene = sim.tunnel(length=max(400.0, length))
-        self.trajectory = _weaving_trajectory(
-            SE3.from_vector([x0, y0, z0, 0.0, 0.0, 0.0]),
-            self.speed,
-            self.weave,
-            duration,
-            ramp=self.ramp,
-        )
+            x0, y0, z0 = preset["start"]
+            x0 -= travel / 2
+            if scene == "street":
+                self.scene = sim.street(seed=seed, length=max(200.0, length))
+            else:
+                self.scene = sim.tunnel(length=max(400.0, length))
+            self.trajectory = _weaving_trajectory(
+                SE3.from_vector([x0, y0, z0, 0.0, 0.0, 0.0]),
+                self.speed,
+                self.weave,
+                duration,
+                ramp=self.ramp,
+            )
         self.stamps: FloatArray = _readonly(period * np.arange(num_frames))
         self._gt: FloatArray = self.ground_truth_at("start")
         self.name = f"sim:{scene}"
@@ -762,8 +800,9 @@ def open_sequence(
 ) -> ScanSequence:
     """Open a sequence, choosing the loader from what ``source`` is.
 
-    * ``"sim:street"``, ``"sim:tunnel"`` (options: ``sim:street,frames=200,sensor=hdl64``,
-      see :func:`parse_sim_spec`) → :class:`SimulatedSequence`;
+    * ``"sim:street"``, ``"sim:tunnel"``, ``"sim:loop"``, ``"sim:loop-repeated"`` (options:
+      ``sim:street,frames=200,sensor=hdl64``, ``sim:loop,laps=3,lap_length=250``, see
+      :func:`parse_sim_spec`) → :class:`SimulatedSequence`;
     * a folder with ``velodyne/`` (or that ``velodyne/`` folder itself, next to a
       ``calib.txt``) → :class:`KittiSequence` (``ground_truth``: a camera-0 pose file that
       replaces the one found next to it);

@@ -20,6 +20,7 @@ Conventions: poses are ``T_world_sensor`` (``SE2``/``SE3``); sensor frame x forw
 z up; see :mod:`scanreg.simulate.scan` for which frame and time each output is in.
 """
 
+from .courses import Course, block_loop, room_tour
 from .scan import (
     DROPOUT,
     NO_RETURN,
@@ -43,6 +44,7 @@ __all__ = [
     "NO_RETURN",
     "TOO_CLOSE",
     "VALID",
+    "Course",
     "LaserModel",
     "LaserScan",
     "LidarModel",
@@ -51,8 +53,10 @@ __all__ = [
     "SceneBuilder",
     "SimulatedRun",
     "Trajectory",
+    "block_loop",
     "corridor",
     "floor_plan",
+    "room_tour",
     "simulate_run",
     "simulate_scan",
     "simulate_sweep",

@@ -188,3 +188,127 @@ class Trajectory:
             dt = knots[k + 1] - knots[k]
             poses.append(poses[-1] @ type(start).exp(dt * twists[k]))
         return cls(knots, tuple(poses), twists)
+
+    @classmethod
+    def from_twists(
+        cls,
+        start: SE2 | SE3,
+        durations: Any,
+        twists: Any,
+        *,
+        start_time: float = 0.0,
+    ) -> Trajectory:
+        """Pieces of constant body twist driven one after another from ``start``.
+
+        ``durations`` ``(K,)`` seconds (> 0) and ``twists`` ``(K, 3)`` / ``(K, 6)`` (see the
+        module docs); each knot pose is the previous one composed with
+        ``exp(duration · twist)``, so the path is continuous in pose by construction.
+        """
+        if not isinstance(start, (SE2, SE3)):
+            raise TypeError(f"start: expected SE2 or SE3, got {type(start).__name__}")
+        dt = np.asarray(durations, dtype=np.float64).ravel()
+        if dt.size == 0:
+            raise ValueError("durations: need at least one piece")
+        if not np.isfinite(dt).all() or (dt <= 0).any():
+            raise ValueError("durations: must be finite and > 0")
+        dof = 3 if isinstance(start, SE2) else 6
+        xi = as_matrix(twists, "twists", (dt.size, dof))
+        knots = finite(start_time, "start_time") + np.concatenate([[0.0], np.cumsum(dt)])
+        poses: list[Any] = [start]
+        for k in range(dt.size - 1):
+            poses.append(poses[-1] @ type(start).exp(dt[k] * xi[k]))
+        return cls(knots, tuple(poses), xi)
+
+    def end_pose(self) -> SE2 | SE3:
+        """The pose at :attr:`end_time` (the last piece driven to its end)."""
+        return self.pose_at(self.end_time)
+
+    def lifted(self, height: float = 0.0) -> Trajectory:
+        """This 2D trajectory as a 3D one in the plane ``z = height`` (yaw only)."""
+        if self.dim != 2:
+            raise ValueError("lifted: the trajectory is already 3D")
+        z = finite(height, "height")
+        poses = tuple(
+            SE3.from_vector([*p.translation, z, 0.0, 0.0, p.angle]) for p in self.knot_poses
+        )
+        twists = np.zeros((len(poses), 6))
+        twists[:, 0:2] = self.twists[:, 0:2]
+        twists[:, 5] = self.twists[:, 2]
+        return Trajectory(self.knot_times, poses, twists)
+
+    @classmethod
+    def through_waypoints(
+        cls,
+        waypoints: Any,
+        *,
+        speed: float = 1.0,
+        turn_radius: float = 0.5,
+        turn_rate: float = 0.8,
+        max_fillet_angle: float = 2.0 * math.pi / 3.0,
+        final_heading: float | None = None,
+        start_time: float = 0.0,
+    ) -> Trajectory:
+        """A 2D robot driving straight between ``waypoints`` ``(K, 2)`` at ``speed`` (m/s).
+
+        At each interior waypoint the corner is cut by a circular arc of ``turn_radius``
+        (m) tangent to both legs (shrunk to fit half of the shorter leg); a turn sharper
+        than ``max_fillet_angle`` (rad; a U-turn back the way it came) is made on the spot at
+        ``turn_rate`` (rad/s). The path is continuous in position and heading, every piece
+        has a constant twist, and :meth:`pose_at` is exact. The robot starts at
+        ``waypoints[0]`` facing the first leg and ends at ``waypoints[-1]``, turned on the
+        spot to ``final_heading`` (rad) when given.
+        """
+        w = np.asarray(waypoints, dtype=np.float64)
+        if w.ndim != 2 or w.shape[1] != 2 or w.shape[0] < 2:
+            raise ValueError(f"waypoints: expected shape (K, 2) with K >= 2, got {w.shape}")
+        if not np.isfinite(w).all():
+            raise ValueError("waypoints: contains NaN or inf")
+        v = positive(speed, "speed")
+        radius = positive(turn_radius, "turn_radius")
+        rate = positive(turn_rate, "turn_rate")
+        fillet_max = positive(max_fillet_angle, "max_fillet_angle")
+        legs = np.diff(w, axis=0)
+        lengths = np.hypot(legs[:, 0], legs[:, 1])
+        if (lengths <= 1e-9).any():
+            bad = int(np.flatnonzero(lengths <= 1e-9)[0])
+            raise ValueError(f"waypoints: points {bad} and {bad + 1} coincide")
+        headings = np.arctan2(legs[:, 1], legs[:, 0])
+        turns = np.angle(np.exp(1j * np.diff(headings)))  # wrapped to (-π, π]
+        # Per interior waypoint: the arc radius (0 = turn on the spot) and its tangent length.
+        radii = np.zeros(turns.size)
+        cut = np.zeros(lengths.size + 1)  # tangent length at each waypoint
+        for j, phi in enumerate(turns):
+            if abs(phi) < 1e-12 or abs(phi) > fillet_max:
+                continue
+            room = 0.5 * min(lengths[j], lengths[j + 1])
+            r = min(radius, room / math.tan(abs(phi) / 2))
+            radii[j] = r
+            cut[j + 1] = r * math.tan(abs(phi) / 2)
+        durations: list[float] = []
+        twists: list[list[float]] = []
+
+        def spin(phi: float) -> None:
+            if abs(phi) > 1e-12:
+                durations.append(abs(phi) / rate)
+                twists.append([0.0, 0.0, math.copysign(rate, phi)])
+
+        for i, length in enumerate(lengths):
+            straight = length - cut[i] - cut[i + 1]
+            if straight > 1e-12:
+                durations.append(straight / v)
+                twists.append([v, 0.0, 0.0])
+            if i < turns.size:
+                phi = float(turns[i])
+                if radii[i] > 0:
+                    durations.append(radii[i] * abs(phi) / v)
+                    twists.append([v, 0.0, math.copysign(v / radii[i], phi)])
+                else:
+                    spin(phi)
+        if final_heading is not None:
+            spin(
+                float(
+                    np.angle(np.exp(1j * (finite(final_heading, "final_heading") - headings[-1])))
+                )
+            )
+        start = SE2.from_vector([w[0, 0], w[0, 1], headings[0]])
+        return cls.from_twists(start, durations, twists, start_time=start_time)
