@@ -34,8 +34,8 @@ from .register import (
     sampling_covariance,
 )
 from .target import PreparedTarget, prepare
-from .trust import CovarianceEstimates
 from .transform import SE2, SE3
+from .trust import CovarianceEstimates
 from .verdict import QualityReport, Verdict, VerdictThresholds
 
 __all__ = [
