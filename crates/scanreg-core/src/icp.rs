@@ -7,7 +7,8 @@
 //! right-perturbation convention of [`crate::paired`]) and add it into the normal equations
 //! `H = Σ k JᵀWJ`, `g = Σ k JᵀW r` with the deterministic chunked sum of [`crate::reduce`];
 //! then solve for `δ` and update `T ← T · exp(δ)`. The whole loop runs here, so a registration is
-//! one call from Python.
+//! one call from Python. It runs in a frame centred on the source's centroid (see `run`), so
+//! results do not depend on where the clouds sit (map coordinates included).
 //!
 //! Factors, with `e = R p + t − q` and `A(p) = ∂(p ⊕ δ)/∂δ` (`[I, −[p]×]` in 3D, `[I, p⊥]` in 2D):
 //! * point-to-point: `r = Rᵀe`, `J = A` (the residual is rotated into the source frame, which
@@ -87,7 +88,7 @@ pub struct Settings {
     /// most this far (same units as the points).
     pub max_correspondence_distance: f64,
     pub max_iterations: usize,
-    /// Converged when the last step moved less than this (translation norm, units)...
+    /// Converged when the last step moved the source's centroid less than this (units)...
     pub translation_tolerance: f64,
     /// ... and rotated less than this (radians).
     pub rotation_tolerance: f64,
@@ -112,8 +113,9 @@ pub enum StopReason {
     Converged,
     MaxIterations,
     TooFewCorrespondences,
-    /// The step was non-finite, or implausibly large for the gate (translation over ten gates or
-    /// rotation over 90°: a near-singular `H`); the pose before that step is returned.
+    /// The step was non-finite, or implausibly large for the gate (moving the source's centroid
+    /// over ten gates, or rotating over 90°: a near-singular `H`); the pose before that step is
+    /// returned.
     Diverged,
     /// `H` is singular: the correspondences do not determine the pose (e.g. all on one plane
     /// for point-to-plane).
@@ -1033,12 +1035,131 @@ impl<const D: usize, const N: usize> Extrapolation<D, N> {
     }
 }
 
+/// The source's centroid, as `p₀ + mean(p − p₀)` (`p₀` the first point): the differences are
+/// small wherever the cloud sits, so the sum keeps its precision at map coordinates, and the
+/// centroid moves with the cloud to the rounding of its coordinates.
+fn centroid<const D: usize>(source: &[f64]) -> SVector<f64, D> {
+    let n = source.len() / D;
+    if n == 0 {
+        return SVector::zeros();
+    }
+    let p0: SVector<f64, D> = vec_at(source, 0);
+    let mut sum = SVector::<f64, D>::zeros();
+    for i in 0..n {
+        sum += vec_at::<D>(source, i) - p0;
+    }
+    p0 + sum / n as f64
+}
+
+/// `M` with `δ_c = M δ`: a right-perturbation `δ` of `T` (about the source frame's origin)
+/// expressed about the point `c` of the source frame, i.e. of `T · Tr(c)` (`M = Ad(Tr(−c))`:
+/// the translation part gains the rotation's lever arm `A(c)`).
+fn recentring<G: Group<D, N>, const D: usize, const N: usize>(
+    c: &SVector<f64, D>,
+) -> SMatrix<f64, N, N> {
+    let a = G::point_jacobian(c);
+    let mut m = SMatrix::<f64, N, N>::identity();
+    for i in 0..D {
+        for j in D..N {
+            m[(i, j)] = a[(i, j)];
+        }
+    }
+    m
+}
+
+/// An evaluation about the centroid (`δ_c`) expressed over `δ` about the source origin, the
+/// convention of [`Evaluation`]: with `δ_c = M δ`, `H = MᵀH_cM`, `g = Mᵀg_c`, `S = MᵀS_cM`.
+fn express_in_source_frame<const N: usize>(ev: &mut Evaluation, m: &SMatrix<f64, N, N>) {
+    let back = |flat: &mut Vec<f64>| {
+        if flat.len() == N * N {
+            let h = SMatrix::<f64, N, N>::from_row_slice(flat);
+            let o = m.transpose() * h * m;
+            *flat = o.transpose().iter().copied().collect();
+        }
+    };
+    back(&mut ev.hessian);
+    back(&mut ev.score_outer);
+    let g = m.transpose() * SVector::<f64, N>::from_column_slice(&ev.gradient);
+    ev.gradient = g.iter().copied().collect();
+}
+
+/// The iteration of [`register`], in a frame centred on the source's centroid `c`.
+///
+/// Why: the update `T ← T · exp(δ)` perturbs the pose about the source frame's origin, so far
+/// from it (map or UTM coordinates: 10³-10⁷ m) a small rotation carries a translation of
+/// `|c| · δθ`: the step bound saw a divergence, the convergence test never passed, and the
+/// normal equations (entries ~|c|²) lost the digits the solve needs. Solving for
+/// `T_c = T · Tr(c)` on the points `p − c` instead makes every per-point product (Jacobians,
+/// `JᵀWJ`, the lever of the step extrapolation) independent of where the clouds sit: the
+/// residuals `R(p − c) + t_c − q` still subtract map coordinates, but float64 resolves those to
+/// ~1e-9 m at 1e7 m. The step `δ_c` is the motion of the centroid and the rotation, so the
+/// step bound (`Diverged`) and the tolerances (`Converged`) act on how far the source points
+/// move, wherever the clouds are. The outcome is expressed back: `T = T_c · Tr(−c)`, and the
+/// evaluation over `δ` about the source origin (`express_in_source_frame`).
 fn run<G: Group<D, N>, const D: usize, const N: usize>(
     pr: &Problem<'_>,
     init: &[f64],
     s: &Settings,
 ) -> Outcome {
-    let mut pose = Pose::<D>::from_flat(init);
+    let c = centroid::<D>(pr.source);
+    let centred: Vec<f64> = pr
+        .source
+        .chunks_exact(D)
+        .flat_map(|p| (0..D).map(move |k| p[k] - c[k]))
+        .collect();
+    let local = Problem {
+        source: &centred,
+        ..*pr
+    };
+    let start = Pose::<D>::from_flat(init);
+    let start = Pose {
+        t: start.r * c + start.t,
+        r: start.r,
+    };
+    let m = recentring::<G, D, N>(&c);
+    let mut out = iterate::<G, D, N>(&local, start, s, &m);
+    let mut pose = Pose::<D>::from_flat(&out.pose);
+    pose.t -= pose.r * c;
+    out.pose = pose.to_flat();
+    express_in_source_frame(&mut out.evaluation, &m);
+    out
+}
+
+/// The normal equations at `pose`, computed about the source's centroid (see [`run`]) and
+/// expressed over `δ` about the source origin.
+fn evaluate_centred<G: Group<D, N>, const D: usize, const N: usize>(
+    pr: &Problem<'_>,
+    pose: &[f64],
+) -> Evaluation {
+    let c = centroid::<D>(pr.source);
+    let centred: Vec<f64> = pr
+        .source
+        .chunks_exact(D)
+        .flat_map(|p| (0..D).map(move |k| p[k] - c[k]))
+        .collect();
+    let local = Problem {
+        source: &centred,
+        ..*pr
+    };
+    let at = Pose::<D>::from_flat(pose);
+    let at = Pose {
+        t: at.r * c + at.t,
+        r: at.r,
+    };
+    let mut ev = evaluate::<G, D, N>(&local, &at, true, false, None, None, None).0;
+    express_in_source_frame(&mut ev, &recentring::<G, D, N>(&c));
+    ev
+}
+
+/// The loop of [`run`] on a centred problem from `start`; `m` maps a step about the source
+/// origin to one about the centroid (the caller's `step_projector` is over the former).
+fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
+    pr: &Problem<'_>,
+    start: Pose<D>,
+    s: &Settings,
+    m: &SMatrix<f64, N, N>,
+) -> Outcome {
+    let mut pose = start;
     let lm = s.optimizer == Optimizer::LevenbergMarquardt;
     let mut lambda = 1e-4;
     let mut iterations = 0;
@@ -1086,12 +1207,15 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
         let mut at_minimum = false;
         let solve = |hm: &SMatrix<f64, N, N>| match &s.step_projector {
             Some(p) => {
+                // The projector is over steps about the source origin: solve there (H = MᵀH_cM,
+                // g = Mᵀg_c), then express the step about the centroid.
+                let (hm, g) = (m.transpose() * hm * m, m.transpose() * g);
                 // Stiffen the weak directions (Q = I − P) so a singular H still solves, then
                 // remap: no motion along them.
                 let p = SMatrix::<f64, N, N>::from_row_slice(&p[..N * N]);
                 let q = SMatrix::<f64, N, N>::identity() - p;
                 let stiff = hm.trace().abs().max(1e-300) / N as f64;
-                G::solve(&(hm + q.transpose() * q * stiff), &(-g)).map(|d| p * d)
+                G::solve(&(hm + q.transpose() * q * stiff), &(-g)).map(|d| m * (p * d))
             }
             None => G::solve(hm, &(-g)),
         };
@@ -1324,9 +1448,9 @@ pub fn evaluate_at(
     let pr = problem(source, target, settings)?;
     split_pose("pose", pose, dim)?;
     Ok(if dim == 2 {
-        evaluate::<Planar, 2, 3>(&pr, &Pose::from_flat(pose), true, false, None, None, None).0
+        evaluate_centred::<Planar, 2, 3>(&pr, pose)
     } else {
-        evaluate::<Spatial, 3, 6>(&pr, &Pose::from_flat(pose), true, false, None, None, None).0
+        evaluate_centred::<Spatial, 3, 6>(&pr, pose)
     })
 }
 
