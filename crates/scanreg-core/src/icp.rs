@@ -113,9 +113,10 @@ pub enum StopReason {
     Converged,
     MaxIterations,
     TooFewCorrespondences,
-    /// The step was non-finite, or implausibly large for the gate (moving the source's centroid
-    /// over ten gates, or rotating over 90°: a near-singular `H`); the pose before that step is
-    /// returned.
+    /// The step was non-finite, or the iterates ran away: three steps in a row implausibly
+    /// large for the gate (moving the source's centroid over ten gates, or rotating over 90°:
+    /// a near-singular `H`; a single one is shortened and the loop goes on); the pose before
+    /// that step is returned.
     Diverged,
     /// `H` is singular: the correspondences do not determine the pose (e.g. all on one plane
     /// for point-to-plane).
@@ -384,6 +385,9 @@ impl Group<3, 6> for Spatial {
         h
     }
 }
+
+/// Over-long steps in a row after which the iterates are taken to run away (`Diverged`).
+const MAX_OVERLONG_STEPS: usize = 3;
 
 /// Marker for "no correspondence" in the per-point correspondence list.
 const NONE: u32 = u32::MAX;
@@ -1179,6 +1183,8 @@ fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
         pr.source,
         pr.max_sq.sqrt(),
     );
+    // Consecutive over-long steps (see below).
+    let mut overlong = 0;
     let n_source = pr.source.len() / D;
     let outside = pr.kernel.rho(pr.max_sq.sqrt());
     // The truncated cost: a point outside the gate counts as at the gate.
@@ -1260,14 +1266,28 @@ fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
             stop = StopReason::Degenerate;
             break;
         };
-        let dt = d.rows(0, D).norm();
-        let dr = d.rows(D, N - D).norm();
-        // Every correspondence is within the gate, so a sound step moves the source by about the
-        // gate at most; a far larger one (or a quarter turn) comes from a near-singular H.
-        let too_far = dt > 10.0 * s.max_correspondence_distance || dr > std::f64::consts::FRAC_PI_2;
-        if d.iter().any(|v| !v.is_finite()) || too_far {
+        if d.iter().any(|v| !v.is_finite()) {
             stop = StopReason::Diverged;
             break;
+        }
+        let (mut d, mut dt, mut dr) = (d, d.rows(0, D).norm(), d.rows(D, N - D).norm());
+        // Every correspondence is within the gate, so a sound step moves the source by about the
+        // gate at most; a far larger one (or a quarter turn) comes from a near-singular H, as
+        // from a start far outside the basin (a guess 70° off). Such a step is shortened to a
+        // gate of centroid motion and π/8 of rotation, the region where the linearisation
+        // holds, and the loop goes on from there: the start pose is not returned as
+        // `Diverged`. Only iterates that keep asking for such steps run away.
+        let gate = s.max_correspondence_distance;
+        if dt > 10.0 * gate || dr > std::f64::consts::FRAC_PI_2 {
+            overlong += 1;
+            if overlong >= MAX_OVERLONG_STEPS {
+                stop = StopReason::Diverged;
+                break;
+            }
+            let f = (gate / dt).min(std::f64::consts::FRAC_PI_8 / dr).min(1.0);
+            (d, dt, dr) = (d * f, dt * f, dr * f);
+        } else {
+            overlong = 0;
         }
         let converged = dt < s.translation_tolerance && dr < s.rotation_tolerance;
         let (rd, td) = G::exp(&d);
