@@ -183,5 +183,5 @@ def test_correlative_gives_the_same_pose_for_a_map_in_map_coordinates() -> None:
 def test_correlative_names_a_scan_far_from_its_own_origin() -> None:
     source, target, _ = intel_pairs()[0]
     s = shift(1e7, 2)
-    with pytest.raises(ValueError, match="source: points up to .* m from the source frame"):
+    with pytest.raises(ValueError, match=r"source: points up to .* m from the source frame"):
         scanreg.match_correlative(moved(source, s), moved(target, s), init=s)

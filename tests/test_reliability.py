@@ -82,11 +82,11 @@ def test_eight_python_threads_give_the_sequential_bits() -> None:
         results: list[str | None] = [None] * 8
         barrier = threading.Barrier(8)
 
-        def run(i: int) -> None:
-            barrier.wait()
+        def run(i: int, results: list[str | None], barrier: threading.Barrier) -> None:
+            barrier.wait()  # all eight start together
             results[i] = job(i)
 
-        threads = [threading.Thread(target=run, args=(i,)) for i in range(8)]
+        threads = [threading.Thread(target=run, args=(i, results, barrier)) for i in range(8)]
         for t in threads:
             t.start()
         for t in threads:
@@ -104,7 +104,8 @@ from scanreg.io import read_carmen
 root = sys.argv[1]
 h = hashlib.sha256()
 def frame(i):
-    raw = np.fromfile(f"{root}/kitti-odometry-00-frames-000-015/velodyne/{i:06d}.bin", dtype=np.float32)
+    path = f"{root}/kitti-odometry-00-frames-000-015/velodyne/{i:06d}.bin"
+    raw = np.fromfile(path, dtype=np.float32)
     return np.ascontiguousarray(raw.reshape(-1, 4)[:, :3], dtype=np.float64)
 src = pp.voxel_downsample(frame(1), 0.25).points
 tgt = scanreg.prepare(pp.voxel_downsample(frame(0), 0.25).points, normals=True, covariances=True)

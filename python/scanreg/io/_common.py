@@ -59,7 +59,12 @@ def _readonly(a: NDArray[Any]) -> NDArray[Any]:
 
 
 def _integral(arr: NDArray[Any]) -> bool:
-    return bool(np.isfinite(arr).all() and (arr == np.round(arr)).all())
+    """Whole numbers that an int64 holds: NaN, inf or a value past ±2⁶³ would be cast to an
+    arbitrary integer (numpy's "invalid value encountered in cast"), never silently."""
+    limit = 2.0**63
+    return bool(
+        np.isfinite(arr).all() and (arr == np.round(arr)).all() and (np.abs(arr) < limit).all()
+    )
 
 
 def _per_point(value: Any, name: str, n: int, dtype: type[np.generic]) -> NDArray[Any] | None:
@@ -72,6 +77,8 @@ def _per_point(value: Any, name: str, n: int, dtype: type[np.generic]) -> NDArra
         raise ValueError(f"{name}: expected one value per point ({n},...), got {arr.shape}")
     if dtype is np.int64 and arr.dtype.kind == "f" and not _integral(arr):
         raise ValueError(f"{name}: expected integer values")
+    if dtype is np.int64 and arr.dtype.kind == "u" and arr.size and int(arr.max()) >= 2**63:
+        raise ValueError(f"{name}: values past the int64 range")
     return _readonly(np.array(arr, dtype=dtype))
 
 
