@@ -1,16 +1,17 @@
 #!/usr/bin/env bash
-# Fuzz every reader in turn, one core, SECONDS_PER_TARGET each (default 600); prints executions
-# and findings per target. Not in CI. Usage: fuzz/campaign.sh [seconds] [out-dir]
+# Fuzz every reader in turn, one core, SECONDS per target (default 600); prints executions and
+# findings per target (libFuzzer stops a target at its first finding, written to
+# OUT/TARGET/crash-*). Not in CI. Usage: fuzz/campaign.sh [seconds] [out-dir]
 set -u
 secs=${1:-600}
-out=${2:-fuzz/findings}
+out=$(mkdir -p "${2:-fuzz/findings}" && cd "${2:-fuzz/findings}" && pwd)
 here=$(cd "$(dirname "$0")" && pwd)
 py=${PYTHON:-$here/../.venv/bin/python}
-mkdir -p "$out"
 for t in $("$py" "$here/run.py" --list); do
-  (cd "$out" && "$py" "$here/run.py" "$t" -max_total_time="$secs" -timeout=2 -rss_limit_mb=4096 \
-     > "$t.log" 2>&1)
+  mkdir -p "$out/$t"
+  (cd "$out/$t" && "$py" "$here/run.py" "$t" -max_total_time="$secs" -timeout=2 \
+     -rss_limit_mb=4096 -print_final_stats=1 > "$out/$t.log" 2>&1)
   rc=$?
-  runs=$(grep -o 'Done [0-9]* runs' "$out/$t.log" | grep -o '[0-9]*' || echo "?")
-  echo "$t: exit $rc, ${runs} executions, findings: $(ls "$out" | grep -c -E '^(crash|timeout|oom)-' )"
+  runs=$(grep -o 'stat::number_of_executed_units: *[0-9]*' "$out/$t.log" | grep -o '[0-9]*$')
+  echo "$t: exit $rc, ${runs:-?} executions, findings: $(ls "$out/$t" | grep -c -E '^(crash|timeout|oom|slow-unit)-')"
 done

@@ -99,3 +99,21 @@ def test_ring_values_an_int64_cannot_hold_are_refused(bad: float, tmp_path: Path
         )
         with pytest.raises(ValueError, match="ring"):
             read_pcd(path)
+
+
+def test_signalling_nan_in_a_float32_file_is_read_as_nan_without_a_warning(tmp_path: Path) -> None:
+    """Found by the kitti_bin and ply targets: a float32 signalling NaN (0x7fa00000) in the
+    coordinates or the intensity warned "invalid value encountered in cast" on widening."""
+    from scanreg.io import read_kitti_bin
+
+    raw = np.array([[1.0, 2.0, 3.0, 0.5], [4.0, 5.0, 6.0, 0.5]], dtype=np.float32)
+    bits = raw.view(np.uint32)
+    bits[0, 1] = 0x7FA00000  # a signalling NaN: y of the first point
+    bits[1, 3] = 0x7FA00000  # and the second point's intensity
+    path = tmp_path / "s.bin"
+    raw.tofile(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        cloud = read_kitti_bin(path)
+    assert np.isnan(cloud.points[0, 1]) and np.isnan(cloud.intensity[1])  # type: ignore[index]
+    np.testing.assert_array_equal(cloud.points[1], [4.0, 5.0, 6.0])
