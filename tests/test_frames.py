@@ -185,3 +185,18 @@ def test_correlative_names_a_scan_far_from_its_own_origin() -> None:
     s = shift(1e7, 2)
     with pytest.raises(ValueError, match=r"source: points up to .* m from the source frame"):
         scanreg.match_correlative(moved(source, s), moved(target, s), init=s)
+
+
+def test_odometry_started_at_utm_coordinates_follows_the_same_path() -> None:
+    """``Odometry(initial_pose=...)`` 4.2e6 m from the origin: the voxel map keys its voxels
+    relative to its first point (it refused coordinates past 2^20 voxels), and the poses are
+    the origin run's moved by the initial pose. The offset is a whole number of voxels and the
+    rotation the identity, so both runs bin the points into the same voxels."""
+    s = SE3.from_vector([5e5, 4.2e6, 30.0, 0.0, 0.0, 0.0])
+    at_origin, at_utm = scanreg.pipeline.Odometry(), scanreg.pipeline.Odometry(initial_pose=s)
+    for i in range(4):
+        path = data_dir("kitti-odometry-00-frames-000-015", "velodyne", f"{i:06d}.bin")
+        sweep = np.fromfile(path, dtype=np.float32).reshape(-1, 4)[:, :3].astype(np.float64)
+        a, b = at_origin.step(sweep), at_utm.step(sweep)
+        dt, dr = gap(s @ a.pose, b.pose)  # type: ignore[operator]
+        assert dt < TOL_M and dr < TOL_RAD, (i, dt, dr)
