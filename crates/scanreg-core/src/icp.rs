@@ -386,6 +386,13 @@ impl Group<3, 6> for Spatial {
     }
 }
 
+/// Iterations remembered to recognise a periodic orbit (cycles of up to this length).
+const ORBIT_MEMORY: usize = 8;
+
+/// Relative match of two truncated costs taken as the same state of a periodic orbit (the
+/// cycle's poses differ by the rounding of their compositions: ~1e-15).
+const ORBIT_MATCH: f64 = 1e-12;
+
 /// Over-long steps in a row after which the iterates are taken to run away (`Diverged`).
 const MAX_OVERLONG_STEPS: usize = 3;
 
@@ -1185,6 +1192,9 @@ fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
     );
     // Consecutive over-long steps (see below).
     let mut overlong = 0;
+    // The truncated cost and pose of the last iterations, and whether they cycled (see below).
+    let mut orbit: Vec<(f64, Pose<D>)> = Vec::with_capacity(ORBIT_MEMORY);
+    let mut cycled = false;
     let n_source = pr.source.len() / D;
     let outside = pr.kernel.rho(pr.max_sq.sqrt());
     // The truncated cost: a point outside the gate counts as at the gate.
@@ -1210,6 +1220,28 @@ fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
             stop = StopReason::TooFewCorrespondences;
             break;
         }
+        // A periodic orbit: Gauss–Newton can cycle among a few correspondence sets near the
+        // minimum (a KITTI sweep against the odometry map: five poses a few mm apart, forever).
+        // The truncated cost then repeats (to the rounding of the pose's composition); the best
+        // pose of the cycle is the answer.
+        let e_now = energy(&lin);
+        if let Some(k) = orbit
+            .iter()
+            .position(|(e, _)| (e - e_now).abs() <= ORBIT_MATCH * e_now.abs())
+        {
+            let (_, best) =
+                orbit
+                    .drain(k..)
+                    .fold((e_now, pose.clone()), |a, b| if b.0 < a.0 { b } else { a });
+            pose = best;
+            stop = StopReason::Converged;
+            cycled = true;
+            break;
+        }
+        if orbit.len() == ORBIT_MEMORY {
+            orbit.remove(0);
+        }
+        orbit.push((e_now, pose.clone()));
         iterations += 1;
         let h = SMatrix::<f64, N, N>::from_row_slice(&lin.hessian);
         let g = SVector::<f64, N>::from_column_slice(&lin.gradient);
@@ -1290,6 +1322,7 @@ fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
             overlong = 0;
         }
         let converged = dt < s.translation_tolerance && dr < s.rotation_tolerance;
+
         let (rd, td) = G::exp(&d);
         let next = pose.compose(&rd, &td);
         if !next.is_finite() {
@@ -1320,7 +1353,8 @@ fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
     let t0 = Instant::now();
     // After a converged (sub-tolerance) last step the correspondences cannot have changed
     // meaningfully: re-use them instead of a full search (saves one nearest-neighbour pass).
-    let fixed = (stop == StopReason::Converged).then_some(last_corr.as_slice());
+    // (Not after a cycle: the best pose's correspondences were not kept.)
+    let fixed = (stop == StopReason::Converged && !cycled).then_some(last_corr.as_slice());
     let (mut evaluation, mut correspondences, cert) = evaluate::<G, D, N>(
         pr,
         &pose,
