@@ -4,7 +4,7 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-PY_SRC := python tests benchmarks examples docs
+PY_SRC := python tests benchmarks examples docs fuzz
 
 .PHONY: build dev demo test lint lint-rust lint-python test-rust test-python bench clean system-check
 

@@ -215,7 +215,16 @@ def default_angular_resolution(source: FloatArray, resolution: float) -> float:
     """Hess et al. 2016 eq. 7: the angle that moves the farthest point by about one cell,
     ``acos(1 − r²/(2 d_max²))`` with ``d_max`` the largest source range."""
     d_max = max(float(np.sqrt((source**2).sum(axis=1)).max()), resolution)
-    return float(math.acos(1.0 - resolution**2 / (2.0 * d_max**2)))
+    step = float(math.acos(1.0 - resolution**2 / (2.0 * d_max**2)))
+    if not step > 0.0:
+        # The search rotates the scan about its frame's origin (the sensor): a scan whose
+        # points sit ~10⁷ m from it has no representable one-cell angle.
+        raise ValueError(
+            f"source: points up to {d_max:.3g} m from the source frame's origin leave no "
+            "one-cell angular step; give the scan in its sensor frame (init carries the map "
+            "pose) or an explicit angular_resolution"
+        )
+    return step
 
 
 def _window(window: Any) -> tuple[float, float, float]:

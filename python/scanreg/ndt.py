@@ -167,6 +167,13 @@ def prepare_ndt(
     )
 
 
+def _centroid(points: FloatArray) -> FloatArray:
+    """``p₀ + mean(p − p₀)``: the differences keep their digits at map coordinates."""
+    p0 = points[0]
+    out: FloatArray = p0 + (points - p0).mean(axis=0)
+    return out
+
+
 def _levenberg_marquardt(
     native: _core.NdtGrid,
     src: FloatArray,
@@ -281,23 +288,45 @@ def match_ndt(
     assert isinstance(pose0, SE2)
     natives2 = tuple(n for n in ndt._natives if isinstance(n, _core.NdtGrid))
     t0 = time.perf_counter()
-    p = pose0.as_vector()
+    # Solved for the pose of a frame centred on the source's centroid c (points p − c, pose
+    # T·Tr(c)): the rotation then turns the points about themselves, not about a source
+    # origin that may be 10⁷ m away (map coordinates), so the step bounds and tolerances act on
+    # how far the points move and the result does not depend on where the clouds sit.
+    c = _centroid(src)
+    src_c = np.ascontiguousarray(src - c)
+    p = (pose0 @ SE2.from_vector([c[0], c[1], 0.0])).as_vector()
     stop: StopReason = "max_iterations"
     iterations = 0
     for native in natives2:
-        p, stop, used = _levenberg_marquardt(native, src, p, int(max_iterations), tol_t, tol_r)
+        p, stop, used = _levenberg_marquardt(native, src_c, p, int(max_iterations), tol_t, tol_r)
         iterations += used
     seconds = time.perf_counter() - t0
     p[2] = math.atan2(math.sin(p[2]), math.cos(p[2]))
-    cost, _, hess, fisher, matched = native.evaluate(src, (float(p[0]), float(p[1]), float(p[2])))
-    pose = SE2.from_vector(p)
-    h = 0.5 * (hess + hess.T)
-    fisher = 0.5 * (fisher + fisher.T)
+    cost, grad_c, hess_c, fisher_c, matched = native.evaluate(
+        src_c, (float(p[0]), float(p[1]), float(p[2]))
+    )
+    pose_c = SE2.from_vector(p)
+    pose = pose_c @ SE2.from_vector([-c[0], -c[1], 0.0])
+    # Back to the pose vector [tx, ty, θ] of the source frame: t_c = t + R(θ) c, so
+    # ∂p_c/∂p = [[I, R'(θ) c], [0, 1]], and ∇²f gains g_c·∂²t_c/∂θ² = −g_c·R(θ)c.
+    rc = pose_c.rotation @ c
+    jp = np.eye(3)
+    jp[:2, 2] = [-rc[1], rc[0]]
+    h = jp.T @ (0.5 * (hess_c + hess_c.T)) @ jp
+    h[2, 2] -= float(grad_c[:2] @ rc)
+    fisher_c = 0.5 * (fisher_c + fisher_c.T)
     jac = np.eye(3)
     jac[:2, :2] = pose.rotation.T
-    info = jac @ fisher @ jac.T  # ξ = J δp, so I_ξ = J⁻ᵀ I_p J⁻¹ = J I_p Jᵀ (J orthogonal)
-    if np.linalg.eigvalsh(fisher).min() > 1e-12 * max(float(np.abs(fisher).max()), 1e-300):
-        cov = np.linalg.inv(info)
+    # Tangent about the centroid (ξ_c = J δp_c, so I_ξc = J I_p Jᵀ, J orthogonal), then about
+    # the source origin: ξ_c = M ξ with M = [[I, c⊥], [0, 1]] (c⊥ = (−c_y, c_x)).
+    info_c = jac @ fisher_c @ jac.T
+    m = np.eye(3)
+    m[:2, 2] = [-c[1], c[0]]
+    info = m.T @ info_c @ m
+    if np.linalg.eigvalsh(fisher_c).min() > 1e-12 * max(float(np.abs(fisher_c).max()), 1e-300):
+        m_inv = np.eye(3)
+        m_inv[:2, 2] = [c[1], -c[0]]
+        cov = m_inv @ np.linalg.inv(info_c) @ m_inv.T
         cov = 0.5 * (cov + cov.T)
     else:
         cov = np.full((3, 3), np.inf)

@@ -7,7 +7,8 @@
 //! right-perturbation convention of [`crate::paired`]) and add it into the normal equations
 //! `H = Σ k JᵀWJ`, `g = Σ k JᵀW r` with the deterministic chunked sum of [`crate::reduce`];
 //! then solve for `δ` and update `T ← T · exp(δ)`. The whole loop runs here, so a registration is
-//! one call from Python.
+//! one call from Python. It runs in a frame centred on the source's centroid (see `run`), so
+//! results do not depend on where the clouds sit (map coordinates included).
 //!
 //! Factors, with `e = R p + t − q` and `A(p) = ∂(p ⊕ δ)/∂δ` (`[I, −[p]×]` in 3D, `[I, p⊥]` in 2D):
 //! * point-to-point: `r = Rᵀe`, `J = A` (the residual is rotated into the source frame, which
@@ -87,7 +88,7 @@ pub struct Settings {
     /// most this far (same units as the points).
     pub max_correspondence_distance: f64,
     pub max_iterations: usize,
-    /// Converged when the last step moved less than this (translation norm, units)...
+    /// Converged when the last step moved the source's centroid less than this (units)...
     pub translation_tolerance: f64,
     /// ... and rotated less than this (radians).
     pub rotation_tolerance: f64,
@@ -112,8 +113,10 @@ pub enum StopReason {
     Converged,
     MaxIterations,
     TooFewCorrespondences,
-    /// The step was non-finite, or implausibly large for the gate (translation over ten gates or
-    /// rotation over 90°: a near-singular `H`); the pose before that step is returned.
+    /// The step was non-finite, or the iterates ran away: three steps in a row implausibly
+    /// large for the gate (moving the source's centroid over ten gates, or rotating over 90°:
+    /// a near-singular `H`; a single one is shortened and the loop goes on); the pose before
+    /// that step is returned.
     Diverged,
     /// `H` is singular: the correspondences do not determine the pose (e.g. all on one plane
     /// for point-to-plane).
@@ -382,6 +385,16 @@ impl Group<3, 6> for Spatial {
         h
     }
 }
+
+/// Iterations remembered to recognise a periodic orbit (cycles of up to this length).
+const ORBIT_MEMORY: usize = 8;
+
+/// Relative match of two truncated costs taken as the same state of a periodic orbit (the
+/// cycle's poses differ by the rounding of their compositions: ~1e-15).
+const ORBIT_MATCH: f64 = 1e-12;
+
+/// Over-long steps in a row after which the iterates are taken to run away (`Diverged`).
+const MAX_OVERLONG_STEPS: usize = 3;
 
 /// Marker for "no correspondence" in the per-point correspondence list.
 const NONE: u32 = u32::MAX;
@@ -1033,12 +1046,135 @@ impl<const D: usize, const N: usize> Extrapolation<D, N> {
     }
 }
 
+/// The source's centroid, as `p₀ + mean(p − p₀)` (`p₀` the first point): the differences are
+/// small wherever the cloud sits, so the sum keeps its precision at map coordinates, and the
+/// centroid moves with the cloud to the rounding of its coordinates.
+fn centroid<const D: usize>(source: &[f64]) -> SVector<f64, D> {
+    let n = source.len() / D;
+    if n == 0 {
+        return SVector::zeros();
+    }
+    let p0: SVector<f64, D> = vec_at(source, 0);
+    let mut sum = SVector::<f64, D>::zeros();
+    for i in 0..n {
+        sum += vec_at::<D>(source, i) - p0;
+    }
+    p0 + sum / n as f64
+}
+
+/// `source − c`, point by point (a copy, then in place: the flat iterator was measurably slower
+/// on a 2D scan).
+fn centred_copy<const D: usize>(source: &[f64], c: &SVector<f64, D>) -> Vec<f64> {
+    let mut out = source.to_vec();
+    for p in out.chunks_exact_mut(D) {
+        for k in 0..D {
+            p[k] -= c[k];
+        }
+    }
+    out
+}
+
+/// `M` with `δ_c = M δ`: a right-perturbation `δ` of `T` (about the source frame's origin)
+/// expressed about the point `c` of the source frame, i.e. of `T · Tr(c)` (`M = Ad(Tr(−c))`:
+/// the translation part gains the rotation's lever arm `A(c)`).
+fn recentring<G: Group<D, N>, const D: usize, const N: usize>(
+    c: &SVector<f64, D>,
+) -> SMatrix<f64, N, N> {
+    let a = G::point_jacobian(c);
+    let mut m = SMatrix::<f64, N, N>::identity();
+    for i in 0..D {
+        for j in D..N {
+            m[(i, j)] = a[(i, j)];
+        }
+    }
+    m
+}
+
+/// An evaluation about the centroid (`δ_c`) expressed over `δ` about the source origin, the
+/// convention of [`Evaluation`]: with `δ_c = M δ`, `H = MᵀH_cM`, `g = Mᵀg_c`, `S = MᵀS_cM`.
+fn express_in_source_frame<const N: usize>(ev: &mut Evaluation, m: &SMatrix<f64, N, N>) {
+    let back = |flat: &mut Vec<f64>| {
+        if flat.len() == N * N {
+            let h = SMatrix::<f64, N, N>::from_row_slice(flat);
+            let o = m.transpose() * h * m;
+            *flat = o.transpose().iter().copied().collect();
+        }
+    };
+    back(&mut ev.hessian);
+    back(&mut ev.score_outer);
+    let g = m.transpose() * SVector::<f64, N>::from_column_slice(&ev.gradient);
+    ev.gradient = g.iter().copied().collect();
+}
+
+/// The iteration of [`register`], in a frame centred on the source's centroid `c`.
+///
+/// Why: the update `T ← T · exp(δ)` perturbs the pose about the source frame's origin, so far
+/// from it (map or UTM coordinates: 10³-10⁷ m) a small rotation carries a translation of
+/// `|c| · δθ`: the step bound saw a divergence, the convergence test never passed, and the
+/// normal equations (entries ~|c|²) lost the digits the solve needs. Solving for
+/// `T_c = T · Tr(c)` on the points `p − c` instead makes every per-point product (Jacobians,
+/// `JᵀWJ`, the lever of the step extrapolation) independent of where the clouds sit: the
+/// residuals `R(p − c) + t_c − q` still subtract map coordinates, but float64 resolves those to
+/// ~1e-9 m at 1e7 m. The step `δ_c` is the motion of the centroid and the rotation, so the
+/// step bound (`Diverged`) and the tolerances (`Converged`) act on how far the source points
+/// move, wherever the clouds are. The outcome is expressed back: `T = T_c · Tr(−c)`, and the
+/// evaluation over `δ` about the source origin (`express_in_source_frame`).
 fn run<G: Group<D, N>, const D: usize, const N: usize>(
     pr: &Problem<'_>,
     init: &[f64],
     s: &Settings,
 ) -> Outcome {
-    let mut pose = Pose::<D>::from_flat(init);
+    let c = centroid::<D>(pr.source);
+    let centred = centred_copy::<D>(pr.source, &c);
+    let local = Problem {
+        source: &centred,
+        ..*pr
+    };
+    let start = Pose::<D>::from_flat(init);
+    let start = Pose {
+        t: start.r * c + start.t,
+        r: start.r,
+    };
+    let m = recentring::<G, D, N>(&c);
+    let mut out = iterate::<G, D, N>(&local, start, s, &m);
+    let mut pose = Pose::<D>::from_flat(&out.pose);
+    pose.t -= pose.r * c;
+    out.pose = pose.to_flat();
+    express_in_source_frame(&mut out.evaluation, &m);
+    out
+}
+
+/// The normal equations at `pose`, computed about the source's centroid (see [`run`]) and
+/// expressed over `δ` about the source origin.
+fn evaluate_centred<G: Group<D, N>, const D: usize, const N: usize>(
+    pr: &Problem<'_>,
+    pose: &[f64],
+) -> Evaluation {
+    let c = centroid::<D>(pr.source);
+    let centred = centred_copy::<D>(pr.source, &c);
+    let local = Problem {
+        source: &centred,
+        ..*pr
+    };
+    let at = Pose::<D>::from_flat(pose);
+    let at = Pose {
+        t: at.r * c + at.t,
+        r: at.r,
+    };
+    let mut ev = evaluate::<G, D, N>(&local, &at, true, false, None, None, None).0;
+    express_in_source_frame(&mut ev, &recentring::<G, D, N>(&c));
+    ev
+}
+
+/// The loop of [`run`] on a centred problem from `start`; `m` maps a step about the source
+/// origin to one about the centroid (the caller's `step_projector` is over the former).
+fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
+    pr: &Problem<'_>,
+    start: Pose<D>,
+    s: &Settings,
+    m: &SMatrix<f64, N, N>,
+) -> Outcome {
+    let mut pose = start;
     let lm = s.optimizer == Optimizer::LevenbergMarquardt;
     let mut lambda = 1e-4;
     let mut iterations = 0;
@@ -1054,6 +1190,11 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
         pr.source,
         pr.max_sq.sqrt(),
     );
+    // Consecutive over-long steps (see below).
+    let mut overlong = 0;
+    // The truncated cost and pose of the last iterations, and whether they cycled (see below).
+    let mut orbit: Vec<(f64, Pose<D>)> = Vec::with_capacity(ORBIT_MEMORY);
+    let mut cycled = false;
     let n_source = pr.source.len() / D;
     let outside = pr.kernel.rho(pr.max_sq.sqrt());
     // The truncated cost: a point outside the gate counts as at the gate.
@@ -1079,6 +1220,28 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
             stop = StopReason::TooFewCorrespondences;
             break;
         }
+        // A periodic orbit: Gauss–Newton can cycle among a few correspondence sets near the
+        // minimum (a KITTI sweep against the odometry map: five poses a few mm apart, forever).
+        // The truncated cost then repeats (to the rounding of the pose's composition); the best
+        // pose of the cycle is the answer.
+        let e_now = energy(&lin);
+        if let Some(k) = orbit
+            .iter()
+            .position(|(e, _)| (e - e_now).abs() <= ORBIT_MATCH * e_now.abs())
+        {
+            let (_, best) =
+                orbit
+                    .drain(k..)
+                    .fold((e_now, pose.clone()), |a, b| if b.0 < a.0 { b } else { a });
+            pose = best;
+            stop = StopReason::Converged;
+            cycled = true;
+            break;
+        }
+        if orbit.len() == ORBIT_MEMORY {
+            orbit.remove(0);
+        }
+        orbit.push((e_now, pose.clone()));
         iterations += 1;
         let h = SMatrix::<f64, N, N>::from_row_slice(&lin.hessian);
         let g = SVector::<f64, N>::from_column_slice(&lin.gradient);
@@ -1086,12 +1249,15 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
         let mut at_minimum = false;
         let solve = |hm: &SMatrix<f64, N, N>| match &s.step_projector {
             Some(p) => {
+                // The projector is over steps about the source origin: solve there (H = MᵀH_cM,
+                // g = Mᵀg_c), then express the step about the centroid.
+                let (hm, g) = (m.transpose() * hm * m, m.transpose() * g);
                 // Stiffen the weak directions (Q = I − P) so a singular H still solves, then
                 // remap: no motion along them.
                 let p = SMatrix::<f64, N, N>::from_row_slice(&p[..N * N]);
                 let q = SMatrix::<f64, N, N>::identity() - p;
                 let stiff = hm.trace().abs().max(1e-300) / N as f64;
-                G::solve(&(hm + q.transpose() * q * stiff), &(-g)).map(|d| p * d)
+                G::solve(&(hm + q.transpose() * q * stiff), &(-g)).map(|d| m * (p * d))
             }
             None => G::solve(hm, &(-g)),
         };
@@ -1132,16 +1298,31 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
             stop = StopReason::Degenerate;
             break;
         };
-        let dt = d.rows(0, D).norm();
-        let dr = d.rows(D, N - D).norm();
-        // Every correspondence is within the gate, so a sound step moves the source by about the
-        // gate at most; a far larger one (or a quarter turn) comes from a near-singular H.
-        let too_far = dt > 10.0 * s.max_correspondence_distance || dr > std::f64::consts::FRAC_PI_2;
-        if d.iter().any(|v| !v.is_finite()) || too_far {
+        if d.iter().any(|v| !v.is_finite()) {
             stop = StopReason::Diverged;
             break;
         }
+        let (mut d, mut dt, mut dr) = (d, d.rows(0, D).norm(), d.rows(D, N - D).norm());
+        // Every correspondence is within the gate, so a sound step moves the source by about the
+        // gate at most; a far larger one (or a quarter turn) comes from a near-singular H, as
+        // from a start far outside the basin (a guess 70° off). Such a step is shortened to a
+        // gate of centroid motion and π/8 of rotation, the region where the linearisation
+        // holds, and the loop goes on from there: the start pose is not returned as
+        // `Diverged`. Only iterates that keep asking for such steps run away.
+        let gate = s.max_correspondence_distance;
+        if dt > 10.0 * gate || dr > std::f64::consts::FRAC_PI_2 {
+            overlong += 1;
+            if overlong >= MAX_OVERLONG_STEPS {
+                stop = StopReason::Diverged;
+                break;
+            }
+            let f = (gate / dt).min(std::f64::consts::FRAC_PI_8 / dr).min(1.0);
+            (d, dt, dr) = (d * f, dt * f, dr * f);
+        } else {
+            overlong = 0;
+        }
         let converged = dt < s.translation_tolerance && dr < s.rotation_tolerance;
+
         let (rd, td) = G::exp(&d);
         let next = pose.compose(&rd, &td);
         if !next.is_finite() {
@@ -1172,7 +1353,8 @@ fn run<G: Group<D, N>, const D: usize, const N: usize>(
     let t0 = Instant::now();
     // After a converged (sub-tolerance) last step the correspondences cannot have changed
     // meaningfully: re-use them instead of a full search (saves one nearest-neighbour pass).
-    let fixed = (stop == StopReason::Converged).then_some(last_corr.as_slice());
+    // (Not after a cycle: the best pose's correspondences were not kept.)
+    let fixed = (stop == StopReason::Converged && !cycled).then_some(last_corr.as_slice());
     let (mut evaluation, mut correspondences, cert) = evaluate::<G, D, N>(
         pr,
         &pose,
@@ -1324,9 +1506,9 @@ pub fn evaluate_at(
     let pr = problem(source, target, settings)?;
     split_pose("pose", pose, dim)?;
     Ok(if dim == 2 {
-        evaluate::<Planar, 2, 3>(&pr, &Pose::from_flat(pose), true, false, None, None, None).0
+        evaluate_centred::<Planar, 2, 3>(&pr, pose)
     } else {
-        evaluate::<Spatial, 3, 6>(&pr, &Pose::from_flat(pose), true, false, None, None, None).0
+        evaluate_centred::<Spatial, 3, 6>(&pr, pose)
     })
 }
 

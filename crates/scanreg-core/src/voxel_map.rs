@@ -96,6 +96,10 @@ pub struct VoxelMap {
     covariances: Vec<f64>,
     free: Vec<u32>,
     len: usize,
+    /// Voxel indices are packed relative to this voxel (the first point inserted into an empty
+    /// map), so the ±2^20-voxel range is around the map, not around the world origin: a map
+    /// in UTM coordinates (10⁶-10⁷ m) works like one at the origin.
+    base: [i64; 3],
 }
 
 /// Voxel indices packed 21 bits per axis (offset by 2^20): one u64 hashes and compares in one
@@ -194,6 +198,7 @@ impl VoxelMap {
             covariances: Vec::new(),
             free: Vec::new(),
             len: 0,
+            base: [0; 3],
         })
     }
 
@@ -251,15 +256,22 @@ impl VoxelMap {
         .then_some(self.covariances.as_slice())
     }
 
+    /// [`pack`] relative to `base`.
+    #[inline]
+    fn pack(&self, x: i64, y: i64, z: i64) -> Option<u64> {
+        let [bx, by, bz] = self.base;
+        pack(x.checked_sub(bx)?, y.checked_sub(by)?, z.checked_sub(bz)?)
+    }
+
     fn key(&self, p: &[f64]) -> Result<u64> {
         voxel_of(p, self.inv)
-            .and_then(|[x, y, z]| pack(x, y, z))
+            .and_then(|[x, y, z]| self.pack(x, y, z))
             .ok_or_else(|| {
                 Error::invalid(
                     "points",
                     format!(
-                        "coordinates too far from the origin for voxel size {} (more than 2^20 \
-                         voxels along an axis)",
+                        "coordinates too far from the map's first point for voxel size {} (more \
+                         than 2^20 voxels along an axis)",
                         self.voxel_size
                     ),
                 )
@@ -307,6 +319,12 @@ impl VoxelMap {
     ) -> Result<usize> {
         let dim = self.dim;
         let n = check_points("points", points, dim)?;
+        if self.slots.is_empty() && n > 0 {
+            // No key is stored: re-anchor at the first point (see `base`).
+            if let Some(v) = voxel_of(&points[..dim], self.inv) {
+                self.base = v;
+            }
+        }
         let keys = points
             .par_chunks_exact(dim)
             .with_min_len(4096)
@@ -614,7 +632,7 @@ impl NeighborSearch for VoxelMap {
             if box_sq > max_sq || best.is_some_and(|(_, d)| box_sq > d) {
                 continue;
             }
-            let key = pack(center[0] + off[0], center[1] + off[1], center[2] + off[2]);
+            let key = self.pack(center[0] + off[0], center[1] + off[1], center[2] + off[2]);
             if let Some(e) = key.and_then(|k| self.slots.get(&k)) {
                 self.scan_nearest(q, max_sq, e, &mut best);
             }
@@ -635,7 +653,7 @@ impl NeighborSearch for VoxelMap {
                 for y in y0..=y1 {
                     let on_shell = x_edge || (y - center[1]).abs() == r;
                     let mut visit = |z: i64| {
-                        if let Some(e) = pack(x, y, z).and_then(|k| self.slots.get(&k)) {
+                        if let Some(e) = self.pack(x, y, z).and_then(|k| self.slots.get(&k)) {
                             self.scan_nearest(q, max_sq, e, &mut best);
                         }
                     };

@@ -117,6 +117,8 @@ SCAN_SOURCES: dict[str, Callable[[PathLike], CarmenLog]] = {
     ".clf": read_carmen,
     ".log.gz": read_carmen,
     ".clf.gz": read_carmen,
+    ".log.bz2": read_carmen,
+    ".clf.bz2": read_carmen,
 }
 
 

@@ -59,7 +59,12 @@ def _readonly(a: NDArray[Any]) -> NDArray[Any]:
 
 
 def _integral(arr: NDArray[Any]) -> bool:
-    return bool(np.isfinite(arr).all() and (arr == np.round(arr)).all())
+    """Whole numbers that an int64 holds: NaN, inf or a value past ±2⁶³ would be cast to an
+    arbitrary integer (numpy's "invalid value encountered in cast"), never silently."""
+    limit = 2.0**63
+    return bool(
+        np.isfinite(arr).all() and (arr == np.round(arr)).all() and (np.abs(arr) < limit).all()
+    )
 
 
 def _per_point(value: Any, name: str, n: int, dtype: type[np.generic]) -> NDArray[Any] | None:
@@ -72,7 +77,17 @@ def _per_point(value: Any, name: str, n: int, dtype: type[np.generic]) -> NDArra
         raise ValueError(f"{name}: expected one value per point ({n},...), got {arr.shape}")
     if dtype is np.int64 and arr.dtype.kind == "f" and not _integral(arr):
         raise ValueError(f"{name}: expected integer values")
-    return _readonly(np.array(arr, dtype=dtype))
+    if dtype is np.int64 and arr.dtype.kind == "u" and arr.size and int(arr.max()) >= 2**63:
+        raise ValueError(f"{name}: values past the int64 range")
+    return _readonly(_as_float64(arr) if dtype is np.float64 else np.array(arr, dtype=dtype))
+
+
+def _as_float64(arr: NDArray[Any]) -> NDArray[Any]:
+    """A copy as float64. A float32 signalling NaN (damaged files have them) warns "invalid
+    value encountered in cast" on the widening; it is NaN either way, kept as NaN (found by
+    fuzz/: PLY intensity, KITTI .bin points)."""
+    with np.errstate(invalid="ignore"):
+        return np.array(arr, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -113,7 +128,7 @@ class PointCloud:
             raise TypeError(f"points: expected a real numeric array, got dtype {pts.dtype}")
         n = pts.shape[0]
         set_ = object.__setattr__
-        set_(self, "points", _readonly(np.array(pts, dtype=np.float64)))
+        set_(self, "points", _readonly(_as_float64(pts)))
         set_(self, "intensity", _per_point(self.intensity, "intensity", n, np.float64))
         set_(self, "ring", _per_point(self.ring, "ring", n, np.int64))
         set_(self, "time", _per_point(self.time, "time", n, np.float64))

@@ -25,9 +25,11 @@ says whether they can be used as times.
 
 from __future__ import annotations
 
+import bz2
 import gzip
 import math
 import re
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -412,15 +414,19 @@ def _open_lines(path: Path) -> list[str]:
         if path.name.lower().endswith(".gz"):
             with gzip.open(path, "rt", encoding="utf-8", errors="strict") as fh:
                 return fh.read().splitlines()
+        if path.name.lower().endswith(".bz2"):
+            with bz2.open(path, "rt", encoding="utf-8", errors="strict") as fh:
+                return fh.read().splitlines()
         return path.read_text(encoding="utf-8", errors="strict").splitlines()
-    except (OSError, EOFError, UnicodeDecodeError, gzip.BadGzipFile) as exc:
+    # zlib.error: a corrupt deflate stream inside a valid gzip header (found by fuzz/).
+    except (OSError, EOFError, UnicodeDecodeError, zlib.error) as exc:
         if isinstance(exc, FileNotFoundError):
             raise
         raise FileFormatError(path, f"cannot read as a CARMEN text log: {exc}") from None
 
 
 def read_carmen(path: PathLike) -> CarmenLog:
-    """Read a CARMEN log (plain or gzip), see the module docstring for the messages.
+    """Read a CARMEN log (plain, gzip or bzip2), see the module docstring for the messages.
 
     Raises
     ------

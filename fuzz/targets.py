@@ -1,0 +1,316 @@
+"""Fuzz targets: one per reader, each a function of the raw file bytes.
+
+A target writes the bytes to a file with the reader's extension and reads it back. A reader may
+refuse a file only with a named error (``ValueError`` and its subclasses, which include
+``FileFormatError`` and ``ConfigError``, or ``TypeError``); anything else — another exception,
+a numpy warning such as "invalid value encountered in cast" (turned into an error here), a
+crash or a hang — is a finding. Seeds are made at run time from the real data folder
+(``../shared/data`` or ``$SCANREG_DATA``) and from our own writers: no data is committed.
+"""
+
+from __future__ import annotations
+
+import bz2
+import contextlib
+import gzip
+import os
+import tempfile
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
+#: Seeds are cut to this many bytes: mutations of a small file explore the parser, not the data.
+SEED_BYTES = 16384
+#: Refusals that name the problem (FileFormatError and ConfigError are ValueErrors).
+NAMED = (ValueError, TypeError)
+
+
+@dataclass(frozen=True)
+class Target:
+    name: str
+    suffix: str
+    read: Callable[[Path], object]
+    seeds: Callable[[], list[bytes]]
+
+
+def _head(path: Path, n: int = SEED_BYTES) -> bytes:
+    with open(path, "rb") as f:
+        return f.read(n)
+
+
+def _text_head(path: Path, lines: int) -> bytes:
+    opener = {".gz": gzip.open, ".bz2": bz2.open}.get(path.suffix, open)
+    with opener(path, "rb") as f:
+        return b"".join(f.readline() for _ in range(lines))
+
+
+def _cloud() -> object:
+    from scanreg.io import PointCloud
+
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(20, 3))
+    return PointCloud(points=pts, intensity=rng.uniform(size=20), ring=np.arange(20) % 4)
+
+
+def _written(write: Callable[..., None], suffix: str, **options: object) -> bytes:
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / f"seed{suffix}"
+        write(p, _cloud(), **options)
+        return p.read_bytes()
+
+
+def _pcd_seeds() -> list[bytes]:
+    from scanreg.io import write_pcd
+
+    out = [_written(write_pcd, ".pcd", data=m) for m in ("ascii", "binary", "binary_compressed")]
+    out.append(_written(write_pcd, ".pcd", data="binary_compressed", precision="float64"))
+    for p in sorted((DATA / "kitti-odometry-00-frames-000-015/original_pcd").glob("*.pcd"))[:1]:
+        out.append(_head(p))
+    return out
+
+
+def _ply_seeds() -> list[bytes]:
+    from scanreg.io import write_ply
+
+    modes = ("ascii", "binary_little_endian", "binary_big_endian")
+    out = [_written(write_ply, ".ply", data=m) for m in modes]
+    for p in sorted((DATA / "gicp-outdoor-scan-pair").rglob("*.ply"))[:1]:
+        out.append(_head(p))
+    return out
+
+
+def _kitti_bin_seeds() -> list[bytes]:
+    return [_head(DATA / "kitti-odometry-00-frames-000-015/velodyne/000000.bin", 4096)]
+
+
+def _calib_seeds() -> list[bytes]:
+    return [_head(DATA / "kitti-odometry-00-frames-000-015/calib.txt")]
+
+
+def _kitti_poses_seeds() -> list[bytes]:
+    return [_text_head(DATA / "kitti-odometry-00-frames-000-015/poses.txt", 20)]
+
+
+def _tum_seeds() -> list[bytes]:
+    return [_text_head(DATA / "trajectories-evo-testdata/fr2_desk_groundtruth.txt", 20)]
+
+
+def _carmen_seeds() -> list[bytes]:
+    return [_text_head(DATA / "carmen-intel/intel.gfs.log", 12)]
+
+
+def _carmen_gz_seeds() -> list[bytes]:
+    return [gzip.compress(s, mtime=0) for s in _carmen_seeds()]
+
+
+def _carmen_bz2_seeds() -> list[bytes]:
+    return [bz2.compress(_text_head(DATA / "freiburg-slam-benchmark/intel.clf.bz2", 12))]
+
+
+def _g2o_seeds() -> list[bytes]:
+    from scanreg import SE2, SE3
+    from scanreg.io import PoseGraph, PoseGraphEdge, write_g2o
+
+    out = []
+    for cls, dof in ((SE2, 3), (SE3, 6)):
+        a, b = cls.identity(), cls.exp(np.full(dof, 0.1))  # type: ignore[attr-defined]
+        graph = PoseGraph(
+            vertices={0: a, 1: b},
+            edges=[PoseGraphEdge(0, 1, b, np.eye(dof))],
+        )
+        with tempfile.TemporaryDirectory() as d:
+            p = Path(d) / "g.g2o"
+            write_g2o(p, graph)
+            out.append(p.read_bytes())
+    return out
+
+
+def _bag(kind: str, path: Path) -> Path:
+    """Three LaserScan messages of the real ROS 1 bag, written again as a ``kind`` bag
+    (``ros1``, ``ros1-bz2`` or ``mcap``, ROS 2) at ``path``."""
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Writer2
+    from rosbags.typesys import Stores, get_typestore
+    from scanreg.io import read_bag_scans
+
+    scans = read_bag_scans(DATA / "rosbag1-laserscan-ccny-demo/demo.bag")[:3]
+    ros1 = kind.startswith("ros1")
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST)
+    msgtype = "sensor_msgs/msg/LaserScan"
+    msgs = []
+    for i, scan in enumerate(scans):
+        ns = 1_000_000_000 + i * 100_000_000
+        stamp = ts.types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
+        header = ts.types["std_msgs/msg/Header"](
+            stamp=stamp, frame_id="laser", **({"seq": i} if ros1 else {})
+        )
+        msgs.append(
+            (
+                ns,
+                ts.types[msgtype](
+                    header=header,
+                    angle_min=float(scan.angles[0]),
+                    angle_max=float(scan.angles[-1]),
+                    angle_increment=float(scan.angles[1] - scan.angles[0]),
+                    time_increment=1e-4,
+                    scan_time=0.1,
+                    range_min=float(scan.range_min),
+                    range_max=float(scan.max_range),
+                    ranges=np.asarray(scan.ranges, dtype=np.float32),
+                    intensities=np.zeros(0, np.float32),
+                ),
+            )
+        )
+    if ros1:
+        w1 = Writer1(path)
+        if kind == "ros1-bz2":
+            w1.set_compression(Writer1.CompressionFormat.BZ2)
+        with w1:
+            conn = w1.add_connection("/scan", msgtype, typestore=ts)
+            for t, msg in msgs:
+                w1.write(conn, t, ts.serialize_ros1(msg, msgtype))
+    else:
+        w2 = Writer2(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        with w2:
+            conn = w2.add_connection("/scan", msgtype, typestore=ts)
+            for t, msg in msgs:
+                w2.write(conn, t, ts.serialize_cdr(msg, msgtype))
+    return path
+
+
+def _ros1_seeds() -> list[bytes]:
+    out = []
+    for kind in ("ros1", "ros1-bz2"):
+        with tempfile.TemporaryDirectory() as d:
+            out.append(_bag(kind, Path(d) / "seed.bag").read_bytes())
+    return out
+
+
+def _ros2_seeds() -> list[bytes]:
+    with tempfile.TemporaryDirectory() as d:
+        bag = _bag("mcap", Path(d) / "bag")
+        return [next(bag.glob("*.mcap")).read_bytes()]
+
+
+def _ros2_metadata() -> str:
+    with tempfile.TemporaryDirectory() as d:
+        return (_bag("mcap", Path(d) / "bag") / "metadata.yaml").read_text()
+
+
+def _ros2_scans(p: Path) -> object:
+    """The fuzzed bytes as the storage file of a ROS 2 bag (the seed's metadata.yaml beside it)."""
+    from scanreg.io import read_bag_scans
+
+    bag = p.parent / "ros2bag"
+    bag.mkdir(exist_ok=True)
+    meta = bag / "metadata.yaml"
+    if not meta.exists():
+        meta.write_text(_ros2_metadata())
+    (bag / "bag.mcap").write_bytes(p.read_bytes())
+    return read_bag_scans(bag)
+
+
+def _config_seeds() -> list[bytes]:
+    from scanreg.config import dump_config
+    from scanreg.pipeline import OdometryConfig
+
+    return [dump_config(OdometryConfig()).encode()]
+
+
+def _read_config(p: Path) -> object:
+    from scanreg.config import load_config
+    from scanreg.pipeline import OdometryConfig
+
+    return load_config(OdometryConfig, p)
+
+
+def _io(name: str) -> Callable[[Path], object]:
+    def read(p: Path) -> object:
+        import scanreg.io as sio
+
+        return getattr(sio, name)(p)
+
+    return read
+
+
+def _bag_scans(p: Path) -> object:
+    from scanreg.io import read_bag_scans
+
+    return read_bag_scans(p)
+
+
+TARGETS: dict[str, Target] = {
+    t.name: t
+    for t in (
+        Target("pcd", ".pcd", _io("read_pcd"), _pcd_seeds),
+        Target("ply", ".ply", _io("read_ply"), _ply_seeds),
+        Target("kitti_bin", ".bin", _io("read_kitti_bin"), _kitti_bin_seeds),
+        Target("kitti_calib", ".txt", _io("read_kitti_calib"), _calib_seeds),
+        Target("kitti_poses", ".txt", _io("read_kitti_poses"), _kitti_poses_seeds),
+        Target("tum", ".txt", _io("read_tum"), _tum_seeds),
+        Target("carmen", ".log", _io("read_carmen"), _carmen_seeds),
+        Target("carmen_gz", ".log.gz", _io("read_carmen"), _carmen_gz_seeds),
+        Target("carmen_bz2", ".clf.bz2", _io("read_carmen"), _carmen_bz2_seeds),
+        Target("g2o", ".g2o", _io("read_g2o"), _g2o_seeds),
+        Target("ros1", ".bag", _bag_scans, _ros1_seeds),
+        Target("ros2", ".mcap", _ros2_scans, _ros2_seeds),
+        Target("config", ".toml", _read_config, _config_seeds),
+    )
+}
+
+
+class Runner:
+    """Feeds bytes to one target through one reused file."""
+
+    def __init__(self, target: Target, workdir: Path) -> None:
+        self.target = target
+        self.path = workdir / f"input{target.suffix}"
+
+    def __call__(self, data: bytes) -> None:
+        self.path.write_bytes(data)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
+            with contextlib.suppress(*NAMED):
+                self.target.read(self.path)
+
+
+def mutations(seed: bytes, count: int, rng: np.random.Generator) -> list[bytes]:
+    """Cheap structured mutations for the CI smoke pass (the campaign uses libFuzzer's)."""
+    out = []
+    for _ in range(count):
+        b = bytearray(seed)
+        kind = int(rng.integers(6))
+        if not b or kind == 0:
+            b = b[: int(rng.integers(len(b) + 1))]  # truncate
+        elif kind == 1:
+            for _ in range(int(rng.integers(1, 9))):
+                b[int(rng.integers(len(b)))] = int(rng.integers(256))  # flip bytes
+        elif kind == 2:
+            i = int(rng.integers(len(b)))
+            b[i:i] = bytes(rng.integers(0, 256, int(rng.integers(1, 16)), dtype=np.uint8))
+        elif kind == 3:
+            i = int(rng.integers(len(b)))
+            del b[i : i + int(rng.integers(1, 64))]
+        elif kind == 4:
+            # Numbers are where parsers break: swap a digit run for an extreme value.
+            text = bytes(b)
+            digits = [i for i, c in enumerate(text) if 48 <= c <= 57]
+            if digits:
+                i = digits[int(rng.integers(len(digits)))]
+                token = [b"nan", b"-inf", b"1e308", b"-0", b"99999999999999999999", b"-1"][
+                    int(rng.integers(6))
+                ]
+                b[i : i + 1] = token
+        else:
+            i, j = sorted(int(v) for v in rng.integers(len(b) + 1, size=2))
+            b[i:i] = b[i:j]  # duplicate a span
+        out.append(bytes(b))
+    return out
+
+
+__all__ = ["TARGETS", "Runner", "Target", "mutations"]

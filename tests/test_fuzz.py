@@ -1,0 +1,119 @@
+"""Hostile files: the CI smoke pass of every fuzz target (``fuzz/targets.py``: its seeds and a
+few structured mutations of each, no coverage guidance — the campaign, ``fuzz/campaign.sh``,
+does that), and each finding of the campaigns kept as a regression test."""
+
+from __future__ import annotations
+
+import gzip
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import data_dir
+from scanreg.io import FileFormatError, PointCloud, read_carmen, read_pcd, read_tum
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "fuzz"))
+from targets import TARGETS, Runner, mutations
+
+#: Mutations per seed in the smoke pass (about 0.1-0.5 s per target).
+SMOKE_MUTATIONS = 40
+
+
+@pytest.mark.parametrize("name", sorted(TARGETS))
+def test_smoke_pass(name: str, tmp_path: Path) -> None:
+    data_dir()  # the seeds come from the real data folder
+    target = TARGETS[name]
+    run = Runner(target, tmp_path)
+    rng = np.random.default_rng(20261203)
+    seeds = target.seeds()
+    assert seeds
+    for seed in seeds:
+        run(seed)  # the seed itself reads without an error
+        for data in mutations(seed, SMOKE_MUTATIONS, rng):
+            run(data)  # only a named refusal may come out (Runner lets nothing else through)
+
+
+def test_a_seed_is_read_without_a_refusal(tmp_path: Path) -> None:
+    """The smoke pass would pass on a reader that refuses everything: its seeds must read."""
+    data_dir()
+    for target in TARGETS.values():
+        path = tmp_path / f"seed{target.suffix}"
+        path.write_bytes(target.seeds()[0])
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
+            target.read(path)
+
+
+# --- findings kept as regression tests ---------------------------------------------------
+
+
+def test_corrupt_gzip_stream_in_a_carmen_log_is_a_named_error(tmp_path: Path) -> None:
+    """Found by the carmen_gz target: a valid gzip header over a corrupt deflate stream raised
+    zlib.error."""
+    raw = bytearray(gzip.compress(b"ODOM 0 0 0 0 0 0 1.0 host 1.0\n" * 40, mtime=0))
+    raw[12:20] = b"\xff" * 8  # inside the deflate stream, after the 10-byte header
+    path = tmp_path / "bad.log.gz"
+    path.write_bytes(bytes(raw))
+    with pytest.raises(FileFormatError, match="cannot read as a CARMEN text log"):
+        read_carmen(path)
+
+
+def test_carmen_reads_bzip2(tmp_path: Path) -> None:
+    import bz2
+
+    text = data_dir("carmen-intel", "intel.gfs.log").read_bytes()[:20000]
+    text = text[: text.rindex(b"\n") + 1]
+    (tmp_path / "a.log").write_bytes(text)
+    (tmp_path / "a.log.bz2").write_bytes(bz2.compress(text))
+    plain, packed = read_carmen(tmp_path / "a.log"), read_carmen(tmp_path / "a.log.bz2")
+    assert len(plain.scans) == len(packed.scans) > 0
+    np.testing.assert_array_equal(plain.scans[-1].ranges, packed.scans[-1].ranges)
+
+
+def test_tum_quaternion_overflowing_the_norm_is_refused_without_a_warning(tmp_path: Path) -> None:
+    """Found by the tum target: a component of 1e308 overflowed the norm (numpy warning)."""
+    path = tmp_path / "t.txt"
+    path.write_text("1.0 0 0 0 0 0 1e308 1\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(FileFormatError, match="quaternion norm inf"):
+            read_tum(path)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, 1e19, -1e300])
+def test_ring_values_an_int64_cannot_hold_are_refused(bad: float, tmp_path: Path) -> None:
+    """A float ring field is cast to int64: NaN, inf or a value past 2⁶³ must be refused by
+    name, never cast to an arbitrary integer ("invalid value encountered in cast")."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(ValueError, match="ring: expected integer values"):
+            PointCloud(points=np.zeros((2, 3)), ring=np.array([1.0, bad]))
+        with pytest.raises(ValueError, match="ring: values past the int64 range"):
+            PointCloud(points=np.zeros((2, 3)), ring=np.array([1, 2**63], dtype=np.uint64))
+        path = tmp_path / "r.pcd"
+        path.write_text(
+            "VERSION .7\nFIELDS x y z ring\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+            f"WIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA ascii\n0 0 0 1\n1 1 1 {bad}\n"
+        )
+        with pytest.raises(ValueError, match="ring"):
+            read_pcd(path)
+
+
+def test_signalling_nan_in_a_float32_file_is_read_as_nan_without_a_warning(tmp_path: Path) -> None:
+    """Found by the kitti_bin and ply targets: a float32 signalling NaN (0x7fa00000) in the
+    coordinates or the intensity warned "invalid value encountered in cast" on widening."""
+    from scanreg.io import read_kitti_bin
+
+    raw = np.array([[1.0, 2.0, 3.0, 0.5], [4.0, 5.0, 6.0, 0.5]], dtype=np.float32)
+    bits = raw.view(np.uint32)
+    bits[0, 1] = 0x7FA00000  # a signalling NaN: y of the first point
+    bits[1, 3] = 0x7FA00000  # and the second point's intensity
+    path = tmp_path / "s.bin"
+    raw.tofile(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        cloud = read_kitti_bin(path)
+    assert np.isnan(cloud.points[0, 1]) and np.isnan(cloud.intensity[1])  # type: ignore[index]
+    np.testing.assert_array_equal(cloud.points[1], [4.0, 5.0, 6.0])
