@@ -233,7 +233,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--bag-scan-voxel",
         type=float,
         default=0.2,
-        help="voxel size of the scans written to the bag (m; 0 keeps every point)",
+        help="voxel size of the scans written to the bag (m; 0 keeps every point); they are "
+        "the sweeps as read, in the sensor frame (not deskewed)",
     )
     odo.add_argument(
         "--report",
@@ -408,6 +409,26 @@ def _info(args: argparse.Namespace) -> dict[str, Any]:
         "min": finite.min(axis=0).tolist() if finite.size else None,
         "max": finite.max(axis=0).tolist() if finite.size else None,
         "fields": sorted(cloud.named_fields()),
+        **_las_info(args.path),
+    }
+
+
+def _las_info(path: Path) -> dict[str, Any]:
+    """A LAS/LAZ file's header facts (scale, offset, CRS); nothing for other formats."""
+    if path.suffix.lower() not in (".las", ".laz"):
+        return {}
+    from .io import read_las_header
+
+    h = read_las_header(path)
+    return {
+        "las": {
+            "version": h.version,
+            "point_format": h.point_format,
+            "compressed": h.compressed,
+            "scale": h.scale.tolist(),
+            "offset": h.offset.tolist(),
+            "crs_wkt": h.crs_wkt,
+        }
     }
 
 

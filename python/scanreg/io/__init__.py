@@ -5,8 +5,9 @@ one function and one entry here; logs that hold many scans (CARMEN: :func:`read_
 ``SCAN_SOURCES`` registry of the same shape. ROS 1/2 bags (``sensor_msgs/LaserScan`` and
 ``PointCloud2``): :func:`read_bag_scans`, :func:`read_bag_clouds`, :func:`list_topics`
 (module :mod:`scanreg.io.rosbag`, needs the ``ros`` extra); a run written as a ROS 2 bag:
-:func:`scanreg.io.rosbag_write.write_run_bag`. LAS/LAZ (``.las``/``.laz`` in the registries,
-module :mod:`scanreg.io.las`, needs the ``las`` extra) keep intensity, GPS time and returns.
+:func:`write_run_bag` (module :mod:`scanreg.io.rosbag_write`). LAS/LAZ (``.las``/``.laz``
+in the registries, module :mod:`scanreg.io.las`, needs the ``las`` extra) keep intensity,
+GPS time and returns.
 Sequences of sweeps (KITTI folders, folders of point files, bags, ``sim:street``):
 :func:`open_sequence` (module :mod:`scanreg.io.sequences`); per-frame tables and pose lists:
 :func:`write_rows`, :func:`write_poses` (module :mod:`scanreg.io.tables`).
@@ -49,6 +50,7 @@ from .rosbag import (
     read_bag_clouds,
     read_bag_scans,
 )
+from .rosbag_write import BagFrames, BagTopics, LoopClosure, write_run_bag
 from .sequences import (
     FolderSequence,
     KittiSequence,
@@ -175,7 +177,9 @@ __all__ = [
     "TRAJECTORY_WRITERS",
     "WRITERS",
     "BagCloud",
+    "BagFrames",
     "BagTopic",
+    "BagTopics",
     "CarmenLog",
     "FileFormatError",
     "FolderSequence",
@@ -183,6 +187,7 @@ __all__ = [
     "KittiSequence",
     "LasHeaderInfo",
     "LaserScan",
+    "LoopClosure",
     "Odometry",
     "PointCloud",
     "PoseGraph",
@@ -233,6 +238,7 @@ __all__ = [
     "write_points",
     "write_poses",
     "write_rows",
+    "write_run_bag",
     "write_run_outputs",
     "write_trajectory",
     "write_tum",

@@ -17,7 +17,8 @@ What crosses over
 * ``intensity``: the standard ``uint16`` field when every value is an integer in
   ``[0, 65535]``; otherwise (KITTI reflectance in ``[0, 1]``) a ``float64`` extra-bytes field
   ``reflectance``, read back as ``intensity``.
-* ``time``: GPS time (``float64`` seconds), in the point formats that have it (1, 3, 5, 6–10).
+* ``time``: GPS time (``float64`` seconds), in the point formats that have it (1, 3, 5, 6–10);
+  read as None when every point's is 0 (a file written without times).
   :class:`~scanreg.io.FolderSequence` makes absolute GPS times relative to the sweep's first
   point for deskewing.
 * ``fields["return_number"]``, ``["number_of_returns"]``, ``["classification"]``: the standard
@@ -176,6 +177,8 @@ def read_las(path: PathLike) -> PointCloud:
     ).astype(np.float64)
     intensity = np.asarray(las.intensity, dtype=np.float64) if "intensity" in dims else None
     time = np.asarray(las.gps_time, dtype=np.float64) if "gps_time" in dims else None
+    if time is not None and len(time) and not time.any():
+        time = None  # a format with the field, written without times: zero is not a time
     ring: NDArray[np.int64] | None = None
     fields: dict[str, FloatArray] = {}
     for name in STANDARD_FIELDS:
