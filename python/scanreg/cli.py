@@ -233,8 +233,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--bag-scan-voxel",
         type=float,
         default=0.2,
-        help="voxel size of the scans written to the bag (m; 0 keeps every point); they are "
-        "the sweeps as read, in the sensor frame (not deskewed)",
+        help="voxel size of the scans written to the bag (m; 0 keeps every point); the sweeps "
+        "are deskewed to their pose's time with the estimated motion, in the sensor frame",
     )
     odo.add_argument(
         "--report",
@@ -321,15 +321,23 @@ def _bag_settings(args: argparse.Namespace) -> Any:
 
 def _write_bag(args: argparse.Namespace, frames: Any, seq: Any, run: Any) -> dict[str, Any]:
     from . import preprocess
+    from .deskew import deskew, velocity_from_motion
     from .io.rosbag_write import write_run_bag
 
     scans = []
+    n = len(run.frames)
     # the sequence is read again (a bag re-reads from its start on random access): the run
     # keeps no points, and a long run's scans would not fit in memory
     for k, frame in enumerate(seq):
-        if k >= len(run.frames):
+        if k >= n:
             break
         pts = frame.points
+        # at the pose's time under the estimated motion, so the scan lies on the map in RViz
+        j = k if k > 0 else 1  # the first sweep: the motion into the second
+        period = float(run.stamps[j] - run.stamps[j - 1]) if j < n else 0.0
+        if run.config.deskew and frame.timestamps is not None and period > 0:
+            velocity = velocity_from_motion(run.frames[j].motion, period)
+            pts = deskew(pts, frame.timestamps, velocity, reference_time=run.config.reference_time)
         if args.bag_scan_voxel > 0:
             pts = preprocess.voxel_downsample(pts, args.bag_scan_voxel).points
         scans.append(pts)
