@@ -232,3 +232,30 @@ def test_report_renders_in_headless_chromium(tmp_path: Path) -> None:
     lower = img[1900:]
     assert _near(lower, (0x44, 0x01, 0x54), 50).sum() > 300
     assert _near(lower, (0xFD, 0xE7, 0x25), 60).sum() > 100
+
+
+def test_a_mapping_run_folder_shows_odometry_loops_and_grid(tmp_path: Path) -> None:
+    """The files ``scanreg map`` writes: loops by scan index with reasons as a list, the
+    odometry before loop closure, and an occupancy grid image instead of a point map."""
+    image = pytest.importorskip("PIL.Image", reason="Pillow (a matplotlib dependency) is needed")
+    run = make_run_folder(tmp_path / "run")
+    (run / "map.laz").unlink()
+    image.fromarray(np.full((40, 60), 127, dtype=np.uint8)).save(run / "map.png")
+    poses = [SE3.from_vector([1.0 * k, 0.1 * k, 0, 0, 0, 0]) for k in range(K)]
+    write_poses(run / "odometry_tum.txt", poses, "tum", timestamps=0.1 * np.arange(K))
+    loops = [
+        {"submap_scan": 3, "scan": 36, "accepted": True, "reasons": []},
+        {"submap_scan": 8, "scan": 33, "accepted": False,
+         "reasons": ["overlap 0.21 < 0.40", "chi2 31.2 > 11.3"]},
+    ]  # fmt: skip
+    (run / "loops.jsonl").write_text("".join(json.dumps(lp) + "\n" for lp in loops))
+    text = report.render_report(run)
+    assert "odometry (before loop closure)" in text
+    assert "Occupancy grid" in text and "data:image/png;base64," in text
+    # plotly's JSON escapes <, > and & as \uXXXX: decode them to read the hover text
+    hover = re.sub(r"\\u([0-9a-f]{4})", lambda m: chr(int(m.group(1), 16)), text)
+    assert "loop 33 → 8<br>overlap 0.21 &lt; 0.40; chi2 31.2 &gt; 11.3" in hover
+    assert 'id="scanreg-map"' not in text and "1 / 2" in text
+    write_jsonl(run / "loops.jsonl", [{"accepted": True}])
+    with pytest.raises(FileFormatError, match=r"loops\.jsonl: a loop without frames"):
+        report.render_report(run)

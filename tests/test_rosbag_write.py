@@ -284,3 +284,27 @@ def test_odometry_bag_scans_lie_on_the_map(tmp_path: Path) -> None:
         near = np.percentile(tree.nearest(placed)[1], 90)
         far = np.percentile(tree.nearest(raw)[1], 90)
         assert near < 0.07 and near < 0.7 * far, (k, near, far)
+
+
+def test_planar_runs_are_embedded_at_z_zero(tmp_path: Path) -> None:
+    """SE(2) poses, 3×3 covariances and 2D scans (a CARMEN-style run) go in as planar."""
+    from scanreg import SE2
+
+    poses = [SE2.from_vector([k, 0.5 * k, np.pi / 2]) for k in range(3)]
+    covs = np.array([np.diag([0.25, 1e-4, 1e-6])] * 3)  # large along the body x axis
+    scans = [np.random.default_rng(k).normal(size=(20, 2)) for k in range(3)]
+    path = tmp_path / "planar.mcap"
+    write_run_bag(path, [0.0, 0.1, 0.2], poses, covariances=covs, scans=scans,
+                  map_points=np.vstack(scans))  # fmt: skip
+    msg = _messages(path)["/scanreg/pose"][1].pose
+    pose, cov = interop.from_ros_pose2d_covariance(msg)
+    assert pose.is_close(poses[1], atol=1e-12)
+    np.testing.assert_allclose(cov, covs[1], atol=1e-15)
+    ros = np.array(msg.covariance).reshape(6, 6)
+    assert ros[1, 1] == pytest.approx(0.25) and ros[0, 0] == pytest.approx(1e-4)  # yaw 90°
+    assert ros[2, 2] == ros[3, 3] == ros[4, 4] == 0.0
+    cloud = read_bag_clouds(path, topic="/scanreg/scan")[2].cloud
+    np.testing.assert_allclose(cloud.points[:, :2], scans[2], atol=1e-6)
+    assert np.all(cloud.points[:, 2] == 0)
+    with pytest.raises(ValueError, match=r"poses\[0\]: last row must be \[0, 0, 1\]"):
+        write_run_bag(tmp_path / "x.mcap", [0.0], np.ones((1, 3, 3)))

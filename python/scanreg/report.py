@@ -27,6 +27,7 @@ figures) and ``config.toml`` (shown as text).
 
 from __future__ import annotations
 
+import base64
 import html
 import json
 import math
@@ -158,6 +159,24 @@ class RunFolder:
         config = self.root / "config.toml"
         self.config = config.read_text(encoding="utf-8") if config.is_file() else None
         self.map_path = next((self.root / n for n in MAP_NAMES if (self.root / n).is_file()), None)
+        odometry = self.root / "odometry_tum.txt"  # a mapping run: before loop closure
+        self.odometry = read_tum(odometry) if odometry.is_file() else None
+        image = self.root / "map.png"  # a 2D mapping run's occupancy grid
+        self.map_image = image if image.is_file() else None
+
+    def loop_ends(self) -> list[tuple[int, int, bool, str]]:
+        """``(source, target, accepted, reasons)`` of each loop closure (``source``/``target``
+        frame indices, or a mapping run's ``scan``/``submap_scan``)."""
+        out = []
+        for lp in self.loops:
+            i, j = lp.get("source", lp.get("scan")), lp.get("target", lp.get("submap_scan"))
+            if i is None or j is None:
+                raise FileFormatError(self.root, f"loops.jsonl: a loop without frames: {lp}")
+            reasons = lp.get("reasons", lp.get("reason")) or ""
+            if isinstance(reasons, list):
+                reasons = "; ".join(map(str, reasons))
+            out.append((int(i), int(j), bool(lp.get("accepted", True)), str(reasons)))
+        return out
 
     @property
     def stamps(self) -> FloatArray:
@@ -226,16 +245,29 @@ def _trajectory_figure(run: RunFolder) -> Any:
                     hoverinfo="text",
                 )
             )
+    if run.odometry is not None and len(run.odometry) == len(run.estimate):
+        odo = run.odometry.positions
+        fig.add_trace(
+            go.Scatter(
+                x=odo[:, 0],
+                y=odo[:, 1],
+                mode="lines",
+                name="odometry (before loop closure)",
+                line={"color": "#bcbd22", "width": 1.5},
+            )
+        )
+    loops = run.loop_ends()
     for accepted in (True, False):
         xs: list[float | None] = []
         ys: list[float | None] = []
-        for lp in run.loops:
-            if bool(lp.get("accepted", True)) != accepted:
+        texts: list[str | None] = []
+        for i, j, ok, reasons in loops:
+            if ok != accepted or not (0 <= i < len(est) and 0 <= j < len(est)):
                 continue
-            i, j = int(lp["source"]), int(lp["target"])
-            if 0 <= i < len(est) and 0 <= j < len(est):
-                xs += [est[i, 0], est[j, 0], None]
-                ys += [est[i, 1], est[j, 1], None]
+            xs += [est[i, 0], est[j, 0], None]
+            ys += [est[i, 1], est[j, 1], None]
+            label = f"loop {i} → {j}" + (f"<br>{html.escape(reasons)}" if reasons else "")
+            texts += [label, label, None]
         if xs:
             color = _COLORS["accepted" if accepted else "rejected"]
             fig.add_trace(
@@ -245,6 +277,8 @@ def _trajectory_figure(run: RunFolder) -> Any:
                     mode="lines",
                     name=f"loop closures ({'accepted' if accepted else 'rejected'})",
                     line={"color": color, "width": 2, "dash": "solid" if accepted else "dash"},
+                    text=texts,
+                    hoverinfo="text",
                 )
             )
     fig.update_layout(
@@ -260,10 +294,11 @@ def _trajectory_figure(run: RunFolder) -> Any:
 
 def _reason(row: dict[str, Any], k: int) -> str:
     parts = [f"frame {k}"]
+    # escaped: plotly reads hover text as HTML-like markup ("<br>"), and reasons hold "<"
     if row.get("reasons"):
-        parts.append(str(row["reasons"]))
+        parts.append(html.escape(str(row["reasons"])))
     if row.get("held_directions"):
-        parts.append("held: " + str(row["held_directions"]))
+        parts.append("held: " + html.escape(str(row["held_directions"])))
     return "<br>".join(parts)
 
 
@@ -456,7 +491,7 @@ def _cards(run: RunFolder) -> str:
     if "kitti_translation_percent" in accuracy:
         cards.append(("KITTI drift", f"{accuracy['kitti_translation_percent']:.2f} %"))
     if run.loops:
-        n_ok = sum(bool(lp.get("accepted", True)) for lp in run.loops)
+        n_ok = sum(ok for _, _, ok, _ in run.loop_ends())
         cards.append(("loop closures", f"{n_ok} / {len(run.loops)}"))
     return (
         '<div class="cards">'
@@ -535,6 +570,13 @@ def render_report(folder: PathLike, *, title: str | None = None) -> str:
             parts.append(f"<table><tr><th>median</th>{cells}</tr></table>")
         if heading == "Uncertainty and verdicts":
             parts.append("<h2>Rejected and held frames</h2>" + _rejection_table(run))
+    if run.map_image is not None and run.map_path is None:
+        data = base64.b64encode(run.map_image.read_bytes()).decode("ascii")
+        parts.append(
+            f"<h2>Occupancy grid</h2><img alt='occupancy grid' src='data:image/png;base64,{data}'"
+            " style='max-width: 100%; image-rendering: pixelated'>"
+        )
+        map_note = ""
     parts.append(map_note)
     if run.config:
         parts.append(f"<h2>Configuration</h2><pre>{html.escape(run.config)}</pre>")

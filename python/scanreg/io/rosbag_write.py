@@ -60,7 +60,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .._validate import FloatArray
-from ..transform import SE3
+from ..transform import SE2, SE3
 from ._common import PathLike, PointCloud
 from .rosbag import _rosbags
 from .trajectory import rotation_to_quaternion
@@ -70,6 +70,8 @@ BAG_STORAGES = {".mcap": "mcap", ".db3": "sqlite3"}
 #: What a non-finite covariance is written as (m², rad² on the diagonal).
 UNKNOWN_VARIANCE = 1e6
 
+#: Indices of ``x, y, rotation about Z`` in the 6-D tangent (and in ROS's 6×6).
+ROS_PLANAR_INDICES = (0, 1, 5)
 _TOKEN = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 #: rmw's limit on a fully qualified topic name (255 minus the DDS prefix "rt").
 _MAX_TOPIC_LENGTH = 253
@@ -177,13 +179,28 @@ class BagSummary:
 # --------------------------------------------------------------------------- validation
 
 
+def _embed_planar(mats: FloatArray) -> FloatArray:
+    """``(K, 3, 3)`` SE(2) matrices → ``(K, 4, 4)`` at ``z = 0``, yaw about Z."""
+    out = np.tile(np.eye(4), (len(mats), 1, 1))
+    out[:, :2, :2] = mats[:, :2, :2]
+    out[:, :2, 3] = mats[:, :2, 2]
+    return out
+
+
 def _poses(value: Any, name: str, count: int | None) -> FloatArray:
-    if isinstance(value, Sequence) and value and isinstance(value[0], SE3):
+    if isinstance(value, Sequence) and value and isinstance(value[0], (SE2, SE3)):
         mats = np.array([p.as_matrix() for p in value])
     else:
         mats = np.array(value, dtype=np.float64)
+    if mats.ndim == 3 and mats.shape[1:] == (3, 3):
+        for k, m in enumerate(mats):
+            if not np.allclose(m[2], [0, 0, 1]):
+                raise ValueError(f"{name}[{k}]: last row must be [0, 0, 1]")
+        mats = _embed_planar(mats)
     if mats.ndim != 3 or mats.shape[1:] != (4, 4):
-        raise ValueError(f"{name}: expected (K, 4, 4) poses or a list of SE3, got {mats.shape}")
+        raise ValueError(
+            f"{name}: expected (K, 4, 4) or (K, 3, 3) poses or a list of SE3/SE2, got {mats.shape}"
+        )
     if count is not None and len(mats) != count:
         raise ValueError(f"{name}: expected {count} poses (one per stamp), got {len(mats)}")
     if not np.isfinite(mats).all():
@@ -199,8 +216,17 @@ def _covariances(value: Any, name: str, count: int) -> FloatArray | None:
     if value is None:
         return None
     covs = np.array(value, dtype=np.float64)
+    if covs.shape == (count, 3, 3):
+        # planar [ρx, ρy, θ] → the 6-D tangent's x, y and rotation about Z; z, roll and pitch
+        # exactly known (0), as AMCL and slam_toolbox publish a planar pose
+        full = np.zeros((count, 6, 6))
+        idx = np.array(ROS_PLANAR_INDICES)
+        full[:, idx[:, None], idx[None, :]] = covs
+        return full
     if covs.shape != (count, 6, 6):
-        raise ValueError(f"{name}: expected shape ({count}, 6, 6), got {covs.shape}")
+        raise ValueError(
+            f"{name}: expected shape ({count}, 6, 6) or ({count}, 3, 3), got {covs.shape}"
+        )
     return covs
 
 
@@ -210,8 +236,10 @@ def _cloud(value: Any, name: str) -> tuple[FloatArray, FloatArray | None]:
         pts, intensity = value.points, value.intensity
     else:
         pts = np.asarray(value, dtype=np.float64)
+    if pts.ndim == 2 and pts.shape[1] == 2:  # a 2D scan or map: in the plane z = 0
+        pts = np.column_stack([pts, np.zeros(len(pts))])
     if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (N, 3), got {pts.shape}")
+        raise ValueError(f"{name}: expected shape (N, 3) or (N, 2), got {pts.shape}")
     if not np.isfinite(pts).all():
         raise ValueError(f"{name}: holds NaN or inf points (use PointCloud.finite())")
     return pts, intensity
@@ -429,18 +457,20 @@ def write_run_bag(
         mcap).
     stamps : (K,) seconds, non-decreasing, >= 0
         Frame times (header stamps and bag receive times).
-    poses : (K, 4, 4) or list of SE3
-        ``T_map_sensor`` per frame.
-    covariances : (K, 6, 6), optional
-        scanreg covariances of ``poses`` (body frame; see the module docstring).
+    poses : (K, 4, 4) or list of SE3 — or (K, 3, 3) / list of SE2
+        ``T_map_sensor`` per frame; planar poses are placed at ``z = 0`` with their yaw.
+    covariances : (K, 6, 6) or (K, 3, 3), optional
+        scanreg covariances of ``poses`` (body frame; see the module docstring); a planar
+        3×3 over ``[ρx, ρy, θ]`` goes to x, y and rotation about Z, the rest 0 (as AMCL).
     odometry_poses, odometry_covariances : optional
         ``T_odom_sensor`` and their covariances; default ``poses`` and ``covariances``
         (plain odometry: ``map = odom``).
     scans : K clouds, optional
-        ``(N, 3)`` arrays or :class:`~scanreg.io.PointCloud` (intensity kept) in the sensor
+        ``(N, 3)`` (or 2D ``(N, 2)``, at ``z = 0``) arrays or
+        :class:`~scanreg.io.PointCloud` (intensity kept) in the sensor
         frame, written on the scan topic in the ``sensor`` frame (tf places them), or
         transformed into the ``map`` frame when ``scan_frame="map"``.
-    map_points : (M, 3) or PointCloud, optional
+    map_points : (M, 3), (M, 2) or PointCloud, optional
         The map in the map frame, written once at the last stamp.
     loops : sequence of (source, target[, accepted]) or :class:`LoopClosure`
         Drawn as line segments between the two frames' positions in the map frame.
