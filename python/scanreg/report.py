@@ -83,6 +83,9 @@ window.addEventListener("load", function () {
     return !/^(file|data|blob):/.test(r.name);
   });
   document.body.setAttribute("data-remote-resources", String(remote.length));
+  // one line a headless browser's log shows: what rendered, what failed, what was fetched
+  console.log("scanreg-report " + JSON.stringify(
+    {plots: n, errors: window.scanregErrors, remote: remote.length}));
 });
 </script>"""
 _CSS = """
