@@ -150,6 +150,8 @@ def test_odometry_bag_errors_come_before_the_run(
     assert cli.main([*argv, "--bag", str(tmp_path / "b.mcap"), "--bag-frames", "map", "odom",
                      "/lidar"]) == cli.EXIT_BAD_INPUT  # fmt: skip
     assert "not a valid tf2 frame id" in capsys.readouterr().err
+    assert cli.main([*argv, "--crs", "x.wkt"]) == cli.EXIT_BAD_INPUT
+    assert "--las-offset and --crs need --map-format las or laz" in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------- browser

@@ -206,7 +206,7 @@ def build_parser() -> argparse.ArgumentParser:
     odo.add_argument(
         "--save-map",
         action="store_true",
-        help="also write the final local map (world frame) as map.ply",
+        help="also write the final local map (world frame) as map.ply (see --map-format)",
     )
     odo.add_argument(
         "--map-format",
