@@ -106,8 +106,14 @@ def test_report_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
         report.write_report(run, tmp_path / "nowhere" / "r.html")
     with pytest.raises(PermissionError, match="cannot write the report"):
         report.write_report(run, "/proc/report.html")
-    lines = (run / "quality.jsonl").read_text().splitlines()
-    (run / "quality.jsonl").write_text("\n".join(lines[:-3]) + "\n")
+    rows = [json.loads(x) for x in (run / "quality.jsonl").read_text().splitlines()]
+    rows[5]["frame"] = 40
+    write_jsonl(run / "quality.jsonl", rows)
+    with pytest.raises(FileFormatError, match=r"quality\.jsonl: frame 40 is not one of the 40"):
+        report.write_report(run)
+    for r in rows:
+        del r["frame"]
+    write_jsonl(run / "quality.jsonl", rows[:-3])
     with pytest.raises(FileFormatError, match=r"quality\.jsonl has 37 rows for 40 poses"):
         report.write_report(run)
     assert not (run / "report.html").exists()
@@ -259,3 +265,15 @@ def test_a_mapping_run_folder_shows_odometry_loops_and_grid(tmp_path: Path) -> N
     write_jsonl(run / "loops.jsonl", [{"accepted": True}])
     with pytest.raises(FileFormatError, match=r"loops\.jsonl: a loop without frames"):
         report.render_report(run)
+
+
+def test_a_bare_run_folder_still_reports(tmp_path: Path) -> None:
+    """Only poses, and rows without σ or timing (a user's own loop): no warning, no crash."""
+    poses = [SE3.from_vector([0.5 * k, 0, 0, 0, 0, 0]) for k in range(6)]
+    write_poses(tmp_path / "poses_tum.txt", poses, "tum", timestamps=0.1 * np.arange(6))
+    text = report.render_report(tmp_path)
+    assert 'id="scanreg-trajectory"' in text and 'id="scanreg-timing"' not in text
+    assert "No map in the run folder" in text
+    write_jsonl(tmp_path / "quality.jsonl", [{"frame": k, "fitness": 0.9} for k in (1, 3)])
+    text = report.render_report(tmp_path)
+    assert 'id="scanreg-uncertainty"' in text and 'id="scanreg-timing"' not in text

@@ -148,12 +148,7 @@ class RunFolder:
         self.estimate = read_tum(poses)
         reference = self.root / "reference_tum.txt"
         self.reference = read_tum(reference) if reference.is_file() else None
-        self.rows = _read_rows(self.root / "quality.jsonl")
-        if self.rows and len(self.rows) != len(self.estimate):
-            raise FileFormatError(
-                self.root,
-                f"quality.jsonl has {len(self.rows)} rows for {len(self.estimate)} poses",
-            )
+        self.rows = self._frame_rows(_read_rows(self.root / "quality.jsonl"))
         self.loops = _read_rows(self.root / "loops.jsonl")
         summary = self.root / "summary.json"
         self.summary: dict[str, Any] = (
@@ -180,6 +175,26 @@ class RunFolder:
                 reasons = "; ".join(map(str, reasons))
             out.append((int(i), int(j), bool(lp.get("accepted", True)), str(reasons)))
         return out
+
+    def _frame_rows(self, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """One row per pose: by their ``frame`` index when the rows have one (a frame without
+        a row gets an empty one), else in order."""
+        n = len(self.estimate)
+        if not rows:
+            return []
+        if all("frame" in r for r in rows):
+            out: list[dict[str, Any]] = [{} for _ in range(n)]
+            for r in rows:
+                k = r["frame"]
+                if not isinstance(k, int) or not 0 <= k < n:
+                    raise FileFormatError(
+                        self.root, f"quality.jsonl: frame {k!r} is not one of the {n} poses"
+                    )
+                out[k] = r
+            return out
+        if len(rows) != n:
+            raise FileFormatError(self.root, f"quality.jsonl has {len(rows)} rows for {n} poses")
+        return rows
 
     @property
     def stamps(self) -> FloatArray:
@@ -384,7 +399,8 @@ def _sigma_figure(run: RunFolder) -> Any:
     return fig
 
 
-def _timing_figure(run: RunFolder) -> tuple[Any, dict[str, float]]:
+def _timing_figure(run: RunFolder) -> tuple[Any, dict[str, float]] | None:
+    """Stacked per-stage times per frame with their medians; None when the rows have none."""
     go, _, _ = _plotly()
     frames = np.arange(len(run.rows))
     fig = go.Figure()
@@ -398,7 +414,9 @@ def _timing_figure(run: RunFolder) -> tuple[Any, dict[str, float]]:
         fig.add_trace(go.Bar(x=frames, y=values, name=stage, marker={"color": color}))
     if not medians:  # rows from before per-stage timing: the total only
         values = _column(run.rows, "time_ms")
-        medians["total"] = float(np.nanmedian(values)) if len(values) else math.nan
+        if np.isnan(values).all():
+            return None
+        medians["total"] = float(np.nanmedian(values))
         fig.add_trace(go.Bar(x=frames, y=values, name="total"))
     fig.update_layout(
         barmode="stack",
@@ -538,8 +556,10 @@ def render_report(folder: PathLike, *, title: str | None = None) -> str:
     medians: dict[str, float] = {}
     if run.rows:
         sections.append(("Uncertainty and verdicts", _sigma_figure(run)))
-        timing, medians = _timing_figure(run)
-        sections.append(("Timing", timing))
+        timing = _timing_figure(run)
+        if timing is not None:
+            sections.append(("Timing", timing[0]))
+            medians = timing[1]
     map_note = '<p class="muted">No map in the run folder (scanreg odometry --save-map).</p>'
     if run.map_path is not None:
         fig, _ = _map_figure(run)
