@@ -18,7 +18,7 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 from scanreg.io import PointCloud, read_bag_clouds
 from scanreg.io import rosbag_write as rw
-from scanreg.io.rosbag_write import BagFrames, BagTopics, LoopClosure, write_run_bag
+from scanreg.io.rosbag_write import BagFrames, BagGrid, BagTopics, LoopClosure, write_run_bag
 
 K = 6
 #: σ = 1 m along the body x axis, everything else small (m, rad).
@@ -306,5 +306,21 @@ def test_planar_runs_are_embedded_at_z_zero(tmp_path: Path) -> None:
     cloud = read_bag_clouds(path, topic="/scanreg/scan")[2].cloud
     np.testing.assert_allclose(cloud.points[:, :2], scans[2], atol=1e-6)
     assert np.all(cloud.points[:, 2] == 0)
+    # an occupancy grid for RViz's Map display: row 0 at the origin, percent, -1 unknown
+    probability = np.full((4, 5), np.nan)
+    probability[0, :] = 0.0
+    probability[1, 2] = 1.0
+    probability[3, 4] = 0.666
+    grid = BagGrid(probability, 0.05, (-1.0, 2.5))
+    write_run_bag(tmp_path / "grid.db3", [0.0, 0.1, 0.2], poses, grid=grid)
+    (msg,) = _messages(tmp_path / "grid.db3")["/scanreg/grid"]
+    assert (msg.info.width, msg.info.height) == (5, 4)
+    assert msg.info.resolution == pytest.approx(0.05)
+    assert (msg.info.origin.position.x, msg.info.origin.position.y) == (-1.0, 2.5)
+    cells = np.asarray(msg.data).reshape(4, 5)
+    assert (cells[0] == 0).all() and cells[1, 2] == 100 and cells[3, 4] == 67
+    assert (cells[2] == -1).all() and msg.header.frame_id == "map"
+    with pytest.raises(ValueError, match=r"grid.probability: must be in \[0, 1\] or NaN"):
+        BagGrid(probability + 1, 0.05, (0, 0))
     with pytest.raises(ValueError, match=r"poses\[0\]: last row must be \[0, 0, 1\]"):
         write_run_bag(tmp_path / "x.mcap", [0.0], np.ones((1, 3, 3)))

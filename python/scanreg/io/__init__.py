@@ -50,7 +50,7 @@ from .rosbag import (
     read_bag_clouds,
     read_bag_scans,
 )
-from .rosbag_write import BagFrames, BagTopics, LoopClosure, write_run_bag
+from .rosbag_write import BagFrames, BagGrid, BagTopics, LoopClosure, write_run_bag
 from .sequences import (
     FolderSequence,
     KittiSequence,
@@ -178,6 +178,7 @@ __all__ = [
     "WRITERS",
     "BagCloud",
     "BagFrames",
+    "BagGrid",
     "BagTopic",
     "BagTopics",
     "CarmenLog",

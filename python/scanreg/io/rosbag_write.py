@@ -16,11 +16,12 @@ topic (default)               type                                   per
 ``/tf``                       ``tf2_msgs/msg/TFMessage``             frame: map → odom → sensor
 ``/scanreg/scan``             ``sensor_msgs/msg/PointCloud2``        frame (when ``scans``)
 ``/scanreg/map``              ``sensor_msgs/msg/PointCloud2``        once, at the last stamp
+``/scanreg/grid``             ``nav_msgs/msg/OccupancyGrid``         once (when ``grid``)
 ``/scanreg/path``             ``nav_msgs/msg/Path``                  once, at the last stamp
 ``/scanreg/loop_closures``    ``visualization_msgs/msg/MarkerArray``  once (when ``loops``)
 ============================  =====================================  ========================
 
-The map, path and loop topics are offered *transient local* (latched), so a viewer that
+The map, grid, path and loop topics are offered *transient local* (latched), so a viewer that
 starts late still gets them.
 
 Frames and covariance
@@ -145,6 +146,7 @@ class BagTopics:
     tf: str = "/tf"
     scan: str = "/scanreg/scan"
     map: str = "/scanreg/map"
+    grid: str = "/scanreg/grid"
     path: str = "/scanreg/path"
     loop_closures: str = "/scanreg/loop_closures"
 
@@ -165,6 +167,45 @@ class LoopClosure:
     source: int
     target: int
     accepted: bool = True
+
+
+@dataclass(frozen=True)
+class BagGrid:
+    """A 2D occupancy grid for ``nav_msgs/OccupancyGrid`` (what RViz's Map display shows).
+
+    ``probability[row, col]`` in ``[0, 1]`` (NaN: unknown), row ``0`` at ``origin`` and rows
+    along +y, columns along +x — the layout of :class:`scanreg.io.occupancy.OccupancyGrid`,
+    so ``BagGrid(g.probability, g.resolution, g.origin)`` converts one.
+    """
+
+    probability: FloatArray
+    #: Cell edge (m).
+    resolution: float
+    #: World ``(x, y)`` of the lower-left corner of cell ``(0, 0)``.
+    origin: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        p = np.array(self.probability, dtype=np.float64)
+        if p.ndim != 2 or 0 in p.shape:
+            raise ValueError(f"grid.probability: expected a non-empty (H, W) array, got {p.shape}")
+        known = p[np.isfinite(p)]
+        if np.isinf(p).any() or (known.size and (known.min() < 0 or known.max() > 1)):
+            raise ValueError("grid.probability: must be in [0, 1] or NaN (unknown)")
+        if not (np.isfinite(self.resolution) and self.resolution > 0):
+            raise ValueError(f"grid.resolution: must be finite and > 0, got {self.resolution}")
+        origin = tuple(float(v) for v in self.origin)
+        if len(origin) != 2 or not np.isfinite(origin).all():
+            raise ValueError(f"grid.origin: expected finite (x, y), got {self.origin!r}")
+        object.__setattr__(self, "probability", p)
+        object.__setattr__(self, "origin", origin)
+
+    def ros_data(self) -> Any:
+        """Row-major ``int8``: occupancy in percent, ``-1`` unknown (the message's layout)."""
+        p = self.probability
+        out = np.full(p.shape, -1, dtype=np.int8)
+        known = np.isfinite(p)
+        out[known] = np.round(100 * p[known]).astype(np.int8)
+        return out.reshape(-1)
 
 
 @dataclass(frozen=True)
@@ -439,6 +480,7 @@ def write_run_bag(
     scans: Sequence[Any] | None = None,
     scan_frame: Literal["sensor", "map"] = "sensor",
     map_points: Any = None,
+    grid: BagGrid | None = None,
     loops: Sequence[Any] = (),
     frames: BagFrames | None = None,
     topics: BagTopics | None = None,
@@ -472,6 +514,8 @@ def write_run_bag(
         transformed into the ``map`` frame when ``scan_frame="map"``.
     map_points : (M, 3), (M, 2) or PointCloud, optional
         The map in the map frame, written once at the last stamp.
+    grid : BagGrid, optional
+        A 2D occupancy grid (map frame), written once at the last stamp.
     loops : sequence of (source, target[, accepted]) or :class:`LoopClosure`
         Drawn as line segments between the two frames' positions in the map frame.
     frames, topics
@@ -515,6 +559,8 @@ def write_run_bag(
             raise ValueError(f"scans: expected {count} clouds (one per stamp), got {len(scans)}")
         clouds = [_cloud(s, f"scans[{k}]") for k, s in enumerate(scans)]
     the_map = None if map_points is None else _cloud(map_points, "map_points")
+    if grid is not None and not isinstance(grid, BagGrid):
+        raise TypeError(f"grid: expected a BagGrid, got {type(grid).__name__}")
     loop_list = _loops(loops, count)
     p = Path(os.fspath(path))
     kind = _storage(p, storage)
@@ -531,7 +577,7 @@ def write_run_bag(
         bag_dir = staging / (p.stem if p.suffix.lower() in BAG_STORAGES else p.name)
         _write(
             bag_dir, kind, msgs, ns, map_poses, map_covs, odo_poses, odo_covs, clouds,
-            scan_frame, the_map, loop_list, frames, topics, unknown_variance, written,
+            scan_frame, the_map, grid, loop_list, frames, topics, unknown_variance, written,
         )  # fmt: skip
         _move_into_place(bag_dir, kind, p)
     finally:
@@ -565,6 +611,7 @@ def _write(
     clouds: list[tuple[FloatArray, FloatArray | None]] | None,
     scan_frame: str,
     the_map: tuple[FloatArray, FloatArray | None] | None,
+    grid: BagGrid | None,
     loops: list[LoopClosure],
     frames: BagFrames,
     topics: BagTopics,
@@ -599,6 +646,8 @@ def _write(
             add(topics.scan, "sensor_msgs/msg/PointCloud2")
         if the_map is not None:
             add(topics.map, "sensor_msgs/msg/PointCloud2", latched=True)
+        if grid is not None:
+            add(topics.grid, "nav_msgs/msg/OccupancyGrid", latched=True)
         add(topics.path, "nav_msgs/msg/Path", latched=True)
         if loops:
             add(topics.loop_closures, "visualization_msgs/msg/MarkerArray", latched=True)
@@ -666,6 +715,24 @@ def _write(
         last = int(ns[-1])
         if the_map is not None:
             put(topics.map, last, msgs.pointcloud2(last, frames.map, *the_map))
+        if grid is not None:
+            origin = np.eye(4)
+            origin[:2, 3] = grid.origin
+            height, width = grid.probability.shape
+            info = t["nav_msgs/msg/MapMetaData"](
+                map_load_time=msgs.time(last),
+                resolution=float(grid.resolution),
+                width=width,
+                height=height,
+                origin=msgs.pose(origin),
+            )
+            put(
+                topics.grid,
+                last,
+                t["nav_msgs/msg/OccupancyGrid"](
+                    header=msgs.header(last, frames.map), info=info, data=grid.ros_data()
+                ),
+            )
         put(
             topics.path,
             last,
@@ -690,6 +757,7 @@ __all__ = [
     "BAG_STORAGES",
     "UNKNOWN_VARIANCE",
     "BagFrames",
+    "BagGrid",
     "BagSummary",
     "BagTopics",
     "LoopClosure",
