@@ -8,18 +8,14 @@ extra, ``pip install 'scanreg[ros]'``), which also writes the storage.
 What is written (topic names and frame ids are configurable, :class:`BagTopics`,
 :class:`BagFrames`):
 
-============================  =====================================  ========================
-topic (default)               type                                   per
-============================  =====================================  ========================
-``/scanreg/odometry``         ``nav_msgs/msg/Odometry``              frame (odom → sensor)
-``/scanreg/pose``             ``geometry_msgs/msg/PoseWithCovarianceStamped``  frame (map)
-``/tf``                       ``tf2_msgs/msg/TFMessage``             frame: map → odom → sensor
-``/scanreg/scan``             ``sensor_msgs/msg/PointCloud2``        frame (when ``scans``)
-``/scanreg/map``              ``sensor_msgs/msg/PointCloud2``        once, at the last stamp
-``/scanreg/grid``             ``nav_msgs/msg/OccupancyGrid``         once (when ``grid``)
-``/scanreg/path``             ``nav_msgs/msg/Path``                  once, at the last stamp
-``/scanreg/loop_closures``    ``visualization_msgs/msg/MarkerArray``  once (when ``loops``)
-============================  =====================================  ========================
+* ``/scanreg/odometry`` — ``nav_msgs/msg/Odometry`` per frame (odom → sensor);
+* ``/scanreg/pose`` — ``geometry_msgs/msg/PoseWithCovarianceStamped`` per frame (map);
+* ``/tf`` — ``tf2_msgs/msg/TFMessage`` per frame: map → odom → sensor;
+* ``/scanreg/scan`` — ``sensor_msgs/msg/PointCloud2`` per frame (when ``scans``);
+* ``/scanreg/map`` — ``sensor_msgs/msg/PointCloud2`` once, at the last stamp (``map_points``);
+* ``/scanreg/grid`` — ``nav_msgs/msg/OccupancyGrid`` once (when ``grid``);
+* ``/scanreg/path`` — ``nav_msgs/msg/Path`` once, at the last stamp;
+* ``/scanreg/loop_closures`` — ``visualization_msgs/msg/MarkerArray`` once (when ``loops``).
 
 The map, grid, path and loop topics are offered *transient local* (latched), so a viewer that
 starts late still gets them.
