@@ -115,8 +115,11 @@ def test_unknown_point_format_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(FileFormatError, match=r"empty\.laz: empty file"):
         read_points(tmp_path / "empty.laz")
     (tmp_path / "junk.las").write_bytes(b"LASF" + b"\0" * 50)
-    with pytest.raises(FileFormatError, match=r"junk\.las: cannot read as LAS/LAZ"):
+    with pytest.raises(FileFormatError, match=r"junk\.las: truncated header \(54 of 227"):
         read_points(tmp_path / "junk.las")
+    (tmp_path / "not.las").write_bytes(b"PK\x03\x04" + b"\0" * 400)
+    with pytest.raises(FileFormatError, match=r"not\.las: not a LAS/LAZ file"):
+        read_points(tmp_path / "not.las")
 
 
 def test_bad_writes_name_the_problem_and_leave_nothing(tmp_path: Path) -> None:
@@ -193,3 +196,36 @@ def test_las_is_accepted_wherever_pcd_is(
     assert abs(np.percentile(mapped[:, 2], 5) - (210 - 1.73)) < 0.3
     assert np.abs(np.median(mapped[:, :2], axis=0) - [500000.5, 5000000.25]).max() < 50
     assert (out / "report.html").stat().st_size > 3_000_000
+
+
+@pytest.mark.parametrize("suffix", [".las", ".laz"])
+def test_corrupted_files_fail_cleanly_and_fast(tmp_path: Path, suffix: str) -> None:
+    """Random byte flips, truncations and overwritten header fields: every read returns a
+    cloud or raises FileFormatError — a flipped VLR count once made laspy loop for minutes,
+    a flipped point count would allocate terabytes (the header is checked first)."""
+    rng = np.random.default_rng(7)
+    cloud = PointCloud(points=rng.normal(size=(300, 3)) * 10, time=rng.uniform(0, 0.1, 300),
+                       intensity=rng.integers(0, 100, 300).astype(float))  # fmt: skip
+    good = tmp_path / f"good{suffix}"
+    write_points(good, cloud)
+    raw = good.read_bytes()
+    outcomes = {"read": 0, "refused": 0}
+    for trial in range(90):
+        data = bytearray(raw)
+        if trial % 3 == 0:
+            for _ in range(rng.integers(1, 10)):
+                data[rng.integers(0, len(data))] = rng.integers(0, 256)
+        elif trial % 3 == 1:
+            data = data[: rng.integers(0, len(data))]
+        else:  # a header field: counts, offsets, sizes
+            at = int(rng.integers(90, 380))
+            data[at : at + 4] = rng.integers(0, 256, 4).astype(np.uint8).tobytes()
+        bad = tmp_path / f"bad{suffix}"
+        bad.write_bytes(bytes(data))
+        try:
+            read_points(bad)
+            outcomes["read"] += 1
+        except FileFormatError as exc:
+            assert str(exc).startswith(str(bad))
+            outcomes["refused"] += 1
+    assert outcomes["refused"] > 20 and outcomes["read"] + outcomes["refused"] == 90
