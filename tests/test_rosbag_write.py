@@ -231,6 +231,15 @@ def test_unwritable_destinations_are_clear_errors(tmp_path: Path) -> None:
     with pytest.raises(FileExistsError, match="pass overwrite=True"):
         write_run_bag(blocker, **run, storage="mcap")
     assert blocker.read_text() == "x"
+    # a folder that is not a bag is never replaced, even with overwrite=True
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "poses.txt").write_text("keep")
+    with pytest.raises(FileExistsError, match="is not a ROS 2 bag folder"):
+        write_run_bag(tmp_path / "results", **run, overwrite=True)
+    assert (tmp_path / "results" / "poses.txt").read_text() == "keep"
+    write_run_bag(tmp_path / "bag", **run)
+    write_run_bag(tmp_path / "bag", **run, overwrite=True)  # a bag folder is replaced
+    assert sorted(os.listdir(tmp_path / "bag")) == ["bag.mcap", "metadata.yaml"]
 
 
 def test_a_failure_mid_write_leaves_nothing_and_keeps_the_old_bag(

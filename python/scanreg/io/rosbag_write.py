@@ -322,6 +322,9 @@ def check_bag_destination(path: PathLike, *, overwrite: bool = False) -> Path:
         raise FileExistsError(f"{p}: exists (pass overwrite=True to replace it)")
     if p.exists() and p.is_dir() != (p.suffix.lower() not in BAG_STORAGES):
         raise FileExistsError(f"{p}: exists and is a {'folder' if p.is_dir() else 'file'}")
+    if p.is_dir() and not (p / "metadata.yaml").is_file():
+        # never replace a folder that is not a bag (e.g. the run's own output folder)
+        raise FileExistsError(f"{p}: exists and is not a ROS 2 bag folder (no metadata.yaml)")
     return p
 
 
