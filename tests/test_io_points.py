@@ -132,8 +132,8 @@ def test_ply_skips_face_elements(tmp_path: Path) -> None:
 
 def test_registry_and_errors(tmp_path: Path) -> None:
     assert sio.READERS[".pcd"] is sio.read_pcd and sio.WRITERS[".ply"] is sio.write_ply
-    with pytest.raises(ValueError, match=r"no point-cloud reader for '\.las'"):
-        sio.read_points(tmp_path / "x.las")
+    with pytest.raises(ValueError, match=r"no point-cloud reader for '\.e57'"):
+        sio.read_points(tmp_path / "x.e57")
     with pytest.raises(ValueError, match="PCD stores 3D points"):
         sio.write_points(tmp_path / "x.pcd", PointCloud(points=np.zeros((2, 2))))
     with pytest.raises(ValueError, match="ring"):

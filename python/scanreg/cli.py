@@ -33,6 +33,8 @@ EXAMPLES = """examples:
   scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/ --json
   scanreg odometry sim:street -o out/        # LiDAR odometry on a simulated drive, scored
   scanreg odometry dataset/sequences/00 --preset velodyne-hdl64 --config run.toml -o out/
+  scanreg odometry sim:street -o out/ --bag out/run.mcap --report   # ROS 2 bag + HTML report
+  scanreg report out/ -o out/report.html     # the run's HTML report, one file
 """
 
 #: Per-subcommand examples, shown by ``scanreg SUBCOMMAND --help``.
@@ -55,7 +57,12 @@ SUB_EXAMPLES = {
     "  scanreg odometry sim:street -o out/                 # no download; scored vs truth\n"
     "  scanreg odometry sim:tunnel,frames=50 --method point_to_plane -o out/ --json\n"
     "  scanreg odometry dataset/sequences/00 --preset velodyne-hdl64 -o out/\n"
-    "  scanreg odometry drive.bag --topic /points --config run.toml --max-frames 200 -o out/\n",
+    "  scanreg odometry drive.bag --topic /points --config run.toml --max-frames 200 -o out/\n"
+    "  scanreg odometry sim:street -o out/ --bag out/run.mcap --report   # Foxglove + browser\n"
+    "  scanreg odometry scans_laz/ --save-map --map-format laz --map-origin 500123 5000456 "
+    "210 --crs utm32.wkt -o out/\n",
+    "report": "examples:\n  scanreg report out/                  # out/report.html\n"
+    "  scanreg report out/ -o drive07.html --title 'drive 07'\n",
     "simulate": "examples:\n"
     "  scanreg simulate -o run/                  # 2D: floor_plan, sick_lms200\n"
     "  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/\n"
@@ -161,7 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, default=0, help="scene and noise seed (default 0)")
     sim.add_argument(
         "--format",
-        choices=["auto", "pcd", "csv", "ply", "npy", "xyz"],
+        choices=["auto", "pcd", "csv", "ply", "npy", "xyz", "las", "laz"],
         default="auto",
         help="scan file format (auto: pcd for 3D, csv for 2D)",
     )
@@ -199,15 +206,152 @@ def build_parser() -> argparse.ArgumentParser:
     odo.add_argument(
         "--save-map",
         action="store_true",
-        help="also write the final local map (world frame) as map.ply",
+        help="also write the final local map (world frame) as map.ply (see --map-format)",
+    )
+    odo.add_argument(
+        "--map-format",
+        choices=["ply", "pcd", "las", "laz"],
+        default="ply",
+        help="format of the saved map (default ply)",
+    )
+    _add_las_options(odo)
+    odo.add_argument(
+        "--bag",
+        type=Path,
+        default=None,
+        help="also write a ROS 2 bag: out.mcap, out.db3 or a bag folder (odometry, poses, "
+        "tf, scans, map)",
+    )
+    odo.add_argument(
+        "--bag-frames",
+        nargs=3,
+        metavar=("MAP", "ODOM", "SENSOR"),
+        default=["map", "odom", "lidar"],
+        help="tf frame ids in the bag (default map odom lidar)",
+    )
+    odo.add_argument(
+        "--bag-scan-voxel",
+        type=float,
+        default=0.2,
+        help="voxel size of the scans written to the bag (m; 0 keeps every point); the sweeps "
+        "are deskewed to their pose's time with the estimated motion, in the sensor frame",
+    )
+    odo.add_argument(
+        "--report",
+        action="store_true",
+        help="also write report.html (implies --save-map: the report shows the map)",
     )
     odo.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     odo.add_argument("--json", action="store_true", help="print JSON instead of text")
     odo.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    rep = sub.add_parser(
+        "report",
+        help="write a run folder's report: one self-contained HTML file (trajectory, σ and "
+        "verdicts, timing, 3D map)",
+    )
+    rep.add_argument("folder", type=Path, help="a run folder (scanreg odometry -o FOLDER)")
+    rep.add_argument(
+        "-o", "--output", type=Path, default=None, help="HTML file (default FOLDER/report.html)"
+    )
+    rep.add_argument("--title", default=None, help="page title (default: the sequence name)")
+    rep.add_argument("--json", action="store_true", help="print JSON instead of text")
     for name, subparser in sub.choices.items():
         subparser.epilog = SUB_EXAMPLES[name]
         subparser.formatter_class = argparse.RawDescriptionHelpFormatter
     return parser
+
+
+def _add_las_options(sub: argparse.ArgumentParser) -> None:
+    sub.add_argument(
+        "--map-origin",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        default=None,
+        help="saved map: add this translation (m), e.g. the first pose's UTM easting, "
+        "northing and height, so the file holds CRS coordinates",
+    )
+    sub.add_argument(
+        "--las-scale",
+        type=float,
+        default=0.001,
+        help="LAS/LAZ map: coordinate resolution in metres (default 0.001)",
+    )
+    sub.add_argument(
+        "--las-offset",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        default=None,
+        help="LAS/LAZ map: header offset (m; default the map's minimum, whole metres)",
+    )
+    sub.add_argument(
+        "--crs",
+        default=None,
+        help="LAS/LAZ map: coordinate reference system as OGC WKT, or a .wkt/.prj file",
+    )
+
+
+def _las_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The LAS writer's options from ``--las-scale/--las-offset/--crs``."""
+    if args.map_format not in ("las", "laz"):
+        if args.las_offset is not None or args.crs is not None:
+            raise ValueError("--las-offset and --crs need --map-format las or laz")
+        if args.map_origin is not None and not np.isfinite(args.map_origin).all():
+            raise ValueError(f"--map-origin must be finite, got {args.map_origin}")
+        return {}
+    crs = args.crs
+    if crs is not None and Path(crs).suffix.lower() in (".wkt", ".prj"):
+        crs = Path(crs).read_text(encoding="utf-8").strip()
+    return {"scale": args.las_scale, "offset": args.las_offset, "crs_wkt": crs}
+
+
+def _bag_settings(args: argparse.Namespace) -> Any:
+    """Check ``--bag`` and its frame ids before any work (a bad path fails in a second, not
+    after the run)."""
+    if args.bag is None:
+        return None
+    from .io.rosbag_write import BagFrames, check_bag_destination
+
+    check_bag_destination(args.bag, overwrite=True)
+    if args.bag_scan_voxel < 0:
+        raise ValueError(f"--bag-scan-voxel must be >= 0, got {args.bag_scan_voxel}")
+    return BagFrames(*args.bag_frames)
+
+
+def _write_bag(args: argparse.Namespace, frames: Any, seq: Any, run: Any) -> dict[str, Any]:
+    from . import preprocess
+    from .deskew import deskew, velocity_from_motion
+    from .io.rosbag_write import write_run_bag
+
+    scans = []
+    n = len(run.frames)
+    # the sequence is read again (a bag re-reads from its start on random access): the run
+    # keeps no points, and a long run's scans would not fit in memory
+    for k, frame in enumerate(seq):
+        if k >= n:
+            break
+        pts = frame.points
+        # at the pose's time under the estimated motion, so the scan lies on the map in RViz
+        j = k if k > 0 else 1  # the first sweep: the motion into the second
+        period = float(run.stamps[j] - run.stamps[j - 1]) if j < n else 0.0
+        if run.config.deskew and frame.timestamps is not None and period > 0:
+            velocity = velocity_from_motion(run.frames[j].motion, period)
+            pts = deskew(pts, frame.timestamps, velocity, reference_time=run.config.reference_time)
+        if args.bag_scan_voxel > 0:
+            pts = preprocess.voxel_downsample(pts, args.bag_scan_voxel).points
+        scans.append(pts)
+    summary = write_run_bag(
+        args.bag,
+        run.stamps,
+        run.poses,
+        covariances=np.array([f.covariance for f in run.frames]),
+        scans=scans,
+        map_points=run.odometry.map_cloud().points,
+        frames=frames,
+        overwrite=True,
+    )
+    return {"path": str(summary.path), "storage": summary.storage, "messages": summary.messages}
 
 
 def _stats(stats: Any) -> dict[str, float]:
@@ -273,6 +417,26 @@ def _info(args: argparse.Namespace) -> dict[str, Any]:
         "min": finite.min(axis=0).tolist() if finite.size else None,
         "max": finite.max(axis=0).tolist() if finite.size else None,
         "fields": sorted(cloud.named_fields()),
+        **_las_info(args.path),
+    }
+
+
+def _las_info(path: Path) -> dict[str, Any]:
+    """A LAS/LAZ file's header facts (scale, offset, CRS); nothing for other formats."""
+    if path.suffix.lower() not in (".las", ".laz"):
+        return {}
+    from .io import read_las_header
+
+    h = read_las_header(path)
+    return {
+        "las": {
+            "version": h.version,
+            "point_format": h.point_format,
+            "compressed": h.compressed,
+            "scale": h.scale.tolist(),
+            "offset": h.offset.tolist(),
+            "crs_wkt": h.crs_wkt,
+        }
     }
 
 
@@ -387,8 +551,8 @@ def _simulate(args: argparse.Namespace) -> dict[str, Any]:
     if not args.scan_rate > 0:
         raise ValueError(f"--scan-rate must be > 0, got {args.scan_rate}")
     fmt = args.format if args.format != "auto" else ("pcd" if dim == 3 else "csv")
-    # PCD/PLY hold 3D points: a 2D scan is written in the plane z = 0.
-    pad_z = dim == 2 and fmt in ("pcd", "ply")
+    # PCD/PLY/LAS hold 3D points: a 2D scan is written in the plane z = 0.
+    pad_z = dim == 2 and fmt in ("pcd", "ply", "las", "laz")
     sensor: sim.LaserModel | sim.LidarModel
     start: SE2 | SE3
     if dim == 3:
@@ -478,7 +642,7 @@ def _simulate(args: argparse.Namespace) -> dict[str, Any]:
 
 def _odometry(args: argparse.Namespace) -> dict[str, Any]:
     from .config import load_config
-    from .io import open_sequence, write_run_outputs
+    from .io import open_sequence, write_poses, write_run_outputs
     from .io.sequences import KittiSequence, SimulatedSequence
     from .pipeline.odometry import OdometryConfig
     from .pipeline.run import evaluate_run, run_odometry
@@ -487,6 +651,9 @@ def _odometry(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     overrides = {} if args.method is None else {"method": args.method}
     config = load_config(OdometryConfig, args.config, presets=args.preset, overrides=overrides)
+    las_options = _las_options(args)
+    args.output.mkdir(parents=True, exist_ok=True)  # a --bag inside it can be checked now
+    bag_frames = _bag_settings(args)
     seq = open_sequence(args.path, topic=args.topic)
     run = run_odometry(
         seq, config, max_frames=args.max_frames, progress=not (args.quiet or args.json)
@@ -538,11 +705,46 @@ def _odometry(args: argparse.Namespace) -> dict[str, Any]:
         )
         written["trajectory_plot"] = str(traj_png)
         written["uncertainty_plot"] = str(unc_png)
-    if args.save_map:
-        written["map"] = str(args.output / "map.ply")
-        result["map_points"] = run.odometry.save_map(args.output / "map.ply")
+    if args.save_map or args.report:
+        map_path = args.output / f"map.{args.map_format}"
+        written["map"] = str(map_path)
+        if args.map_origin is None:
+            result["map_points"] = run.odometry.save_map(map_path, **las_options)
+        else:
+            from .io import PointCloud, write_points
+
+            cloud = run.odometry.map_cloud()
+            moved = cloud.points + np.asarray(args.map_origin, dtype=np.float64)
+            write_points(map_path, PointCloud(points=moved, fields=cloud.fields), **las_options)
+            result["map_points"] = len(cloud)
+            result["map_origin"] = list(args.map_origin)
+    if truth is not None:
+        reference = write_poses(
+            args.output / "reference_tum.txt",
+            truth[: len(run.poses)],
+            "tum",
+            timestamps=run.stamps,
+        )
+        written["reference_tum"] = str(reference)
+    if bag_frames is not None:
+        result["bag"] = _write_bag(args, bag_frames, seq, run)
+        written["bag"] = result["bag"]["path"]
     result["outputs"] = written
+    summary_path = args.output / "summary.json"
+    written["summary"] = str(summary_path)
+    summary_path.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    if args.report:
+        from .report import write_report
+
+        written["report"] = str(write_report(args.output))
     return result
+
+
+def _report(args: argparse.Namespace) -> dict[str, Any]:
+    from .report import write_report
+
+    out = write_report(args.folder, args.output, title=args.title)
+    return {"report": str(out), "bytes": out.stat().st_size}
 
 
 def _print_text(result: dict[str, Any], indent: str = "") -> None:
@@ -569,6 +771,7 @@ def main(argv: list[str] | None = None) -> int:
         "plot": _plot,
         "simulate": _simulate,
         "odometry": _odometry,
+        "report": _report,
     }
     try:
         result = handlers[args.command](args)

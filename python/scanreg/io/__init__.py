@@ -4,7 +4,10 @@ One registry per kind of content, keyed by file extension (lower case). Adding a
 one function and one entry here; logs that hold many scans (CARMEN: :func:`read_scans`) have a
 ``SCAN_SOURCES`` registry of the same shape. ROS 1/2 bags (``sensor_msgs/LaserScan`` and
 ``PointCloud2``): :func:`read_bag_scans`, :func:`read_bag_clouds`, :func:`list_topics`
-(module :mod:`scanreg.io.rosbag`, needs the ``ros`` extra).
+(module :mod:`scanreg.io.rosbag`, needs the ``ros`` extra); a run written as a ROS 2 bag:
+:func:`write_run_bag` (module :mod:`scanreg.io.rosbag_write`). LAS/LAZ (``.las``/``.laz``
+in the registries, module :mod:`scanreg.io.las`, needs the ``las`` extra) keep intensity,
+GPS time and returns.
 Sequences of sweeps (KITTI folders, folders of point files, bags, ``sim:street``):
 :func:`open_sequence` (module :mod:`scanreg.io.sequences`); per-frame tables and pose lists:
 :func:`write_rows`, :func:`write_poses` (module :mod:`scanreg.io.tables`).
@@ -36,6 +39,7 @@ from .arrays import (
 )
 from .carmen import CarmenLog, LaserScan, Odometry, read_carmen
 from .g2o import PoseGraph, PoseGraphEdge, g2o_information, read_g2o, write_g2o
+from .las import LasHeaderInfo, read_las, read_las_header, write_las, write_laz
 from .pcd import read_pcd, write_pcd
 from .ply import read_ply, write_ply
 from .rosbag import (
@@ -46,6 +50,7 @@ from .rosbag import (
     read_bag_clouds,
     read_bag_scans,
 )
+from .rosbag_write import BagFrames, BagGrid, BagTopics, LoopClosure, write_run_bag
 from .sequences import (
     FolderSequence,
     KittiSequence,
@@ -80,6 +85,8 @@ from .trajectory import (
 READERS: dict[str, Callable[[PathLike], PointCloud]] = {
     ".pcd": read_pcd,
     ".ply": read_ply,
+    ".las": read_las,
+    ".laz": read_las,
     ".bin": read_kitti_bin,
     ".npy": read_npy,
     ".npz": read_npz,
@@ -92,6 +99,8 @@ READERS: dict[str, Callable[[PathLike], PointCloud]] = {
 WRITERS: dict[str, Callable[..., None]] = {
     ".pcd": write_pcd,
     ".ply": write_ply,
+    ".las": write_las,
+    ".laz": write_laz,
     ".bin": write_kitti_bin,
     ".npy": write_npy,
     ".npz": write_npz,
@@ -170,13 +179,18 @@ __all__ = [
     "TRAJECTORY_WRITERS",
     "WRITERS",
     "BagCloud",
+    "BagFrames",
+    "BagGrid",
     "BagTopic",
+    "BagTopics",
     "CarmenLog",
     "FileFormatError",
     "FolderSequence",
     "KittiCalibration",
     "KittiSequence",
+    "LasHeaderInfo",
     "LaserScan",
+    "LoopClosure",
     "Odometry",
     "PointCloud",
     "PoseGraph",
@@ -200,6 +214,8 @@ __all__ = [
     "read_kitti_bin",
     "read_kitti_calib",
     "read_kitti_poses",
+    "read_las",
+    "read_las_header",
     "read_npy",
     "read_npz",
     "read_pcd",
@@ -216,6 +232,8 @@ __all__ = [
     "write_jsonl",
     "write_kitti_bin",
     "write_kitti_poses",
+    "write_las",
+    "write_laz",
     "write_npy",
     "write_npz",
     "write_pcd",
@@ -223,6 +241,7 @@ __all__ = [
     "write_points",
     "write_poses",
     "write_rows",
+    "write_run_bag",
     "write_run_outputs",
     "write_trajectory",
     "write_tum",

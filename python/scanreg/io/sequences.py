@@ -7,7 +7,7 @@ stamp), ``seq.ground_truth`` is ``(K, 4, 4)`` poses ``T_world_lidar`` or None, a
 ``seq.name`` names it. :func:`open_sequence` chooses the loader from what the path is:
 
 >>> seq = open_sequence("dataset/sequences/00")       # KITTI: velodyne/*.bin + calib.txt
->>> seq = open_sequence("run/")                       # a folder of .pcd/.ply/.bin/.npy/.npz
+>>> seq = open_sequence("run/")                 # a folder of .pcd/.ply/.las/.laz/.bin/.npy/.npz
 >>> seq = open_sequence("drive.bag", topic="/points") # ROS 1 bag; ROS 2: .db3/.mcap/folder
 >>> seq = open_sequence("sim:street")                 # simulated, no download
 >>> for frame in seq:
@@ -47,9 +47,24 @@ from .._validate import FloatArray
 from ..transform import SE3
 from ._common import FileFormatError, PathLike, PointCloud
 from .arrays import read_kitti_bin, read_npy, read_npz
+from .las import read_las, relative_gps_time
 from .pcd import read_pcd
 from .ply import read_ply
 from .trajectory import Trajectory, read_kitti_calib, read_kitti_poses, read_times, read_tum
+
+
+def read_las_sweep(path: PathLike) -> PointCloud:
+    """A LAS/LAZ sweep with its GPS time (always seconds) relative to its first point when
+    absolute, so the span-based unit guess and deskew see seconds since the sweep start."""
+    cloud = read_las(path)
+    return PointCloud(
+        points=cloud.points,
+        intensity=cloud.intensity,
+        ring=cloud.ring,
+        time=relative_gps_time(cloud.time),
+        fields=cloud.fields,
+    )
+
 
 TimeUnit = Literal["auto", "s", "ms", "us", "ns"]
 TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -59,6 +74,8 @@ TIME_UNITS: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 SEQUENCE_FILE_READERS = {
     ".pcd": read_pcd,
     ".ply": read_ply,
+    ".las": read_las_sweep,
+    ".laz": read_las_sweep,
     ".bin": read_kitti_bin,
     ".npy": read_npy,
     ".npz": read_npz,
@@ -375,7 +392,8 @@ def _read_trajectory_auto(path: Path) -> Trajectory:
 
 
 class FolderSequence(ScanSequence):
-    """A folder of point files (``.pcd``, ``.ply``, ``.bin``, ``.npy``, ``.npz``; one format),
+    """A folder of point files (``.pcd``, ``.ply``, ``.las``, ``.laz``, ``.bin``, ``.npy``,
+    ``.npz``; one format),
     in natural order (``2.pcd`` before ``10.pcd``).
 
     Per-point time comes from the files' time field when the reader exposes one (see the

@@ -567,11 +567,10 @@ class Odometry:
             ),
         )
 
-    def save_map(self, path: Any) -> int:
-        """Write the local map (world frame) to ``path`` — PLY or PCD (or any point format
-        of :data:`scanreg.io.WRITERS`), with ``normal_x/y/z`` fields when the map stores
-        normals. Returns the number of points written."""
-        from ..io import PointCloud, write_points
+    def map_cloud(self) -> Any:
+        """The local map (world frame) as a :class:`~scanreg.io.PointCloud`, with
+        ``normal_x/y/z`` fields when the map stores normals."""
+        from ..io import PointCloud
 
         target = self._target
         if isinstance(target, LocalMap):
@@ -583,8 +582,18 @@ class Odometry:
             fields = {
                 f"normal_{a}": np.ascontiguousarray(normals[:, i]) for i, a in enumerate("xyz")
             }
-        write_points(path, PointCloud(points=pts, fields=fields))
-        return len(pts)
+        return PointCloud(points=pts, fields=fields)
+
+    def save_map(self, path: Any, **options: Any) -> int:
+        """Write the local map (world frame) to ``path`` — PLY, PCD, LAS/LAZ (or any point
+        format of :data:`scanreg.io.WRITERS`; ``options`` go to the writer, e.g. a LAS
+        ``offset``), with ``normal_x/y/z`` fields when the map stores normals. Returns the
+        number of points written."""
+        from ..io import write_points
+
+        cloud = self.map_cloud()
+        write_points(path, cloud, **options)
+        return len(cloud)
 
     def run(self, sweeps: Sequence[Any]) -> list[FrameResult]:
         """``step`` over ``(points, timestamps)`` pairs or bare point arrays."""

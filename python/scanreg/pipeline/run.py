@@ -92,6 +92,8 @@ def quality_row(frame: FrameResult, stamp: float) -> dict[str, Any]:
         "scaled_condition_number": None if q is None else q.conditioning.scaled_condition_number,
         "time_ms": 1e3 * frame.timing.total,
     }
+    for stage in ("deskew", "downsample", "align", "judge", "update"):
+        row[f"time_{stage}_ms"] = 1e3 * getattr(frame.timing, stage)
     return row
 
 
