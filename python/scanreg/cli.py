@@ -328,6 +328,12 @@ def _register(args: argparse.Namespace) -> dict[str, Any]:
         kernel=args.kernel,
         max_iterations=args.max_iterations,
     )
+    return register_summary(res)
+
+
+def register_summary(res: Any) -> dict[str, Any]:
+    """The JSON of ``scanreg register`` for a :class:`~scanreg.RegistrationResult` (also what a
+    batch register job writes)."""
     return {
         "converged": res.converged,
         "stop_reason": res.stop_reason,

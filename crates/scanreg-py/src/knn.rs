@@ -44,6 +44,14 @@ impl KdTree {
         self.inner.len()
     }
 
+    /// Pickled as its points: the build is deterministic, so the copy is the same tree.
+    fn __reduce__<'py>(
+        slf: &Bound<'py, Self>,
+    ) -> PyResult<(Bound<'py, pyo3::types::PyType>, (Py<PyArray2<f64>>,))> {
+        let py = slf.py();
+        Ok((slf.get_type(), (slf.get().points(py)?,)))
+    }
+
     /// A read-only copy of the indexed points, `(N, dim)` (what `PreparedTarget.points` keeps).
     #[getter]
     fn points(&self, py: Python<'_>) -> PyResult<Py<PyArray2<f64>>> {
