@@ -33,6 +33,8 @@ EXAMPLES = """examples:
   scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/ --json
   scanreg odometry sim:street -o out/        # LiDAR odometry on a simulated drive, scored
   scanreg odometry dataset/sequences/00 --preset velodyne-hdl64 --config run.toml -o out/
+  scanreg batch odometry drives.csv -o out/ --retries 2      # many sequences, local workers
+  scanreg batch register pairs.parquet --engine ray --address 10.0.0.1:6379 -o out/
 """
 
 #: Per-subcommand examples, shown by ``scanreg SUBCOMMAND --help``.
@@ -56,6 +58,11 @@ SUB_EXAMPLES = {
     "  scanreg odometry sim:tunnel,frames=50 --method point_to_plane -o out/ --json\n"
     "  scanreg odometry dataset/sequences/00 --preset velodyne-hdl64 -o out/\n"
     "  scanreg odometry drive.bag --topic /points --config run.toml --max-frames 200 -o out/\n",
+    "batch": "examples:\n"
+    "  scanreg batch odometry drives.csv -o out/              # id,input[,config] per row\n"
+    "  scanreg batch odometry drives.csv -o out/ --resume     # skip the jobs already done\n"
+    "  scanreg batch register pairs.csv -o out/ --config reg.toml --json\n"
+    "  scanreg batch odometry drives.parquet --engine ray --address HEAD:6379 -o out/\n",
     "simulate": "examples:\n"
     "  scanreg simulate -o run/                  # 2D: floor_plan, sick_lms200\n"
     "  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/\n"
@@ -204,10 +211,70 @@ def build_parser() -> argparse.ArgumentParser:
     odo.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     odo.add_argument("--json", action="store_true", help="print JSON instead of text")
     odo.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    _add_batch_parser(sub)
     for name, subparser in sub.choices.items():
         subparser.epilog = SUB_EXAMPLES[name]
         subparser.formatter_class = argparse.RawDescriptionHelpFormatter
     return parser
+
+
+def _add_batch_parser(sub: Any) -> None:
+    from .batch.engines import ENGINES
+    from .batch.jobs import JOB_KINDS
+
+    batch = sub.add_parser(
+        "batch",
+        help="run many odometry or registration jobs (a CSV/Parquet manifest) on local worker "
+        "processes or a Ray cluster; exit 1 if any job failed",
+    )
+    batch.add_argument("kind", choices=list(JOB_KINDS), help="job kind")
+    batch.add_argument(
+        "manifest",
+        type=Path,
+        help="CSV/TSV/Parquet, one row per job: id and input (odometry: a sequence or sim: URI) "
+        "or source,target (register); optional config (TOML), init (register)",
+    )
+    batch.add_argument("--engine", choices=list(ENGINES), default="local")
+    batch.add_argument("--address", default=None, help="ray: a running cluster's HOST:PORT")
+    batch.add_argument("-o", "--output", type=Path, required=True, help="folder (created)")
+    batch.add_argument(
+        "--retries", type=int, default=2, help="runs again of a job whose worker died (default 2)"
+    )
+    batch.add_argument("--resume", action="store_true", help="skip the jobs already done")
+    batch.add_argument("--config", type=Path, default=None, help="TOML for rows without one")
+    batch.add_argument(
+        "--workers", type=int, default=None, help="local worker processes (default: one per CPU)"
+    )
+    batch.add_argument(
+        "--threads-per-job", type=int, default=None, help="threads each job may use"
+    )
+    batch.add_argument("--json", action="store_true", help="print JSON instead of text")
+    batch.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+
+
+def _batch(args: argparse.Namespace) -> dict[str, Any]:
+    from .batch import run_batch
+
+    if args.retries < 0:
+        raise ValueError(f"--retries must be >= 0, got {args.retries}")
+    for flag in ("workers", "threads_per_job"):
+        value = getattr(args, flag)
+        if value is not None and value < 1:
+            raise ValueError(f"--{flag.replace('_', '-')} must be >= 1, got {value}")
+    report = run_batch(
+        args.kind,
+        args.manifest,
+        args.output,
+        engine=args.engine,
+        address=args.address,
+        workers=args.workers,
+        threads_per_job=args.threads_per_job,
+        retries=args.retries,
+        resume=args.resume,
+        config=args.config,
+        progress=not (args.quiet or args.json),
+    )
+    return report.as_dict()
 
 
 def _stats(stats: Any) -> dict[str, float]:
@@ -521,7 +588,7 @@ def _odometry(args: argparse.Namespace) -> dict[str, Any]:
         truth = seq.ground_truth_at(config.reference_time)  # the time the poses refer to
     elif seq.ground_truth is not None:
         truth = seq.ground_truth
-    if truth is not None and len(run.frames) >= 2:
+    if truth is not None and len(run.frames) >= 3:  # the SE(3) alignment needs 3 positions
         result["accuracy"] = evaluate_run(run, truth)
     if not args.no_plots:
         from . import plot
@@ -575,17 +642,18 @@ def main(argv: list[str] | None = None) -> int:
         "plot": _plot,
         "simulate": _simulate,
         "odometry": _odometry,
+        "batch": _batch,
     }
     try:
         result = handlers[args.command](args)
-    except (ValueError, OSError) as exc:  # FileFormatError is a ValueError
+    except (ValueError, OSError, ImportError) as exc:  # FileFormatError is a ValueError
         print(f"scanreg {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     if args.json:
         print(json.dumps(result, indent=2))
     else:
         _print_text(result)
-    if result.get("converged") is False:
+    if result.get("converged") is False or (args.command == "batch" and result["failed"]):
         return EXIT_CHECK_FAILED
     return EXIT_OK
 

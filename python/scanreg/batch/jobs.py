@@ -279,6 +279,17 @@ def finished_record(output: Path, job: Job) -> dict[str, Any] | None:
     return dict(stored)
 
 
+def record_attempts(output: Path, job_id: str, attempts: int) -> None:
+    """Add the attempts (known to the engine, not the worker) to a done job's ``job.json``,
+    atomically."""
+    path = output / job_id / JOB_FILE
+    stored = json.loads(path.read_text())
+    stored["attempts"] = attempts
+    tmp = path.with_name(f".{JOB_FILE}.tmp-{os.getpid()}")
+    tmp.write_text(json.dumps(stored, indent=2, default=str) + "\n")
+    os.replace(tmp, path)
+
+
 def clean_temporary(output: Path) -> None:
     """Remove the folders a killed worker left half-written."""
     if output.is_dir():

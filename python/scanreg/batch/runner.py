@@ -10,7 +10,7 @@ from typing import Any
 
 from .._progress import Progress
 from .engines import Engine, make_engine
-from .jobs import JOB_KINDS, Job, clean_temporary, execute, finished_record
+from .jobs import JOB_KINDS, Job, clean_temporary, execute, finished_record, record_attempts
 from .manifest import read_manifest
 from .summary import write_summary_csv, write_summary_parquet
 
@@ -160,9 +160,12 @@ def run_batch(
                     "attempts": previous.get("attempts", 1),
                     "output": job.id,
                 }
-        bar = Progress(len(job_list), description=f"batch {kind}", unit="jobs", enabled=progress)
-        bar.update(len(records), done=len(records), failed=0, running=0)
-        failed = running = 0
+        # the rate counts the jobs run here, not those an earlier run did
+        bar = Progress(len(todo), description=f"batch {kind}", unit="jobs", enabled=progress)
+        bar.set_counters(done=0, failed=0, running=0)
+        if records:
+            bar.set_counters(resumed=len(records))
+        done = failed = running = 0
         calls = [(job, str(out), run_fn, eng.threads_per_job) for job in todo]
 
         def started(i: int) -> None:
@@ -191,9 +194,12 @@ def run_batch(
             )
             if outcome.lost and rec["status"] == "done":
                 rec["error"] = f"retried after: {'; '.join(outcome.lost)}"
+            if rec["status"] == "done":
+                record_attempts(out, job.id, outcome.attempts)
             failed += rec["status"] != "done"
+            done += rec["status"] == "done"
             records[job.id] = rec
-            bar.update(done=len(records) - failed, failed=failed, running=running)
+            bar.update(done=done, failed=failed, running=running)
         bar.close()
     finally:
         if owned:
