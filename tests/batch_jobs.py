@@ -23,7 +23,21 @@ def flaky_odometry(job: Job, folder: Path) -> dict[str, Any]:
         if not marker.exists():
             marker.touch()
             os._exit(17)
+    _note_ray_node(job, Path(folder))
     return run_odometry_job(job, folder)
+
+
+def _note_ray_node(job: Job, folder: Path) -> None:
+    """On Ray, which node ran the job (``<batch output>/../nodes/<id>``): the two-node test
+    checks both nodes worked."""
+    try:
+        import ray
+    except ImportError:
+        return
+    if ray.is_initialized():
+        nodes = folder.parent.parent / "nodes"
+        nodes.mkdir(exist_ok=True)
+        (nodes / job.id).write_text(ray.get_runtime_context().get_node_id())
 
 
 def simulated_manifest(path: Path, count: int = 20, frames: int = 2) -> Path:

@@ -16,6 +16,7 @@ Every node needs scanreg (the same version) in the Python environment its Ray wo
 from __future__ import annotations
 
 import socket
+import sys
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
@@ -23,6 +24,7 @@ from typing import Any
 from .engines import Outcome, available_cpus
 
 _CONNECT_TIMEOUT = 5.0
+_LOOPBACK = "127.0.0.2"
 
 
 def import_ray() -> Any:
@@ -79,13 +81,22 @@ class RayEngine:
         self._started = False
         if not ray.is_initialized():
             if address is None:
+                # A private cluster, reachable from this machine only. Ray replaces 127.0.0.1
+                # by the machine's network address; another loopback address (all of 127/8
+                # on Linux) stays on loopback.
+                loopback = {"_node_ip_address": _LOOPBACK} if sys.platform == "linux" else {}
                 ray.init(
                     num_cpus=workers if workers is not None else available_cpus(),
                     include_dashboard=False,
                     log_to_driver=False,
+                    **loopback,
                 )
             else:
-                ray.init(address=address, log_to_driver=False)
+                options: dict[str, Any] = {}
+                host = address.rpartition(":")[0]
+                if host.startswith("127."):  # a cluster on loopback: this driver is on its node
+                    options["_node_ip_address"] = host
+                ray.init(address=address, log_to_driver=False, **options)
             self._started = True
         cpus = int(ray.cluster_resources().get("CPU", 1))
         if self._threads > cpus:
