@@ -42,6 +42,8 @@ def _note_ray_node(job: Job, folder: Path) -> None:
 
 def simulated_manifest(path: Path, count: int = 20, frames: int = 2) -> Path:
     """A manifest of ``count`` tiny simulated drives (different seeds)."""
-    rows = ["id,input"] + [f'job-{k:02d},"sim:street,frames={frames},seed={k}"' for k in range(count)]
+    rows = ["id,input"] + [
+        f'job-{k:02d},"sim:street,frames={frames},seed={k}"' for k in range(count)
+    ]
     path.write_text("\n".join(rows) + "\n")
     return path

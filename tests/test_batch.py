@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 from batch_jobs import DIES_ONCE, RAISES, flaky_odometry, simulated_manifest
 from scanreg import cli, io
-from scanreg.batch import ManifestError, read_manifest, run_batch
+from scanreg.batch import ManifestError, make_engine, read_manifest, run_batch
 from scanreg.batch.jobs import run_odometry_job
 from scanreg.batch.summary import COLUMNS, read_summary_csv
 
@@ -62,9 +63,7 @@ def test_odometry_jobs_write_what_the_single_command_writes(
 def test_failure_is_recorded_dead_worker_retried_and_resume_skips(tmp_path: Path) -> None:
     manifest = simulated_manifest(tmp_path / "jobs.csv", count=6, frames=2)
     out = tmp_path / "out"
-    report = run_batch(
-        "odometry", manifest, out, workers=2, retries=1, job_function=flaky_odometry
-    )
+    report = run_batch("odometry", manifest, out, workers=2, retries=1, job_function=flaky_odometry)
     by_id = {r["id"]: r for r in report.records}
     assert len(by_id) == 6 and not report.ok
     assert [r["id"] for r in report.failed] == [RAISES]
@@ -92,6 +91,22 @@ def test_failure_is_recorded_dead_worker_retried_and_resume_skips(tmp_path: Path
     assert [k for k, v in resumed.items() if not v] == [RAISES]
     assert (out / "job-00" / "job.json").stat().st_mtime_ns == stamp
     assert {r["id"]: r["attempts"] for r in again.records}[DIES_ONCE] == 2
+
+
+def test_an_engine_serves_several_batches(tmp_path: Path) -> None:
+    manifest = simulated_manifest(tmp_path / "jobs.csv", count=2)
+    engine = make_engine("local", workers=2)
+    try:
+        first = run_batch("odometry", manifest, tmp_path / "a", engine=engine)
+        second = run_batch("odometry", manifest, tmp_path / "b", engine=engine)
+    finally:
+        engine.close()
+    assert first.ok and second.ok
+    # the same (at most two) worker processes ran both batches
+    assert len({r["worker"] for r in (*first.records, *second.records)}) <= 2
+    for job_id in ("job-00", "job-01"):
+        a = (tmp_path / "a" / job_id / "poses_tum.txt").read_bytes()
+        assert a == (tmp_path / "b" / job_id / "poses_tum.txt").read_bytes()
 
 
 def test_a_worker_dying_every_time_is_reported_after_its_retries(tmp_path: Path) -> None:
@@ -216,8 +231,9 @@ def test_unknown_engine_and_unreachable_address_name_the_setting(
     with pytest.raises(ValueError, match="retries: must be an int >= 0"):
         run_batch("odometry", manifest, out, retries=-1)
     assert not out.exists()
-    pytest.importorskip("ray", reason="ray not installed (pip install 'scanreg[ray]')")
-    with pytest.raises(ConnectionError, match="address 127.0.0.1:9: no Ray cluster answers"):
+    if os.environ.get("CI", "").lower() != "true":
+        pytest.importorskip("ray", reason="ray not installed (pip install 'scanreg[ray]')")
+    with pytest.raises(ConnectionError, match=r"address 127\.0\.0\.1:9: no Ray cluster answers"):
         run_batch("odometry", manifest, out, engine="ray", address="127.0.0.1:9")
     argv = ["batch", "odometry", str(manifest), "-o", str(out), "--engine", "ray"]
     assert cli.main([*argv, "--address", "127.0.0.1:9"]) == cli.EXIT_BAD_INPUT

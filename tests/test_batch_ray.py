@@ -9,6 +9,7 @@ Skipped when ray is not installed (``pip install 'scanreg[ray]'``), except under
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -26,7 +27,7 @@ from scanreg.batch.summary import read_summary_csv
 
 if os.environ.get("CI", "").lower() != "true":
     pytest.importorskip("ray", reason="ray not installed (pip install 'scanreg[ray]')")
-import ray  # noqa: E402
+import ray
 
 JOBS = 20
 
@@ -71,9 +72,7 @@ def check_report(report: BatchReport, local_poses: dict[str, bytes]) -> None:
     assert not list(report.output.glob(".tmp-*"))
 
 
-def test_local_ray_cluster(
-    manifest: Path, local_poses: dict[str, bytes], tmp_path: Path
-) -> None:
+def test_local_ray_cluster(manifest: Path, local_poses: dict[str, bytes], tmp_path: Path) -> None:
     assert not ray.is_initialized()
     report = run_batch(
         "odometry",
@@ -117,14 +116,10 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
     """End a node: its `ray start --block` and everything it started (its own session)."""
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGTERM)
-        try:
+        with contextlib.suppress(subprocess.TimeoutExpired):
             proc.wait(timeout=3)
-        except subprocess.TimeoutExpired:
-            pass
-    try:
+    with contextlib.suppress(ProcessLookupError):
         os.killpg(proc.pid, signal.SIGKILL)  # the node's raylet, GCS and workers
-    except ProcessLookupError:
-        pass
     proc.wait()
 
 

@@ -49,7 +49,10 @@ def same(a: Any, b: Any) -> None:
 
 @pytest.mark.parametrize("dumps", DUMPERS)
 def test_poses_and_configs(dumps: Callable[[Any], bytes]) -> None:
-    for pose in (scanreg.SE2.from_vector([1, 2, 0.3]), scanreg.SE3.from_vector([1, 2, 3, 0.1, 0, 0.2])):
+    for pose in (
+        scanreg.SE2.from_vector([1, 2, 0.3]),
+        scanreg.SE3.from_vector([1, 2, 3, 0.1, 0, 0.2]),
+    ):
         back = roundtrip(pose, dumps)
         assert type(back) is type(pose)
         same(back.as_matrix(), pose.as_matrix())

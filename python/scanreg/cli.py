@@ -245,9 +245,7 @@ def _add_batch_parser(sub: Any) -> None:
     batch.add_argument(
         "--workers", type=int, default=None, help="local worker processes (default: one per CPU)"
     )
-    batch.add_argument(
-        "--threads-per-job", type=int, default=None, help="threads each job may use"
-    )
+    batch.add_argument("--threads-per-job", type=int, default=None, help="threads each job may use")
     batch.add_argument("--json", action="store_true", help="print JSON instead of text")
     batch.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
 

@@ -11,6 +11,7 @@ complete), records a failure (error, traceback) instead of raising, and returns 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -225,10 +226,8 @@ def execute(job: Job, output: str, run: JobFunction, threads: int) -> dict[str, 
     for the job's own errors. Returns the job's record (status, error, traceback, timing)."""
     from ..threads import get_num_threads, set_num_threads
 
-    try:
+    with contextlib.suppress(RuntimeError):  # a reused worker sized earlier: recorded below
         set_num_threads(threads)
-    except RuntimeError:  # a reused worker sized earlier: its size is recorded below
-        pass
     root = Path(output)
     final = root / job.id
     tmp = root / f"{TMP_PREFIX}{job.id}-{uuid.uuid4().hex[:12]}"
@@ -255,7 +254,7 @@ def execute(job: Job, output: str, run: JobFunction, threads: int) -> dict[str, 
         if final.exists():  # a stale result of a changed row: replaced whole
             shutil.rmtree(final)
         os.replace(tmp, final)
-    except Exception as exc:
+    except (Exception, SystemExit) as exc:  # SystemExit: a job's argparse or sys.exit
         shutil.rmtree(tmp, ignore_errors=True)
         record["status"] = "failed"
         record["error"] = f"{type(exc).__name__}: {exc}"

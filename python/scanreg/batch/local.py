@@ -11,6 +11,7 @@ broken state (its threads do not survive ``fork``), and each worker must size it
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import traceback
 from collections import deque
@@ -51,10 +52,8 @@ class _Worker:
         self.index: int | None = None  # the call it runs
 
     def stop(self) -> None:
-        try:
+        with contextlib.suppress(OSError, ValueError):  # already gone
             self.conn.send(None)
-        except (OSError, ValueError):
-            pass
         self.process.join(timeout=5)
         if self.process.is_alive():
             self.process.kill()
@@ -70,7 +69,9 @@ class LocalEngine:
     def __init__(self, *, workers: int | None = None, threads_per_job: int | None = None) -> None:
         cpus = available_cpus()
         self._workers = workers if workers is not None else cpus
-        self._threads = threads_per_job if threads_per_job is not None else max(1, cpus // self._workers)
+        self._threads = (
+            threads_per_job if threads_per_job is not None else max(1, cpus // self._workers)
+        )
         self._ctx = mp.get_context("spawn")
         self._pool: list[_Worker] = []
 
@@ -93,7 +94,11 @@ class LocalEngine:
         pending = deque(range(len(calls)))
         attempts = [0] * len(calls)
         lost: list[list[str]] = [[] for _ in calls]
-        idle: list[_Worker] = []
+        # workers an earlier run started wait for work (one that died meanwhile is dropped)
+        for worker in [w for w in self._pool if not w.process.is_alive()]:
+            self._pool.remove(worker)
+            worker.conn.close()
+        idle: list[_Worker] = list(self._pool)
         busy: list[_Worker] = []
         try:
             while pending or busy:
@@ -111,8 +116,8 @@ class LocalEngine:
                     on_start(i)
                 ready = set(wait([w.conn for w in busy] + [w.process.sentinel for w in busy]))
                 for worker in list(busy):
+                    assert worker.index is not None
                     i = worker.index
-                    assert i is not None
                     message = None
                     if worker.conn in ready or worker.process.sentinel in ready:
                         try:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import csv
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -188,34 +188,4 @@ def read_manifest(
     return tuple(jobs)
 
 
-def jobs_from_records(kind: str, records: Sequence[Mapping[str, Any]]) -> tuple[Job, ...]:
-    """Jobs from in-memory rows (dicts with the manifest's columns), checked like a file's:
-    relative paths are relative to the working directory."""
-    import tempfile
-
-    from .jobs import JOB_KINDS
-
-    if kind not in JOB_KINDS:
-        raise ValueError(f"kind: unknown job kind {kind!r} (known: {', '.join(JOB_KINDS)})")
-    spec = JOB_KINDS[kind]
-    columns = ["id", *spec.columns, *spec.optional]
-    with tempfile.TemporaryDirectory() as tmp:
-        manifest = Path(tmp) / "jobs.csv"
-        with open(manifest, "w", newline="", encoding="utf-8") as fh:
-            writer = csv.DictWriter(fh, fieldnames=columns, extrasaction="raise")
-            writer.writeheader()
-            for rec in records:
-                writer.writerow(
-                    {
-                        c: (
-                            str(Path(v).resolve())
-                            if v and c != "id" and not str(v).startswith("sim:")
-                            else (v or "")
-                        )
-                        for c, v in rec.items()
-                    }
-                )
-        return read_manifest(manifest, kind)
-
-
-__all__ = ["Job", "ManifestError", "jobs_from_records", "read_manifest"]
+__all__ = ["Job", "ManifestError", "read_manifest"]
