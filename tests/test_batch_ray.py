@@ -55,7 +55,8 @@ def _pickle_job_functions_by_value() -> None:
 def check_report(report: BatchReport, local_poses: dict[str, bytes]) -> None:
     records = {r["id"]: r for r in report.records}
     assert len(records) == JOBS
-    assert [r["id"] for r in report.failed] == [RAISES]
+    failures = {r["id"]: r["error"] for r in report.failed}
+    assert list(failures) == [RAISES], failures
     assert records[RAISES]["error"] == f"RuntimeError: {RAISES}: simulated failure"
     assert "raise RuntimeError" in records[RAISES]["traceback"]
     assert not (report.output / RAISES).exists()

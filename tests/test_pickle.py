@@ -88,6 +88,11 @@ def test_targets_answer_as_the_originals(dumps: Callable[[Any], bytes]) -> None:
     assert back_n.cell_sizes == ndt.cell_sizes and back_n.num_cells == ndt.num_cells
     for a, b in zip(ndt.cells(2), back_n.cells(2), strict=True):
         same(a, b)
+    ndt3 = scanreg.prepare_ndt(CLOUD3, cell_size=2.0)
+    back_n3 = roundtrip(ndt3, dumps)
+    assert (back_n3.dim, back_n3.num_cells) == (3, ndt3.num_cells)
+    for a, b in zip(ndt3.cells(), back_n3.cells(), strict=True):
+        same(a, b)
 
 
 @pytest.mark.parametrize("dumps", DUMPERS)

@@ -123,7 +123,6 @@ class RayEngine:
         on_start: Callable[[int], None] = lambda i: None,
     ) -> Iterator[Outcome]:
         ray = self._ray
-        fn_ref = ray.put(fn)
         pending = deque(range(len(calls)))
         attempts = [0] * len(calls)
         lost: list[list[str]] = [[] for _ in calls]
@@ -135,7 +134,7 @@ class RayEngine:
                 while pending and len(running) < self._slots:
                     i = pending.popleft()
                     attempts[i] += 1
-                    running[self._remote.remote(fn_ref, calls[i])] = i
+                    running[self._remote.remote(fn, calls[i])] = i
                     on_start(i)
                 done, _ = ray.wait(list(running), num_returns=1)
                 for ref in done:
