@@ -40,6 +40,12 @@ def _note_ray_node(job: Job, folder: Path) -> None:
         (nodes / job.id).write_text(ray.get_runtime_context().get_node_id())
 
 
+def thread_census(job: Job, folder: Path) -> dict[str, Any]:
+    """The odometry job, then how many threads its worker process runs."""
+    result = run_odometry_job(job, folder)
+    return {**result, "process_threads": len(os.listdir("/proc/self/task"))}
+
+
 def simulated_manifest(path: Path, count: int = 20, frames: int = 2) -> Path:
     """A manifest of ``count`` tiny simulated drives (different seeds)."""
     rows = ["id,input"] + [

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from batch_jobs import DIES_ONCE, RAISES, flaky_odometry, simulated_manifest
+from batch_jobs import DIES_ONCE, RAISES, flaky_odometry, simulated_manifest, thread_census
 from scanreg import cli, io
 from scanreg.batch import ManifestError, make_engine, read_manifest, run_batch
 from scanreg.batch.jobs import run_odometry_job
@@ -91,6 +91,18 @@ def test_failure_is_recorded_dead_worker_retried_and_resume_skips(tmp_path: Path
     assert [k for k, v in resumed.items() if not v] == [RAISES]
     assert (out / "job-00" / "job.json").stat().st_mtime_ns == stamp
     assert {r["id"]: r["attempts"] for r in again.records}[DIES_ONCE] == 2
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in /proc")
+def test_a_one_thread_worker_runs_no_other_thread(tmp_path: Path) -> None:
+    manifest = simulated_manifest(tmp_path / "jobs.csv", count=1)
+    report = run_batch(
+        "odometry", manifest, tmp_path / "out", workers=2, job_function=thread_census
+    )
+    assert report.ok and report.threads_per_job == 1
+    result = json.loads((tmp_path / "out" / "job-00" / "result.json").read_text())
+    # the worker's main thread and the core's pool of one; no BLAS threads
+    assert result["process_threads"] == 2
 
 
 def test_an_engine_serves_several_batches(tmp_path: Path) -> None:

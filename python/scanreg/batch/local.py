@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import os
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -43,11 +44,31 @@ def _serve(conn: Connection) -> None:
         conn.send((index, out))
 
 
+#: Thread counts a worker's libraries read when they load: numpy's BLAS starts one thread
+#: per core by default (before the job runs), the core's pool reads RAYON_NUM_THREADS.
+_THREAD_VARIABLES = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "RAYON_NUM_THREADS",
+)
+
+
 class _Worker:
-    def __init__(self, ctx: Any) -> None:
+    def __init__(self, ctx: Any, threads: int) -> None:
         self.conn, child = ctx.Pipe(duplex=True)
         self.process = ctx.Process(target=_serve, args=(child,), daemon=True)
-        self.process.start()
+        # the child copies this process's environment when it starts
+        saved = {k: os.environ.get(k) for k in _THREAD_VARIABLES}
+        os.environ.update({k: str(threads) for k in _THREAD_VARIABLES})
+        try:
+            self.process.start()
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
         child.close()
         self.index: int | None = None  # the call it runs
 
@@ -106,7 +127,7 @@ class LocalEngine:
                     if idle:
                         worker = idle.pop()
                     else:
-                        worker = _Worker(self._ctx)
+                        worker = _Worker(self._ctx, self._threads)
                         self._pool.append(worker)
                     i = pending.popleft()
                     attempts[i] += 1
