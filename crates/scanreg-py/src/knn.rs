@@ -47,9 +47,7 @@ impl KdTree {
     }
 
     /// Pickled as its points: the build is deterministic, so the copy is the same tree.
-    fn __reduce__<'py>(
-        slf: &Bound<'py, Self>,
-    ) -> PyResult<Reduced<'py>> {
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py>> {
         let py = slf.py();
         Ok((slf.get_type(), (slf.get().points(py)?,)))
     }
