@@ -44,6 +44,8 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.interop", "Open3D and ROS message layouts"),
     ("scanreg.plot", "figures (matplotlib)"),
     ("scanreg.pipeline", "odometry pipelines"),
+    ("scanreg.batch", "many odometry/registration jobs on local workers or a Ray cluster"),
+    ("scanreg.threads", "the core's process-wide thread budget"),
 )
 
 OUT = Path(__file__).resolve().parent / "api.md"

@@ -34,6 +34,7 @@ from .register import (
     sampling_covariance,
 )
 from .target import PreparedTarget, prepare
+from .threads import get_num_threads, set_num_threads
 from .transform import SE2, SE3
 from .trust import CovarianceEstimates
 from .verdict import QualityReport, Verdict, VerdictThresholds
@@ -69,6 +70,7 @@ __all__ = [
     "__version__",
     "align_paired",
     "deskew",
+    "get_num_threads",
     "match_correlative",
     "match_ndt",
     "memory_budget",
@@ -79,6 +81,7 @@ __all__ = [
     "register",
     "sampling_covariance",
     "set_memory_budget",
+    "set_num_threads",
     "simulate",
     "transform_covariance",
 ]

@@ -35,6 +35,8 @@ EXAMPLES = """examples:
   scanreg odometry dataset/sequences/00 --preset velodyne-hdl64 --config run.toml -o out/
   scanreg odometry sim:street -o out/ --bag out/run.mcap --report   # ROS 2 bag + HTML report
   scanreg report out/ -o out/report.html     # the run's HTML report, one file
+  scanreg batch odometry drives.csv -o out/ --retries 2      # many sequences, local workers
+  scanreg batch register pairs.parquet --engine ray --address 10.0.0.1:6379 -o out/
 """
 
 #: Per-subcommand examples, shown by ``scanreg SUBCOMMAND --help``.
@@ -63,6 +65,11 @@ SUB_EXAMPLES = {
     "210 --crs utm32.wkt -o out/\n",
     "report": "examples:\n  scanreg report out/                  # out/report.html\n"
     "  scanreg report out/ -o drive07.html --title 'drive 07'\n",
+    "batch": "examples:\n"
+    "  scanreg batch odometry drives.csv -o out/              # id,input[,config] per row\n"
+    "  scanreg batch odometry drives.csv -o out/ --resume     # skip the jobs already done\n"
+    "  scanreg batch register pairs.csv -o out/ --config reg.toml --json\n"
+    "  scanreg batch odometry drives.parquet --engine ray --address HEAD:6379 -o out/\n",
     "simulate": "examples:\n"
     "  scanreg simulate -o run/                  # 2D: floor_plan, sick_lms200\n"
     "  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/\n"
@@ -255,6 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rep.add_argument("--title", default=None, help="page title (default: the sequence name)")
     rep.add_argument("--json", action="store_true", help="print JSON instead of text")
+    _add_batch_parser(sub)
     for name, subparser in sub.choices.items():
         subparser.epilog = SUB_EXAMPLES[name]
         subparser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -352,6 +360,63 @@ def _write_bag(args: argparse.Namespace, frames: Any, seq: Any, run: Any) -> dic
         overwrite=True,
     )
     return {"path": str(summary.path), "storage": summary.storage, "messages": summary.messages}
+
+
+def _add_batch_parser(sub: Any) -> None:
+    from .batch.engines import ENGINES
+    from .batch.jobs import JOB_KINDS
+
+    batch = sub.add_parser(
+        "batch",
+        help="run many odometry or registration jobs (a CSV/Parquet manifest) on local worker "
+        "processes or a Ray cluster; exit 1 if any job failed",
+    )
+    batch.add_argument("kind", choices=list(JOB_KINDS), help="job kind")
+    batch.add_argument(
+        "manifest",
+        type=Path,
+        help="CSV/TSV/Parquet, one row per job: id and input (odometry: a sequence or sim: URI) "
+        "or source,target (register); optional config (TOML), init (register)",
+    )
+    batch.add_argument("--engine", choices=list(ENGINES), default="local")
+    batch.add_argument("--address", default=None, help="ray: a running cluster's HOST:PORT")
+    batch.add_argument("-o", "--output", type=Path, required=True, help="folder (created)")
+    batch.add_argument(
+        "--retries", type=int, default=2, help="runs again of a job whose worker died (default 2)"
+    )
+    batch.add_argument("--resume", action="store_true", help="skip the jobs already done")
+    batch.add_argument("--config", type=Path, default=None, help="TOML for rows without one")
+    batch.add_argument(
+        "--workers", type=int, default=None, help="local worker processes (default: one per CPU)"
+    )
+    batch.add_argument("--threads-per-job", type=int, default=None, help="threads each job may use")
+    batch.add_argument("--json", action="store_true", help="print JSON instead of text")
+    batch.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+
+
+def _batch(args: argparse.Namespace) -> dict[str, Any]:
+    from .batch import run_batch
+
+    if args.retries < 0:
+        raise ValueError(f"--retries must be >= 0, got {args.retries}")
+    for flag in ("workers", "threads_per_job"):
+        value = getattr(args, flag)
+        if value is not None and value < 1:
+            raise ValueError(f"--{flag.replace('_', '-')} must be >= 1, got {value}")
+    report = run_batch(
+        args.kind,
+        args.manifest,
+        args.output,
+        engine=args.engine,
+        address=args.address,
+        workers=args.workers,
+        threads_per_job=args.threads_per_job,
+        retries=args.retries,
+        resume=args.resume,
+        config=args.config,
+        progress=not (args.quiet or args.json),
+    )
+    return report.as_dict()
 
 
 def _stats(stats: Any) -> dict[str, float]:
@@ -492,6 +557,12 @@ def _register(args: argparse.Namespace) -> dict[str, Any]:
         kernel=args.kernel,
         max_iterations=args.max_iterations,
     )
+    return register_summary(res)
+
+
+def register_summary(res: Any) -> dict[str, Any]:
+    """The JSON of ``scanreg register`` for a :class:`~scanreg.RegistrationResult` (also what a
+    batch register job writes)."""
     return {
         "converged": res.converged,
         "stop_reason": res.stop_reason,
@@ -682,7 +753,7 @@ def _odometry(args: argparse.Namespace) -> dict[str, Any]:
         truth = seq.ground_truth_at(config.reference_time)  # the time the poses refer to
     elif seq.ground_truth is not None:
         truth = seq.ground_truth
-    if truth is not None and len(run.frames) >= 2:
+    if truth is not None and len(run.frames) >= 3:  # the SE(3) alignment needs 3 positions
         result["accuracy"] = evaluate_run(run, truth)
     if not args.no_plots:
         from . import plot
@@ -772,17 +843,18 @@ def main(argv: list[str] | None = None) -> int:
         "simulate": _simulate,
         "odometry": _odometry,
         "report": _report,
+        "batch": _batch,
     }
     try:
         result = handlers[args.command](args)
-    except (ValueError, OSError) as exc:  # FileFormatError is a ValueError
+    except (ValueError, OSError, ImportError) as exc:  # FileFormatError is a ValueError
         print(f"scanreg {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     if args.json:
         print(json.dumps(result, indent=2))
     else:
         _print_text(result)
-    if result.get("converged") is False:
+    if result.get("converged") is False or (args.command == "batch" and result["failed"]):
         return EXIT_CHECK_FAILED
     return EXIT_OK
 

@@ -37,13 +37,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray, as_points, positive
+from ._validate import FloatArray, as_points, positive, readonly
 from ._validate import frozen as _frozen
 from .quality import Conditioning, conditioning
 from .transform import SE2, as_pose
@@ -160,6 +160,14 @@ class CorrelativeGrid:
     num_points: int
     _native: _core.CorrelativeGrid
     build_seconds: float
+    #: What :func:`prepare_correlative` was given (a copy): pickling rebuilds the grid from it
+    #: (the build is deterministic) instead of shipping the rasters.
+    _inputs: tuple[Any, ...] = field(default=(), repr=False)
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        if not self._inputs:
+            raise TypeError("CorrelativeGrid: only a grid built by prepare_correlative pickles")
+        return (_rebuild_correlative, self._inputs)
 
     @property
     def likelihood(self) -> np.ndarray[Any, np.dtype[np.float32]]:
@@ -208,7 +216,14 @@ def prepare_correlative(
         num_points=int(ref.shape[0]),
         _native=native,
         build_seconds=elapsed,
+        _inputs=(readonly(np.array(ref)), res, sig, int(levels)),
     )
+
+
+def _rebuild_correlative(
+    reference: FloatArray, resolution: float, sigma: float, levels: int
+) -> CorrelativeGrid:
+    return prepare_correlative(reference, resolution=resolution, sigma=sigma, levels=levels)
 
 
 def default_angular_resolution(source: FloatArray, resolution: float) -> float:

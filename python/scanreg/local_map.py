@@ -114,6 +114,19 @@ class LocalMap:
     def __len__(self) -> int:
         return len(self._native)
 
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        # Pickled as its settings and contents: re-inserting the points (with what they carry)
+        # in the order of points() rebuilds every voxel with the same points in the same order
+        # (they already respect the spacing and the capacity), hence the same answers.
+        settings = (self.dim, self.voxel_size, self.max_points_per_voxel, self.min_spacing)
+        stored = self.attributes in ("normals", "covariances")
+        contents = (
+            self.points(),
+            self.normals() if stored else None,
+            self.covariances() if self.attributes == "covariances" else None,
+        )
+        return (_rebuild_local_map, (*settings, self.attributes, *contents))
+
     def __repr__(self) -> str:
         return (
             f"LocalMap(dim={self.dim}, voxel_size={self.voxel_size}, points={len(self)}, "
@@ -164,3 +177,19 @@ class LocalMap:
         q = as_points(query_points, "query_points", dim=self.dim, min_points=0)
         pts, d2 = self._native.nearest(q, float(max_distance))
         return MapNearest(points=readonly(pts), squared_distances=readonly(d2))
+
+
+def _rebuild_local_map(
+    dim: int,
+    voxel_size: float,
+    max_points_per_voxel: int,
+    min_spacing: float,
+    attributes: Attributes,
+    points: FloatArray,
+    normals: FloatArray | None,
+    covariances: FloatArray | None,
+) -> LocalMap:
+    out = LocalMap(dim, voxel_size, max_points_per_voxel, min_spacing, attributes)
+    if len(points):
+        out.insert(points, normals=normals, covariances=covariances)
+    return out

@@ -29,13 +29,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
 from . import _core, _ndt3d
-from ._validate import FloatArray, as_points, positive
+from ._validate import FloatArray, as_points, positive, readonly
 from ._validate import frozen as _frozen
 from .quality import Conditioning, conditioning
 from .transform import SE2, SE3, as_pose
@@ -59,6 +59,14 @@ class NdtTarget:
     _natives: tuple[_core.NdtGrid, ...] | tuple[_core.NdtGrid3, ...]
     #: 2 or 3.
     dim: int = 2
+    #: What :func:`prepare_ndt` was given (a copy): pickling rebuilds the grids from it (the
+    #: build is deterministic) instead of shipping them.
+    _inputs: tuple[Any, ...] = field(default=(), repr=False)
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        if not self._inputs:
+            raise TypeError("NdtTarget: only a target built by prepare_ndt pickles")
+        return (_rebuild_ndt, self._inputs)
 
     def cells(self, grid: int = 0) -> tuple[FloatArray, FloatArray]:
         """Means ``(K, D)`` and covariances ``(K, D, D)`` of the finest level (2D: of one of
@@ -164,6 +172,23 @@ def prepare_ndt(
         num_points=len(ref),
         _natives=natives,
         dim=dim,
+        _inputs=(readonly(np.array(ref)), size, int(levels), min_points, float(min_eigen_ratio)),
+    )
+
+
+def _rebuild_ndt(
+    points: FloatArray,
+    cell_size: float,
+    levels: int,
+    min_points: int | None,
+    min_eigen_ratio: float,
+) -> NdtTarget:
+    return prepare_ndt(
+        points,
+        cell_size=cell_size,
+        levels=levels,
+        min_points=min_points,
+        min_eigen_ratio=min_eigen_ratio,
     )
 
 

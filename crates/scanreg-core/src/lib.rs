@@ -36,6 +36,7 @@ pub mod reduce;
 pub mod simulate;
 pub mod sweep;
 pub mod symeig;
+pub mod threads;
 pub mod voxel_map;
 
 pub use error::{Error, Result};

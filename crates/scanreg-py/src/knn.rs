@@ -17,6 +17,8 @@ use scanreg_core::outliers;
 type IndexArray = Py<PyArray1<i64>>;
 type DistArray = Py<PyArray1<f64>>;
 type Rows<T> = Py<PyArray2<T>>;
+/// `(constructor, (points,))`: what `pickle` calls to rebuild a tree.
+type Reduced<'py> = (Bound<'py, pyo3::types::PyType>, (Rows<f64>,));
 
 /// An immutable k-d tree over `(N, 2)` or `(N, 3)` points. Distances are squared.
 #[pyclass(frozen, module = "scanreg._core")]
@@ -42,6 +44,12 @@ impl KdTree {
 
     fn __len__(&self) -> usize {
         self.inner.len()
+    }
+
+    /// Pickled as its points: the build is deterministic, so the copy is the same tree.
+    fn __reduce__<'py>(slf: &Bound<'py, Self>) -> PyResult<Reduced<'py>> {
+        let py = slf.py();
+        Ok((slf.get_type(), (slf.get().points(py)?,)))
     }
 
     /// A read-only copy of the indexed points, `(N, dim)` (what `PreparedTarget.points` keeps).

@@ -21,6 +21,7 @@ mod preprocess;
 mod register;
 mod simulate;
 mod sweep;
+mod threads;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -40,5 +41,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     censi::register(m)?;
     measure::register(m)?;
     place::register(m)?;
+    threads::register(m)?;
     Ok(())
 }
