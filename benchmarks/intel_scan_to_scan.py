@@ -115,7 +115,7 @@ def main() -> None:
         poses, per_scan = scan_to_scan(log, refine=refine)
         rows.append((name, poses, per_scan))
     print(f"Intel subset: {len(log)} scans, {len(relations)} relations")
-    # 69 local relations (|t2 − t1| < 10 s) and 21 long-range/loop ones (> 300 s).
+    # 69 local relations (|t2 − t1| < LOCAL_SECONDS) and 21 long-range/loop ones (> 300 s).
     local = np.abs(relations.t2 - relations.t1) < LOCAL_SECONDS
     subsets = {"all": np.ones(len(relations), bool), "local": local, "long-range": ~local}
     print("| method | relations | n | translation (m) | rotation (deg) | ms/scan |")

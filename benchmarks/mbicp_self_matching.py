@@ -79,8 +79,8 @@ def main() -> None:
     }
     print(f"laserazosSM3: {len(subset)} scans per row; success = |t| ≤ 6 cm and |θ| ≤ 1.15°")
     print(
-        "| method | max offset | median |t| (m) | p95 |t| | median |θ| (°) | p95 |θ| "
-        "| success | ms |"
+        "| method | max offset | median \\|t\\| (m) | p95 \\|t\\| | median \\|θ\\| (°) "
+        "| p95 \\|θ\\| | success | ms |"
     )
     print("|---|---|---|---|---|---|---|---|")
     for max_t, max_deg in LEVELS:

@@ -7,7 +7,10 @@ covariances: mean and median NEES per covariance kind (ideal: 6, the dimension).
 covariance is of the sweep *given the map*, so the increment error, which also carries the
 previous frame's error, should if anything score a little above 6.
 
-    .venv/bin/python benchmarks/odometry_covariance.py [--method gicp] [--frames 50]
+    .venv/bin/python benchmarks/odometry_covariance.py [--method gicp point_to_plane] [--frames 50]
+
+Prints one Markdown table (a row per method and covariance kind), the one in
+``benchmarks/README.md``.
 """
 
 from __future__ import annotations
@@ -22,16 +25,11 @@ from scanreg.pipeline.odometry import Odometry, OdometryConfig
 KINDS = ("calibrated", "censi", "block", "hessian")
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    ap.add_argument("--method", default="gicp", choices=["gicp", "point_to_plane"])
-    ap.add_argument("--scene", default="street", choices=["street", "tunnel"])
-    ap.add_argument("--sensor", default="hdl64")
-    ap.add_argument("--frames", type=int, default=50)
-    args = ap.parse_args()
-    seq = SimulatedSequence(args.scene, num_frames=args.frames, sensor=args.sensor, ramp=0.0)
+def nees_per_kind(scene: str, sensor: str, frames: int, method: str) -> dict[str, list[float]]:
+    """NEES of every frame's increment error, per covariance kind."""
+    seq = SimulatedSequence(scene, num_frames=frames, sensor=sensor, ramp=0.0)
     truth = seq.ground_truth_at("middle")
-    odo = Odometry(OdometryConfig(method=args.method))
+    odo = Odometry(OdometryConfig(method=method))
     nees: dict[str, list[float]] = {k: [] for k in KINDS}
     for k in range(len(seq)):
         frame = seq[k]
@@ -44,11 +42,28 @@ def main() -> None:
             c = np.asarray(getattr(r.registration.covariances, kind))
             if np.isfinite(c).all():
                 nees[kind].append(float(d @ np.linalg.solve(c, d)))
-    print(f"# {args.scene}, {args.sensor}, {args.frames} frames, {args.method}; ideal 6")
-    print("| kind | frames | mean NEES | median NEES |")
-    print("|---|---:|---:|---:|")
-    for kind, v in nees.items():
-        print(f"| {kind} | {len(v)} | {np.mean(v):.2f} | {np.median(v):.2f} |")
+    return nees
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    ap.add_argument(
+        "--method",
+        nargs="+",
+        default=["gicp", "point_to_plane"],
+        choices=["gicp", "point_to_plane"],
+    )
+    ap.add_argument("--scene", default="street", choices=["street", "tunnel"])
+    ap.add_argument("--sensor", default="hdl64")
+    ap.add_argument("--frames", type=int, default=50)
+    args = ap.parse_args()
+    print(f"# {args.scene}, {args.sensor}, {args.frames} frames; ideal 6")
+    print("| method | kind | frames | mean NEES | median NEES |")
+    print("|---|---|---:|---:|---:|")
+    for method in args.method:
+        nees = nees_per_kind(args.scene, args.sensor, args.frames, method)
+        for kind, v in nees.items():
+            print(f"| {method} | {kind} | {len(v)} | {np.mean(v):.2f} | {np.median(v):.2f} |")
 
 
 if __name__ == "__main__":

@@ -121,7 +121,8 @@ def main() -> None:
     if "open3d" in peers:
         o3 = peers["open3d"]
         pcd = o3.geometry.PointCloud(o3.utility.Vector3dVector(frame))
-        pcd_down = o3.geometry.PointCloud(o3.utility.Vector3dVector(down))
+        # Vector3dVector wants a writable array; scanreg's outputs are read-only.
+        pcd_down = o3.geometry.PointCloud(o3.utility.Vector3dVector(np.array(down)))
 
         def o3_normals() -> None:
             p = o3.geometry.PointCloud(pcd_down)

@@ -18,7 +18,8 @@ and in 2D (``--dim 2``: eight Intel pairs, every 8th scan from 8, against the ch
 ``scan2d_speed.py``; gate 0.3 m, k = 10, <= 30 iterations, success within 10 cm / 1°; small_gicp
 gets the scans with z = 0). Besides the success rates it counts, for scanreg, the starts
 returned unchanged and the stop reasons: far outside the basin a run must end in a minimum or a
-named stop, never hand back its start labelled ``diverged``.
+named stop, never hand back its start labelled ``diverged``. Without ``--wide`` the last
+table, overall success per pair and method, is the one in ``benchmarks/README.md``.
 """
 
 from __future__ import annotations
@@ -311,6 +312,7 @@ def main() -> None:
     if args.wide:
         wide(sg, args.dim, args.directions, threads)
         return
+    overall: list[str] = []
     for name, (src, tgt, truth) in pairs().items():
         for method in SMALL_GICP:
             aligners = {"ours": ours(src, tgt, method)}
@@ -337,13 +339,14 @@ def main() -> None:
                     pct = {lib: f"{100 * h // len(starts)}" for lib, h in hits.items()}
                     cells.append(" / ".join(pct.get(lib, "-") for lib in LIBS))
                 print(f"| {yaw}° | " + " | ".join(cells) + " |")
+            shares = [f"{100 * totals[lib] / runs:.0f} %" if lib in totals else "-" for lib in LIBS]
             print(
-                "overall: "
-                + ", ".join(
-                    f"{lib} {100 * totals[lib] / runs:.0f} %" if lib in totals else f"{lib} -"
-                    for lib in LIBS
-                )
+                "overall: " + ", ".join(f"{lib} {v}" for lib, v in zip(LIBS, shares, strict=True))
             )
+            overall.append(f"| {name} | {method} | " + " | ".join(shares) + " |")
+    print("\n| pair | method | scanreg | small_gicp | Open3D |")
+    print("|---|---|---:|---:|---:|")
+    print("\n".join(overall))
 
 
 if __name__ == "__main__":

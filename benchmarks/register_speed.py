@@ -127,7 +127,7 @@ def ours_preprocess(src: np.ndarray, tgt: np.ndarray, method: str) -> tuple[Any,
     s = pp.voxel_downsample(src, VOXEL).points
     t = pp.voxel_downsample(tgt, VOXEL).points
     prepared = scanreg.prepare(
-        t, normals=method == "point_to_plane", covariances=method == "gicp", k=K
+        t, normals=method == "point_to_plane", covariances=method == "gicp", num_neighbors=K
     )
     return s, prepared
 
@@ -420,7 +420,7 @@ def scaling(peers: dict[str, Any], threads: int, repeat: int) -> None:
 
             def prep(c: np.ndarray = cloud, m: str = method) -> Any:
                 return scanreg.prepare(
-                    c, normals=m == "point_to_plane", covariances=m == "gicp", k=K
+                    c, normals=m == "point_to_plane", covariances=m == "gicp", num_neighbors=K
                 )
 
             ours_p, prepared = median_time(prep, reps_n)

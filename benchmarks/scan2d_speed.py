@@ -146,7 +146,7 @@ def ours(pairs: list[Pair], method: str, trust: bool = False) -> list[SE2]:
     out = []
     for src, tgt, init, _ in pairs:
         target = scanreg.prepare(
-            tgt, normals=method == "point_to_line", covariances=method == "gicp", k=K
+            tgt, normals=method == "point_to_line", covariances=method == "gicp", num_neighbors=K
         )
         res = scanreg.register(
             src,
@@ -172,7 +172,7 @@ def core_only(pairs: list[Pair], method: str) -> list[np.ndarray]:
     out = []
     for src, tgt, init, _ in pairs:
         target = scanreg.prepare(
-            tgt, normals=method == "point_to_line", covariances=method == "gicp", k=K
+            tgt, normals=method == "point_to_line", covariances=method == "gicp", num_neighbors=K
         )
         source_covs = None
         if method == "gicp":

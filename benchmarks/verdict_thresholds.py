@@ -15,7 +15,11 @@ situation: how many were correct, how many accepted, and the accepted-but-wrong 
 accepts) and rejected-but-correct count (false rejects), plus the quantiles of overlap and
 inlier RMSE that the thresholds cut.
 
-    .venv/bin/python benchmarks/verdict_thresholds.py [--pairs 40] [--rmse-fraction 0.25]
+    .venv/bin/python benchmarks/verdict_thresholds.py [--pairs 40] [--rmse-fraction 0.25] \
+        [--markdown]
+
+``--markdown`` prints the table of ``benchmarks/README.md`` (the top reasons and the notes on
+the wrong registrations follow it).
 """
 
 from __future__ import annotations
@@ -41,6 +45,9 @@ def main() -> None:
         default=0.5,
         help="max_inlier_rmse as a fraction of the 1 m gate (default 0.5, the library default)",
     )
+    parser.add_argument(
+        "--markdown", action="store_true", help="print the table as benchmarks/README.md shows it"
+    )
     args = parser.parse_args()
     thresholds = scanreg.VerdictThresholds(max_inlier_rmse=args.rmse_fraction * 1.0)
     laser = sim.LaserModel.preset("laser_360")
@@ -58,10 +65,19 @@ def main() -> None:
         pts = sim.simulate_sweep(scene, lidar, pose, seed=seed).points  # type: ignore[arg-type]
         return scanreg.preprocess.voxel_downsample(np.ascontiguousarray(pts), 0.3).points
 
-    print(
-        f"{'scene':<10} {'situation':<12} {'n':>3} {'correct':>7} {'accepted':>8} "
-        f"{'false acc':>9} {'false rej':>9}  overlap q10/q50/q90   RMSE q10/q50/q90  top reasons"
-    )
+    notes: list[str] = []  # with --markdown: printed after the table, which they would break
+    if args.markdown:
+        print(
+            "| scene | situation | pairs | correct | accepted | false accepts | false rejects "
+            "| overlap q10/q50/q90 | inlier RMSE (m) q10/q50/q90 |"
+        )
+        print("|---|---|---:|---:|---:|---:|---:|---|---|")
+    else:
+        print(
+            f"{'scene':<10} {'situation':<12} {'n':>3} {'correct':>7} {'accepted':>8} "
+            f"{'false acc':>9} {'false rej':>9}  overlap q10/q50/q90   RMSE q10/q50/q90  "
+            "top reasons"
+        )
     for name, (dim, scene, pose_a) in scenes.items():
         if pose_a is None:  # the office: a point in its corridor
             pose_a = SE2.from_vector([6.0, 0.0, 0.0])
@@ -122,20 +138,39 @@ def main() -> None:
                     reasons[r.split(" ")[0]] += 1
             oq = np.nanquantile(overlaps, [0.1, 0.5, 0.9])
             rq = np.nanquantile(np.array(rmses, dtype=float), [0.1, 0.5, 0.9])
-            print(
-                f"{name:<10} {situation:<12} {stats['n']:>3} {stats['correct']:>7} "
-                f"{stats['accepted']:>8} {stats['false_acc']:>9} {stats['false_rej']:>9}  "
-                f"{oq[0]:.2f}/{oq[1]:.2f}/{oq[2]:.2f}       {rq[0]:.3f}/{rq[1]:.3f}/{rq[2]:.3f}  "
-                f"{dict(reasons.most_common(3))}",
-                flush=True,
+            quantiles = (
+                f"{oq[0]:.2f}/{oq[1]:.2f}/{oq[2]:.2f}",
+                f"{rq[0]:.3f}/{rq[1]:.3f}/{rq[2]:.3f}",
             )
+            top = dict(reasons.most_common(3))
+            if args.markdown:
+                print(
+                    f"| {name} | {situation} | {stats['n']} | {stats['correct']} | "
+                    f"{stats['accepted']} | {stats['false_acc']} | {stats['false_rej']} | "
+                    f"{quantiles[0]} | {quantiles[1]} |",
+                    flush=True,
+                )
+                notes.append(f"{name}, {situation}: top reasons {top}")
+            else:
+                print(
+                    f"{name:<10} {situation:<12} {stats['n']:>3} {stats['correct']:>7} "
+                    f"{stats['accepted']:>8} {stats['false_acc']:>9} {stats['false_rej']:>9}  "
+                    f"{quantiles[0]}       {quantiles[1]}  {top}",
+                    flush=True,
+                )
             if wrong_pts and situation != "low overlap":
                 w = np.array(wrong_pts)
-                print(
-                    f"{'':<10} {'':<12} wrong ones: overlap max {np.nanmax(w[:, 0]):.2f}, "
+                note = (
+                    f"wrong ones: overlap max {np.nanmax(w[:, 0]):.2f}, "
                     f"RMSE min {np.nanmin(w[:, 1]):.3f}; of those with overlap >= 0.5, "
                     f"RMSE min {np.nanmin(np.where(w[:, 0] >= 0.5, w[:, 1], np.inf)):.3f}"
                 )
+                if args.markdown:
+                    notes.append(f"{name}, {situation}: {note}")
+                else:
+                    print(f"{'':<10} {'':<12} {note}")
+    for note in notes:
+        print(note)
 
 
 if __name__ == "__main__":

@@ -60,7 +60,7 @@ def _odometry(run: sim.SimulatedRun, config: OdometryConfig, priors=None) -> lis
 def test_street_drift_is_bounded(
     method: str, kernel: str, max_error: float, max_degrees: float
 ) -> None:
-    # 25 sweeps at 5 m/s: a 12 m path. Measured (2026-11-23): gicp 0.06 m, point_to_plane
+    # 25 sweeps at 5 m/s: a 12 m path. Measured: gicp 0.06 m, point_to_plane
     # 0.11 m, point_to_point 0.35 m (point-to-point pays for its slow start: no motion yet);
     # rotation: point_to_plane 0.51°.
     run = _run("street", 5.0, 25)

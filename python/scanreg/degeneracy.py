@@ -87,9 +87,10 @@ class Degeneracy:
 
     def weak_basis(self) -> FloatArray:
         """``(dof, w)`` orthonormal basis of the weak subspace in *scaled* coordinates: the
-        eigenvectors of ``information`` below the threshold, as measured. (Until 2026-12-02
-        components below the normal noise were zeroed, which is right only for a corridor
-        along a sensor axis: see :meth:`tilt_variances` for what replaced it.)"""
+        eigenvectors of ``information`` below the threshold, as measured. Components below the
+        normal noise are not zeroed: that would be right only for a corridor along a sensor
+        axis (at any other heading it snaps the axis off the true one); the eigenvector's own
+        uncertainty is carried by :meth:`tilt_variances` instead."""
         return self._eigen[1][:, : len(self.weak_directions)]
 
     def strong_basis(self) -> FloatArray:
