@@ -9,6 +9,7 @@ mod censi;
 mod convert;
 mod correlative;
 mod deskew;
+mod global;
 mod io;
 pub mod knn;
 mod local_map;
@@ -40,5 +41,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     censi::register(m)?;
     measure::register(m)?;
     place::register(m)?;
+    global::register(m)?;
     Ok(())
 }
