@@ -13,9 +13,25 @@ use rayon::prelude::*;
 /// column-minimum buffer, small enough for ~64 blocks on a typical keypoint count.
 const BLOCK: usize = 64;
 
+/// Squared distance with eight independent partial sums: a single running sum is a serial
+/// dependency chain the compiler may not reorder (float addition), eight lanes vectorise
+/// (the descriptor search took 3× longer with the plain sum).
 #[inline]
 fn sq_dist(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+    let mut acc = [0.0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for l in 0..8 {
+            let d = x[l] - y[l];
+            acc[l] += d * d;
+        }
+    }
+    let mut tail = 0.0;
+    for (x, y) in ra.iter().zip(rb) {
+        tail += (x - y) * (x - y);
+    }
+    acc.iter().sum::<f32>() + tail
 }
 
 /// `(distance, index)` ordered by distance then index.

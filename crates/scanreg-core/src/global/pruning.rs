@@ -120,24 +120,39 @@ pub fn core_numbers(g: &Graph, active: &[bool]) -> Vec<usize> {
 pub fn max_clique(g: &Graph, active: &[bool], budget: usize) -> (Vec<usize>, bool) {
     let n = g.n;
     let core = core_numbers(g, active);
-    // Greedy seed: from each vertex in decreasing core order, add the candidate of highest
-    // core number that is adjacent to all chosen so far.
+    // Greedy seed: from each of the first vertices in decreasing core order, add the next
+    // vertex (in that order) adjacent to all chosen so far, tracking the common neighbours
+    // as a bitset.
     let mut order: Vec<usize> = (0..n).filter(|&i| active[i]).collect();
     order.sort_by(|&a, &b| core[b].cmp(&core[a]).then(a.cmp(&b)));
     let mut best: Vec<usize> = Vec::new();
-    for &v in order.iter().take(64) {
+    for &v in order.iter().take(16) {
         if core[v] < best.len() {
             break;
         }
         let mut clique = vec![v];
+        let mut common = g.row(v).to_vec();
         for &u in &order {
-            if u != v && core[u] >= best.len() && clique.iter().all(|&c| g.has_edge(u, c)) {
+            if core[u] < best.len() {
+                break;
+            }
+            if common[u / 64] >> (u % 64) & 1 == 1 {
                 clique.push(u);
+                for (a, b) in common.iter_mut().zip(g.row(u)) {
+                    *a &= b;
+                }
             }
         }
         if clique.len() > best.len() {
             best = clique;
         }
+    }
+    // No clique is larger than the largest core number + 1: a seed of that size is maximum
+    // (the usual case for a clean inlier set, where the search below would only confirm it).
+    let max_core = order.first().map_or(0, |&v| core[v]);
+    if best.len() > max_core {
+        best.sort_unstable();
+        return (best, true);
     }
     let mut search = Search {
         g,
