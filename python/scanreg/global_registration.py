@@ -43,6 +43,10 @@ DEFAULT_MIN_INLIERS = 12
 #: overlap): partial views overlap far less than successive scans, so below the local default.
 DEFAULT_MIN_OVERLAP = 0.3
 
+#: A second, differing accepted hypothesis with at least this fraction of the best one's
+#: overlap makes the result ambiguous.
+AMBIGUITY_RATIO = 0.9
+
 NO_ALIGNMENT = "no reliable alignment"
 
 
@@ -69,7 +73,8 @@ class GlobalHypothesis:
 class GlobalRegistrationResult:
     """Result of :func:`register_global`."""
 
-    #: The candidates, best first (accepted before rejected, then by inlier count).
+    #: The candidates, best first (accepted before rejected, then by overlap after
+    #: refinement, then by inlier count).
     hypotheses: tuple[GlobalHypothesis, ...]
     accepted: bool
     #: Empty when accepted; otherwise ``"no reliable alignment"`` and why.
@@ -131,6 +136,11 @@ def default_voxel_size(source: FloatArray, target: FloatArray, keypoints: int) -
         else:
             hi = mid
     return math.exp(hi)
+
+
+def _overlap(h: GlobalHypothesis) -> float:
+    q = h.refinement.quality if h.refinement is not None else None
+    return q.overlap if q is not None else 0.0
 
 
 def _rotation_angle(a: SE3, b: SE3) -> float:
@@ -258,7 +268,7 @@ def register_global(
                 reasons.append(f"refinement moved {moved:.3g} > gate {gate:.3g} from the solve")
         hyps.append(
             GlobalHypothesis(
-                pose=pose,  # type: ignore[arg-type]
+                pose=pose,
                 initial_pose=initial,
                 num_inliers=int(inliers),
                 clique_size=int(clique),
@@ -267,25 +277,33 @@ def register_global(
                 refinement=res,
             )
         )
-    hyps.sort(key=lambda h: (not h.verdict.accepted, -h.num_inliers, -h.clique_size))
+    # Accepted first; among those the one explaining most of the source, then by inliers.
+    hyps.sort(key=lambda h: (not h.verdict.accepted, -_overlap(h), -h.num_inliers))
 
     reasons_out: list[str] = []
     if not hyps:
-        reasons_out = [NO_ALIGNMENT, f"no clique of >= 3 consistent matches among "
-                       f"{len(match.correspondences)} correspondences"]
+        reasons_out = [
+            NO_ALIGNMENT,
+            f"no clique of >= 3 consistent matches among "
+            f"{len(match.correspondences)} correspondences",
+        ]
     elif not hyps[0].verdict.accepted:
         reasons_out = [NO_ALIGNMENT, *(f"best hypothesis: {r}" for r in hyps[0].verdict.reasons)]
     else:
         best = hyps[0]
+        best_overlap = _overlap(best)
         for other in hyps[1:]:
             if not other.verdict.accepted:
                 continue
             dt = float(np.linalg.norm(other.pose.translation - best.pose.translation))
             da = math.degrees(_rotation_angle(other.pose, best.pose))
-            if dt > gate or da > 5.0:
+            # A differing pose that also passes is a rival only if it explains nearly as much
+            # of the source (a street seen turned by 180° passes the verdict with less overlap).
+            if (dt > gate or da > 5.0) and _overlap(other) >= AMBIGUITY_RATIO * best_overlap:
                 reasons_out = [
                     NO_ALIGNMENT,
-                    f"ambiguous: hypotheses {dt:.3g} apart and {da:.1f} deg apart both pass",
+                    f"ambiguous: hypotheses {dt:.3g} apart and {da:.1f} deg apart both pass "
+                    f"(overlap {_overlap(other):.2f} vs {best_overlap:.2f})",
                 ]
                 break
     return GlobalRegistrationResult(

@@ -85,7 +85,7 @@ fn build(
 #[pyfunction]
 #[pyo3(signature = (source, target, *, voxel_size, feature_radius, noise_bound,
     normal_neighbors=30, max_feature_neighbors=100, max_hypotheses=3,
-    max_clique_expansions=200_000))]
+    clique_search_budget=50_000_000))]
 #[allow(clippy::too_many_arguments)]
 fn register_global(
     py: Python<'_>,
@@ -97,7 +97,7 @@ fn register_global(
     normal_neighbors: usize,
     max_feature_neighbors: usize,
     max_hypotheses: usize,
-    max_clique_expansions: usize,
+    clique_search_budget: usize,
 ) -> PyResult<GlobalMatch> {
     let src = points_dim(&source, "source", 3)?;
     let tgt = points_dim(&target, "target", 3)?;
@@ -108,7 +108,7 @@ fn register_global(
         max_feature_neighbors,
         noise_bound,
         max_hypotheses,
-        max_clique_expansions,
+        clique_search_budget,
     };
     let out = py
         .detach(|| global::register_global(src, tgt, &settings))
@@ -129,20 +129,20 @@ fn register_global(
 
 #[pyfunction]
 #[pyo3(signature = (source, target, *, noise_bound, max_hypotheses=3,
-    max_clique_expansions=200_000))]
+    clique_search_budget=50_000_000))]
 fn solve_correspondences(
     py: Python<'_>,
     source: PyReadonlyArray2<'_, f64>,
     target: PyReadonlyArray2<'_, f64>,
     noise_bound: f64,
     max_hypotheses: usize,
-    max_clique_expansions: usize,
+    clique_search_budget: usize,
 ) -> PyResult<GlobalMatch> {
     let src = points_dim(&source, "source", 3)?;
     let tgt = points_dim(&target, "target", 3)?;
-    if max_hypotheses == 0 || max_clique_expansions == 0 {
+    if max_hypotheses == 0 || clique_search_budget == 0 {
         return Err(PyValueError::new_err(
-            "max_hypotheses, max_clique_expansions: must be >= 1",
+            "max_hypotheses, clique_search_budget: must be >= 1",
         ));
     }
     let hyps = py
@@ -152,7 +152,7 @@ fn solve_correspondences(
                 tgt,
                 noise_bound,
                 max_hypotheses,
-                max_clique_expansions,
+                clique_search_budget,
             )
         })
         .map_err(core_err)?;

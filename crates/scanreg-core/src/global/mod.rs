@@ -55,8 +55,8 @@ pub struct GlobalSettings {
     pub noise_bound: f64,
     /// Hypotheses to return at most.
     pub max_hypotheses: usize,
-    /// Budget of branch-and-bound expansions per maximum-clique search.
-    pub max_clique_expansions: usize,
+    /// Budget of the maximum-clique search, in bitset-word operations ([`pruning`]).
+    pub clique_search_budget: usize,
 }
 
 /// One candidate pose.
@@ -116,7 +116,7 @@ fn check_settings(s: &GlobalSettings) -> Result<()> {
     for (name, v) in [
         ("max_feature_neighbors", s.max_feature_neighbors),
         ("max_hypotheses", s.max_hypotheses),
-        ("max_clique_expansions", s.max_clique_expansions),
+        ("clique_search_budget", s.clique_search_budget),
     ] {
         if v == 0 {
             return Err(Error::invalid(name, "must be >= 1"));
@@ -199,7 +199,7 @@ pub fn solve_correspondences(
     target: &[f64],
     noise_bound: f64,
     max_hypotheses: usize,
-    max_clique_expansions: usize,
+    clique_search_budget: usize,
 ) -> Result<Vec<Hypothesis>> {
     let n = check_points("source", source, 3)?;
     let nt = check_points("target", target, 3)?;
@@ -222,7 +222,7 @@ pub fn solve_correspondences(
     let mut active = vec![true; n];
     let mut out = Vec::new();
     for _ in 0..max_hypotheses {
-        let (clique, exact) = pruning::max_clique(&graph, &active, max_clique_expansions);
+        let (clique, exact) = pruning::max_clique(&graph, &active, clique_search_budget);
         if clique.len() < MIN_CLIQUE {
             break;
         }
@@ -305,7 +305,7 @@ pub fn register_global(
         &pt,
         s.noise_bound,
         s.max_hypotheses,
-        s.max_clique_expansions,
+        s.clique_search_budget,
     )?;
     Ok(GlobalRegistration {
         hypotheses,
@@ -345,7 +345,7 @@ mod tests {
             s.extend_from_slice(p.as_slice());
             q.extend_from_slice(r.as_slice());
         }
-        let h = solve_correspondences(&s, &q, 0.1, 3, 1_000_000).unwrap();
+        let h = solve_correspondences(&s, &q, 0.1, 3, 50_000_000).unwrap();
         let best = &h[0];
         assert!(best.exact);
         assert!((45..=60).contains(&best.num_inliers), "{best:?}");
@@ -366,7 +366,7 @@ mod tests {
             max_feature_neighbors: 100,
             noise_bound: 0.1,
             max_hypotheses: 3,
-            max_clique_expansions: 1000,
+            clique_search_budget: 1000,
         };
         let e = register_global(&pts, &pts, &s).unwrap_err();
         assert!(e.to_string().starts_with("source: too small"), "{e}");

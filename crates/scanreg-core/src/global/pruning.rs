@@ -12,8 +12,10 @@
 //! `s + 1` lies inside the `s`-core, so once a clique of size `s` is known every vertex of core
 //! number below `s` is dropped (the pruning of Rossi et al.'s PMC, which TEASER++ uses). The
 //! search is sequential and visits vertices in a fixed order, so it is deterministic; a budget
-//! of expansions bounds pathological graphs (then the best clique found so far is returned and
-//! `exact` is false).
+//! of work (bitset words visited by the colourings: the cost of a node grows with its candidate
+//! set, so counting nodes alone let a dense graph of 3000 correspondences run for a minute)
+//! bounds pathological graphs (then the best clique found so far is returned and `exact` is
+//! false).
 
 use rayon::prelude::*;
 
@@ -116,7 +118,8 @@ pub fn core_numbers(g: &Graph, active: &[bool]) -> Vec<usize> {
 }
 
 /// A maximum clique (vertex indices, ascending) among the vertices with `active` set, and
-/// whether the search finished within `budget` expansions (exact) or was cut short.
+/// whether the search finished within `budget` bitset-word operations (exact) or was cut
+/// short.
 pub fn max_clique(g: &Graph, active: &[bool], budget: usize) -> (Vec<usize>, bool) {
     let n = g.n;
     let core = core_numbers(g, active);
@@ -204,15 +207,18 @@ fn first_one(bits: &[u64]) -> Option<usize> {
 
 impl Search<'_> {
     /// Greedy colouring of `cand`: vertices in colour order and each one's colour (1-based).
-    fn colour(&self, cand: &[u64]) -> (Vec<usize>, Vec<usize>) {
+    fn colour(&mut self, cand: &[u64]) -> (Vec<usize>, Vec<usize>) {
         let mut uncoloured = cand.to_vec();
         let mut order = Vec::new();
         let mut colours = Vec::new();
         let mut k = 0;
+        let words = self.g.words;
         while uncoloured.iter().any(|&w| w != 0) {
             k += 1;
             let mut q = uncoloured.clone();
+            self.expansions += words;
             while let Some(v) = first_one(&q) {
+                self.expansions += words;
                 order.push(v);
                 colours.push(k);
                 uncoloured[v / 64] &= !(1 << (v % 64));
@@ -226,7 +232,6 @@ impl Search<'_> {
     }
 
     fn expand(&mut self, clique: &mut Vec<usize>, mut cand: Vec<u64>) {
-        self.expansions += 1;
         if self.expansions > self.budget {
             return;
         }
