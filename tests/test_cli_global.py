@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from scanreg import io
 from scanreg import simulate as sim
 from scanreg.cli import main

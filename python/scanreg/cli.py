@@ -348,7 +348,9 @@ def _register_global(args: argparse.Namespace) -> dict[str, Any]:
                 "clique_size": h.clique_size,
                 "accepted": h.verdict.accepted,
                 "reasons": list(h.verdict.reasons),
-                "covariance": [[v if math.isfinite(v) else None for v in row] for row in h.covariance.tolist()],
+                "covariance": [
+                    [v if math.isfinite(v) else None for v in row] for row in h.covariance.tolist()
+                ],
             }
             for h in res.hypotheses
         ],

@@ -159,6 +159,9 @@ fn solve_correspondences(
     build(py, hyps, Vec::new(), Vec::new(), (0, 0), Vec::new())
 }
 
+/// FPFH rows and whether each is defined.
+type Descriptors<'py> = (Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<bool>>);
+
 #[pyfunction]
 #[pyo3(signature = (points, normals, *, radius, max_neighbors=100))]
 fn fpfh<'py>(
@@ -167,7 +170,7 @@ fn fpfh<'py>(
     normals: PyReadonlyArray2<'py, f64>,
     radius: f64,
     max_neighbors: usize,
-) -> PyResult<(Bound<'py, PyArray2<f32>>, Bound<'py, PyArray1<bool>>)> {
+) -> PyResult<Descriptors<'py>> {
     let pts = points_dim(&points, "points", 3)?;
     let nrm = points_dim(&normals, "normals", 3)?;
     if nrm.len() != pts.len() {

@@ -35,6 +35,10 @@ fn sq_dist(a: &[f32], b: &[f32]) -> f32 {
 }
 
 /// `(distance, index)` ordered by distance then index.
+/// One block's result: each of its rows with its nearest target `(distance, index)`, and the
+/// nearest of its rows to every target row.
+type BlockMinima = (Vec<(u32, (f32, u32))>, Vec<(f32, u32)>);
+
 #[inline]
 fn better(a: (f32, u32), b: (f32, u32)) -> bool {
     a.0 < b.0 || (a.0 == b.0 && a.1 < b.1)
@@ -59,7 +63,7 @@ pub fn mutual_nearest(
         return Vec::new();
     }
     let none = (f32::INFINITY, u32::MAX);
-    let blocks: Vec<(Vec<(u32, (f32, u32))>, Vec<(f32, u32)>)> = (0..ns.div_ceil(BLOCK))
+    let blocks: Vec<BlockMinima> = (0..ns.div_ceil(BLOCK))
         .into_par_iter()
         .map(|b| {
             let rows: Vec<u32> = (b * BLOCK..((b + 1) * BLOCK).min(ns))

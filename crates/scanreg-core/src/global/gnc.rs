@@ -121,7 +121,7 @@ pub fn gnc_tls(
         t = tn;
         res = residuals(&r, &t);
         let cost: f64 = res.iter().map(|&r2| r2.min(beta2)).sum();
-        let binary = weights.iter().all(|&w| w < 1e-6 || w > 1.0 - 1e-6);
+        let binary = weights.iter().all(|&w| !(1e-6..=1.0 - 1e-6).contains(&w));
         if binary && (prev_cost - cost).abs() <= 1e-12 * cost.max(1e-300) {
             break;
         }
