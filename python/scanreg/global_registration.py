@@ -239,6 +239,7 @@ def register_global(
         tgt_fine = voxel_downsample(tgt, 0.5 * voxel).points
     gate = 2.0 * voxel
     hyps: list[GlobalHypothesis] = []
+    refined: list[RegistrationResult] = []
     for pose_m, clique, inliers in zip(
         match.poses, match.clique_sizes, match.num_inliers, strict=True
     ):
@@ -250,14 +251,28 @@ def register_global(
         cov = np.full((6, 6), np.inf)
         pose = initial
         if refine:
-            res = register(
-                src_fine,
-                tgt_fine,
-                method="gicp",
-                init=initial,
-                max_correspondence_distance=gate,
-                thresholds=thresholds,
+            # Disjoint cliques of one scene often agree on the pose (KITTI: all three within
+            # a few cm): a start already inside an earlier refinement's gate would converge
+            # to it, so that refinement is reused instead of run again.
+            res = next(
+                (
+                    r
+                    for r in refined
+                    if np.linalg.norm(r.pose.translation - initial.translation) < 0.5 * gate
+                    and _rotation_angle(r.pose, initial) < math.radians(2.0)  # type: ignore[arg-type]
+                ),
+                None,
             )
+            if res is None:
+                res = register(
+                    src_fine,
+                    tgt_fine,
+                    method="gicp",
+                    init=initial,
+                    max_correspondence_distance=gate,
+                    thresholds=thresholds,
+                )
+                refined.append(res)
             pose = res.pose  # type: ignore[assignment]
             cov = res.covariance
             verdict = res.verdict
