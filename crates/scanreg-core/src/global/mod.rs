@@ -16,7 +16,7 @@
 //! Several hypotheses come from disjoint cliques (the next largest once the previous one's
 //! vertices are removed): a repetitive scene (a corridor, a row of parked cars) has more than
 //! one consistent set, and the caller's verification decides between them. Refinement and
-//! the verdict are the Python layer's ([`scanreg.register_global`]).
+//! the verdict are the Python layer's (`scanreg.register_global`).
 
 pub mod correspondences;
 pub mod fpfh;
