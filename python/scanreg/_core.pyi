@@ -469,6 +469,7 @@ class ScanContextIndex:
     ) -> tuple[
         NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]
     ]: ...
+
 # --- global 3D registration (crates/scanreg-py/src/global.rs) ---
 
 @final
