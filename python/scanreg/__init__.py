@@ -19,6 +19,7 @@ from .correlative import (
 )
 from .degeneracy import Degeneracy
 from .deskew import deskew
+from .global_registration import GlobalHypothesis, GlobalRegistrationResult, register_global
 from .local_map import LocalMap
 from .ndt import NdtResult, NdtTarget, match_ndt, prepare_ndt
 from .paired import PairedAlignment, align_paired
@@ -48,6 +49,8 @@ __all__ = [
     "CovarianceEstimates",
     "Degeneracy",
     "FrameResult",
+    "GlobalHypothesis",
+    "GlobalRegistrationResult",
     "LocalMap",
     "Localizer",
     "MemoryBudgetExceeded",
@@ -79,6 +82,7 @@ __all__ = [
     "prepare_ndt",
     "preprocess",
     "register",
+    "register_global",
     "sampling_covariance",
     "set_memory_budget",
     "set_num_threads",

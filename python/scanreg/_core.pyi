@@ -473,3 +473,54 @@ class ScanContextIndex:
 
 def set_num_threads(num_threads: int) -> None: ...
 def get_num_threads() -> int: ...
+
+# --- global 3D registration (crates/scanreg-py/src/global.rs) ---
+
+@final
+class GlobalMatch:
+    @property
+    def poses(self) -> NDArray[np.float64]: ...
+    @property
+    def clique_sizes(self) -> NDArray[np.int64]: ...
+    @property
+    def num_inliers(self) -> NDArray[np.int64]: ...
+    @property
+    def exact(self) -> NDArray[np.bool_]: ...
+    @property
+    def source_keypoints(self) -> NDArray[np.float64]: ...
+    @property
+    def target_keypoints(self) -> NDArray[np.float64]: ...
+    @property
+    def num_source_descriptors(self) -> int: ...
+    @property
+    def num_target_descriptors(self) -> int: ...
+    @property
+    def correspondences(self) -> NDArray[np.int64]: ...
+
+def register_global(
+    source: NDArray[np.float64],
+    target: NDArray[np.float64],
+    *,
+    voxel_size: float,
+    feature_radius: float,
+    noise_bound: float,
+    normal_neighbors: int = 30,
+    max_feature_neighbors: int = 100,
+    max_hypotheses: int = 3,
+    clique_search_budget: int = 50_000_000,
+) -> GlobalMatch: ...
+def solve_correspondences(
+    source: NDArray[np.float64],
+    target: NDArray[np.float64],
+    *,
+    noise_bound: float,
+    max_hypotheses: int = 3,
+    clique_search_budget: int = 50_000_000,
+) -> GlobalMatch: ...
+def fpfh(
+    points: NDArray[np.float64],
+    normals: NDArray[np.float64],
+    *,
+    radius: float,
+    max_neighbors: int = 100,
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]: ...

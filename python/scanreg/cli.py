@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -51,7 +52,8 @@ SUB_EXAMPLES = {
     "  scanreg evaluate est.txt gt.txt --format kitti --metric kitti --json\n",
     "register": "examples:\n  scanreg register source.pcd target.pcd --json\n"
     "  scanreg register src.ply tgt.ply --voxel-size 0.25 --method gicp --kernel huber\n"
-    "  scanreg register a.csv b.csv --method point_to_line --init guess.txt\n",
+    "  scanreg register a.csv b.csv --method point_to_line --init guess.txt\n"
+    "  scanreg register scan.pcd map.pcd --global --json   # no initial guess (3D)\n",
     "plot": "examples:\n"
     "  scanreg plot trajectory est.txt --reference gt.txt --format kitti -o traj.png\n"
     "  scanreg plot errors est.txt gt.txt --format tum --alignment sim3 -o errors.svg\n",
@@ -143,6 +145,13 @@ def build_parser() -> argparse.ArgumentParser:
     reg.add_argument("--voxel-size", type=float, default=None, help="downsample both clouds (m)")
     reg.add_argument("--kernel", default="none", help="robust kernel (huber, cauchy, tukey, ...)")
     reg.add_argument("--max-iterations", type=int, default=30)
+    reg.add_argument(
+        "--global",
+        dest="global_",
+        action="store_true",
+        help="3D, no initial guess: FPFH + max clique + GNC-TLS, GICP refinement, verdict; "
+        "exit 1 if no reliable alignment (--voxel-size sets the keypoint grid)",
+    )
     reg.add_argument("--json", action="store_true", help="print JSON instead of text")
 
     plot = sub.add_parser("plot", help="draw a figure (PNG/SVG by the output's extension)")
@@ -537,9 +546,53 @@ def _evaluate(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _register_global(args: argparse.Namespace) -> dict[str, Any]:
+    from . import io
+    from .global_registration import register_global
+
+    if args.init is not None:
+        raise ValueError("--init: --global registers without an initial guess")
+    clouds = [
+        np.ascontiguousarray(io.read_points(getattr(args, n)).finite().points)
+        for n in ("source", "target")
+    ]
+    res = register_global(clouds[0], clouds[1], voxel_size=args.voxel_size)
+    best = res.hypotheses[0] if res.accepted else None
+    return {
+        # The exit status reads "converged": false when nothing is reliable.
+        "converged": res.accepted,
+        "accepted": res.accepted,
+        "reasons": list(res.reasons),
+        "pose": None if best is None else best.pose.as_matrix().tolist(),
+        "pose_vector": None if best is None else best.pose.as_vector().tolist(),
+        "covariance": None if best is None else best.covariance.tolist(),
+        "voxel_size": res.voxel_size,
+        "feature_radius": res.feature_radius,
+        "num_correspondences": res.num_correspondences,
+        "hypotheses": [
+            {
+                "pose": h.pose.as_matrix().tolist(),
+                "initial_pose": h.initial_pose.as_matrix().tolist(),
+                "num_inliers": h.num_inliers,
+                "clique_size": h.clique_size,
+                "accepted": h.verdict.accepted,
+                "reasons": list(h.verdict.reasons),
+                "covariance": [
+                    [v if math.isfinite(v) else None for v in row] for row in h.covariance.tolist()
+                ],
+            }
+            for h in res.hypotheses
+        ],
+        "time_s": res.time_s,
+    }
+
+
 def _register(args: argparse.Namespace) -> dict[str, Any]:
     from . import io, preprocess
     from .register import register
+
+    if args.global_:
+        return _register_global(args)
 
     clouds = []
     for name in ("source", "target"):

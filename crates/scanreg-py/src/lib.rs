@@ -9,6 +9,7 @@ mod censi;
 mod convert;
 mod correlative;
 mod deskew;
+mod global;
 mod io;
 pub mod knn;
 mod local_map;
@@ -42,5 +43,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     measure::register(m)?;
     place::register(m)?;
     threads::register(m)?;
+    global::register(m)?;
     Ok(())
 }
