@@ -93,11 +93,25 @@ __all__ = [
 # Submodules a user reaches as ``scanreg.io.…`` after a plain ``import scanreg``, loaded on first
 # access: ``io`` and ``eval`` pull in readers and tables that most registration code never uses.
 _LAZY_SUBMODULES = frozenset(
-    {"config", "eval", "interop", "io", "pipeline", "place", "plot", "quality", "robust", "verdict"}
+    {
+        "batch",
+        "config",
+        "eval",
+        "interop",
+        "io",
+        "pipeline",
+        "place",
+        "plot",
+        "quality",
+        "report",
+        "robust",
+        "verdict",
+    }
 )
 
 if TYPE_CHECKING:
     from . import (  # noqa: F401
+        batch,
         config,
         eval,
         interop,
@@ -106,6 +120,7 @@ if TYPE_CHECKING:
         place,
         plot,
         quality,
+        report,
         robust,
         verdict,
     )
