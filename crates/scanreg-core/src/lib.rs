@@ -18,6 +18,7 @@ pub mod deskew;
 pub mod downsample;
 pub mod error;
 pub mod global;
+pub mod group;
 pub mod icp;
 pub mod kernel;
 pub mod knn;

@@ -4,6 +4,7 @@
 //! The small dense algebra on the returned matrices (SVD, solve, inverse) is the caller's.
 
 use crate::error::{Error, Result};
+use crate::group::{Group, Planar, Spatial};
 use crate::kernel::Kernel;
 use crate::points::{check_points, check_weights, split_pose};
 use crate::reduce::chunked_sum;
@@ -328,10 +329,12 @@ fn linearize_2d(
                 let q = Vector2::new(target[2 * i], target[2 * i + 1]);
                 let e = r * p + t - q;
                 let w = weight_at(weights, i);
-                // d(R(p + ρ + θ·perp(p)))/dδ, expressed in the source frame (R is orthonormal).
+                // d(R(p + ρ + θ·perp(p)))/dδ, expressed in the source frame (R is orthonormal):
+                // the point Jacobian the ICP loop uses.
+                let a = Planar::point_jacobian(&p);
                 let (res, k) = match objective {
                     Objective::PointToPoint => {
-                        let j = SMatrix::<f64, 2, 3>::new(1.0, 0.0, -p.y, 0.0, 1.0, p.x);
+                        let j = a;
                         let norm = e.norm();
                         (norm, acc.add(&j, &(rt * e), norm, w, &kernel))
                     }
@@ -340,7 +343,7 @@ fn linearize_2d(
                             .unwrap_or_else(|_| Vector2::zeros());
                         let ns = rt * nrm;
                         let d = nrm.dot(&e);
-                        let j = SMatrix::<f64, 1, 3>::new(ns.x, ns.y, -ns.x * p.y + ns.y * p.x);
+                        let j: SMatrix<f64, 1, 3> = ns.transpose() * a;
                         (
                             d,
                             acc.add(&j, &SVector::<f64, 1>::new(d), d.abs(), w, &kernel),
@@ -382,15 +385,12 @@ fn linearize_3d(
                 let q = Vector3::new(target[3 * i], target[3 * i + 1], target[3 * i + 2]);
                 let e = r * p + t - q;
                 let w = weight_at(weights, i);
-                // T·exp(δ) p ≈ T (p + ρ + φ × p): J = R [I, -[p]×], used in the source frame.
+                // T·exp(δ) p ≈ T (p + ρ + φ × p): J = R [I, -[p]×], used in the source frame:
+                // the point Jacobian the ICP loop uses.
+                let a = Spatial::point_jacobian(&p);
                 let (res, k) = match objective {
                     Objective::PointToPoint => {
-                        #[rustfmt::skip]
-                        let j = SMatrix::<f64, 3, 6>::new(
-                            1.0, 0.0, 0.0, 0.0, p.z, -p.y,
-                            0.0, 1.0, 0.0, -p.z, 0.0, p.x,
-                            0.0, 0.0, 1.0, p.y, -p.x, 0.0,
-                        );
+                        let j = a;
                         let norm = e.norm();
                         (norm, acc.add(&j, &(rt * e), norm, w, &kernel))
                     }
@@ -399,8 +399,7 @@ fn linearize_3d(
                             .unwrap_or_else(|_| Vector3::zeros());
                         let ns = rt * nrm;
                         let d = nrm.dot(&e);
-                        let pxn = p.cross(&ns);
-                        let j = SMatrix::<f64, 1, 6>::new(ns.x, ns.y, ns.z, pxn.x, pxn.y, pxn.z);
+                        let j: SMatrix<f64, 1, 6> = ns.transpose() * a;
                         (
                             d,
                             acc.add(&j, &SVector::<f64, 1>::new(d), d.abs(), w, &kernel),
