@@ -360,6 +360,17 @@ class Graph:
     def poses(self) -> dict[int, SE2 | SE3]:
         return {k: self.pose(k) for k in self.keys}
 
+    def pose_vectors(self) -> tuple[list[int], FloatArray]:
+        """2D only: the solved keys (ascending) and their ``[x, y, θ]`` rows, in one call
+        (no per-node conversion: what a candidate search over every node needs)."""
+        if self.dim != 2:
+            raise ValueError("pose_vectors: 2D graphs only")
+        keys = [int(k) for k in self._estimate.keys()]  # noqa: SIM118 (gtsam.Values)
+        if not keys:
+            return [], np.zeros((0, 3))
+        rows = np.asarray(self._g.utilities.extractPose2(self._estimate), dtype=np.float64)
+        return keys, rows.reshape(-1, 3)
+
     def error(self) -> float:
         """The total (robust) cost ``½ Σ ‖e‖²`` of the current estimate."""
         values = self._g.Values(self._estimate)
