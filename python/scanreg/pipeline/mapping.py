@@ -39,6 +39,7 @@ import numpy as np
 
 from .._validate import FloatArray, as_points
 from ..graph import Graph, Kernel
+from ..io.carmen import CarmenLog
 from ..preprocess import voxel_downsample
 from ..transform import SE2, as_pose
 from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, match_loop
@@ -82,6 +83,9 @@ class MappingConfig:
     loops: LoopSettings = field(default_factory=LoopSettings)
     #: Run the final batch Levenberg–Marquardt pass in :meth:`Mapper.finish`.
     batch: bool = True
+    #: Returns kept from a range scan (:func:`run_mapping` on a CARMEN log), metres.
+    min_range: float = 0.1
+    max_range: float = 40.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.odometry, OdometryConfig2D):
@@ -100,6 +104,12 @@ class MappingConfig:
             _positive(getattr(self, name), name, allow_zero=True)
         for name in ("drift_floor_translation", "drift_floor_rotation", "loop_gate_sigmas"):
             _positive(getattr(self, name), name)
+        _positive(self.min_range, "min_range", allow_zero=True)
+        _positive(self.max_range, "max_range")
+        if self.max_range <= self.min_range:
+            raise ValueError(
+                f"max_range: must exceed min_range ({self.min_range}), got {self.max_range}"
+            )
         _count(self.submap_half_size, "submap_half_size", 0)
         _count(self.max_candidates, "max_candidates", 0)
         _count(self.loop_every, "loop_every", 1)
@@ -461,3 +471,60 @@ class Mapper:
     def node_points(self, node: int) -> FloatArray:
         """The kept (downsampled) scan of ``node``, in its own frame."""
         return self._node_points[node]
+
+
+def run_mapping(
+    log: CarmenLog,
+    config: MappingConfig | None = None,
+    *,
+    kind: str | None = None,
+    max_scans: int | None = None,
+    progress: bool = False,
+) -> MappingResult:
+    """Map a CARMEN log in file order (its timestamps may step backwards; they are kept as
+    written), with each scan's wheel-odometry motion as the prior.
+
+    ``kind``: the laser message kind to use (default: ``FLASER`` if present, else the first
+    kind in the log). ``progress``: a progress line on stderr (scans/s, loops accepted and
+    rejected).
+    """
+    from .._progress import Progress
+
+    cfg = MappingConfig() if config is None else config
+    kinds = [s.kind for s in log.scans]
+    if not kinds:
+        raise ValueError(f"log: {log.path} holds no laser scan")
+    chosen = kind if kind is not None else ("FLASER" if "FLASER" in kinds else kinds[0])
+    indices = [i for i, k in enumerate(kinds) if k == chosen]
+    if not indices:
+        raise ValueError(f"kind: the log has no {chosen!r} scans (it has {sorted(set(kinds))})")
+    if max_scans is not None:
+        if max_scans < 1:
+            raise ValueError(f"max_scans: must be >= 1, got {max_scans}")
+        indices = indices[:max_scans]
+    mapper = Mapper(cfg)
+    bar = Progress(len(indices), description="map", unit="scans", enabled=progress)
+    previous: int | None = None
+    with bar:
+        for i in indices:
+            scan = log.scans[i]
+            prior = None
+            has_odometry = scan.odometry_pose is not None
+            if (
+                previous is not None
+                and has_odometry
+                and log.scans[previous].odometry_pose is not None
+            ):
+                prior = log.motion_prior(previous, i)
+            step = mapper.step(
+                scan.to_points(cfg.min_range, cfg.max_range), prior, stamp=scan.timestamp
+            )
+            previous = i
+            if step.loops or step.index % 25 == 0:
+                bar.set_counters(
+                    nodes=mapper.num_nodes,
+                    loops=sum(r.accepted for r in mapper.loops),
+                    rejected=sum(not r.accepted for r in mapper.loops),
+                )
+            bar.update()
+    return mapper.finish()
