@@ -11,7 +11,7 @@ There is no peer in the same process (Cartographer is not installable here), so 
 average is printed beside the times.
 
 Run: ``.venv/bin/python benchmarks/freiburg_mapping.py [--data ../shared/data]
-[--logs intel aces] [--max-scans N]``.
+[--logs intel aces] [--max-scans N] [--config map.toml]``.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scanreg.config import load_config
 from scanreg.eval.relations import read_relations, relation_error
 from scanreg.io import read_scans
 from scanreg.io.trajectory import Trajectory
@@ -46,7 +47,9 @@ def main() -> None:
     parser.add_argument("--data", type=Path, default=default)
     parser.add_argument("--logs", nargs="+", default=["intel", "aces"])
     parser.add_argument("--max-scans", type=int, default=None)
+    parser.add_argument("--config", type=Path, default=None, help="MappingConfig TOML")
     args = parser.parse_args()
+    config = load_config(MappingConfig, args.config)
     folder = args.data / "freiburg-slam-benchmark"
     table = []
     speed = []
@@ -55,7 +58,7 @@ def main() -> None:
         relations = read_relations(folder / f"{name}.relations")
         load_before = os.getloadavg()[0]
         wall, cpu = time.perf_counter(), time.process_time()
-        res = run_mapping(log, MappingConfig(), max_scans=args.max_scans)
+        res = run_mapping(log, config, max_scans=args.max_scans)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
         load = 0.5 * (load_before + os.getloadavg()[0])
         stamps = np.array(res.stamps, dtype=np.float64)
