@@ -87,11 +87,8 @@ class OdometryConfig2D:
     map_voxel_size: float = 0.05
     #: Correlative front end: search half-widths (dx, dy, dθ) around the prediction ...
     correlative_window: tuple[float, float, float] = (0.3, 0.3, math.radians(10.0))
-    #: ... and grid resolution ...
+    #: ... and grid resolution.
     correlative_resolution: float = 0.05
-    #: ... and angular step (rad); ``None``: the matcher's default, the angle that moves the
-    #: farthest point by one cell (0.07° for a 40 m return at 5 cm).
-    correlative_angular_resolution: float | None = None
     #: A point-to-line result moving further than this (m) from where it started (the
     #: prediction, or the correlative pose) is discarded and its start kept. ``None``: 0.15 m
     #: (three 5 cm cells) for the correlative front end, no limit for the ICP front end.
@@ -123,8 +120,6 @@ class OdometryConfig2D:
         for i, v in enumerate(w):
             _positive(v, f"correlative_window[{i}]", allow_zero=True)
         _positive(self.correlative_resolution, "correlative_resolution")
-        if self.correlative_angular_resolution is not None:
-            _positive(self.correlative_angular_resolution, "correlative_angular_resolution")
         step = self.max_refinement_step
         if step is not None and not (isinstance(step, float) and step == math.inf):
             _positive(step, "max_refinement_step")
@@ -342,7 +337,6 @@ class Odometry2D:
                 self._grid,
                 init=predicted,
                 window=cfg.correlative_window,
-                angular_resolution=cfg.correlative_angular_resolution,
                 search="branch_and_bound",
             )
             start = coarse.pose
