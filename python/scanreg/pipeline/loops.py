@@ -81,8 +81,11 @@ class LoopSettings:
     min_window: tuple[float, float] = (0.5, math.radians(10.0))
     #: ... and at most this.
     max_window: tuple[float, float] = (3.0, math.radians(30.0))
-    #: Correlative grid resolution of the submaps.
+    #: Correlative grid resolution of the submaps ...
     resolution: float = 0.05
+    #: ... and angular step (rad; ``None``: the matcher's default, one cell at the farthest
+    #: return, 0.07° at 40 m — fine steps over a wide loop window cost the most).
+    angular_resolution: float | None = None
     #: Least mean likelihood of the scan on the submap at the correlative optimum.
     min_score: float = 0.5
     #: Point-to-line gate and kernel of the refinement.
@@ -167,6 +170,7 @@ def match_loop(
         submap.grid,
         init=predicted,
         window=(dt, dt, dr),
+        angular_resolution=s.angular_resolution,
         search="branch_and_bound",
     )
     res = register(
