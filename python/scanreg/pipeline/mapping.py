@@ -302,13 +302,10 @@ class Mapper:
         cfg = self.config
         g = self._graph
         if self._node_scans:
-            last = self._node_scans[-1]
-            last_pose = self._node_odom[len(self._node_scans) - 1]
-            rel = last_pose.inverse() @ pose
+            rel = self._node_odom[self.num_nodes - 1].inverse() @ pose
             dist = float(np.linalg.norm(rel.translation))
             if dist <= cfg.node_distance and abs(rel.angle) <= cfg.node_angle:
                 return None
-            del last
         node = self.num_nodes
         kept = pts
         if cfg.node_voxel_size > 0:
@@ -402,7 +399,6 @@ class Mapper:
         t1 = time.perf_counter()
         self._timing.candidates += t1 - t0
         records = []
-        closed = False
         for _, n in candidates:
             t_m = time.perf_counter()
             predicted = g.pose(n).inverse() @ g.pose(node)  # type: ignore[operator]
@@ -419,10 +415,9 @@ class Mapper:
                 g.add_edge(
                     n, node, match.measured, match.information, kind="loop", kernel=cfg.loop_kernel
                 )
+                # A loop moves many nodes at once: relinearise a little more than usual.
                 g.update(extra_iterations=2)
-                closed = True
                 self._timing.optimization += time.perf_counter() - t_o
-        del closed
         self._loops.extend(records)
         return tuple(records)
 
