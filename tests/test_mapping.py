@@ -261,3 +261,14 @@ def test_bad_input() -> None:
         MappingConfig(loop_max_range=-1.0)
     with pytest.raises(TypeError, match="odometry: expected OdometryConfig2D"):
         MappingConfig(odometry=None)  # type: ignore[arg-type]
+
+
+def test_singular_loop_covariance_is_rejected_not_raised() -> None:
+    # A match whose covariance is singular (or NaN) must become a rejected candidate with a
+    # reason, never a LinAlgError out of the pipeline (seen once on the full Intel log).
+    from scanreg.pipeline import loops
+
+    assert loops._well_posed(np.diag([1e-4, 1e-4, 1e-6]))
+    assert not loops._well_posed(np.diag([1e-4, 1e-4, 0.0]))
+    assert not loops._well_posed(np.diag([1e-4, 1e-4, 1e-20]))
+    assert not loops._well_posed(np.full((3, 3), np.nan))

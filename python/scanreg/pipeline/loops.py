@@ -140,10 +140,24 @@ def search_window(relative_covariance: FloatArray, settings: LoopSettings) -> tu
     return dt, dr
 
 
+#: A covariance whose eigenvalues span more than this ratio is treated as singular.
+_MAX_CONDITION = 1e12
+
+
+def _well_posed(covariance: FloatArray) -> bool:
+    if not np.isfinite(covariance).all():
+        return False
+    vals = np.linalg.eigvalsh(0.5 * (covariance + covariance.T))
+    return bool(vals[-1] > 0 and vals[0] > vals[-1] / _MAX_CONDITION)
+
+
 def _information(
     covariance: FloatArray, res: Any
 ) -> tuple[FloatArray, tuple[str, ...], FloatArray]:
-    info = np.linalg.inv(covariance)
+    # Through the eigen-decomposition: the caller checked the conditioning, so no direction
+    # divides by (numerically) zero.
+    vals, vecs = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    info = (vecs / vals) @ vecs.T
     info = 0.5 * (info + info.T)
     deg = res.degeneracy
     if deg is not None and deg.degenerate:
@@ -205,19 +219,18 @@ def match_loop(
     out = assess(res, points, submap.target, init=predicted, thresholds=window_bound)
     reasons.extend(out.verdict.reasons)
     cov = np.array(res.covariance, dtype=np.float64)
-    finite = bool(np.isfinite(cov).all()) and float(np.linalg.eigvalsh(cov)[0]) > 0
-    if finite:
+    combined = relative_covariance + cov
+    if _well_posed(cov) and _well_posed(combined):
         info, weak, vectors = _information(cov, res)
         if len(weak) >= 3:
             reasons.append("degenerate in every direction")
         e = (predicted.inverse() @ pose).log()
-        combined = relative_covariance + cov
         chi2 = float(e @ np.linalg.solve(combined, e))
         if not chi2 <= s.chi2_threshold:
             reasons.append(f"inconsistent with the graph: χ² {chi2:.1f} > {s.chi2_threshold:.1f}")
     else:
         info, weak, vectors, chi2 = np.zeros((3, 3)), (), np.zeros((3, 0)), math.nan
-        reasons.append("covariance not positive definite")
+        reasons.append("covariance singular or not finite")
     return LoopMatch(
         submap_node=submap.anchor,
         node=node,
