@@ -889,6 +889,8 @@ def _report(args: argparse.Namespace) -> dict[str, Any]:
 
     out = write_report(args.folder, args.output, title=args.title)
     return {"report": str(out), "bytes": out.stat().st_size}
+
+
 def _map(args: argparse.Namespace) -> dict[str, Any]:
     from .config import load_config, write_config
     from .graph import require_gtsam
