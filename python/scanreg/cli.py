@@ -38,6 +38,7 @@ EXAMPLES = """examples:
   scanreg report out/ -o out/report.html     # the run's HTML report, one file
   scanreg batch odometry drives.csv -o out/ --retries 2      # many sequences, local workers
   scanreg batch register pairs.parquet --engine ray --address 10.0.0.1:6379 -o out/
+  scanreg map intel.clf.bz2 -o out/          # 2D mapping with loop closure (CARMEN log)
 """
 
 #: Per-subcommand examples, shown by ``scanreg SUBCOMMAND --help``.
@@ -72,6 +73,9 @@ SUB_EXAMPLES = {
     "  scanreg batch odometry drives.csv -o out/ --resume     # skip the jobs already done\n"
     "  scanreg batch register pairs.csv -o out/ --config reg.toml --json\n"
     "  scanreg batch odometry drives.parquet --engine ray --address HEAD:6379 -o out/\n",
+    "map": "examples:\n"
+    "  scanreg map intel.clf.bz2 -o out/                  # CARMEN .clf/.log, .gz or .bz2\n"
+    "  scanreg map aces.clf.bz2 --config map.toml --max-scans 2000 -o out/ --json\n",
     "simulate": "examples:\n"
     "  scanreg simulate -o run/                  # 2D: floor_plan, sick_lms200\n"
     "  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/\n"
@@ -272,6 +276,22 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--title", default=None, help="page title (default: the sequence name)")
     rep.add_argument("--json", action="store_true", help="print JSON instead of text")
     _add_batch_parser(sub)
+    mp = sub.add_parser(
+        "map",
+        help="2D mapping with loop closure on a pose graph (CARMEN log): optimized poses, "
+        "graph, loops, occupancy map, plot",
+    )
+    mp.add_argument("path", help="CARMEN log (.clf, .log, optionally .gz or .bz2)")
+    mp.add_argument(
+        "-o", "--output", type=Path, default=Path("map-output"), help="folder (created)"
+    )
+    mp.add_argument("--config", type=Path, default=None, help="TOML config (unknown keys fail)")
+    mp.add_argument("--max-scans", type=int, default=None, help="stop after N scans")
+    mp.add_argument("--kind", default=None, help="laser message kind (default FLASER)")
+    mp.add_argument("--resolution", type=float, default=0.05, help="map cell size (m)")
+    mp.add_argument("--no-plots", action="store_true", help="skip trajectory.png")
+    mp.add_argument("--json", action="store_true", help="print JSON instead of text")
+    mp.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     for name, subparser in sub.choices.items():
         subparser.epilog = SUB_EXAMPLES[name]
         subparser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -871,6 +891,36 @@ def _report(args: argparse.Namespace) -> dict[str, Any]:
     return {"report": str(out), "bytes": out.stat().st_size}
 
 
+def _map(args: argparse.Namespace) -> dict[str, Any]:
+    from .config import load_config, write_config
+    from .graph import require_gtsam
+    from .io import read_scans
+
+    require_gtsam()  # fail before reading a large log
+    from .pipeline.mapping import MappingConfig, run_mapping
+    from .pipeline.mapping_output import summary, write_outputs
+
+    if args.max_scans is not None and args.max_scans < 1:
+        raise ValueError(f"--max-scans must be >= 1, got {args.max_scans}")
+    if not args.resolution > 0:
+        raise ValueError(f"--resolution must be > 0, got {args.resolution}")
+    config = load_config(MappingConfig, args.config)
+    log = read_scans(args.path)
+    res = run_mapping(
+        log,
+        config,
+        kind=args.kind,
+        max_scans=args.max_scans,
+        progress=not (args.quiet or args.json),
+    )
+    paths = write_outputs(args.output, res, resolution=args.resolution, plot=not args.no_plots)
+    paths["config"] = write_config(args.output / "config.toml", config)
+    result = summary(res)
+    result["log"] = str(args.path)
+    result["outputs"] = {k: str(v) for k, v in paths.items()}
+    return result
+
+
 def _print_text(result: dict[str, Any], indent: str = "") -> None:
     for key, value in result.items():
         if isinstance(value, dict):
@@ -897,6 +947,7 @@ def main(argv: list[str] | None = None) -> int:
         "odometry": _odometry,
         "report": _report,
         "batch": _batch,
+        "map": _map,
     }
     try:
         result = handlers[args.command](args)

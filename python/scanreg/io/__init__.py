@@ -155,7 +155,11 @@ def write_points(path: PathLike, cloud: PointCloud, **options: Any) -> None:
 def read_scans(path: PathLike) -> CarmenLog:
     """Read a log of scans, choosing the reader from the extension (see :data:`SCAN_SOURCES`)."""
     suffixes = Path(path).suffixes
-    key = "".join(suffixes[-2:]).lower() if suffixes[-1:] == [".gz"] else Path(path).suffix.lower()
+    key = (
+        "".join(suffixes[-2:]).lower()
+        if suffixes[-1:] in ([".gz"], [".bz2"])
+        else Path(path).suffix.lower()
+    )
     log: CarmenLog = _lookup(SCAN_SOURCES, key, "scan reader", path)(path)
     return log
 

@@ -1,4 +1,4 @@
-"""CARMEN laser logs (``.log``, ``.clf``, ``.log.gz``): 2D laser scans and wheel odometry.
+"""CARMEN laser logs (``.log``, ``.clf``, gzip or bzip2): 2D laser scans and wheel odometry.
 
 One line per message, whitespace separated (tabs occur), ``#`` comments. Messages read:
 

@@ -1,0 +1,130 @@
+"""Write a mapping run to a folder: poses, graph, loops, occupancy map and a plot.
+
+=====================  ==================================================================
+``poses_kitti.txt``    every scan's optimized ``T_world_scan`` (KITTI, 12 numbers a line)
+``poses_tum.txt``      the same with each scan's own timestamp (TUM)
+``odometry_tum.txt``   the odometry alone, before loop closure (TUM)
+``graph.g2o``          the pose graph (nodes at their optimized poses; ``FIX 0``)
+``loops.jsonl``        every loop candidate: nodes, scans, verdict, reasons, information
+``map.pgm/.yaml``      the occupancy grid, ROS ``map_server`` convention; ``map.png``
+``trajectory.png``     odometry against the optimized trajectory, loop edges drawn
+=====================  ==================================================================
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..io.g2o import PoseGraph, PoseGraphEdge, write_g2o
+from ..io.occupancy import occupancy_grid, write_map
+from ..io.trajectory import Trajectory, write_kitti_poses, write_tum
+from ..transform import SE2
+from .mapping import MappingResult
+
+
+def _stamps(result: MappingResult) -> np.ndarray[Any, np.dtype[np.float64]]:
+    if all(s is not None for s in result.stamps):
+        return np.array(result.stamps, dtype=np.float64)
+    # Without stamps the scan index stands in for the time.
+    return np.arange(result.num_scans, dtype=np.float64)
+
+
+def pose_graph(result: MappingResult) -> PoseGraph:
+    """The run's graph as :class:`scanreg.io.g2o.PoseGraph` (2D: g2o's information ordering is
+    scanreg's ``[x, y, θ]``; the prior on node 0 becomes ``FIX 0``)."""
+    g = result.graph
+    vertices = dict(g.poses())
+    edges = [
+        PoseGraphEdge(e.i, e.j, e.measurement, e.information) for e in g.edges if e.kind != "prior"
+    ]
+    return PoseGraph(vertices, tuple(edges), frozenset({0}))
+
+
+def write_outputs(
+    folder: Path, result: MappingResult, *, resolution: float = 0.05, plot: bool = True
+) -> dict[str, Path]:
+    """Write every file of the table above into ``folder`` (created); returns their paths.
+    ``plot=False`` skips ``trajectory.png`` (the only file that needs matplotlib)."""
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    stamps = _stamps(result)
+    paths: dict[str, Path] = {}
+    traj = Trajectory.from_poses(list(result.poses), stamps)
+    paths["poses_kitti"] = out / "poses_kitti.txt"
+    write_kitti_poses(paths["poses_kitti"], traj)
+    paths["poses_tum"] = out / "poses_tum.txt"
+    write_tum(paths["poses_tum"], traj)
+    paths["odometry_tum"] = out / "odometry_tum.txt"
+    write_tum(paths["odometry_tum"], Trajectory.from_poses(list(result.odometry_poses), stamps))
+    paths["graph"] = out / "graph.g2o"
+    write_g2o(paths["graph"], pose_graph(result))
+    paths["loops"] = out / "loops.jsonl"
+    with paths["loops"].open("w", encoding="utf-8") as fh:
+        for record in result.loops:
+            fh.write(json.dumps(record.as_dict()) + "\n")
+    node_poses = result.graph.poses()
+    poses = [node_poses[n] for n in range(len(result.node_scans))]
+    grid = occupancy_grid(poses, list(result.node_points), resolution=resolution)  # type: ignore[arg-type]
+    for key, path in write_map(out, grid).items():
+        paths[f"map_{key}"] = path
+    if plot:
+        paths["plot"] = plot_mapping(out / "trajectory.png", result)
+    return paths
+
+
+def plot_mapping(path: Path, result: MappingResult) -> Path:
+    """Odometry (grey) against the optimized trajectory (blue), accepted loop edges (green)
+    and rejected candidates (red, thin), top view."""
+    from ..plot import _check_path, _figure, _save
+
+    p = _check_path(path)
+    fig = _figure(7.0, 7.0)
+    ax = fig.add_subplot(1, 1, 1)
+    before = np.array([q.translation for q in result.odometry_poses])
+    after = np.array([q.translation for q in result.poses])
+    ax.plot(before[:, 0], before[:, 1], color="#999999", lw=0.8, label="odometry")
+    ax.plot(after[:, 0], after[:, 1], color="#1f77b4", lw=0.8, label="after loop closure")
+    for accepted, color, lw in ((False, "#d62728", 0.4), (True, "#2ca02c", 0.6)):
+        first = True
+        for r in result.loops:
+            if r.accepted != accepted:
+                continue
+            a, b = after[r.submap_scan], after[r.scan]
+            label = None
+            if first:
+                n = sum(x.accepted == accepted for x in result.loops)
+                label = f"{'accepted' if accepted else 'rejected'} loops ({n})"
+                first = False
+            ax.plot([a[0], b[0]], [a[1], b[1]], color=color, lw=lw, label=label)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(f"{result.num_scans} scans, {len(result.node_scans)} nodes")
+    return _save(fig, p)
+
+
+def summary(result: MappingResult) -> dict[str, Any]:
+    """A JSON-ready summary of a run."""
+    t = result.timing
+    last: SE2 = result.poses[-1]
+    return {
+        "num_scans": result.num_scans,
+        "num_nodes": len(result.node_scans),
+        "skipped_scans": len(result.skipped),
+        "loops_accepted": len(result.accepted_loops),
+        "loops_rejected": len(result.rejected_loops),
+        "final_pose": [float(v) for v in last.as_vector()],
+        "timing": {
+            "odometry": t.odometry,
+            "candidates": t.candidates,
+            "matching": t.matching,
+            "optimization": t.optimization,
+            "total": t.total,
+        },
+        "scans_per_second": result.num_scans / t.total if t.total > 0 else None,
+    }

@@ -1,0 +1,63 @@
+"""``scanreg map``: a real CARMEN excerpt end to end through the JSON and the files; bad input."""
+
+from __future__ import annotations
+
+import bz2
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import data_dir
+from scanreg.cli import EXIT_BAD_INPUT, EXIT_OK, main
+
+pytest.importorskip("gtsam")
+
+
+@pytest.fixture(scope="module")
+def excerpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The first 1200 lines of the Intel log (about 400 scans) as a .clf.bz2."""
+    source = data_dir("freiburg-slam-benchmark", "intel.clf.bz2")
+    with bz2.open(source, "rt", encoding="utf-8") as fh:
+        lines = [next(fh) for _ in range(1200)]
+    path = tmp_path_factory.mktemp("log") / "intel_head.clf.bz2"
+    with bz2.open(path, "wt", encoding="utf-8") as fh:
+        fh.writelines(lines)
+    return path
+
+
+def test_map_end_to_end(excerpt: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    config = tmp_path / "map.toml"
+    config.write_text("node_distance = 0.4\n[loops]\nmin_score = 0.55\n", encoding="utf-8")
+    code = main(["map", str(excerpt), "-o", str(out), "--config", str(config), "--json"])
+    assert code == EXIT_OK
+    result = json.loads(capsys.readouterr().out)
+    n = result["num_scans"]
+    assert 300 < n < 500 and result["skipped_scans"] == 0
+    assert result["num_nodes"] > 20
+    assert result["timing"]["total"] > 0 and result["scans_per_second"] > 0
+    for key in ("poses_kitti", "poses_tum", "graph", "loops", "map_pgm", "map_yaml", "map_png"):
+        assert Path(result["outputs"][key]).is_file(), key
+    tum = np.loadtxt(out / "poses_tum.txt")
+    assert tum.shape == (n, 8)
+    # Stamped with each scan's own ipc_timestamp, in file order.
+    assert 9.76e8 < tum[0, 0] < 9.77e8
+    assert np.allclose(tum[-1, 1:3], result["final_pose"][:2])
+    assert np.loadtxt(out / "poses_kitti.txt").shape == (n, 12)
+    effective = (out / "config.toml").read_text()
+    assert "node_distance = 0.4" in effective and "min_score = 0.55" in effective
+    assert "resolution: 0.05" in (out / "map.yaml").read_text()
+
+
+def test_map_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.clf"
+    bad.write_text("FLASER 3 1.0 nope\n", encoding="utf-8")
+    assert main(["map", str(bad), "-o", str(tmp_path / "o"), "--quiet"]) == EXIT_BAD_INPUT
+    assert "bad.clf" in capsys.readouterr().err
+    typo = tmp_path / "typo.toml"
+    typo.write_text("node_distanse = 0.4\n", encoding="utf-8")
+    code = main(["map", str(bad), "--config", str(typo), "-o", str(tmp_path / "o")])
+    assert code == EXIT_BAD_INPUT
+    assert "node_distanse" in capsys.readouterr().err
+    assert main(["map", str(bad), "--max-scans", "0", "-o", str(tmp_path / "o")]) == EXIT_BAD_INPUT

@@ -1,0 +1,222 @@
+"""scanreg.graph: the gtsam adapter — hand-computed graphs, the tangent conversion, degenerate
+and robust loop edges."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scanreg import SE2, SE3
+from scanreg import graph as G
+
+gtsam = pytest.importorskip("gtsam")
+
+SIGMA = 0.1  # m, per odometry/loop edge
+
+
+def _info(dim: int, sigma_t: float = SIGMA, sigma_r: float = 1e-4) -> np.ndarray:
+    n = dim
+    r = 1 if dim == 2 else 3
+    return np.diag([1 / sigma_t**2] * n + [1 / sigma_r**2] * r)
+
+
+def _line(dim: int, solve: str) -> G.Graph:
+    """0 → 1 → 2 one metre apart along x, a loop 0 → 2 measuring 2.2 m, equal weights;
+    rotation held stiff so x and y decouple."""
+    pose = SE2 if dim == 2 else SE3
+    g = G.Graph(dim)
+
+    def along(x: float) -> Any:
+        return SE2.from_vector([x, 0, 0]) if dim == 2 else SE3.from_vector([x, 0, 0, 0, 0, 0])
+
+    for k in range(3):
+        g.add_node(k, along(float(k)))
+    g.add_prior(0, pose.identity(), np.eye(g.dof) * 1e12)
+    g.add_edge(0, 1, along(1.0), _info(dim))
+    g.add_edge(1, 2, along(1.0), _info(dim))
+    if solve == "isam":
+        g.update()
+    g.add_edge(0, 2, along(2.2), _info(dim), kind="loop")
+    if solve == "isam":
+        g.update(extra_iterations=2)
+    else:
+        g.optimize()
+    return g
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("solve", ["isam", "batch"])
+def test_tiny_loop_against_hand_computed_answer(dim: int, solve: str) -> None:
+    g = _line(dim, solve)
+    # The loop disagrees with the chain by 0.2 m; three equal edges share it, 1/3 each.
+    assert g.pose(1).translation[0] == pytest.approx(1 + 0.2 / 3, abs=1e-6)
+    assert g.pose(2).translation[0] == pytest.approx(2 + 0.4 / 3, abs=1e-6)
+    assert np.abs(g.pose(2).translation[1:]).max() < 1e-9
+    # Node 2: two edges in series (2σ²) in parallel with one (σ²) → (2/3)σ²; same for node 1.
+    for k in (1, 2):
+        cov = g.marginal_covariance(k)
+        assert cov.shape == (g.dof, g.dof)
+        # Translation first in scanreg's order: a swapped Pose3 ordering would read ~1e-8 here.
+        for axis in range(dim):
+            assert cov[axis, axis] == pytest.approx(2 / 3 * SIGMA**2, rel=1e-4)
+        assert cov[dim, dim] < 1e-7
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_relative_covariance_of_an_edge_is_the_edge_covariance(dim: int) -> None:
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(6, 6))
+    cov = a @ a.T * 1e-3 + np.eye(6) * 1e-4
+    cov = cov[:3, :3] if dim == 2 else cov
+    meas = (
+        SE2.from_vector([1.0, 0.5, 0.8])
+        if dim == 2
+        else SE3.from_vector([1, 0.5, -0.2, 0.3, -0.4, 0.8])
+    )
+    start = (
+        SE2.from_vector([3.0, -1.0, 2.0])
+        if dim == 2
+        else SE3.from_vector([3, -1, 2, 0.1, 0.2, 2.0])
+    )
+    for solve in ("isam", "batch"):
+        g = G.Graph(dim)
+        g.add_node(5, start)
+        g.add_node(2, start @ meas)  # type: ignore[operator]
+        g.add_prior(5, start, np.eye(g.dof) * 1e10)
+        g.add_edge(5, 2, meas, G.information_from_covariance(cov))
+        g.update() if solve == "isam" else g.optimize()
+        # Keys given out of order (5 > 2) on purpose: the joint block order must follow them.
+        np.testing.assert_allclose(g.relative_covariance(5, 2), cov, rtol=1e-5, atol=1e-10)
+        back = g.relative_covariance(2, 5)
+        ad = meas.adjoint()
+        np.testing.assert_allclose(back, ad @ cov @ ad.T, rtol=1e-5, atol=1e-10)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    vec=st.lists(st.floats(-3, 3), min_size=6, max_size=6),
+    delta=st.lists(st.floats(-0.5, 0.5), min_size=6, max_size=6),
+    seed=st.integers(0, 2**16),
+)
+def test_conversion_round_trip_and_frame(vec: list[float], delta: list[float], seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    for dim in (2, 3):
+        dof = 3 if dim == 2 else 6
+        pose: Any = SE2.from_vector(vec[:3]) if dim == 2 else SE3.from_vector(vec)
+        d = np.array(delta[:dof])
+        a = rng.normal(size=(dof, dof))
+        cov = a @ a.T + 0.1 * np.eye(dof)
+        np.testing.assert_allclose(
+            G.from_gtsam_order(G.to_gtsam_order(cov, dim), dim), cov, rtol=1e-12
+        )
+        g = G.Graph(dim)
+        # The same perturbation: our T @ exp(δ) equals gtsam's retract of the reordered δ.
+        gp = g._to_gtsam(pose)
+        ours = (pose @ type(pose).exp(d)).as_matrix()
+        theirs = gp.retract(G._perm(dim) @ d).matrix()
+        np.testing.assert_allclose(theirs, ours, atol=1e-9)
+        # A covariance goes through gtsam as a prior and comes back as the marginal.
+        g.add_node(0, pose)
+        g.add_prior(0, pose, G.information_from_covariance(cov))
+        g.update()
+        # Exactly, up to the floor every edge gets (INFORMATION_FLOOR, σ = 1 km).
+        floored = np.linalg.inv(np.linalg.inv(cov) + G.INFORMATION_FLOOR * np.eye(dof))
+        np.testing.assert_allclose(g.marginal_covariance(0), floored, rtol=1e-7, atol=1e-12)
+
+
+def test_corridor_loop_constrains_only_across_the_corridor() -> None:
+    # A loop measured in a corridor along x: its x information is removed, so a loop that
+    # disagrees with the chain by 0.5 m along x and 0.2 m along y corrects y only.
+    g = G.Graph(2)
+    g.add_node(0, SE2.identity())
+    g.add_node(1, SE2.from_vector([5.0, 0.0, 0.0]))
+    g.add_prior(0, SE2.identity(), np.eye(3) * 1e12)
+    g.add_edge(0, 1, SE2.from_vector([5.0, 0.0, 0.0]), np.diag([1.0, 1.0, 1e4]))
+    weak = np.diag([1.0, 0.0, 0.0])  # projector onto x
+    info = G.project_information(np.diag([1e4, 1e4, 1e4]), weak)
+    assert info[0, 0] == 0 and info[1, 1] == 1e4
+    g.add_edge(0, 1, SE2.from_vector([5.5, 0.2, 0.0]), info, kind="loop")
+    g.optimize()
+    t = g.pose(1).translation
+    assert t[0] == pytest.approx(5.0, abs=1e-4)  # along the corridor: odometry only
+    assert t[1] == pytest.approx(0.2 * 1e4 / (1e4 + 1), abs=1e-4)  # across: the loop wins
+    # Without the projection the loop would have moved x as well.
+    h = G.Graph(2)
+    h.add_node(0, SE2.identity())
+    h.add_node(1, SE2.from_vector([5.0, 0.0, 0.0]))
+    h.add_prior(0, SE2.identity(), np.eye(3) * 1e12)
+    h.add_edge(0, 1, SE2.from_vector([5.0, 0.0, 0.0]), np.diag([1.0, 1.0, 1e4]))
+    h.add_edge(0, 1, SE2.from_vector([5.5, 0.2, 0.0]), np.diag([1e4] * 3), kind="loop")
+    h.optimize()
+    assert h.pose(1).translation[0] > 5.49
+
+
+@pytest.mark.parametrize("kernel", ["cauchy", "dcs"])
+def test_robust_kernel_limits_a_false_loop(kernel: str) -> None:
+    # A square of four 2 m edges closed by a consistent loop and a false one 1.5 m off.
+    def build(k: G.Kernel | None) -> G.Graph:
+        g = G.Graph(2)
+        truth = [SE2.from_vector([0, 0, 0])]
+        step = SE2.from_vector([2.0, 0.0, math.pi / 2])
+        for _ in range(3):
+            truth.append(truth[-1] @ step)
+        for i, p in enumerate(truth):
+            g.add_node(i, p)
+        g.add_prior(0, truth[0], np.eye(3) * 1e12)
+        info = np.diag([400.0, 400.0, 4000.0])
+        for i in range(3):
+            g.add_edge(i, i + 1, step, info)
+        g.add_edge(3, 0, step, info, kind="loop", kernel=k)
+        wrong = step @ SE2.from_vector([1.5, 0.0, 0.0])
+        g.add_edge(3, 0, wrong, info, kind="loop", kernel=k)
+        g.optimize()
+        return g
+
+    plain, robust = build(None), build(G.Kernel(kernel, 1.0))  # type: ignore[arg-type]
+    step = SE2.from_vector([2.0, 0.0, math.pi / 2])
+    truth3 = step @ step @ step
+    err_plain = np.linalg.norm((truth3.inverse() @ plain.pose(3)).translation)
+    err_robust = np.linalg.norm((truth3.inverse() @ robust.pose(3)).translation)
+    assert err_plain > 0.3
+    assert err_robust < 0.3 * err_plain
+
+
+def test_bad_input_is_named() -> None:
+    g = G.Graph(2)
+    g.add_node(0, SE2.identity())
+    with pytest.raises(ValueError, match="key: node 0 already exists"):
+        g.add_node(0, SE2.identity())
+    with pytest.raises(TypeError, match="initial: expected SE2"):
+        g.add_node(1, SE3.identity())  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="j: unknown node 7"):
+        g.add_edge(0, 7, SE2.identity(), np.eye(3))
+    g.add_node(1, SE2.identity())
+    with pytest.raises(ValueError, match="positive semi-definite"):
+        g.add_edge(0, 1, SE2.identity(), -np.eye(3))
+    with pytest.raises(ValueError, match="information: is zero"):
+        g.add_edge(0, 1, SE2.identity(), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="covariance: must be positive definite"):
+        G.information_from_covariance(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="has not been solved"):
+        g.marginal_covariance(1)
+    with pytest.raises(ValueError, match="dim: expected 2 or 3"):
+        G.Graph(4)
+    with pytest.raises(ValueError, match="kernel: unknown 'tukey'"):
+        G.Kernel("tukey")  # type: ignore[arg-type]
+
+
+def test_missing_gtsam_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    real = G.importlib.import_module
+
+    def fake(name: str, *args: Any) -> Any:
+        if name == "gtsam":
+            raise ImportError("No module named 'gtsam'")
+        return real(name, *args)
+
+    monkeypatch.setattr(G.importlib, "import_module", fake)
+    with pytest.raises(ImportError, match=r"scanreg\[mapping\]"):
+        G.Graph(2)
