@@ -30,7 +30,9 @@ def test_map_end_to_end(excerpt: Path, tmp_path: Path, capsys: pytest.CaptureFix
     out = tmp_path / "out"
     config = tmp_path / "map.toml"
     config.write_text("node_distance = 0.4\n[loops]\nmin_score = 0.55\n", encoding="utf-8")
-    code = main(["map", str(excerpt), "-o", str(out), "--config", str(config), "--json"])
+    bag = out / "map.mcap"
+    args = ["map", str(excerpt), "-o", str(out), "--config", str(config), "--json"]
+    code = main([*args, "--bag", str(bag), "--report"])
     assert code == EXIT_OK
     result = json.loads(capsys.readouterr().out)
     n = result["num_scans"]
@@ -48,6 +50,16 @@ def test_map_end_to_end(excerpt: Path, tmp_path: Path, capsys: pytest.CaptureFix
     effective = (out / "config.toml").read_text()
     assert "node_distance = 0.4" in effective and "min_score = 0.55" in effective
     assert "resolution: 0.05" in (out / "map.yaml").read_text()
+    # The bag: one message set per graph node, the grid and the loop markers, read back.
+    from scanreg.io import list_topics
+
+    topics = {t.name: t for t in list_topics(bag)}
+    assert topics["/scanreg/grid"].msgtype == "nav_msgs/msg/OccupancyGrid"
+    assert topics["/scanreg/odometry"].message_count == result["num_nodes"]
+    assert ("/scanreg/loop_closures" in topics) == bool(result["loops_accepted"])
+    assert result["outputs"]["bag"] == str(bag)
+    report = Path(result["outputs"]["report"]).read_text(encoding="utf-8")
+    assert report.startswith("<!DOCTYPE html>") and "plotly" in report
 
 
 def test_map_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -75,7 +75,8 @@ SUB_EXAMPLES = {
     "  scanreg batch odometry drives.parquet --engine ray --address HEAD:6379 -o out/\n",
     "map": "examples:\n"
     "  scanreg map intel.clf.bz2 -o out/                  # CARMEN .clf/.log, .gz or .bz2\n"
-    "  scanreg map aces.clf.bz2 --config map.toml --max-scans 2000 -o out/ --json\n",
+    "  scanreg map aces.clf.bz2 --config map.toml --max-scans 2000 -o out/ --json\n"
+    "  scanreg map intel.clf -o out/ --bag out/map.mcap --report   # Foxglove + browser\n",
     "simulate": "examples:\n"
     "  scanreg simulate -o run/                  # 2D: floor_plan, sick_lms200\n"
     "  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/\n"
@@ -290,6 +291,21 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--kind", default=None, help="laser message kind (default FLASER)")
     mp.add_argument("--resolution", type=float, default=0.05, help="map cell size (m)")
     mp.add_argument("--no-plots", action="store_true", help="skip trajectory.png")
+    mp.add_argument(
+        "--bag",
+        type=Path,
+        default=None,
+        help="also write a ROS 2 bag (.mcap, .db3 or a folder): the graph nodes' optimized and "
+        "odometry poses, their scans, the occupancy grid and the loop closures",
+    )
+    mp.add_argument(
+        "--bag-frames",
+        nargs=3,
+        metavar=("MAP", "ODOM", "SENSOR"),
+        default=["map", "odom", "laser"],
+        help="frame ids of the bag (default: map odom laser)",
+    )
+    mp.add_argument("--report", action="store_true", help="also write report.html")
     mp.add_argument("--json", action="store_true", help="print JSON instead of text")
     mp.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     for name, subparser in sub.choices.items():
@@ -905,6 +921,14 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
     if not args.resolution > 0:
         raise ValueError(f"--resolution must be > 0, got {args.resolution}")
     config = load_config(MappingConfig, args.config)
+    frames = None
+    if args.bag is not None:  # a bad bag path fails now, not after the run
+        from .io.rosbag_write import BagFrames, check_bag_destination
+
+        args.output.mkdir(parents=True, exist_ok=True)  # a --bag inside it can be checked now
+
+        check_bag_destination(args.bag, overwrite=True)
+        frames = BagFrames(*args.bag_frames)
     log = read_scans(args.path)
     res = run_mapping(
         log,
@@ -915,10 +939,51 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
     )
     paths = write_outputs(args.output, res, resolution=args.resolution, plot=not args.no_plots)
     paths["config"] = write_config(args.output / "config.toml", config)
+    if args.bag is not None:
+        paths["bag"] = _write_map_bag(args.bag, res, args.resolution, frames)
+    if args.report:
+        from .report import write_report
+
+        paths["report"] = write_report(args.output)
     result = summary(res)
     result["log"] = str(args.path)
     result["outputs"] = {k: str(v) for k, v in paths.items()}
     return result
+
+
+def _write_map_bag(path: Path, res: Any, resolution: float, frames: Any) -> Path:
+    """The mapping run as a ROS 2 bag: one message set per graph node (its scan's optimized
+    pose, the odometry's, the node scan), the occupancy grid and the loop closures."""
+    from .io.occupancy import occupancy_grid
+    from .io.rosbag_write import BagGrid, write_run_bag
+
+    nodes = list(res.node_scans)
+    index = {scan: k for k, scan in enumerate(nodes)}
+    stamps = [res.stamps[s] for s in nodes]
+    if any(t is None for t in stamps):
+        stamps = [0.1 * k for k in range(len(nodes))]  # a log without times: 10 Hz
+    t0 = float(stamps[0])
+    grid_poses = res.graph.poses()
+    grid = occupancy_grid(
+        [grid_poses[n] for n in range(len(nodes))], list(res.node_points), resolution=resolution
+    )
+    loops = [
+        (index[r.scan], index[r.submap_scan], r.accepted)
+        for r in res.loops
+        if r.scan in index and r.submap_scan in index
+    ]
+    summary = write_run_bag(
+        path,
+        [float(t) - t0 for t in stamps],
+        [res.poses[s] for s in nodes],
+        odometry_poses=[res.odometry_poses[s] for s in nodes],
+        scans=list(res.node_points),
+        grid=BagGrid(grid.probability, grid.resolution, grid.origin),
+        loops=loops,
+        frames=frames,
+        overwrite=True,
+    )
+    return Path(summary.path)
 
 
 def _print_text(result: dict[str, Any], indent: str = "") -> None:
