@@ -60,6 +60,19 @@ def test_map_end_to_end(excerpt: Path, tmp_path: Path, capsys: pytest.CaptureFix
     assert result["outputs"]["bag"] == str(bag)
     report = Path(result["outputs"]["report"]).read_text(encoding="utf-8")
     assert report.startswith("<!DOCTYPE html>") and "plotly" in report
+    # The same log located in its own saved map, from no initial pose (a global fix first).
+    loc = tmp_path / "loc"
+    code = main(["localize", str(excerpt), "--map", str(out), "-o", str(loc), "--json"])
+    assert code == EXIT_OK
+    found = json.loads(capsys.readouterr().out)
+    assert found["num_scans"] == n and found["global_fixes"] >= 1
+    rows = [json.loads(line) for line in (loc / "quality.jsonl").read_text().splitlines()]
+    assert rows[0]["prediction_source"] == "global" and rows[0]["accepted"]
+    assert found["accepted"] >= 0.9 * n, found
+    located = np.loadtxt(loc / "poses_tum.txt")
+    ok = np.array([r["accepted"] for r in rows])
+    gap = np.linalg.norm(located[ok, 1:3] - tum[ok, 1:3], axis=1)
+    assert np.median(gap) < 0.05, np.median(gap)
 
 
 def test_map_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
