@@ -22,6 +22,7 @@ Poses are ``T_map_scan``. The map is never modified.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import time
@@ -278,9 +279,10 @@ class Localizer2D:
         return GlobalFix(frame=frame, score=score, runner_up_score=runner_up, search_seconds=search)
 
     def _runner_up(self, pts: FloatArray, best: SE2) -> float:
-        """The best correlative score at least ``ambiguity_distance`` from ``best``: a second
-        exhaustive pass is too slow on a whole map, so the map's other places are probed by a
-        branch and bound over each quadrant of the map that does not contain ``best``."""
+        """The best correlative score found at least ``ambiguity_distance`` from ``best``: one
+        branch and bound per quadrant of the map (every heading), each keeping its own best.
+        A quadrant whose best is ``best`` itself says nothing (an alternative there scoring
+        just below it is missed): an approximation that catches distinct places elsewhere."""
         assert self._grid is not None
         cfg = self.config
         lo, hi = self.map_points.min(axis=0), self.map_points.max(axis=0)
@@ -290,9 +292,6 @@ class Localizer2D:
                 a = lo + (hi - lo) * np.array([qx, qy]) / 2.0
                 b = a + (hi - lo) / 2.0
                 centre = 0.5 * (a + b)
-                # Skip the part of the quadrant near the best pose by searching around a
-                # centre at least ambiguity_distance away; a quadrant holding `best` is
-                # searched too, its result kept only when far enough from `best`.
                 half = 0.5 * (b - a) + cfg.global_resolution
                 res = match_correlative(
                     pts,
@@ -364,8 +363,6 @@ def _se2(pose: Any) -> SE2:
 
 
 def _replace_verdict(frame: Frame2D, verdict: Verdict) -> Frame2D:
-    import dataclasses
-
     return dataclasses.replace(frame, verdict=verdict)
 
 
