@@ -12,15 +12,14 @@ voxel Gaussians) is moved back to the source origin's tangent with the adjoint o
 from __future__ import annotations
 
 import time
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
 from . import _core
+from ._newton import StopReason, damped_newton
 from ._validate import FloatArray
 from .transform import SE3
-
-StopReason = Literal["converged", "max_iterations", "no_overlap"]
 
 
 def build_levels(
@@ -51,43 +50,34 @@ def _newton(
     tol_r: float,
     radius: float,
 ) -> tuple[SE3, StopReason, int]:
-    """Damped Newton on one level: ``(∇²f + λI) δ = −∇f``, λ raised until the system is
-    positive definite and the step lowers the cost, lowered after each accepted step. A step
-    moves no point by more than half a voxel (translation and rotation bounded separately)."""
+    """Damped Newton on one level (:func:`scanreg._newton.damped_newton`). A step moves no
+    point by more than half a voxel (translation and rotation bounded separately)."""
 
     def evaluate(t: SE3) -> tuple[float, FloatArray, FloatArray, int]:
         cost, grad, hess, _, matched = native.evaluate(src, t.as_matrix())
         return cost, grad, hess, matched
 
-    cost, grad, hess, matched = evaluate(pose)
     max_t = 0.5 * native.cell_size
     max_r = min(0.1, max_t / max(radius, 1e-9))
-    lam = 0.0
-    for iteration in range(1, max_iterations + 1):
-        if matched == 0:
-            return pose, "no_overlap", iteration - 1
-        sym = 0.5 * (hess + hess.T)
-        vals = np.linalg.eigvalsh(sym)
-        top = max(float(np.abs(vals).max()), 1e-12)
-        lam = max(lam, -float(vals[0]) + 1e-6 * top, 0.0)
-        while True:
-            step = -np.linalg.solve(sym + lam * np.eye(6), grad)
-            t_norm = float(np.linalg.norm(step[:3]))
-            r_norm = float(np.linalg.norm(step[3:]))
-            scale = min(1.0, max_t / max(t_norm, 1e-300), max_r / max(r_norm, 1e-300))
-            step = step * scale
-            trial = pose @ SE3.exp(step)
-            c_new, g_new, h_new, m_new = evaluate(trial)
-            if c_new < cost:
-                break
-            lam = max(4.0 * lam, 1e-3 * top)
-            if lam > 1e9 * top:  # no step lowers the cost: a minimum
-                return pose, "converged", iteration
-        pose, cost, grad, hess, matched = trial, c_new, g_new, h_new, m_new
-        lam /= 3.0
-        if float(np.linalg.norm(step[:3])) < tol_t and float(np.linalg.norm(step[3:])) < tol_r:
-            return pose, "converged", iteration
-    return pose, "max_iterations", max_iterations
+
+    def bound(step: FloatArray) -> FloatArray:
+        t_norm = float(np.linalg.norm(step[:3]))
+        r_norm = float(np.linalg.norm(step[3:]))
+        scale = min(1.0, max_t / max(t_norm, 1e-300), max_r / max(r_norm, 1e-300))
+        out: FloatArray = step * scale
+        return out
+
+    def small(step: FloatArray) -> bool:
+        return float(np.linalg.norm(step[:3])) < tol_t and float(np.linalg.norm(step[3:])) < tol_r
+
+    return damped_newton(
+        evaluate,
+        pose,
+        retract=lambda t, step: t @ SE3.exp(step),
+        bound=bound,
+        small=small,
+        max_iterations=max_iterations,
+    )
 
 
 def match(

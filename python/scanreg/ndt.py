@@ -30,17 +30,16 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
 from . import _core, _ndt3d
+from ._newton import StopReason, damped_newton
 from ._validate import FloatArray, as_points, positive, readonly
 from ._validate import frozen as _frozen
 from .quality import Conditioning, conditioning
 from .transform import SE2, SE3, as_pose
-
-StopReason = Literal["converged", "max_iterations", "no_overlap"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -209,42 +208,33 @@ def _levenberg_marquardt(
 ) -> tuple[FloatArray, StopReason, int]:
     """Minimise the NDT cost from ``p`` on one grid level.
 
-    Newton steps damped as Levenberg–Marquardt: ``(∇²f + λI) δ = −∇f``, with λ raised until
-    ``∇²f + λI`` is positive definite and the step lowers the cost (Biber & Straßer: "add λI
-    until positive definite"), and lowered after each accepted step. A step is at most half a
-    cell and 0.1 rad, the region where the quadratic model of a cell's Gaussian holds.
+    Newton steps damped as Levenberg–Marquardt (:func:`scanreg._newton.damped_newton`). A step
+    is at most half a cell and 0.1 rad, the region where the quadratic model of a cell's
+    Gaussian holds.
     """
 
     def evaluate(v: FloatArray) -> tuple[float, FloatArray, FloatArray, int]:
         cost, grad, hess, _, matched = native.evaluate(src, (float(v[0]), float(v[1]), float(v[2])))
         return cost, grad, hess, matched
 
-    cost, grad, hess, matched = evaluate(p)
     max_step = 0.5 * native.cell_size
-    lam = 0.0
-    for iteration in range(1, max_iterations + 1):
-        if matched == 0:
-            return p, "no_overlap", iteration - 1
-        sym = 0.5 * (hess + hess.T)
-        vals = np.linalg.eigvalsh(sym)
-        top = max(float(np.abs(vals).max()), 1e-12)
-        lam = max(lam, -float(vals[0]) + 1e-6 * top, 0.0)
-        while True:
-            step = -np.linalg.solve(sym + lam * np.eye(3), grad)
-            scale = min(1.0, max_step / max(float(np.hypot(step[0], step[1])), 1e-300))
-            step = step * min(scale, 0.1 / max(abs(float(step[2])), 1e-300))
-            trial = p + step
-            c_new, g_new, h_new, m_new = evaluate(trial)
-            if c_new < cost:
-                break
-            lam = max(4.0 * lam, 1e-3 * top)
-            if lam > 1e9 * top:  # no step lowers the cost: a minimum
-                return p, "converged", iteration
-        p, cost, grad, hess, matched = trial, c_new, g_new, h_new, m_new
-        lam /= 3.0
-        if float(np.hypot(step[0], step[1])) < tol_t and abs(float(step[2])) < tol_r:
-            return p, "converged", iteration
-    return p, "max_iterations", max_iterations
+
+    def bound(step: FloatArray) -> FloatArray:
+        scale = min(1.0, max_step / max(float(np.hypot(step[0], step[1])), 1e-300))
+        out: FloatArray = step * min(scale, 0.1 / max(abs(float(step[2])), 1e-300))
+        return out
+
+    def small(step: FloatArray) -> bool:
+        return float(np.hypot(step[0], step[1])) < tol_t and abs(float(step[2])) < tol_r
+
+    return damped_newton(
+        evaluate,
+        p,
+        retract=lambda v, step: v + step,
+        bound=bound,
+        small=small,
+        max_iterations=max_iterations,
+    )
 
 
 def match_ndt(
