@@ -122,6 +122,8 @@ def test_bad_input_is_named() -> None:
         Localizer2D(world, {"lost_after": 2})  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="map_points: expected shape"):
         Localizer2D(np.zeros((10, 3)))
+    with pytest.raises(ValueError, match="map_points: need at least 20 points, got 10"):
+        Localizer2D(world[:10])
     loc = Localizer2D(world)
     with pytest.raises(ValueError, match="timestamps: a 2D scan is taken as instantaneous"):
         loc.step(world[:50], np.zeros(50))

@@ -34,6 +34,7 @@ import numpy as np
 
 from .._validate import FloatArray, as_points, frozen
 from ..correlative import CorrelativeGrid, match_correlative, prepare_correlative
+from ..preprocess import DEFAULT_K
 from ..register import RegistrationResult, register
 from ..target import PreparedTarget, prepare
 from ..transform import SE2, as_pose
@@ -168,7 +169,8 @@ class Localizer2D:
         if not isinstance(cfg, LocalizationConfig2D):
             raise TypeError(f"config: expected LocalizationConfig2D, got {type(cfg).__name__}")
         self.config = cfg
-        pts = as_points(map_points, "map_points", dim=2, min_points=3)
+        # prepare() fits each map point's normal to its DEFAULT_K nearest neighbours.
+        pts = as_points(map_points, "map_points", dim=2, min_points=DEFAULT_K)
         self.map_points = frozen(np.array(pts))
         self._target: PreparedTarget = prepare(self.map_points, normals=True)
         self._grid: CorrelativeGrid | None = None  # the whole-map grid, built on first need
