@@ -239,20 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="format of the saved map (default ply)",
     )
     _add_las_options(odo)
-    odo.add_argument(
-        "--bag",
-        type=Path,
-        default=None,
-        help="also write a ROS 2 bag: out.mcap, out.db3 or a bag folder (odometry, poses, "
-        "tf, scans, map)",
-    )
-    odo.add_argument(
-        "--bag-frames",
-        nargs=3,
-        metavar=("MAP", "ODOM", "SENSOR"),
-        default=["map", "odom", "lidar"],
-        help="tf frame ids in the bag (default map odom lidar)",
-    )
+    _add_bag_options(odo, "odometry, poses, tf, scans, map", sensor="lidar")
     odo.add_argument(
         "--bag-scan-voxel",
         type=float,
@@ -294,19 +281,8 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--kind", default=None, help="laser message kind (default FLASER)")
     mp.add_argument("--resolution", type=float, default=0.05, help="map cell size (m)")
     mp.add_argument("--no-plots", action="store_true", help="skip trajectory.png")
-    mp.add_argument(
-        "--bag",
-        type=Path,
-        default=None,
-        help="also write a ROS 2 bag (.mcap, .db3 or a folder): the graph nodes' optimized and "
-        "odometry poses, their scans, the occupancy grid and the loop closures",
-    )
-    mp.add_argument(
-        "--bag-frames",
-        nargs=3,
-        metavar=("MAP", "ODOM", "SENSOR"),
-        default=["map", "odom", "laser"],
-        help="frame ids of the bag (default: map odom laser)",
+    _add_bag_options(
+        mp, "the graph nodes' poses and scans, the occupancy grid, loop closures", sensor="laser"
     )
     mp.add_argument("--report", action="store_true", help="also write report.html")
     mp.add_argument("--json", action="store_true", help="print JSON instead of text")
@@ -331,6 +307,22 @@ def build_parser() -> argparse.ArgumentParser:
         subparser.epilog = SUB_EXAMPLES[name]
         subparser.formatter_class = argparse.RawDescriptionHelpFormatter
     return parser
+
+
+def _add_bag_options(sub: argparse.ArgumentParser, contents: str, *, sensor: str) -> None:
+    sub.add_argument(
+        "--bag",
+        type=Path,
+        default=None,
+        help=f"also write a ROS 2 bag: out.mcap, out.db3 or a bag folder ({contents})",
+    )
+    sub.add_argument(
+        "--bag-frames",
+        nargs=3,
+        metavar=("MAP", "ODOM", "SENSOR"),
+        default=["map", "odom", sensor],
+        help=f"tf frame ids in the bag (default map odom {sensor})",
+    )
 
 
 def _add_las_options(sub: argparse.ArgumentParser) -> None:
@@ -386,7 +378,7 @@ def _bag_settings(args: argparse.Namespace) -> Any:
     from .io.rosbag_write import BagFrames, check_bag_destination
 
     check_bag_destination(args.bag, overwrite=True)
-    if args.bag_scan_voxel < 0:
+    if getattr(args, "bag_scan_voxel", 0.0) < 0:  # (odometry's option; map has none)
         raise ValueError(f"--bag-scan-voxel must be >= 0, got {args.bag_scan_voxel}")
     return BagFrames(*args.bag_frames)
 
@@ -940,14 +932,9 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
     if not args.resolution > 0:
         raise ValueError(f"--resolution must be > 0, got {args.resolution}")
     config = load_config(MappingConfig, args.config)
-    frames = None
-    if args.bag is not None:  # a bad bag path fails now, not after the run
-        from .io.rosbag_write import BagFrames, check_bag_destination
-
+    if args.bag is not None:
         args.output.mkdir(parents=True, exist_ok=True)  # a --bag inside it can be checked now
-
-        check_bag_destination(args.bag, overwrite=True)
-        frames = BagFrames(*args.bag_frames)
+    frames = _bag_settings(args)  # a bad bag path fails now, not after the run
     log = read_scans(args.path)
     res = run_mapping(
         log,
