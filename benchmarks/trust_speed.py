@@ -18,7 +18,8 @@ Sections:
   ``align(target, source, registration_type="GICP")`` (voxel 0.25 m, its 10 neighbours, gate
   1 m, ≤ 20 iterations) against ``register(source, target, method="gicp", voxel_size=0.25,
   num_neighbors=10, ...)`` whose trust analysis runs inside the call (a raw-array target),
-  the covariance and verdict read. Wall clock, two threads each.
+  the covariance and verdict read. Wall clock, ``--threads`` (2) each; ``--threads 1 --cpu``:
+  one thread and CPU time (on a loaded machine small_gicp's OpenMP threads spin-wait).
 * ``odometry``: ``Odometry2D`` (default configuration) over the 902 Intel scans with the
   wheel-odometry prior: scans per CPU second.
 
@@ -166,7 +167,7 @@ def kitti(i: int) -> np.ndarray:
     return np.ascontiguousarray(raw[:, :3], dtype=np.float64)
 
 
-def section_3d(sg: Any, count: int) -> None:
+def section_3d(sg: Any, count: int, threads: int, cpu: bool) -> None:
     src, tgt = kitti(1), kitti(0)
 
     def ours() -> None:
@@ -180,6 +181,7 @@ def section_3d(sg: Any, count: int) -> None:
             max_iterations=20,
             translation_tolerance=1e-3,
             rotation_tolerance=math.radians(0.1),
+            num_threads=threads,
         )
         assert res.covariance.shape == (6, 6) and res.verdict is not None
 
@@ -191,13 +193,16 @@ def section_3d(sg: Any, count: int) -> None:
             registration_type="GICP",
             downsampling_resolution=0.25,
             max_correspondence_distance=1.0,
-            num_threads=2,
+            num_threads=threads,
             max_iterations=20,
         )
     fns["scanreg register gicp + trust"] = ours
-    times = rounds(fns, 1, count, time.perf_counter)
+    times = rounds(fns, 1, count, time.process_time if cpu else time.perf_counter)
     peer = "small_gicp align GICP" if sg is not None else None
-    table(f"3D: KITTI 01->00 end to end, wall ms, {count} rounds", times, peer)
+    clock = "CPU" if cpu else "wall"
+    table(
+        f"3D: KITTI 01->00 end to end, {clock} ms, {threads} thread(s), {count} rounds", times, peer
+    )
 
 
 def section_odometry(count: int) -> None:
@@ -218,6 +223,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--peers-site", default=None, help="site-packages holding small_gicp")
     ap.add_argument("--rounds", type=int, default=11)
+    ap.add_argument("--threads", type=int, default=2, help="3D: threads of each library")
+    ap.add_argument(
+        "--cpu",
+        action="store_true",
+        help="3D: process CPU time instead of wall clock (OpenMP peers spin-wait on a loaded "
+        "machine; with --threads 1 the fairer clock there)",
+    )
     ap.add_argument(
         "--sections", nargs="+", choices=["2d", "3d", "odometry"], default=["2d", "3d", "odometry"]
     )
@@ -231,7 +243,7 @@ def main() -> None:
     if "2d" in args.sections:
         section_2d(sg, args.rounds)
     if "3d" in args.sections:
-        section_3d(sg, args.rounds)
+        section_3d(sg, args.rounds, args.threads, args.cpu)
     if "odometry" in args.sections:
         section_odometry(max(1, args.rounds // 4))
 

@@ -49,7 +49,6 @@ from .preprocess import check_k
 from .quality import (
     Conditioning,
     WeakDirection,
-    describe_direction,
     information_from_covariance,
 )
 from .target import PreparedTarget
@@ -390,7 +389,7 @@ def correspondence_analysis(
     )
     if held is None:
         basis = "plane_information" if ana.num_plane_correspondences > dof else "hessian"
-        deg = _degeneracy(num, dim, ctx.levers, eps2, eps2_typical, basis)
+        deg = _degeneracy(num, ctx.levers, eps2, eps2_typical, basis)
     else:
         deg = held
     return CorrespondenceAnalysis(
@@ -405,22 +404,17 @@ def correspondence_analysis(
 
 
 def _degeneracy(
-    num: Any, dim: int, levers: FloatArray, eps2: float, eps2_typical: float, basis: str
+    num: Any, levers: FloatArray, eps2: float, eps2_typical: float, basis: str
 ) -> Degeneracy:
     """:class:`Degeneracy` from the core's eigen-analysis of ``Ĝ`` (``num``)."""
     vals = num.degeneracy_eigenvalues
     units = num.degeneracy_directions
     ev = [float(v) for v in vals]
     top = max(ev[-1], 1e-300)
-    length = math.sqrt(sum(float(x) * float(x) for x in levers) / len(levers))
     threshold = float(num.degeneracy_threshold)
     directions = tuple(
-        WeakDirection(
-            vector=_frozen(units[:, i]),
-            ratio=ev[i] / top,
-            description=describe_direction(units[:, i], dim, length),
-        )
-        for i in range(len(ev))
+        WeakDirection(vector=_frozen(units[:, i]), ratio=ev[i] / top, description=text)
+        for i, text in enumerate(num.degeneracy_descriptions)
     )
     deg = _build(
         Degeneracy,
@@ -510,7 +504,7 @@ def _trust(
             "weakest": WeakDirection(
                 vector=weakest,
                 ratio=float(num.weakest_ratio),
-                description=describe_direction(weakest, dim, float(num.length_scale)),
+                description=num.weakest_description,
             ),
         },
     )

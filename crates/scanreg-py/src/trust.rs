@@ -23,6 +23,9 @@ pub struct TrustNumbers {
     degeneracy_eigenvectors: Py<PyArray2<f64>>,
     #[pyo3(get)]
     degeneracy_directions: Py<PyArray2<f64>>,
+    /// Each eigen-direction named, weakest first.
+    #[pyo3(get)]
+    degeneracy_descriptions: Vec<String>,
     #[pyo3(get)]
     degeneracy_threshold: f64,
     #[pyo3(get)]
@@ -59,6 +62,8 @@ pub struct TrustNumbers {
     weakest: Py<PyArray1<f64>>,
     #[pyo3(get)]
     weakest_ratio: f64,
+    #[pyo3(get)]
+    weakest_description: String,
 }
 
 fn mat(py: Python<'_>, m: &Mat) -> PyResult<Py<PyArray2<f64>>> {
@@ -210,6 +215,7 @@ fn trust_numbers(
         degeneracy_eigenvalues: vec1(py, &deg.eigenvalues),
         degeneracy_eigenvectors: mat(py, &deg.eigenvectors)?,
         degeneracy_directions: mat(py, &deg.directions)?,
+        degeneracy_descriptions: out.descriptions.clone(),
         degeneracy_threshold: deg.threshold,
         degeneracy_count: deg.num_correspondences,
         point_variance: out.point_variance,
@@ -228,6 +234,7 @@ fn trust_numbers(
         scaled_condition_number: cond.scaled_condition_number,
         weakest: vec1(py, &cond.weakest),
         weakest_ratio: cond.weakest_ratio,
+        weakest_description: out.weakest_description.clone(),
     })
 }
 

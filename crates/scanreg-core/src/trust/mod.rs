@@ -6,13 +6,14 @@
 //! `docs/calibration.md`.
 //!
 //! One idea per file: [`dense`] (eigen, inverse, PSD on `dof × dof`), [`degeneracy`],
-//! [`covariance`], [`weak`] (the prior along weak directions), [`shift`] (the model-error
+//! [`covariance`], [`describe`] (directions named), [`weak`] (the prior along weak directions), [`shift`] (the model-error
 //! term), [`conditioning`], [`scene`] (per-point levers, length scale, beam phase).
 
 pub mod conditioning;
 pub mod covariance;
 pub mod degeneracy;
 pub mod dense;
+pub mod describe;
 pub mod scene;
 pub mod shift;
 pub mod weak;
@@ -98,6 +99,10 @@ pub struct Input<'a> {
 #[derive(Debug, Clone)]
 pub struct Outcome {
     pub degeneracy: degeneracy::Degeneracy,
+    /// Each eigen-direction of the degeneracy named ([`describe::describe`]), weakest first.
+    pub descriptions: Vec<String>,
+    /// The conditioning's weakest direction named.
+    pub weakest_description: String,
     pub point_variance: f64,
     pub hessian: Mat,
     pub censi: Mat,
@@ -121,8 +126,14 @@ fn check_len(name: &'static str, got: usize, want: usize) -> Result<()> {
     Ok(())
 }
 
-/// Noise variance of one coordinate of a point, half the residual variance (along the normal
-/// for point-to-plane/line, Euclidean otherwise; `scanreg.trust._point_variance`).
+/// Noise variance of one coordinate of a point, half of the residual variance (source and
+/// target points are equally noisy).
+///
+/// Point-to-plane/line: along the normal, `Σ (nᵀe)² / (n − dof)` — the noise its residual
+/// feels. Point-to-point and GICP: `Σ |e|² / (D n − dof)`, the along-surface sampling offsets
+/// included. For GICP the normal-only estimate was measured too (`docs/calibration.md`):
+/// consistent in 2D but 4× over-confident in the 3D street and tunnel, where the along-surface
+/// offsets are part of the error; the Euclidean one errs on the safe side.
 fn point_variance(input: &Input<'_>, dof: usize) -> f64 {
     let a = input.analysis;
     let n_plane = a.num_plane_correspondences;
@@ -260,8 +271,20 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
     let t = Vector::from_column_slice(input.motion);
     let motion_nees = dense::solve(&motion_block, &t).map(|x| t.dot(&x));
     let conditioning = conditioning::conditioning(&solve_hessian, dim, input.length_scale);
+    let lever_rms =
+        (deg.levers.iter().map(|l| l * l).sum::<f64>() / deg.levers.len() as f64).sqrt();
+    let descriptions = (0..dof)
+        .map(|i| describe::describe(deg.directions.column(i).as_slice(), dim, lever_rms))
+        .collect();
+    let weakest_description = describe::describe(
+        conditioning.weakest.as_slice(),
+        dim,
+        conditioning.length_scale,
+    );
     Ok(Outcome {
         degeneracy: deg,
+        descriptions,
+        weakest_description,
         point_variance: pv,
         hessian: hessian_cov,
         censi,

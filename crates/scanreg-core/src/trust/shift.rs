@@ -13,7 +13,9 @@ pub struct System {
     pub count: usize,
 }
 
-/// Zeros without systems, with fewer than `10 dof` agreeing pairs, a singular system or a
+/// Each step is solved on the well-constrained subspace only (scaled coordinates, the weak
+/// directions left out: along them the covariance is the prior's, and a step there is not
+/// determined). Zeros with fewer than `10 dof` agreeing pairs, a singular system or a
 /// non-finite step.
 pub fn model_shift(
     all: &System,

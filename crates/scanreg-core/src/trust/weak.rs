@@ -5,8 +5,18 @@
 use super::degeneracy::Degeneracy;
 use super::dense::{inverse, scale_both, sym, unscale_both, Mat, Vector};
 
-/// Replace the data's say along the weak directions of `deg` by the prior's (scaled coordinates
-/// inside; `scanreg.trust` documents the model). `drift`: tangent `log(start⁻¹ · pose)`.
+/// Replace the data's say along the weak directions of `deg` by the prior's.
+///
+/// In scaled coordinates with `W` the weak eigenvectors and `U` the strong ones: the
+/// well-determined part is the data's covariance of `U`-coordinates *given* the weak ones
+/// (`(Uᵀ Λ U)⁻¹`, `Λ = cov⁻¹`): the solve fixes (aware) or drifts (not aware) along `W` and
+/// solves the rest for that value. Along `W` the variance is the prior's plus the square of the
+/// solve's own move along `W` (`drift`, tangent `log(start⁻¹ · pose)`: the data do not
+/// determine it; zero when held). `W` is itself estimated from noisy normals: an error of `σ_w`
+/// along the true axis shows as `σ_w · tilt_j` along each `u_j`
+/// ([`Degeneracy::tilt_variances`]) or, for a translation, as its rotation rows
+/// ([`axis_cover`]), added there. With the degeneracy-aware solve, `valley` (the spread of the
+/// strong coordinates over held re-solves, `scanreg.trust.valley_moment`) is added as well.
 pub fn with_prior_along_weak(
     cov: &Mat,
     deg: &Degeneracy,
@@ -49,9 +59,15 @@ pub fn with_prior_along_weak(
 }
 
 /// Where a unit error along the true weak axis lands in the strong subspace, for the estimated
-/// axis `w` (scaled coordinates): the second moment (`scanreg.trust._axis_cover`). A mostly
-/// translational `w` (`|t|² ≥ 1/2`) is taken to be a surface symmetry: only its translation
-/// rows keep the random tilt, and the offset to the pure translation is added as `d dᵀ`.
+/// axis `w` (scaled coordinates): the second moment, `dof × dof`.
+///
+/// `w` is estimated from noisy normals; an error `a` along the true axis `w*` shows across `w`
+/// as `a · Uᵀ (w* − w)`. In general `w*` is `w` tilted at random towards each `u_j` by `tilt_j`.
+/// A weak direction that is mostly translation (`|t|² ≥ 1/2`) is taken to be a surface
+/// symmetry — a corridor, a tunnel, a plane: exactly a translation, `w* = (t*, 0)`. Its rotation
+/// rows are then a known deviation, not noise: biased normals put them there (the ring pattern
+/// in a tunnel: −0.6 to −1.0 mrad of pitch per metre along the axis in every realisation,
+/// `docs/calibration.md`), and only the translation rows keep the random tilt.
 pub fn axis_cover(w: &Vector, u: &Mat, tilt: &Vector) -> Mat {
     let dof = w.len();
     let dim = if dof == 3 { 2 } else { 3 };
