@@ -238,6 +238,9 @@ fn trust_numbers(
     })
 }
 
+/// `(levers, length_scale, beam_phase_variance, default_prior)`.
+type Scene = (Py<PyArray1<f64>>, f64, f64, Py<PyArray2<f64>>);
+
 /// `(levers, length_scale, beam_phase_variance, default_prior)` of a source cloud; the prior
 /// is the gate-wide one for `gate` (`scanreg_core::trust::scene`).
 #[pyfunction]
@@ -246,7 +249,7 @@ fn trust_scene<'py>(
     py: Python<'py>,
     source: PyReadonlyArray2<'_, f64>,
     gate: f64,
-) -> PyResult<(Py<PyArray1<f64>>, f64, f64, Py<PyArray2<f64>>)> {
+) -> PyResult<Scene> {
     let (pts, dim) = points(&source, "source")?;
     if pts.is_empty() {
         return Err(PyValueError::new_err("source: is empty"));

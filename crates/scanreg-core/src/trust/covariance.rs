@@ -69,7 +69,8 @@ pub fn information(cov: &Mat) -> Mat {
     let n = cov.nrows();
     let (vals, vecs) = eigh(&sym(cov));
     let top = vals[n - 1];
-    if !(top > 0.0) {
+    // Also a NaN top: nothing to invert.
+    if top.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return Mat::from_element(n, n, f64::INFINITY);
     }
     if vals[0] > MIN_RELATIVE_VARIANCE * top {
