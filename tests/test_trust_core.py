@@ -10,6 +10,8 @@ entry; eigenvectors up to sign (the core fixes each sign, LAPACK does not).
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
 import math
 from typing import Any
 
@@ -222,3 +224,54 @@ def test_trust_numbers_refuses_malformed_input_naming_the_argument() -> None:
         _core.trust_numbers(ana, np.eye(6), 1e-4, **good)
     with pytest.raises(ValueError, match="source: is empty"):
         _core.trust_scene(np.zeros((0, 2)), 1.0)
+
+
+@pytest.mark.parametrize(
+    ("scene", "method"),
+    [("corridor", "point_to_line"), ("corridor", "point_to_point"), ("tunnel", "point_to_plane")],
+    ids=str,
+)
+def test_degeneracy_aware_solve_equals_the_python_reference(
+    scene: str, method: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The held analysis: the second solve's covariances with the first solve's weak directions
+    # and the valley of the held re-solves (an input here, measured by the same solves).
+    register_module = importlib.import_module("scanreg.register")  # the function shadows it
+    calls: list[tuple[Any, Any, Any, Any]] = []
+    original = register_module.correspondence_analysis
+
+    def recording(ctx: Any, out: Any, *, held: Any = None, valley: Any = None) -> Any:
+        calls.append((ctx, out, held, valley))
+        return original(ctx, out, held=held, valley=valley)
+
+    monkeypatch.setattr(register_module, "correspondence_analysis", recording)
+    src, tgt = _scene(scene)
+    dim = src.shape[1]
+    dof = 3 if dim == 2 else 6
+    res = scanreg.register(
+        src,
+        scanreg.prepare(tgt),
+        method=method,  # type: ignore[arg-type]
+        max_correspondence_distance=1.0,
+        degeneracy_aware=True,
+        init_covariance=np.diag([0.1**2] * dim + [np.deg2rad(1.0) ** 2] * (dof - dim)),
+        thresholds=NO_PROBE,
+    )
+    assert len(calls) == 2, "the scene must be degenerate for the held solve to run"
+    (ctx, out1, _, _), (_, out2, held, valley) = calls
+    assert held is not None and valley is not None
+    first = ref.correspondence_analysis(ctx, out1)
+    second = dataclasses.replace(
+        ref.correspondence_analysis(ctx, out2), degeneracy=first.degeneracy, valley=valley
+    )
+    pose = scanreg.trust.pose_from_core(out2, src.shape[1])
+    sigma2 = ref.residual_variance(out2, ctx.components, ctx.settings.kernel, dof)
+    want = ref._covariance_estimates(ctx, out2, pose, out2.hessian, sigma2, second)
+    got = res.covariances
+    assert got is not None and res.degeneracy is not None
+    assert [d.description for d in res.degeneracy.weak_directions] == [
+        d.description for d in first.degeneracy.weak_directions
+    ]
+    for kind in ("hessian", "censi", "block", "calibrated", "model_shift"):
+        _close(getattr(got, kind), getattr(want, kind), kind)
+    _close(res.information, information_from_covariance(np.asarray(want.calibrated)), "info")
