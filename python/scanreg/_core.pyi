@@ -303,6 +303,95 @@ def censi_analysis(
     num_threads: int | None = None,
 ) -> CensiAnalysis: ...
 
+# --- the trust arithmetic of one result (crates/scanreg-py/src/trust.rs) ---
+
+@final
+class TrustNumbers:
+    @property
+    def degeneracy_information(self) -> NDArray[np.float64]: ...
+    @property
+    def degeneracy_eigenvalues(self) -> NDArray[np.float64]: ...
+    @property
+    def degeneracy_eigenvectors(self) -> NDArray[np.float64]: ...
+    @property
+    def degeneracy_directions(self) -> NDArray[np.float64]: ...
+    @property
+    def degeneracy_descriptions(self) -> list[str]: ...
+    @property
+    def degeneracy_threshold(self) -> float: ...
+    @property
+    def degeneracy_count(self) -> int: ...
+    @property
+    def point_variance(self) -> float: ...
+    @property
+    def hessian(self) -> NDArray[np.float64]: ...
+    @property
+    def censi(self) -> NDArray[np.float64]: ...
+    @property
+    def block(self) -> NDArray[np.float64]: ...
+    @property
+    def calibrated(self) -> NDArray[np.float64]: ...
+    @property
+    def model_shift(self) -> NDArray[np.float64]: ...
+    @property
+    def information(self) -> NDArray[np.float64]: ...
+    @property
+    def motion_nees(self) -> float | None: ...
+    @property
+    def conditioning_eigenvalues(self) -> NDArray[np.float64]: ...
+    @property
+    def conditioning_eigenvectors(self) -> NDArray[np.float64]: ...
+    @property
+    def condition_number(self) -> float: ...
+    @property
+    def length_scale(self) -> float: ...
+    @property
+    def scaled_eigenvalues(self) -> NDArray[np.float64]: ...
+    @property
+    def scaled_condition_number(self) -> float: ...
+    @property
+    def weakest(self) -> NDArray[np.float64]: ...
+    @property
+    def weakest_ratio(self) -> float: ...
+    @property
+    def weakest_description(self) -> str: ...
+
+def trust_numbers(
+    analysis: CensiAnalysis,
+    hessian: NDArray[np.float64],
+    sigma2: float,
+    *,
+    method: str,
+    levers: NDArray[np.float64],
+    prior: NDArray[np.float64],
+    drift: NDArray[np.float64],
+    motion: NDArray[np.float64],
+    length_scale: float,
+    covariance: str,
+    num_correspondences: int,
+    sum_squared_distances: float,
+    score_outer: NDArray[np.float64] | None = None,
+    effective_residuals: float = 0.0,
+    normal_noise: float = ...,
+    typical_normal_noise: float = ...,
+    normal_variance: float = 0.0,
+    agreement: tuple[
+        NDArray[np.float64],
+        NDArray[np.float64],
+        int,
+        NDArray[np.float64],
+        NDArray[np.float64],
+        int,
+    ]
+    | None = None,
+    valley: NDArray[np.float64] | None = None,
+    sampling: float = 0.0,
+    held: tuple[NDArray[np.float64], float, float, float, int] | None = None,
+) -> TrustNumbers: ...
+def trust_scene(
+    source: NDArray[np.float64], gate: float
+) -> tuple[NDArray[np.float64], float, float, NDArray[np.float64]]: ...
+
 # --- overlap and normal noise (crates/scanreg-py/src/measure.rs) ---
 
 def overlap_statistics(

@@ -20,6 +20,9 @@ the information along any direction that noisy normals alone produce; ``noise_fa
 correspondences facing a direction. On the simulated scenes the floor decides (sensor noise
 of 2–3 cm makes ``6 ε̃² < 0.001``); the noise term raises the threshold for noisy sensors. The
 measurements that support both are in ``docs/calibration.md``.
+
+The analysis itself runs in the core (``scanreg_core::trust::degeneracy``, one call per result
+with the rest of the trust arithmetic, :mod:`scanreg.trust`); :class:`Degeneracy` holds it.
 """
 
 from __future__ import annotations
@@ -33,13 +36,7 @@ import numpy as np
 
 from . import _core
 from ._validate import FloatArray
-from ._validate import frozen as _frozen
-from .quality import WeakDirection, describe_direction, unit_directions
-
-#: Floor of the weak-direction threshold (a mean squared constraint per correspondence).
-DEFAULT_MIN_CONSTRAINT = 0.03
-#: The threshold is at least this many times the typical normal noise ``ε̃²``.
-DEFAULT_NOISE_FACTOR = 6.0
+from .quality import WeakDirection
 
 
 @dataclass(frozen=True)
@@ -137,18 +134,6 @@ class Degeneracy:
         return out
 
 
-def rotation_levers(points: FloatArray, dim: int) -> FloatArray:
-    """RMS distance of ``points`` from each rotation axis through the origin (≥ 1e-9)."""
-    sq = points**2
-    if dim == 2:
-        levers = np.array([np.sqrt(np.mean(sq.sum(axis=1)))])
-    else:
-        total = sq.sum(axis=1)
-        levers = np.sqrt(np.array([np.mean(total - sq[:, a]) for a in range(3)]))
-    out: FloatArray = np.maximum(levers, 1e-9)
-    return out
-
-
 def normal_noise(
     target_points: FloatArray, normals: FloatArray, index: _core.KdTree
 ) -> tuple[float, float]:
@@ -162,56 +147,6 @@ def normal_noise(
     if len(index) != len(target_points) or index.dim != target_points.shape[1]:
         raise ValueError("index: must be the k-d tree of target_points")
     return _core.target_normal_noise(index, normals)
-
-
-def analyse_degeneracy(
-    information: FloatArray,
-    count: int,
-    dim: int,
-    levers: FloatArray,
-    *,
-    normal_noise: float = float("nan"),
-    typical_normal_noise: float = float("nan"),
-    min_constraint: float = DEFAULT_MIN_CONSTRAINT,
-    noise_factor: float = DEFAULT_NOISE_FACTOR,
-    basis: str = "plane_information",
-) -> Degeneracy:
-    """Name the weak directions of ``information`` (``Σ JᵀJ`` over ``count`` correspondences)."""
-    dof = information.shape[0]
-    s_inv = np.concatenate([np.ones(dim), 1.0 / np.asarray(levers, dtype=np.float64)])
-    g = 0.5 * (information + information.T) * np.outer(s_inv, s_inv) / max(count, 1)
-    vals, vecs = np.linalg.eigh(g)
-    threshold = float(min_constraint)
-    if np.isfinite(typical_normal_noise):
-        threshold = max(threshold, noise_factor * float(typical_normal_noise))
-    top = max(float(vals[-1]), 1e-300)
-    length = float(np.sqrt(np.mean(np.asarray(levers) ** 2)))
-
-    # Back to metres / radians, unit length in metres-equivalent.
-    units = unit_directions(vecs, s_inv, norm_scale=s_inv)
-
-    def direction(i: int) -> WeakDirection:
-        v = units[:, i]
-        return WeakDirection(
-            vector=_frozen(v),
-            ratio=float(vals[i] / top),
-            description=describe_direction(v, dim, length),
-        )
-
-    directions = tuple(direction(i) for i in range(dof))
-    weak = tuple(d for d, lam in zip(directions, vals, strict=True) if lam < threshold)
-    return Degeneracy(
-        information=_frozen(g),
-        levers=_frozen(np.asarray(levers, dtype=np.float64)),
-        eigenvalues=_frozen(vals),
-        directions=directions,
-        weak_directions=weak,
-        threshold=threshold,
-        normal_noise=float(normal_noise),
-        typical_normal_noise=float(typical_normal_noise),
-        basis=basis,
-        num_correspondences=int(count),
-    )
 
 
 def sampled_normals(points: FloatArray, k: int, max_points: int = 1500) -> tuple[Any, FloatArray]:

@@ -9,10 +9,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from ._validate import FloatArray
 from ._validate import frozen as _frozen
@@ -316,12 +314,7 @@ def censi_covariance(hessian: FloatArray, meat: FloatArray) -> FloatArray:
 
     Raises ``numpy.linalg.LinAlgError`` when ``hessian`` is singular.
     """
-    return censi_from_inverse(np.linalg.inv(hessian), meat)
-
-
-def censi_from_inverse(hessian_inverse: NDArray[np.floating[Any]], meat: FloatArray) -> FloatArray:
-    """:func:`censi_covariance` from ``H⁻¹`` already at hand (shared with the block one)."""
-    h_inv = hessian_inverse
+    h_inv = np.linalg.inv(hessian)
     cov = h_inv @ meat @ h_inv
     out: FloatArray = 0.5 * (cov + cov.T)
     return out
@@ -335,14 +328,7 @@ def block_covariance(hessian: FloatArray, block_meat: FloatArray, num_blocks: in
     (Liang & Zeger 1986; Cameron & Miller 2015, §II.C). Raises ``numpy.linalg.LinAlgError``
     when ``hessian`` is singular.
     """
-    return block_from_inverse(np.linalg.inv(hessian), block_meat, num_blocks)
-
-
-def block_from_inverse(
-    hessian_inverse: NDArray[np.floating[Any]], block_meat: FloatArray, num_blocks: int
-) -> FloatArray:
-    """:func:`block_covariance` from ``H⁻¹`` already at hand (shared with Censi's)."""
-    h_inv = hessian_inverse
+    h_inv = np.linalg.inv(hessian)
     g = max(int(num_blocks), 2)
     cov = (g / (g - 1.0)) * h_inv @ block_meat @ h_inv
     out: FloatArray = 0.5 * (cov + cov.T)

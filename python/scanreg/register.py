@@ -708,17 +708,14 @@ def register(
             held = np.ascontiguousarray(np.eye(dof) - first.degeneracy.weak_projector())
             out = run(held)
             # The weak directions are the first solve's: the second is held along them.
-            first = dataclasses.replace(
-                correspondence_analysis(ctx, out),
-                degeneracy=first.degeneracy,
-                valley=valley_moment(
-                    lambda start: run(held, start),
-                    pose_from_core(out, dim),
-                    first.degeneracy,
-                    ctx.prior,
-                    s.max_correspondence_distance,
-                ),
+            valley = valley_moment(
+                lambda start: run(held, start),
+                pose_from_core(out, dim),
+                first.degeneracy,
+                ctx.prior,
+                s.max_correspondence_distance,
             )
+            first = correspondence_analysis(ctx, out, held=first.degeneracy, valley=valley)
 
     t0 = time.perf_counter()
     pose = pose_from_core(out, dim)
@@ -726,7 +723,7 @@ def register(
     n_corr = out.num_correspondences  # the core's ints and floats are Python's already
     sigma2 = residual_variance(out, components, s.kernel, dof)
     stop: StopReason = out.stop_reason
-    trust = LazyTrust(ctx, out, pose, hessian, sigma2, first)
+    trust = LazyTrust(ctx, out, pose, first)
     if not lazy:
         trust.get()
     t_post = time.perf_counter() - t0

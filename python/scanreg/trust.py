@@ -14,8 +14,11 @@ call hands it — never the solver directly:
 * the degeneracy-aware solve (``degeneracy_aware=True``) measures its valley with two held
   solves per weak direction (:func:`valley_moment`, called by ``register`` itself).
 
-The per-correspondence arithmetic (Censi's meats, the block sandwich, the normal agreement)
-runs in the core; here the ≤ 6×6 matrices are combined.
+The arithmetic runs in the core: the per-correspondence sums (Censi's meats, the block
+sandwich, the normal agreement) and, in one call per analysis (``_core.trust_numbers``,
+``scanreg_core::trust``), everything the ≤ 6×6 matrices give — the degeneracy, every covariance
+kind, the prior along weak directions, the model shift, the conditioning, the information and
+the motion χ². Here: which analyses and extra solves run, and the result dataclasses.
 """
 
 from __future__ import annotations
@@ -38,22 +41,15 @@ from ._validate import readonly as _readonly
 from .basin import probe_basin
 from .degeneracy import (
     Degeneracy,
-    analyse_degeneracy,
     correspondence_normal_noise,
-    rotation_levers,
     sampled_normals,
 )
 from .local_map import LocalMap
 from .preprocess import check_k
 from .quality import (
     Conditioning,
-    block_from_inverse,
-    censi_from_inverse,
-    conditioning,
-    covariance_upper_bound,
+    WeakDirection,
     information_from_covariance,
-    least_squares_covariance,
-    sandwich_covariance,
 )
 from .target import PreparedTarget
 from .transform import SE2, SE3
@@ -123,12 +119,6 @@ def pose_from_core(out: Any, dim: int) -> SE2 | SE3:
     return SE3._adopt(u @ vt, np.array(out.translation))
 
 
-def _length_scale(points: FloatArray) -> float:
-    """RMS distance of the points from their centroid (the conditioning's rotation lever)."""
-    centred = points - points.mean(axis=0)
-    return float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
-
-
 @dataclass(frozen=True)
 class TrustInputs:
     """What the trust analysis of one :func:`register` call reads (none of it the caller's
@@ -158,22 +148,36 @@ class TrustInputs:
     solve: Any = None
 
     @functools.cached_property
-    def levers(self) -> FloatArray:
-        return rotation_levers(self.source, int(self.source.shape[1]))
+    def _scene(self) -> tuple[FloatArray, float, float, FloatArray]:
+        """``(levers, length_scale, beam_phase_variance, gate_prior)`` of the source, one pass
+        in the core (``scanreg_core::trust::scene``)."""
+        out: tuple[FloatArray, float, float, FloatArray] = _core.trust_scene(
+            self.source, float(self.settings.max_correspondence_distance)
+        )
+        return out
 
-    @functools.cached_property
+    @property
+    def levers(self) -> FloatArray:
+        """RMS distance of the source from each rotation axis through its origin (≥ 1e-9)."""
+        return self._scene[0]
+
+    @property
+    def length_scale(self) -> float:
+        """RMS distance of the source from its centroid (the conditioning's rotation lever)."""
+        return self._scene[1]
+
+    @property
     def prior(self) -> FloatArray:
-        """The covariance of the initial guess (see :func:`register`)."""
+        """The covariance of the initial guess (see :func:`register`): ``init_covariance``, or
+        the gate-wide prior ``diag(δ², …, (δ/L_a)², …) / 3`` (δ the gate, or the RMS lever when
+        the gate is infinite). ICP converges only from within about a gate of the truth: the
+        error is taken as uniform within ±δ per axis (the least informative law with that
+        bound), variance δ²/3."""
         if self.init_covariance is not None:
             return self.init_covariance
-        dim, levers = int(self.source.shape[1]), self.levers
-        gate = self.settings.max_correspondence_distance
-        g = gate if math.isfinite(gate) else float(np.sqrt(np.mean(levers**2)))
-        # ICP converges only from within about a gate of the truth: the error is taken as
-        # uniform within ±δ per axis (the least informative law with that bound), variance δ²/3.
-        return np.diag(np.concatenate([np.full(dim, g**2), (g / levers) ** 2])) / 3.0
+        return self._scene[3]
 
-    @functools.cached_property
+    @property
     def beam_phase_variance(self) -> float:
         """2D: ``Δα²/12`` (rad²) for the source's median angular step ``Δα`` between
         neighbouring points as seen from its origin (the sensor); 0 in 3D.
@@ -187,15 +191,7 @@ class TrustInputs:
         1° step (MbICP halves) and 0.68° at 2° (Intel halves), against Δα/√12 = 0.29° and
         0.58°, where the covariance claimed 0.08° and 0.45°.
         """
-        if self.source.shape[1] != 2 or len(self.source) < 3:
-            return 0.0
-        angles = np.sort(np.arctan2(self.source[:, 1], self.source[:, 0]))
-        steps = np.diff(angles)
-        steps = steps[steps > 1e-9]
-        if not len(steps):
-            return 0.0
-        step = float(np.median(steps))
-        return step * step / 12.0
+        return self._scene[2]
 
     @functools.cached_property
     def source_normals(self) -> tuple[Any, FloatArray]:
@@ -228,6 +224,9 @@ class CorrespondenceAnalysis:
     agreement: tuple[Any, Any] | None
     #: The degeneracy-aware solve's :func:`valley_moment`, or None.
     valley: FloatArray | None = None
+    #: The core's arithmetic of this analysis (``_core.TrustNumbers``): covariances,
+    #: conditioning, information and motion χ² of the outcome it was run on.
+    numbers: Any = None
 
 
 @dataclass(frozen=True)
@@ -252,11 +251,9 @@ class LazyTrust:
         ctx: TrustInputs | dict[str, Any],
         out: Any,
         pose: SE2 | SE3,
-        hessian: FloatArray,
-        sigma2: float,
         first: CorrespondenceAnalysis | None,
     ) -> None:
-        self._args: tuple[Any, ...] | None = (ctx, out, pose, hessian, sigma2, first)
+        self._args: tuple[Any, ...] | None = (ctx, out, pose, first)
         self._lock = threading.Lock()
         self._value: _Trust | None = None
 
@@ -283,7 +280,16 @@ class LazyTrust:
         self._value = value
 
 
-def correspondence_analysis(ctx: TrustInputs, out: Any) -> CorrespondenceAnalysis:
+def correspondence_analysis(
+    ctx: TrustInputs,
+    out: Any,
+    *,
+    held: Degeneracy | None = None,
+    valley: FloatArray | None = None,
+) -> CorrespondenceAnalysis:
+    """The analysis of one core outcome ``out``: the correspondence sums, then the core's
+    arithmetic of them (one call). ``held``: the degeneracy-aware solve's weak directions, kept
+    as the first solve measured them; ``valley``: its :func:`valley_moment`."""
     s, src, prepared, method = ctx.settings, ctx.source, ctx.target, ctx.method
     dim = int(src.shape[1])
     dof = 3 if dim == 2 else 6
@@ -346,73 +352,119 @@ def correspondence_analysis(ctx: TrustInputs, out: Any) -> CorrespondenceAnalysi
         target_covariances=tc if method == "gicp" else None,
         num_threads=s.num_threads,
     )
-    if ana.num_plane_correspondences > dof:
-        deg = analyse_degeneracy(
-            np.array(ana.plane_information),
-            ana.num_plane_correspondences,
-            dim,
-            ctx.levers,
-            normal_noise=eps2,
-            typical_normal_noise=eps2_typical,
-        )
+    pose = pose_from_core(out, dim)
+    moved = ctx.start.inverse() @ pose  # type: ignore[operator]
+    kernel = s.kernel != "none"
+    # By position up to the keywords: the binding's order.
+    num = _core.trust_numbers(
+        ana,
+        out.hessian,
+        residual_variance(out, ctx.components, s.kernel, dof),
+        method=method,
+        levers=ctx.levers,
+        prior=ctx.prior,
+        drift=moved.log(),
+        motion=np.asarray(moved.translation, dtype=np.float64),
+        length_scale=ctx.length_scale,
+        covariance=s.covariance,
+        num_correspondences=int(out.num_correspondences),
+        sum_squared_distances=float(out.sum_squared_distances),
+        score_outer=out.score_outer if kernel else None,
+        effective_residuals=ctx.components * float(out.irls_weight_sum) if kernel else 0.0,
+        normal_noise=eps2,
+        typical_normal_noise=eps2_typical,
+        normal_variance=normal_var,
+        agreement=None if agreement is None else (*agreement[0], *agreement[1]),
+        valley=valley,
+        sampling=ctx.beam_phase_variance,
+        held=None
+        if held is None
+        else (
+            held.information,
+            held.threshold,
+            held.normal_noise,
+            held.typical_normal_noise,
+            held.num_correspondences,
+        ),
+    )
+    if held is None:
+        basis = "plane_information" if ana.num_plane_correspondences > dof else "hessian"
+        deg = _degeneracy(num, ctx.levers, eps2, eps2_typical, basis)
     else:
-        deg = analyse_degeneracy(
-            np.array(ana.hessian),
-            max(ana.num_correspondences, 1),
-            dim,
-            ctx.levers,
-            normal_noise=eps2,
-            typical_normal_noise=eps2_typical,
-            basis="hessian",
-        )
+        deg = held
     return CorrespondenceAnalysis(
         censi=ana,
         degeneracy=deg,
-        point_variance=_point_variance(out, ana, method, dim, dof),
+        point_variance=float(num.point_variance),
         normal_variance=normal_var,
         agreement=agreement,
+        valley=valley,
+        numbers=num,
     )
+
+
+def _degeneracy(
+    num: Any, levers: FloatArray, eps2: float, eps2_typical: float, basis: str
+) -> Degeneracy:
+    """:class:`Degeneracy` from the core's eigen-analysis of ``Ĝ`` (``num``)."""
+    vals = num.degeneracy_eigenvalues
+    units = num.degeneracy_directions
+    ev = [float(v) for v in vals]
+    top = max(ev[-1], 1e-300)
+    threshold = float(num.degeneracy_threshold)
+    directions = tuple(
+        WeakDirection(vector=_frozen(units[:, i]), ratio=ev[i] / top, description=text)
+        for i, text in enumerate(num.degeneracy_descriptions)
+    )
+    deg = _build(
+        Degeneracy,
+        {
+            "information": num.degeneracy_information,
+            "levers": levers,
+            "eigenvalues": vals,
+            "directions": directions,
+            "weak_directions": tuple(
+                d for d, lam in zip(directions, ev, strict=True) if lam < threshold
+            ),
+            "threshold": threshold,
+            "normal_noise": float(eps2),
+            "typical_normal_noise": float(eps2_typical),
+            "basis": basis,
+            "num_correspondences": int(num.degeneracy_count),
+        },
+    )
+    # The eigen-decomposition the bases and tilts read: the core's, not a second one.
+    deg.__dict__["_eigen"] = (vals, num.degeneracy_eigenvectors)
+    return deg
 
 
 def _covariance_estimates(
     ctx: TrustInputs,
     out: Any,
     pose: SE2 | SE3,
-    hessian: FloatArray,
-    sigma2: float,
     corr: CorrespondenceAnalysis,
 ) -> CovarianceEstimates:
     """Every covariance kind of one outcome (:class:`CovarianceEstimates`), from its
-    correspondence analysis ``corr``."""
-    s = ctx.settings
-    dof = 3 if ctx.source.shape[1] == 2 else 6
-    deg = corr.degeneracy
-    try:
-        if s.kernel == "none":
-            cov = least_squares_covariance(hessian, sigma2)
-        else:
-            m_eff = ctx.components * float(out.irls_weight_sum)
-            cov = sandwich_covariance(hessian, np.array(out.score_outer), m_eff, dof)
-        if not np.isfinite(cov).all():
-            raise np.linalg.LinAlgError("non-finite covariance")
-    except np.linalg.LinAlgError:
-        cov = np.full((dof, dof), np.inf)
-    estimates = _estimates(
-        cov,
-        corr.censi,
-        deg,
-        ctx.prior,
-        corr.point_variance,
-        corr.normal_variance,
-        ctx.block_size,
-        dof,
-        (ctx.start.inverse() @ pose).log(),  # type: ignore[operator]
-        _model_shift(corr.agreement, deg, ctx.method, dof),
-        corr.valley,
-        ctx.beam_phase_variance,
+    correspondence analysis ``corr`` (the core computed them; point-to-point with target
+    normals then re-solves point-to-plane/line, :func:`_via_plane_reference`)."""
+    num = corr.numbers
+    estimates = _build(
+        CovarianceEstimates,
+        {
+            "hessian": num.hessian,
+            "censi": num.censi,
+            "block": num.block,
+            "calibrated": num.calibrated,
+            "point_variance": float(num.point_variance),
+            "normal_variance": float(corr.normal_variance),
+            "block_size": float(ctx.block_size),
+            "num_blocks": int(corr.censi.num_blocks),
+            "prior": _frozen(ctx.prior),
+            "model_shift": num.model_shift,
+        },
     )
     if ctx.plane_solve is not None:
-        estimates = _via_plane_reference(ctx, pose, corr, estimates, dof)
+        estimates = _via_plane_reference(ctx, pose, corr, estimates)
     return estimates
 
 
@@ -420,8 +472,6 @@ def _trust(
     ctx: TrustInputs,
     out: Any,
     pose: SE2 | SE3,
-    hessian: FloatArray,
-    sigma2: float,
     first: CorrespondenceAnalysis | None,
 ) -> _Trust:
     t0 = time.perf_counter()
@@ -430,12 +480,34 @@ def _trust(
     dof = 3 if dim == 2 else 6
     corr = first if first is not None else correspondence_analysis(ctx, out)
     deg = corr.degeneracy
-    estimates = _covariance_estimates(ctx, out, pose, hessian, sigma2, corr)
+    num = corr.numbers
+    estimates = _covariance_estimates(ctx, out, pose, corr)
     chosen = getattr(estimates, s.covariance)
-    info = (
-        information_from_covariance(chosen) if np.isfinite(chosen).all() else np.zeros((dof, dof))
+    if chosen is getattr(num, s.covariance):
+        info = num.information
+    else:  # point-to-point's calibrated, replaced by the plane reference's
+        info = (
+            information_from_covariance(chosen)
+            if np.isfinite(chosen).all()
+            else np.zeros((dof, dof))
+        )
+    weakest = num.weakest
+    cond = _build(
+        Conditioning,
+        {
+            "eigenvalues": num.conditioning_eigenvalues,
+            "eigenvectors": num.conditioning_eigenvectors,
+            "condition_number": float(num.condition_number),
+            "length_scale": float(num.length_scale),
+            "scaled_eigenvalues": num.scaled_eigenvalues,
+            "scaled_condition_number": float(num.scaled_condition_number),
+            "weakest": WeakDirection(
+                vector=weakest,
+                ratio=float(num.weakest_ratio),
+                description=num.weakest_description,
+            ),
+        },
     )
-    cond = conditioning(hessian, dim, _length_scale(src))
     th = ctx.thresholds
     stop = str(out.stop_reason)
     # The verdict reads the same eigen-analysis unless it asks for another weak ratio.
@@ -451,7 +523,7 @@ def _trust(
         stop_reason=stop,
         degeneracy=deg,
         hints=None if isinstance(ctx.target, LocalMap) else out.correspondences,
-        prior=ctx.prior,
+        motion_nees=num.motion_nees,
     )
     if checked.verdict.accepted and th.probes_basin(dim) and ctx.solve is not None:
         # Only a result every other check accepts is probed: the restarts cost about as much
@@ -509,7 +581,6 @@ def _via_plane_reference(
     pose: SE2 | SE3,
     corr: CorrespondenceAnalysis,
     estimates: CovarianceEstimates,
-    dof: int,
 ) -> CovarianceEstimates:
     """Point-to-point's ``calibrated``: the point-to-plane/line estimate's, plus the offset
     between the two as ``δδᵀ`` (``model_shift``).
@@ -529,12 +600,15 @@ def _via_plane_reference(
         return estimates
     dim = int(ctx.source.shape[1])
     ref_ctx = dataclasses.replace(ctx, method=PLANE_METHOD[dim], components=1, plane_solve=None)
-    ref_corr = correspondence_analysis(ref_ctx, out)
-    if ctx.settings.degeneracy_aware:  # the solve's weak directions and valley, as register's
-        ref_corr = dataclasses.replace(ref_corr, degeneracy=corr.degeneracy, valley=corr.valley)
+    aware = ctx.settings.degeneracy_aware  # the solve's weak directions and valley, as register's
+    ref_corr = correspondence_analysis(
+        ref_ctx,
+        out,
+        held=corr.degeneracy if aware else None,
+        valley=corr.valley if aware else None,
+    )
     ref_pose = pose_from_core(out, dim)
-    sigma2 = residual_variance(out, 1, ctx.settings.kernel, dof)
-    ref = _covariance_estimates(ref_ctx, out, ref_pose, out.hessian, sigma2, ref_corr)
+    ref = _covariance_estimates(ref_ctx, out, ref_pose, ref_corr)
     cal = np.asarray(ref.calibrated)
     if not np.isfinite(cal).all():
         return estimates
@@ -549,76 +623,6 @@ def _via_plane_reference(
     )
 
 
-def _point_variance(out: Any, ana: Any, method: str, dim: int, dof: int) -> float:
-    """Noise variance of one coordinate of a point, half of the residual variance (source and
-    target points are equally noisy).
-
-    Point-to-plane/line: along the normal, ``Σ (nᵀe)² / (n - dof)`` — the noise its residual
-    feels. Point-to-point and GICP: ``Σ |e|² / (D n - dof)``, the along-surface sampling
-    offsets included. For GICP the normal-only estimate was measured too
-    (``docs/calibration.md``): consistent in 2D but 4× over-confident in the 3D street and
-    tunnel, where the along-surface offsets are part of the error; the Euclidean one errs on
-    the safe side (over-cautious in the degenerate 2D/3D scenes).
-    """
-    n_plane = int(ana.num_plane_correspondences)
-    if method in ("point_to_plane", "point_to_line") and n_plane > dof:
-        return float(ana.plane_sum_squares / (n_plane - dof)) / 2.0
-    n = int(out.num_correspondences)
-    return float(out.sum_squared_distances / max(dim * n - dof, 1)) / 2.0
-
-
-def _estimates(
-    hessian_cov: FloatArray,
-    ana: Any,
-    deg: Degeneracy,
-    prior: FloatArray,
-    point_variance: float,
-    normal_variance: float,
-    block: float,
-    dof: int,
-    drift: FloatArray,
-    shift: FloatArray,
-    valley: FloatArray | None,
-    sampling: float = 0.0,
-) -> CovarianceEstimates:
-    bad = np.full((dof, dof), np.inf)
-    h = np.array(ana.hessian)
-    meat = point_variance * (np.array(ana.source_meat) + np.array(ana.target_meat))
-    meat = meat + normal_variance * np.array(ana.normal_meat)
-    try:
-        h_inv = np.linalg.inv(h)
-        censi = censi_from_inverse(h_inv, meat)
-        blk = block_from_inverse(h_inv, np.array(ana.block_meat), int(ana.num_blocks))
-        if not (np.isfinite(censi).all() and np.isfinite(blk).all()):
-            raise np.linalg.LinAlgError("non-finite covariance")
-        calibrated = covariance_upper_bound(censi, blk)
-    except np.linalg.LinAlgError:
-        censi = blk = calibrated = bad
-    if deg.degenerate and np.isfinite(calibrated).all():
-        # The tilt of the weak axis comes from the target's normal noise; on a map (not
-        # measured there) from the noise between the two scans.
-        eps2 = deg.normal_noise if math.isfinite(deg.normal_noise) else normal_variance
-        calibrated = _with_prior_along_weak(calibrated, deg, prior, drift, eps2, valley)
-    calibrated = calibrated + np.outer(shift, shift)
-    if sampling > 0.0 and np.isfinite(calibrated).all():
-        # 2D: the beams' angular phase (see TrustInputs.beam_phase_variance).
-        calibrated = calibrated.copy()
-        calibrated[2, 2] += sampling
-    censi, blk, calibrated = _psd(censi), _psd(blk), _psd(calibrated)
-    return CovarianceEstimates(
-        hessian=_readonly(_psd(hessian_cov)),
-        censi=_readonly(censi),
-        block=_readonly(blk),
-        calibrated=_readonly(calibrated),
-        point_variance=float(point_variance),
-        normal_variance=float(normal_variance),
-        block_size=float(block),
-        num_blocks=int(ana.num_blocks),
-        prior=_frozen(prior),
-        model_shift=_frozen(shift),
-    )
-
-
 def _psd(cov: FloatArray) -> FloatArray:
     """``cov`` with round-off negative eigenvalues set to zero (a noise-free fit leaves
     variances of ±1e-54: a negative one would make its standard deviation NaN)."""
@@ -629,35 +633,6 @@ def _psd(cov: FloatArray) -> FloatArray:
         return cov
     out: FloatArray = (vecs * np.maximum(vals, 0.0)) @ vecs.T
     return out
-
-
-def _model_shift(agreement: Any, deg: Degeneracy, method: str, dof: int) -> FloatArray:
-    """The model-error shift of :class:`CovarianceEstimates` (``model_shift``).
-
-    Each step is solved on the well-constrained subspace only (scaled coordinates, the weak
-    directions left out: along them the covariance is the prior's, and a step there is not
-    determined). Too few agreeing pairs (``< 10 dof``) or a singular system: zeros.
-    """
-    zero = np.zeros(dof)
-    if agreement is None:
-        return zero
-    (h_all, g_all, _), (h_ok, g_ok, n_ok) = agreement
-    if n_ok < 10 * dof:
-        return zero
-    t = deg.scaling()[:, None] * deg.strong_basis()  # tangent directions of the strong subspace
-
-    def step(h: Any, g: Any) -> FloatArray:
-        c = np.linalg.solve(t.T @ np.asarray(h) @ t, -(t.T @ np.asarray(g)))
-        out: FloatArray = t @ c
-        return out
-
-    try:
-        shift = step(h_ok, g_ok)
-        if method != "point_to_point":
-            shift = shift - step(h_all, g_all)
-    except np.linalg.LinAlgError:
-        return zero
-    return shift if np.isfinite(shift).all() else zero
 
 
 def valley_moment(
@@ -697,86 +672,6 @@ def valley_moment(
             e = (inverse @ pose_from_core(held, dim)).log() / s_inv  # type: ignore[operator]
             e_u = u @ (u.T @ e)
             out += 0.5 * var * np.outer(e_u, e_u) / h**2
-    return out
-
-
-def _with_prior_along_weak(
-    cov: FloatArray,
-    deg: Degeneracy,
-    prior: FloatArray,
-    drift: FloatArray,
-    normal_noise: float,
-    valley: FloatArray | None = None,
-) -> FloatArray:
-    """Replace the data's say along the weak directions by the prior's.
-
-    In scaled coordinates with ``W`` the weak eigenvectors and ``U`` the strong ones: the
-    well-determined part is the data's covariance of ``U``-coordinates *given* the weak ones
-    (``(Uᵀ Λ U)⁻¹``, ``Λ = cov⁻¹``): the solve fixes (aware) or drifts (not aware) along ``W``
-    and solves the rest for that value. Along ``W`` the variance is the prior's plus the
-    square of the solve's own move along ``W`` (``drift``, tangent ``log(start⁻¹ · pose)``:
-    the data do not determine it; zero when held). ``W`` is itself estimated from noisy
-    normals: an error of ``σ_w`` along the true axis shows as ``σ_w · tilt_j`` along each
-    ``u_j`` (:meth:`Degeneracy.tilt_variances`) or, for a translation, as its rotation rows
-    (:func:`_axis_cover`), added there.
-    With the degeneracy-aware solve, ``valley`` (:func:`valley_moment`) is added as well.
-    """
-    s_inv = deg.scaling()
-    w = deg.weak_basis()
-    dof = s_inv.size
-    u = deg.strong_basis()
-    # scaled covariance: δ_s = S δ
-    cov_s = cov / np.outer(s_inv, s_inv)
-    prior_s = prior / np.outer(s_inv, s_inv)
-    if not u.shape[1]:
-        strong = np.zeros((dof, dof))
-    else:
-        try:
-            strong = u @ np.linalg.inv(u.T @ np.linalg.inv(cov_s) @ u) @ u.T
-        except np.linalg.LinAlgError:
-            # A singular data covariance (a noise-free fit: zero residuals): its conditional
-            # cannot be formed; the marginal U Uᵀ Σ U Uᵀ covers it (and is 0 when Σ is).
-            strong = u @ (u.T @ cov_s @ u) @ u.T
-    weak_prior = w.T @ prior_s @ w
-    d_w = w.T @ (np.asarray(drift) / s_inv)
-    weak_prior = weak_prior + np.outer(d_w, d_w)
-    var_w = np.diag(weak_prior)
-    tilt = deg.tilt_variances(normal_noise)  # (weak, strong)
-    weak = w @ weak_prior @ w.T
-    for i in range(w.shape[1]):
-        weak = weak + var_w[i] * _axis_cover(w[:, i], u, tilt[i])
-    if valley is not None:
-        weak = weak + valley
-    out = (strong + weak) * np.outer(s_inv, s_inv)
-    return np.asarray(0.5 * (out + out.T), dtype=np.float64)
-
-
-def _axis_cover(w: FloatArray, u: FloatArray, tilt: FloatArray) -> FloatArray:
-    """Where a unit error along the true weak axis lands in the strong subspace, for the
-    estimated axis ``w`` (scaled coordinates): the second moment, ``(dof, dof)``.
-
-    ``w`` is estimated from noisy normals; an error ``a`` along the true axis ``w*`` shows
-    across ``w`` as ``a · Uᵀ (w* − w)``. In general ``w*`` is ``w`` tilted at random towards
-    each ``u_j`` by ``tilt_j`` (:meth:`Degeneracy.tilt_variances`). A weak direction that is
-    mostly translation (``|t|² ≥ 1/2``) is taken to be a surface symmetry — a corridor, a
-    tunnel, a plane: exactly a translation, ``w* = (t*, 0)``. Its rotation rows are then a
-    known deviation, not noise: biased normals put them there (the ring pattern in a
-    tunnel: −0.6 to −1.0 mrad of pitch per metre along the axis in every realisation,
-    ``docs/calibration.md``), and only the translation rows keep the random tilt.
-    """
-    dof = w.size
-    dim = 2 if dof == 3 else 3
-    cover = u @ np.diag(tilt) @ u.T
-    t = w[:dim]
-    if float(t @ t) < 0.5:
-        return cover
-    rows = np.zeros((dof, dof))
-    rows[:dim, :dim] = np.eye(dim)
-    cover = u @ (u.T @ rows @ cover @ rows @ u) @ u.T
-    v = np.zeros(dof)
-    v[:dim] = t / np.linalg.norm(t)
-    d = u @ (u.T @ (v - w))
-    out: FloatArray = cover + np.outer(d, d)
     return out
 
 

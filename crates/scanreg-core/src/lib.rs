@@ -39,6 +39,7 @@ pub mod simulate;
 pub mod sweep;
 pub mod symeig;
 pub mod threads;
+pub mod trust;
 pub mod voxel_map;
 
 pub use error::{Error, Result};

@@ -35,6 +35,8 @@ pub struct CensiAnalysis {
     num_plane_correspondences: usize,
     #[pyo3(get)]
     num_correspondences: usize,
+    /// The same sums for `trust_numbers`, without a round trip through numpy.
+    pub(crate) inner: censi::Analysis,
 }
 
 #[pyfunction]
@@ -107,17 +109,18 @@ fn censi_analysis(
         .map_err(core_err)?;
     let dof = if dim == 2 { 3 } else { 6 };
     Ok(CensiAnalysis {
-        hessian: square(py, out.hessian, dof)?,
-        censi_meat: square(py, out.censi_meat, dof)?,
-        source_meat: square(py, out.source_meat, dof)?,
-        target_meat: square(py, out.target_meat, dof)?,
-        normal_meat: square(py, out.normal_meat, dof)?,
+        hessian: square(py, out.hessian.clone(), dof)?,
+        censi_meat: square(py, out.censi_meat.clone(), dof)?,
+        source_meat: square(py, out.source_meat.clone(), dof)?,
+        target_meat: square(py, out.target_meat.clone(), dof)?,
+        normal_meat: square(py, out.normal_meat.clone(), dof)?,
         plane_sum_squares: out.plane_sum_squares,
-        block_meat: square(py, out.block_meat, dof)?,
+        block_meat: square(py, out.block_meat.clone(), dof)?,
         num_blocks: out.num_blocks,
-        plane_information: square(py, out.plane_information, dof)?,
+        plane_information: square(py, out.plane_information.clone(), dof)?,
         num_plane_correspondences: out.num_plane_correspondences,
         num_correspondences: out.num_correspondences,
+        inner: out,
     })
 }
 

@@ -23,6 +23,7 @@ mod register;
 mod simulate;
 mod sweep;
 mod threads;
+mod trust;
 
 #[pymodule]
 fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -44,5 +45,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     place::register(m)?;
     threads::register(m)?;
     global::register(m)?;
+    trust::register(m)?;
     Ok(())
 }

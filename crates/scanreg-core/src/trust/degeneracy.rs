@@ -1,0 +1,166 @@
+//! The weak directions of the normalised, scaled plane information (`scanreg.degeneracy`):
+//! `Ĝ = S⁻¹ G S⁻¹ / n` with `S = diag(1.., L_a..)`, its eigen-analysis, and the tilt each
+//! weak eigenvector carries from the normal noise.
+
+use super::dense::{eigh, scale_both, sym, Mat, Vector};
+
+/// Floor of the weak-direction threshold (a mean squared constraint per correspondence).
+pub const MIN_CONSTRAINT: f64 = 0.03;
+/// The threshold is at least this many times the typical normal noise `ε̃²`.
+pub const NOISE_FACTOR: f64 = 6.0;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Degeneracy {
+    /// `Ĝ`, symmetric, unitless.
+    pub information: Mat,
+    /// Rotation levers `L_a`.
+    pub levers: Vector,
+    /// Eigenvalues of `Ĝ`, ascending.
+    pub eigenvalues: Vector,
+    /// Its unit eigenvectors (columns), scaled coordinates.
+    pub eigenvectors: Mat,
+    /// The eigenvectors in tangent coordinates (`S⁻¹ v`), unit length in metres-equivalent.
+    pub directions: Mat,
+    pub threshold: f64,
+    /// `ε̂²` (NaN: not measured).
+    pub normal_noise: f64,
+    /// `ε̃²` (NaN: not measured).
+    pub typical_normal_noise: f64,
+    pub num_correspondences: usize,
+}
+
+/// `diag(S⁻¹)`: 1 for translation, `1/L_a` for rotation.
+pub fn scaling(dim: usize, levers: &Vector) -> Vector {
+    let mut s = Vector::from_element(dim + levers.len(), 1.0);
+    for (a, l) in levers.iter().enumerate() {
+        s[dim + a] = 1.0 / l;
+    }
+    s
+}
+
+/// Columns of `vecs` back in tangent units (`× s_inv`), each divided by the norm of the column
+/// `/ norm_scale` (of itself when `None`).
+pub fn unit_directions(vecs: &Mat, s_inv: &Vector, norm_scale: Option<&Vector>) -> Mat {
+    let (n, m) = vecs.shape();
+    let v = Mat::from_fn(n, m, |i, j| vecs[(i, j)] * s_inv[i]);
+    let mut out = v.clone();
+    for j in 0..m {
+        let mut ss = 0.0;
+        for i in 0..n {
+            let x = match norm_scale {
+                Some(d) => v[(i, j)] / d[i],
+                None => v[(i, j)],
+            };
+            ss += x * x;
+        }
+        let norm = ss.sqrt();
+        for i in 0..n {
+            out[(i, j)] = v[(i, j)] / norm;
+        }
+    }
+    out
+}
+
+/// Name the weak directions of `information` (`Σ JᵀJ` over `count` correspondences).
+pub fn analyse(
+    information: &Mat,
+    count: usize,
+    dim: usize,
+    levers: &Vector,
+    normal_noise: f64,
+    typical_normal_noise: f64,
+) -> Degeneracy {
+    let s_inv = scaling(dim, levers);
+    let g = scale_both(&sym(information), &s_inv) / (count.max(1) as f64);
+    let (vals, vecs) = eigh(&g);
+    let mut threshold = MIN_CONSTRAINT;
+    if typical_normal_noise.is_finite() {
+        threshold = threshold.max(NOISE_FACTOR * typical_normal_noise);
+    }
+    let directions = unit_directions(&vecs, &s_inv, Some(&s_inv));
+    Degeneracy {
+        information: g,
+        levers: levers.clone(),
+        eigenvalues: vals,
+        eigenvectors: vecs,
+        directions,
+        threshold,
+        normal_noise,
+        typical_normal_noise,
+        num_correspondences: count,
+    }
+}
+
+impl Degeneracy {
+    pub fn dim(&self) -> usize {
+        self.information.nrows() - self.levers.len()
+    }
+
+    /// Eigenvalues below the threshold (they come first: ascending).
+    pub fn num_weak(&self) -> usize {
+        self.eigenvalues
+            .iter()
+            .filter(|&&v| v < self.threshold)
+            .count()
+    }
+
+    pub fn scaling(&self) -> Vector {
+        scaling(self.dim(), &self.levers)
+    }
+
+    /// `(dof, w)` weak eigenvectors, scaled coordinates.
+    pub fn weak_basis(&self) -> Mat {
+        super::dense::columns(&self.eigenvectors, 0, self.num_weak())
+    }
+
+    /// `(dof, dof − w)` the other eigenvectors.
+    pub fn strong_basis(&self) -> Mat {
+        let n = self.eigenvectors.ncols();
+        super::dense::columns(&self.eigenvectors, self.num_weak(), n)
+    }
+
+    /// `(w, dof − w)` variance of each weak eigenvector's tilt towards each strong one from
+    /// normal noise `ε²` (NaN: zeros): `ε² λ_j / (n (λ_j − λ_w)²)`, the gap floored at 1e-12.
+    pub fn tilt_variances(&self, normal_noise: f64) -> Mat {
+        let eps2 = if normal_noise.is_nan() {
+            0.0
+        } else {
+            normal_noise
+        };
+        let nw = self.num_weak();
+        let dof = self.eigenvalues.len();
+        let n = self.num_correspondences.max(1) as f64;
+        let vals = &self.eigenvalues;
+        Mat::from_fn(nw, dof - nw, |i, j| {
+            let gap = (vals[nw + j] - vals[i]).max(1e-12);
+            eps2 * vals[nw + j] / (n * (gap * gap))
+        })
+    }
+}
+
+/// A degeneracy from its normalised information `Ĝ` as analysed before (same eigenvectors:
+/// the decomposition is deterministic).
+pub fn from_normalised(
+    g: Mat,
+    levers: Vector,
+    threshold: f64,
+    normal_noise: f64,
+    typical_normal_noise: f64,
+    count: usize,
+) -> Degeneracy {
+    let dim = g.nrows() - levers.len();
+    let s_inv = scaling(dim, &levers);
+    let (vals, vecs) = eigh(&g);
+    let directions = unit_directions(&vecs, &s_inv, Some(&s_inv));
+    Degeneracy {
+        information: g,
+        levers,
+        eigenvalues: vals,
+        eigenvectors: vecs,
+        directions,
+        threshold,
+        normal_noise,
+        typical_normal_noise,
+        num_correspondences: count,
+    }
+}

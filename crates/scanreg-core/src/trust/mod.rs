@@ -1,0 +1,301 @@
+//! The trust arithmetic of one registration result, in one call: from the correspondence
+//! analysis at unit variances ([`crate::censi::Analysis`]) and the solve's outcome to the
+//! degeneracy, every covariance kind, the conditioning, the chosen covariance's information and
+//! the motion χ². `scanreg.trust` keeps the orchestration (which analyses and extra solves run)
+//! and the result dataclasses; the models behind each step are documented there and in
+//! `docs/calibration.md`.
+//!
+//! One idea per file: [`dense`] (eigen, inverse, PSD on `dof × dof`), [`degeneracy`],
+//! [`covariance`], [`describe`] (directions named), [`weak`] (the prior along weak directions), [`shift`] (the model-error
+//! term), [`conditioning`], [`scene`] (per-point levers, length scale, beam phase).
+
+pub mod conditioning;
+pub mod covariance;
+pub mod degeneracy;
+pub mod dense;
+pub mod describe;
+pub mod scene;
+pub mod shift;
+pub mod weak;
+
+use crate::censi::Analysis;
+use crate::error::{Error, Result};
+use crate::icp::Method;
+use dense::{all_finite, from_rows, psd, Mat, Vector};
+
+/// Which covariance `chosen` (and its information) is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    Hessian,
+    Censi,
+    Block,
+    Calibrated,
+}
+
+impl Kind {
+    pub fn from_name(name: &str) -> Result<Self> {
+        match name {
+            "hessian" => Ok(Kind::Hessian),
+            "censi" => Ok(Kind::Censi),
+            "block" => Ok(Kind::Block),
+            "calibrated" => Ok(Kind::Calibrated),
+            other => Err(Error::invalid(
+                "covariance",
+                format!("unknown {other:?}; expected hessian, censi, block or calibrated"),
+            )),
+        }
+    }
+}
+
+/// A degeneracy analysed before (the degeneracy-aware solve's first, held along its weak
+/// directions): reused as it was, not re-measured at the held pose.
+#[derive(Debug, Clone, Copy)]
+pub struct Held<'a> {
+    /// `Ĝ`, row-major (already scaled and normalised).
+    pub information: &'a [f64],
+    pub threshold: f64,
+    pub normal_noise: f64,
+    pub typical_normal_noise: f64,
+    pub num_correspondences: usize,
+}
+
+/// Everything one result's arithmetic reads; matrices row-major `dof × dof`.
+#[derive(Debug, Clone)]
+pub struct Input<'a> {
+    pub dim: usize,
+    pub method: Method,
+    /// The correspondence analysis at unit variances.
+    pub analysis: &'a Analysis,
+    /// The solve's `JᵀWJ` and its residual variance `σ̂²`.
+    pub hessian: &'a [f64],
+    pub sigma2: f64,
+    /// Under a kernel: `Σ ψψᵀ` and the effective number of scalar residuals (the sandwich).
+    pub score_outer: Option<&'a [f64]>,
+    pub effective_residuals: f64,
+    /// The solve's correspondences and `Σ |e|²` (point variance of point-to-point and GICP).
+    pub num_correspondences: usize,
+    pub sum_squared_distances: f64,
+    pub levers: &'a [f64],
+    /// The target's normal noise `(ε̂², ε̃²)`, NaN when not measured.
+    pub normal_noise: f64,
+    pub typical_normal_noise: f64,
+    /// Normal variance measured between the two scans (0 when not measured).
+    pub normal_variance: f64,
+    pub held: Option<Held<'a>>,
+    pub prior: &'a [f64],
+    /// Tangent `log(start⁻¹ · pose)`.
+    pub drift: &'a [f64],
+    /// `((H, g, n) of all sampled pairs, (H, g, n) of the agreeing ones)`.
+    pub agreement: Option<(shift::System, shift::System)>,
+    pub valley: Option<&'a [f64]>,
+    /// 2D beam-phase variance added to `calibrated`'s heading.
+    pub sampling: f64,
+    pub length_scale: f64,
+    pub chosen: Kind,
+    /// Translation of `start⁻¹ · pose`, for the motion χ² against the prior's translation block.
+    pub motion: &'a [f64],
+}
+
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub degeneracy: degeneracy::Degeneracy,
+    /// Each eigen-direction of the degeneracy named ([`describe::describe`]), weakest first.
+    pub descriptions: Vec<String>,
+    /// The conditioning's weakest direction named.
+    pub weakest_description: String,
+    pub point_variance: f64,
+    pub hessian: Mat,
+    pub censi: Mat,
+    pub block: Mat,
+    pub calibrated: Mat,
+    pub model_shift: Vector,
+    pub conditioning: conditioning::Conditioning,
+    /// Information of the chosen covariance (zeros when it is not finite).
+    pub information: Mat,
+    /// `tᵀ P_t⁻¹ t`, None when the prior's translation block is singular.
+    pub motion_nees: Option<f64>,
+}
+
+fn check_len(name: &'static str, got: usize, want: usize) -> Result<()> {
+    if got != want {
+        return Err(Error::invalid(
+            name,
+            format!("expected {want} values, got {got}"),
+        ));
+    }
+    Ok(())
+}
+
+/// Noise variance of one coordinate of a point, half of the residual variance (source and
+/// target points are equally noisy).
+///
+/// Point-to-plane/line: along the normal, `Σ (nᵀe)² / (n − dof)` — the noise its residual
+/// feels. Point-to-point and GICP: `Σ |e|² / (D n − dof)`, the along-surface sampling offsets
+/// included. For GICP the normal-only estimate was measured too (`docs/calibration.md`):
+/// consistent in 2D but 4× over-confident in the 3D street and tunnel, where the along-surface
+/// offsets are part of the error; the Euclidean one errs on the safe side.
+fn point_variance(input: &Input<'_>, dof: usize) -> f64 {
+    let a = input.analysis;
+    let n_plane = a.num_plane_correspondences;
+    if input.method == Method::PointToPlane && n_plane > dof {
+        return a.plane_sum_squares / (n_plane - dof) as f64 / 2.0;
+    }
+    let n = input.num_correspondences;
+    let denom = (input.dim * n).saturating_sub(dof).max(1) as f64;
+    input.sum_squared_distances / denom / 2.0
+}
+
+/// The whole arithmetic of one result (see the module docs).
+pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
+    let dim = input.dim;
+    if dim != 2 && dim != 3 {
+        return Err(Error::invalid("dim", format!("must be 2 or 3, got {dim}")));
+    }
+    let dof = if dim == 2 { 3 } else { 6 };
+    let nn = dof * dof;
+    check_len("hessian", input.hessian.len(), nn)?;
+    check_len("prior", input.prior.len(), nn)?;
+    check_len("drift", input.drift.len(), dof)?;
+    check_len("levers", input.levers.len(), dof - dim)?;
+    check_len("motion", input.motion.len(), dim)?;
+    let a = input.analysis;
+    check_len("analysis", a.hessian.len(), nn)?;
+    if let Some(s) = input.score_outer {
+        check_len("score_outer", s.len(), nn)?;
+    }
+    if let Some(v) = input.valley {
+        check_len("valley", v.len(), nn)?;
+    }
+    if let Some(h) = input.held {
+        check_len("held", h.information.len(), nn)?;
+    }
+    let levers = Vector::from_column_slice(input.levers);
+
+    let deg = match input.held {
+        Some(h) => degeneracy::from_normalised(
+            from_rows(dof, h.information),
+            levers,
+            h.threshold,
+            h.normal_noise,
+            h.typical_normal_noise,
+            h.num_correspondences,
+        ),
+        None if a.num_plane_correspondences > dof => degeneracy::analyse(
+            &from_rows(dof, &a.plane_information),
+            a.num_plane_correspondences,
+            dim,
+            &levers,
+            input.normal_noise,
+            input.typical_normal_noise,
+        ),
+        None => degeneracy::analyse(
+            &from_rows(dof, &a.hessian),
+            a.num_correspondences.max(1),
+            dim,
+            &levers,
+            input.normal_noise,
+            input.typical_normal_noise,
+        ),
+    };
+    let pv = point_variance(input, dof);
+    let nv = input.normal_variance;
+
+    let score_outer = input.score_outer.map(|s| from_rows(dof, s));
+    let solve_hessian = from_rows(dof, input.hessian);
+    let hessian_cov = covariance::of_hessian(
+        &solve_hessian,
+        input.sigma2,
+        score_outer.as_ref(),
+        input.effective_residuals,
+    );
+
+    let prior = from_rows(dof, input.prior);
+    let drift = Vector::from_column_slice(input.drift);
+    let shift = match &input.agreement {
+        Some((all, agreeing)) => {
+            shift::model_shift(all, agreeing, &deg, input.method == Method::PointToPoint)
+        }
+        None => Vector::zeros(dof),
+    };
+    let bad = Mat::from_element(dof, dof, f64::INFINITY);
+    let h = from_rows(dof, &a.hessian);
+    let meat = (from_rows(dof, &a.source_meat) + from_rows(dof, &a.target_meat)) * pv
+        + from_rows(dof, &a.normal_meat) * nv;
+    let (censi, block, mut calibrated) = match dense::inverse(&h) {
+        Some(h_inv) => {
+            let c = covariance::censi_from_inverse(&h_inv, &meat);
+            let b = covariance::block_from_inverse(
+                &h_inv,
+                &from_rows(dof, &a.block_meat),
+                a.num_blocks,
+            );
+            if all_finite(&c) && all_finite(&b) {
+                let u = covariance::upper_bound(&c, &b);
+                (c, b, u)
+            } else {
+                (bad.clone(), bad.clone(), bad.clone())
+            }
+        }
+        None => (bad.clone(), bad.clone(), bad.clone()),
+    };
+    if deg.num_weak() > 0 && all_finite(&calibrated) {
+        // The tilt of the weak axis comes from the target's normal noise; on a map (not
+        // measured there) from the noise between the two scans.
+        let eps2 = if deg.normal_noise.is_finite() {
+            deg.normal_noise
+        } else {
+            nv
+        };
+        let valley = input.valley.map(|v| from_rows(dof, v));
+        calibrated =
+            weak::with_prior_along_weak(&calibrated, &deg, &prior, &drift, eps2, valley.as_ref());
+    }
+    calibrated += &shift * shift.transpose();
+    if input.sampling > 0.0 && all_finite(&calibrated) {
+        calibrated[(2, 2)] += input.sampling;
+    }
+    let (censi, block, calibrated) = (psd(&censi), psd(&block), psd(&calibrated));
+    let hessian_cov = psd(&hessian_cov);
+    let chosen = match input.chosen {
+        Kind::Hessian => &hessian_cov,
+        Kind::Censi => &censi,
+        Kind::Block => &block,
+        Kind::Calibrated => &calibrated,
+    };
+    let information = if all_finite(chosen) {
+        covariance::information(chosen)
+    } else {
+        Mat::zeros(dof, dof)
+    };
+    let motion_block = prior.view((0, 0), (dim, dim)).into_owned();
+    let t = Vector::from_column_slice(input.motion);
+    let motion_nees = dense::solve(&motion_block, &t).map(|x| t.dot(&x));
+    let conditioning = conditioning::conditioning(&solve_hessian, dim, input.length_scale);
+    let lever_rms =
+        (deg.levers.iter().map(|l| l * l).sum::<f64>() / deg.levers.len() as f64).sqrt();
+    let descriptions = (0..dof)
+        .map(|i| describe::describe(deg.directions.column(i).as_slice(), dim, lever_rms))
+        .collect();
+    let weakest_description = describe::describe(
+        conditioning.weakest.as_slice(),
+        dim,
+        conditioning.length_scale,
+    );
+    Ok(Outcome {
+        degeneracy: deg,
+        descriptions,
+        weakest_description,
+        point_variance: pv,
+        hessian: hessian_cov,
+        censi,
+        block,
+        calibrated,
+        model_shift: shift,
+        conditioning,
+        information,
+        motion_nees,
+    })
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,537 @@
+"""The trust arithmetic as the Python package computed it before it moved into the core
+(``scanreg_core::trust``): the independent reference ``tests/test_trust_core.py`` compares the
+core's numbers with. Not part of the package; the per-correspondence sums (``_core.censi_analysis``,
+``_core.normal_agreement_systems``, the normal noise) are the core's in both.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scanreg import _core
+from scanreg._validate import FloatArray
+from scanreg._validate import frozen as _frozen
+from scanreg._validate import readonly as _readonly
+from scanreg.degeneracy import Degeneracy, correspondence_normal_noise
+from scanreg.local_map import LocalMap
+from scanreg.quality import (
+    WeakDirection,
+    covariance_upper_bound,
+    describe_direction,
+    least_squares_covariance,
+    sandwich_covariance,
+    unit_directions,
+)
+from scanreg.target import PreparedTarget
+from scanreg.transform import SE2, SE3
+from scanreg.trust import MIN_NORMAL_AGREEMENT, PLANE_METHOD, CovarianceEstimates, pose_from_core
+
+DEFAULT_MIN_CONSTRAINT = 0.03
+DEFAULT_NOISE_FACTOR = 6.0
+
+
+@dataclass(frozen=True)
+class CorrespondenceAnalysis:
+    censi: Any
+    degeneracy: Degeneracy
+    point_variance: float
+    normal_variance: float
+    agreement: tuple[Any, Any] | None
+    valley: FloatArray | None = None
+
+
+def censi_from_inverse(h_inv: FloatArray, meat: FloatArray) -> FloatArray:
+    cov = h_inv @ meat @ h_inv
+    out: FloatArray = 0.5 * (cov + cov.T)
+    return out
+
+
+def block_from_inverse(h_inv: FloatArray, block_meat: FloatArray, num_blocks: int) -> FloatArray:
+    g = max(int(num_blocks), 2)
+    cov = (g / (g - 1.0)) * h_inv @ block_meat @ h_inv
+    out: FloatArray = 0.5 * (cov + cov.T)
+    return out
+
+
+def levers(ctx: Any) -> FloatArray:
+    return rotation_levers(ctx.source, int(ctx.source.shape[1]))
+
+
+def prior(ctx: Any) -> FloatArray:
+    if ctx.init_covariance is not None:
+        return np.asarray(ctx.init_covariance)
+    dim, lev = int(ctx.source.shape[1]), levers(ctx)
+    gate = ctx.settings.max_correspondence_distance
+    g = gate if math.isfinite(gate) else float(np.sqrt(np.mean(lev**2)))
+    out: FloatArray = np.diag(np.concatenate([np.full(dim, g**2), (g / lev) ** 2])) / 3.0
+    return out
+
+
+def block_size(ctx: Any) -> float:
+    if ctx.settings.block_size is not None:
+        return float(ctx.settings.block_size)
+    block = 2.0 * ctx.settings.max_correspondence_distance
+    if math.isfinite(block):
+        return float(block)
+    return float(np.sqrt(np.mean(levers(ctx) ** 2))) / 5.0
+
+
+def beam_phase_variance(ctx: Any) -> float:
+    src = ctx.source
+    if src.shape[1] != 2 or len(src) < 3:
+        return 0.0
+    angles = np.sort(np.arctan2(src[:, 1], src[:, 0]))
+    steps = np.diff(angles)
+    steps = steps[steps > 1e-9]
+    if not len(steps):
+        return 0.0
+    step = float(np.median(steps))
+    return step * step / 12.0
+
+
+def length_scale(points: FloatArray) -> float:
+    centred = points - points.mean(axis=0)
+    return float(np.sqrt(np.mean(np.sum(centred**2, axis=1))))
+
+
+def residual_variance(out: Any, components: int, kernel: str, dof: int) -> float:
+    if kernel == "none":
+        m = components * float(out.num_correspondences)
+        return float(out.sum_squares / (m - dof)) if m > dof else math.nan
+    m = components * float(out.irls_weight_sum)
+    return float(out.irls_sum_squares / (m - dof)) if m > dof else math.nan
+
+
+def rotation_levers(points: FloatArray, dim: int) -> FloatArray:
+    """RMS distance of ``points`` from each rotation axis through the origin (≥ 1e-9)."""
+    sq = points**2
+    if dim == 2:
+        levers = np.array([np.sqrt(np.mean(sq.sum(axis=1)))])
+    else:
+        total = sq.sum(axis=1)
+        levers = np.sqrt(np.array([np.mean(total - sq[:, a]) for a in range(3)]))
+    out: FloatArray = np.maximum(levers, 1e-9)
+    return out
+
+
+def analyse_degeneracy(
+    information: FloatArray,
+    count: int,
+    dim: int,
+    levers: FloatArray,
+    *,
+    normal_noise: float = float("nan"),
+    typical_normal_noise: float = float("nan"),
+    min_constraint: float = DEFAULT_MIN_CONSTRAINT,
+    noise_factor: float = DEFAULT_NOISE_FACTOR,
+    basis: str = "plane_information",
+) -> Degeneracy:
+    """Name the weak directions of ``information`` (``Σ JᵀJ`` over ``count`` correspondences)."""
+    dof = information.shape[0]
+    s_inv = np.concatenate([np.ones(dim), 1.0 / np.asarray(levers, dtype=np.float64)])
+    g = 0.5 * (information + information.T) * np.outer(s_inv, s_inv) / max(count, 1)
+    vals, vecs = np.linalg.eigh(g)
+    threshold = float(min_constraint)
+    if np.isfinite(typical_normal_noise):
+        threshold = max(threshold, noise_factor * float(typical_normal_noise))
+    top = max(float(vals[-1]), 1e-300)
+    length = float(np.sqrt(np.mean(np.asarray(levers) ** 2)))
+
+    # Back to metres / radians, unit length in metres-equivalent.
+    units = unit_directions(vecs, s_inv, norm_scale=s_inv)
+
+    def direction(i: int) -> WeakDirection:
+        v = units[:, i]
+        return WeakDirection(
+            vector=_frozen(v),
+            ratio=float(vals[i] / top),
+            description=describe_direction(v, dim, length),
+        )
+
+    directions = tuple(direction(i) for i in range(dof))
+    weak = tuple(d for d, lam in zip(directions, vals, strict=True) if lam < threshold)
+    return Degeneracy(
+        information=_frozen(g),
+        levers=_frozen(np.asarray(levers, dtype=np.float64)),
+        eigenvalues=_frozen(vals),
+        directions=directions,
+        weak_directions=weak,
+        threshold=threshold,
+        normal_noise=float(normal_noise),
+        typical_normal_noise=float(typical_normal_noise),
+        basis=basis,
+        num_correspondences=int(count),
+    )
+
+
+def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
+    s, src, prepared, method = ctx.settings, ctx.source, ctx.target, ctx.method
+    dim = int(src.shape[1])
+    dof = 3 if dim == 2 else 6
+    # The target's own normal noise needs its k-d tree: not measured on a map.
+    eps2, eps2_typical = (
+        prepared.normal_noise
+        if isinstance(prepared, PreparedTarget) and prepared.normals is not None
+        else (math.nan, math.nan)
+    )
+    corr = np.asarray(out.correspondences)
+    tp, tn, tc = ctx.target_points, ctx.target_normals, ctx.target_covariances
+    if isinstance(prepared, LocalMap):
+        # A map's rows are gathered for the matched ids only (a few thousand, not the storage).
+        used = corr >= 0
+        ids, compact = np.unique(corr[used], return_inverse=True)
+        tp, tn, tc = prepared.native.gather(np.ascontiguousarray(ids, dtype=np.int64))
+        corr = np.full(corr.shape, -1, dtype=np.int64)
+        corr[used] = compact
+    normal_var = 0.0
+    agreement = None
+    if method != "gicp" and len(src) > dim and tn is not None:
+        # Normals of a sample of the source, to measure the normal noise between the two scans
+        # (Censi's normal term) and which pairs' normals disagree (the model-error term); the
+        # registration itself does not use them.
+        sample, sample_normals = ctx.source_normals
+        if method != "point_to_point":
+            normal_var = correspondence_normal_noise(
+                sample_normals, tn, out.pose[:dim, :dim], corr[sample]
+            )
+            normal_var = normal_var if math.isfinite(normal_var) else 0.0
+        ha, ga, na, hk, gk, nk = _core.normal_agreement_systems(
+            sample,
+            sample_normals,
+            src,
+            tp,
+            tn,
+            corr,
+            out.pose,
+            MIN_NORMAL_AGREEMENT,
+            kernel=s.kernel,
+            kernel_scale=ctx.kernel_scale,
+        )
+        agreement = ((ha, ga, na), (hk, gk, nk))
+    # Unit variances: the meats scale linearly and are combined once the point noise is known
+    # from the residuals of this very analysis.
+    ana = _core.censi_analysis(
+        src,
+        tp,
+        out.pose,
+        corr,
+        method=method,
+        kernel=s.kernel,
+        kernel_scale=ctx.kernel_scale,
+        source_variance=1.0,
+        target_variance=1.0,
+        block_size=max(block_size(ctx), 1e-9),
+        normal_variance=1.0,
+        target_normals=tn,
+        source_covariances=ctx.source_covariances,
+        target_covariances=tc if method == "gicp" else None,
+        num_threads=s.num_threads,
+    )
+    if ana.num_plane_correspondences > dof:
+        deg = analyse_degeneracy(
+            np.array(ana.plane_information),
+            ana.num_plane_correspondences,
+            dim,
+            levers(ctx),
+            normal_noise=eps2,
+            typical_normal_noise=eps2_typical,
+        )
+    else:
+        deg = analyse_degeneracy(
+            np.array(ana.hessian),
+            max(ana.num_correspondences, 1),
+            dim,
+            levers(ctx),
+            normal_noise=eps2,
+            typical_normal_noise=eps2_typical,
+            basis="hessian",
+        )
+    return CorrespondenceAnalysis(
+        censi=ana,
+        degeneracy=deg,
+        point_variance=_point_variance(out, ana, method, dim, dof),
+        normal_variance=normal_var,
+        agreement=agreement,
+    )
+
+
+def _covariance_estimates(
+    ctx: Any,
+    out: Any,
+    pose: SE2 | SE3,
+    hessian: FloatArray,
+    sigma2: float,
+    corr: CorrespondenceAnalysis,
+) -> CovarianceEstimates:
+    """Every covariance kind of one outcome (:class:`CovarianceEstimates`), from its
+    correspondence analysis ``corr``."""
+    s = ctx.settings
+    dof = 3 if ctx.source.shape[1] == 2 else 6
+    deg = corr.degeneracy
+    try:
+        if s.kernel == "none":
+            cov = least_squares_covariance(hessian, sigma2)
+        else:
+            m_eff = ctx.components * float(out.irls_weight_sum)
+            cov = sandwich_covariance(hessian, np.array(out.score_outer), m_eff, dof)
+        if not np.isfinite(cov).all():
+            raise np.linalg.LinAlgError("non-finite covariance")
+    except np.linalg.LinAlgError:
+        cov = np.full((dof, dof), np.inf)
+    estimates = _estimates(
+        cov,
+        corr.censi,
+        deg,
+        prior(ctx),
+        corr.point_variance,
+        corr.normal_variance,
+        block_size(ctx),
+        dof,
+        (ctx.start.inverse() @ pose).log(),  # type: ignore[operator]
+        _model_shift(corr.agreement, deg, ctx.method, dof),
+        corr.valley,
+        beam_phase_variance(ctx),
+    )
+    if ctx.plane_solve is not None:
+        estimates = _via_plane_reference(ctx, pose, corr, estimates, dof)
+    return estimates
+
+
+def _via_plane_reference(
+    ctx: Any,
+    pose: SE2 | SE3,
+    corr: CorrespondenceAnalysis,
+    estimates: CovarianceEstimates,
+    dof: int,
+) -> CovarianceEstimates:
+    """Point-to-point's ``calibrated``: the point-to-plane/line estimate's, plus the offset
+    between the two as ``δδᵀ`` (``model_shift``).
+
+    Two scans sample a surface at different places; point-to-point pairs each point with a
+    neighbour up to half a spacing along the surface and settles where those offsets balance,
+    a bias no noise model at its pose sees (its ``censi`` and ``block`` are 10× over-confident
+    in the simulated room). The point-to-plane/line estimate does not carry it (its own
+    ``calibrated`` is consistent there). So: re-solve point-to-plane/line from the
+    point-to-point pose (held where the solve was), analyse that as any registration (the
+    same start, so the same drift and prior along weak directions), and add the offset
+    ``log(T̂⁻¹ T̂_plane)`` on the well-determined subspace. The error is that offset plus the
+    reference's error. If the re-solve fails, the one-step estimate stays.
+    """
+    out = ctx.plane_solve(pose)
+    if str(out.stop_reason) not in ("converged", "max_iterations"):
+        return estimates
+    dim = int(ctx.source.shape[1])
+    ref_ctx = dataclasses.replace(ctx, method=PLANE_METHOD[dim], components=1, plane_solve=None)
+    ref_corr = correspondence_analysis(ref_ctx, out)
+    if ctx.settings.degeneracy_aware:  # the solve's weak directions and valley, as register's
+        ref_corr = dataclasses.replace(ref_corr, degeneracy=corr.degeneracy, valley=corr.valley)
+    ref_pose = pose_from_core(out, dim)
+    sigma2 = residual_variance(out, 1, ctx.settings.kernel, dof)
+    ref = _covariance_estimates(ref_ctx, out, ref_pose, out.hessian, sigma2, ref_corr)
+    cal = np.asarray(ref.calibrated)
+    if not np.isfinite(cal).all():
+        return estimates
+    s_inv = corr.degeneracy.scaling()
+    u = corr.degeneracy.strong_basis()
+    offset = (pose.inverse() @ ref_pose).log() / s_inv  # type: ignore[operator]
+    shift = (u @ (u.T @ offset)) * s_inv
+    return dataclasses.replace(
+        estimates,
+        calibrated=_readonly(_psd(cal + np.outer(shift, shift))),
+        model_shift=_frozen(shift),
+    )
+
+
+def _point_variance(out: Any, ana: Any, method: str, dim: int, dof: int) -> float:
+    """Noise variance of one coordinate of a point, half of the residual variance (source and
+    target points are equally noisy).
+
+    Point-to-plane/line: along the normal, ``Σ (nᵀe)² / (n - dof)`` — the noise its residual
+    feels. Point-to-point and GICP: ``Σ |e|² / (D n - dof)``, the along-surface sampling
+    offsets included. For GICP the normal-only estimate was measured too
+    (``docs/calibration.md``): consistent in 2D but 4× over-confident in the 3D street and
+    tunnel, where the along-surface offsets are part of the error; the Euclidean one errs on
+    the safe side (over-cautious in the degenerate 2D/3D scenes).
+    """
+    n_plane = int(ana.num_plane_correspondences)
+    if method in ("point_to_plane", "point_to_line") and n_plane > dof:
+        return float(ana.plane_sum_squares / (n_plane - dof)) / 2.0
+    n = int(out.num_correspondences)
+    return float(out.sum_squared_distances / max(dim * n - dof, 1)) / 2.0
+
+
+def _estimates(
+    hessian_cov: FloatArray,
+    ana: Any,
+    deg: Degeneracy,
+    prior: FloatArray,
+    point_variance: float,
+    normal_variance: float,
+    block: float,
+    dof: int,
+    drift: FloatArray,
+    shift: FloatArray,
+    valley: FloatArray | None,
+    sampling: float = 0.0,
+) -> CovarianceEstimates:
+    bad = np.full((dof, dof), np.inf)
+    h = np.array(ana.hessian)
+    meat = point_variance * (np.array(ana.source_meat) + np.array(ana.target_meat))
+    meat = meat + normal_variance * np.array(ana.normal_meat)
+    try:
+        h_inv = np.linalg.inv(h)
+        censi = censi_from_inverse(h_inv, meat)
+        blk = block_from_inverse(h_inv, np.array(ana.block_meat), int(ana.num_blocks))
+        if not (np.isfinite(censi).all() and np.isfinite(blk).all()):
+            raise np.linalg.LinAlgError("non-finite covariance")
+        calibrated = covariance_upper_bound(censi, blk)
+    except np.linalg.LinAlgError:
+        censi = blk = calibrated = bad
+    if deg.degenerate and np.isfinite(calibrated).all():
+        # The tilt of the weak axis comes from the target's normal noise; on a map (not
+        # measured there) from the noise between the two scans.
+        eps2 = deg.normal_noise if math.isfinite(deg.normal_noise) else normal_variance
+        calibrated = _with_prior_along_weak(calibrated, deg, prior, drift, eps2, valley)
+    calibrated = calibrated + np.outer(shift, shift)
+    if sampling > 0.0 and np.isfinite(calibrated).all():
+        # 2D: the beams' angular phase (see TrustInputs.beam_phase_variance).
+        calibrated = calibrated.copy()
+        calibrated[2, 2] += sampling
+    censi, blk, calibrated = _psd(censi), _psd(blk), _psd(calibrated)
+    return CovarianceEstimates(
+        hessian=_readonly(_psd(hessian_cov)),
+        censi=_readonly(censi),
+        block=_readonly(blk),
+        calibrated=_readonly(calibrated),
+        point_variance=float(point_variance),
+        normal_variance=float(normal_variance),
+        block_size=float(block),
+        num_blocks=int(ana.num_blocks),
+        prior=_frozen(prior),
+        model_shift=_frozen(shift),
+    )
+
+
+def _psd(cov: FloatArray) -> FloatArray:
+    """``cov`` with round-off negative eigenvalues set to zero (a noise-free fit leaves
+    variances of ±1e-54: a negative one would make its standard deviation NaN)."""
+    if not np.isfinite(cov).all():
+        return cov
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    if vals[0] >= 0.0:
+        return cov
+    out: FloatArray = (vecs * np.maximum(vals, 0.0)) @ vecs.T
+    return out
+
+
+def _model_shift(agreement: Any, deg: Degeneracy, method: str, dof: int) -> FloatArray:
+    """The model-error shift of :class:`CovarianceEstimates` (``model_shift``).
+
+    Each step is solved on the well-constrained subspace only (scaled coordinates, the weak
+    directions left out: along them the covariance is the prior's, and a step there is not
+    determined). Too few agreeing pairs (``< 10 dof``) or a singular system: zeros.
+    """
+    zero = np.zeros(dof)
+    if agreement is None:
+        return zero
+    (h_all, g_all, _), (h_ok, g_ok, n_ok) = agreement
+    if n_ok < 10 * dof:
+        return zero
+    t = deg.scaling()[:, None] * deg.strong_basis()  # tangent directions of the strong subspace
+
+    def step(h: Any, g: Any) -> FloatArray:
+        c = np.linalg.solve(t.T @ np.asarray(h) @ t, -(t.T @ np.asarray(g)))
+        out: FloatArray = t @ c
+        return out
+
+    try:
+        shift = step(h_ok, g_ok)
+        if method != "point_to_point":
+            shift = shift - step(h_all, g_all)
+    except np.linalg.LinAlgError:
+        return zero
+    return shift if np.isfinite(shift).all() else zero
+
+
+def _with_prior_along_weak(
+    cov: FloatArray,
+    deg: Degeneracy,
+    prior: FloatArray,
+    drift: FloatArray,
+    normal_noise: float,
+    valley: FloatArray | None = None,
+) -> FloatArray:
+    """Replace the data's say along the weak directions by the prior's.
+
+    In scaled coordinates with ``W`` the weak eigenvectors and ``U`` the strong ones: the
+    well-determined part is the data's covariance of ``U``-coordinates *given* the weak ones
+    (``(Uᵀ Λ U)⁻¹``, ``Λ = cov⁻¹``): the solve fixes (aware) or drifts (not aware) along ``W``
+    and solves the rest for that value. Along ``W`` the variance is the prior's plus the
+    square of the solve's own move along ``W`` (``drift``, tangent ``log(start⁻¹ · pose)``:
+    the data do not determine it; zero when held). ``W`` is itself estimated from noisy
+    normals: an error of ``σ_w`` along the true axis shows as ``σ_w · tilt_j`` along each
+    ``u_j`` (:meth:`Degeneracy.tilt_variances`) or, for a translation, as its rotation rows
+    (:func:`_axis_cover`), added there.
+    With the degeneracy-aware solve, ``valley`` (:func:`valley_moment`) is added as well.
+    """
+    s_inv = deg.scaling()
+    w = deg.weak_basis()
+    dof = s_inv.size
+    u = deg.strong_basis()
+    # scaled covariance: δ_s = S δ
+    cov_s = cov / np.outer(s_inv, s_inv)
+    prior_s = prior / np.outer(s_inv, s_inv)
+    if not u.shape[1]:
+        strong = np.zeros((dof, dof))
+    else:
+        try:
+            strong = u @ np.linalg.inv(u.T @ np.linalg.inv(cov_s) @ u) @ u.T
+        except np.linalg.LinAlgError:
+            # A singular data covariance (a noise-free fit: zero residuals): its conditional
+            # cannot be formed; the marginal U Uᵀ Σ U Uᵀ covers it (and is 0 when Σ is).
+            strong = u @ (u.T @ cov_s @ u) @ u.T
+    weak_prior = w.T @ prior_s @ w
+    d_w = w.T @ (np.asarray(drift) / s_inv)
+    weak_prior = weak_prior + np.outer(d_w, d_w)
+    var_w = np.diag(weak_prior)
+    tilt = deg.tilt_variances(normal_noise)  # (weak, strong)
+    weak = w @ weak_prior @ w.T
+    for i in range(w.shape[1]):
+        weak = weak + var_w[i] * _axis_cover(w[:, i], u, tilt[i])
+    if valley is not None:
+        weak = weak + valley
+    out = (strong + weak) * np.outer(s_inv, s_inv)
+    return np.asarray(0.5 * (out + out.T), dtype=np.float64)
+
+
+def _axis_cover(w: FloatArray, u: FloatArray, tilt: FloatArray) -> FloatArray:
+    """Where a unit error along the true weak axis lands in the strong subspace, for the
+    estimated axis ``w`` (scaled coordinates): the second moment, ``(dof, dof)``.
+
+    ``w`` is estimated from noisy normals; an error ``a`` along the true axis ``w*`` shows
+    across ``w`` as ``a · Uᵀ (w* − w)``. In general ``w*`` is ``w`` tilted at random towards
+    each ``u_j`` by ``tilt_j`` (:meth:`Degeneracy.tilt_variances`). A weak direction that is
+    mostly translation (``|t|² ≥ 1/2``) is taken to be a surface symmetry — a corridor, a
+    tunnel, a plane: exactly a translation, ``w* = (t*, 0)``. Its rotation rows are then a
+    known deviation, not noise: biased normals put them there (the ring pattern in a
+    tunnel: −0.6 to −1.0 mrad of pitch per metre along the axis in every realisation,
+    ``docs/calibration.md``), and only the translation rows keep the random tilt.
+    """
+    dof = w.size
+    dim = 2 if dof == 3 else 3
+    cover = u @ np.diag(tilt) @ u.T
+    t = w[:dim]
+    if float(t @ t) < 0.5:
+        return cover
+    rows = np.zeros((dof, dof))
+    rows[:dim, :dim] = np.eye(dim)
+    cover = u @ (u.T @ rows @ cover @ rows @ u) @ u.T
+    v = np.zeros(dof)
+    v[:dim] = t / np.linalg.norm(t)
+    d = u @ (u.T @ (v - w))
+    out: FloatArray = cover + np.outer(d, d)
+    return out

@@ -1,0 +1,277 @@
+"""The trust arithmetic in the core (``scanreg_core::trust``) equals the Python it replaced
+(``tests/_reference_trust.py``) on the calibration scenes: the 2D room and corridor, the 3D
+street and tunnel, every method (and a robust kernel, whose covariance is the sandwich).
+
+Both sides read the same core outcome and the same per-correspondence sums; what is compared
+is everything computed from them: the degeneracy, every covariance kind, the model shift, the
+conditioning, the information and the motion χ². Matrices agree to 1e-12 of their largest
+entry; eigenvectors up to sign (the core fixes each sign, LAPACK does not).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+from typing import Any
+
+import _reference_trust as ref
+import numpy as np
+import pytest
+import scanreg
+from scanreg import SE2, SE3
+from scanreg import simulate as sim
+from scanreg.quality import conditioning, information_from_covariance
+from scanreg.trust import TrustInputs
+from scanreg.verdict import VerdictThresholds
+
+RTOL = 1e-12
+NO_PROBE = VerdictThresholds(basin_probe=False)
+LASER = sim.LaserModel.preset("laser_360")
+STEP2 = SE2.from_vector([0.3, 0.1, np.deg2rad(2.0)])
+STEP3 = SE3.from_vector([0.5, 0.1, 0.0, 0.0, 0.0, np.deg2rad(2.0)])
+
+
+def _scans2d(scene: sim.Scene, pose: SE2, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    a, b = (
+        np.ascontiguousarray(sim.simulate_scan(scene, LASER, p, seed=seed + k).points)
+        for k, p in enumerate((pose, pose @ STEP2))
+    )
+    return b, a  # source: the moved scan
+
+
+def _sweep(scene: sim.Scene, pose: SE3, seed: int) -> np.ndarray:
+    pts = sim.simulate_sweep(scene, sim.LidarModel.preset("vlp16"), pose, seed=seed).points
+    return scanreg.preprocess.voxel_downsample(np.ascontiguousarray(pts), 0.4).points
+
+
+def _scans3d(scene: sim.Scene, pose: SE3, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    return _sweep(scene, pose @ STEP3, seed + 1), _sweep(scene, pose, seed)
+
+
+SCENES: dict[str, Any] = {
+    "room": lambda: _scans2d(sim.square_room(5.0), SE2.from_vector([0.5, 0.3, 0.3]), 0),
+    "corridor": lambda: _scans2d(
+        sim.corridor(length=200.0, width=3.0), SE2.from_vector([100.0, 0, 0]), 2
+    ),
+    "street": lambda: _scans3d(sim.street(seed=4), SE3.from_vector([0, 1.75, 1.73, 0, 0, 0]), 0),
+    "tunnel": lambda: _scans3d(sim.tunnel(), SE3.from_vector([0, 0, 1.8, 0, 0, 0]), 2),
+}
+_CACHE: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _scene(name: str) -> tuple[np.ndarray, np.ndarray]:
+    if name not in _CACHE:
+        _CACHE[name] = SCENES[name]()
+    return _CACHE[name]
+
+
+def _close(got: Any, want: Any, what: str) -> None:
+    got, want = np.asarray(got, dtype=np.float64), np.asarray(want, dtype=np.float64)
+    assert got.shape == want.shape, what
+    finite = np.isfinite(want)
+    np.testing.assert_array_equal(np.isfinite(got), finite, err_msg=what)
+    np.testing.assert_array_equal(got[~finite], want[~finite], err_msg=what)
+    if finite.any():
+        scale = max(float(np.abs(want[finite]).max()), 1e-300)
+        err = float(np.abs(got[finite] - want[finite]).max()) / scale
+        assert err <= RTOL, f"{what}: relative error {err:.2e}"
+
+
+def _same_direction(got: Any, want: Any, what: str) -> None:
+    g, w = np.asarray(got), np.asarray(want)
+    _close(g * np.sign(g @ w), w, what)
+
+
+CASES = [
+    ("room", "point_to_line", "none"),
+    ("room", "point_to_point", "none"),
+    ("room", "gicp", "none"),
+    ("room", "point_to_line", "huber"),
+    ("corridor", "point_to_line", "none"),
+    ("corridor", "point_to_point", "none"),
+    ("corridor", "gicp", "none"),
+    ("street", "point_to_plane", "none"),
+    ("street", "point_to_point", "none"),
+    ("street", "gicp", "huber"),
+    ("tunnel", "point_to_plane", "none"),
+    ("tunnel", "point_to_point", "none"),
+    ("tunnel", "gicp", "none"),
+]
+
+
+@pytest.mark.parametrize(("scene", "method", "kernel"), CASES, ids=str)
+def test_core_trust_equals_the_python_reference(scene: str, method: str, kernel: str) -> None:
+    src, tgt = _scene(scene)
+    target = scanreg.prepare(tgt, normals=True, covariances=method == "gicp")
+    res = scanreg.register(
+        src,
+        target,
+        method=method,  # type: ignore[arg-type]
+        max_correspondence_distance=1.0,
+        kernel=kernel,  # type: ignore[arg-type]
+        thresholds=NO_PROBE,
+    )
+    # The lazy analysis's inputs, before it runs: the same outcome for both sides.
+    args = res._trust._args
+    assert args is not None
+    ctx_fields, out, pose, _ = args
+    ctx = ctx_fields if isinstance(ctx_fields, TrustInputs) else TrustInputs(**ctx_fields)
+    dim = pose.DIM
+    dof = 3 if dim == 2 else 6
+    sigma2 = ref.residual_variance(out, ctx.components, ctx.settings.kernel, dof)
+    want_corr = ref.correspondence_analysis(ctx, out)
+    want = ref._covariance_estimates(ctx, out, pose, out.hessian, sigma2, want_corr)
+
+    got = res.covariances
+    deg = res.degeneracy
+    assert got is not None and deg is not None
+    want_deg = want_corr.degeneracy
+    # Degeneracy: the same weak directions, named alike.
+    assert deg.basis == want_deg.basis
+    assert deg.threshold == want_deg.threshold
+    assert [d.description for d in deg.weak_directions] == [
+        d.description for d in want_deg.weak_directions
+    ]
+    _close(deg.information, want_deg.information, "degeneracy.information")
+    _close(deg.eigenvalues, want_deg.eigenvalues, "degeneracy.eigenvalues")
+    _close(deg.levers, want_deg.levers, "degeneracy.levers")
+    for k, (a, b) in enumerate(zip(deg.directions, want_deg.directions, strict=True)):
+        assert a.ratio == pytest.approx(b.ratio, rel=RTOL, abs=RTOL), k
+        # An eigenvector is determined (up to sign) only where its eigenvalue is simple.
+        vals = want_deg.eigenvalues
+        above = k + 1 == dof or abs(vals[k + 1] - vals[k]) > 1e-6
+        below = k == 0 or abs(vals[k] - vals[k - 1]) > 1e-6
+        if above and below:
+            _same_direction(a.vector, b.vector, f"direction {k}")
+    _close(deg.weak_projector(), want_deg.weak_projector(), "weak projector")
+    # Every covariance kind and the model shift.
+    for kind in ("hessian", "censi", "block", "calibrated", "model_shift", "prior"):
+        _close(getattr(got, kind), getattr(want, kind), kind)
+    for name in ("point_variance", "normal_variance", "block_size", "num_blocks"):
+        assert getattr(got, name) == pytest.approx(getattr(want, name), rel=RTOL), name
+    # The chosen covariance, its information, the conditioning and the motion χ².
+    _close(res.covariance, want.calibrated, "covariance")
+    chosen = np.asarray(want.calibrated)
+    want_info = (
+        information_from_covariance(chosen) if np.isfinite(chosen).all() else np.zeros((dof, dof))
+    )
+    _close(res.information, want_info, "information")
+    want_cond = conditioning(np.asarray(out.hessian), dim, ref.length_scale(ctx.source))
+    cond = res.conditioning
+    _close(cond.eigenvalues, want_cond.eigenvalues, "conditioning.eigenvalues")
+    _close(cond.scaled_eigenvalues, want_cond.scaled_eigenvalues, "scaled eigenvalues")
+    assert cond.length_scale == pytest.approx(want_cond.length_scale, rel=RTOL)
+    for name in ("condition_number", "scaled_condition_number"):
+        a, b = getattr(cond, name), getattr(want_cond, name)
+        assert a == b or a == pytest.approx(b, rel=1e-9), name
+    _same_direction(cond.weakest.vector, want_cond.weakest.vector, "weakest")
+    assert cond.weakest.description == want_cond.weakest.description
+    quality = res.quality
+    assert quality is not None
+    block = np.asarray(ref.prior(ctx))[:dim, :dim]
+    t = np.asarray((ctx.start.inverse() @ pose).translation)
+    assert quality.motion_nees == pytest.approx(float(t @ np.linalg.solve(block, t)), rel=RTOL)
+    assert math.isclose(ctx.beam_phase_variance, ref.beam_phase_variance(ctx), rel_tol=RTOL)
+
+
+def test_the_scenes_cover_weak_and_well_constrained_results() -> None:
+    # The comparison above means something only if both branches of the arithmetic run: the
+    # prior along weak directions (corridor, tunnel) and the well-constrained one (room, street).
+    flags = {}
+    for name, method in (("corridor", "point_to_line"), ("room", "point_to_line")):
+        src, tgt = _scene(name)
+        res = scanreg.register(src, tgt, method=method, max_correspondence_distance=1.0)
+        assert res.degeneracy is not None
+        flags[name] = res.degeneracy.degenerate
+    assert flags == {"corridor": True, "room": False}
+
+
+def test_trust_numbers_refuses_malformed_input_naming_the_argument() -> None:
+    from scanreg import _core
+
+    src, tgt = _scene("room")
+    target = scanreg.prepare(tgt)
+    res = scanreg.register(src, target, thresholds=NO_PROBE)
+    _, out, _, _ = res._trust._args  # type: ignore[misc]
+    ana = _core.censi_analysis(
+        src, tgt, out.pose, np.asarray(out.correspondences), method="point_to_line",
+        kernel="none", kernel_scale=1.0, source_variance=1.0, target_variance=1.0,
+        block_size=2.0, target_normals=target.normals,
+    )  # fmt: skip
+    good: dict[str, Any] = {
+        "method": "point_to_line",
+        "levers": np.ones(1),
+        "prior": np.eye(3),
+        "drift": np.zeros(3),
+        "motion": np.zeros(2),
+        "length_scale": 1.0,
+        "covariance": "calibrated",
+        "num_correspondences": 100,
+        "sum_squared_distances": 1.0,
+    }
+    assert _core.trust_numbers(ana, np.eye(3), 1e-4, **good).calibrated.shape == (3, 3)
+    for key, bad, msg in (
+        ("prior", np.eye(2), "prior: expected a"),
+        ("levers", np.ones(3), "levers: expected 1 values"),
+        ("covariance", "best", "covariance: unknown"),
+        ("method", "nearest", "method: unknown"),
+        ("drift", np.zeros(6), "drift: expected 3 values"),
+    ):
+        with pytest.raises(ValueError, match=msg):
+            _core.trust_numbers(ana, np.eye(3), 1e-4, **{**good, key: bad})
+    with pytest.raises(ValueError, match="hessian: expected a"):
+        _core.trust_numbers(ana, np.eye(6), 1e-4, **good)
+    with pytest.raises(ValueError, match="source: is empty"):
+        _core.trust_scene(np.zeros((0, 2)), 1.0)
+
+
+@pytest.mark.parametrize(
+    ("scene", "method"),
+    [("corridor", "point_to_line"), ("corridor", "point_to_point"), ("tunnel", "point_to_plane")],
+    ids=str,
+)
+def test_degeneracy_aware_solve_equals_the_python_reference(
+    scene: str, method: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The held analysis: the second solve's covariances with the first solve's weak directions
+    # and the valley of the held re-solves (an input here, measured by the same solves).
+    register_module = importlib.import_module("scanreg.register")  # the function shadows it
+    calls: list[tuple[Any, Any, Any, Any]] = []
+    original = register_module.correspondence_analysis
+
+    def recording(ctx: Any, out: Any, *, held: Any = None, valley: Any = None) -> Any:
+        calls.append((ctx, out, held, valley))
+        return original(ctx, out, held=held, valley=valley)
+
+    monkeypatch.setattr(register_module, "correspondence_analysis", recording)
+    src, tgt = _scene(scene)
+    dim = src.shape[1]
+    dof = 3 if dim == 2 else 6
+    res = scanreg.register(
+        src,
+        scanreg.prepare(tgt),
+        method=method,  # type: ignore[arg-type]
+        max_correspondence_distance=1.0,
+        degeneracy_aware=True,
+        init_covariance=np.diag([0.1**2] * dim + [np.deg2rad(1.0) ** 2] * (dof - dim)),
+        thresholds=NO_PROBE,
+    )
+    assert len(calls) == 2, "the scene must be degenerate for the held solve to run"
+    (ctx, out1, _, _), (_, out2, held, valley) = calls
+    assert held is not None and valley is not None
+    first = ref.correspondence_analysis(ctx, out1)
+    second = dataclasses.replace(
+        ref.correspondence_analysis(ctx, out2), degeneracy=first.degeneracy, valley=valley
+    )
+    pose = scanreg.trust.pose_from_core(out2, src.shape[1])
+    sigma2 = ref.residual_variance(out2, ctx.components, ctx.settings.kernel, dof)
+    want = ref._covariance_estimates(ctx, out2, pose, out2.hessian, sigma2, second)
+    got = res.covariances
+    assert got is not None and res.degeneracy is not None
+    assert [d.description for d in res.degeneracy.weak_directions] == [
+        d.description for d in first.degeneracy.weak_directions
+    ]
+    for kind in ("hessian", "censi", "block", "calibrated", "model_shift"):
+        _close(getattr(got, kind), getattr(want, kind), kind)
+    _close(res.information, information_from_covariance(np.asarray(want.calibrated)), "info")
