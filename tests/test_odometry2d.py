@@ -193,3 +193,20 @@ def test_hostile_input() -> None:
 
 def test_exported_from_package() -> None:
     assert scanreg.pipeline.Odometry2D is Odometry2D
+
+
+def test_intel_without_a_prior_keeps_rotations_orthonormal() -> None:
+    """Held frames keep their constant-velocity prediction, which feeds the next velocity: its
+    rotation's round-off grew ×2.4 per frame until the core refused the start (scan 46 of the
+    Intel log, |RᵀR − I| = 1.1e-6)."""
+    from scanreg.io import read_carmen
+
+    folder = data_dir("carmen-intel")
+    log = read_carmen(folder / "intel_gfs_subset_clf_timestamps.clf")
+    odo = Odometry2D(OdometryConfig2D(front_end="icp"))
+    worst = 0.0
+    for scan in log.scans[:70]:
+        frame = odo.step(scan.to_points(0.1, 40.0), stamp=scan.timestamp)
+        r = frame.pose.rotation
+        worst = max(worst, float(np.abs(r.T @ r - np.eye(2)).max()))
+    assert worst < 1e-12

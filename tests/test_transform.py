@@ -180,3 +180,16 @@ def test_poses_pickle_bit_identically() -> None:
         assert np.array_equal(back.as_matrix(), pose.as_matrix())
         with pytest.raises(AttributeError, match="immutable"):
             back._rotation = np.eye(pose.DIM)  # type: ignore[misc]
+
+
+@pytest.mark.parametrize("cls", [SE2, SE3])
+def test_orthonormalized_removes_round_off_and_keeps_clean_poses(cls: type) -> None:
+    rng = np.random.default_rng(3)
+    pose = cls.exp(rng.normal(size=cls.DOF))
+    assert pose.orthonormalized() is pose  # clean: the same object, bit for bit
+    drifted = cls._unchecked(pose.rotation * (1.0 + 1e-6), pose.translation)
+    fixed = drifted.orthonormalized()
+    r = fixed.rotation
+    assert np.abs(r.T @ r - np.eye(cls.DIM)).max() < 1e-14
+    assert np.abs(r - pose.rotation).max() < 1e-14  # a uniform scale projects back exactly
+    np.testing.assert_array_equal(fixed.translation, pose.translation)

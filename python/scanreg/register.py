@@ -558,7 +558,10 @@ def register(
         # Downsampled or given covariances here first; otherwise register_icp's own scan
         # refuses a NaN/inf with the same message.
         check_finite_points(src, "source")
-    pose0 = pose_class(dim).identity() if init is None else as_pose(init, "init", dim)
+    # A composed guess carries round-off in its rotation; the core keeps whatever it is given.
+    pose0 = pose_class(dim).identity()
+    if init is not None:
+        pose0 = as_pose(init, "init", dim).orthonormalized()
 
     t0 = time.perf_counter()
     prepared = _prepared_target(target, dim, method_eff, s)

@@ -243,6 +243,20 @@ class _Pose:
         rt = self._rotation.T
         return self._unchecked(rt, -rt @ self._translation)  # rt is a view: copied
 
+    def orthonormalized(self: P) -> P:
+        """The same pose with round-off removed from its rotation.
+
+        Each composition adds a little to ``|RᵀR − I|`` and a chain that feeds its own output
+        back (``pose @ velocity`` with ``velocity = previous⁻¹ @ pose``) grows it geometrically.
+        Returns ``self`` when the rotation is orthonormal to 1e-12, else its projection onto
+        SO(D), so that poses which are already clean stay bit-identical.
+        """
+        r = self._rotation
+        if float(np.abs(r.T @ r - np.eye(self.DIM)).max()) <= 1e-12:
+            return self
+        u, _, vt = np.linalg.svd(r)
+        return self._adopt(u @ vt, self._translation.copy())
+
     def apply(self, points: Any) -> FloatArray:
         """Map ``(N, D)`` points from the source frame into the target frame."""
         pts = as_points(points, "points", dim=self.DIM, min_points=0)

@@ -220,6 +220,7 @@ class Localizer2D:
             predicted, how = previous @ motion, "prior"
         else:
             predicted, how = previous @ self._velocity, "constant_velocity"
+        predicted = predicted.orthonormalized()  # see Odometry2D.step: held frames feed it back
         t0 = time.perf_counter()
         res = self._register(pts, predicted)
         t_align = time.perf_counter() - t0

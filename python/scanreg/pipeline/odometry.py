@@ -439,7 +439,8 @@ class Odometry:
         has_prior = external_prior
         motion_guess = _se3(as_pose(prior, "prior", 3)) if prior is not None else self._last_motion
         previous = self._poses[-1] if self._poses else self._start
-        prediction = _se3(previous @ motion_guess) if self._poses else self._start
+        # Cleaned of round-off: a held frame keeps its prediction, which feeds the next one.
+        prediction = _se3(previous @ motion_guess).orthonormalized() if self._poses else self._start
 
         # 2. deskew
         t0 = time.perf_counter()

@@ -321,6 +321,9 @@ class Odometry2D:
         else:
             predicted = previous @ self._velocity
             how = "constant_velocity"
+        # A held frame keeps its prediction, which feeds the next velocity: clean the rotation
+        # or its round-off grows geometrically over a run of held frames.
+        predicted = predicted.orthonormalized()
         assert isinstance(predicted, SE2)
         assert self._target is not None and self._map_points is not None
 
