@@ -122,14 +122,22 @@ def test_well_constrained_pair_stays_accepted_with_an_unchanged_covariance() -> 
     truth = SE2.from_vector([0.25, -0.1, math.radians(3.0)])
     src, tgt = _scan(scene, a @ truth, 5), _scan(scene, a, 4)
     start = truth @ SE2.from_vector([0.05, 0.05, math.radians(2.0)])
+    always = VerdictThresholds(basin_screen=False)
     for method in ("point_to_point", "point_to_line", "gicp"):
         res = scanreg.register(src, tgt, method=method, init=start)  # type: ignore[arg-type]
         plain = scanreg.register(src, tgt, method=method, init=start, thresholds=NO_PROBE)  # type: ignore[arg-type]
+        full = scanreg.register(src, tgt, method=method, init=start, thresholds=always)  # type: ignore[arg-type]
         assert res.verdict is not None and res.verdict.accepted, (method, res.verdict.reasons)
         assert res.quality is not None and res.quality.basin is not None
-        assert res.quality.basin.restarts == 12  # the correlative start and 11 restarts
-        assert res.quality.basin.covered == 0
+        # Nothing doubts this basin: the screen lets it through without a restart.
+        assert res.quality.basin.evidence == () and res.quality.basin.restarts == 0
+        # Restarted anyway, every restart comes back to it (or to a pose it covers).
+        assert full.verdict is not None and full.verdict.accepted, full.verdict.reasons
+        assert full.quality is not None and full.quality.basin is not None
+        assert full.quality.basin.restarts == 12  # the correlative start and 11 restarts
+        assert full.quality.basin.covered == 0
         np.testing.assert_array_equal(res.covariance, plain.covariance)
+        np.testing.assert_array_equal(full.covariance, plain.covariance)
         assert _nees(res, truth) < CHI2_3_999, method
 
 
@@ -140,6 +148,8 @@ def test_basin_thresholds_are_validated() -> None:
         VerdictThresholds(basin_probe="yes")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="basin_wrong_ratio"):
         VerdictThresholds(basin_wrong_ratio=-1.0)
+    with pytest.raises(TypeError, match="basin_screen"):
+        VerdictThresholds(basin_screen=1)  # type: ignore[arg-type]
 
 
 def test_odometry2d_falls_back_when_a_step_is_in_the_wrong_basin() -> None:
