@@ -62,12 +62,13 @@ RESTART_ITERATIONS = 6
 #: The correlative start (2D): cell and blur as a fraction of the gate, translation half-width
 #: in gates, heading step in degrees.
 CORRELATIVE_START = True
-CORRELATIVE_CELL_FRACTION = 0.2
+CORRELATIVE_CELL_FRACTION = 0.3
 CORRELATIVE_WINDOW_GATES = 2.0
 CORRELATIVE_ANGLE_DEG = 2.0
 CORRELATIVE_MAX_POINTS = 64
 #: The tight gate as a fraction of the registration's gate.
 TIGHT_GATE_FRACTION = 0.1
+COS_1DEG = math.cos(math.radians(1.0))
 #: χ²(dof) at 99.9 %: an alternative inside this Mahalanobis distance is the same answer.
 CHI2_999 = {3: 16.266, 6: 22.458}
 
@@ -260,16 +261,30 @@ def basin_doubts(
     return tuple(out)
 
 
-def _spacing(index: Any, points: FloatArray) -> float:
-    """Median distance from a target point to its nearest other one (64 of them sampled), or
-    0 when ``index`` is not a k-d tree."""
-    if not isinstance(index, _core.KdTree) or len(points) < 2:
+def _spacing(index: Any, points: FloatArray | None) -> float:
+    """Median distance from a target point to its nearest other one (64 of them sampled; a
+    local map's spacing), or 0 when unknown."""
+    if isinstance(index, _core.LocalMap):
+        # Its points are at least ``voxel / sqrt(capacity)`` apart (the default spacing).
+        return float(index.voxel_size) / math.sqrt(float(index.max_points_per_voxel))
+    if not isinstance(index, _core.KdTree) or points is None or len(points) < 2:
         return 0.0
     sample = np.ascontiguousarray(points[:: max(1, len(points) // 64)])
     _, dist2 = index.knn(sample, 2)  # squared distances; the first is the point itself
     d = np.sqrt(np.asarray(dist2, dtype=np.float64).reshape(len(sample), -1)[:, -1])
     d = d[np.isfinite(d)]
     return float(np.median(d)) if len(d) else 0.0
+
+
+def _log2(m: FloatArray) -> FloatArray:
+    """``SE2.from_matrix(m).log()`` in closed form (``ρ = V(θ)⁻¹ t``), without the checks."""
+    theta = math.atan2(float(m[1, 0]), float(m[0, 0]))
+    if abs(theta) < 1e-9:
+        a, b = 1.0, 0.0
+    else:
+        a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta
+    tx, ty, d = float(m[0, 2]), float(m[1, 2]), a * a + b * b
+    return np.array([(a * tx + b * ty) / d, (a * ty - b * tx) / d, theta])
 
 
 def _fraction(index: Any, source: FloatArray, pose: SE2 | SE3, gate: float) -> float:
@@ -318,7 +333,7 @@ def probe_basin(
         # An infinite gate: three times the median distance to the target at the result.
         med = _core.overlap_statistics(index, source, pose.as_matrix(), math.inf)[2]
         tight = 3.0 * float(med) if math.isfinite(med) and med > 0 else 1.0
-    if dim == 3 and target_points is not None:
+    if dim == 3:
         # Voxel-downsampled clouds: a tenth of the gate is below the spacing of the points (0.5 m
         # voxels, 1 m gate), where even the right pose finds a neighbour for a fifth of them.
         tight = max(tight, _spacing(index, target_points))
@@ -357,6 +372,7 @@ def probe_basin(
     info = np.linalg.pinv(cov, hermitian=True) if finite else None
     cover = cov
     inverse = pose.inverse()
+    inverse_matrix = inverse.as_matrix()
     best: tuple[float, SE2 | SE3, FloatArray] | None = None
     distinct = 0
     covered = 0
@@ -377,8 +393,16 @@ def probe_basin(
         if str(out.stop_reason) not in ("converged", "max_iterations"):
             continue
         m = np.asarray(out.pose)
-        alt: SE2 | SE3 = SE2.from_matrix(m) if dim == 2 else SE3.from_matrix(m, atol=1e-6)
-        e = (inverse @ alt).log()  # type: ignore[operator]
+        # Most restarts come back to the result: told from the matrices alone (the pose
+        # objects and their logarithm cost more than the restart's solve).
+        rel = inverse_matrix @ m
+        cos = (float(np.trace(rel[:dim, :dim])) - (dim - 2)) / 2.0
+        if float(np.linalg.norm(rel[:dim, dim])) <= 0.5 * tight and cos >= COS_1DEG:
+            continue
+        # The core's rotation is orthonormal: no check (from_matrix costs a solve's worth).
+        kind = SE2 if dim == 2 else SE3
+        alt: SE2 | SE3 = kind._unchecked(m[:dim, :dim], m[:dim, dim])
+        e = _log2(rel) if dim == 2 else kind._unchecked(rel[:3, :3], rel[:3, 3]).log()
         moved = float(np.linalg.norm(e[:dim]))
         turned = abs(float(e[2])) if dim == 2 else float(np.linalg.norm(e[3:]))
         if moved <= 0.5 * tight and turned <= math.radians(1.0):
