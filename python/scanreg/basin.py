@@ -21,13 +21,15 @@ grows to cover it (``BasinProbe.growth``). A *far* one decides the verdict
 ``"ambiguous: …"`` when about as much (a square room turned by 90°, a corridor turned by 180°):
 a Gaussian cannot cover two poses 90° apart.
 
+The restarts run only when cheap evidence doubts the basin (:func:`basin_doubts`: a low fit
+margin, a move beyond 1σ of the start's covariance, symmetric walls): a result nothing doubts
+costs one nearest-neighbour pass and a histogram. In 3D the restarts are three yaw turns (90°,
+−90°, 180°) and the tight gate is at least the target's point spacing (voxelised clouds).
+
 Measured (``benchmarks/wrong_start.py``, ``benchmarks/README.md``): on real Intel pairs from
 starts turned by up to ±70° and moved by 0.6 m, the restarts separate wrong from correct
 results at the tight gate (147 of 259 accepted wrong results flagged, 1 of 273 correct ones);
-at the registration's own gate they do not (26 correct flagged for 118 wrong). In 3D the default
-verdict already rejected every wrong start of the benchmark (KITTI and the outdoor pair from
-30°/60° do not converge within the iteration budget), so the probe — a dozen 3D solves — runs
-only in 2D by default (``VerdictThresholds.basin_probe``).
+at the registration's own gate they do not (26 correct flagged for 118 wrong).
 """
 
 from __future__ import annotations
@@ -148,7 +150,9 @@ def restart_offsets(dim: int, gate: float) -> list[SE2 | SE3]:
     if dim == 3:
         # A 3D restart costs a registration's worth of iterations over thousands of points:
         # only the turns of the ambiguities a building or a street makes.
-        return [SE3.from_vector([0.0, 0.0, 0.0, 0.0, 0.0, math.radians(d)]) for d in RESTART_YAWS_3D_DEG]
+        return [
+            SE3.from_vector([0.0, 0.0, 0.0, 0.0, 0.0, math.radians(d)]) for d in RESTART_YAWS_3D_DEG
+        ]
     h = gate / 2.0 if math.isfinite(gate) else 0.0
     steps = [(0.0, 0.0, d) for d in RESTART_YAWS_DEG[:4]]
     steps += [(h, 0.0, 0.0)] if h else []

@@ -79,9 +79,9 @@ class VerdictThresholds:
     #: in 2D and 3D, restarting only when cheap evidence doubts the basin (``basin_screen``);
     #: ``False``: never.
     basin_probe: bool | None = None
-    #: Restart the registration only when cheap evidence doubts the basin (a low tight
-    #: overlap, a high inlier RMSE, a move beyond 1σ of the start's covariance, symmetric
-    #: walls: :func:`scanreg.basin.basin_doubts`); ``False``: restart for every result.
+    #: Restart the registration only when cheap evidence doubts the basin (a low fit margin,
+    #: a move beyond 1σ of the start's covariance, symmetric walls:
+    #: :func:`scanreg.basin.basin_doubts`); ``False``: restart for every result.
     basin_screen: bool = True
     #: Reject as a wrong basin when a distinct alternative explains more than this times the
     #: result's fraction of the source within the probe's tight gate.
