@@ -83,9 +83,9 @@ CHI2_999 = {3: 16.266, 6: 22.458}
 #: distance in gates — below this. Either alone separates less: correct Intel results have a
 #: tight fraction down to 0.3 (sparse beams on clutter) and an RMSE up to 0.32 gate, the wrong
 #: ones accepted by every other check a tight fraction of 0.13 and an RMSE of 0.40 gate
-#: (medians); with the motion test below, a margin of 0.05 leaves none of the 456 wrong ones
-#: out and restarts 12 of 300 results started at the reference.
-DOUBT_FIT_MARGIN = 0.05
+#: (medians); with the motion test below, a margin of 0 leaves none of the 456 wrong ones out
+#: and restarts 9 of 300 results started at the reference (0.05: 12).
+DOUBT_FIT_MARGIN = 0.0
 #: Translation or rotation from the start beyond this χ² of the start's covariance (a 1σ
 #: move: a result that stayed near its start has no reason to doubt it).
 DOUBT_MOTION_CHI2 = 1.0
@@ -228,6 +228,22 @@ def orientation_symmetry(points: FloatArray, normals: FloatArray) -> float:
     return max(float(hist @ twice[k * q : k * q + bins]) for k in (1, 2, 3)) / zero
 
 
+def _chi2(v: FloatArray, cov: FloatArray) -> float:
+    """``vᵀ cov⁻¹ v`` (closed form up to 2×2); 0 for a singular ``cov``."""
+    if len(v) == 1:
+        c = float(cov[0, 0])
+        return float(v[0]) ** 2 / c if c > 0 else 0.0
+    if len(v) == 2:
+        a, b, d = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
+        det = a * d - b * b
+        x, y = float(v[0]), float(v[1])
+        return (d * x * x - 2.0 * b * x * y + a * y * y) / det if det > 0 else 0.0
+    try:
+        return float(v @ np.linalg.solve(cov, v))
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
 def basin_doubts(
     *,
     tight_overlap: float,
@@ -254,10 +270,7 @@ def basin_doubts(
         d = 2 if dof == 3 else 3
         cov = np.asarray(prior, dtype=np.float64)
         for name, sl in (("translation", slice(0, d)), ("rotation", slice(d, dof))):
-            try:
-                chi2 = float(motion[sl] @ np.linalg.solve(cov[sl, sl], motion[sl]))
-            except np.linalg.LinAlgError:
-                continue
+            chi2 = _chi2(motion[sl], cov[sl, sl])
             if chi2 > DOUBT_MOTION_CHI2:
                 out.append(f"{name} from the start χ² {chi2:.3g} > {DOUBT_MOTION_CHI2}")
     if symmetry > DOUBT_SYMMETRY:
@@ -278,6 +291,17 @@ def _spacing(index: Any, points: FloatArray | None) -> float:
     d = np.sqrt(np.asarray(dist2, dtype=np.float64).reshape(len(sample), -1)[:, -1])
     d = d[np.isfinite(d)]
     return float(np.median(d)) if len(d) else 0.0
+
+
+def _relative_log(a: SE2 | SE3, b: SE2 | SE3) -> FloatArray:
+    """``log(a⁻¹ · b)`` (in 2D from the matrices, without building the poses)."""
+    if a.DIM == 2:
+        ra, ta = a.rotation, a.translation
+        rel = np.eye(3)
+        rel[:2, :2] = ra.T @ b.rotation
+        rel[:2, 2] = ra.T @ (np.asarray(b.translation) - ta)
+        return _log2(rel)
+    return (a.inverse() @ b).log()  # type: ignore[operator]
 
 
 def _log2(m: FloatArray) -> FloatArray:
@@ -356,7 +380,7 @@ def probe_basin(
             tight_overlap=here,
             inlier_rmse=inlier_rmse,
             gate=gate,
-            motion=None if start is None else (start.inverse() @ pose).log(),  # type: ignore[operator]
+            motion=None if start is None else _relative_log(start, pose),
             prior=prior,
             symmetry=sym,
         )
