@@ -171,7 +171,8 @@ class OdometryConfig:
     #: prediction turned by ±30°, ±60°, ±90°, ±120°, 180° about the vertical — and takes the
     #: first accepted result; when none is, the sweep keeps the constant-velocity prediction
     #: and stays out of the map instead of keeping a pose its verdict rejected
-    #: (``FrameResult.basin_fallback``).
+    #: (``FrameResult.basin_fallback``). A retry is a full registration: up to 11 of them for
+    #: such a sweep.
     basin_fallback: bool = True
 
     def __post_init__(self) -> None:
@@ -275,10 +276,11 @@ class FrameResult:
     #: e.g. ``"translation along (1.00, 0.00, 0.00)"``; empty when none.
     held_directions: tuple[str, ...]
     timing: FrameTiming
-    #: ``"recovered"``: the first registration was rejected as a wrong start and a wider one
-    #: was accepted (``registration`` is that one); ``"failed"``: none was, the sweep kept the
-    #: constant-velocity prediction; ``""``: no fallback was needed.
-    basin_fallback: str = ""
+    #: The first registration was rejected as a wrong start and the sweep was registered again
+    #: from wider starts (``OdometryConfig.basin_fallback``), as ``Frame2D.basin_fallback``:
+    #: accepted, ``registration`` is the wider one; rejected, none was accepted and the sweep
+    #: kept the constant-velocity prediction (``map_updated`` False).
+    basin_fallback: bool = False
 
     @property
     def degenerate(self) -> bool:
@@ -527,16 +529,16 @@ class Odometry:
             source_covariances=source_covariances,
         )
         # 5b. wrong start: a wider search rather than a pose the verdict rejected
-        fallback = ""
+        fallback = failed = False
         if c.basin_fallback and _wrong_start(reg.verdict):
             retry = self._wider_search(
                 source, reg, prediction, previous, has_prior, projector, source_covariances
             )
-            fallback = "failed" if retry is None else "recovered"
+            fallback, failed = True, retry is None
             reg = reg if retry is None else retry
         t_align = time.perf_counter() - t0
-        usable = reg.stop_reason not in FAILED_STOPS and fallback != "failed"
-        if fallback == "failed":
+        usable = reg.stop_reason not in FAILED_STOPS and not failed
+        if failed:
             prediction = _se3(previous @ self._last_motion)
         pose = _se3(reg.pose) if usable else prediction
         cov = np.array(reg.covariance) if usable else np.full((6, 6), np.inf)
