@@ -1,7 +1,7 @@
 """Do the default verdict thresholds separate good registrations from bad ones?
 
-Simulated pairs (2D room, 2D office floor plan, 3D street; fresh noise and sampling per pair)
-in four situations, each registered with default settings (``max_correspondence_distance``
+Simulated pairs (2D L-shaped room, 2D office floor plan, 3D street; fresh noise and sampling
+per pair) in four situations, each registered with default settings (``max_correspondence_distance``
 1.0 m) and judged with the default :class:`~scanreg.VerdictThresholds` (``max_inlier_rmse`` set by
 ``--rmse-fraction``):
 
@@ -53,7 +53,14 @@ def main() -> None:
     laser = sim.LaserModel.preset("laser_360")
     lidar = sim.LidarModel.preset("vlp16")
     scenes = {
-        "2D room": (2, sim.square_room(5.0), SE2.from_vector([0.5, 0.3, 0.3])),
+        # An L-shaped room: a square one is ambiguous by 90° and the basin probe rejects it.
+        "2D L-room": (
+            2,
+            sim.SceneBuilder(2)
+            .polyline([(-5, -5), (5, -5), (5, 1), (1, 1), (1, 5), (-5, 5)], closed=True)
+            .build(),
+            SE2.from_vector([-1.5, -1.0, 0.3]),
+        ),
         "2D office": (2, sim.floor_plan(seed=1), None),
         "3D street": (3, sim.street(seed=4), SE3.from_vector([0, 1.75, 1.73, 0, 0, 0])),
     }

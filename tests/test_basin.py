@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import scanreg
 from conftest import data_dir
-from scanreg import SE2
+from scanreg import SE2, SE3
 from scanreg import simulate as sim
 from scanreg.verdict import VerdictThresholds
 
@@ -122,14 +122,22 @@ def test_well_constrained_pair_stays_accepted_with_an_unchanged_covariance() -> 
     truth = SE2.from_vector([0.25, -0.1, math.radians(3.0)])
     src, tgt = _scan(scene, a @ truth, 5), _scan(scene, a, 4)
     start = truth @ SE2.from_vector([0.05, 0.05, math.radians(2.0)])
+    always = VerdictThresholds(basin_screen=False)
     for method in ("point_to_point", "point_to_line", "gicp"):
         res = scanreg.register(src, tgt, method=method, init=start)  # type: ignore[arg-type]
         plain = scanreg.register(src, tgt, method=method, init=start, thresholds=NO_PROBE)  # type: ignore[arg-type]
+        full = scanreg.register(src, tgt, method=method, init=start, thresholds=always)  # type: ignore[arg-type]
         assert res.verdict is not None and res.verdict.accepted, (method, res.verdict.reasons)
         assert res.quality is not None and res.quality.basin is not None
-        assert res.quality.basin.restarts == 12  # the correlative start and 11 restarts
-        assert res.quality.basin.covered == 0
+        # Nothing doubts this basin: the screen lets it through without a restart.
+        assert res.quality.basin.evidence == () and res.quality.basin.restarts == 0
+        # Restarted anyway, every restart comes back to it (or to a pose it covers).
+        assert full.verdict is not None and full.verdict.accepted, full.verdict.reasons
+        assert full.quality is not None and full.quality.basin is not None
+        assert full.quality.basin.restarts == 12  # the correlative start and 11 restarts
+        assert full.quality.basin.covered == 0
         np.testing.assert_array_equal(res.covariance, plain.covariance)
+        np.testing.assert_array_equal(full.covariance, plain.covariance)
         assert _nees(res, truth) < CHI2_3_999, method
 
 
@@ -140,6 +148,8 @@ def test_basin_thresholds_are_validated() -> None:
         VerdictThresholds(basin_probe="yes")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="basin_wrong_ratio"):
         VerdictThresholds(basin_wrong_ratio=-1.0)
+    with pytest.raises(TypeError, match="basin_screen"):
+        VerdictThresholds(basin_screen=1)  # type: ignore[arg-type]
 
 
 def test_odometry2d_falls_back_when_a_step_is_in_the_wrong_basin() -> None:
@@ -172,3 +182,86 @@ def test_odometry2d_falls_back_when_a_step_is_in_the_wrong_basin() -> None:
             assert not frames[15].basin_fallback and not frames[15].verdict.accepted
     assert errors[True][0] < 0.05 and errors[True][1] < math.radians(2.0), errors
     assert errors[False][1] > math.radians(30.0), errors
+
+
+def _hall_sweep(pose: SE3, seed: int) -> np.ndarray:
+    hall = sim.corridor(length=16.0, width=3.0, dim=3)
+    sweep = sim.simulate_sweep(hall, sim.LidarModel.preset("vlp16"), pose, seed=seed)
+    return scanreg.preprocess.voxel_downsample(np.ascontiguousarray(sweep.points), 0.3).points
+
+
+@pytest.mark.parametrize("turn_deg", [0.0, 180.0])
+def test_3d_symmetric_hall_is_ambiguous_by_180_degrees(turn_deg: float) -> None:
+    """The 3D analogue: a closed 16 m hall (floor, ceiling, four walls) seen by a VLP-16 from
+    its middle looks the same turned by 180° about the vertical. Every method, from the truth
+    or from a start turned by 180°, is rejected as ambiguous; without the probe each passes
+    every other check."""
+    a = SE3.from_vector([8.0, 0.05, 1.0, 0.0, 0.0, 0.0])
+    truth = SE3.from_vector([0.1, 0.0, 0.0, 0.0, 0.0, math.radians(1.0)])
+    src, tgt = _hall_sweep(a @ truth, 1), _hall_sweep(a, 0)  # type: ignore[operator]
+    start = truth @ SE3.from_vector([0.0, 0.0, 0.0, 0.0, 0.0, math.radians(turn_deg)])
+    for method in ("point_to_point", "point_to_plane", "gicp"):
+        res = scanreg.register(src, tgt, method=method, init=start)  # type: ignore[arg-type]
+        assert res.verdict is not None and not res.verdict.accepted, method
+        assert any(r.startswith("ambiguous: ") for r in res.verdict.reasons), res.verdict.reasons
+        assert res.quality is not None and res.quality.basin is not None
+        assert any(e.startswith("symmetric walls") for e in res.quality.basin.evidence)
+        plain = scanreg.register(src, tgt, method=method, init=start, thresholds=NO_PROBE)  # type: ignore[arg-type]
+        assert plain.verdict is not None and plain.verdict.accepted, plain.verdict.reasons
+
+
+@cache
+def _kitti(count: int) -> list[np.ndarray]:
+    from scanreg import io
+
+    folder = data_dir("kitti-odometry-00-frames-000-015")
+    files = sorted((folder / "velodyne").glob("*.bin"))[:count]
+    return [io.read_points(p).finite().points for p in files]
+
+
+def test_3d_well_constrained_pair_is_not_restarted_and_keeps_its_covariance() -> None:
+    """Consecutive KITTI frames from the previous frame's odometry pose: accepted, no cheap
+    signal doubts the basin (no restart runs), the covariance is the one without the probe."""
+    scans = _kitti(2)
+    src = scanreg.preprocess.voxel_downsample(scans[1], 0.5).points
+    target = scanreg.prepare(
+        scanreg.preprocess.voxel_downsample(scans[0], 0.5).points, normals=True
+    )
+    init = SE3.from_vector([0.85, 0.0, 0.0, 0.0, 0.0, 0.0])  # about the car's step
+    res = scanreg.register(src, target, method="point_to_plane", init=init)
+    plain = scanreg.register(src, target, method="point_to_plane", init=init, thresholds=NO_PROBE)
+    assert res.verdict is not None and res.verdict.accepted, res.verdict.reasons
+    assert res.quality is not None and res.quality.basin is not None
+    assert res.quality.basin.evidence == () and res.quality.basin.restarts == 0
+    np.testing.assert_array_equal(res.covariance, plain.covariance)
+
+
+def test_3d_odometry_falls_back_when_a_prior_starts_it_in_the_wrong_basin() -> None:
+    """Real KITTI sweeps; the motion prior of sweep 6 is turned by 60° (a bad wheel/IMU
+    prior). With the fallback the sweep is registered again from wider starts, accepted and
+    lands on the run without the bad prior; without it the rejected pose, 57° off, is kept
+    and joins the map."""
+    from scanreg.pipeline import Odometry, OdometryConfig
+
+    scans = _kitti(8)
+    clean = Odometry(OdometryConfig())
+    ref = [clean.step(s).pose for s in scans]
+    bad = 6
+    for fallback in (True, False):
+        odo = Odometry(OdometryConfig(basin_fallback=fallback))
+        frames = []
+        for k, s in enumerate(scans):
+            prior = None
+            if k == bad:
+                turn = SE3.from_vector([0.0, 0.0, 0.0, 0.0, 0.0, math.radians(60.0)])
+                prior = ref[k - 1].inverse() @ ref[k] @ turn  # type: ignore[operator]
+            frames.append(odo.step(s, prior=prior))
+        e = (ref[bad].inverse() @ frames[bad].pose).log()  # type: ignore[operator]
+        if fallback:
+            assert frames[bad].basin_fallback and frames[bad].verdict.accepted
+            assert np.linalg.norm(e[:3]) < 0.05 and np.linalg.norm(e[3:]) < math.radians(0.5)
+            last = (ref[-1].inverse() @ frames[-1].pose).log()  # type: ignore[operator]
+            assert np.linalg.norm(last[:3]) < 0.05, last
+        else:
+            assert not frames[bad].basin_fallback and not frames[bad].verdict.accepted
+            assert np.linalg.norm(e[3:]) > math.radians(30.0), e

@@ -21,13 +21,15 @@ grows to cover it (``BasinProbe.growth``). A *far* one decides the verdict
 ``"ambiguous: …"`` when about as much (a square room turned by 90°, a corridor turned by 180°):
 a Gaussian cannot cover two poses 90° apart.
 
+The restarts run only when cheap evidence doubts the basin (:func:`basin_doubts`: a low fit
+margin, a move beyond 1σ of the start's covariance, symmetric walls): a result nothing doubts
+costs one nearest-neighbour pass and a histogram. In 3D the restarts are three yaw turns (90°,
+−90°, 180°) and the tight gate is at least the target's point spacing (voxelised clouds).
+
 Measured (``benchmarks/wrong_start.py``, ``benchmarks/README.md``): on real Intel pairs from
 starts turned by up to ±70° and moved by 0.6 m, the restarts separate wrong from correct
 results at the tight gate (147 of 259 accepted wrong results flagged, 1 of 273 correct ones);
-at the registration's own gate they do not (26 correct flagged for 118 wrong). In 3D the default
-verdict already rejected every wrong start of the benchmark (KITTI and the outdoor pair from
-30°/60° do not converge within the iteration budget), so the probe — a dozen 3D solves — runs
-only in 2D by default (``VerdictThresholds.basin_probe``).
+at the registration's own gate they do not (26 correct flagged for 118 wrong).
 """
 
 from __future__ import annotations
@@ -48,6 +50,8 @@ from .transform import SE2, SE3
 
 #: Yaw offsets of the restarts (degrees), about the source origin.
 RESTART_YAWS_DEG: tuple[float, ...] = (45.0, -45.0, 90.0, -90.0, 180.0, 135.0, -135.0)
+#: 3D: yaw turns only (about the sensor's vertical axis).
+RESTART_YAWS_3D_DEG: tuple[float, ...] = (180.0, 90.0, -90.0)
 #: Outcomes within this rotation (and half the gate) of the result are in its basin: when they
 #: explain about as much, the covariance grows to cover them instead of rejecting.
 NEAR_ROTATION_DEG = 10.0
@@ -60,14 +64,35 @@ RESTART_ITERATIONS = 6
 #: The correlative start (2D): cell and blur as a fraction of the gate, translation half-width
 #: in gates, heading step in degrees.
 CORRELATIVE_START = True
-CORRELATIVE_CELL_FRACTION = 0.2
+CORRELATIVE_CELL_FRACTION = 0.3
 CORRELATIVE_WINDOW_GATES = 2.0
 CORRELATIVE_ANGLE_DEG = 2.0
 CORRELATIVE_MAX_POINTS = 64
 #: The tight gate as a fraction of the registration's gate.
 TIGHT_GATE_FRACTION = 0.1
+COS_1DEG = math.cos(math.radians(1.0))
 #: χ²(dof) at 99.9 %: an alternative inside this Mahalanobis distance is the same answer.
 CHI2_999 = {3: 16.266, 6: 22.458}
+
+#: The screen (:func:`basin_doubts`): the restarts run only when one of these cheap signals
+#: doubts the basin. Measured on the wrong-start benchmark's Intel and MbICP results that the
+#: restarts rejected and whose covariance did not cover their error (292 and 164): every one
+#: fires at least one signal, against 10 of 180 Intel results started at the reference
+#: (``benchmarks/wrong_start.py``, ``benchmarks/README.md``).
+#: The fit margin — the fraction of the source within the tight gate minus the inlier RMS
+#: distance in gates — below this. Either alone separates less: correct Intel results have a
+#: tight fraction down to 0.3 (sparse beams on clutter) and an RMSE up to 0.32 gate, the wrong
+#: ones accepted by every other check a tight fraction of 0.13 and an RMSE of 0.40 gate
+#: (medians); with the motion test below, a margin of 0 leaves none of the 456 wrong ones out
+#: and restarts 9 of 300 results started at the reference (0.05: 12).
+DOUBT_FIT_MARGIN = 0.0
+#: Translation or rotation from the start beyond this χ² of the start's covariance (a 1σ
+#: move: a result that stayed near its start has no reason to doubt it).
+DOUBT_MOTION_CHI2 = 1.0
+#: Symmetric structure: the wall-orientation histogram's overlap with itself turned by 90°,
+#: 180° or 270° above this (square room 0.98, closed corridor 0.99; Intel targets: median
+#: 0.41 at 180°, largest 0.94; MbICP largest 0.96 at 180°, the simulated office 0.88).
+DOUBT_SYMMETRY = 0.95
 
 
 @dataclass(frozen=True)
@@ -95,6 +120,9 @@ class BasinProbe:
     covered: int
     growth: FloatArray
     seconds: float
+    #: The cheap evidence that called for the restarts (:func:`basin_doubts`); empty when it
+    #: was all clear and no restart ran (``restarts == 0``).
+    evidence: tuple[str, ...] = ()
 
     @property
     def ratio(self) -> float:
@@ -119,6 +147,12 @@ def restart_offsets(dim: int, gate: float) -> list[SE2 | SE3]:
     Intel and MbICP benchmark pairs ±45° found the most alternatives, then ±90°, then a
     half-gate move forward): turns about the source origin and, when the gate is finite,
     half-gate moves along each horizontal axis."""
+    if dim == 3:
+        # A 3D restart costs a registration's worth of iterations over thousands of points:
+        # only the turns of the ambiguities a building or a street makes.
+        return [
+            SE3.from_vector([0.0, 0.0, 0.0, 0.0, 0.0, math.radians(d)]) for d in RESTART_YAWS_3D_DEG
+        ]
     h = gate / 2.0 if math.isfinite(gate) else 0.0
     steps = [(0.0, 0.0, d) for d in RESTART_YAWS_DEG[:4]]
     steps += [(h, 0.0, 0.0)] if h else []
@@ -162,6 +196,125 @@ def _correlative_start(
     return SE2.from_vector(np.asarray(match.pose))
 
 
+def orientation_symmetry(points: FloatArray, normals: FloatArray) -> float:
+    """How much the scene's walls look the same turned by 90°, 180° or 270° (0–1): the
+    circular autocorrelation, at those shifts, of the histogram of wall directions (normals
+    turned toward the sensor at the origin; in 3D their horizontal part, walls only), weighted
+    by the wall length each point stands for (its range in 2D: one beam step of arc; one voxel
+    in 3D). A rotational ambiguity needs it near 1; it does not suffice (it ignores where the
+    walls are), so it only calls for the restarts."""
+    n = np.asarray(normals, dtype=np.float64)
+    p = np.asarray(points, dtype=np.float64)
+    if len(n) < 8 or n.shape != p.shape:
+        return 0.0
+    # Turned toward the sensor: -n where n points away from the origin.
+    sign = np.where((n * p).sum(axis=1) > 0.0, -1.0, 1.0)
+    if p.shape[1] == 2:
+        weight = np.hypot(p[:, 0], p[:, 1])
+    else:
+        weight = (np.abs(n[:, 2]) < 0.7).astype(np.float64)  # walls only
+    angle = np.arctan2(sign * n[:, 1], sign * n[:, 0])
+    ok = np.isfinite(angle) & np.isfinite(weight)
+    bins = 72  # 5°: walls of a real room are straight to a few degrees
+    which = ((angle[ok] + math.pi) * (bins / (2.0 * math.pi))).astype(np.intp)
+    hist = np.bincount(np.minimum(which, bins - 1), weights=weight[ok], minlength=bins)
+    wrap = np.concatenate((hist[-1:], hist, hist[:1]))
+    hist = hist + 0.5 * (wrap[:-2] + wrap[2:])  # one bin of tolerance
+    zero = float(hist @ hist)
+    if zero <= 0:
+        return 0.0
+    twice = np.concatenate((hist, hist))  # circular shifts as slices (np.roll is slow here)
+    q = bins // 4
+    return max(float(hist @ twice[k * q : k * q + bins]) for k in (1, 2, 3)) / zero
+
+
+def _chi2(v: FloatArray, cov: FloatArray) -> float:
+    """``vᵀ cov⁻¹ v`` (closed form up to 2×2); 0 for a singular ``cov``."""
+    if len(v) == 1:
+        c = float(cov[0, 0])
+        return float(v[0]) ** 2 / c if c > 0 else 0.0
+    if len(v) == 2:
+        a, b, d = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
+        det = a * d - b * b
+        x, y = float(v[0]), float(v[1])
+        return (d * x * x - 2.0 * b * x * y + a * y * y) / det if det > 0 else 0.0
+    try:
+        return float(v @ np.linalg.solve(cov, v))
+    except np.linalg.LinAlgError:
+        return 0.0
+
+
+def basin_doubts(
+    *,
+    tight_overlap: float,
+    inlier_rmse: float,
+    gate: float,
+    motion: FloatArray | None,
+    prior: FloatArray | None,
+    symmetry: float,
+) -> tuple[str, ...]:
+    """The cheap evidence that a result may sit in the wrong basin (see the ``DOUBT_*``
+    constants), as readable lines; empty: none, the restarts are not needed.
+
+    ``motion`` is ``log(start⁻¹ · pose)`` (tangent, translation first), ``prior`` the start's
+    covariance over it."""
+    out: list[str] = []
+    margin = tight_overlap - (inlier_rmse / gate if math.isfinite(gate) and gate > 0 else 0.0)
+    if not margin >= DOUBT_FIT_MARGIN:
+        out.append(
+            f"fit margin {margin:.2f} < {DOUBT_FIT_MARGIN} (tight overlap {tight_overlap:.2f}, "
+            f"inlier RMSE {inlier_rmse:.3g})"
+        )
+    if motion is not None and prior is not None:
+        dof = len(motion)
+        d = 2 if dof == 3 else 3
+        cov = np.asarray(prior, dtype=np.float64)
+        for name, sl in (("translation", slice(0, d)), ("rotation", slice(d, dof))):
+            chi2 = _chi2(motion[sl], cov[sl, sl])
+            if chi2 > DOUBT_MOTION_CHI2:
+                out.append(f"{name} from the start χ² {chi2:.3g} > {DOUBT_MOTION_CHI2}")
+    if symmetry > DOUBT_SYMMETRY:
+        out.append(f"symmetric walls {symmetry:.2f} > {DOUBT_SYMMETRY}")
+    return tuple(out)
+
+
+def _spacing(index: Any, points: FloatArray | None) -> float:
+    """Median distance from a target point to its nearest other one (64 of them sampled; a
+    local map's spacing), or 0 when unknown."""
+    if isinstance(index, _core.LocalMap):
+        # Its points are at least ``voxel / sqrt(capacity)`` apart (the default spacing).
+        return float(index.voxel_size) / math.sqrt(float(index.max_points_per_voxel))
+    if not isinstance(index, _core.KdTree) or points is None or len(points) < 2:
+        return 0.0
+    sample = np.ascontiguousarray(points[:: max(1, len(points) // 64)])
+    _, dist2 = index.knn(sample, 2)  # squared distances; the first is the point itself
+    d = np.sqrt(np.asarray(dist2, dtype=np.float64).reshape(len(sample), -1)[:, -1])
+    d = d[np.isfinite(d)]
+    return float(np.median(d)) if len(d) else 0.0
+
+
+def _relative_log(a: SE2 | SE3, b: SE2 | SE3) -> FloatArray:
+    """``log(a⁻¹ · b)`` (in 2D from the matrices, without building the poses)."""
+    if a.DIM == 2:
+        ra, ta = a.rotation, a.translation
+        rel = np.eye(3)
+        rel[:2, :2] = ra.T @ b.rotation
+        rel[:2, 2] = ra.T @ (np.asarray(b.translation) - ta)
+        return _log2(rel)
+    return (a.inverse() @ b).log()  # type: ignore[operator]
+
+
+def _log2(m: FloatArray) -> FloatArray:
+    """``SE2.from_matrix(m).log()`` in closed form (``ρ = V(θ)⁻¹ t``), without the checks."""
+    theta = math.atan2(float(m[1, 0]), float(m[0, 0]))
+    if abs(theta) < 1e-9:
+        a, b = 1.0, 0.0
+    else:
+        a, b = math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta
+    tx, ty, d = float(m[0, 2]), float(m[1, 2]), a * a + b * b
+    return np.array([(a * tx + b * ty) / d, (a * ty - b * tx) / d, theta])
+
+
 def _fraction(index: Any, source: FloatArray, pose: SE2 | SE3, gate: float) -> float:
     found = _core.overlap_statistics(index, source, pose.as_matrix(), gate)[0]
     return float(found) / float(source.shape[0])
@@ -178,6 +331,11 @@ def probe_basin(
     stop_ratio: float = math.inf,
     cover_ratio: float = math.inf,
     target_points: FloatArray | None = None,
+    screen: bool = False,
+    start: SE2 | SE3 | None = None,
+    prior: FloatArray | None = None,
+    inlier_rmse: float = 0.0,
+    target_normals: FloatArray | None = None,
 ) -> BasinProbe:
     """Restart ``solve`` (``(start, max_iterations) -> core outcome``, the registration's own
     solve) around ``pose`` (see the module docstring).
@@ -189,6 +347,11 @@ def probe_basin(
     (``growth``); the best *far* one is reported (``alternative``). The restarts stop at the
     first far alternative explaining more than ``stop_ratio`` times the result (the verdict's
     wrong-basin ratio: the result is rejected whatever the rest would find).
+
+    ``screen``: restart only when :func:`basin_doubts` finds a reason to, from ``start`` and
+    its covariance ``prior``, the result's ``inlier_rmse`` within ``gate``, the tight overlap
+    and the symmetry of ``target_points`` / ``target_normals`` (when given); otherwise the
+    probe returns with no restart (``evidence`` empty).
     """
     t0 = time.perf_counter()
     dim = pose.DIM
@@ -198,13 +361,46 @@ def probe_basin(
         # An infinite gate: three times the median distance to the target at the result.
         med = _core.overlap_statistics(index, source, pose.as_matrix(), math.inf)[2]
         tight = 3.0 * float(med) if math.isfinite(med) and med > 0 else 1.0
+    if dim == 3:
+        # Voxel-downsampled clouds: a tenth of the gate is below the spacing of the points (0.5 m
+        # voxels, 1 m gate), where even the right pose finds a neighbour for a fifth of them.
+        tight = max(tight, _spacing(index, target_points))
     near_move = 0.5 * gate if math.isfinite(gate) else 5.0 * tight
     here = _fraction(index, source, pose, tight)
     cov = np.asarray(covariance, dtype=np.float64)
     finite = bool(np.isfinite(cov).all())
+    evidence: tuple[str, ...] = ()
+    if screen:
+        sym = (
+            orientation_symmetry(target_points, target_normals)
+            if target_points is not None and target_normals is not None
+            else 0.0
+        )
+        evidence = basin_doubts(
+            tight_overlap=here,
+            inlier_rmse=inlier_rmse,
+            gate=gate,
+            motion=None if start is None else _relative_log(start, pose),
+            prior=prior,
+            symmetry=sym,
+        )
+        if not evidence:
+            return BasinProbe(
+                overlap=here,
+                gate=tight,
+                alternative=None,
+                alternative_overlap=0.0,
+                offset=np.zeros(dof),
+                restarts=0,
+                distinct=0,
+                covered=0,
+                growth=_frozen(np.zeros((dof, dof))),
+                seconds=time.perf_counter() - t0,
+            )
     info = np.linalg.pinv(cov, hermitian=True) if finite else None
     cover = cov
     inverse = pose.inverse()
+    inverse_matrix = inverse.as_matrix()
     best: tuple[float, SE2 | SE3, FloatArray] | None = None
     distinct = 0
     covered = 0
@@ -225,8 +421,16 @@ def probe_basin(
         if str(out.stop_reason) not in ("converged", "max_iterations"):
             continue
         m = np.asarray(out.pose)
-        alt: SE2 | SE3 = SE2.from_matrix(m) if dim == 2 else SE3.from_matrix(m, atol=1e-6)
-        e = (inverse @ alt).log()  # type: ignore[operator]
+        # Most restarts come back to the result: told from the matrices alone (the pose
+        # objects and their logarithm cost more than the restart's solve).
+        rel = inverse_matrix @ m
+        cos = (float(np.trace(rel[:dim, :dim])) - (dim - 2)) / 2.0
+        if float(np.linalg.norm(rel[:dim, dim])) <= 0.5 * tight and cos >= COS_1DEG:
+            continue
+        # The core's rotation is orthonormal: no check (from_matrix costs a solve's worth).
+        kind = SE2 if dim == 2 else SE3
+        alt: SE2 | SE3 = kind._unchecked(m[:dim, :dim], m[:dim, dim])
+        e = _log2(rel) if dim == 2 else kind._unchecked(rel[:3, :3], rel[:3, 3]).log()
         moved = float(np.linalg.norm(e[:dim]))
         turned = abs(float(e[2])) if dim == 2 else float(np.linalg.norm(e[3:]))
         if moved <= 0.5 * tight and turned <= math.radians(1.0):
@@ -259,4 +463,5 @@ def probe_basin(
         if finite
         else _frozen(np.zeros((dof, dof))),
         seconds=time.perf_counter() - t0,
+        evidence=evidence,
     )

@@ -526,8 +526,8 @@ def _trust(
         motion_nees=num.motion_nees,
     )
     if checked.verdict.accepted and th.probes_basin(dim) and ctx.solve is not None:
-        # Only a result every other check accepts is probed: the restarts cost about as much
-        # as the rest of the analysis in 2D, and cannot turn a rejection into an acceptance.
+        # Only a result every other check accepts is probed (the restarts cannot turn a
+        # rejection into an acceptance), and restarted only when cheap evidence doubts it.
         index = ctx.target.native if isinstance(ctx.target, LocalMap) else ctx.target.index
         probe = probe_basin(
             ctx.solve,
@@ -539,6 +539,11 @@ def _trust(
             stop_ratio=th.basin_wrong_ratio,
             cover_ratio=th.basin_ambiguous_ratio,
             target_points=ctx.target_points,
+            screen=th.basin_screen,
+            start=ctx.start,
+            prior=ctx.prior,
+            inlier_rmse=checked.report.residual_rmse,
+            target_normals=ctx.target_normals,
         )
         report = dataclasses.replace(checked.report, basin=probe)
         checked = dataclasses.replace(checked, report=report, verdict=judge(report, th))

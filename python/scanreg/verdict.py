@@ -75,11 +75,14 @@ class VerdictThresholds:
     #: Reject results with a weak direction (``result.degeneracy``, whose threshold is derived
     #: from the measured normal noise; results without one fall back to ``weak_ratio``).
     reject_degenerate: bool = True
-    #: Probe for other basins (:mod:`scanreg.basin`, a dozen restarts of the solve): ``None``
-    #: (default) in 2D only, where it costs about as much as the rest of the analysis and a
-    #: wrong start converges with high fitness (in 3D the benchmark's wrong starts did not
-    #: converge, and a restart costs a registration); ``True``/``False``: always / never.
+    #: Probe for other basins (:mod:`scanreg.basin`): ``None`` (default) and ``True``: yes,
+    #: in 2D and 3D, restarting only when cheap evidence doubts the basin (``basin_screen``);
+    #: ``False``: never.
     basin_probe: bool | None = None
+    #: Restart the registration only when cheap evidence doubts the basin (a low fit margin,
+    #: a move beyond 1σ of the start's covariance, symmetric walls:
+    #: :func:`scanreg.basin.basin_doubts`); ``False``: restart for every result.
+    basin_screen: bool = True
     #: Reject as a wrong basin when a distinct alternative explains more than this times the
     #: result's fraction of the source within the probe's tight gate.
     basin_wrong_ratio: float = 1.05
@@ -111,6 +114,10 @@ class VerdictThresholds:
             raise TypeError(
                 f"basin_probe: expected a bool or None, got {type(self.basin_probe).__name__}"
             )
+        if not isinstance(self.basin_screen, bool):
+            raise TypeError(
+                f"basin_screen: expected a bool, got {type(self.basin_screen).__name__}"
+            )
         _nonnegative(self.basin_wrong_ratio, "basin_wrong_ratio", allow_inf=True)
         _nonnegative(self.basin_ambiguous_ratio, "basin_ambiguous_ratio", allow_inf=True)
         if self.max_motion_chi2 is not None:
@@ -123,7 +130,7 @@ class VerdictThresholds:
 
     def probes_basin(self, dim: int) -> bool:
         """Whether a ``dim``-D result is probed for other basins."""
-        return dim == 2 if self.basin_probe is None else self.basin_probe
+        return self.basin_probe is not False
 
 
 @dataclass(frozen=True)

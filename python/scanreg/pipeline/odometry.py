@@ -63,6 +63,22 @@ MAP_ATTRIBUTES: dict[str, Attributes] = {
 FAILED_STOPS: frozenset[str] = frozenset({"too_few_correspondences", "diverged", "degenerate"})
 
 
+#: The fallback's turns of the prediction about the vertical (degrees), nearest first: a
+#: 3D registration converges from within about 15-20° of yaw.
+FALLBACK_YAWS_DEG: tuple[float, ...] = (30.0, -30.0, 60.0, -60.0, 90.0, -90.0, 120.0, -120.0, 180.0)
+
+
+def _wrong_start(verdict: Verdict | None) -> bool:
+    """Whether a rejection says the registration started in the wrong basin (a pose that
+    explains the scan better, no convergence, a slide beyond the start's uncertainty) rather
+    than that the scan cannot be matched (little overlap alone, a weak direction, ambiguity)."""
+    if verdict is None or verdict.accepted:
+        return False
+    return any(
+        r.startswith(("wrong basin:", "not converged:", "slid beyond")) for r in verdict.reasons
+    )
+
+
 def _se3(pose: Any) -> SE3:
     assert isinstance(pose, SE3)
     return pose
@@ -149,6 +165,15 @@ class OdometryConfig:
     num_threads: int | None = None
     #: What a frame must satisfy to be accepted (see :class:`scanreg.verdict.VerdictThresholds`).
     thresholds: VerdictThresholds = field(default_factory=_default_thresholds)
+    #: A sweep rejected as started in the wrong basin (``"wrong basin"``, ``"not converged"``
+    #: or ``"slid beyond"`` its start's uncertainty) is registered again from wider starts —
+    #: the probe's better pose, the constant-velocity prediction when a prior was given, the
+    #: prediction turned by ±30°, ±60°, ±90°, ±120°, 180° about the vertical — and takes the
+    #: first accepted result; when none is, the sweep keeps the constant-velocity prediction
+    #: and stays out of the map instead of keeping a pose its verdict rejected
+    #: (``FrameResult.basin_fallback``). A retry is a full registration: up to 11 of them for
+    #: such a sweep.
+    basin_fallback: bool = True
 
     def __post_init__(self) -> None:
         _positive(self.min_range, "min_range", allow_zero=True)
@@ -251,6 +276,11 @@ class FrameResult:
     #: e.g. ``"translation along (1.00, 0.00, 0.00)"``; empty when none.
     held_directions: tuple[str, ...]
     timing: FrameTiming
+    #: The first registration was rejected as a wrong start and the sweep was registered again
+    #: from wider starts (``OdometryConfig.basin_fallback``), as ``Frame2D.basin_fallback``:
+    #: accepted, ``registration`` is the wider one; rejected, none was accepted and the sweep
+    #: kept the constant-velocity prediction (``map_updated`` False).
+    basin_fallback: bool = False
 
     @property
     def degenerate(self) -> bool:
@@ -499,8 +529,18 @@ class Odometry:
             step_projector=projector,
             source_covariances=source_covariances,
         )
+        # 5b. wrong start: a wider search rather than a pose the verdict rejected
+        fallback = failed = False
+        if c.basin_fallback and _wrong_start(reg.verdict):
+            retry = self._wider_search(
+                source, reg, prediction, previous, has_prior, projector, source_covariances
+            )
+            fallback, failed = True, retry is None
+            reg = reg if retry is None else retry
         t_align = time.perf_counter() - t0
-        usable = reg.stop_reason not in FAILED_STOPS
+        usable = reg.stop_reason not in FAILED_STOPS and not failed
+        if failed:
+            prediction = _se3(previous @ self._last_motion)
         pose = _se3(reg.pose) if usable else prediction
         cov = np.array(reg.covariance) if usable else np.full((6, 6), np.inf)
         held: tuple[str, ...] = ()
@@ -532,7 +572,9 @@ class Odometry:
         t0 = time.perf_counter()
         # A localizer's first frame corrects its initial pose: not a motion to repeat.
         motion = _se3(previous.inverse() @ pose) if self._poses else SE3.identity()
-        if usable and self._poses:
+        if usable and self._poses and not fallback:
+            # (A prediction the fallback had to correct says nothing about the motion model's
+            # error: it would open the gate for every later sweep.)
             self.gate.update(prediction, pose, motion)
         if usable and self._builds_map:
             self._insert(pose, map_points)
@@ -558,6 +600,7 @@ class Odometry:
             num_map_points=len(self._target),
             map_updated=usable and self._builds_map,
             held_directions=held,
+            basin_fallback=fallback,
             timing=FrameTiming(
                 deskew=t_deskew,
                 downsample=t_down,
@@ -567,6 +610,43 @@ class Odometry:
                 total=time.perf_counter() - t_start,
             ),
         )
+
+    def _wider_search(
+        self,
+        source: FloatArray,
+        first: RegistrationResult,
+        prediction: SE3,
+        previous: SE3,
+        has_prior: bool,
+        projector: FloatArray | None,
+        source_covariances: FloatArray | None,
+    ) -> RegistrationResult | None:
+        """The first accepted registration of ``source`` from the fallback's starts (see
+        ``OdometryConfig.basin_fallback``), with ``first``'s settings; None when none is."""
+        starts: list[SE3] = []
+        probe = None if first.quality is None else first.quality.basin
+        if probe is not None and isinstance(probe.alternative, SE3):
+            starts.append(probe.alternative)
+        if has_prior and self._poses:
+            starts.append(_se3(previous @ self._last_motion))
+        starts += [
+            _se3(prediction @ SE3.from_vector([0.0, 0.0, 0.0, 0.0, 0.0, math.radians(d)]))
+            for d in FALLBACK_YAWS_DEG
+        ]
+        for start in starts:
+            res = register(
+                source,
+                self._target,
+                method=self.config.method,
+                init=start,
+                settings=first.settings,
+                thresholds=self._thresholds,
+                step_projector=projector,
+                source_covariances=source_covariances,
+            )
+            if res.verdict is not None and res.verdict.accepted:
+                return res
+        return None
 
     def map_cloud(self) -> Any:
         """The local map (world frame) as a :class:`~scanreg.io.PointCloud`, with
