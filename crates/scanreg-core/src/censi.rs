@@ -31,11 +31,12 @@
 //! geometry-only matrix the degeneracy analysis uses for every method.
 
 use crate::error::{Error, Result};
-use crate::icp::{mat_at, vec_at, Method};
+use crate::group::{Group, Planar, Spatial};
+use crate::icp::Method;
 use crate::kernel::Kernel;
-use crate::points::{check_points, split_pose};
+use crate::points::{check_points, mat_at, split_pose, vec_at};
 use crate::reduce::{chunk_len, SEQUENTIAL_MAX};
-use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
+use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
@@ -105,38 +106,20 @@ pub struct Analysis {
     pub num_correspondences: usize,
 }
 
-trait Geometry<const D: usize, const N: usize> {
-    fn a(p: &SVector<f64, D>) -> SMatrix<f64, D, N>;
+/// What the sensitivities need beyond [`Group`] (whose point Jacobian `A(p)` and inverse they
+/// share with the ICP loop).
+trait Geometry<const D: usize, const N: usize>: Group<D, N> {
     /// `∂(A(p)ᵀ w)/∂p` at fixed `w`.
     fn c(w: &SVector<f64, D>) -> SMatrix<f64, N, D>;
-    fn inverse(m: &SMatrix<f64, D, D>) -> Option<SMatrix<f64, D, D>>;
 }
 
-struct Planar;
-struct Spatial;
-
 impl Geometry<2, 3> for Planar {
-    fn a(p: &Vector2<f64>) -> SMatrix<f64, 2, 3> {
-        SMatrix::<f64, 2, 3>::new(1.0, 0.0, -p.y, 0.0, 1.0, p.x)
-    }
     fn c(w: &Vector2<f64>) -> SMatrix<f64, 3, 2> {
         SMatrix::<f64, 3, 2>::new(0.0, 0.0, 0.0, 0.0, w.y, -w.x)
-    }
-    fn inverse(m: &Matrix2<f64>) -> Option<Matrix2<f64>> {
-        m.try_inverse()
     }
 }
 
 impl Geometry<3, 6> for Spatial {
-    fn a(p: &Vector3<f64>) -> SMatrix<f64, 3, 6> {
-        #[rustfmt::skip]
-        let a = SMatrix::<f64, 3, 6>::new(
-            1.0, 0.0, 0.0, 0.0, p.z, -p.y,
-            0.0, 1.0, 0.0, -p.z, 0.0, p.x,
-            0.0, 0.0, 1.0, p.y, -p.x, 0.0,
-        );
-        a
-    }
     fn c(w: &Vector3<f64>) -> SMatrix<f64, 6, 3> {
         // −[w]× in the rotation rows.
         #[rustfmt::skip]
@@ -149,9 +132,6 @@ impl Geometry<3, 6> for Spatial {
             w.y, -w.x, 0.0,
         );
         c
-    }
-    fn inverse(m: &Matrix3<f64>) -> Option<Matrix3<f64>> {
-        m.try_inverse()
     }
 }
 
@@ -178,7 +158,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
     let p: SVector<f64, D> = vec_at(input.source, i);
     let q: SVector<f64, D> = vec_at(input.target, j);
     let e = r * p + t - q;
-    let a = G::a(&p);
+    let a = G::point_jacobian(&p);
     let rt = r.transpose();
     let normal: Option<SVector<f64, D>> = input
         .target_normals

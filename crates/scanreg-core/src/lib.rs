@@ -17,6 +17,7 @@ pub mod correlative;
 pub mod deskew;
 pub mod downsample;
 pub mod error;
+pub mod factor;
 pub mod global;
 pub mod group;
 pub mod icp;

@@ -1,14 +1,16 @@
 //! Paired (known-correspondence) alignment: the sums behind closed-form Kabsch/Umeyama and
-//! the Gauss–Newton normal equations for point-to-point and point-to-plane/line residuals.
+//! the Gauss–Newton normal equations for point-to-point and point-to-plane/line residuals,
+//! with the ICP loop's factors and accumulator ([`crate::factor`]).
 //!
 //! The small dense algebra on the returned matrices (SVD, solve, inverse) is the caller's.
 
 use crate::error::{Error, Result};
+use crate::factor::{self, row_major, NormalSums};
 use crate::group::{Group, Planar, Spatial};
 use crate::kernel::Kernel;
-use crate::points::{check_points, check_weights, split_pose};
+use crate::points::{check_points, check_weights, split_pose, vec_at};
 use crate::reduce::chunked_sum;
-use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, Vector2, Vector3};
+use nalgebra::{SMatrix, SVector};
 
 /// Weighted first and second moments of a paired point set, centred in two passes so that
 /// far-from-origin coordinates (UTM, map frames) do not cancel catastrophically.
@@ -154,78 +156,40 @@ pub struct Linearization {
     pub kernel_weights: Vec<f64>,
 }
 
-#[derive(Clone)]
-struct Acc<const N: usize> {
-    h: SMatrix<f64, N, N>,
-    g: SVector<f64, N>,
-    m: SMatrix<f64, N, N>,
-    cost: f64,
-    wss: f64,
-    irls_ss: f64,
-    irls_w: f64,
+/// A chunk's normal-equation sums ([`NormalSums`], the ICP loop's accumulator) and the
+/// per-pair residuals and kernel weights.
+struct Acc<const D: usize, const N: usize> {
+    sums: NormalSums<D, N>,
     residuals: Vec<f64>,
     kernel_weights: Vec<f64>,
 }
 
-impl<const N: usize> Acc<N> {
+impl<const D: usize, const N: usize> Acc<D, N> {
     fn new(capacity: usize) -> Self {
         Acc {
-            h: SMatrix::zeros(),
-            g: SVector::zeros(),
-            m: SMatrix::zeros(),
-            cost: 0.0,
-            wss: 0.0,
-            irls_ss: 0.0,
-            irls_w: 0.0,
+            sums: NormalSums::zeros(),
             residuals: Vec::with_capacity(capacity),
             kernel_weights: Vec::with_capacity(capacity),
         }
     }
 
-    /// Add one residual block with Jacobian rows `j` (`R x N`).
-    fn add<const R: usize>(
-        &mut self,
-        j: &SMatrix<f64, R, N>,
-        r: &SVector<f64, R>,
-        norm: f64,
-        w: f64,
-        kernel: &Kernel,
-    ) -> f64 {
-        let k = kernel.weight(norm);
-        let wk = w * k;
-        let score = j.transpose() * r * wk;
-        self.h += j.transpose() * j * wk;
-        self.g += score;
-        self.m += score * score.transpose();
-        self.cost += w * kernel.rho(norm);
-        self.wss += w * norm * norm;
-        self.irls_ss += wk * norm * norm;
-        self.irls_w += wk;
-        k
-    }
-
     fn merge(mut self, other: Self) -> Self {
-        self.h += other.h;
-        self.g += other.g;
-        self.m += other.m;
-        self.cost += other.cost;
-        self.wss += other.wss;
-        self.irls_ss += other.irls_ss;
-        self.irls_w += other.irls_w;
+        self.sums.merge(&other.sums);
         self.residuals.extend(other.residuals);
         self.kernel_weights.extend(other.kernel_weights);
         self
     }
 
-    fn finish(self) -> Linearization {
+    fn finish<G: Group<D, N>>(self) -> Linearization {
+        let s = &self.sums;
         Linearization {
-            hessian: self.h.transpose().iter().copied().collect(), // row-major
-            gradient: self.g.iter().copied().collect(),
-            score_outer: self.m.transpose().iter().copied().collect(),
-            robust_cost: self.cost,
-            weighted_sum_squares: self.wss,
-            irls_sum_squares: self.irls_ss,
-            irls_weight_sum: self.irls_w,
+            hessian: row_major(&s.hessian::<G>()),
+            gradient: s.g.iter().copied().collect(),
+            score_outer: row_major(&s.m),
+            robust_cost: s.cost,
+            weighted_sum_squares: s.ss,
+            irls_sum_squares: s.irls_ss,
+            irls_weight_sum: s.irls_w,
             residuals: self.residuals,
             kernel_weights: self.kernel_weights,
         }
@@ -293,19 +257,22 @@ pub fn linearize_paired(
             }
         }
     }
+    let (rot, trans) = (rot.as_slice(), trans.as_slice());
     Ok(if dim == 2 {
-        linearize_2d(
-            source, target, normals, &rot, &trans, weights, objective, kernel,
+        linearize::<Planar, 2, 3>(
+            source, target, normals, rot, trans, weights, objective, kernel,
         )
     } else {
-        linearize_3d(
-            source, target, normals, &rot, &trans, weights, objective, kernel,
+        linearize::<Spatial, 3, 6>(
+            source, target, normals, rot, trans, weights, objective, kernel,
         )
     })
 }
 
+/// [`linearize_paired`] once checked: each pair's factor ([`crate::factor`], the ICP loop's
+/// own) added with weight `w k` (`w` the pair's weight, `k` its kernel weight).
 #[allow(clippy::too_many_arguments)]
-fn linearize_2d(
+fn linearize<G: Group<D, N>, const D: usize, const N: usize>(
     source: &[f64],
     target: &[f64],
     normals: Option<&[f64]>,
@@ -315,105 +282,40 @@ fn linearize_2d(
     objective: Objective,
     kernel: Kernel,
 ) -> Linearization {
-    let n = source.len() / 2;
-    let r = Matrix2::from_row_slice(rot);
-    let t = Vector2::new(trans[0], trans[1]);
+    let n = source.len() / D;
+    let r = SMatrix::<f64, D, D>::from_row_slice(rot);
+    let t = SVector::<f64, D>::from_column_slice(trans);
     let rt = r.transpose();
     chunked_sum(
         n,
-        Acc::<3>::new(n),
+        Acc::<D, N>::new(n),
         |range| {
-            let mut acc = Acc::<3>::new(range.len());
+            let mut acc = Acc::<D, N>::new(range.len());
             for i in range {
-                let p = Vector2::new(source[2 * i], source[2 * i + 1]);
-                let q = Vector2::new(target[2 * i], target[2 * i + 1]);
-                let e = r * p + t - q;
+                let p: SVector<f64, D> = vec_at(source, i);
+                let e = r * p + t - vec_at::<D>(target, i);
                 let w = weight_at(weights, i);
-                // d(R(p + ρ + θ·perp(p)))/dδ, expressed in the source frame (R is orthonormal):
-                // the point Jacobian the ICP loop uses.
-                let a = Planar::point_jacobian(&p);
-                let (res, k) = match objective {
-                    Objective::PointToPoint => {
-                        let j = a;
-                        let norm = e.norm();
-                        (norm, acc.add(&j, &(rt * e), norm, w, &kernel))
-                    }
+                let f = match objective {
+                    Objective::PointToPoint => factor::point_to_point::<G, D, N>(&p, &rt, &e),
                     Objective::PointToPlane => {
-                        let nrm = unit_normal::<2>(normals.unwrap_or(&[]), i)
-                            .unwrap_or_else(|_| Vector2::zeros());
-                        let ns = rt * nrm;
-                        let d = nrm.dot(&e);
-                        let j: SMatrix<f64, 1, 3> = ns.transpose() * a;
-                        (
-                            d,
-                            acc.add(&j, &SVector::<f64, 1>::new(d), d.abs(), w, &kernel),
-                        )
+                        // Validated (non-zero) by the caller.
+                        let nrm = unit_normal::<D>(normals.unwrap_or(&[]), i)
+                            .unwrap_or_else(|_| SVector::zeros());
+                        factor::point_to_plane::<G, D, N>(&p, &rt, &nrm, &e)
                     }
                 };
-                acc.residuals.push(res);
+                let norm = f.residual.abs();
+                let k = kernel.weight(norm);
+                acc.sums
+                    .add::<G>(&p, &f, w, w * k, w * kernel.rho(norm), true);
+                acc.residuals.push(f.residual);
                 acc.kernel_weights.push(k);
             }
             acc
         },
         Acc::merge,
     )
-    .finish()
-}
-
-#[allow(clippy::too_many_arguments)]
-fn linearize_3d(
-    source: &[f64],
-    target: &[f64],
-    normals: Option<&[f64]>,
-    rot: &[f64],
-    trans: &[f64],
-    weights: Option<&[f64]>,
-    objective: Objective,
-    kernel: Kernel,
-) -> Linearization {
-    let n = source.len() / 3;
-    let r = Matrix3::from_row_slice(rot);
-    let t = Vector3::new(trans[0], trans[1], trans[2]);
-    let rt = r.transpose();
-    chunked_sum(
-        n,
-        Acc::<6>::new(n),
-        |range| {
-            let mut acc = Acc::<6>::new(range.len());
-            for i in range {
-                let p = Vector3::new(source[3 * i], source[3 * i + 1], source[3 * i + 2]);
-                let q = Vector3::new(target[3 * i], target[3 * i + 1], target[3 * i + 2]);
-                let e = r * p + t - q;
-                let w = weight_at(weights, i);
-                // T·exp(δ) p ≈ T (p + ρ + φ × p): J = R [I, -[p]×], used in the source frame:
-                // the point Jacobian the ICP loop uses.
-                let a = Spatial::point_jacobian(&p);
-                let (res, k) = match objective {
-                    Objective::PointToPoint => {
-                        let j = a;
-                        let norm = e.norm();
-                        (norm, acc.add(&j, &(rt * e), norm, w, &kernel))
-                    }
-                    Objective::PointToPlane => {
-                        let nrm = unit_normal::<3>(normals.unwrap_or(&[]), i)
-                            .unwrap_or_else(|_| Vector3::zeros());
-                        let ns = rt * nrm;
-                        let d = nrm.dot(&e);
-                        let j: SMatrix<f64, 1, 6> = ns.transpose() * a;
-                        (
-                            d,
-                            acc.add(&j, &SVector::<f64, 1>::new(d), d.abs(), w, &kernel),
-                        )
-                    }
-                };
-                acc.residuals.push(res);
-                acc.kernel_weights.push(k);
-            }
-            acc
-        },
-        Acc::merge,
-    )
-    .finish()
+    .finish::<G>()
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! Validated views of flat point arrays.
 
 use crate::error::{Error, Result};
+use nalgebra::{SMatrix, SVector};
 
 /// `x.floor()`, inlined: on the baseline x86-64 target (no SSE4.1 `roundsd`) `f64::floor` is
 /// a libm call, which showed at 3 % of an odometry profile (voxel keys of every point). Exact
@@ -121,6 +122,19 @@ pub(crate) fn voxel_of(p: &[f64], inv: f64) -> Option<[i64; 3]> {
         *k = c as i64;
     }
     Some(key)
+}
+
+/// Row `i` of a flat `N * D` array as a vector.
+#[inline]
+pub(crate) fn vec_at<const D: usize>(data: &[f64], i: usize) -> SVector<f64, D> {
+    SVector::from_column_slice(&data[i * D..(i + 1) * D])
+}
+
+/// Matrix `i` of a flat `N * D * D` array of symmetric matrices.
+#[inline]
+pub(crate) fn mat_at<const D: usize>(data: &[f64], i: usize) -> SMatrix<f64, D, D> {
+    // Covariances are symmetric, so row- vs column-major does not matter.
+    SMatrix::from_column_slice(&data[i * D * D..(i + 1) * D * D])
 }
 
 #[cfg(test)]

@@ -1,10 +1,13 @@
 //! The process-wide thread budget: the size of rayon's global pool, which every parallel loop
-//! without a pool of its own (`icp::in_pool`) runs on.
+//! without a pool of its own ([`in_pool`]) runs on.
 //!
 //! A batch worker given one CPU must not start one thread per core: it fixes the size once,
 //! before any parallel work. Results do not depend on it (fixed chunks, ordered sums).
 
 use crate::{Error, Result};
+use rayon::ThreadPool;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
 
 /// Build the global pool with `n` threads. Succeeds when the pool already has `n` threads;
 /// fails when it was built with another size (rayon builds it once per process, at the first
@@ -34,6 +37,38 @@ pub fn set_num_threads(n: usize) -> Result<()> {
 /// Threads of the global pool (builds it with its default size if no call has yet).
 pub fn num_threads() -> usize {
     rayon::current_num_threads()
+}
+
+/// Run `f` on a rayon pool of `num_threads` threads (pools are built once per size and kept),
+/// or on the global pool when `None`.
+pub fn in_pool<T: Send>(num_threads: Option<usize>, f: impl FnOnce() -> T + Send) -> Result<T> {
+    let Some(n) = num_threads else {
+        return Ok(f());
+    };
+    if n == 0 {
+        return Err(Error::invalid("num_threads", "must be >= 1"));
+    }
+    static POOLS: OnceLock<Mutex<HashMap<usize, Arc<ThreadPool>>>> = OnceLock::new();
+    let pool = {
+        let mut pools = POOLS
+            .get_or_init(Default::default)
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        match pools.get(&n) {
+            Some(p) => p.clone(),
+            None => {
+                let p = Arc::new(
+                    rayon::ThreadPoolBuilder::new()
+                        .num_threads(n)
+                        .build()
+                        .map_err(|e| Error::invalid("num_threads", e.to_string()))?,
+                );
+                pools.insert(n, p.clone());
+                p
+            }
+        }
+    };
+    Ok(pool.install(f))
 }
 
 #[cfg(test)]

@@ -7,8 +7,9 @@ use numpy::{Element, IntoPyArray, PyArray, PyArray2, PyArrayMethods, PyReadonlyA
 use numpy::{PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use scanreg_core::icp::{in_pool, NeighborSearch};
+use scanreg_core::icp::NeighborSearch;
 use scanreg_core::reduce::SEQUENTIAL_MAX;
+use scanreg_core::threads::in_pool;
 use scanreg_core::voxel_map::VoxelMap;
 use std::sync::RwLockReadGuard;
 
@@ -150,7 +151,7 @@ pub fn target_search<'a>(target: &'a Bound<'_, PyAny>) -> PyResult<TargetSearch<
     )))
 }
 
-/// Run `f` on a pool of `num_threads` threads (`icp::in_pool`), or on the calling thread for
+/// Run `f` on a pool of `num_threads` threads (`threads::in_pool`), or on the calling thread for
 /// an input of `n <= SEQUENTIAL_MAX` points: the core's loops run sequentially there anyway
 /// (same chunks, same result), and handing the call to a pool thread cost more than the work
 /// on a 2D scan.

@@ -1,5 +1,14 @@
+use super::centred::run;
+use super::evaluate::{evaluate, Problem};
+use super::pose::Pose;
 use super::*;
+use crate::group::{Group, Planar, Spatial};
+use crate::kernel::Kernel;
+use crate::knn::KdTree;
 use crate::normals::{local_geometry, Regularization};
+use crate::points::vec_at;
+use crate::threads::in_pool;
+use nalgebra::{SMatrix, SVector};
 
 /// Points on the inside of a box room (floor, walls, ceiling) plus a pillar: every pose
 /// direction is constrained. Deterministic pseudo-random jitter along each face.

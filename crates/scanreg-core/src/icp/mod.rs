@@ -1,0 +1,142 @@
+//! Local registration: the ICP family (point-to-point, point-to-plane / point-to-line, GICP)
+//! against a k-d tree or a voxel map, with robust kernels, Gauss–Newton or Levenberg–Marquardt
+//! on the manifold.
+//!
+//! One iteration = for every source point, transform it by the current pose, find its nearest
+//! target point within the gate (`evaluate`; without a search when the last one's certificate
+//! settles it, `certificate`), linearise one factor ([`crate::factor`], shared with the paired
+//! solve) and add it into the normal equations `H = Σ k JᵀWJ`, `g = Σ k JᵀW r` with the
+//! deterministic chunked sum of [`crate::reduce`]; then solve for `δ` and update
+//! `T ← T · exp(δ)` (`solver`). The whole loop runs here, so a registration is one call from
+//! Python. It runs in a frame centred on the source's centroid (`centred`), so results do not
+//! depend on where the clouds sit (map coordinates included).
+//!
+//! A robust kernel re-weights each factor by `k(|r|)` (`|r|` is the Mahalanobis norm
+//! `sqrt(rᵀWr)` for GICP): IRLS.
+//!
+//! Files, one idea each: `settings` (what is asked, why it stopped), `search` (where
+//! correspondences come from), `certificate` (skipping searches that cannot change),
+//! `evaluate` (one linearisation), `extrapolation` (stretched steps), `solver` (the loop),
+//! `centred` (the frame it runs in), `pose`.
+
+mod centred;
+mod certificate;
+mod evaluate;
+mod extrapolation;
+mod pose;
+mod search;
+mod settings;
+mod solver;
+
+pub use evaluate::Evaluation;
+pub use search::{NeighborSearch, Source, Target};
+pub use settings::{Method, Optimizer, Settings, StopReason};
+pub use solver::Outcome;
+
+use crate::error::{Error, Result};
+use crate::group::{Planar, Spatial};
+use crate::points::{check_points, split_pose};
+use evaluate::Problem;
+use settings::check_settings;
+
+fn check_per_point(
+    arg: &'static str,
+    data: &[f64],
+    n: usize,
+    per: usize,
+    validated: bool,
+) -> Result<()> {
+    if data.len() != n * per {
+        return Err(Error::invalid(
+            arg,
+            format!(
+                "expected {} values ({n} points x {per}), got {}",
+                n * per,
+                data.len()
+            ),
+        ));
+    }
+    if !validated && data.iter().any(|v| !v.is_finite()) {
+        return Err(Error::invalid(arg, "contains NaN or inf"));
+    }
+    Ok(())
+}
+
+fn problem<'a>(
+    source: &'a Source<'a>,
+    target: &'a Target<'a>,
+    settings: &Settings,
+) -> Result<Problem<'a>> {
+    let dim = target.search.dim();
+    let n = check_points("source", source.points, dim)?;
+    let max_sq = check_settings(settings)?;
+    let m = target.search.id_count();
+    let checked = target.search.attributes_validated();
+    match settings.method {
+        Method::PointToPoint => {}
+        Method::PointToPlane => {
+            let nrm = target.normals.ok_or_else(|| {
+                Error::invalid("target_normals", "are required for point-to-plane/line")
+            })?;
+            check_per_point("target_normals", nrm, m, dim, checked)?;
+        }
+        Method::Gicp => {
+            let tc = target
+                .covariances
+                .ok_or_else(|| Error::invalid("target_covariances", "are required for GICP"))?;
+            let rows = m / target.search.covariance_group().max(1);
+            check_per_point("target_covariances", tc, rows, dim * dim, checked)?;
+            let sc = source
+                .covariances
+                .ok_or_else(|| Error::invalid("source_covariances", "are required for GICP"))?;
+            check_per_point("source_covariances", sc, n, dim * dim, false)?;
+        }
+    }
+    Ok(Problem {
+        source: source.points,
+        source_covs: source.covariances,
+        target,
+        method: settings.method,
+        kernel: settings.kernel,
+        max_sq,
+        cov_group: target.search.covariance_group().max(1),
+        certify: true,
+    })
+}
+
+/// Register `source` to `target` from `init` (row-major homogeneous `T_target_source`).
+pub fn register(
+    source: &Source<'_>,
+    target: &Target<'_>,
+    init: &[f64],
+    settings: &Settings,
+) -> Result<Outcome> {
+    let dim = target.search.dim();
+    let pr = problem(source, target, settings)?;
+    split_pose("init", init, dim)?;
+    Ok(if dim == 2 {
+        centred::run::<Planar, 2, 3>(&pr, init, settings)
+    } else {
+        centred::run::<Spatial, 3, 6>(&pr, init, settings)
+    })
+}
+
+/// The normal equations at one pose (with score outer products), without iterating.
+pub fn evaluate_at(
+    source: &Source<'_>,
+    target: &Target<'_>,
+    pose: &[f64],
+    settings: &Settings,
+) -> Result<Evaluation> {
+    let dim = target.search.dim();
+    let pr = problem(source, target, settings)?;
+    split_pose("pose", pose, dim)?;
+    Ok(if dim == 2 {
+        centred::evaluate_centred::<Planar, 2, 3>(&pr, pose)
+    } else {
+        centred::evaluate_centred::<Spatial, 3, 6>(&pr, pose)
+    })
+}
+
+#[cfg(test)]
+mod tests;
