@@ -30,6 +30,7 @@ use crate::normals::local_geometry;
 use crate::points::check_points;
 use nalgebra::Vector3;
 use rayon::prelude::*;
+use std::time::Instant;
 
 /// Keypoints whose centroid orients a normal (module docs; 50/100/200 gave 39/42/54
 /// correct matches on the 3DMatch pair, 200 costs more k-NN time on large clouds).
@@ -83,6 +84,22 @@ pub struct Keypoints {
     pub valid: Vec<bool>,
 }
 
+/// Wall time of each stage of [`register_global`], seconds (both clouds together where a stage
+/// runs on both: they run side by side).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StageSeconds {
+    /// Voxel grid, k-d tree, normals and their orientation.
+    pub keypoints: f64,
+    /// FPFH descriptors.
+    pub descriptors: f64,
+    /// Mutual nearest neighbours in descriptor space.
+    pub matching: f64,
+    /// Consistency graph and maximum cliques.
+    pub pruning: f64,
+    /// GNC-TLS and the inlier count of each clique.
+    pub solve: f64,
+}
+
 /// Result of [`register_global`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct GlobalRegistration {
@@ -92,6 +109,7 @@ pub struct GlobalRegistration {
     pub target: Keypoints,
     /// Mutual nearest-neighbour pairs `(source keypoint, target keypoint)`.
     pub correspondences: Vec<(u32, u32)>,
+    pub seconds: StageSeconds,
 }
 
 fn check_settings(s: &GlobalSettings) -> Result<()> {
@@ -125,8 +143,14 @@ fn check_settings(s: &GlobalSettings) -> Result<()> {
     Ok(())
 }
 
-/// Downsample, orient normals and describe one cloud.
-pub fn keypoints(arg: &'static str, points: &[f64], s: &GlobalSettings) -> Result<Keypoints> {
+/// One cloud's keypoints before description: the voxel centroids' index and oriented normals.
+struct Oriented {
+    tree: KdTree,
+    normals: Vec<f64>,
+}
+
+/// Downsample and orient normals (stage 1 of the module docs).
+fn oriented(arg: &'static str, points: &[f64], s: &GlobalSettings) -> Result<Oriented> {
     let n = check_points(arg, points, 3)?;
     let grid = voxel_downsample(points, 3, s.voxel_size, VoxelMethod::Centroid)?;
     let m = grid.index.len();
@@ -151,13 +175,26 @@ pub fn keypoints(arg: &'static str, points: &[f64], s: &GlobalSettings) -> Resul
     let geo = local_geometry(&tree, k, &centroid, true, None)?;
     let mut normals = geo.normals.unwrap_or_else(|| vec![0.0; 3 * m]);
     orient_locally(&tree, &mut normals, &centroid, s.voxel_size);
-    let (descriptors, valid) =
-        fpfh::fpfh(&tree, &normals, s.feature_radius, s.max_feature_neighbors)?;
+    Ok(Oriented { tree, normals })
+}
+
+fn describe(o: Oriented, s: &GlobalSettings) -> Result<Keypoints> {
+    let (descriptors, valid) = fpfh::fpfh(
+        &o.tree,
+        &o.normals,
+        s.feature_radius,
+        s.max_feature_neighbors,
+    )?;
     Ok(Keypoints {
-        points: grid.points,
+        points: o.tree.points().to_vec(),
         descriptors,
         valid,
     })
+}
+
+/// Downsample, orient normals and describe one cloud.
+pub fn keypoints(arg: &'static str, points: &[f64], s: &GlobalSettings) -> Result<Keypoints> {
+    describe(oriented(arg, points, s)?, s)
 }
 
 /// Flip each normal towards the centroid of its [`ORIENTATION_NEIGHBORS`] nearest points;
@@ -201,6 +238,24 @@ pub fn solve_correspondences(
     max_hypotheses: usize,
     clique_search_budget: usize,
 ) -> Result<Vec<Hypothesis>> {
+    solve_timed(
+        source,
+        target,
+        noise_bound,
+        max_hypotheses,
+        clique_search_budget,
+    )
+    .map(|(h, _, _)| h)
+}
+
+/// [`solve_correspondences`] and the seconds it spent pruning and solving.
+fn solve_timed(
+    source: &[f64],
+    target: &[f64],
+    noise_bound: f64,
+    max_hypotheses: usize,
+    clique_search_budget: usize,
+) -> Result<(Vec<Hypothesis>, f64, f64)> {
     let n = check_points("source", source, 3)?;
     let nt = check_points("target", target, 3)?;
     if n != nt {
@@ -215,23 +270,31 @@ pub fn solve_correspondences(
             format!("must be finite and > 0, got {noise_bound}"),
         ));
     }
+    let mut t_prune = 0.0;
+    let mut t_solve = 0.0;
+    let clock = Instant::now();
     let graph = pruning::consistency_graph(source, target, 2.0 * noise_bound);
+    t_prune += clock.elapsed().as_secs_f64();
     let vec3 = |p: &[f64], i: usize| Vector3::new(p[3 * i], p[3 * i + 1], p[3 * i + 2]);
     let all_s: Vec<Vector3<f64>> = (0..n).map(|i| vec3(source, i)).collect();
     let all_t: Vec<Vector3<f64>> = (0..n).map(|i| vec3(target, i)).collect();
     let mut active = vec![true; n];
     let mut out = Vec::new();
     for _ in 0..max_hypotheses {
+        let clock = Instant::now();
         let (clique, exact) = pruning::max_clique(&graph, &active, clique_search_budget);
+        t_prune += clock.elapsed().as_secs_f64();
         if clique.len() < MIN_CLIQUE {
             break;
         }
         for &v in &clique {
             active[v] = false;
         }
+        let clock = Instant::now();
         let cs: Vec<_> = clique.iter().map(|&i| all_s[i]).collect();
         let ct: Vec<_> = clique.iter().map(|&i| all_t[i]).collect();
         let Some(sol) = gnc::gnc_tls(&cs, &ct, noise_bound, 100) else {
+            t_solve += clock.elapsed().as_secs_f64();
             continue;
         };
         let (r, t) = (sol.rotation, sol.translation);
@@ -265,6 +328,7 @@ pub fn solve_correspondences(
             num_inliers,
             exact,
         });
+        t_solve += clock.elapsed().as_secs_f64();
     }
     // Stable: equal counts keep the order of discovery (larger clique first).
     out.sort_by(|a, b| {
@@ -272,7 +336,7 @@ pub fn solve_correspondences(
             .cmp(&a.num_inliers)
             .then(b.clique_size.cmp(&a.clique_size))
     });
-    Ok(out)
+    Ok((out, t_prune, t_solve))
 }
 
 /// Global registration of `source` to `target` (`N * 3`, `M * 3`): see the module docs.
@@ -282,11 +346,19 @@ pub fn register_global(
     s: &GlobalSettings,
 ) -> Result<GlobalRegistration> {
     check_settings(s)?;
+    let mut seconds = StageSeconds::default();
+    let clock = Instant::now();
     let (src, tgt) = rayon::join(
-        || keypoints("source", source, s),
-        || keypoints("target", target, s),
+        || oriented("source", source, s),
+        || oriented("target", target, s),
     );
     let (src, tgt) = (src?, tgt?);
+    seconds.keypoints = clock.elapsed().as_secs_f64();
+    let clock = Instant::now();
+    let (src, tgt) = rayon::join(|| describe(src, s), || describe(tgt, s));
+    let (src, tgt) = (src?, tgt?);
+    seconds.descriptors = clock.elapsed().as_secs_f64();
+    let clock = Instant::now();
     let pairs = correspondences::mutual_nearest(
         &src.descriptors,
         &src.valid,
@@ -294,24 +366,28 @@ pub fn register_global(
         &tgt.valid,
         fpfh::FPFH_DIM,
     );
+    seconds.matching = clock.elapsed().as_secs_f64();
     let mut ps = Vec::with_capacity(pairs.len() * 3);
     let mut pt = Vec::with_capacity(pairs.len() * 3);
     for &(i, j) in &pairs {
         ps.extend_from_slice(&src.points[3 * i as usize..3 * i as usize + 3]);
         pt.extend_from_slice(&tgt.points[3 * j as usize..3 * j as usize + 3]);
     }
-    let hypotheses = solve_correspondences(
+    let (hypotheses, t_prune, t_solve) = solve_timed(
         &ps,
         &pt,
         s.noise_bound,
         s.max_hypotheses,
         s.clique_search_budget,
     )?;
+    seconds.pruning = t_prune;
+    seconds.solve = t_solve;
     Ok(GlobalRegistration {
         hypotheses,
         source: src,
         target: tgt,
         correspondences: pairs,
+        seconds,
     })
 }
 
