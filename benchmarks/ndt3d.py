@@ -11,9 +11,11 @@ Run:
    two levels (2 m, 1 m), the target's Gaussians built once (not timed, as the ICP methods'
    prepared target is not); GICP / point-to-plane: gate 1 m, k = 20. Times are medians over
    three alternating rounds; the ratio column is NDT / it per pair (median over pairs).
-2. Basin: the outdoor pair and KITTI 0 -> 1 from the truth perturbed by a yaw of 0-30° and a
-   horizontal offset of 0-2 m (``--directions`` random directions per cell); success within
-   10 cm / 1° of the reference.
+2. Basin: the outdoor pair and KITTI 0 -> 1 from the reference perturbed by a yaw of 0-30° and
+   a horizontal offset of 0-2 m (``--directions`` random directions per cell); success: within
+   10 cm / 1° of the method's own estimate from the reference (KITTI's reference is good to
+   only 0.1-0.2 m: its scans are not deskewed, and all three methods agree within 2 cm on a
+   pose 0.12-0.19 m from it).
 3. Localization: the simulated street (40 sweeps at 5 m/s, the prior map every third sweep,
    as ``tests/test_localizer.py``), :class:`scanreg.Localizer` from the truth at sweep 10 over
    ``--frames`` sweeps, ``method="ndt"`` against the default (GICP): error to the truth,
@@ -136,7 +138,7 @@ def accuracy(pairs: list[tuple[str, np.ndarray, np.ndarray, SE3]]) -> None:
 
 def basin(pairs: list[tuple[str, np.ndarray, np.ndarray, SE3]], directions: int) -> None:
     yaws = (0.0, 10.0, 20.0, 30.0)
-    offsets = (0.0, 0.5, 1.0, 2.0)
+    offsets = (0.5, 1.0, 2.0)
     rng = np.random.default_rng(7)
     print("| pair | method | " + " | ".join(f"{y:.0f}°" for y in yaws) + " | all |")
     print("|---|---|" + "---:|" * (len(yaws) + 1))
@@ -154,9 +156,10 @@ def basin(pairs: list[tuple[str, np.ndarray, np.ndarray, SE3]], directions: int)
                     )
                     starts.append((yaw, truth @ delta))
         for m in METHODS:
+            own = targets.run(m, src, truth)
             ok: dict[float, list[bool]] = {y: [] for y in yaws}
             for yaw, start in starts:
-                et, er = _errors(targets.run(m, src, start), truth)
+                et, er = _errors(targets.run(m, src, start), own)
                 ok[yaw].append(et < 0.1 and er < 1.0)
             cells = [f"{100 * np.mean(ok[y]):.0f}%" for y in yaws]
             total = 100 * np.mean([v for y in yaws for v in ok[y]])
@@ -176,7 +179,9 @@ def localization(frames: int) -> None:
     )
     k0 = 10
     sweeps = [seq.sweep(k).points_deskewed for k in range(k0, k0 + frames)]
-    print("| localizer | frames | accepted | median error m | max error m | median ° | ms / frame |")
+    print(
+        "| localizer | frames | accepted | median error m | max error m | median ° | ms / frame |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|")
     for method in ("registration", "ndt"):
         loc = Localizer(prior, OdometryConfig(deskew=False), initial_pose=gt[k0], method=method)

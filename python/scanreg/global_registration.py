@@ -414,7 +414,8 @@ def register_global(
             moved = _displacement(pose, initial, centre)
             if moved > gate:
                 reasons.append(
-                    f"refinement moved the source centre {moved:.3g} > gate {gate:.3g} from the solve"
+                    f"refinement moved the source centre {moved:.3g} > gate {gate:.3g} "
+                    "from the solve"
                 )
         hyps.append(
             GlobalHypothesis(
