@@ -33,9 +33,9 @@ from .target import prepare
 from .transform import SE3
 from .verdict import Verdict, VerdictThresholds
 
-#: Keypoints the default voxel aims at for the larger cloud: the descriptor match is a brute
-#: force over both keypoint sets (quadratic), and about this many kept the 3DMatch pair's
-#: correct matches (a 5 cm voxel, as the benchmark's own protocol uses).
+#: Keypoints the default voxel aims at for the larger cloud: every stage's cost grows with it,
+#: and about this many kept the 3DMatch pair's correct matches (a 5 cm voxel, as the
+#: benchmark's own protocol uses).
 DEFAULT_KEYPOINTS = 5000
 #: Smallest clique (mutually consistent correspondences) a hypothesis needs to be accepted:
 #: pairs with no overlap (KITTI crops 10-24 m apart, a 3DMatch fragment against a street scan)
