@@ -118,8 +118,12 @@ def _sets(num_pairs: int) -> dict[str, list[tuple[np.ndarray, np.ndarray, SE3]]]
 # --- contenders: each returns (pose or None, accepted-or-None, seconds) --------------------
 
 
+STAGES: dict[str, list[dict[str, float]]] = {}
+
+
 def _ours(src: np.ndarray, tgt: np.ndarray, voxel: float) -> tuple[SE3 | None, SE3 | None, bool]:
     res = register_global(src, tgt)
+    STAGES.setdefault(CURRENT_SET[0], []).append(res.stage_seconds)
     h = max(res.hypotheses, key=lambda h: h.clique_size) if res.hypotheses else None
     pose = res.pose if res.accepted else (res.hypotheses[0].pose if res.hypotheses else None)
     return (h.initial_pose if h else None), pose, res.accepted
@@ -188,6 +192,8 @@ def _kiss(src: np.ndarray, tgt: np.ndarray, voxel: float) -> tuple[SE3, SE3, Non
     return pose, pose, None
 
 
+CURRENT_SET = [""]
+
 CONTENDERS: dict[str, Callable[..., Any]] = {
     "ours": _ours,
     "open3d_ransac": _o3d_ransac,
@@ -234,6 +240,7 @@ def main() -> None:
     names = list(contenders)
     rows = []
     for set_name, pairs in _sets(args.pairs).items():
+        CURRENT_SET[0] = set_name
         stats: dict[str, dict[str, list[float]]] = {
             n: {"ok": [], "false": [], "t": [], "ratio": []} for n in names
         }
@@ -283,6 +290,14 @@ def main() -> None:
     print("|---|---|---:|---:|---:|---:|---:|")
     for r in rows:
         print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]:.0f} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.0f} |")
+    # Where our time goes: median wall seconds per stage (GlobalRegistrationResult.stage_seconds).
+    names_s = list(next(iter(STAGES.values()))[0]) if STAGES else []
+    print()
+    print("| set | " + " | ".join(names_s) + " |")
+    print("|---|" + "---:|" * len(names_s))
+    for set_name, runs in STAGES.items():
+        cells = [f"{statistics.median(r[k] for r in runs):.3f}" for k in names_s]
+        print(f"| {set_name} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":

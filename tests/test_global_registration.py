@@ -132,8 +132,8 @@ def test_the_robust_solve_recovers_the_pose_with_95_percent_outliers() -> None:
 
 def test_recovers_an_arbitrary_rotation_on_a_simulated_street() -> None:
     scene = sim.street(seed=2, length=120.0, num_pedestrians=0, num_moving_cars=0)
-    # HDL-64: with a VLP-16 or HDL-32 the pose is as good (1 cm) but the verdict's degeneracy
-    # check rejects it (a rotation-translation coupling at 0.024 < 0.03).
+    # HDL-64: with a VLP-16 the pose is as good (1-2 mm) but the verdict's degeneracy check
+    # still rejects it (a rotation-translation coupling at 0.025 < 0.03, about the centroid).
     lidar = sim.LidarModel.preset("hdl64")
     p_target = SE3.from_vector([0.0, 0.0, 1.8, 0.0, 0.0, 0.0])
     p_source = SE3.from_vector([6.0, 1.5, 1.8, 0.0, 0.0, 2.5])  # 143° of yaw
@@ -146,8 +146,19 @@ def test_recovers_an_arbitrary_rotation_on_a_simulated_street() -> None:
     assert res.accepted, res.reasons
     assert res.pose is not None
     rot, trans = _errors(res.pose, truth @ tilt.inverse())
-    assert rot < 0.05 and trans < 0.01, (rot, trans)  # measured 0.003°, 2 mm
+    assert rot < 0.05 and trans < 0.01, (rot, trans)  # measured 0.004°, 1.4 mm
     assert res.covariance is not None and np.all(np.isfinite(res.covariance))
+    assert list(res.stage_seconds) == [
+        "voxel",
+        "keypoints",
+        "descriptors",
+        "matching",
+        "pruning",
+        "solve",
+        "refinement",
+        "verdict",
+    ]
+    assert sum(res.stage_seconds.values()) <= res.time_s
 
 
 def test_recovers_a_kitti_scan_moved_by_a_known_transform() -> None:
@@ -175,7 +186,15 @@ def test_3dmatch_pair_within_the_benchmark_criterion_before_refinement() -> None
     initial = max(res.hypotheses, key=lambda h: h.clique_size).initial_pose
     rot, trans = _errors(initial, gt)
     assert rot < 15 and trans < 0.3, (rot, trans)  # 3DMatch's criterion
-    assert rot < 3 and trans < 0.05, (rot, trans)  # what we measured: 1.5°, 2.3 cm
+    assert rot < 3 and trans < 0.05, (rot, trans)  # what we measured: 1.5°, 1.5-2.3 cm
+    # Accepted after GICP: the refinement ends 11 cm from the ground truth (every ICP method
+    # does, from the truth itself, and fits the data better there: 33 % of the source within
+    # 2 cm against 26 % at the truth), and the degeneracy analysis about the source centroid
+    # finds no weak direction (about the camera 2 m away it saw a false coupling).
+    assert res.accepted, res.reasons
+    assert res.pose is not None
+    rot, trans = _errors(res.pose, gt)
+    assert rot < 2 and trans < 0.15, (rot, trans)  # measured 1.4°, 11 cm
 
 
 # --- failures reported as failures --------------------------------------------------------

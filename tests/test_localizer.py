@@ -86,3 +86,20 @@ def test_bad_arguments_are_named() -> None:
         loc.relocalize(pts, np.eye(3))
     with pytest.raises(ValueError, match="map_points"):
         Localizer(np.zeros((3, 3)))
+
+
+def test_ndt_localizer_tracks_in_the_prior_map() -> None:
+    seq, gt, prior_map = _street()
+    k0 = 12
+    start = SE3.from_matrix(gt[k0]) @ SE3.from_vector([0.3, -0.2, 0.0, 0.0, 0.0, 0.02])
+    loc = Localizer(prior_map, OdometryConfig(deskew=False), initial_pose=start, method="ndt")
+    assert loc.ndt_map is not None
+    for k in range(k0, k0 + 5):
+        res = loc.step(seq.sweep(k).points_deskewed)
+        t, r = _error(res.pose, gt[k])
+        assert res.verdict.accepted, (k, res.verdict.reasons)
+        assert res.registration is None and res.ndt is not None and res.ndt.converged
+        assert t < 0.01 and r < 0.05, (k, t, r)  # measured 0.3-0.5 mm, < 0.003°
+        assert np.all(np.isfinite(res.covariance)) and not res.map_updated
+    with pytest.raises(ValueError, match="method: unknown 'icp'"):
+        Localizer(prior_map, method="icp")

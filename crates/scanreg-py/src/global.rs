@@ -5,7 +5,7 @@ use numpy::ndarray::Array3;
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use scanreg_core::global::{self, GlobalSettings, Hypothesis};
+use scanreg_core::global::{self, GlobalSettings, Hypothesis, StageSeconds};
 use scanreg_core::knn::KdTree;
 
 /// Hypotheses of a global registration, best first, and what they came from.
@@ -36,6 +36,9 @@ pub struct GlobalMatch {
     /// `(C, 2)` mutual nearest-neighbour pairs (source keypoint, target keypoint).
     #[pyo3(get)]
     correspondences: Py<PyArray2<i64>>,
+    /// `(stage, seconds)` in pipeline order; empty for paired input.
+    #[pyo3(get)]
+    stage_seconds: Vec<(String, f64)>,
 }
 
 fn build(
@@ -45,6 +48,7 @@ fn build(
     target_keypoints: Vec<f64>,
     descriptors: (usize, usize),
     pairs: Vec<(u32, u32)>,
+    seconds: Option<StageSeconds>,
 ) -> PyResult<GlobalMatch> {
     let k = hyps.len();
     let flat: Vec<f64> = hyps.iter().flat_map(|h| h.pose).collect();
@@ -79,6 +83,18 @@ fn build(
         num_source_descriptors: descriptors.0,
         num_target_descriptors: descriptors.1,
         correspondences: rows(py, pair_flat, 2)?,
+        stage_seconds: seconds.map_or_else(Vec::new, |s| {
+            [
+                ("keypoints", s.keypoints),
+                ("descriptors", s.descriptors),
+                ("matching", s.matching),
+                ("pruning", s.pruning),
+                ("solve", s.solve),
+            ]
+            .into_iter()
+            .map(|(k, v)| (k.to_string(), v))
+            .collect()
+        }),
     })
 }
 
@@ -124,6 +140,7 @@ fn register_global(
         out.target.points,
         counts,
         out.correspondences,
+        Some(out.seconds),
     )
 }
 
@@ -156,7 +173,7 @@ fn solve_correspondences(
             )
         })
         .map_err(core_err)?;
-    build(py, hyps, Vec::new(), Vec::new(), (0, 0), Vec::new())
+    build(py, hyps, Vec::new(), Vec::new(), (0, 0), Vec::new(), None)
 }
 
 /// FPFH rows and whether each is defined.

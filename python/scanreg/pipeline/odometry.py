@@ -43,6 +43,7 @@ from .. import _core
 from .._validate import FloatArray, as_matrix, as_points
 from ..deskew import REFERENCES, deskew, velocity_from_motion
 from ..local_map import Attributes, LocalMap
+from ..ndt import NdtResult
 from ..preprocess import estimate_normals, positive_int
 from ..register import RegistrationResult, RegistrationSettings, register
 from ..robust import check_kernel
@@ -227,6 +228,32 @@ class OdometryConfig:
 
 
 @dataclass(frozen=True)
+class Aligned:
+    """What the alignment step hands the rest of :meth:`Odometry.step`."""
+
+    pose: SE3
+    covariance: FloatArray
+    stop_reason: str
+    quality: QualityReport
+    verdict: Verdict
+    registration: RegistrationResult | None
+    ndt: NdtResult | None = None
+
+
+def _aligned(reg: RegistrationResult) -> Aligned:
+    """A registration as the alignment step's outcome (judged where it ended)."""
+    assert reg.quality is not None and reg.verdict is not None
+    return Aligned(
+        pose=_se3(reg.pose),
+        covariance=reg.covariance,
+        stop_reason=reg.stop_reason,
+        quality=reg.quality,
+        verdict=reg.verdict,
+        registration=reg,
+    )
+
+
+@dataclass(frozen=True)
 class FrameTiming:
     """Wall-clock seconds of each stage of one :meth:`Odometry.step`. ``align`` includes the
     verdict, which :func:`scanreg.register` computes with the estimate; ``judge`` is only
@@ -281,6 +308,9 @@ class FrameResult:
     #: accepted, ``registration`` is the wider one; rejected, none was accepted and the sweep
     #: kept the constant-velocity prediction (``map_updated`` False).
     basin_fallback: bool = False
+    #: The NDT alignment of a :class:`~scanreg.Localizer` with ``method="ndt"`` (then
+    #: ``registration`` is ``None``); ``None`` otherwise.
+    ndt: NdtResult | None = None
 
     @property
     def degenerate(self) -> bool:
@@ -508,41 +538,35 @@ class Odometry:
                 projector[:3, :3] -= np.outer(v, v)
         # 5. align
         t0 = time.perf_counter()
-        reg = register(
-            source,
-            self._target,
-            method=c.method,
-            init=prediction,
-            settings=RegistrationSettings(
-                max_correspondence_distance=gate,
-                max_iterations=c.max_iterations,
-                translation_tolerance=c.convergence_tolerance,
-                rotation_tolerance=c.convergence_tolerance,
-                kernel=c.kernel,
-                # The adaptive σ is in metres: the scale of the point methods' residuals.
-                # GICP's residuals are whitened, and keep register()'s default scale.
-                kernel_scale=None if c.kernel == "none" or c.method == "gicp" else self.gate.sigma,
-                num_threads=c.num_threads,
-                num_neighbors=c.num_neighbors,
-            ),
-            thresholds=self._thresholds,
-            step_projector=projector,
-            source_covariances=source_covariances,
+        settings = RegistrationSettings(
+            max_correspondence_distance=gate,
+            max_iterations=c.max_iterations,
+            translation_tolerance=c.convergence_tolerance,
+            rotation_tolerance=c.convergence_tolerance,
+            kernel=c.kernel,
+            # The adaptive σ is in metres: the scale of the point methods' residuals.
+            # GICP's residuals are whitened, and keep register()'s default scale.
+            kernel_scale=None if c.kernel == "none" or c.method == "gicp" else self.gate.sigma,
+            num_threads=c.num_threads,
+            num_neighbors=c.num_neighbors,
         )
+        aligned = self._align(source, prediction, settings, projector, source_covariances)
+        reg = aligned.registration
         # 5b. wrong start: a wider search rather than a pose the verdict rejected
         fallback = failed = False
-        if c.basin_fallback and _wrong_start(reg.verdict):
+        if c.basin_fallback and reg is not None and _wrong_start(reg.verdict):
             retry = self._wider_search(
                 source, reg, prediction, previous, has_prior, projector, source_covariances
             )
             fallback, failed = True, retry is None
-            reg = reg if retry is None else retry
+            if retry is not None:
+                reg, aligned = retry, _aligned(retry)
         t_align = time.perf_counter() - t0
-        usable = reg.stop_reason not in FAILED_STOPS and not failed
+        usable = aligned.stop_reason not in FAILED_STOPS and not failed
         if failed:
             prediction = _se3(previous @ self._last_motion)
-        pose = _se3(reg.pose) if usable else prediction
-        cov = np.array(reg.covariance) if usable else np.full((6, 6), np.inf)
+        pose = aligned.pose if usable else prediction
+        cov = np.array(aligned.covariance) if usable else np.full((6, 6), np.inf)
         held: tuple[str, ...] = ()
         if usable and weak:
             # The pose is the registration's own (held by its step projector; its verdict
@@ -562,10 +586,9 @@ class Odometry:
                 return self._step(points, timestamps, motion, stamp, external_prior=has_prior)
         self._first_sweep = None
 
-        # 6. judge: register() judged the result against the map, from the prediction
+        # 6. judge: the alignment judged the result against the map, from the prediction
         t0 = time.perf_counter()
-        assert reg.quality is not None and reg.verdict is not None
-        quality, verdict = reg.quality, reg.verdict
+        quality, verdict = aligned.quality, aligned.verdict
         t_judge = time.perf_counter() - t0
 
         # 7. update
@@ -594,6 +617,7 @@ class Odometry:
             verdict=verdict,
             quality=quality,
             registration=reg,
+            ndt=aligned.ndt,
             gate=gate,
             num_points=len(pts),
             num_source_points=len(source),
@@ -647,6 +671,28 @@ class Odometry:
             if res.verdict is not None and res.verdict.accepted:
                 return res
         return None
+
+    def _align(
+        self,
+        source: FloatArray,
+        prediction: SE3,
+        settings: RegistrationSettings,
+        projector: FloatArray | None,
+        source_covariances: FloatArray | None,
+    ) -> Aligned:
+        """Step 5: register the sweep to the target from the prediction, judged there (the
+        localizer overrides it to align by NDT)."""
+        reg = register(
+            source,
+            self._target,
+            method=self.config.method,
+            init=prediction,
+            settings=settings,
+            thresholds=self._thresholds,
+            step_projector=projector,
+            source_covariances=source_covariances,
+        )
+        return _aligned(reg)
 
     def map_cloud(self) -> Any:
         """The local map (world frame) as a :class:`~scanreg.io.PointCloud`, with

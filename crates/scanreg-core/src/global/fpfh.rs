@@ -94,8 +94,10 @@ fn bin(value: f64, lo: f64, hi: f64) -> usize {
 }
 
 /// The neighbours of every point: up to `max_neighbors` nearest within `radius`, itself and
-/// points without a normal left out, with their distances. Input order.
-fn neighbourhoods(
+/// points without a normal (`valid` false) left out, with their distances; none for an
+/// invalid point. Input order. (A radius search then a cut: a bounded `max_neighbors + 1`-NN
+/// search kept a sorted buffer of 101 and took longer.)
+pub fn neighbourhoods(
     tree: &KdTree,
     valid: &[bool],
     radius: f64,
@@ -110,13 +112,21 @@ fn neighbourhoods(
             if !valid[i] {
                 return Vec::new();
             }
-            tree.knn_into(tree.point(i), max_neighbors + 1, sq, buf);
+            tree.radius_into(tree.point(i), sq, buf);
             buf.iter()
                 .filter(|&&(j, _)| j as usize != i && valid[j as usize])
                 .take(max_neighbors)
                 .map(|&(j, d2)| (j, d2.sqrt()))
                 .collect()
         })
+        .collect()
+}
+
+/// Whether each row of `normals` (`N * 3`) is a unit normal (zero marks none).
+pub fn has_normal(normals: &[f64]) -> Vec<bool> {
+    normals
+        .chunks_exact(3)
+        .map(|m| m[0] * m[0] + m[1] * m[1] + m[2] * m[2] > 0.5)
         .collect()
 }
 
@@ -156,14 +166,19 @@ pub fn fpfh(
     if max_neighbors == 0 {
         return Err(Error::invalid("max_neighbors", "must be >= 1"));
     }
-    let pts = tree.points();
-    let valid: Vec<bool> = (0..n)
-        .map(|i| {
-            let m = row(normals, i);
-            dot(&m, &m) > 0.5
-        })
-        .collect();
+    let valid = has_normal(normals);
     let nbrs = neighbourhoods(tree, &valid, radius, max_neighbors);
+    Ok(fpfh_from(tree, normals, &nbrs))
+}
+
+/// [`fpfh`] over neighbourhoods already found by [`neighbourhoods`] (inputs checked there).
+pub fn fpfh_from(
+    tree: &KdTree,
+    normals: &[f64],
+    nbrs: &[Vec<(u32, f64)>],
+) -> (Vec<f32>, Vec<bool>) {
+    let n = tree.len();
+    let pts = tree.points();
     let spfh: Vec<[f64; FPFH_DIM]> = (0..n)
         .into_par_iter()
         .map(|i| {
@@ -233,7 +248,7 @@ pub fn fpfh(
         desc.extend_from_slice(&r);
         ok.push(v);
     }
-    Ok((desc, ok))
+    (desc, ok)
 }
 
 #[cfg(test)]
