@@ -25,6 +25,7 @@ Every problem with the file (truncated, corrupt record, inconsistent message) ra
 from __future__ import annotations
 
 import bz2
+import functools
 import io
 import struct
 from collections.abc import Iterator
@@ -649,13 +650,20 @@ def _topic_types(path: Path) -> set[tuple[str, str]]:
     return {(c.topic, c.msgtype) for c, _ in _ros2_connections(path)}
 
 
+@functools.cache
+def _typestore(ros1: bool) -> Any:
+    """One rosbags typestore per process and ROS version: a new store compiles its
+    (de)serialisers again on first use, which cost ~25 ms per bag read (measured by fuzz/)."""
+    rosbags = _rosbags()
+    stores = rosbags.typesys.Stores
+    return rosbags.typesys.get_typestore(stores.ROS1_NOETIC if ros1 else stores.LATEST)
+
+
 def _deserialised(
     path: Path, topic: str, msgtype: str
 ) -> Iterator[tuple[_Connection, int, Any, int]]:
-    rosbags = _rosbags()
     ros1 = _is_ros1(path)
-    stores = rosbags.typesys.Stores
-    store = rosbags.typesys.get_typestore(stores.ROS1_NOETIC if ros1 else stores.LATEST)
+    store = _typestore(ros1)
     if ros1:
         md5 = store.generate_msgdef(msgtype)[1]
         messages = _Ros1Bag(path).walk({topic})
