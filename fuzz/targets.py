@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import bz2
 import contextlib
+import functools
 import gzip
 import hashlib
 import os
@@ -22,6 +23,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -220,11 +222,30 @@ def _ros2_seeds(suffix: str) -> Callable[[], list[bytes]]:
     return seeds
 
 
+@functools.cache
+def _memoise_qos() -> None:
+    """rosbags parses each topic's QoS profile YAML text with ruamel on every open of an MCAP
+    or sqlite3 file (~5 ms per topic: 90 % of a ROS 2 execution). The text only changes when
+    the fuzzer mutates it, so each distinct text is still parsed (same code paths, same
+    refusals) and a repeat is served from a cache."""
+    from rosbags.rosbag2 import metadata, storage_mcap, storage_sqlite3
+
+    parse = metadata.parse_qos
+    seen = functools.lru_cache(maxsize=4096)(parse)
+
+    def parse_qos(dcts: Any) -> Any:
+        return list(seen(dcts)) if isinstance(dcts, str) else parse(dcts)
+
+    storage_mcap.parse_qos = parse_qos
+    storage_sqlite3.parse_qos = parse_qos
+
+
 def _bag_read(p: Path) -> object:
     """Both bag readers on one file, each left to refuse by name: a LaserScan seed
     exercises ``read_bag_scans``, a run bag ``read_bag_clouds`` (PointCloud2 decoding)."""
     from scanreg.io import read_bag_clouds, read_bag_scans
 
+    _memoise_qos()
     out = []
     for read in (read_bag_scans, read_bag_clouds):
         with contextlib.suppress(*NAMED):
