@@ -6,6 +6,7 @@ outcomes only: a consistent result or a ``ValueError`` whose message starts with
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -381,3 +382,49 @@ def test_fuzz_text_formats(tmp_path: Path, data: st.DataObject) -> None:
         return
     if isinstance(result, Trajectory):
         assert result.poses.shape[1:] == (4, 4) and np.isfinite(result.poses).all()
+
+
+# --- no NaN cast into an integer field ---------------------------------------------------
+
+
+def _las_with_float_ring(path: Path, ring: list[float]) -> None:
+    laspy = pytest.importorskip("laspy")
+    header = laspy.LasHeader(point_format=3, version="1.4")
+    header.add_extra_dim(laspy.ExtraBytesParams(name="ring", type=np.float64))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = [0.0, 1.0], [0.0, 1.0], [0.0, 1.0]
+    las.ring = ring
+    las.write(path)
+
+
+@pytest.mark.parametrize("bad", ["nan", "inf", "1.5"])
+def test_no_reader_casts_a_non_integer_ring_into_int64(tmp_path: Path, bad: str) -> None:
+    """A float ring field that is not a whole number is refused by name in every cloud format
+    (numpy's "invalid value encountered in cast", an error here, would mean a silent cast).
+    The LAS reader cast its extra-bytes ring itself and warned; it leaves that to PointCloud."""
+    pcd = tmp_path / "r.pcd"
+    pcd.write_text(
+        "VERSION .7\nFIELDS x y z ring\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+        f"WIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA ascii\n0 0 0 1\n1 1 1 {bad}\n"
+    )
+    ply = tmp_path / "r.ply"
+    ply.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+        f"property float z\nproperty float ring\nend_header\n0 0 0 1\n1 1 1 {bad}\n"
+    )
+    las = tmp_path / "r.las"
+    _las_with_float_ring(las, [1.0, float(bad)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for path, read in ((pcd, sio.read_pcd), (ply, sio.read_ply), (las, sio.read_las)):
+            with pytest.raises(ValueError, match=r"ring.*(integer|int64)") as info:
+                read(path)
+            assert str(path) in str(info.value)
+
+
+def test_a_whole_float_ring_is_read_as_int64(tmp_path: Path) -> None:
+    las = tmp_path / "r.las"
+    _las_with_float_ring(las, [3.0, 7.0])
+    cloud = sio.read_las(las)
+    assert cloud.ring is not None and cloud.ring.dtype == np.int64
+    np.testing.assert_array_equal(cloud.ring, [3, 7])
