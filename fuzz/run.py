@@ -20,6 +20,7 @@ import hashlib
 import json
 import sys
 import time
+import traceback
 from pathlib import Path
 
 import atheris
@@ -63,23 +64,35 @@ def main() -> None:
     for seed in target.seeds():
         (corpus / hashlib.sha1(seed).hexdigest()).write_bytes(seed)
     runner = Runner(target, scratch_dir(target.name), findings)
-    one = runner
-    if findings is not None:
-        progress = findings / "progress.json"
-        start = time.monotonic()
+    # An exception raised where nobody can catch it (a generator's clean-up run by the garbage
+    # collector) is only printed by default: here it is a finding, charged to the input
+    # being run (the garbage may be older; the report says what raised).
+    unraisable: list[str] = []
+    sys.unraisablehook = lambda u: unraisable.append(
+        f"{u.err_msg or 'Exception ignored in'}: {u.object!r}\n"
+        + "".join(traceback.format_exception(u.exc_type, u.exc_value, u.exc_traceback))
+    )
+    progress = None if findings is None else findings / "progress.json"
+    start = time.monotonic()
 
-        def one(data: bytes) -> None:  # type: ignore[misc]
-            runner(data)
-            if runner.executions % PROGRESS_EVERY == 0:
-                progress.write_text(
-                    json.dumps(
-                        {
-                            "executions": runner.executions,
-                            "unnamed": runner.unnamed,
-                            "seconds": round(time.monotonic() - start, 1),
-                        }
-                    )
+    def one(data: bytes) -> None:
+        runner(data)
+        if unraisable:
+            report = unraisable.pop(0)
+            unraisable.clear()
+            if progress is None:
+                raise RuntimeError(f"unraisable exception: {report}")
+            runner.keep(data, "unraisable " + report.splitlines()[-1], report)
+        if progress is not None and runner.executions % PROGRESS_EVERY == 0:
+            progress.write_text(
+                json.dumps(
+                    {
+                        "executions": runner.executions,
+                        "unnamed": runner.unnamed,
+                        "seconds": round(time.monotonic() - start, 1),
+                    }
                 )
+            )
 
     atheris.Setup([sys.argv[0], *args, str(corpus)], one)
     atheris.Fuzz()

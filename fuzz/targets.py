@@ -246,10 +246,14 @@ def _bag_read(p: Path) -> object:
     from scanreg.io import read_bag_clouds, read_bag_scans
 
     _memoise_qos()
-    out = []
+    out, refusals = [], []
     for read in (read_bag_scans, read_bag_clouds):
-        with contextlib.suppress(*NAMED):
+        try:
             out.append(read(p))
+        except NAMED as exc:
+            refusals.append(exc)
+    if not out:  # both refused: say so (a seed must read with one of them)
+        raise refusals[0]
     return out
 
 
@@ -339,17 +343,20 @@ class Runner:
     def _record(self, data: bytes) -> None:
         """Count every unnamed exception; keep the first input per (type, innermost line),
         so one bug does not fill the disk with thousands of variants."""
-        assert self.findings is not None
-        self.unnamed += 1
         kind, _, tb = sys.exc_info()
         while tb is not None and tb.tb_next is not None:
             tb = tb.tb_next
         where = f"{tb.tb_frame.f_code.co_filename}:{tb.tb_lineno}" if tb else "?"
-        key = hashlib.sha1(f"{getattr(kind, '__name__', kind)} {where}".encode()).hexdigest()
-        stem = self.findings / f"unnamed-{key[:16]}"
+        self.keep(data, f"{getattr(kind, '__name__', kind)} {where}", traceback.format_exc())
+
+    def keep(self, data: bytes, key: str, report: str) -> None:
+        """Count a finding (campaign mode) and keep its first input per ``key``."""
+        assert self.findings is not None
+        self.unnamed += 1
+        stem = self.findings / f"unnamed-{hashlib.sha1(key.encode()).hexdigest()[:16]}"
         if not stem.exists():
             stem.write_bytes(data)
-            Path(f"{stem}.txt").write_text(traceback.format_exc())
+            Path(f"{stem}.txt").write_text(report)
 
 
 def mutations(seed: bytes, count: int, rng: np.random.Generator) -> list[bytes]:

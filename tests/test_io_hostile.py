@@ -428,3 +428,51 @@ def test_a_whole_float_ring_is_read_as_int64(tmp_path: Path) -> None:
     cloud = sio.read_las(las)
     assert cloud.ring is not None and cloud.ring.dtype == np.int64
     np.testing.assert_array_equal(cloud.ring, [3, 7])
+
+
+# --- findings of the fuzz campaign (fuzz/campaign.sh) ------------------------------------
+
+
+def _run_bag_db3(path: Path, frames: int = 3) -> Path:
+    pytest.importorskip("rosbags")
+    poses = np.repeat(np.eye(4)[None], frames, axis=0)
+    poses[:, 0, 3] = np.arange(frames)
+    sio.write_run_bag(path, np.arange(frames) * 0.1, poses, scans=[_cloud(20)] * frames)
+    return path
+
+
+def test_a_ros2_sqlite_bag_refused_mid_stream_is_closed_without_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Found by the ros2_sqlite target: a corrupt message refused while rosbags' sqlite3
+    statement was still open, with the refusal kept in a reference cycle (the fuzz harness
+    kept it in a list its traceback reaches; so do loggers and retry loops), left the clean-up
+    to the garbage collector, which closed the database under the statement: "database is
+    locked" from the generator's finally (an unraisable exception), the file left open."""
+    import gc
+    import sqlite3
+    import sys
+
+    unraised: list[str] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: unraised.append(repr(u.exc_value)))
+    bag = _run_bag_db3(tmp_path / "run.db3")
+    with sqlite3.connect(bag) as db:  # the second of three clouds: one byte
+        db.execute(
+            "UPDATE messages SET data = x'00' WHERE id = (SELECT id FROM messages WHERE "
+            "topic_id = (SELECT id FROM topics WHERE name = '/scanreg/scan') "
+            "ORDER BY timestamp LIMIT 1 OFFSET 1)"
+        )
+    db.close()
+
+    def read_keeping_the_refusal() -> None:
+        refusals = []
+        try:
+            sio.read_bag_clouds(bag)
+        except FileFormatError as exc:
+            refusals.append(exc)
+        raise refusals[0]  # exc -> traceback -> this frame -> refusals -> exc
+
+    with pytest.raises(FileFormatError, match="message 1: cannot deserialise"):
+        read_keeping_the_refusal()
+    gc.collect()
+    assert unraised == []

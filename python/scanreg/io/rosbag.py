@@ -570,6 +570,7 @@ def _ros2_messages(
     path: Path, wanted: set[str] | None
 ) -> Iterator[tuple[_Connection, int, bytes | memoryview]]:
     reader = _ros2_reader(path)
+    messages = None
     try:
         conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
         by_id = {c.id: _Connection(c.id, c.topic, c.msgtype, "") for c in conns}
@@ -586,6 +587,11 @@ def _ros2_messages(
             conn, stamp, data = item
             yield by_id[conn.id], int(stamp), data
     finally:
+        # The message generator holds an sqlite3 statement: closing the database under it
+        # raised "database is locked" when a caller stopped early, e.g. on a corrupt message
+        # (found by fuzz/, ros2_sqlite).
+        if messages is not None:
+            messages.close()
         reader.close()
 
 
