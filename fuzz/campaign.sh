@@ -25,6 +25,10 @@ py=${PYTHON:-$here/../.venv/bin/python}
 targets=${*:-$("$py" "$here/run.py" --list)}
 mkdir -p "$out" && out=$(cd "$out" && pwd)
 summary=$out/summary.md
+# the targets' input files (fuzz/targets.py: scratch_dir), in memory where possible
+shm=/dev/shm; [ -d $shm ] && [ -w $shm ] || shm=${TMPDIR:-/tmp}
+SCANREG_FUZZ_SCRATCH=$(mktemp -d "$shm/scanreg-fuzz-campaign-XXXXXX") && export SCANREG_FUZZ_SCRATCH
+trap 'rm -rf "$SCANREG_FUZZ_SCRATCH"' EXIT
 count() { find "$1" -maxdepth 1 -name "$2-*" ! -name '*.txt' | wc -l; }
 {
   echo "commit $(git -C "$here" rev-parse --short HEAD), $(date -u +%FT%TZ), -n $runs -t $secs"

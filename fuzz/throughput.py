@@ -12,6 +12,7 @@ median exec/s of each and the ratio.
 
 from __future__ import annotations
 
+import shutil
 import statistics
 import sys
 import tempfile
@@ -48,6 +49,8 @@ def main() -> None:
             new.append(rate(now, seeds, seconds, fresh=False))
         a, b = statistics.median(old), statistics.median(new)
         print(f"| {name} | {a:.0f} | {b:.0f} | {b / a:.1f} |", flush=True)
+        for runner in (former, now):
+            shutil.rmtree(runner.path.parent)
 
 
 if __name__ == "__main__":
