@@ -668,6 +668,7 @@ def _typestore(ros1: bool) -> Any:
 def _deserialised(
     path: Path, topic: str, msgtype: str
 ) -> Iterator[tuple[_Connection, int, Any, int]]:
+    _rosbags()  # the message naming the extra, even when a store is cached
     ros1 = _is_ros1(path)
     store = _typestore(ros1)
     if ros1:
