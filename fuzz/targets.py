@@ -189,11 +189,47 @@ def _bag(kind: str, path: Path) -> Path:
     return path
 
 
+def _ros1_cloud_bag(path: Path) -> Path:
+    """Two small ``sensor_msgs/PointCloud2`` messages (x y z intensity, float32) in a ROS 1
+    bag: the walker's path to ``decode_pointcloud2``."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    t = ts.types
+    msgtype = "sensor_msgs/msg/PointCloud2"
+    fields = [
+        t["sensor_msgs/msg/PointField"](name=n, offset=4 * i, datatype=7, count=1)
+        for i, n in enumerate(("x", "y", "z", "intensity"))
+    ]
+    rng = np.random.default_rng(0)
+    with Writer(path) as w:
+        conn = w.add_connection("/points", msgtype, typestore=ts)
+        for i in range(2):
+            stamp = t["builtin_interfaces/msg/Time"](sec=1, nanosec=i * 100_000_000)
+            data = rng.normal(size=(10, 4)).astype(np.float32).tobytes()
+            msg = t[msgtype](
+                header=t["std_msgs/msg/Header"](seq=i, stamp=stamp, frame_id="lidar"),
+                height=1,
+                width=10,
+                fields=fields,
+                is_bigendian=False,
+                point_step=16,
+                row_step=160,
+                data=np.frombuffer(data, np.uint8),
+                is_dense=True,
+            )
+            w.write(conn, 1_000_000_000 + i * 100_000_000, ts.serialize_ros1(msg, msgtype))
+    return path
+
+
 def _ros1_seeds() -> list[bytes]:
     out = []
     for kind in ("ros1", "ros1-bz2"):
         with tempfile.TemporaryDirectory() as d:
             out.append(_bag(kind, Path(d) / "seed.bag").read_bytes())
+    with tempfile.TemporaryDirectory() as d:
+        out.append(_ros1_cloud_bag(Path(d) / "cloud.bag").read_bytes())
     return out
 
 
