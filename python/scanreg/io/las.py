@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .._validate import FloatArray
 from ._common import FileFormatError, PathLike, PointCloud, check_writable_cloud
@@ -228,7 +229,7 @@ def read_las(path: PathLike) -> PointCloud:
     time = np.asarray(las.gps_time, dtype=np.float64) if "gps_time" in dims else None
     if time is not None and len(time) and not time.any():
         time = None  # a format with the field, written without times: zero is not a time
-    ring: FloatArray | None = None
+    ring: NDArray[Any] | None = None  # PointCloud casts it to int64
     fields: dict[str, FloatArray] = {}
     for name in STANDARD_FIELDS:
         fields[name] = np.asarray(las[name], dtype=np.float64)
