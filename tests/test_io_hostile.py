@@ -476,3 +476,39 @@ def test_a_ros2_sqlite_bag_refused_mid_stream_is_closed_without_an_error(
         read_keeping_the_refusal()
     gc.collect()
     assert unraised == []
+
+
+def test_a_huge_row_step_in_a_small_pointcloud2_allocates_nothing_extra() -> None:
+    """Found by the ros1 and ros2_mcap targets: a 6 kB bag whose PointCloud2 said
+    row_step = 1 GiB (height 1) made the decoder pad its 160-byte blob out to height·row_step:
+    1 GiB allocated and 10 s spent. The last row's missing padding is now skipped in place."""
+    import tracemalloc
+    from types import SimpleNamespace
+
+    from scanreg.io.rosbag import decode_pointcloud2
+
+    pts = np.arange(40, dtype=np.float32).reshape(10, 4)
+    fields = [
+        SimpleNamespace(name=n, offset=4 * i, datatype=7, count=1)
+        for i, n in enumerate(("x", "y", "z", "intensity"))
+    ]
+    shape = {"width": 10, "point_step": 16, "is_bigendian": False}
+    tracemalloc.start()
+    try:
+        cloud = decode_pointcloud2(fields, pts.tobytes(), height=1, row_step=2**30, **shape)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, peak
+    np.testing.assert_array_equal(cloud.points, pts[:, :3])
+    np.testing.assert_array_equal(cloud.intensity, pts[:, 3])  # type: ignore[arg-type]
+    # Two rows need the first row's padding in full.
+    with pytest.raises(ValueError, match="data: 160 bytes, expected height·row_step"):
+        decode_pointcloud2(fields, pts.tobytes(), height=2, row_step=2**30, **shape)
+    # Rows with padding, the last one's cut off: the points of both rows, in order.
+    padded = np.zeros((2, 96), np.uint8)
+    padded[:, :80] = pts.view(np.uint8).reshape(2, 80)
+    two = decode_pointcloud2(
+        fields, padded.reshape(-1)[:-16].tobytes(), height=2, row_step=96, **{**shape, "width": 5}
+    )
+    np.testing.assert_array_equal(two.points, pts[:, :3])
