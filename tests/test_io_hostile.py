@@ -512,3 +512,16 @@ def test_a_huge_row_step_in_a_small_pointcloud2_allocates_nothing_extra() -> Non
         fields, padded.reshape(-1)[:-16].tobytes(), height=2, row_step=96, **{**shape, "width": 5}
     )
     np.testing.assert_array_equal(two.points, pts[:, :3])
+
+
+def test_a_huge_entry_in_a_kitti_calibration_is_refused_without_a_warning(tmp_path: Path) -> None:
+    """Found by the kitti_calib target: a finite 7e203 in Tr overflowed RᵀR in the rotation
+    check ("overflow encountered in matmul"); it is refused as not orthonormal, by name."""
+    path = tmp_path / "calib.txt"
+    path.write_text("Tr: 1 0 0 0 0 -7.2e203 0 0 0 0 1 0\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(FileFormatError, match=r"Tr is not a rigid transform: .*= inf"):
+            sio.read_kitti_calib(path)
+        with pytest.raises(ValueError, match="rotation: not orthonormal"):
+            SE3.from_matrix(np.diag([1e200, 1.0, 1.0, 1.0]))
