@@ -117,3 +117,31 @@ def test_signalling_nan_in_a_float32_file_is_read_as_nan_without_a_warning(tmp_p
         cloud = read_kitti_bin(path)
     assert np.isnan(cloud.points[0, 1]) and np.isnan(cloud.intensity[1])  # type: ignore[index]
     np.testing.assert_array_equal(cloud.points[1], [4.0, 5.0, 6.0])
+
+
+def test_the_campaign_keeps_unnamed_exceptions_and_goes_on(tmp_path: Path) -> None:
+    """With a findings folder (campaign.sh) an unnamed exception is kept (input and traceback,
+    once per raising line) and counted; a named refusal is not a finding; without the folder
+    (the smoke pass above, libFuzzer's default) the exception propagates."""
+    from targets import Target
+
+    def read(p: Path) -> None:
+        data = p.read_bytes()
+        if data.startswith(b"named"):
+            raise FileFormatError(p, "refused")
+        if data.startswith(b"bad"):
+            raise KeyError(data.decode())
+
+    target = Target("t", ".x", read, lambda: [b"ok"])
+    findings = tmp_path / "findings"
+    findings.mkdir()
+    run = Runner(target, tmp_path, findings)
+    for data in (b"ok", b"named", b"bad1", b"bad2", b"ok"):
+        run(data)
+    assert (run.executions, run.unnamed) == (5, 2)
+    kept = sorted(p.name for p in findings.iterdir())
+    assert len(kept) == 2 and kept[1] == kept[0] + ".txt"  # one raising line: one example
+    assert (findings / kept[0]).read_bytes() == b"bad1"
+    assert "KeyError: 'bad1'" in (findings / kept[1]).read_text()
+    with pytest.raises(KeyError):
+        Runner(target, tmp_path)(b"bad3")

@@ -6,6 +6,7 @@ outcomes only: a consistent result or a ``ValueError`` whose message starts with
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -381,3 +382,146 @@ def test_fuzz_text_formats(tmp_path: Path, data: st.DataObject) -> None:
         return
     if isinstance(result, Trajectory):
         assert result.poses.shape[1:] == (4, 4) and np.isfinite(result.poses).all()
+
+
+# --- no NaN cast into an integer field ---------------------------------------------------
+
+
+def _las_with_float_ring(path: Path, ring: list[float]) -> None:
+    laspy = pytest.importorskip("laspy")
+    header = laspy.LasHeader(point_format=3, version="1.4")
+    header.add_extra_dim(laspy.ExtraBytesParams(name="ring", type=np.float64))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = [0.0, 1.0], [0.0, 1.0], [0.0, 1.0]
+    las.ring = ring
+    las.write(path)
+
+
+@pytest.mark.parametrize("bad", ["nan", "inf", "1.5"])
+def test_no_reader_casts_a_non_integer_ring_into_int64(tmp_path: Path, bad: str) -> None:
+    """A float ring field that is not a whole number is refused by name in every cloud format
+    (numpy's "invalid value encountered in cast", an error here, would mean a silent cast).
+    The LAS reader cast its extra-bytes ring itself and warned; it leaves that to PointCloud."""
+    pcd = tmp_path / "r.pcd"
+    pcd.write_text(
+        "VERSION .7\nFIELDS x y z ring\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+        f"WIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA ascii\n0 0 0 1\n1 1 1 {bad}\n"
+    )
+    ply = tmp_path / "r.ply"
+    ply.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+        f"property float z\nproperty float ring\nend_header\n0 0 0 1\n1 1 1 {bad}\n"
+    )
+    las = tmp_path / "r.las"
+    _las_with_float_ring(las, [1.0, float(bad)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for path, read in ((pcd, sio.read_pcd), (ply, sio.read_ply), (las, sio.read_las)):
+            with pytest.raises(ValueError, match=r"ring.*(integer|int64)") as info:
+                read(path)
+            assert str(path) in str(info.value)
+
+
+def test_a_whole_float_ring_is_read_as_int64(tmp_path: Path) -> None:
+    las = tmp_path / "r.las"
+    _las_with_float_ring(las, [3.0, 7.0])
+    cloud = sio.read_las(las)
+    assert cloud.ring is not None and cloud.ring.dtype == np.int64
+    np.testing.assert_array_equal(cloud.ring, [3, 7])
+
+
+# --- findings of the fuzz campaign (fuzz/campaign.sh) ------------------------------------
+
+
+def _run_bag_db3(path: Path, frames: int = 3) -> Path:
+    pytest.importorskip("rosbags")
+    poses = np.repeat(np.eye(4)[None], frames, axis=0)
+    poses[:, 0, 3] = np.arange(frames)
+    sio.write_run_bag(path, np.arange(frames) * 0.1, poses, scans=[_cloud(20)] * frames)
+    return path
+
+
+def test_a_ros2_sqlite_bag_refused_mid_stream_is_closed_without_an_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Found by the ros2_sqlite target: a corrupt message refused while rosbags' sqlite3
+    statement was still open, with the refusal kept in a reference cycle (the fuzz harness
+    kept it in a list its traceback reaches; so do loggers and retry loops), left the clean-up
+    to the garbage collector, which closed the database under the statement: "database is
+    locked" from the generator's finally (an unraisable exception), the file left open."""
+    import gc
+    import sqlite3
+    import sys
+
+    unraised: list[str] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: unraised.append(repr(u.exc_value)))
+    bag = _run_bag_db3(tmp_path / "run.db3")
+    with sqlite3.connect(bag) as db:  # the second of three clouds: one byte
+        db.execute(
+            "UPDATE messages SET data = x'00' WHERE id = (SELECT id FROM messages WHERE "
+            "topic_id = (SELECT id FROM topics WHERE name = '/scanreg/scan') "
+            "ORDER BY timestamp LIMIT 1 OFFSET 1)"
+        )
+    db.close()
+
+    def read_keeping_the_refusal() -> None:
+        refusals = []
+        try:
+            sio.read_bag_clouds(bag)
+        except FileFormatError as exc:
+            refusals.append(exc)
+        raise refusals[0]  # exc -> traceback -> this frame -> refusals -> exc
+
+    with pytest.raises(FileFormatError, match="message 1: cannot deserialise"):
+        read_keeping_the_refusal()
+    gc.collect()
+    assert unraised == []
+
+
+def test_a_huge_row_step_in_a_small_pointcloud2_allocates_nothing_extra() -> None:
+    """Found by the ros1 and ros2_mcap targets: a 6 kB bag whose PointCloud2 said
+    row_step = 1 GiB (height 1) made the decoder pad its 160-byte blob out to height·row_step:
+    1 GiB allocated and 10 s spent. The last row's missing padding is now skipped in place."""
+    import tracemalloc
+    from types import SimpleNamespace
+
+    from scanreg.io.rosbag import decode_pointcloud2
+
+    pts = np.arange(40, dtype=np.float32).reshape(10, 4)
+    fields = [
+        SimpleNamespace(name=n, offset=4 * i, datatype=7, count=1)
+        for i, n in enumerate(("x", "y", "z", "intensity"))
+    ]
+    shape = {"width": 10, "point_step": 16, "is_bigendian": False}
+    tracemalloc.start()
+    try:
+        cloud = decode_pointcloud2(fields, pts.tobytes(), height=1, row_step=2**30, **shape)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, peak
+    np.testing.assert_array_equal(cloud.points, pts[:, :3])
+    np.testing.assert_array_equal(cloud.intensity, pts[:, 3])  # type: ignore[arg-type]
+    # Two rows need the first row's padding in full.
+    with pytest.raises(ValueError, match="data: 160 bytes, expected height·row_step"):
+        decode_pointcloud2(fields, pts.tobytes(), height=2, row_step=2**30, **shape)
+    # Rows with padding, the last one's cut off: the points of both rows, in order.
+    padded = np.zeros((2, 96), np.uint8)
+    padded[:, :80] = pts.view(np.uint8).reshape(2, 80)
+    two = decode_pointcloud2(
+        fields, padded.reshape(-1)[:-16].tobytes(), height=2, row_step=96, **{**shape, "width": 5}
+    )
+    np.testing.assert_array_equal(two.points, pts[:, :3])
+
+
+def test_a_huge_entry_in_a_kitti_calibration_is_refused_without_a_warning(tmp_path: Path) -> None:
+    """Found by the kitti_calib target: a finite 7e203 in Tr overflowed RᵀR in the rotation
+    check ("overflow encountered in matmul"); it is refused as not orthonormal, by name."""
+    path = tmp_path / "calib.txt"
+    path.write_text("Tr: 1 0 0 0 0 -7.2e203 0 0 0 0 1 0\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(FileFormatError, match=r"Tr is not a rigid transform: .*= inf"):
+            sio.read_kitti_calib(path)
+        with pytest.raises(ValueError, match="rotation: not orthonormal"):
+            SE3.from_matrix(np.diag([1e200, 1.0, 1.0, 1.0]))

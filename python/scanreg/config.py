@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import json
 import math
 import sys
@@ -102,7 +103,13 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
 
 
 def _config_fields(cls: type) -> dict[str, Any]:
-    """``{name: resolved annotation}`` of the fields settable by ``__init__``."""
+    """``{name: resolved annotation}`` of the fields settable by ``__init__`` (a copy)."""
+    return dict(_resolved_fields(cls))
+
+
+@functools.cache
+def _resolved_fields(cls: type) -> dict[str, Any]:
+    # resolving string annotations compiles each one: half the time of a config load
     hints = get_type_hints(cls)
     return {f.name: hints[f.name] for f in dataclasses.fields(cls) if f.init}
 

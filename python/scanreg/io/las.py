@@ -229,7 +229,7 @@ def read_las(path: PathLike) -> PointCloud:
     time = np.asarray(las.gps_time, dtype=np.float64) if "gps_time" in dims else None
     if time is not None and len(time) and not time.any():
         time = None  # a format with the field, written without times: zero is not a time
-    ring: NDArray[np.int64] | None = None
+    ring: NDArray[Any] | None = None  # PointCloud casts it to int64
     fields: dict[str, FloatArray] = {}
     for name in STANDARD_FIELDS:
         fields[name] = np.asarray(las[name], dtype=np.float64)
@@ -240,7 +240,7 @@ def read_las(path: PathLike) -> PointCloud:
         if name == "reflectance":
             intensity = values  # a float intensity that did not fit the uint16 field
         elif name == "ring":
-            ring = values.astype(np.int64)
+            ring = values  # PointCloud casts it, refusing NaN or fractions by name
         else:
             fields[name] = values
     try:

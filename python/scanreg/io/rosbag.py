@@ -25,6 +25,7 @@ Every problem with the file (truncated, corrupt record, inconsistent message) ra
 from __future__ import annotations
 
 import bz2
+import functools
 import io
 import struct
 from collections.abc import Iterator
@@ -213,7 +214,8 @@ def decode_pointcloud2(
         )
     blob = np.frombuffer(memoryview(data), dtype=np.uint8)
     needed = height * row_step
-    if height > 0 and blob.size < needed - (row_step - width * point_step):
+    used = width * point_step  # the bytes of a row that hold points
+    if height > 0 and blob.size < (height - 1) * row_step + used:
         raise ValueError(
             f"data: {blob.size} bytes, expected height·row_step = {needed} "
             f"({height} rows of {row_step} bytes)"
@@ -247,10 +249,13 @@ def decode_pointcloud2(
     if n == 0:
         records = np.zeros(0, dtype=dtype)
     else:
-        # Pad the last row if the writer left out its trailing padding, then drop padding.
-        if blob.size < needed:
-            blob = np.concatenate([blob, np.zeros(needed - blob.size, np.uint8)])
-        rows = blob[:needed].reshape(height, row_step)[:, : width * point_step]
+        # The rows' point bytes, padding skipped, read in place: the last row's trailing
+        # padding may be missing. (Padding the blob out to height·row_step instead let a
+        # 6 kB bag with a 1 GiB row_step allocate 1 GiB; found by fuzz/, ros1 and ros2_mcap.)
+        # Bounds checked above: the last row ends at (height-1)·row_step + used <= blob.size.
+        rows = np.lib.stride_tricks.as_strided(
+            blob, shape=(height, used), strides=(row_step, 1), writeable=False
+        )
         records = np.ascontiguousarray(rows).view(dtype).reshape(n)
     # float32 → float64 raises an "invalid" FP flag on signalling NaNs: they are plain NaNs
     with np.errstate(invalid="ignore"):
@@ -569,6 +574,7 @@ def _ros2_messages(
     path: Path, wanted: set[str] | None
 ) -> Iterator[tuple[_Connection, int, bytes | memoryview]]:
     reader = _ros2_reader(path)
+    messages = None
     try:
         conns = [c for c in reader.connections if wanted is None or c.topic in wanted]
         by_id = {c.id: _Connection(c.id, c.topic, c.msgtype, "") for c in conns}
@@ -585,6 +591,11 @@ def _ros2_messages(
             conn, stamp, data = item
             yield by_id[conn.id], int(stamp), data
     finally:
+        # The message generator holds an sqlite3 statement: closing the database under it
+        # raised "database is locked" when a caller stopped early, e.g. on a corrupt message
+        # (found by fuzz/, ros2_sqlite).
+        if messages is not None:
+            messages.close()
         reader.close()
 
 
@@ -649,13 +660,21 @@ def _topic_types(path: Path) -> set[tuple[str, str]]:
     return {(c.topic, c.msgtype) for c, _ in _ros2_connections(path)}
 
 
+@functools.cache
+def _typestore(ros1: bool) -> Any:
+    """One rosbags typestore per process and ROS version: a new store compiles its
+    (de)serialisers again on first use, which cost ~25 ms per bag read (measured by fuzz/)."""
+    rosbags = _rosbags()
+    stores = rosbags.typesys.Stores
+    return rosbags.typesys.get_typestore(stores.ROS1_NOETIC if ros1 else stores.LATEST)
+
+
 def _deserialised(
     path: Path, topic: str, msgtype: str
 ) -> Iterator[tuple[_Connection, int, Any, int]]:
-    rosbags = _rosbags()
+    _rosbags()  # the message naming the extra, even when a store is cached
     ros1 = _is_ros1(path)
-    stores = rosbags.typesys.Stores
-    store = rosbags.typesys.get_typestore(stores.ROS1_NOETIC if ros1 else stores.LATEST)
+    store = _typestore(ros1)
     if ros1:
         md5 = store.generate_msgdef(msgtype)[1]
         messages = _Ros1Bag(path).walk({topic})
