@@ -112,16 +112,17 @@ def run_scene(scene: str, lap_length: float, laps: int, kiss: bool, threads: int
     t_ours = t_kiss = 0.0
     for k in range(len(seq)):
         f = seq[k]
+        writable = (np.array(f.points), np.array(f.timestamps))  # KISS-ICP writes into them
 
         def ours(f: Any = f) -> float:
             t0 = time.perf_counter()
             mapper.step(f.points, f.timestamps, stamp=f.stamp)
             return time.perf_counter() - t0
 
-        def theirs(f: Any = f) -> float:
+        def theirs(writable: Any = writable) -> float:
             t0 = time.perf_counter()
             assert peer is not None
-            peer.register_frame(f.points, f.timestamps)
+            peer.register_frame(*writable)
             kiss_poses.append(np.array(peer.last_pose))
             return time.perf_counter() - t0
 

@@ -99,6 +99,10 @@ class LoopSettings3D:
     min_window: tuple[float, float] = (1.0, math.radians(5.0))
     #: ... and at most this.
     max_window: tuple[float, float] = (50.0, math.pi)
+    #: σ (m, rad) per axis added to the registration's covariance: the keyframe's and the
+    #: submap's own errors (deskew, the odometry between a submap's nodes) that the match's
+    #: covariance cannot see, as it takes both clouds as exact.
+    submap_sigma: tuple[float, float] = (0.02, math.radians(0.15))
     #: χ² bound on the loop's disagreement with the graph (6 dof, 0.999: 22.46).
     chi2_threshold: float = 22.46
     thresholds: VerdictThresholds = field(default_factory=_default_thresholds)
@@ -142,8 +146,9 @@ class LoopMatch3D:
     score: float
     overlap: float
     chi2: float
-    #: 6×6 calibrated covariance of ``measured`` (right perturbation, translation first) and
-    #: the information the constraint carries (inverse, weak directions removed).
+    #: 6×6 covariance of ``measured`` (right perturbation, translation first): the match's
+    #: calibrated one plus ``submap_sigma``; the information the constraint carries (its
+    #: inverse, weak directions removed).
     covariance: FloatArray
     information: FloatArray
     degenerate_directions: tuple[str, ...]
@@ -255,7 +260,8 @@ def match_loop_3d(
             f"{math.degrees(turned):.1f} deg from the graph's prediction > "
             f"{math.degrees(window[1]):.1f} deg"
         )
-    cov = np.array(res.covariance, dtype=np.float64)
+    st, sr = s.submap_sigma
+    cov = np.array(res.covariance, dtype=np.float64) + np.diag([st**2] * 3 + [sr**2] * 3)
     combined = relative_covariance + cov
     if _well_posed(cov) and _well_posed(combined):
         info, weak, vectors = _information(cov, res)

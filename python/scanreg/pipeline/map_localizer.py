@@ -9,16 +9,18 @@ its :class:`~scanreg.pipeline.FrameResult`:
 1. **track** — :class:`~scanreg.pipeline.Localizer` (GICP against the fixed map from the
    prediction, deskew, adaptive gate, verdict);
 2. **relocalize** — when there is no fix yet, or ``lost_after`` consecutive sweeps were
-   rejected: Scan Context (:mod:`scanreg.place`) ranks the map's *anchors* — places along
-   the mapped trajectory (``poses_kitti.txt``), or a grid over the map — by how alike the
-   sweep and the map seen from there are; for the best few, :func:`scanreg.register_global`
-   (FPFH, max clique, GNC-TLS, with its own ambiguity test) aligns the sweep to the map
-   around the anchor, and the tracker refines and judges the result. The first accepted one
-   is the fix; when none is, the sweep is reported rejected with the reasons.
+   rejected: Scan Context (:mod:`scanreg.place`) ranks the map's *anchors* by how alike the
+   sweep and the place are; for the best few, :func:`scanreg.register_global` (FPFH, max
+   clique, GNC-TLS, with its own ambiguity test) aligns the sweep to the map around the
+   anchor, and the tracker refines and judges the result. The first accepted one is the
+   fix; when none is, the sweep is reported rejected with the reasons.
 
-An anchor's descriptor is built from the map points a sensor there could see: within
-``crop_radius`` and below ``max_elevation`` above its horizon (a spinning LiDAR sees the
-bottom of a façade, the map holds all of it). Poses are ``T_map_sensor``.
+Anchors: the mapping run's keyframes with their own sweeps' descriptors (``places.npz``, as
+``scanreg map`` writes it) — sweep against sweep, what Scan Context is made for. Without
+them (a bare point file), places along a given trajectory or a grid over the map, each
+described from the map points a sensor there could see: within ``crop_radius`` and below
+``max_elevation`` above its horizon (a spinning LiDAR sees the bottom of a façade, the map
+holds all of it) — a weaker match. Poses are ``T_map_sensor``.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ import numpy as np
 
 from .._validate import FloatArray, as_points
 from ..global_registration import register_global
-from ..place import PlaceDatabase
+from ..place import PlaceDatabase, ScanContext
 from ..preprocess import voxel_downsample
 from ..transform import SE3, as_pose
 from ..verdict import Verdict
@@ -71,6 +73,10 @@ class MapLocalizer:
         ``T_map_sensor`` poses where the sensor may be (e.g. the mapped trajectory): places
         for the global search, one every ``anchor_spacing`` m kept. ``None``: a grid over the
         map's extent, ``sensor_height`` above its ground (the 5th percentile of z).
+    places
+        ``(poses, descriptors, max_radius, height_offset)`` as ``places.npz`` holds them: the
+        anchors with their own Scan Context descriptors ``(K, rings, sectors)`` (then every
+        anchor is kept and ``anchors`` must be ``None``).
     initial_pose
         ``T_map_sensor`` of the first sweep if known; ``None``: located globally.
     """
@@ -81,6 +87,7 @@ class MapLocalizer:
         config: OdometryConfig | None = None,
         *,
         anchors: Any = None,
+        places: tuple[Any, Any, float, float] | None = None,
         initial_pose: Any = None,
         anchor_spacing: float = 10.0,
         crop_radius: float = 50.0,
@@ -88,7 +95,7 @@ class MapLocalizer:
         sensor_height: float = 1.73,
         lost_after: int = 3,
         top_k: int = 3,
-        global_voxel_size: float = 1.0,
+        global_voxel_size: float = 0.6,
     ) -> None:
         pts = as_points(map_points, "map_points", dim=3, min_points=20)
         self.anchor_spacing = _positive(anchor_spacing, "anchor_spacing")
@@ -101,10 +108,15 @@ class MapLocalizer:
         start = None if initial_pose is None else _se3(as_pose(initial_pose, "initial_pose", 3))
         self.tracker = Localizer(pts, config, initial_pose=start)
         self.map_points = np.ascontiguousarray(self.tracker.prior_map.points)
-        self.anchors = self._choose_anchors(anchors, sensor_height)
-        self._places = PlaceDatabase(max_radius=self.crop_radius)
-        for k, anchor in enumerate(self.anchors):
-            self._places.add(self._places.describe(self._visible(anchor)), key=k)
+        if places is None:
+            self.anchors = self._choose_anchors(anchors, sensor_height)
+            self._places = PlaceDatabase(max_radius=self.crop_radius)
+            for k, anchor in enumerate(self.anchors):
+                self._places.add(self._places.describe(self._visible(anchor)), key=k)
+        else:
+            if anchors is not None:
+                raise ValueError("anchors, places: give one or the other")
+            self.anchors, self._places = self._load_places(*places)
         self._tracking = start is not None
         self._rejected = 0
 
@@ -123,9 +135,19 @@ class MapLocalizer:
             if not found:
                 raise FileNotFoundError(f"{p}: holds no map.ply or map.pcd")
             map_file = found[0]
+            places_file = p / "places.npz"
             poses_file = p / "poses_kitti.txt"
-            if "anchors" not in kwargs and poses_file.is_file():
-                kwargs["anchors"] = read_kitti_poses(poses_file).poses
+            if "anchors" not in kwargs and "places" not in kwargs:
+                if places_file.is_file():
+                    with np.load(places_file) as z:
+                        kwargs["places"] = (
+                            z["poses"],
+                            z["descriptors"],
+                            float(z["max_radius"]),
+                            float(z["height_offset"]),
+                        )
+                elif poses_file.is_file():
+                    kwargs["anchors"] = read_kitti_poses(poses_file).poses
         else:
             map_file = p
         return cls(read_points(map_file).points, config, **kwargs)
@@ -162,6 +184,29 @@ class MapLocalizer:
         if not kept:
             raise ValueError("anchors: no anchor has map points within crop_radius")
         return tuple(kept)
+
+    def _load_places(
+        self, poses: Any, descriptors: Any, max_radius: float, height_offset: float
+    ) -> tuple[tuple[SE3, ...], PlaceDatabase]:
+        arr = np.asarray(poses, dtype=np.float64)
+        desc = np.asarray(descriptors, dtype=np.float64)
+        if arr.ndim != 3 or arr.shape[1:] != (4, 4) or len(arr) == 0:
+            raise ValueError(f"places: poses must be (K, 4, 4) with K >= 1, got {arr.shape}")
+        if desc.ndim != 3 or len(desc) != len(arr):
+            raise ValueError(
+                f"places: descriptors must be (K, rings, sectors) with K = {len(arr)}, "
+                f"got {desc.shape}"
+            )
+        db = PlaceDatabase(
+            num_rings=desc.shape[1],
+            num_sectors=desc.shape[2],
+            max_radius=max_radius,
+            height_offset=height_offset,
+        )
+        for k, d in enumerate(desc):
+            sc = ScanContext(np.ascontiguousarray(d), d.mean(axis=1), max_radius, height_offset)
+            db.add(sc, key=k)
+        return tuple(SE3.from_matrix(m, atol=1e-6) for m in arr), db
 
     def _crop(self, anchor: SE3) -> FloatArray:
         """Map points within ``crop_radius`` (horizontal) of ``anchor``, in its frame."""
@@ -207,14 +252,16 @@ class MapLocalizer:
         pts = as_points(points, "points", dim=3, min_points=10)
         c = self.tracker.config
         rng = np.linalg.norm(pts, axis=1)
-        cropped = pts[(rng >= c.min_range) & (rng <= min(c.max_range, self.crop_radius))]
+        cropped = pts[(rng >= c.min_range) & (rng <= c.max_range)]
         if len(cropped) < 10:
             raise ValueError(
                 f"points: only {len(cropped)} points within the range window; need at least 10"
             )
         desc = self._places.describe(cropped)
         hits = self._places.query(desc, self.top_k)
-        coarse = voxel_downsample(cropped, 0.5 * self.global_voxel_size).points
+        # The map is cut at crop_radius around an anchor: the sweep too.
+        near = cropped[np.hypot(cropped[:, 0], cropped[:, 1]) <= self.crop_radius]
+        coarse = voxel_downsample(near, 0.5 * self.global_voxel_size).points
         reasons: list[str] = []
         tried = 0
         last: FrameResult | None = None

@@ -8,6 +8,8 @@
 ``loops.jsonl``        every loop candidate: nodes, scans, verdict, reasons, information
 ``map.pgm/.yaml``      2D: the occupancy grid, ROS ``map_server`` convention; ``map.png``
 ``map.ply/.pcd``       3D: the node clouds at their optimized poses, voxelized (world frame)
+``places.npz``         3D: the nodes' optimized poses and Scan Context descriptors (the
+                       place database :class:`~scanreg.pipeline.MapLocalizer` relocalizes with)
 ``trajectory.png``     odometry against the optimized trajectory, loop edges drawn
 =====================  ==================================================================
 """
@@ -70,6 +72,32 @@ def map_points_3d(result: MappingResult[Any], voxel_size: float = 0.2) -> FloatA
     return pts
 
 
+def write_places(path: Path, result: MappingResult[Any]) -> Path:
+    """A 3D run's place database: ``poses`` ``(K, 4, 4)`` the nodes' optimized
+    ``T_world_node``, ``descriptors`` ``(K, rings, sectors)`` their Scan Context (computed from
+    the node clouds, out to ``max_radius``: as far as the keyframes reach, at most 80 m),
+    ``max_radius`` and ``height_offset``."""
+    from ..place import PlaceDatabase
+
+    if result.graph.dim != 3:
+        raise ValueError("result: write_places needs a 3D run (an SE3 graph)")
+    reach = max(float(np.hypot(p[:, 0], p[:, 1]).max()) for p in result.node_points if len(p))
+    db = PlaceDatabase(max_radius=min(80.0, max(reach, 1.0)))
+    node_poses = result.graph.poses()
+    descriptors = np.array([db.describe(p).descriptor for p in result.node_points])
+    poses = np.array([node_poses[n].as_matrix() for n in range(len(result.node_points))])
+    p = Path(path)
+    with p.open("wb") as fh:
+        np.savez(
+            fh,
+            poses=poses,
+            descriptors=descriptors,
+            max_radius=np.float64(db.max_radius),
+            height_offset=np.float64(db.height_offset),
+        )
+    return p
+
+
 def write_outputs(
     folder: Path,
     result: MappingResult[Any],
@@ -103,6 +131,7 @@ def write_outputs(
         for ext in ("ply", "pcd"):
             paths[f"map_{ext}"] = out / f"map.{ext}"
             write_points(paths[f"map_{ext}"], cloud)
+        paths["places"] = write_places(out / "places.npz", result)
     else:
         node_poses = result.graph.poses()
         poses = [node_poses[n] for n in range(len(result.node_scans))]
