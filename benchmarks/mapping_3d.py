@@ -32,6 +32,7 @@ import numpy as np
 from scanreg.eval import absolute_trajectory_error
 from scanreg.io import Trajectory
 from scanreg.io.sequences import SimulatedSequence
+from scanreg.pipeline import OdometryConfig
 from scanreg.pipeline.mapping3d import Mapper3D, MappingConfig3D
 from scanreg.transform import SE3
 
@@ -55,10 +56,15 @@ def _ate(poses: np.ndarray, truth: np.ndarray, stamps: np.ndarray) -> float:
     return float(ate.translation.rmse)
 
 
-def loop_statistics(res: Any, truth: np.ndarray, min_travel: float) -> dict[str, Any]:
-    """Precision, recall, false loops and NEES of a run's loop records against the truth."""
+def loop_statistics(
+    res: Any, truth: np.ndarray, min_travel: float, floor: np.ndarray
+) -> dict[str, Any]:
+    """Precision, recall, false loops and NEES of a run's loop records against the truth
+    (``floor``: the covariance the mapper adds to the registration's, for the NEES of the
+    registration's own covariance)."""
     true_acc = false_acc = 0
     nees: list[float] = []
+    nees_registration: list[float] = []
     ranks: list[int] = []
     good_nodes: set[int] = set()
     for r in res.loops:
@@ -72,6 +78,7 @@ def loop_statistics(res: Any, truth: np.ndarray, min_travel: float) -> dict[str,
             good_nodes.add(m.node)
             info = np.asarray(m.information)
             nees.append(float(e @ info @ e))
+            nees_registration.append(float(e @ np.linalg.solve(m.covariance - floor, e)))
             ranks.append(int(np.linalg.matrix_rank(info, tol=1e-6 * np.abs(info).max())))
         else:
             false_acc += 1
@@ -87,7 +94,19 @@ def loop_statistics(res: Any, truth: np.ndarray, min_travel: float) -> dict[str,
         )
     ]
     accepted = true_acc + false_acc
+    # Place candidates between scans truly more than 20 m apart: look-alikes the descriptor
+    # proposed; matched = within the graph's reach, so registered and judged.
+    apart = [
+        float(np.linalg.norm(truth[r.scan][:3, 3] - truth[r.submap_scan][:3, 3])) for r in res.loops
+    ]
+    lookalikes = [
+        r for r, d in zip(res.loops, apart, strict=True) if r.match.origin == "place" and d > 20
+    ]
     return {
+        "lookalikes_proposed": len(lookalikes),
+        "lookalikes_matched": sum(math.isfinite(r.match.overlap) for r in lookalikes),
+        "lookalikes_accepted": sum(r.accepted for r in lookalikes),
+        "nees_registration_mean": float(np.mean(nees_registration)) if nees else math.nan,
         "accepted": accepted,
         "rejected": len(res.loops) - accepted,
         "true": true_acc,
@@ -101,9 +120,11 @@ def loop_statistics(res: Any, truth: np.ndarray, min_travel: float) -> dict[str,
     }
 
 
-def run_scene(scene: str, lap_length: float, laps: int, kiss: bool, threads: int) -> dict[str, Any]:
+def run_scene(
+    scene: str, lap_length: float, laps: int, kiss: bool, threads: int, max_range: float
+) -> dict[str, Any]:
     seq = SimulatedSequence(scene, laps=laps, lap_length=lap_length)
-    cfg = MappingConfig3D()
+    cfg = MappingConfig3D(odometry=OdometryConfig(max_range=max_range))
     truth = seq.ground_truth_at(cfg.odometry.reference_time)
     stamps = np.asarray(seq.stamps)
     mapper = Mapper3D(cfg)
@@ -141,7 +162,7 @@ def run_scene(scene: str, lap_length: float, laps: int, kiss: bool, threads: int
     closed = np.array([p.as_matrix() for p in res.poses])
     odometry = np.array([p.as_matrix() for p in res.odometry_poses])
     out: dict[str, Any] = {
-        "scene": scene,
+        "scene": scene if max_range == 100.0 else f"{scene}, {max_range:g} m odometry",
         "length_m": float(seq.course.length) if seq.course is not None else math.nan,
         "scans": n,
         "nodes": len(res.node_scans),
@@ -154,7 +175,12 @@ def run_scene(scene: str, lap_length: float, laps: int, kiss: bool, threads: int
             k: getattr(res.timing, k)
             for k in ("odometry", "candidates", "matching", "optimization", "total")
         },
-        "loops": loop_statistics(res, truth, cfg.loop_min_travel),
+        "loops": loop_statistics(
+            res,
+            truth,
+            cfg.loop_min_travel,
+            np.diag([cfg.loops.submap_sigma[0] ** 2] * 3 + [cfg.loops.submap_sigma[1] ** 2] * 3),
+        ),
     }
     if kiss_poses:
         kp = np.array(kiss_poses)
@@ -166,7 +192,12 @@ def run_scene(scene: str, lap_length: float, laps: int, kiss: bool, threads: int
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--scenes", nargs="+", default=["loop", "loop-repeated"])
+    ap.add_argument(
+        "--scenes",
+        nargs="+",
+        default=["loop", "loop-repeated", "loop:25"],
+        help="sim scene[:odometry max_range m]; loop:25 drifts (a 25 m odometry)",
+    )
     ap.add_argument("--lap-length", type=float, default=260.0, help="m (two laps: >= 500 m)")
     ap.add_argument("--repeated-lap-length", type=float, default=200.0)
     ap.add_argument("--laps", type=int, default=2)
@@ -175,10 +206,16 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args()
     results = []
-    for scene in args.scenes:
+    for spec in args.scenes:
+        scene, _, reach = spec.partition(":")
         lap = args.repeated_lap_length if scene == "loop-repeated" else args.lap_length
         r = run_scene(
-            scene, lap, args.laps, kiss=scene == "loop" and not args.no_kiss, threads=args.threads
+            scene,
+            lap,
+            args.laps,
+            kiss=spec == "loop" and not args.no_kiss,
+            threads=args.threads,
+            max_range=float(reach) if reach else 100.0,
         )
         print(json.dumps(r, indent=1), flush=True)
         results.append(r)
@@ -194,16 +231,19 @@ def main() -> None:
                 f"{r[f'end_{key}_m']:.3f} |"
             )
     print(
-        "\n| scene | accepted | true | false | precision | recall | rejected | "
-        "NEES mean / dof | NEES median |"
+        "\n| scene | accepted | true | false | precision | recall | rejected | look-alikes "
+        "proposed / matched / accepted | NEES mean / dof | NEES median | NEES, registration "
+        "covariance alone |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in results:
         lp = r["loops"]
         print(
             f"| {r['scene']} | {lp['accepted']} | {lp['true']} | {lp['false']} | "
             f"{lp['precision']:.3f} | {lp['recall']:.3f} | {lp['rejected']} | "
-            f"{lp['nees_mean']:.2f} / {lp['nees_dof']:.1f} | {lp['nees_median']:.2f} |"
+            f"{lp['lookalikes_proposed']} / {lp['lookalikes_matched']} / "
+            f"{lp['lookalikes_accepted']} | {lp['nees_mean']:.2f} / {lp['nees_dof']:.1f} | "
+            f"{lp['nees_median']:.2f} | {lp['nees_registration_mean']:.1f} |"
         )
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:

@@ -100,9 +100,12 @@ class LoopSettings3D:
     #: ... and at most this.
     max_window: tuple[float, float] = (50.0, math.pi)
     #: σ (m, rad) per axis added to the registration's covariance: the keyframe's and the
-    #: submap's own errors (deskew, the odometry between a submap's nodes) that the match's
-    #: covariance cannot see, as it takes both clouds as exact.
-    submap_sigma: tuple[float, float] = (0.02, math.radians(0.15))
+    #: submap's own errors (deskew, the odometry between a submap's nodes), correlated over
+    #: every point, which the match's covariance cannot see (it takes both clouds as exact
+    #: up to independent noise). Measured on 43 true loops of a simulated lap (seed 1,
+    #: VLP-16): errors 8 mm and 0.04° RMS per axis against a median registration σ of 2 mm
+    #: and 0.01°, mean NEES 80 for 6 dof; with this floor 6.2 (median 1.1).
+    submap_sigma: tuple[float, float] = (0.005, math.radians(0.04))
     #: χ² bound on the loop's disagreement with the graph (6 dof, 0.999: 22.46).
     chi2_threshold: float = 22.46
     thresholds: VerdictThresholds = field(default_factory=_default_thresholds)
@@ -122,6 +125,14 @@ class LoopSettings3D:
             raise TypeError(
                 f"thresholds: expected VerdictThresholds, got {type(self.thresholds).__name__}"
             )
+        if len(self.submap_sigma) != 2 or not all(
+            isinstance(v, int | float) and math.isfinite(v) and v >= 0 for v in self.submap_sigma
+        ):
+            raise ValueError(f"submap_sigma: expected two finite σ >= 0, got {self.submap_sigma!r}")
+        for name in ("min_window", "max_window"):
+            w = getattr(self, name)
+            if len(w) != 2 or not all(isinstance(v, int | float) and v > 0 for v in w):
+                raise ValueError(f"{name}: expected two values > 0, got {w!r}")
         if not self.global_voxel_size > 0:
             raise ValueError(f"global_voxel_size: must be > 0, got {self.global_voxel_size!r}")
         if isinstance(self.place_top_k, bool) or not isinstance(self.place_top_k, int):

@@ -167,6 +167,11 @@ def plot_mapping(path: Path, result: MappingResult[Any]) -> Path:
                 label = f"{'accepted' if accepted else 'rejected'} loops ({n})"
                 first = False
             ax.plot([a[0], b[0]], [a[1], b[1]], color=color, lw=lw, label=label)
+    # A revisit on the same lane joins two points metres apart or less: its edge is
+    # invisible at the scale of the map, so the loop's later end is marked too.
+    ends = np.array([after[r.scan] for r in result.loops if r.accepted]).reshape(-1, after.shape[1])
+    if len(ends):
+        ax.scatter(ends[:, 0], ends[:, 1], s=6, color="#2ca02c", zorder=3)
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
