@@ -21,6 +21,9 @@ them (a bare point file), places along a given trajectory or a grid over the map
 described from the map points a sensor there could see: within ``crop_radius`` and below
 ``max_elevation`` above its horizon (a spinning LiDAR sees the bottom of a façade, the map
 holds all of it) — a weaker match. Poses are ``T_map_sensor``.
+
+After a global fix the motion is unknown: that sweep and the next are registered without
+deskewing (at 10 m/s, 0.11 m off on the simulated block, against 0.015–0.03 m once tracking).
 """
 
 from __future__ import annotations
