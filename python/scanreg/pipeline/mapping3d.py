@@ -153,7 +153,10 @@ class Mapper3D:
         self._skipped: list[int] = []
         self._pending = SE3.identity()
         self._last_pose: SE3 | None = None
-        self._first_sweep: tuple[FloatArray, FloatArray] | None = None
+        # A new node's sweep waits for the next aligned sweep (the motion out of it) before it
+        # is deskewed, kept and searched for loops: (node, points, timestamps, twist into it).
+        self._unfinished: tuple[int, FloatArray, FloatArray | None, FloatArray | None] | None = None
+        self._last_stamp: float | None = None
         self._timing = MappingTiming()
         self._finished = False
 
@@ -215,61 +218,70 @@ class Mapper3D:
         t_odo = time.perf_counter()
         self._timing.odometry += t_odo - t_start
 
-        if self._first_sweep is not None and frame.prediction_source != "first":
-            # The first node's sweep could not be deskewed when it came (no motion was known):
-            # now that the odometry has measured one, deskew it as the odometry re-seeds its map.
-            first_pts, first_times = self._first_sweep
-            self._first_sweep = None
-            self._node_points[0] = self._node_cloud(first_pts, first_times, frame)
-        node = self._maybe_add_node(index, pts, times, frame, stamp)
-        if node == 0 and times is not None and self.config.odometry.deskew:
-            self._first_sweep = (pts, times)
-        self._scan_node.append(self.num_nodes - 1)
-        records: tuple[LoopRecord[LoopMatch3D], ...] = ()
+        # The node made at the previous sweep is finished now: the motion out of it is known.
+        velocity = None if first else self._velocity(frame.motion, stamp, times)
+        records = self._finish_node(velocity)
+        node = self._maybe_add_node(index, pose, frame.covariance)
         if node is not None:
-            records = self._close_loops(node)
+            self._unfinished = (node, pts, times, velocity)
+        self._last_stamp = stamp
+        self._scan_node.append(self.num_nodes - 1)
         self._timing.total += time.perf_counter() - t_start
         return MappingStep(index, pose, node, records)
 
-    def _node_cloud(self, pts: FloatArray, times: FloatArray | None, frame: Any) -> FloatArray:
-        """The sweep as a keyframe keeps it: deskewed with the estimated motion (as the
-        odometry did), cropped to the odometry's range window, voxelized."""
-        c = self.config.odometry
-        if c.deskew and times is not None and frame.prediction_source != "first":
-            # The motion spans stamp to stamp (as the odometry measured it), else the sweep.
+    def _velocity(
+        self, motion: SE3, stamp: float | None, times: FloatArray | None
+    ) -> FloatArray | None:
+        """The body twist of ``motion`` (from the previous aligned sweep to this one): over
+        their stamps, else over this sweep's span."""
+        period = math.nan
+        if stamp is not None and self._last_stamp is not None:
+            period = float(stamp) - self._last_stamp
+        elif times is not None and len(times):
             period = float(times.max() - times.min())
-            previous = next((t for t in reversed(self._stamps[:-1]) if t is not None), None)
-            if frame.stamp is not None and previous is not None:
-                period = frame.stamp - previous
-            if period > 0:
-                velocity = velocity_from_motion(frame.motion, period)
-                pts = deskew(pts, times, velocity, reference_time=c.reference_time)
+        if not (math.isfinite(period) and period > 0):
+            return None
+        return velocity_from_motion(motion, period)
+
+    def _finish_node(self, velocity_out: FloatArray | None) -> tuple[LoopRecord[LoopMatch3D], ...]:
+        """Keep the unfinished node's sweep — deskewed with the motion centred on it, the mean
+        of the twists into and out of it (with only one of them at the first node, or the
+        last) — and search its loops."""
+        if self._unfinished is None:
+            return ()
+        node, pts, times, velocity_in = self._unfinished
+        self._unfinished = None
+        known = [v for v in (velocity_in, velocity_out) if v is not None]
+        velocity = None if not known else np.mean(known, axis=0)
+        self._node_points[node] = self._node_cloud(pts, times, velocity)
+        return self._close_loops(node)
+
+    def _node_cloud(
+        self, pts: FloatArray, times: FloatArray | None, velocity: FloatArray | None
+    ) -> FloatArray:
+        """The sweep as a keyframe keeps it: deskewed with ``velocity`` (body twist) to the
+        odometry's reference time, cropped to its range window, voxelized."""
+        c = self.config.odometry
+        if c.deskew and times is not None and velocity is not None:
+            pts = deskew(pts, times, velocity, reference_time=c.reference_time)
         rng = np.linalg.norm(pts, axis=1)
         kept = np.ascontiguousarray(pts[(rng >= c.min_range) & (rng <= c.max_range)])
         if self.config.node_voxel_size > 0:
             kept = np.ascontiguousarray(voxel_downsample(kept, self.config.node_voxel_size).points)
         return kept
 
-    def _maybe_add_node(
-        self,
-        index: int,
-        pts: FloatArray,
-        times: FloatArray | None,
-        frame: Any,
-        stamp: float | None,
-    ) -> int | None:
+    def _maybe_add_node(self, index: int, pose: SE3, covariance: FloatArray) -> int | None:
+        """A graph node and its odometry edge when the sweep has moved enough (its cloud is
+        kept by :meth:`_finish_node`, one aligned sweep later)."""
         cfg = self.config
         g = self._graph
-        pose: SE3 = frame.pose
         if self._node_scans:
             rel = _se3(self._node_odom[self.num_nodes - 1].inverse() @ pose)
             dist = float(np.linalg.norm(rel.translation))
             if dist <= cfg.node_distance and rel.angle <= cfg.node_angle:
                 return None
         node = self.num_nodes
-        kept = self._node_cloud(pts, times, frame)
         self._node_scans.append(index)
-        self._node_points[node] = kept
         self._node_odom[node] = pose
         t0 = time.perf_counter()
         if node == 0:
@@ -285,7 +297,7 @@ class Mapper3D:
             st = cfg.drift_floor_translation + cfg.drift_translation * dist
             sr = cfg.drift_floor_rotation + cfg.drift_rotation * dist
             cov = np.diag([st**2] * 3 + [sr**2] * 3)
-            measured = np.asarray(frame.covariance, dtype=np.float64)
+            measured = np.asarray(covariance, dtype=np.float64)
             if measured.shape == (6, 6) and np.isfinite(measured).all():
                 cov = cov + 0.5 * (measured + measured.T)
             g.add_edge(prev, node, rel, np.linalg.inv(cov))
@@ -300,7 +312,9 @@ class Mapper3D:
         sub = self._submaps.get(anchor)
         if sub is None:
             h = self.config.submap_half_size
-            nodes = [n for n in range(anchor - h, anchor + h + 1) if 0 <= n < self.num_nodes]
+            nodes = [
+                n for n in range(anchor - h, anchor + h + 1) if 0 <= n < len(self._node_points)
+            ]
             sub = build_submap_3d(
                 anchor,
                 nodes,
@@ -309,7 +323,7 @@ class Mapper3D:
                 voxel_size=self.config.node_voxel_size,
                 num_neighbors=self.config.odometry.num_neighbors,
             )
-            if anchor + h < self.num_nodes:  # complete: it will not change
+            if anchor + h < len(self._node_points):  # complete: it will not change
                 self._submaps[anchor] = sub
         return sub
 
@@ -474,6 +488,9 @@ class Mapper3D:
                 "nothing was mapped"
             )
         self._finished = True
+        t0 = time.perf_counter()
+        self._finish_node(None)  # the last node: the motion into it only
+        self._timing.total += time.perf_counter() - t0
         g = self._graph
         if self.config.batch:
             t0 = time.perf_counter()
