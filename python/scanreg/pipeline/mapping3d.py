@@ -7,10 +7,11 @@ result (:class:`~scanreg.pipeline.MappingResult`, :class:`~scanreg.pipeline.Loop
 1. **odometry** — :class:`~scanreg.pipeline.Odometry` (GICP against a voxel-hash local map)
    gives ``T_odom_sensor``;
 2. **node** — the sweep becomes a graph node (a keyframe) when it has moved more than
-   ``node_distance`` or turned more than ``node_angle`` since the last one; its cloud is
-   deskewed with the estimated motion, cropped and voxelized (``node_voxel_size``). The edge
-   from the previous node is the odometry's relative pose with covariance
-   ``Σ_frame + Σ_drift(d)``; iSAM2 adds it;
+   ``node_distance`` or turned more than ``node_angle`` since the last one. The edge from the
+   previous node is the odometry's relative pose with covariance ``Σ_frame + Σ_drift(d)``;
+   iSAM2 adds it. Its cloud waits for the next aligned sweep: then it is deskewed with the
+   motion centred on it (the mean twist into and out of it), cropped and voxelized
+   (``node_voxel_size``), and the node's loops (3.–5.) are searched;
 3. **candidates** — earlier nodes, excluding the last ``loop_min_travel`` metres of path, whose
    predicted distance to the new node (from the graph) is within ``loop_max_range`` once
    ``loop_gate_sigmas`` σ of that prediction's uncertainty (the joint marginal of the two
@@ -183,7 +184,9 @@ class Mapper3D:
     ) -> MappingStep:
         """Add one sweep: ``(N, 3)`` points in the sensor frame, optional per-point
         ``timestamps`` (s since the sweep start, for deskewing), ``prior`` = ``T_prev_curr``
-        from wheel/IMU odometry (or ``None``), ``stamp`` its time (s)."""
+        from wheel/IMU odometry (or ``None``), ``stamp`` its time (s). The returned
+        :class:`~scanreg.pipeline.mapping.MappingStep` names the node this sweep made, and the
+        loops of the node finished here (made at the previous aligned sweep)."""
         if self._finished:
             raise RuntimeError("Mapper3D: finish() was called; start a new Mapper3D")
         t_start = time.perf_counter()
