@@ -217,3 +217,39 @@ def test_bad_arguments_are_named() -> None:
         LoopSettings3D(chi2_threshold=0.0)
     with pytest.raises(ValueError, match="map_points"):
         MapLocalizer(np.zeros((5, 3)))
+
+
+def test_place_route_recovers_drift_beyond_the_basin() -> None:
+    """A revisit whose graph prediction is 5 m and 8° off (beyond GICP's basin, within the
+    graph's uncertainty): from the prediction the match is rejected, from global registration
+    (the place route) it is found to the centimetre; the same match against a confident graph
+    that disagrees is rejected by the χ² test."""
+    from scanreg.pipeline.loops3d import build_submap_3d, match_loop_3d
+    from scanreg.preprocess import voxel_downsample
+
+    seq = SimulatedSequence("loop", laps=2, lap_length=LAP)
+    truth = seq.ground_truth_at("start")  # the simulator's deskewed points refer to it
+
+    def cloud(k: int) -> np.ndarray:
+        p = seq.sweep(k).points_deskewed
+        r = np.linalg.norm(p, axis=1)
+        return np.ascontiguousarray(voxel_downsample(p[(r > 1) & (r < 100)], 0.3).points)
+
+    ks = [8, 10, 12]
+    poses = {k: SE3.from_matrix(truth[k]) for k in ks}
+    submap = build_submap_3d(10, ks, {k: cloud(k) for k in ks}, poses, voxel_size=0.3)
+    query = cloud(211)  # the second lap, a metre past scan 10
+    true_rel = SE3.from_matrix(np.linalg.inv(truth[10]) @ truth[211])
+    predicted = true_rel @ SE3.from_vector([4.0, -3.0, 0.0, 0.0, 0.0, math.radians(8.0)])
+    loose = np.diag([9.0, 9.0, 0.09] + [math.radians(2.0) ** 2] * 2 + [math.radians(5.0) ** 2])
+    settings = LoopSettings3D()
+    graph = match_loop_3d(query, 1, submap, predicted, loose, settings, origin="graph")
+    assert not graph.accepted
+    place = match_loop_3d(query, 1, submap, predicted, loose, settings, origin="place")
+    assert place.accepted, place.reasons
+    e = (true_rel.inverse() @ place.measured).log()
+    assert np.linalg.norm(e[:3]) < 0.05 and np.linalg.norm(e[3:]) < math.radians(0.2)
+    tight = np.diag([0.04] * 3 + [math.radians(0.5) ** 2] * 3)
+    wrong = match_loop_3d(query, 1, submap, predicted, tight, settings, origin="place")
+    assert not wrong.accepted
+    assert any("inconsistent with the graph" in r for r in wrong.reasons)
