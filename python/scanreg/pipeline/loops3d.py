@@ -43,6 +43,11 @@ from ..verdict import VerdictThresholds
 LoopOrigin = Literal["graph", "place"]
 
 
+def _se3(pose: Any) -> SE3:
+    assert isinstance(pose, SE3)
+    return pose
+
+
 @dataclass(frozen=True, eq=False)
 class Submap3D:
     """Clouds of keyframes ``nodes`` in the frame of keyframe ``anchor``, prepared for GICP."""
@@ -61,11 +66,37 @@ def build_submap_3d(
     *,
     voxel_size: float,
     num_neighbors: int = 10,
+    refine: bool = False,
 ) -> Submap3D:
     """``scans[n]`` (sensor frame) laid into ``anchor``'s frame with the relative poses
-    ``inv(poses[anchor]) @ poses[n]`` (locally consistent odometry poses), voxelized."""
+    ``inv(poses[anchor]) @ poses[n]`` (odometry poses), voxelized.
+
+    ``refine``: each other node's cloud is first registered (GICP) to the anchor's from that
+    relative pose, and the result used when its verdict accepts it (not degenerate, enough
+    overlap, within 0.5 m of the start). An odometry glitch between a submap's nodes otherwise
+    biases every loop into it: on the repeated block, 12-15 cm wrong relative poses in the
+    drive's first seconds put loops into that submap 15-19 cm off, against 1 cm for the same
+    match against the anchor's cloud alone."""
     base = poses[anchor].inverse()
-    parts = [(base @ poses[n]).apply(scans[n]) for n in nodes]
+    relative = {n: _se3(base @ poses[n]) for n in nodes}
+    if refine and len(nodes) > 1:
+        anchor_target = prepare(
+            scans[anchor], covariances=True, num_neighbors=min(num_neighbors, len(scans[anchor]))
+        )
+        for n in nodes:
+            if n == anchor:
+                continue
+            res = register(
+                scans[n],
+                anchor_target,
+                method="gicp",
+                init=relative[n],
+                max_correspondence_distance=1.0,
+                thresholds=VerdictThresholds(min_overlap=0.5, max_translation=0.5),
+            )
+            if res.verdict is not None and res.verdict.accepted:
+                relative[n] = _se3(res.pose)
+    parts = [relative[n].apply(scans[n]) for n in nodes]
     pts = np.ascontiguousarray(np.vstack(parts))
     if voxel_size > 0:
         pts = np.ascontiguousarray(voxel_downsample(pts, voxel_size).points)

@@ -67,8 +67,11 @@ class MappingConfig3D:
     node_angle: float = math.radians(20.0)
     #: Node clouds are kept voxelized to this (the submaps and the map's material).
     node_voxel_size: float = 0.3
-    #: A submap holds this many nodes on each side of its anchor.
+    #: A submap holds this many nodes on each side of its anchor ...
     submap_half_size: int = 2
+    #: ... each registered to the anchor's cloud from its odometry pose (see
+    #: :func:`~scanreg.pipeline.loops3d.build_submap_3d`).
+    refine_submaps: bool = True
     #: Odometry-edge drift: σ = ``drift_translation`` · d (m) and ``drift_rotation`` · d (rad)
     #: over a distance d between nodes, plus the floors.
     drift_translation: float = 0.01
@@ -114,6 +117,10 @@ class MappingConfig3D:
         _count(self.max_candidates, "max_candidates", 0)
         _count(self.loop_every, "loop_every", 1)
         _count(self.place_every, "place_every", 0)
+        if not isinstance(self.refine_submaps, bool):
+            raise TypeError(
+                f"refine_submaps: expected a bool, got {type(self.refine_submaps).__name__}"
+            )
         if not isinstance(self.loop_kernel, Kernel):
             raise TypeError(f"loop_kernel: expected Kernel, got {type(self.loop_kernel).__name__}")
         if not isinstance(self.loops, LoopSettings3D):
@@ -325,6 +332,7 @@ class Mapper3D:
                 self._node_odom,
                 voxel_size=self.config.node_voxel_size,
                 num_neighbors=self.config.odometry.num_neighbors,
+                refine=self.config.refine_submaps,
             )
             if anchor + h < len(self._node_points):  # complete: it will not change
                 self._submaps[anchor] = sub
