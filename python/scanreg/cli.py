@@ -75,11 +75,13 @@ SUB_EXAMPLES = {
     "  scanreg batch odometry drives.parquet --engine ray --address HEAD:6379 -o out/\n",
     "map": "examples:\n"
     "  scanreg map intel.clf.bz2 -o out/                  # CARMEN .clf/.log, .gz or .bz2\n"
+    "  scanreg map sim:loop,lap_length=250 -o out/ --json  # 3D: sim:, KITTI, folder, bag\n"
     "  scanreg map aces.clf.bz2 --config map.toml --max-scans 2000 -o out/ --json\n"
     "  scanreg map intel.clf -o out/ --bag out/map.mcap --report   # Foxglove + browser\n",
     "localize": "examples:\n"
     "  scanreg localize intel.clf --map out/ -o loc/        # out/map.yaml from scanreg map\n"
-    "  scanreg localize run2.log --map ros_maps/lab.yaml --max-scans 500 --json\n",
+    "  scanreg localize run2.log --map ros_maps/lab.yaml --max-scans 500 --json\n"
+    "  scanreg localize run2/velodyne --map out/ -o loc/    # 3D: out/map.ply from scanreg map\n",
     "simulate": "examples:\n"
     "  scanreg simulate -o run/                  # 2D: floor_plan, sick_lms200\n"
     "  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/\n"
@@ -269,17 +271,23 @@ def build_parser() -> argparse.ArgumentParser:
     _add_batch_parser(sub)
     mp = sub.add_parser(
         "map",
-        help="2D mapping with loop closure on a pose graph (CARMEN log): optimized poses, "
-        "graph, loops, occupancy map, plot",
+        help="mapping with loop closure on a pose graph, 2D (CARMEN log) or 3D (KITTI folder, "
+        "folder of point files, ROS bag, sim:loop): optimized poses, graph, loops, map, plot",
     )
-    mp.add_argument("path", help="CARMEN log (.clf, .log, optionally .gz or .bz2)")
+    mp.add_argument(
+        "path",
+        help="2D: CARMEN log (.clf, .log, optionally .gz or .bz2); 3D: KITTI folder, folder of "
+        "point files, ROS bag, or sim:loop / sim:loop-repeated[,laps=N,lap_length=M]",
+    )
     mp.add_argument(
         "-o", "--output", type=Path, default=Path("map-output"), help="folder (created)"
     )
     mp.add_argument("--config", type=Path, default=None, help="TOML config (unknown keys fail)")
     mp.add_argument("--max-scans", type=int, default=None, help="stop after N scans")
     mp.add_argument("--kind", default=None, help="laser message kind (default FLASER)")
-    mp.add_argument("--resolution", type=float, default=0.05, help="map cell size (m)")
+    mp.add_argument("--resolution", type=float, default=0.05, help="2D map cell size (m)")
+    mp.add_argument("--voxel-size", type=float, default=0.2, help="3D map voxel (m)")
+    mp.add_argument("--topic", default=None, help="3D bag: the PointCloud2 topic")
     mp.add_argument("--no-plots", action="store_true", help="skip trajectory.png")
     _add_bag_options(
         mp, "the graph nodes' poses and scans, the occupancy grid, loop closures", sensor="laser"
@@ -289,16 +297,22 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     lz = sub.add_parser(
         "localize",
-        help="locate a CARMEN log's scans in a saved 2D map without changing it (global "
-        "relocalization when there is no fix)",
+        help="locate a log's scans in a saved map without changing it (global relocalization "
+        "when there is no fix): 2D CARMEN logs, 3D sequences",
     )
-    lz.add_argument("path", help="CARMEN log (.clf, .log, optionally .gz or .bz2)")
+    lz.add_argument(
+        "path",
+        help="2D: CARMEN log (.clf, .log, optionally .gz or .bz2); 3D: KITTI folder, folder "
+        "of point files, ROS bag or sim:NAME",
+    )
     lz.add_argument(
         "--map",
         type=Path,
         required=True,
-        help="map.yaml of a ROS map_server map, or the folder `scanreg map` wrote",
+        help="2D: map.yaml of a ROS map_server map, or the folder `scanreg map` wrote; 3D: "
+        "that folder (map.ply/.pcd, places.npz) or a point file",
     )
+    lz.add_argument("--topic", default=None, help="3D bag: the PointCloud2 topic")
     lz.add_argument("-o", "--output", type=Path, default=Path("localize-output"))
     lz.add_argument("--max-scans", type=int, default=None, help="stop after N scans")
     lz.add_argument("--json", action="store_true", help="print JSON instead of text")
@@ -931,6 +945,8 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"--max-scans must be >= 1, got {args.max_scans}")
     if not args.resolution > 0:
         raise ValueError(f"--resolution must be > 0, got {args.resolution}")
+    if _is_3d_source(args.path):
+        return _map_3d(args)
     config = load_config(MappingConfig, args.config)
     if args.bag is not None:
         args.output.mkdir(parents=True, exist_ok=True)  # a --bag inside it can be checked now
@@ -957,6 +973,62 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
     return result
 
 
+def _is_3d_source(path: str) -> bool:
+    """3D mapping for ``sim:`` drives, folders (KITTI, point files, ROS 2 bags) and bag files;
+    2D for anything else (a CARMEN log)."""
+    from .io.sequences import BAG_SUFFIXES
+
+    p = Path(path)
+    return path.startswith("sim:") or p.is_dir() or p.suffix.lower() in BAG_SUFFIXES
+
+
+def _map_3d(args: argparse.Namespace) -> dict[str, Any]:
+    """``scanreg map`` on a 3D sequence: Mapper3D, its outputs, and (simulated drives) the
+    accuracy before and after loop closure against the exact truth."""
+    from .config import load_config, write_config
+    from .io import open_sequence, write_poses
+    from .io.sequences import SimulatedSequence
+    from .pipeline.mapping3d import MappingConfig3D, run_mapping_3d
+    from .pipeline.mapping_output import summary, write_outputs
+
+    if args.bag is not None or args.report:
+        raise ValueError("--bag, --report: not available for 3D mapping runs yet")
+    if not args.voxel_size >= 0:
+        raise ValueError(f"--voxel-size must be >= 0, got {args.voxel_size}")
+    config = load_config(MappingConfig3D, args.config)
+    seq = open_sequence(args.path, topic=args.topic)
+    res = run_mapping_3d(
+        seq, config, max_scans=args.max_scans, progress=not (args.quiet or args.json)
+    )
+    paths = write_outputs(args.output, res, voxel_size=args.voxel_size, plot=not args.no_plots)
+    paths["config"] = write_config(args.output / "config.toml", config)
+    result = summary(res)
+    result["sequence"] = getattr(seq, "name", str(args.path))
+    if isinstance(seq, SimulatedSequence):
+        from .eval import absolute_trajectory_error
+        from .io import Trajectory
+
+        truth = seq.ground_truth_at(config.odometry.reference_time)[: res.num_scans]
+        stamps = np.asarray(seq.stamps[: res.num_scans])
+        paths["reference_tum"] = write_poses(
+            args.output / "reference_tum.txt", truth, "tum", timestamps=stamps
+        )
+        if res.num_scans >= 3:  # the SE(3) alignment needs 3 positions
+            accuracy: dict[str, float] = {}
+            for name, poses in (("odometry", res.odometry_poses), ("closed", res.poses)):
+                est = np.array([p.as_matrix() for p in poses])
+                ate = absolute_trajectory_error(
+                    Trajectory(est, stamps), Trajectory(truth, stamps), alignment="se3"
+                )
+                accuracy[f"{name}_ate_m"] = float(ate.translation.rmse)
+                accuracy[f"{name}_end_error_m"] = float(
+                    np.linalg.norm(est[-1, :3, 3] - truth[-1, :3, 3])
+                )
+            result["accuracy"] = accuracy
+    result["outputs"] = {k: str(v) for k, v in paths.items()}
+    return result
+
+
 def _localize(args: argparse.Namespace) -> dict[str, Any]:
     import json
     import time
@@ -967,6 +1039,8 @@ def _localize(args: argparse.Namespace) -> dict[str, Any]:
 
     if args.max_scans is not None and args.max_scans < 1:
         raise ValueError(f"--max-scans must be >= 1, got {args.max_scans}")
+    if _is_3d_source(args.path):
+        return _localize_3d(args)
     map_yaml = args.map / "map.yaml" if args.map.is_dir() else args.map
     loc = Localizer2D.from_map_server(map_yaml)
     log = read_scans(args.path)
@@ -1030,6 +1104,58 @@ def _localize(args: argparse.Namespace) -> dict[str, Any]:
         "scans_per_second": len(rows) / seconds if seconds > 0 else 0.0,
         "outputs": {"poses_tum": str(tum), "quality": str(quality)},
     }
+
+
+def _localize_3d(args: argparse.Namespace) -> dict[str, Any]:
+    """``scanreg localize`` on a 3D sequence: MapLocalizer in the saved map, from no pose."""
+    import json
+    import time
+
+    from ._progress import Progress
+    from .io import open_sequence, write_poses
+    from .io.sequences import SimulatedSequence
+    from .pipeline.map_localizer import MapLocalizer
+    from .pipeline.run import quality_row
+
+    loc = MapLocalizer.from_folder(args.map)
+    seq = open_sequence(args.path, topic=args.topic)
+    total = len(seq) if args.max_scans is None else min(len(seq), args.max_scans)
+    args.output.mkdir(parents=True, exist_ok=True)
+    rows, poses, stamps = [], [], []
+    t0 = time.perf_counter()
+    enabled = not (args.quiet or args.json)
+    with Progress(total, description="localize", unit="scans", enabled=enabled) as bar:
+        for k in range(total):
+            f = seq[k]
+            frame = loc.step(f.points, f.timestamps, stamp=f.stamp)
+            row = quality_row(frame, f.stamp)
+            row["prediction_source"] = frame.prediction_source
+            rows.append(row)
+            poses.append(frame.pose.as_matrix())
+            stamps.append(f.stamp)
+            bar.update()
+    seconds = time.perf_counter() - t0
+    tum = write_poses(args.output / "poses_tum.txt", np.array(poses), "tum", timestamps=stamps)
+    quality = args.output / "quality.jsonl"
+    quality.write_text("".join(json.dumps(r) + "\n" for r in rows), encoding="utf-8")
+    accepted = sum(bool(r["accepted"]) for r in rows)
+    result: dict[str, Any] = {
+        "sequence": getattr(seq, "name", str(args.path)),
+        "map": str(args.map),
+        "num_scans": len(rows),
+        "accepted": accepted,
+        "rejected": len(rows) - accepted,
+        "global_fixes": sum(r["prediction_source"] == "global" and r["accepted"] for r in rows),
+        "scans_per_second": len(rows) / seconds if seconds > 0 else 0.0,
+    }
+    if isinstance(seq, SimulatedSequence):
+        # The truth is relative to the sequence's first sweep: the map's frame when the map
+        # was built from the same simulated course.
+        truth = seq.ground_truth_at(loc.tracker.config.reference_time)[:total]
+        err = np.linalg.norm(np.array(poses)[:, :3, 3] - truth[:, :3, 3], axis=1)
+        result["truth_error_m"] = {"mean": float(err.mean()), "max": float(err.max())}
+    result["outputs"] = {"poses_tum": str(tum), "quality": str(quality)}
+    return result
 
 
 def _write_map_bag(path: Path, res: Any, resolution: float, frames: Any) -> Path:

@@ -1,11 +1,14 @@
 """Pipelines built from scanreg's pieces: 3D LiDAR odometry (:class:`Odometry`), localization
 in a prior map (:class:`Localizer`, 3D; :class:`Localizer2D`, 2D, with global relocalization),
-2D scan-to-map odometry (:class:`Odometry2D`) and 2D mapping with loop closure on a pose graph
-(:class:`Mapper`; needs ``scanreg[mapping]``)."""
+2D scan-to-map odometry (:class:`Odometry2D`), mapping with loop closure on a pose graph
+(:class:`Mapper` 2D, :class:`Mapper3D` 3D; needs ``scanreg[mapping]``) and 3D localization in a
+saved map with global relocalization (:class:`MapLocalizer`)."""
 
 from .localizer import Localizer, Relocalization
 from .localizer2d import GlobalFix, LocalizationConfig2D, Localizer2D
+from .map_localizer import GlobalFix3D, MapLocalizer
 from .mapping import LoopRecord, Mapper, MappingConfig, MappingResult, run_mapping
+from .mapping3d import Mapper3D, MappingConfig3D, run_mapping_3d
 from .odometry import AdaptiveGate, FrameResult, FrameTiming, Odometry, OdometryConfig
 from .odometry2d import Frame2D, FrameTiming2D, Odometry2D, OdometryConfig2D
 
@@ -16,12 +19,16 @@ __all__ = [
     "FrameTiming",
     "FrameTiming2D",
     "GlobalFix",
+    "GlobalFix3D",
     "LocalizationConfig2D",
     "Localizer",
     "Localizer2D",
     "LoopRecord",
+    "MapLocalizer",
     "Mapper",
+    "Mapper3D",
     "MappingConfig",
+    "MappingConfig3D",
     "MappingResult",
     "Odometry",
     "Odometry2D",
@@ -29,4 +36,5 @@ __all__ = [
     "OdometryConfig2D",
     "Relocalization",
     "run_mapping",
+    "run_mapping_3d",
 ]

@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
@@ -41,9 +41,14 @@ from .._validate import FloatArray, as_points
 from ..graph import Graph, Kernel
 from ..io.carmen import CarmenLog
 from ..preprocess import voxel_downsample
-from ..transform import SE2, as_pose
+from ..transform import SE2, SE3, as_pose
 from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, match_loop
+from .loops3d import LoopMatch3D
 from .odometry2d import Odometry2D, OdometryConfig2D, _count, _positive
+
+#: The pose type of a run (2D or 3D) and of its loop matches: one result shape for both.
+PoseT = TypeVar("PoseT", SE2, SE3)
+MatchT = TypeVar("MatchT", LoopMatch, LoopMatch3D)
 
 
 def _default_odometry() -> OdometryConfig2D:
@@ -120,11 +125,12 @@ class MappingConfig:
 
 
 @dataclass(frozen=True)
-class LoopRecord:
-    """One loop candidate as matched and judged (:class:`~scanreg.pipeline.loops.LoopMatch`),
-    with the scans behind its two nodes."""
+class LoopRecord(Generic[MatchT]):
+    """One loop candidate as matched and judged (:class:`~scanreg.pipeline.loops.LoopMatch`
+    in 2D, :class:`~scanreg.pipeline.loops3d.LoopMatch3D` in 3D), with the scans behind its
+    two nodes."""
 
-    match: LoopMatch
+    match: MatchT
     #: Scan index of the submap's anchor node and of the current node.
     submap_scan: int
     scan: int
@@ -136,7 +142,7 @@ class LoopRecord:
     def as_dict(self) -> dict[str, Any]:
         """A JSON-ready record."""
         m = self.match
-        return {
+        out = {
             "submap_node": m.submap_node,
             "node": m.node,
             "submap_scan": self.submap_scan,
@@ -145,14 +151,23 @@ class LoopRecord:
             "reasons": list(m.reasons),
             "predicted": [float(v) for v in m.predicted.as_vector()],
             "measured": [float(v) for v in m.measured.as_vector()],
-            "window": [float(v) for v in m.window],
-            "score": m.score,
-            "overlap": m.overlap,
-            "chi2": None if math.isnan(m.chi2) else m.chi2,
-            "covariance": np.asarray(m.covariance).tolist(),
+            "window": [_number(v) for v in m.window],
+            "score": _number(m.score),
+            "overlap": _number(m.overlap),
+            "chi2": _number(m.chi2),
+            "covariance": [[_number(v) for v in row] for row in np.asarray(m.covariance)],
             "information": np.asarray(m.information).tolist(),
             "degenerate_directions": list(m.degenerate_directions),
         }
+        if isinstance(m, LoopMatch3D):
+            out["origin"] = m.origin  # "graph" or "place"
+        return out
+
+
+def _number(value: float) -> float | None:
+    """A float for JSON: ``None`` where it is not a number (JSON has no NaN)."""
+    v = float(value)
+    return v if math.isfinite(v) else None
 
 
 @dataclass
@@ -171,28 +186,31 @@ class MappingStep:
     """The outcome of one :meth:`Mapper.step`."""
 
     index: int
-    #: ``T_odom_scan`` (``None``: the scan had fewer than 3 points and was skipped).
-    odometry_pose: SE2 | None
+    #: ``T_odom_scan`` (``None``: the scan had too few points and was skipped).
+    odometry_pose: SE2 | SE3 | None
     #: The graph node this scan created, if any.
     node: int | None
     #: Loop candidates matched at this scan.
-    loops: tuple[LoopRecord, ...]
+    loops: tuple[LoopRecord[Any], ...]
 
 
 @dataclass(frozen=True)
-class MappingResult:
-    """Everything :meth:`Mapper.finish` returns (scan indices are step order)."""
+class MappingResult(Generic[PoseT]):
+    """Everything :meth:`Mapper.finish` (``MappingResult[SE2]``) and
+    :meth:`~scanreg.pipeline.Mapper3D.finish` (``MappingResult[SE3]``) return (scan indices
+    are step order)."""
 
     #: ``T_world_scan`` of every scan after optimization.
-    poses: tuple[SE2, ...]
+    poses: tuple[PoseT, ...]
     #: ``T_odom_scan``: the odometry alone (the trajectory before loop closure).
-    odometry_poses: tuple[SE2, ...]
+    odometry_poses: tuple[PoseT, ...]
     stamps: tuple[float | None, ...]
     #: Scan index of every node, by node id.
     node_scans: tuple[int, ...]
     #: Every loop candidate matched, accepted or rejected, in order.
-    loops: tuple[LoopRecord, ...]
-    #: Scans skipped (fewer than 3 points); their pose is carried from their neighbours.
+    loops: tuple[LoopRecord[Any], ...]
+    #: Scans skipped (too few points: 2D fewer than 3, 3D fewer than 10 in range); their
+    #: pose is carried from their neighbours.
     skipped: tuple[int, ...]
     #: Every node's scan (voxel-downsampled, own frame), by node id: the map's material.
     node_points: tuple[FloatArray, ...]
@@ -201,11 +219,11 @@ class MappingResult:
     num_scans: int
 
     @property
-    def accepted_loops(self) -> tuple[LoopRecord, ...]:
+    def accepted_loops(self) -> tuple[LoopRecord[Any], ...]:
         return tuple(r for r in self.loops if r.accepted)
 
     @property
-    def rejected_loops(self) -> tuple[LoopRecord, ...]:
+    def rejected_loops(self) -> tuple[LoopRecord[Any], ...]:
         return tuple(r for r in self.loops if not r.accepted)
 
 
@@ -234,7 +252,7 @@ class Mapper:
         self._node_odom: dict[int, SE2] = {}
         self._node_travel: list[float] = []  # path length at each node
         self._submaps: dict[int, Submap2D] = {}
-        self._loops: list[LoopRecord] = []
+        self._loops: list[LoopRecord[LoopMatch]] = []
         self._skipped: list[int] = []
         self._pending = SE2.identity()  # motion prior accumulated over skipped scans
         self._last_pose: SE2 | None = None
@@ -250,7 +268,7 @@ class Mapper:
         return len(self._node_scans)
 
     @property
-    def loops(self) -> tuple[LoopRecord, ...]:
+    def loops(self) -> tuple[LoopRecord[LoopMatch], ...]:
         return tuple(self._loops)
 
     # -- per scan ------------------------------------------------------------------------
@@ -290,7 +308,7 @@ class Mapper:
 
         node = self._maybe_add_node(index, pts, pose, frame.covariance)
         self._scan_node.append(self.num_nodes - 1)
-        records: tuple[LoopRecord, ...] = ()
+        records: tuple[LoopRecord[LoopMatch], ...] = ()
         if node is not None:
             records = self._close_loops(node)
         self._timing.total += time.perf_counter() - t_start
@@ -389,7 +407,7 @@ class Mapper:
                 gated.append((dist, int(n)))
         return gated
 
-    def _close_loops(self, node: int) -> tuple[LoopRecord, ...]:
+    def _close_loops(self, node: int) -> tuple[LoopRecord[LoopMatch], ...]:
         cfg = self.config
         if cfg.max_candidates == 0 or node % cfg.loop_every:
             return ()
@@ -422,7 +440,7 @@ class Mapper:
         return tuple(records)
 
     # -- end of run ----------------------------------------------------------------------
-    def finish(self) -> MappingResult:
+    def finish(self) -> MappingResult[SE2]:
         """Batch-optimize (unless ``config.batch`` is off) and return every scan's pose."""
         if self._finished:
             raise RuntimeError("Mapper: finish() was already called")
@@ -475,7 +493,7 @@ def run_mapping(
     kind: str | None = None,
     max_scans: int | None = None,
     progress: bool = False,
-) -> MappingResult:
+) -> MappingResult[SE2]:
     """Map a CARMEN log in file order (its timestamps may step backwards; they are kept as
     written), with each scan's wheel-odometry motion as the prior.
 

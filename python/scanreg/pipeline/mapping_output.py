@@ -6,7 +6,10 @@
 ``odometry_tum.txt``   the odometry alone, before loop closure (TUM)
 ``graph.g2o``          the pose graph (nodes at their optimized poses; ``FIX 0``)
 ``loops.jsonl``        every loop candidate: nodes, scans, verdict, reasons, information
-``map.pgm/.yaml``      the occupancy grid, ROS ``map_server`` convention; ``map.png``
+``map.pgm/.yaml``      2D: the occupancy grid, ROS ``map_server`` convention; ``map.png``
+``map.ply/.pcd``       3D: the node clouds at their optimized poses, voxelized (world frame)
+``places.npz``         3D: the nodes' optimized poses and Scan Context descriptors (the
+                       place database :class:`~scanreg.pipeline.MapLocalizer` relocalizes with)
 ``trajectory.png``     odometry against the optimized trajectory, loop edges drawn
 =====================  ==================================================================
 """
@@ -14,40 +17,97 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .._validate import FloatArray
+from ..io import PointCloud, write_points
 from ..io.g2o import PoseGraph, PoseGraphEdge, write_g2o
 from ..io.occupancy import occupancy_grid, write_map
 from ..io.trajectory import Trajectory, write_kitti_poses, write_tum
-from ..transform import SE2
+from ..preprocess import voxel_downsample
+from ..transform import SE2, SE3
 from .mapping import MappingResult
 
 
-def _stamps(result: MappingResult) -> np.ndarray[Any, np.dtype[np.float64]]:
+def _stamps(result: MappingResult[Any]) -> np.ndarray[Any, np.dtype[np.float64]]:
     if all(s is not None for s in result.stamps):
         return np.array(result.stamps, dtype=np.float64)
     # Without stamps the scan index stands in for the time.
     return np.arange(result.num_scans, dtype=np.float64)
 
 
-def pose_graph(result: MappingResult) -> PoseGraph:
-    """The run's graph as :class:`scanreg.io.g2o.PoseGraph` (2D: g2o's information ordering is
-    scanreg's ``[x, y, θ]``; the prior on node 0 becomes ``FIX 0``)."""
+def pose_graph(result: MappingResult[Any]) -> PoseGraph:
+    """The run's graph as :class:`scanreg.io.g2o.PoseGraph` (the information in scanreg's
+    ordering: 2D ``[x, y, θ]`` as g2o's; 3D translation first, as g2o's ``EDGE_SE3:QUAT``;
+    the prior on node 0 becomes ``FIX 0``)."""
     g = result.graph
     vertices = dict(g.poses())
+    # 3D: g2o's rotation error is half the rotation vector (see scanreg.io.g2o.g2o_information);
+    # done here on the information itself, which may be rank-deficient (degenerate loops).
+    d = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0]) if g.dim == 3 else np.ones(3)
     edges = [
-        PoseGraphEdge(e.i, e.j, e.measurement, e.information) for e in g.edges if e.kind != "prior"
+        PoseGraphEdge(e.i, e.j, e.measurement, d[:, None] * e.information * d[None, :])
+        for e in g.edges
+        if e.kind != "prior"
     ]
     return PoseGraph(vertices, tuple(edges), frozenset({0}))
 
 
+def map_points_3d(result: MappingResult[Any], voxel_size: float = 0.2) -> FloatArray:
+    """A 3D run's map: every node's cloud at its optimized pose (world frame), voxelized to
+    ``voxel_size`` (m; 0 keeps every point)."""
+    if result.graph.dim != 3:
+        raise ValueError("result: map_points_3d needs a 3D run (an SE3 graph)")
+    if not (math.isfinite(voxel_size) and voxel_size >= 0):
+        raise ValueError(f"voxel_size: must be finite and >= 0, got {voxel_size}")
+    node_poses = result.graph.poses()
+    parts = [node_poses[n].apply(pts) for n, pts in enumerate(result.node_points)]
+    pts = np.ascontiguousarray(np.vstack(parts))
+    if voxel_size > 0:
+        pts = np.ascontiguousarray(voxel_downsample(pts, voxel_size).points)
+    return pts
+
+
+def write_places(path: Path, result: MappingResult[Any]) -> Path:
+    """A 3D run's place database: ``poses`` ``(K, 4, 4)`` the nodes' optimized
+    ``T_world_node``, ``descriptors`` ``(K, rings, sectors)`` their Scan Context (computed from
+    the node clouds, out to ``max_radius``: as far as the keyframes reach, at most 80 m),
+    ``max_radius`` and ``height_offset``."""
+    from ..place import PlaceDatabase
+
+    if result.graph.dim != 3:
+        raise ValueError("result: write_places needs a 3D run (an SE3 graph)")
+    reach = max(float(np.hypot(p[:, 0], p[:, 1]).max()) for p in result.node_points if len(p))
+    db = PlaceDatabase(max_radius=min(80.0, max(reach, 1.0)))
+    node_poses = result.graph.poses()
+    descriptors = np.array([db.describe(p).descriptor for p in result.node_points])
+    poses = np.array([node_poses[n].as_matrix() for n in range(len(result.node_points))])
+    p = Path(path)
+    with p.open("wb") as fh:
+        np.savez(
+            fh,
+            poses=poses,
+            descriptors=descriptors,
+            max_radius=np.float64(db.max_radius),
+            height_offset=np.float64(db.height_offset),
+        )
+    return p
+
+
 def write_outputs(
-    folder: Path, result: MappingResult, *, resolution: float = 0.05, plot: bool = True
+    folder: Path,
+    result: MappingResult[Any],
+    *,
+    resolution: float = 0.05,
+    voxel_size: float = 0.2,
+    plot: bool = True,
 ) -> dict[str, Path]:
     """Write every file of the table above into ``folder`` (created); returns their paths.
+    ``resolution``: the 2D occupancy grid's cell (m); ``voxel_size``: the 3D map's voxel (m).
     ``plot=False`` skips ``trajectory.png`` (the only file that needs matplotlib)."""
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
@@ -66,17 +126,24 @@ def write_outputs(
     with paths["loops"].open("w", encoding="utf-8") as fh:
         for record in result.loops:
             fh.write(json.dumps(record.as_dict()) + "\n")
-    node_poses = result.graph.poses()
-    poses = [node_poses[n] for n in range(len(result.node_scans))]
-    grid = occupancy_grid(poses, list(result.node_points), resolution=resolution)  # type: ignore[arg-type]
-    for key, path in write_map(out, grid).items():
-        paths[f"map_{key}"] = path
+    if result.graph.dim == 3:
+        cloud = PointCloud(points=map_points_3d(result, voxel_size))
+        for ext in ("ply", "pcd"):
+            paths[f"map_{ext}"] = out / f"map.{ext}"
+            write_points(paths[f"map_{ext}"], cloud)
+        paths["places"] = write_places(out / "places.npz", result)
+    else:
+        node_poses = result.graph.poses()
+        poses = [node_poses[n] for n in range(len(result.node_scans))]
+        grid = occupancy_grid(poses, list(result.node_points), resolution=resolution)  # type: ignore[arg-type]
+        for key, path in write_map(out, grid).items():
+            paths[f"map_{key}"] = path
     if plot:
         paths["plot"] = plot_mapping(out / "trajectory.png", result)
     return paths
 
 
-def plot_mapping(path: Path, result: MappingResult) -> Path:
+def plot_mapping(path: Path, result: MappingResult[Any]) -> Path:
     """Odometry (grey) against the optimized trajectory (blue), accepted loop edges (green)
     and rejected candidates (red, thin), top view."""
     from ..plot import _check_path, _figure, _save
@@ -100,6 +167,11 @@ def plot_mapping(path: Path, result: MappingResult) -> Path:
                 label = f"{'accepted' if accepted else 'rejected'} loops ({n})"
                 first = False
             ax.plot([a[0], b[0]], [a[1], b[1]], color=color, lw=lw, label=label)
+    # A revisit on the same lane joins two points metres apart or less: its edge is
+    # invisible at the scale of the map, so the loop's later end is marked too.
+    ends = np.array([after[r.scan] for r in result.loops if r.accepted]).reshape(-1, after.shape[1])
+    if len(ends):
+        ax.scatter(ends[:, 0], ends[:, 1], s=6, color="#2ca02c", zorder=3)
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -108,10 +180,10 @@ def plot_mapping(path: Path, result: MappingResult) -> Path:
     return _save(fig, p)
 
 
-def summary(result: MappingResult) -> dict[str, Any]:
+def summary(result: MappingResult[Any]) -> dict[str, Any]:
     """A JSON-ready summary of a run."""
     t = result.timing
-    last: SE2 = result.poses[-1]
+    last: SE2 | SE3 = result.poses[-1]
     return {
         "num_scans": result.num_scans,
         "num_nodes": len(result.node_scans),

@@ -1,0 +1,335 @@
+"""3D loop closure: submaps, the match of a keyframe against one, and its verification.
+
+A **submap** is a few consecutive keyframes' clouds in the frame of the middle one, voxelized
+and prepared once for GICP (:func:`scanreg.prepare` with covariances). A candidate comes from
+one of two places, and :func:`match_loop_3d` treats both the same way once it has a start:
+
+* ``"graph"`` — the pose graph predicts ``T_submap_node`` well enough for GICP's basin: the
+  match starts from the graph's prediction;
+* ``"place"`` — Scan Context (:mod:`scanreg.place`) retrieved the submap's anchor as a place
+  the keyframe may revisit, for drift beyond the local basin: :func:`scanreg.register_global`
+  (FPFH, max clique, GNC-TLS, with its own verdict and ambiguity test) gives the start.
+
+Then, for both:
+
+1. **refine** — GICP (:func:`scanreg.register`) of the keyframe's cloud against the submap;
+2. **verify** — the registration's verdict (overlap, residual, convergence), the motion
+   against the graph's prediction (within ``window_sigmas`` σ of the prediction's
+   uncertainty), and the χ² consistency of the loop with the graph: ``e = log(T̂⁻¹ T)``
+   against ``Σ_graph + Σ_match`` (6 dof). A look-alike place a quarter lap away passes the
+   geometry (it *is* the same geometry) and fails here.
+
+The constraint's information is the inverse of the match's calibrated covariance with nothing
+along a direction the match names degenerate (:func:`scanreg.graph.project_information`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from .._validate import FloatArray
+from ..global_registration import register_global
+from ..graph import project_information
+from ..preprocess import voxel_downsample
+from ..register import register
+from ..target import PreparedTarget, prepare
+from ..transform import SE3
+from ..verdict import VerdictThresholds
+
+LoopOrigin = Literal["graph", "place"]
+
+
+def _se3(pose: Any) -> SE3:
+    assert isinstance(pose, SE3)
+    return pose
+
+
+@dataclass(frozen=True, eq=False)
+class Submap3D:
+    """Clouds of keyframes ``nodes`` in the frame of keyframe ``anchor``, prepared for GICP."""
+
+    anchor: int
+    nodes: tuple[int, ...]
+    points: FloatArray
+    target: PreparedTarget
+
+
+def build_submap_3d(
+    anchor: int,
+    nodes: list[int],
+    scans: dict[int, FloatArray],
+    poses: dict[int, SE3],
+    *,
+    voxel_size: float,
+    num_neighbors: int = 10,
+    refine: bool = False,
+) -> Submap3D:
+    """``scans[n]`` (sensor frame) laid into ``anchor``'s frame with the relative poses
+    ``inv(poses[anchor]) @ poses[n]`` (odometry poses), voxelized.
+
+    ``refine``: each other node's cloud is first registered (GICP) to the anchor's from that
+    relative pose, and the result used when its verdict accepts it (not degenerate, enough
+    overlap, within 0.5 m of the start). An odometry glitch between a submap's nodes otherwise
+    biases every loop into it: on the repeated block, 12-15 cm wrong relative poses in the
+    drive's first seconds put loops into that submap 15-19 cm off, against 1 cm for the same
+    match against the anchor's cloud alone."""
+    base = poses[anchor].inverse()
+    relative = {n: _se3(base @ poses[n]) for n in nodes}
+    if refine and len(nodes) > 1:
+        anchor_target = prepare(
+            scans[anchor], covariances=True, num_neighbors=min(num_neighbors, len(scans[anchor]))
+        )
+        for n in nodes:
+            if n == anchor:
+                continue
+            res = register(
+                scans[n],
+                anchor_target,
+                method="gicp",
+                init=relative[n],
+                max_correspondence_distance=1.0,
+                thresholds=VerdictThresholds(min_overlap=0.5, max_translation=0.5),
+            )
+            if res.verdict is not None and res.verdict.accepted:
+                relative[n] = _se3(res.pose)
+    parts = [relative[n].apply(scans[n]) for n in nodes]
+    pts = np.ascontiguousarray(np.vstack(parts))
+    if voxel_size > 0:
+        pts = np.ascontiguousarray(voxel_downsample(pts, voxel_size).points)
+    return Submap3D(
+        anchor=anchor,
+        nodes=tuple(nodes),
+        points=pts,
+        target=prepare(pts, covariances=True, num_neighbors=min(num_neighbors, len(pts))),
+    )
+
+
+def _default_thresholds() -> VerdictThresholds:
+    # A revisit sees the same street from a lane that may differ and at another time: half the
+    # keyframe within the gate of the submap is what a true loop gives (0.7-0.95 measured on
+    # the simulated block); degenerate loops are kept, constraining their strong directions.
+    return VerdictThresholds(min_overlap=0.5, reject_degenerate=False)
+
+
+@dataclass(frozen=True)
+class LoopSettings3D:
+    """How 3D loop candidates are matched and verified (metres, radians)."""
+
+    #: GICP's correspondence gate (m) — also the radius of its basin, roughly.
+    max_correspondence_distance: float = 1.5
+    kernel: str = "cauchy"
+    max_iterations: int = 50
+    #: The match may land at most this many σ of the prediction's uncertainty from it
+    #: (per the largest translation / rotation σ) ...
+    window_sigmas: float = 4.0
+    #: ... at least this (m, rad) ...
+    min_window: tuple[float, float] = (1.0, math.radians(5.0))
+    #: ... and at most this.
+    max_window: tuple[float, float] = (50.0, math.pi)
+    #: σ (m, rad) per axis added to the registration's covariance: the keyframe's and the
+    #: submap's own errors (deskew, the poses between a submap's nodes), correlated over every
+    #: point, which the match's covariance cannot see (it takes both clouds as exact up to
+    #: independent noise). Measured on 43 true loops of a simulated lap (seed 1, VLP-16,
+    #: refined submaps): errors 4 mm and 0.016° RMS per axis against a median registration σ
+    #: of 2 mm and 0.008°, mean NEES 14.9 for 6 dof; with this floor 5.8 (median 1.3).
+    submap_sigma: tuple[float, float] = (0.002, math.radians(0.01))
+    #: χ² bound on the loop's disagreement with the graph (6 dof, 0.999: 22.46).
+    chi2_threshold: float = 22.46
+    thresholds: VerdictThresholds = field(default_factory=_default_thresholds)
+    #: Place recognition: Scan Context distance below which a retrieved keyframe is tried.
+    place_max_distance: float = 0.3
+    #: ... and how many retrieved keyframes are tried per query.
+    place_top_k: int = 1
+    #: Keypoint voxel of :func:`scanreg.register_global` on place candidates (m).
+    global_voxel_size: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("max_correspondence_distance", "window_sigmas", "chi2_threshold"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not v > 0:
+                raise ValueError(f"{name}: must be > 0, got {v!r}")
+        if not isinstance(self.thresholds, VerdictThresholds):
+            raise TypeError(
+                f"thresholds: expected VerdictThresholds, got {type(self.thresholds).__name__}"
+            )
+        if len(self.submap_sigma) != 2 or not all(
+            isinstance(v, int | float) and math.isfinite(v) and v >= 0 for v in self.submap_sigma
+        ):
+            raise ValueError(f"submap_sigma: expected two finite σ >= 0, got {self.submap_sigma!r}")
+        for name in ("min_window", "max_window"):
+            w = getattr(self, name)
+            if len(w) != 2 or not all(isinstance(v, int | float) and v > 0 for v in w):
+                raise ValueError(f"{name}: expected two values > 0, got {w!r}")
+        if not self.global_voxel_size > 0:
+            raise ValueError(f"global_voxel_size: must be > 0, got {self.global_voxel_size!r}")
+        if isinstance(self.place_top_k, bool) or not isinstance(self.place_top_k, int):
+            raise TypeError(f"place_top_k: expected an int, got {type(self.place_top_k).__name__}")
+        if self.place_top_k < 0:
+            raise ValueError(f"place_top_k: must be >= 0, got {self.place_top_k}")
+
+
+@dataclass(frozen=True)
+class LoopMatch3D:
+    """What matching one 3D candidate gave; the fields of the 2D
+    :class:`~scanreg.pipeline.loops.LoopMatch` (``window``: the translation and rotation bound
+    on the match's distance from the prediction; ``score``: the Scan Context distance of a
+    place candidate, ``nan`` for a graph one), plus where the candidate came from."""
+
+    submap_node: int
+    node: int
+    #: The graph's prediction of ``T_submap_node`` and the match's estimate of it.
+    predicted: SE3
+    measured: SE3
+    window: tuple[float, float]
+    score: float
+    overlap: float
+    chi2: float
+    #: 6×6 covariance of ``measured`` (right perturbation, translation first): the match's
+    #: calibrated one plus ``submap_sigma``; the information the constraint carries (its
+    #: inverse, weak directions removed).
+    covariance: FloatArray
+    information: FloatArray
+    degenerate_directions: tuple[str, ...]
+    #: ``(6, w)`` the weak directions as tangent vectors, one column each.
+    weak_vectors: FloatArray
+    accepted: bool
+    reasons: tuple[str, ...]
+    #: ``"graph"`` (started from the graph's prediction) or ``"place"`` (Scan Context, then
+    #: global registration).
+    origin: LoopOrigin = "graph"
+
+
+def search_window_3d(
+    relative_covariance: FloatArray, settings: LoopSettings3D
+) -> tuple[float, float]:
+    """Bounds ``(translation, rotation)`` on how far a match may land from the prediction:
+    ``window_sigmas`` × the largest σ of each block, clipped to ``[min_window, max_window]``."""
+    s = settings
+    cov = 0.5 * (relative_covariance + relative_covariance.T)
+    sigma_t = math.sqrt(max(float(np.linalg.eigvalsh(cov[:3, :3])[-1]), 0.0))
+    sigma_r = math.sqrt(max(float(np.linalg.eigvalsh(cov[3:, 3:])[-1]), 0.0))
+    dt = min(max(s.window_sigmas * sigma_t, s.min_window[0]), s.max_window[0])
+    dr = min(max(s.window_sigmas * sigma_r, s.min_window[1]), s.max_window[1])
+    return dt, dr
+
+
+#: A covariance whose eigenvalues span more than this ratio is treated as singular.
+_MAX_CONDITION = 1e12
+
+
+def _well_posed(covariance: FloatArray) -> bool:
+    if not np.isfinite(covariance).all():
+        return False
+    vals = np.linalg.eigvalsh(0.5 * (covariance + covariance.T))
+    return bool(vals[-1] > 0 and vals[0] > vals[-1] / _MAX_CONDITION)
+
+
+def _information(
+    covariance: FloatArray, res: Any
+) -> tuple[FloatArray, tuple[str, ...], FloatArray]:
+    vals, vecs = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    info = (vecs / vals) @ vecs.T
+    info = 0.5 * (info + info.T)
+    deg = res.degeneracy
+    if deg is not None and deg.degenerate:
+        info = project_information(info, deg.weak_projector())
+        vectors = np.column_stack([w.vector for w in deg.weak_directions])
+        return info, tuple(w.description for w in deg.weak_directions), vectors
+    return info, (), np.zeros((6, 0))
+
+
+def _angle(pose: SE3) -> float:
+    r = pose.rotation
+    return float(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def match_loop_3d(
+    points: FloatArray,
+    node: int,
+    submap: Submap3D,
+    predicted: SE3,
+    relative_covariance: FloatArray,
+    settings: LoopSettings3D,
+    *,
+    origin: LoopOrigin = "graph",
+    score: float = math.nan,
+) -> LoopMatch3D:
+    """Match ``points`` (keyframe ``node``'s cloud, own frame) against ``submap``; the graph
+    predicts ``T_submap_node`` as ``predicted`` with ``relative_covariance`` (6×6).
+
+    ``origin="graph"`` starts GICP from the prediction; ``"place"`` from
+    :func:`scanreg.register_global` (the candidate is rejected with its reasons when that
+    finds no reliable alignment). ``score``: the place recognition's distance, recorded.
+    """
+    s = settings
+    window = search_window_3d(relative_covariance, s)
+    reasons: list[str] = []
+    start = predicted
+    if origin == "place":
+        glob = register_global(points, submap.points, voxel_size=s.global_voxel_size)
+        if glob.pose is None:
+            reasons.extend(f"global registration: {r}" for r in glob.reasons)
+        else:
+            start = glob.pose
+    res = register(
+        points,
+        submap.target,
+        method="gicp",
+        init=start,
+        max_correspondence_distance=s.max_correspondence_distance,
+        kernel=s.kernel,
+        max_iterations=s.max_iterations,
+        thresholds=s.thresholds,
+    )
+    pose = res.pose
+    assert isinstance(pose, SE3)
+    verdict, quality = res.verdict, res.quality
+    if verdict is not None:
+        reasons.extend(verdict.reasons)
+    overlap = float(quality.overlap) if quality is not None else math.nan
+    offset = predicted.inverse() @ pose
+    assert isinstance(offset, SE3)
+    moved = float(np.linalg.norm(offset.translation))
+    turned = _angle(offset)
+    if moved > window[0]:
+        reasons.append(f"{moved:.2f} m from the graph's prediction > {window[0]:.2f} m")
+    if turned > window[1]:
+        reasons.append(
+            f"{math.degrees(turned):.1f} deg from the graph's prediction > "
+            f"{math.degrees(window[1]):.1f} deg"
+        )
+    st, sr = s.submap_sigma
+    cov = np.array(res.covariance, dtype=np.float64) + np.diag([st**2] * 3 + [sr**2] * 3)
+    combined = relative_covariance + cov
+    if _well_posed(cov) and _well_posed(combined):
+        info, weak, vectors = _information(cov, res)
+        if len(weak) >= 6:
+            reasons.append("degenerate in every direction")
+        e = offset.log()
+        chi2 = float(e @ np.linalg.solve(combined, e))
+        if not chi2 <= s.chi2_threshold:
+            reasons.append(f"inconsistent with the graph: χ² {chi2:.1f} > {s.chi2_threshold:.1f}")
+    else:
+        info, weak, vectors, chi2 = np.zeros((6, 6)), (), np.zeros((6, 0)), math.nan
+        reasons.append("covariance singular or not finite")
+    return LoopMatch3D(
+        submap_node=submap.anchor,
+        node=node,
+        predicted=predicted,
+        measured=pose,
+        window=window,
+        score=float(score),
+        overlap=overlap,
+        chi2=chi2,
+        covariance=cov,
+        information=info,
+        degenerate_directions=weak,
+        weak_vectors=vectors,
+        accepted=not reasons,
+        reasons=tuple(reasons),
+        origin=origin,
+    )
