@@ -232,6 +232,7 @@ class Mapper:
         self._node_scans: list[int] = []
         self._node_points: dict[int, FloatArray] = {}
         self._node_odom: dict[int, SE2] = {}
+        self._node_cov: dict[int, FloatArray] = {}  # odometry covariance of each node's scan
         self._node_travel: list[float] = []  # path length at each node
         self._submaps: dict[int, Submap2D] = {}
         self._loops: list[LoopRecord] = []
@@ -313,6 +314,7 @@ class Mapper:
         self._node_scans.append(index)
         self._node_points[node] = kept
         self._node_odom[node] = pose
+        self._node_cov[node] = np.asarray(covariance, dtype=np.float64)
         t0 = time.perf_counter()
         if node == 0:
             g.add_node(0, pose)
@@ -347,6 +349,7 @@ class Mapper:
                 self._node_odom,
                 resolution=self.config.loops.resolution,
                 voxel_size=self.config.node_voxel_size,
+                covariances=self._node_cov,
             )
             # Only cache a submap whose later nodes all exist (it will not change).
             if anchor + h < self.num_nodes:
