@@ -333,3 +333,36 @@ def test_identical_rooms_give_no_false_loop() -> None:
     positions = np.array([p.translation for p in res.poses])
     ate = np.sqrt(np.mean(np.sum((positions - [t.translation for t in truth]) ** 2, axis=1)))
     assert ate < 0.03
+
+
+def test_fully_degenerate_candidate_is_rejected_with_reasons() -> None:
+    # A submap and a scan that are one 3 mm blob of returns: nothing constrains the match in
+    # any direction. It must come back as a rejected candidate that says why, carrying no
+    # information, never as an exception or an edge.
+    rng = np.random.default_rng(0)
+    blob = rng.normal(0.0, 0.003, (40, 2)) + [2.0, 0.0]
+    poses = dict.fromkeys(range(3), SE2.identity())
+    sub = build_submap(
+        1, [0, 1, 2], dict.fromkeys(range(3), blob), poses, resolution=0.05, voxel_size=0.0
+    )
+    match = match_loop(
+        blob, 5, sub, SE2.from_vector([0.02, 0.0, 0.1]), np.diag([0.01] * 3), LoopSettings()
+    )
+    assert not match.accepted
+    assert any("degenerate" in r for r in match.reasons), match.reasons
+    assert not np.any(match.information)
+    # A ring of returns around the sensor (a round room): only the heading is unconstrained,
+    # and the edge carries nothing along it.
+    ring = (
+        3.0 * np.c_[np.cos(np.arange(360) * math.pi / 180), np.sin(np.arange(360) * math.pi / 180)]
+    )
+    sub = build_submap(
+        1, [0, 1, 2], dict.fromkeys(range(3), ring), poses, resolution=0.05, voxel_size=0.05
+    )
+    match = match_loop(
+        ring, 5, sub, SE2.from_vector([0.02, 0.0, 0.1]), np.diag([0.01] * 3), LoopSettings()
+    )
+    assert match.degenerate_directions == ("rotation (θ)",)
+    weak = match.weak_vectors[:, 0]
+    assert np.linalg.norm(weak[:2]) < 1e-3 * abs(weak[2])  # a pure turn (metres at 3 m)
+    assert weak @ match.information @ weak < 1e-9 * match.information[0, 0]
