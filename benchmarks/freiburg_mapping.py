@@ -11,7 +11,9 @@ There is no peer in the same process (Cartographer is not installable here), so 
 average is printed beside the times.
 
 Run: ``.venv/bin/python benchmarks/freiburg_mapping.py [--data ../shared/data]
-[--logs intel aces] [--max-scans N] [--config map.toml]``.
+[--logs intel aces] [--max-scans N] [--config map.toml] [--output DIR]`` (``--output``: also
+write each log's mapping outputs, as ``scanreg map`` does, to ``DIR/<log>/``; the map there is
+what ``benchmarks/freiburg_localization.py`` localizes in).
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ def main() -> None:
     parser.add_argument("--logs", nargs="+", default=["intel", "aces"])
     parser.add_argument("--max-scans", type=int, default=None)
     parser.add_argument("--config", type=Path, default=None, help="MappingConfig TOML")
+    parser.add_argument("--output", type=Path, default=None, help="write outputs to DIR/<log>/")
     args = parser.parse_args()
     config = load_config(MappingConfig, args.config)
     folder = args.data / "freiburg-slam-benchmark"
@@ -61,6 +64,10 @@ def main() -> None:
         res = run_mapping(log, config, max_scans=args.max_scans)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
         load = 0.5 * (load_before + os.getloadavg()[0])
+        if args.output is not None:
+            from scanreg.pipeline.mapping_output import write_outputs
+
+            write_outputs(args.output / name, res, plot=False)
         stamps = np.array(res.stamps, dtype=np.float64)
         for label, poses in (
             ("odometry alone", res.odometry_poses),
