@@ -4,6 +4,7 @@ a corridor loop, a real Intel excerpt, outputs and hostile input."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 from functools import cache
@@ -279,7 +280,7 @@ def _wheel(truth: list[SE2], seed: int) -> list[SE2 | None]:
     5 % of the turn plus 1°/m of heading noise (a noisy differential drive)."""
     rng = np.random.default_rng(seed)
     out: list[SE2 | None] = [None]
-    for a, b in zip(truth[:-1], truth[1:], strict=True):
+    for a, b in itertools.pairwise(truth):
         v = (a.inverse() @ b).log()
         sigma = np.array(
             [
@@ -340,7 +341,7 @@ def test_fully_degenerate_candidate_is_rejected_with_reasons() -> None:
     # any direction. It must come back as a rejected candidate that says why, carrying no
     # information, never as an exception or an edge.
     rng = np.random.default_rng(0)
-    blob = rng.normal(0.0, 0.003, (40, 2)) + [2.0, 0.0]
+    blob = rng.normal(0.0, 0.003, (40, 2)) + np.array([2.0, 0.0])
     poses = dict.fromkeys(range(3), SE2.identity())
     sub = build_submap(
         1, [0, 1, 2], dict.fromkeys(range(3), blob), poses, resolution=0.05, voxel_size=0.0
