@@ -6,7 +6,8 @@ odometry alone (``Odometry2D``, correlative front end, the trajectory before clo
 optimized trajectory after loop closure, beside Cartographer's published figures (Hess et al.
 2016, Table II). Relation error: mean ± std of the translational (m) and rotational (deg)
 error over all relations. Speed: wall time and process CPU time of the whole run (reading
-excluded), per-stage wall time (odometry, candidate search, matching, optimization), scans/s.
+excluded), per-stage wall / CPU time (odometry, candidate search, matching, optimization),
+scans/s.
 There is no peer in the same process (Cartographer is not installable here), so the load
 average is printed beside the times.
 
@@ -88,8 +89,10 @@ def main() -> None:
         speed.append(
             f"| {name} | {res.num_scans} | {len(res.node_scans)} | "
             f"{len(res.accepted_loops)} / {len(res.rejected_loops)} | {wall:.1f} | {cpu:.1f} | "
-            f"{tt.odometry:.1f} | {tt.candidates:.1f} | {tt.matching:.1f} | "
-            f"{tt.optimization:.1f} | {res.num_scans / wall:.0f} | {load:.1f} |"
+            f"{tt.odometry:.1f} / {tt.odometry_cpu:.1f} | {tt.candidates:.1f} / "
+            f"{tt.candidates_cpu:.1f} | {tt.matching:.1f} / {tt.matching_cpu:.1f} | "
+            f"{tt.optimization:.1f} / {tt.optimization_cpu:.1f} | {res.num_scans / wall:.0f} | "
+            f"{res.num_scans / cpu:.0f} | {load:.1f} |"
         )
         print(f"{name}: done in {wall:.1f} s", flush=True)
     print()
@@ -99,9 +102,10 @@ def main() -> None:
     print()
     print(
         "| log | scans | nodes | loops accepted / rejected | wall (s) | CPU (s) | odometry (s) | "
-        "candidates (s) | matching (s) | optimization (s) | scans/s (wall) | load avg |"
+        "candidates (s) | matching (s) | optimization (s) | scans/s (wall) | scans/s (CPU) | "
+        "load avg |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     print("\n".join(speed))
 
 

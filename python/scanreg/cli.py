@@ -857,7 +857,8 @@ def _odometry_carmen(args: argparse.Namespace) -> dict[str, Any]:
     args.output.mkdir(parents=True, exist_ok=True)
     odo = Odometry2D(config)
     rows: list[dict[str, Any]] = []
-    poses, stamps = [], []
+    poses: list[Any] = []
+    stamps: list[float] = []
     pending = None
     previous: int | None = None
     accepted = 0

@@ -155,15 +155,31 @@ class LoopRecord:
         }
 
 
+def _clock() -> tuple[float, float]:
+    return time.perf_counter(), time.process_time()
+
+
 @dataclass
 class MappingTiming:
-    """Wall-clock seconds spent per stage, summed over the run."""
+    """Seconds spent per stage, summed over the run: wall clock, and the process's CPU time
+    (all its threads; on a shared machine the wall time says more about the load)."""
 
     odometry: float = 0.0
     candidates: float = 0.0
     matching: float = 0.0
     optimization: float = 0.0
     total: float = 0.0
+    odometry_cpu: float = 0.0
+    candidates_cpu: float = 0.0
+    matching_cpu: float = 0.0
+    optimization_cpu: float = 0.0
+    total_cpu: float = 0.0
+
+    def add(self, stage: str, since: tuple[float, float]) -> None:
+        """Add the wall and CPU time elapsed since ``since`` (:func:`_clock`) to ``stage``."""
+        wall, cpu = _clock()
+        setattr(self, stage, getattr(self, stage) + wall - since[0])
+        setattr(self, f"{stage}_cpu", getattr(self, f"{stage}_cpu") + cpu - since[1])
 
 
 @dataclass(frozen=True)
@@ -261,7 +277,7 @@ class Mapper:
         recorded)."""
         if self._finished:
             raise RuntimeError("Mapper: finish() was called; start a new Mapper")
-        t_start = time.perf_counter()
+        t_start = _clock()
         pts = as_points(points, "points", dim=2, min_points=0)
         motion = None if prior is None else as_pose(prior, "prior", 2)
         if stamp is not None and not math.isfinite(float(stamp)):
@@ -277,7 +293,7 @@ class Mapper:
             pose = None if self._last_pose is None else self._last_pose @ self._pending
             self._odom_poses.append(pose)
             self._scan_node.append(self.num_nodes - 1)
-            self._timing.total += time.perf_counter() - t_start
+            self._timing.add("total", t_start)
             return MappingStep(index, pose, None, ())
 
         first = self._last_pose is None
@@ -286,15 +302,14 @@ class Mapper:
         pose = frame.pose
         self._last_pose = pose
         self._odom_poses.append(pose)
-        t_odo = time.perf_counter()
-        self._timing.odometry += t_odo - t_start
+        self._timing.add("odometry", t_start)
 
         node = self._maybe_add_node(index, pts, pose, frame.covariance)
         self._scan_node.append(self.num_nodes - 1)
         records: tuple[LoopRecord, ...] = ()
         if node is not None:
             records = self._close_loops(node)
-        self._timing.total += time.perf_counter() - t_start
+        self._timing.add("total", t_start)
         return MappingStep(index, pose, node, records)
 
     def _maybe_add_node(
@@ -315,7 +330,7 @@ class Mapper:
         self._node_points[node] = kept
         self._node_odom[node] = pose
         self._node_cov[node] = np.asarray(covariance, dtype=np.float64)
-        t0 = time.perf_counter()
+        t0 = _clock()
         if node == 0:
             g.add_node(0, pose)
             g.add_prior(0, pose, np.diag([1e8, 1e8, 1e8]))
@@ -334,7 +349,7 @@ class Mapper:
                 cov = cov + 0.5 * (measured + measured.T)
             g.add_edge(prev, node, rel, np.linalg.inv(cov))
         g.update()
-        self._timing.optimization += time.perf_counter() - t0
+        self._timing.add("optimization", t0)
         return node
 
     def _submap(self, anchor: int) -> Submap2D:
@@ -397,30 +412,29 @@ class Mapper:
         if cfg.max_candidates == 0 or node % cfg.loop_every:
             return ()
         g = self._graph
-        t0 = time.perf_counter()
+        t0 = _clock()
         candidates = self._candidates(node)
-        t1 = time.perf_counter()
-        self._timing.candidates += t1 - t0
+        self._timing.add("candidates", t0)
         records = []
         for _, n in candidates:
-            t_m = time.perf_counter()
+            t_m = _clock()
             predicted = g.pose(n).inverse() @ g.pose(node)  # type: ignore[operator]
             assert isinstance(predicted, SE2)
             rel_cov = g.relative_covariance(n, node)
             match = match_loop(
                 self._node_points[node], node, self._submap(n), predicted, rel_cov, cfg.loops
             )
-            self._timing.matching += time.perf_counter() - t_m
+            self._timing.add("matching", t_m)
             record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
             records.append(record)
             if match.accepted:
-                t_o = time.perf_counter()
+                t_o = _clock()
                 g.add_edge(
                     n, node, match.measured, match.information, kind="loop", kernel=cfg.loop_kernel
                 )
                 # A loop moves many nodes at once: relinearise a little more than usual.
                 g.update(extra_iterations=2)
-                self._timing.optimization += time.perf_counter() - t_o
+                self._timing.add("optimization", t_o)
         self._loops.extend(records)
         return tuple(records)
 
@@ -434,11 +448,10 @@ class Mapper:
         self._finished = True
         g = self._graph
         if self.config.batch:
-            t0 = time.perf_counter()
+            t0 = _clock()
             g.optimize()
-            dt = time.perf_counter() - t0
-            self._timing.optimization += dt
-            self._timing.total += dt
+            self._timing.add("optimization", t0)
+            self._timing.add("total", t0)
         node_poses = g.poses()
         poses: list[SE2] = []
         odometry: list[SE2] = []
