@@ -249,6 +249,7 @@ class Mapper:
         self._node_points: dict[int, FloatArray] = {}
         self._node_odom: dict[int, SE2] = {}
         self._node_cov: dict[int, FloatArray] = {}  # odometry covariance of each node's scan
+        self._node_blind: dict[int, tuple[float, float]] = {}  # bearing gap: start, width
         self._node_travel: list[float] = []  # path length at each node
         self._submaps: dict[int, Submap2D] = {}
         self._loops: list[LoopRecord] = []
@@ -328,6 +329,7 @@ class Mapper:
             kept = np.ascontiguousarray(voxel_downsample(pts, cfg.node_voxel_size).points)
         self._node_scans.append(index)
         self._node_points[node] = kept
+        self._node_blind[node] = _blind_sector(kept)
         self._node_odom[node] = pose
         self._node_cov[node] = np.asarray(covariance, dtype=np.float64)
         t0 = _clock()
@@ -389,8 +391,14 @@ class Mapper:
         spread = math.sqrt(max(float(np.linalg.eigvalsh(cov_here[:2, :2])[-1]), 0.0))
         reach = cfg.loop_max_range + cfg.loop_gate_sigmas * spread
         near = np.flatnonzero(d <= reach)
+        order = near[np.argsort(d[near], kind="stable")]
+        # Nearest first, but a node that could not have seen most of this scan from where the
+        # graph puts it (a 180° laser passing the same spot the other way) only after the
+        # others: its match is doomed and would take a candidate's place.
+        seen = np.array([self._visible(node, here, old[n], int(n)) for n in order])
+        order = np.concatenate([order[seen >= 0.5], order[seen < 0.5]])
         gated: list[tuple[float, int]] = []
-        for n in near[np.argsort(d[near], kind="stable")]:
+        for n in order:
             if len(gated) >= cfg.max_candidates:
                 break
             dist = float(d[n])
@@ -406,6 +414,19 @@ class Mapper:
             if (dist - cfg.loop_max_range) / sigma <= cfg.loop_gate_sigmas:
                 gated.append((dist, int(n)))
         return gated
+
+    def _visible(self, node: int, here: FloatArray, there: FloatArray, other: int) -> float:
+        """The fraction of ``node``'s points that lie outside ``other``'s blind sector (the
+        widest gap in its scan's bearings), with both nodes at their graph poses ``here`` and
+        ``there`` (``[x, y, θ]``)."""
+        pts = self._node_points[node]
+        c, s = math.cos(here[2]), math.sin(here[2])
+        world = pts @ np.array([[c, s], [-s, c]]) + here[:2]
+        c, s = math.cos(there[2]), math.sin(there[2])
+        local = (world - there[:2]) @ np.array([[c, -s], [s, c]])
+        start, width = self._node_blind[other]
+        bearing = np.mod(np.arctan2(local[:, 1], local[:, 0]) - start, 2.0 * math.pi)
+        return float(np.mean(bearing >= width)) if len(pts) else 0.0
 
     def _close_loops(self, node: int) -> tuple[LoopRecord, ...]:
         cfg = self.config
@@ -482,6 +503,18 @@ class Mapper:
     def node_points(self, node: int) -> FloatArray:
         """The kept (downsampled) scan of ``node``, in its own frame."""
         return self._node_points[node]
+
+
+def _blind_sector(points: FloatArray) -> tuple[float, float]:
+    """``(start, width)`` of the widest gap between the bearings of ``points`` (scan frame):
+    the part of the plane the sensor did not see (about π for a 180° laser, one beam step
+    for a 360° one)."""
+    if len(points) < 2:
+        return 0.0, 2.0 * math.pi
+    b = np.sort(np.arctan2(points[:, 1], points[:, 0]))
+    gaps = np.diff(np.append(b, b[0] + 2.0 * math.pi))
+    k = int(np.argmax(gaps))
+    return float(b[k]), float(gaps[k])
 
 
 def run_mapping(
