@@ -6,12 +6,15 @@ odometry alone (``Odometry2D``, correlative front end, the trajectory before clo
 optimized trajectory after loop closure, beside Cartographer's published figures (Hess et al.
 2016, Table II). Relation error: mean ± std of the translational (m) and rotational (deg)
 error over all relations. Speed: wall time and process CPU time of the whole run (reading
-excluded), per-stage wall time (odometry, candidate search, matching, optimization), scans/s.
+excluded), per-stage wall / CPU time (odometry, candidate search, matching, optimization),
+scans/s.
 There is no peer in the same process (Cartographer is not installable here), so the load
 average is printed beside the times.
 
 Run: ``.venv/bin/python benchmarks/freiburg_mapping.py [--data ../shared/data]
-[--logs intel aces] [--max-scans N] [--config map.toml]``.
+[--logs intel aces] [--max-scans N] [--config map.toml] [--output DIR]`` (``--output``: also
+write each log's mapping outputs, as ``scanreg map`` does, to ``DIR/<log>/``; the map there is
+what ``benchmarks/freiburg_localization.py`` localizes in).
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ def main() -> None:
     parser.add_argument("--logs", nargs="+", default=["intel", "aces"])
     parser.add_argument("--max-scans", type=int, default=None)
     parser.add_argument("--config", type=Path, default=None, help="MappingConfig TOML")
+    parser.add_argument("--output", type=Path, default=None, help="write outputs to DIR/<log>/")
     args = parser.parse_args()
     config = load_config(MappingConfig, args.config)
     folder = args.data / "freiburg-slam-benchmark"
@@ -61,6 +65,10 @@ def main() -> None:
         res = run_mapping(log, config, max_scans=args.max_scans)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
         load = 0.5 * (load_before + os.getloadavg()[0])
+        if args.output is not None:
+            from scanreg.pipeline.mapping_output import write_outputs
+
+            write_outputs(args.output / name, res, plot=False)
         stamps = np.array(res.stamps, dtype=np.float64)
         for label, poses in (
             ("odometry alone", res.odometry_poses),
@@ -81,8 +89,10 @@ def main() -> None:
         speed.append(
             f"| {name} | {res.num_scans} | {len(res.node_scans)} | "
             f"{len(res.accepted_loops)} / {len(res.rejected_loops)} | {wall:.1f} | {cpu:.1f} | "
-            f"{tt.odometry:.1f} | {tt.candidates:.1f} | {tt.matching:.1f} | "
-            f"{tt.optimization:.1f} | {res.num_scans / wall:.0f} | {load:.1f} |"
+            f"{tt.odometry:.1f} / {tt.odometry_cpu:.1f} | {tt.candidates:.1f} / "
+            f"{tt.candidates_cpu:.1f} | {tt.matching:.1f} / {tt.matching_cpu:.1f} | "
+            f"{tt.optimization:.1f} / {tt.optimization_cpu:.1f} | {res.num_scans / wall:.0f} | "
+            f"{res.num_scans / cpu:.0f} | {load:.1f} |"
         )
         print(f"{name}: done in {wall:.1f} s", flush=True)
     print()
@@ -92,9 +102,10 @@ def main() -> None:
     print()
     print(
         "| log | scans | nodes | loops accepted / rejected | wall (s) | CPU (s) | odometry (s) | "
-        "candidates (s) | matching (s) | optimization (s) | scans/s (wall) | load avg |"
+        "candidates (s) | matching (s) | optimization (s) | scans/s (wall) | scans/s (CPU) | "
+        "load avg |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     print("\n".join(speed))
 
 

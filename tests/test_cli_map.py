@@ -86,3 +86,33 @@ def test_map_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
     assert code == EXIT_BAD_INPUT
     assert "node_distanse" in capsys.readouterr().err
     assert main(["map", str(bad), "--max-scans", "0", "-o", str(tmp_path / "o")]) == EXIT_BAD_INPUT
+
+
+def test_odometry_reads_carmen_logs(
+    excerpt: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # `scanreg odometry` on a 2D CARMEN log: Odometry2D with the wheel prior, the mapping
+    # pipeline's odometry settings under the user's strict config file.
+    out = tmp_path / "odo"
+    config = tmp_path / "odo.toml"
+    config.write_text("max_keyframes = 30\n", encoding="utf-8")
+    code = main(["odometry", str(excerpt), "-o", str(out), "--config", str(config), "--json"])
+    assert code == EXIT_OK
+    result = json.loads(capsys.readouterr().out)
+    n = result["frames"]
+    assert 300 < n < 500 and result["front_end"] == "correlative"
+    tum = np.loadtxt(out / "poses_tum.txt")
+    assert tum.shape == (n, 8) and 9.76e8 < tum[0, 0] < 9.77e8
+    assert np.allclose(tum[-1, 1:3], result["final_pose"][:2])
+    rows = [json.loads(line) for line in (out / "quality.jsonl").read_text().splitlines()]
+    assert len(rows) == n and rows[0]["prediction_source"] == "first"
+    assert all(r["prediction_source"] == "prior" for r in rows[1:])  # the wheel odometry
+    effective = (out / "config.toml").read_text()
+    assert "max_keyframes = 30" in effective and 'front_end = "correlative"' in effective
+    typo = tmp_path / "typo.toml"
+    typo.write_text("max_keyframe = 30\n", encoding="utf-8")
+    assert main(["odometry", str(excerpt), "--config", str(typo), "-o", str(out)]) == EXIT_BAD_INPUT
+    assert "max_keyframe" in capsys.readouterr().err
+    code = main(["odometry", str(excerpt), "--preset", "velodyne-hdl64", "-o", str(out)])
+    assert code == EXIT_BAD_INPUT
+    assert "--preset: not available for a 2D CARMEN log" in capsys.readouterr().err

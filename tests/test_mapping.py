@@ -4,6 +4,7 @@ a corridor loop, a real Intel excerpt, outputs and hostile input."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 from functools import cache
@@ -272,3 +273,97 @@ def test_singular_loop_covariance_is_rejected_not_raised() -> None:
     assert not loops._well_posed(np.diag([1e-4, 1e-4, 0.0]))
     assert not loops._well_posed(np.diag([1e-4, 1e-4, 1e-20]))
     assert not loops._well_posed(np.full((3, 3), np.nan))
+
+
+def _wheel(truth: list[SE2], seed: int) -> list[SE2 | None]:
+    """Wheel odometry between consecutive true poses: 5 % of the step along and 2 % across,
+    5 % of the turn plus 1°/m of heading noise (a noisy differential drive)."""
+    rng = np.random.default_rng(seed)
+    out: list[SE2 | None] = [None]
+    for a, b in itertools.pairwise(truth):
+        v = (a.inverse() @ b).log()
+        sigma = np.array(
+            [
+                0.05 * abs(v[0]) + 1e-3,
+                0.02 * abs(v[0]) + 1e-3,
+                0.05 * abs(v[2]) + math.radians(1.0) * abs(v[0]) + 1e-4,
+            ]
+        )
+        out.append(SE2.exp(v + rng.normal(0.0, 1.0, 3) * sigma))
+    return out
+
+
+def test_identical_rooms_give_no_false_loop() -> None:
+    # Every room the same room (sim.room_tour(identical_rooms=True)): the same spot of two
+    # rooms looks the same, so a matcher that trusted appearance alone would close loops
+    # between rooms. The graph's prediction (the window it sizes, the χ² test) must keep
+    # every accepted loop at its true place.
+    course = sim.room_tour(seed=0, identical_rooms=True, rooms_per_side=2)
+    run = sim.simulate_run(
+        course.scene,
+        sim.LaserModel.preset("sick_lms200"),
+        course.trajectory,
+        num_scans=course.num_scans(RATE),
+        scan_rate=RATE,
+        seed=0,
+    )
+    truth = [run.poses[0].inverse() @ p for p in run.poses]
+    mapper = Mapper(MappingConfig())
+    for k, (scan, prior) in enumerate(zip(run.scans, _wheel(truth, 7), strict=True)):
+        mapper.step(scan.points, prior, stamp=k / RATE)
+    res = mapper.finish()
+    # The trap was presented: candidates whose scans are truly in different places (> 4 m
+    # apart) were matched ...
+    apart = [
+        r
+        for r in res.loops
+        if np.linalg.norm((truth[r.submap_scan].inverse() @ truth[r.scan]).translation) > 4.0
+    ]
+    assert apart, "no candidate across rooms: the test no longer tests anything"
+    # ... and none was accepted; every accepted loop agrees with the truth within its own
+    # information (a loop into the wrong room would be metres off: χ² in the 10⁵s).
+    assert not any(r.accepted for r in apart)
+    assert len(res.accepted_loops) > 100
+    chi2 = []
+    for r in res.accepted_loops:
+        e = (r.match.measured.inverse() @ (truth[r.submap_scan].inverse() @ truth[r.scan])).log()
+        chi2.append(float(e @ r.match.information @ e))
+    # Measured: 50 at most, a corridor loop 0.35 m off along its weak direction (which
+    # couples heading, so its information there is small but not zero); the rest below 14.
+    assert max(chi2) < 200.0, max(chi2)
+    positions = np.array([p.translation for p in res.poses])
+    ate = np.sqrt(np.mean(np.sum((positions - [t.translation for t in truth]) ** 2, axis=1)))
+    assert ate < 0.03
+
+
+def test_fully_degenerate_candidate_is_rejected_with_reasons() -> None:
+    # A submap and a scan that are one 3 mm blob of returns: nothing constrains the match in
+    # any direction. It must come back as a rejected candidate that says why, carrying no
+    # information, never as an exception or an edge.
+    rng = np.random.default_rng(0)
+    blob = rng.normal(0.0, 0.003, (40, 2)) + np.array([2.0, 0.0])
+    poses = dict.fromkeys(range(3), SE2.identity())
+    sub = build_submap(
+        1, [0, 1, 2], dict.fromkeys(range(3), blob), poses, resolution=0.05, voxel_size=0.0
+    )
+    match = match_loop(
+        blob, 5, sub, SE2.from_vector([0.02, 0.0, 0.1]), np.diag([0.01] * 3), LoopSettings()
+    )
+    assert not match.accepted
+    assert any("degenerate" in r for r in match.reasons), match.reasons
+    assert not np.any(match.information)
+    # A ring of returns around the sensor (a round room): only the heading is unconstrained,
+    # and the edge carries nothing along it.
+    ring = (
+        3.0 * np.c_[np.cos(np.arange(360) * math.pi / 180), np.sin(np.arange(360) * math.pi / 180)]
+    )
+    sub = build_submap(
+        1, [0, 1, 2], dict.fromkeys(range(3), ring), poses, resolution=0.05, voxel_size=0.05
+    )
+    match = match_loop(
+        ring, 5, sub, SE2.from_vector([0.02, 0.0, 0.1]), np.diag([0.01] * 3), LoopSettings()
+    )
+    assert match.degenerate_directions == ("rotation (θ)",)
+    weak = match.weak_vectors[:, 0]
+    assert np.linalg.norm(weak[:2]) < 1e-3 * abs(weak[2])  # a pure turn (metres at 3 m)
+    assert weak @ match.information @ weak < 1e-9 * match.information[0, 0]

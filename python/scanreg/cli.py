@@ -206,7 +206,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="LiDAR odometry over a sequence (KITTI folder, folder of point files, ROS bag, "
         "sim:street): poses, per-frame quality, effective config, plots",
     )
-    odo.add_argument("path", help="sequence: folder, bag, or sim:street / sim:tunnel[,frames=N]")
+    odo.add_argument(
+        "path",
+        help="sequence: folder, bag, sim:street / sim:tunnel[,frames=N], or a 2D CARMEN log "
+        "(.clf/.log, optionally .gz/.bz2: Odometry2D with the wheel odometry as prior)",
+    )
     odo.add_argument(
         "-o",
         "--output",
@@ -825,6 +829,123 @@ def _simulate(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _carmen_key(path: str) -> str | None:
+    """The :data:`scanreg.io.SCAN_SOURCES` key of a CARMEN log path, or ``None``."""
+    from .io import SCAN_SOURCES
+
+    p = Path(path)
+    suffixes = [s.lower() for s in p.suffixes]
+    key = "".join(suffixes[-2:]) if suffixes[-1:] in ([".gz"], [".bz2"]) else p.suffix.lower()
+    return key if key in SCAN_SOURCES else None
+
+
+def _odometry_carmen(args: argparse.Namespace) -> dict[str, Any]:
+    """``scanreg odometry LOG.clf``: 2D scan-to-map odometry (:class:`Odometry2D`) over a CARMEN
+    log in file order, the wheel odometry as each scan's prior. ``--config`` is an
+    :class:`OdometryConfig2D` TOML over the mapping pipeline's odometry defaults."""
+    import time
+
+    from .config import load_config, write_config
+    from .io import Trajectory, read_scans, write_kitti_poses, write_tum
+    from .pipeline.mapping import MappingConfig
+    from .pipeline.odometry2d import Odometry2D, OdometryConfig2D
+
+    for flag in ("preset", "method", "topic", "bag", "save_map", "report"):
+        value = getattr(args, flag, None)
+        if value:
+            raise ValueError(f"--{flag.replace('_', '-')}: not available for a 2D CARMEN log")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
+    # The mapping pipeline's odometry (correlative front end) under the user's file.
+    mapping = MappingConfig().odometry
+    preset = {f: getattr(mapping, f) for f in ("front_end", "kernel", "max_keyframes")}
+    config = load_config(
+        OdometryConfig2D, args.config, presets=["mapping"], preset_table={"mapping": preset}
+    )
+    log = read_scans(args.path)
+    kinds = [s.kind for s in log.scans]
+    chosen = "FLASER" if "FLASER" in kinds else (kinds[0] if kinds else None)
+    indices = [i for i, k in enumerate(kinds) if k == chosen][: args.max_frames]
+    if not indices:
+        raise ValueError(f"path: {args.path} holds no laser scan")
+    args.output.mkdir(parents=True, exist_ok=True)
+    odo = Odometry2D(config)
+    rows: list[dict[str, Any]] = []
+    poses: list[Any] = []
+    stamps: list[float] = []
+    pending = None
+    previous: int | None = None
+    accepted = 0
+    skipped = 0
+    t0 = time.perf_counter()
+    enabled = not (args.quiet or args.json)
+    with Progress(len(indices), description="odometry", unit="scans", enabled=enabled) as bar:
+        for i in indices:
+            scan = log.scans[i]
+            if (
+                previous is not None
+                and scan.odometry_pose is not None
+                and log.scans[previous].odometry_pose is not None
+            ):
+                step = log.motion_prior(previous, i)  # wheel odometry, laser frame
+                pending = step if pending is None else pending @ step
+            previous = i
+            pts = scan.to_points(0.1, 40.0)
+            if len(pts) < 3:  # no returns: nothing to align; its motion joins the next prior
+                skipped += 1
+                bar.update()
+                continue
+            frame = odo.step(pts, prior=pending if poses else None)
+            pending = None
+            poses.append(frame.pose)
+            stamps.append(scan.timestamp)
+            accepted += frame.verdict.accepted
+            sd = np.sqrt(np.clip(np.diag(frame.covariance), 0, None))
+            rows.append(
+                {
+                    "scan": i,
+                    "stamp": scan.timestamp,
+                    "accepted": frame.verdict.accepted,
+                    "reasons": "; ".join(frame.verdict.reasons),
+                    "prediction_source": frame.prediction_source,
+                    "sigma_x": float(sd[0]),
+                    "sigma_y": float(sd[1]),
+                    "sigma_theta_deg": float(np.degrees(sd[2])),
+                    "map_updated": frame.map_updated,
+                }
+            )
+            bar.update(accepted=accepted, rejected=len(poses) - accepted)
+    elapsed = time.perf_counter() - t0
+    if not poses:
+        raise ValueError(f"path: no scan of {args.path} had at least 3 returns")
+    traj = Trajectory.from_poses(poses, np.array(stamps, dtype=np.float64))
+    written = {
+        "poses_kitti": args.output / "poses_kitti.txt",
+        "poses_tum": args.output / "poses_tum.txt",
+    }
+    write_kitti_poses(written["poses_kitti"], traj)
+    write_tum(written["poses_tum"], traj)
+    written["quality"] = args.output / "quality.jsonl"
+    with written["quality"].open("w", encoding="utf-8") as fh:
+        for row in rows:
+            fh.write(json.dumps(row) + "\n")
+    written["config"] = write_config(args.output / "config.toml", config)
+    result: dict[str, Any] = {
+        "sequence": str(args.path),
+        "frames": len(poses),
+        "skipped_scans": skipped,
+        "frames_per_second": len(poses) / elapsed if elapsed > 0 else 0.0,
+        "accepted": accepted,
+        "rejected": len(poses) - accepted,
+        "front_end": config.front_end,
+        "final_pose": [float(v) for v in poses[-1].as_vector()],
+    }
+    written["summary"] = args.output / "summary.json"
+    result["outputs"] = {k: str(v) for k, v in written.items()}
+    written["summary"].write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    return result
+
+
 def _odometry(args: argparse.Namespace) -> dict[str, Any]:
     from .config import load_config
     from .io import open_sequence, write_poses, write_run_outputs
@@ -832,6 +953,8 @@ def _odometry(args: argparse.Namespace) -> dict[str, Any]:
     from .pipeline.odometry import OdometryConfig
     from .pipeline.run import evaluate_run, run_odometry
 
+    if not str(args.path).startswith("sim:") and _carmen_key(args.path) is not None:
+        return _odometry_carmen(args)  # a 2D laser log
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     overrides = {} if args.method is None else {"method": args.method}

@@ -44,6 +44,11 @@ class Submap2D:
     points: FloatArray
     grid: CorrelativeGrid
     target: PreparedTarget
+    #: 3×3 over a left perturbation in ``anchor``'s frame: how far the submap as a whole may
+    #: sit from where its poses put it — the mean of its nodes' odometry covariances carried
+    #: into that frame (zeros when none were given). A loop matched against the submap
+    #: inherits it (:func:`match_loop`).
+    covariance: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))
 
 
 def build_submap(
@@ -54,11 +59,28 @@ def build_submap(
     *,
     resolution: float,
     voxel_size: float,
+    covariances: dict[int, FloatArray] | None = None,
 ) -> Submap2D:
     """``scans[n]`` (scan frame) laid into ``anchor``'s frame with the relative poses
-    ``inv(poses[anchor]) @ poses[n]`` (locally consistent odometry poses)."""
+    ``inv(poses[anchor]) @ poses[n]`` (locally consistent odometry poses).
+
+    ``covariances[n]``: the odometry covariance of node ``n``'s pose (3×3, right perturbation,
+    as :class:`~scanreg.pipeline.Frame2D` gives it); their mean, carried into the anchor's
+    frame, is the submap's :attr:`Submap2D.covariance`."""
     base = poses[anchor].inverse()
-    parts = [(base @ poses[n]).apply(scans[n]) for n in nodes]
+    relative = [base @ poses[n] for n in nodes]
+    parts = [rel.apply(scans[n]) for rel, n in zip(relative, nodes, strict=True)]
+    spread = np.zeros((3, 3))
+    if covariances is not None:
+        # T_a_n exp(δ) = exp(Ad δ) T_a_n: each node's error as a shift of its points in the
+        # anchor's frame. The mean (not the mean / count of independent errors): the nodes'
+        # odometry errors are correlated (each was matched against the same local map).
+        for rel, n in zip(relative, nodes, strict=True):
+            cov = covariances.get(n)
+            if cov is not None and np.shape(cov) == (3, 3) and np.isfinite(cov).all():
+                ad = rel.adjoint()
+                spread += ad @ np.asarray(cov, dtype=np.float64) @ ad.T
+        spread = 0.5 * (spread + spread.T) / len(nodes)
     pts = np.ascontiguousarray(np.vstack(parts))
     if voxel_size > 0:
         pts = np.ascontiguousarray(voxel_downsample(pts, voxel_size).points)
@@ -68,6 +90,7 @@ def build_submap(
         points=pts,
         grid=prepare_correlative(pts, resolution=resolution),
         target=prepare(pts, normals=True),
+        covariance=spread,
     )
 
 
@@ -218,7 +241,12 @@ def match_loop(
     )
     out = assess(res, points, submap.target, init=predicted, thresholds=window_bound)
     reasons.extend(out.verdict.reasons)
-    cov = np.array(res.covariance, dtype=np.float64)
+    # The match's calibrated covariance is against the submap as built; the submap itself
+    # sits only as well as the odometry poses that built it (a left perturbation in the
+    # anchor's frame, carried to the right perturbation of T_anchor_node). Measured on
+    # simulated room tours, without it the accepted loops' NEES was about 2× the ideal.
+    ad = pose.inverse().adjoint()
+    cov = np.array(res.covariance, dtype=np.float64) + ad @ submap.covariance @ ad.T
     combined = relative_covariance + cov
     if _well_posed(cov) and _well_posed(combined):
         info, weak, vectors = _information(cov, res)

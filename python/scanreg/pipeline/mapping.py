@@ -170,15 +170,31 @@ def _number(value: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
+def _clock() -> tuple[float, float]:
+    return time.perf_counter(), time.process_time()
+
+
 @dataclass
 class MappingTiming:
-    """Wall-clock seconds spent per stage, summed over the run."""
+    """Seconds spent per stage, summed over the run: wall clock, and the process's CPU time
+    (all its threads; on a shared machine the wall time says more about the load)."""
 
     odometry: float = 0.0
     candidates: float = 0.0
     matching: float = 0.0
     optimization: float = 0.0
     total: float = 0.0
+    odometry_cpu: float = 0.0
+    candidates_cpu: float = 0.0
+    matching_cpu: float = 0.0
+    optimization_cpu: float = 0.0
+    total_cpu: float = 0.0
+
+    def add(self, stage: str, since: tuple[float, float]) -> None:
+        """Add the wall and CPU time elapsed since ``since`` (:func:`_clock`) to ``stage``."""
+        wall, cpu = _clock()
+        setattr(self, stage, getattr(self, stage) + wall - since[0])
+        setattr(self, f"{stage}_cpu", getattr(self, f"{stage}_cpu") + cpu - since[1])
 
 
 @dataclass(frozen=True)
@@ -250,6 +266,8 @@ class Mapper:
         self._node_scans: list[int] = []
         self._node_points: dict[int, FloatArray] = {}
         self._node_odom: dict[int, SE2] = {}
+        self._node_cov: dict[int, FloatArray] = {}  # odometry covariance of each node's scan
+        self._node_blind: dict[int, tuple[float, float]] = {}  # bearing gap: start, width
         self._node_travel: list[float] = []  # path length at each node
         self._submaps: dict[int, Submap2D] = {}
         self._loops: list[LoopRecord[LoopMatch]] = []
@@ -278,7 +296,7 @@ class Mapper:
         recorded)."""
         if self._finished:
             raise RuntimeError("Mapper: finish() was called; start a new Mapper")
-        t_start = time.perf_counter()
+        t_start = _clock()
         pts = as_points(points, "points", dim=2, min_points=0)
         motion = None if prior is None else as_pose(prior, "prior", 2)
         if stamp is not None and not math.isfinite(float(stamp)):
@@ -294,7 +312,7 @@ class Mapper:
             pose = None if self._last_pose is None else self._last_pose @ self._pending
             self._odom_poses.append(pose)
             self._scan_node.append(self.num_nodes - 1)
-            self._timing.total += time.perf_counter() - t_start
+            self._timing.add("total", t_start)
             return MappingStep(index, pose, None, ())
 
         first = self._last_pose is None
@@ -303,15 +321,14 @@ class Mapper:
         pose = frame.pose
         self._last_pose = pose
         self._odom_poses.append(pose)
-        t_odo = time.perf_counter()
-        self._timing.odometry += t_odo - t_start
+        self._timing.add("odometry", t_start)
 
         node = self._maybe_add_node(index, pts, pose, frame.covariance)
         self._scan_node.append(self.num_nodes - 1)
         records: tuple[LoopRecord[LoopMatch], ...] = ()
         if node is not None:
             records = self._close_loops(node)
-        self._timing.total += time.perf_counter() - t_start
+        self._timing.add("total", t_start)
         return MappingStep(index, pose, node, records)
 
     def _maybe_add_node(
@@ -330,8 +347,10 @@ class Mapper:
             kept = np.ascontiguousarray(voxel_downsample(pts, cfg.node_voxel_size).points)
         self._node_scans.append(index)
         self._node_points[node] = kept
+        self._node_blind[node] = _blind_sector(kept)
         self._node_odom[node] = pose
-        t0 = time.perf_counter()
+        self._node_cov[node] = np.asarray(covariance, dtype=np.float64)
+        t0 = _clock()
         if node == 0:
             g.add_node(0, pose)
             g.add_prior(0, pose, np.diag([1e8, 1e8, 1e8]))
@@ -350,7 +369,7 @@ class Mapper:
                 cov = cov + 0.5 * (measured + measured.T)
             g.add_edge(prev, node, rel, np.linalg.inv(cov))
         g.update()
-        self._timing.optimization += time.perf_counter() - t0
+        self._timing.add("optimization", t0)
         return node
 
     def _submap(self, anchor: int) -> Submap2D:
@@ -365,6 +384,7 @@ class Mapper:
                 self._node_odom,
                 resolution=self.config.loops.resolution,
                 voxel_size=self.config.node_voxel_size,
+                covariances=self._node_cov,
             )
             # Only cache a submap whose later nodes all exist (it will not change).
             if anchor + h < self.num_nodes:
@@ -389,8 +409,14 @@ class Mapper:
         spread = math.sqrt(max(float(np.linalg.eigvalsh(cov_here[:2, :2])[-1]), 0.0))
         reach = cfg.loop_max_range + cfg.loop_gate_sigmas * spread
         near = np.flatnonzero(d <= reach)
+        order = near[np.argsort(d[near], kind="stable")]
+        # Nearest first, but a node that could not have seen most of this scan from where the
+        # graph puts it (a 180° laser passing the same spot the other way) only after the
+        # others: its match is doomed and would take a candidate's place.
+        seen = np.array([self._visible(node, here, old[n], int(n)) for n in order])
+        order = np.concatenate([order[seen >= 0.5], order[seen < 0.5]])
         gated: list[tuple[float, int]] = []
-        for n in near[np.argsort(d[near], kind="stable")]:
+        for n in order:
             if len(gated) >= cfg.max_candidates:
                 break
             dist = float(d[n])
@@ -407,35 +433,47 @@ class Mapper:
                 gated.append((dist, int(n)))
         return gated
 
+    def _visible(self, node: int, here: FloatArray, there: FloatArray, other: int) -> float:
+        """The fraction of ``node``'s points that lie outside ``other``'s blind sector (the
+        widest gap in its scan's bearings), with both nodes at their graph poses ``here`` and
+        ``there`` (``[x, y, θ]``)."""
+        pts = self._node_points[node]
+        c, s = math.cos(here[2]), math.sin(here[2])
+        world = pts @ np.array([[c, s], [-s, c]]) + here[:2]
+        c, s = math.cos(there[2]), math.sin(there[2])
+        local = (world - there[:2]) @ np.array([[c, -s], [s, c]])
+        start, width = self._node_blind[other]
+        bearing = np.mod(np.arctan2(local[:, 1], local[:, 0]) - start, 2.0 * math.pi)
+        return float(np.mean(bearing >= width)) if len(pts) else 0.0
+
     def _close_loops(self, node: int) -> tuple[LoopRecord[LoopMatch], ...]:
         cfg = self.config
         if cfg.max_candidates == 0 or node % cfg.loop_every:
             return ()
         g = self._graph
-        t0 = time.perf_counter()
+        t0 = _clock()
         candidates = self._candidates(node)
-        t1 = time.perf_counter()
-        self._timing.candidates += t1 - t0
+        self._timing.add("candidates", t0)
         records = []
         for _, n in candidates:
-            t_m = time.perf_counter()
+            t_m = _clock()
             predicted = g.pose(n).inverse() @ g.pose(node)  # type: ignore[operator]
             assert isinstance(predicted, SE2)
             rel_cov = g.relative_covariance(n, node)
             match = match_loop(
                 self._node_points[node], node, self._submap(n), predicted, rel_cov, cfg.loops
             )
-            self._timing.matching += time.perf_counter() - t_m
+            self._timing.add("matching", t_m)
             record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
             records.append(record)
             if match.accepted:
-                t_o = time.perf_counter()
+                t_o = _clock()
                 g.add_edge(
                     n, node, match.measured, match.information, kind="loop", kernel=cfg.loop_kernel
                 )
                 # A loop moves many nodes at once: relinearise a little more than usual.
                 g.update(extra_iterations=2)
-                self._timing.optimization += time.perf_counter() - t_o
+                self._timing.add("optimization", t_o)
         self._loops.extend(records)
         return tuple(records)
 
@@ -449,11 +487,10 @@ class Mapper:
         self._finished = True
         g = self._graph
         if self.config.batch:
-            t0 = time.perf_counter()
+            t0 = _clock()
             g.optimize()
-            dt = time.perf_counter() - t0
-            self._timing.optimization += dt
-            self._timing.total += dt
+            self._timing.add("optimization", t0)
+            self._timing.add("total", t0)
         node_poses = g.poses()
         poses: list[SE2] = []
         odometry: list[SE2] = []
@@ -484,6 +521,18 @@ class Mapper:
     def node_points(self, node: int) -> FloatArray:
         """The kept (downsampled) scan of ``node``, in its own frame."""
         return self._node_points[node]
+
+
+def _blind_sector(points: FloatArray) -> tuple[float, float]:
+    """``(start, width)`` of the widest gap between the bearings of ``points`` (scan frame):
+    the part of the plane the sensor did not see (about π for a 180° laser, one beam step
+    for a 360° one)."""
+    if len(points) < 2:
+        return 0.0, 2.0 * math.pi
+    b = np.sort(np.arctan2(points[:, 1], points[:, 0]))
+    gaps = np.diff(np.append(b, b[0] + 2.0 * math.pi))
+    k = int(np.argmax(gaps))
+    return float(b[k]), float(gaps[k])
 
 
 def run_mapping(

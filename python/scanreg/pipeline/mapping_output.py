@@ -198,5 +198,12 @@ def summary(result: MappingResult[Any]) -> dict[str, Any]:
             "optimization": t.optimization,
             "total": t.total,
         },
+        "timing_cpu": {
+            "odometry": t.odometry_cpu,
+            "candidates": t.candidates_cpu,
+            "matching": t.matching_cpu,
+            "optimization": t.optimization_cpu,
+            "total": t.total_cpu,
+        },
         "scans_per_second": result.num_scans / t.total if t.total > 0 else None,
     }
