@@ -125,6 +125,13 @@ class LoopSettings:
     )
 
 
+#: A loop is what the map bets on: every match the verdict accepts is probed for other basins.
+#: The screen's cheap evidence (``VerdictThresholds.basin_screen``) is tuned for odometry steps
+#: and misses along-corridor look-alikes: on ACES it let 16 loops through whose scan a pose
+#: 2 m along the corridor explained better (64 % against 48 % within 3 cm), 0.040 → 0.051 m.
+_PROBE_EVERY_MATCH = VerdictThresholds(basin_screen=False)
+
+
 @dataclass(frozen=True)
 class LoopMatch:
     """What matching one candidate gave; ``accepted`` with ``reasons`` empty, or not."""
@@ -217,6 +224,7 @@ def match_loop(
         init=coarse.pose,
         max_correspondence_distance=s.max_correspondence_distance,
         kernel=s.kernel,
+        thresholds=_PROBE_EVERY_MATCH,
     )
     pose = res.pose
     assert isinstance(pose, SE2)
@@ -238,6 +246,7 @@ def match_loop(
         max_rotation=min(thresholds.max_rotation, dr + math.radians(2.0)),
         require_convergence=thresholds.require_convergence,
         reject_degenerate=thresholds.reject_degenerate,
+        basin_screen=False,
     )
     out = assess(res, points, submap.target, init=predicted, thresholds=window_bound)
     reasons.extend(out.verdict.reasons)
