@@ -194,7 +194,7 @@ def _information(
         info = project_information(info, deg.weak_projector())
         vectors = np.column_stack([w.vector for w in deg.weak_directions])
         return info, tuple(w.description for w in deg.weak_directions), vectors
-    return info, (), np.zeros((3, 0))
+    return info, (), np.zeros((len(covariance), 0))
 
 
 def match_loop(

@@ -33,12 +33,12 @@ import numpy as np
 
 from .._validate import FloatArray
 from ..global_registration import register_global
-from ..graph import project_information
 from ..preprocess import voxel_downsample
 from ..register import register
 from ..target import PreparedTarget, prepare
 from ..transform import SE3
 from ..verdict import VerdictThresholds
+from .loops import _information, _well_posed
 
 LoopOrigin = Literal["graph", "place"]
 
@@ -215,31 +215,6 @@ def search_window_3d(
     dt = min(max(s.window_sigmas * sigma_t, s.min_window[0]), s.max_window[0])
     dr = min(max(s.window_sigmas * sigma_r, s.min_window[1]), s.max_window[1])
     return dt, dr
-
-
-#: A covariance whose eigenvalues span more than this ratio is treated as singular.
-_MAX_CONDITION = 1e12
-
-
-def _well_posed(covariance: FloatArray) -> bool:
-    if not np.isfinite(covariance).all():
-        return False
-    vals = np.linalg.eigvalsh(0.5 * (covariance + covariance.T))
-    return bool(vals[-1] > 0 and vals[0] > vals[-1] / _MAX_CONDITION)
-
-
-def _information(
-    covariance: FloatArray, res: Any
-) -> tuple[FloatArray, tuple[str, ...], FloatArray]:
-    vals, vecs = np.linalg.eigh(0.5 * (covariance + covariance.T))
-    info = (vecs / vals) @ vecs.T
-    info = 0.5 * (info + info.T)
-    deg = res.degeneracy
-    if deg is not None and deg.degenerate:
-        info = project_information(info, deg.weak_projector())
-        vectors = np.column_stack([w.vector for w in deg.weak_directions])
-        return info, tuple(w.description for w in deg.weak_directions), vectors
-    return info, (), np.zeros((6, 0))
 
 
 def _angle(pose: SE3) -> float:
