@@ -217,6 +217,8 @@ def test_bad_arguments_are_named() -> None:
         LoopSettings3D(chi2_threshold=0.0)
     with pytest.raises(ValueError, match="map_points"):
         MapLocalizer(np.zeros((5, 3)))
+    with pytest.raises(FileNotFoundError, match=r"path: .* neither a map folder nor a point file"):
+        MapLocalizer.from_folder("/nonexistent/scanreg-map")
 
 
 def test_place_route_recovers_drift_beyond_the_basin() -> None:

@@ -151,8 +151,10 @@ class MapLocalizer:
                         )
                 elif poses_file.is_file():
                     kwargs["anchors"] = read_kitti_poses(poses_file).poses
-        else:
+        elif p.is_file():
             map_file = p
+        else:
+            raise FileNotFoundError(f"path: {p} is neither a map folder nor a point file")
         return cls(read_points(map_file).points, config, **kwargs)
 
     # -- anchors ------------------------------------------------------------------------
