@@ -30,7 +30,7 @@ sys.path.insert(0, str(HERE))
 
 NAMES = (
     "pcd ply kitti_bin kitti_calib kitti_poses tum carmen carmen_gz carmen_bz2 g2o ros1 "
-    "ros2_mcap ros2_sqlite config"
+    "ros2_mcap ros2_sqlite ros_msg config"
 )
 
 if len(sys.argv) < 2 or sys.argv[1] == "--list":

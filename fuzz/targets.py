@@ -32,6 +32,8 @@ DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] /
 SEED_BYTES = 16384
 #: Refusals that name the problem (FileFormatError and ConfigError are ValueErrors).
 NAMED = (ValueError, TypeError)
+LASER_SCAN = "sensor_msgs/msg/LaserScan"
+POINT_CLOUD2 = "sensor_msgs/msg/PointCloud2"
 
 
 @dataclass(frozen=True)
@@ -134,19 +136,14 @@ def _g2o_seeds() -> list[bytes]:
     return out
 
 
-def _bag(kind: str, path: Path) -> Path:
-    """Three LaserScan messages of the real ROS 1 bag, written again as a ``kind`` bag
-    (``ros1``, ``ros1-bz2``, or a ROS 2 bag folder: ``mcap`` or ``sqlite3``) at ``path``."""
-    from rosbags.rosbag1 import Writer as Writer1
-    from rosbags.rosbag2 import StoragePlugin
-    from rosbags.rosbag2 import Writer as Writer2
+def _scan_messages(ros1: bool) -> list[tuple[int, Any]]:
+    """``(bag time ns, message)`` of three LaserScans of the real ROS 1 bag, as objects of
+    the ROS 1 (``ros1``) or the ROS 2 type store."""
     from rosbags.typesys import Stores, get_typestore
     from scanreg.io import read_bag_scans
 
     scans = read_bag_scans(DATA / "rosbag1-laserscan-ccny-demo/demo.bag")[:3]
-    ros1 = kind.startswith("ros1")
     ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST)
-    msgtype = "sensor_msgs/msg/LaserScan"
     msgs = []
     for i, scan in enumerate(scans):
         ns = 1_000_000_000 + i * 100_000_000
@@ -157,7 +154,7 @@ def _bag(kind: str, path: Path) -> Path:
         msgs.append(
             (
                 ns,
-                ts.types[msgtype](
+                ts.types[LASER_SCAN](
                     header=header,
                     angle_min=float(scan.angles[0]),
                     angle_max=float(scan.angles[-1]),
@@ -171,6 +168,55 @@ def _bag(kind: str, path: Path) -> Path:
                 ),
             )
         )
+    return msgs
+
+
+def _cloud_messages(ros1: bool) -> list[tuple[int, Any]]:
+    """``(bag time ns, message)`` of two small ``sensor_msgs/PointCloud2`` (x y z intensity,
+    float32) of the ROS 1 (``ros1``) or the ROS 2 type store."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST)
+    t = ts.types
+    fields = [
+        t["sensor_msgs/msg/PointField"](name=n, offset=4 * i, datatype=7, count=1)
+        for i, n in enumerate(("x", "y", "z", "intensity"))
+    ]
+    rng = np.random.default_rng(0)
+    msgs = []
+    for i in range(2):
+        stamp = t["builtin_interfaces/msg/Time"](sec=1, nanosec=i * 100_000_000)
+        data = rng.normal(size=(10, 4)).astype(np.float32).tobytes()
+        header = t["std_msgs/msg/Header"](
+            stamp=stamp, frame_id="lidar", **({"seq": i} if ros1 else {})
+        )
+        msg = t[POINT_CLOUD2](
+            header=header,
+            height=1,
+            width=10,
+            fields=fields,
+            is_bigendian=False,
+            point_step=16,
+            row_step=160,
+            data=np.frombuffer(data, np.uint8),
+            is_dense=True,
+        )
+        msgs.append((1_000_000_000 + i * 100_000_000, msg))
+    return msgs
+
+
+def _bag(kind: str, path: Path) -> Path:
+    """Three LaserScan messages of the real ROS 1 bag, written again as a ``kind`` bag
+    (``ros1``, ``ros1-bz2``, or a ROS 2 bag folder: ``mcap`` or ``sqlite3``) at ``path``."""
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Writer2
+    from rosbags.typesys import Stores, get_typestore
+
+    ros1 = kind.startswith("ros1")
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST)
+    msgtype = LASER_SCAN
+    msgs = _scan_messages(ros1)
     if ros1:
         w1 = Writer1(path)
         if kind == "ros1-bz2":
@@ -196,30 +242,10 @@ def _ros1_cloud_bag(path: Path) -> Path:
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS1_NOETIC)
-    t = ts.types
-    msgtype = "sensor_msgs/msg/PointCloud2"
-    fields = [
-        t["sensor_msgs/msg/PointField"](name=n, offset=4 * i, datatype=7, count=1)
-        for i, n in enumerate(("x", "y", "z", "intensity"))
-    ]
-    rng = np.random.default_rng(0)
     with Writer(path) as w:
-        conn = w.add_connection("/points", msgtype, typestore=ts)
-        for i in range(2):
-            stamp = t["builtin_interfaces/msg/Time"](sec=1, nanosec=i * 100_000_000)
-            data = rng.normal(size=(10, 4)).astype(np.float32).tobytes()
-            msg = t[msgtype](
-                header=t["std_msgs/msg/Header"](seq=i, stamp=stamp, frame_id="lidar"),
-                height=1,
-                width=10,
-                fields=fields,
-                is_bigendian=False,
-                point_step=16,
-                row_step=160,
-                data=np.frombuffer(data, np.uint8),
-                is_dense=True,
-            )
-            w.write(conn, 1_000_000_000 + i * 100_000_000, ts.serialize_ros1(msg, msgtype))
+        conn = w.add_connection("/points", POINT_CLOUD2, typestore=ts)
+        for t, msg in _cloud_messages(ros1=True):
+            w.write(conn, t, ts.serialize_ros1(msg, POINT_CLOUD2))
     return path
 
 
@@ -293,6 +319,45 @@ def _bag_read(p: Path) -> object:
     return out
 
 
+#: ``ros_msg``: the first byte of an input picks the serialisation (ROS 1 or CDR) and the
+#: message type; the rest is one serialised message.
+MESSAGE_KINDS = (
+    (True, LASER_SCAN),
+    (True, POINT_CLOUD2),
+    (False, LASER_SCAN),
+    (False, POINT_CLOUD2),
+)
+
+
+def _message_seeds() -> list[bytes]:
+    from rosbags.typesys import Stores, get_typestore
+
+    out = []
+    for selector, (ros1, msgtype) in enumerate(MESSAGE_KINDS):
+        ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST)
+        serialise = ts.serialize_ros1 if ros1 else ts.serialize_cdr
+        make = _scan_messages if msgtype == LASER_SCAN else _cloud_messages
+        _, msg = make(ros1)[0]
+        out.append(bytes([selector]) + bytes(serialise(msg, msgtype)))
+    return out
+
+
+def _read_message(p: Path) -> object:
+    """One bag message through the reader's own layer — deserialisation with the reader's
+    cached type store, then the LaserScan / PointCloud2 conversion and its checks — without
+    the bag container around it (rosbags' reader setup, ~2 ms per sqlite3 open, is not our
+    code; the whole-file targets ``ros1``, ``ros2_mcap`` and ``ros2_sqlite`` keep it)."""
+    from scanreg.io import rosbag
+
+    data = p.read_bytes()
+    if not data:
+        raise ValueError("empty input")
+    ros1, msgtype = MESSAGE_KINDS[data[0] % len(MESSAGE_KINDS)]
+    msg = rosbag._deserialise(p, memoryview(data)[1:], msgtype, ros1, "/fuzz message 0")
+    convert = rosbag._scan_from_message if msgtype == LASER_SCAN else rosbag._cloud_from_message
+    return convert(p, "/fuzz", 1_000_000_000, msg, 0)
+
+
 def _config_seeds() -> list[bytes]:
     from scanreg.config import dump_config
     from scanreg.pipeline import OdometryConfig
@@ -332,6 +397,7 @@ TARGETS: dict[str, Target] = {
         Target("ros1", ".bag", _bag_read, _ros1_seeds),
         Target("ros2_mcap", ".mcap", _bag_read, _ros2_seeds(".mcap")),
         Target("ros2_sqlite", ".db3", _bag_read, _ros2_seeds(".db3")),
+        Target("ros_msg", ".msg", _read_message, _message_seeds),
         Target("config", ".toml", _read_config, _config_seeds),
     )
 }

@@ -1,56 +1,115 @@
-"""Executions per second of every fuzz target, as the campaign runs them against the former
-harness, in one process (uninstrumented: what the reader allows; atheris adds its coverage
-callbacks on top of both).
+"""Executions per second of every fuzz target, against the targets and readers of another
+commit (uninstrumented: what the reader allows; atheris adds its coverage callbacks on top).
 
-    .venv/bin/python fuzz/throughput.py [SECONDS per contender and round, default 1]
+    .venv/bin/python fuzz/throughput.py [--against REV] [--seconds S] [TARGET ...]
 
-"former": the input written to a temp folder on disk and a fresh rosbags typestore per read
-(what a bag read cost before scanreg.io.rosbag kept one). "now": the input in /dev/shm, the
-store kept. Contenders alternate over 3 rounds over the targets' seeds; the table gives the
-median exec/s of each and the ratio.
+``REV`` (default ``main``): its ``python/scanreg`` and ``fuzz/`` are extracted with ``git
+archive`` into a temporary folder, with this tree's compiled core copied in (the core's
+speed is not what this measures). Each contender runs in its own worker process (this
+script with ``--worker``), fed the target's seeds in turn through the ``Runner`` of its own
+``fuzz/targets.py``; contenders alternate over 3 rounds of ``S`` seconds (default 1) per
+target, and the table gives the median exec/s of each and the ratio. A target the other
+commit lacks shows "—".
 """
 
 from __future__ import annotations
 
+import argparse
+import os
 import shutil
 import statistics
+import subprocess
 import sys
+import tarfile
 import tempfile
 import time
-from collections.abc import Callable
+from io import BytesIO
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import scanreg.io.rosbag as rosbag
-from targets import TARGETS, Runner, scratch_dir
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
 
 
-def rate(run: Callable[[bytes], None], seeds: list[bytes], seconds: float, fresh: bool) -> float:
+def worker(name: str, seconds: float) -> None:
+    """Print the exec/s of target ``name`` of the ``targets`` module on PYTHONPATH."""
+    sys.path.pop(0)  # this script's folder: the tree measured is on PYTHONPATH
+    from targets import TARGETS, Runner, scratch_dir
+
+    if name not in TARGETS:
+        print("nan")
+        return
+    target = TARGETS[name]
+    seeds = target.seeds()
+    run = Runner(target, scratch_dir(name))
+    for seed in seeds:  # warm up: imports, type stores, caches
+        run(seed)
     n, start = 0, time.perf_counter()
     while time.perf_counter() - start < seconds:
-        if fresh:
-            rosbag._typestore.cache_clear()
         run(seeds[n % len(seeds)])
         n += 1
-    return n / (time.perf_counter() - start)
+    print(n / (time.perf_counter() - start))
+    shutil.rmtree(run.path.parent)
+
+
+def extract(rev: str, into: Path) -> Path:
+    """``python/`` and ``fuzz/`` of commit ``rev`` in ``into``, with this tree's core."""
+    tar = subprocess.run(
+        ["git", "-C", str(ROOT), "archive", rev, "python", "fuzz"],
+        check=True,
+        capture_output=True,
+    ).stdout
+    with tarfile.open(fileobj=BytesIO(tar)) as t:
+        t.extractall(into, filter="data")
+    for core in (ROOT / "python/scanreg").glob("_core*.so"):
+        shutil.copy2(core, into / "python/scanreg" / core.name)
+    return into
+
+
+def rate(tree: Path, name: str, seconds: float, data: Path) -> float:
+    path = f"{tree / 'fuzz'}{os.pathsep}{tree / 'python'}"
+    env = dict(os.environ, PYTHONPATH=path, SCANREG_DATA=str(data))
+    out = subprocess.run(
+        [sys.executable, __file__, "--worker", name, "--seconds", str(seconds)],
+        check=True,
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tree,
+    ).stdout
+    return float(out.split()[-1])
 
 
 def main() -> None:
-    seconds = float(sys.argv[1]) if len(sys.argv) > 1 else 1.0
-    print("| target | former exec/s | now exec/s | ratio |\n|---|---:|---:|---:|")
-    for name, target in TARGETS.items():
-        seeds = target.seeds()
-        former = Runner(target, Path(tempfile.mkdtemp(prefix="scanreg-fuzz-disk-")))
-        now = Runner(target, scratch_dir(name))
-        old, new = [], []
-        for _ in range(3):
-            old.append(rate(former, seeds, seconds, fresh=True))
-            new.append(rate(now, seeds, seconds, fresh=False))
-        a, b = statistics.median(old), statistics.median(new)
-        print(f"| {name} | {a:.0f} | {b:.0f} | {b / a:.1f} |", flush=True)
-        for runner in (former, now):
-            shutil.rmtree(runner.path.parent)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("targets", nargs="*")
+    parser.add_argument("--against", default="main")
+    parser.add_argument("--seconds", type=float, default=1.0)
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker:
+        worker(args.worker, args.seconds)
+        return
+    sys.path.insert(0, str(HERE))
+    from targets import DATA, TARGETS
+
+    rev = subprocess.run(
+        ["git", "-C", str(ROOT), "rev-parse", "--short", args.against],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    print(f"| target | {rev} exec/s | this tree exec/s | ratio |\n|---|---:|---:|---:|")
+    with tempfile.TemporaryDirectory(prefix="scanreg-throughput-") as d:
+        old_tree = extract(args.against, Path(d))
+        for name in args.targets or list(TARGETS):
+            old, new = [], []
+            for _ in range(3):
+                old.append(rate(old_tree, name, args.seconds, DATA))
+                new.append(rate(ROOT, name, args.seconds, DATA))
+            a, b = statistics.median(old), statistics.median(new)
+            before = "—" if a != a else f"{a:.0f}"
+            ratio = "—" if a != a else f"{b / a:.1f}"
+            print(f"| {name} | {before} | {b:.0f} | {ratio} |", flush=True)
 
 
 if __name__ == "__main__":

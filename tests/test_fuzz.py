@@ -46,6 +46,27 @@ def test_a_seed_is_read_without_a_refusal(tmp_path: Path) -> None:
             target.read(path)
 
 
+def test_the_message_target_reads_each_kind_of_message(tmp_path: Path) -> None:
+    """ros_msg's first byte picks the serialisation and type: each seed reads as its kind,
+    and a message of one kind fed as another is a named refusal."""
+    from scanreg.io.rosbag import BagCloud, RosLaserScan
+    from targets import MESSAGE_KINDS, POINT_CLOUD2
+
+    data_dir()
+    target = TARGETS["ros_msg"]
+    seeds = target.seeds()
+    assert [s[0] for s in seeds] == list(range(len(MESSAGE_KINDS)))
+    path = tmp_path / "m.msg"
+    for seed, (_, msgtype) in zip(seeds, MESSAGE_KINDS, strict=True):
+        path.write_bytes(seed)
+        read = target.read(path)
+        assert isinstance(read, BagCloud if msgtype == POINT_CLOUD2 else RosLaserScan)
+        assert len(read.cloud) == 10 if isinstance(read, BagCloud) else len(read) > 100
+        path.write_bytes(bytes([seed[0] ^ 1]) + seed[1:])  # the other type, same bytes
+        with pytest.raises(FileFormatError, match="/fuzz message 0"):
+            target.read(path)
+
+
 # --- findings kept as regression tests ---------------------------------------------------
 
 

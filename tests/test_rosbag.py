@@ -492,6 +492,27 @@ def test_topic_selection_errors(tmp_path: Path) -> None:
         read_bag_scans(path, topic=3)  # type: ignore[arg-type]
 
 
+@pytest.mark.parametrize("kind", ["sqlite3", "mcap"])
+def test_a_ros2_bag_is_opened_once_per_read(
+    tmp_path: Path, kind: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The topic is chosen from the connections of the open that reads the messages (each
+    open of a sqlite3 bag costs ~2 ms), and the choice still refuses a missing type."""
+    from rosbags.rosbag2 import Reader
+
+    ts = _store(kind)
+    msgs = [(10**9, _scan_msg(ts, kind, _sim_scans(1)[0], 10**9, False))]
+    path = write_bag(tmp_path / "b", kind, {"/scan": (SCAN, msgs)})
+    opens = []
+    real_open = Reader.open
+    monkeypatch.setattr(Reader, "open", lambda self: opens.append(1) or real_open(self))
+    assert len(read_bag_scans(path)) == 1
+    assert len(opens) == 1
+    with pytest.raises(ValueError, match="no sensor_msgs/msg/PointCloud2 topic"):
+        read_bag_clouds(path)
+    assert len(opens) == 2
+
+
 @pytest.fixture(scope="module")
 def small_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
     """Small valid ROS 1 bags (plain, bz2, lz4) holding 2 LaserScans and 1 PointCloud2."""

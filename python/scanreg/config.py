@@ -102,13 +102,10 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
 
 
-def _config_fields(cls: type) -> dict[str, Any]:
-    """``{name: resolved annotation}`` of the fields settable by ``__init__`` (a copy)."""
-    return dict(_resolved_fields(cls))
-
-
 @functools.cache
 def _resolved_fields(cls: type) -> dict[str, Any]:
+    """``{name: resolved annotation}`` of the fields settable by ``__init__`` (shared: read
+    only)."""
     # resolving string annotations compiles each one: half the time of a config load
     hints = get_type_hints(cls)
     return {f.name: hints[f.name] for f in dataclasses.fields(cls) if f.init}
@@ -130,6 +127,40 @@ def _is_union(tp: Any) -> bool:
     return get_origin(tp) in (Union, types.UnionType)
 
 
+@functools.lru_cache(maxsize=1024)
+def _shape_cached(tp: Any) -> tuple[Any, ...]:
+    return _shape_of(tp)
+
+
+def _shape(tp: Any) -> tuple[Any, ...]:
+    """What annotation ``tp`` accepts, as ``(kind, details)``: worked out once per annotation
+    (``get_origin``/``is_dataclass`` on every value were a third of a config load)."""
+    try:
+        return _shape_cached(tp)
+    except TypeError:  # an unhashable annotation: not cached
+        return _shape_of(tp)
+
+
+def _shape_of(tp: Any) -> tuple[Any, ...]:
+    if tp is Any:
+        return ("any",)
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+        return ("dataclass",)
+    if _is_union(tp):
+        return ("union", get_args(tp))
+    origin = get_origin(tp)
+    if origin is Literal:
+        return ("literal", get_args(tp))
+    if origin is tuple:
+        args = get_args(tp)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return ("array", args[0])
+        return ("tuple", args)
+    if tp in (bool, int, float, str):
+        return (tp.__name__,)
+    return ("other",)
+
+
 def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
     """``value`` checked against annotation ``tp`` (ints widened to float, lists to tuples)."""
 
@@ -137,17 +168,17 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
         got = f"{type(value).__name__} {value!r}"
         return ConfigError(f"{where}: {key}: expected {_type_name(tp)}, got {got}{extra}")
 
-    if tp is Any:
+    kind, *details = _shape(tp)
+    if kind == "any":
         return value
-    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+    if kind == "dataclass":
         if isinstance(value, tp):
             return value
         if not isinstance(value, Mapping):
             raise fail(" (a table)")
         return _build(tp, value, f"{key}", where)
-    origin = get_origin(tp)
-    if _is_union(tp):
-        arms = get_args(tp)
+    if kind == "union":
+        (arms,) = details
         if value is None:
             if type(None) in arms:
                 return None
@@ -163,39 +194,39 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
         if len(errors) == 1:
             raise errors[0]
         raise fail()
-    if origin is Literal:
-        allowed = get_args(tp)
+    if kind == "literal":
+        (allowed,) = details
         # bool is an int: True must not match Literal[1]
         if any(type(value) is type(a) and value == a for a in allowed):
             return value
         raise ConfigError(
             f"{where}: {key}: expected one of {', '.join(repr(a) for a in allowed)}, got {value!r}"
         )
-    if origin is tuple:
+    if kind in ("array", "tuple"):
         if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
             raise fail(" (an array)")
-        args = get_args(tp)
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(v, args[0], f"{key}[{i}]", where) for i, v in enumerate(value))
+        if kind == "array":
+            return tuple(_coerce(v, details[0], f"{key}[{i}]", where) for i, v in enumerate(value))
+        (args,) = details
         if len(args) != len(value):
             raise fail(f" ({len(value)} items, expected {len(args)})")
         return tuple(
             _coerce(v, a, f"{key}[{i}]", where)
             for i, (v, a) in enumerate(zip(value, args, strict=True))
         )
-    if tp is bool:
+    if kind == "bool":
         if isinstance(value, bool):
             return value
         raise fail()
-    if tp is int:
+    if kind == "int":
         if isinstance(value, int) and not isinstance(value, bool):
             return value
         raise fail()
-    if tp is float:
+    if kind == "float":
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             return float(value)
         raise fail()
-    if tp is str:
+    if kind == "str":
         if isinstance(value, str):
             return value
         raise fail()
@@ -204,22 +235,24 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
     )
 
 
-def _nested_defaults(cls: type) -> dict[str, Any]:
-    """Default values of ``cls``'s fields that are dataclass instances (e.g.
-    ``registration: RegistrationSettings = RegistrationSettings(kernel="huber")``)."""
-    out: dict[str, Any] = {}
-    for f in dataclasses.fields(cls):
-        if not f.init:
-            continue
-        if f.default is not dataclasses.MISSING:
-            default = f.default
-        elif f.default_factory is not dataclasses.MISSING:
-            default = f.default_factory()
-        else:
-            continue
-        if dataclasses.is_dataclass(default) and not isinstance(default, type):
-            out[f.name] = default
-    return out
+@functools.cache
+def _init_fields(cls: type) -> dict[str, dataclasses.Field[Any]]:
+    return {f.name: f for f in dataclasses.fields(cls) if f.init}
+
+
+def _nested_default(cls: type, name: str) -> Any:
+    """The default of field ``name`` of ``cls`` when it is a dataclass instance (e.g.
+    ``registration: RegistrationSettings = RegistrationSettings(kernel="huber")``), else
+    None. Made only for a field the config sets with a table (a default factory builds and
+    validates a whole config: making every one on every load cost a quarter of a load)."""
+    f = _init_fields(cls)[name]
+    if f.default is not dataclasses.MISSING:
+        default = f.default
+    elif f.default_factory is not dataclasses.MISSING:
+        default = f.default_factory()
+    else:
+        return None
+    return default if dataclasses.is_dataclass(default) and not isinstance(default, type) else None
 
 
 def _build(cls: type[T], data: Mapping[str, Any], table: str, where: str) -> T:
@@ -227,8 +260,7 @@ def _build(cls: type[T], data: Mapping[str, Any], table: str, where: str) -> T:
         raise ConfigError(
             f"{where}: {_table_name(table)}: expected a table, got {type(data).__name__}"
         )
-    fields = _config_fields(cls)
-    defaults = _nested_defaults(cls)
+    fields = _resolved_fields(cls)  # read only here
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         if not isinstance(key, str) or key not in fields:
@@ -239,9 +271,9 @@ def _build(cls: type[T], data: Mapping[str, Any], table: str, where: str) -> T:
                 f"(valid keys: {', '.join(fields)}){hint}"
             )
         name = f"{table}.{key}" if table else key
-        if key in defaults and isinstance(value, Mapping):
+        if isinstance(value, Mapping) and (default := _nested_default(cls, key)) is not None:
             # a partial table changes the field's default instance, not the class defaults
-            value = merge_config(config_to_dict(defaults[key]), value)
+            value = merge_config(config_to_dict(default), value)
         kwargs[key] = _coerce(value, fields[key], name, where)
     try:
         return cls(**kwargs)
@@ -290,7 +322,8 @@ def load_config(
     where = "config"
     if isinstance(source, (str, Path)):
         where = str(source)
-        merged = merge_config(merged, read_config_file(source))
+        table = read_config_file(source)  # a fresh dict: no copy needed without presets
+        merged = merge_config(merged, table) if merged else table
     elif isinstance(source, Mapping):
         merged = merge_config(merged, source)
     elif source is not None:

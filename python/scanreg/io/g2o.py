@@ -20,6 +20,7 @@ scaled by 2 on each side).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ from .._validate import FloatArray, as_matrix
 from ..quality import information_from_covariance
 from ..transform import SE2, SE3
 from ._common import FileFormatError, PathLike
-from .trajectory import ROTATION_TOLERANCE, quaternion_to_rotation, rotation_to_quaternion
+from .trajectory import quaternion_to_rotation, rotation_to_quaternion
 
 
 @dataclass(frozen=True)
@@ -102,9 +103,13 @@ def _upper(info: FloatArray) -> list[float]:
     return [float(v) for v in info[rows, cols]]
 
 
+#: Upper-triangle indices by size (``np.triu_indices`` costs more than the rest of a line).
+_TRIU = {dof: np.triu_indices(dof) for dof in (3, 6)}
+
+
 def _from_upper(values: FloatArray, dof: int) -> FloatArray:
     info = np.zeros((dof, dof))
-    rows, cols = np.triu_indices(dof)
+    rows, cols = _TRIU[dof]
     info[rows, cols] = values
     info[cols, rows] = values
     return info
@@ -142,10 +147,12 @@ _WIDTH = {"VERTEX_SE2": 4, "VERTEX_SE3:QUAT": 8, "EDGE_SE2": 11, "EDGE_SE3:QUAT"
 
 
 def _se3_from(path: Path, number: int, values: FloatArray) -> SE3:
-    norm = float(np.linalg.norm(values[3:7]))
+    norm = math.hypot(*values[3:7].tolist())  # no overflow for finite entries
     if abs(norm - 1.0) > 1e-3:
         raise FileFormatError(path, f"line {number}: quaternion norm {norm:.6g}, not 1")
-    return SE3(quaternion_to_rotation(values[3:7]), values[:3], atol=ROTATION_TOLERANCE)
+    # The matrix of a normalised quaternion is a rotation to round-off: SE3's check and SVD
+    # projection (most of the time of a line) have nothing to do.
+    return SE3._adopt(quaternion_to_rotation(values[3:7]), values[:3].copy())
 
 
 def read_g2o(path: PathLike) -> PoseGraph:

@@ -10,6 +10,7 @@ with timestamps in seconds.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,21 +28,30 @@ ROTATION_TOLERANCE = 1e-4
 QUATERNION_TOLERANCE = 1e-3
 
 
+def _quaternion_rows(x: Any, y: Any, z: Any, w: Any) -> tuple[tuple[Any, Any, Any], ...]:
+    """The rotation matrix of the unit quaternion ``[x, y, z, w]``, row by row (scalars or
+    arrays)."""
+    return (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
+        (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
+        (2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)),
+    )
+
+
 def quaternion_to_rotation(q: Any) -> FloatArray:
     """Rotation matrices of quaternions ``(..., 4)`` in ``[qx, qy, qz, qw]`` order (normalised)."""
     q = np.asarray(q, dtype=np.float64)
+    norm = math.hypot(*q.tolist()) if q.shape == (4,) else 0.0
+    if math.isfinite(norm) and norm > 0:
+        # One quaternion (a g2o line): plain floats take a quarter of the array path's time.
+        x, y, z, w = (v / norm for v in q.tolist())
+        return np.array(_quaternion_rows(x, y, z, w))
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = np.moveaxis(q, -1, 0)
+    rows = _quaternion_rows(*np.moveaxis(q, -1, 0))
     r = np.empty((*q.shape[:-1], 3, 3))
-    r[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    r[..., 0, 1] = 2 * (x * y - z * w)
-    r[..., 0, 2] = 2 * (x * z + y * w)
-    r[..., 1, 0] = 2 * (x * y + z * w)
-    r[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    r[..., 1, 2] = 2 * (y * z - x * w)
-    r[..., 2, 0] = 2 * (x * z - y * w)
-    r[..., 2, 1] = 2 * (y * z + x * w)
-    r[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    for i in range(3):
+        for j in range(3):
+            r[..., i, j] = rows[i][j]
     return r
 
 
