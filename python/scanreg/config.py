@@ -102,10 +102,14 @@ def read_config_file(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
 
 
-@functools.cache
-def _resolved_fields(cls: type) -> dict[str, Any]:
+def _config_fields(cls: type) -> Mapping[str, Any]:
     """``{name: resolved annotation}`` of the fields settable by ``__init__`` (shared: read
     only)."""
+    return _resolved_fields(cls)
+
+
+@functools.cache
+def _resolved_fields(cls: type) -> dict[str, Any]:
     # resolving string annotations compiles each one: half the time of a config load
     hints = get_type_hints(cls)
     return {f.name: hints[f.name] for f in dataclasses.fields(cls) if f.init}
@@ -260,7 +264,7 @@ def _build(cls: type[T], data: Mapping[str, Any], table: str, where: str) -> T:
         raise ConfigError(
             f"{where}: {_table_name(table)}: expected a table, got {type(data).__name__}"
         )
-    fields = _resolved_fields(cls)  # read only here
+    fields = _config_fields(cls)
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         if not isinstance(key, str) or key not in fields:

@@ -25,8 +25,11 @@ Every problem with the file (truncated, corrupt record, inconsistent message) ra
 from __future__ import annotations
 
 import bz2
+import errno
 import functools
 import io
+import os
+import stat
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -288,15 +291,18 @@ class _RawMessage:
     index: int  # 0-based, per topic
 
 
+_U32 = struct.Struct("<I")
+
+
 def _header_fields(path: Path, raw: bytes, where: int) -> dict[str, bytes]:
     fields: dict[str, bytes] = {}
-    pos = 0
-    while pos < len(raw):
-        if pos + 4 > len(raw):
+    pos, end = 0, len(raw)
+    while pos < end:
+        if pos + 4 > end:
             raise FileFormatError(path, f"corrupt record header at byte {where}")
-        (size,) = struct.unpack_from("<I", raw, pos)
+        (size,) = _U32.unpack_from(raw, pos)
         pos += 4
-        if pos + size > len(raw):
+        if pos + size > end:
             raise FileFormatError(path, f"corrupt record header at byte {where}")
         item = raw[pos : pos + size]
         pos += size
@@ -410,9 +416,6 @@ class _Ros1Bag:
     def __init__(self, path: Path) -> None:
         self.path = path
 
-    def _size(self) -> int:
-        return self.path.stat().st_size
-
     def _open(self) -> tuple[BinaryIO, int]:
         stream = self.path.open("rb")
         magic = stream.read(len(_ROS1_MAGIC))
@@ -436,7 +439,7 @@ class _Ros1Bag:
         path = self.path
         stream, start = self._open()
         with stream:
-            records = iter(_Records(path, stream, start, self._size()))
+            records = iter(_Records(path, stream, start, os.fstat(stream.fileno()).st_size))
             first = next(records, None)
             if first is None or first[0] != _OP_BAG_HEADER:
                 raise FileFormatError(path, "the first record is not the bag header")
@@ -508,7 +511,7 @@ class _Ros1Bag:
         """The connection records: from the index section when the bag header points to a
         readable one (no chunk is read), else from a walk over the whole file."""
         stream, start = self._open()
-        size = self._size()
+        size = os.fstat(stream.fileno()).st_size
         with stream:
             records = iter(_Records(self.path, stream, start, size))
             first = next(records, None)
@@ -609,10 +612,14 @@ def _ros2_messages(
 def _check_path(path: PathLike) -> Path:
     if not isinstance(path, (str, Path)) and not hasattr(path, "__fspath__"):
         raise TypeError(f"path: expected a str or os.PathLike, got {type(path).__name__}")
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"{p}: no such file or directory")
-    if p.is_file() and p.stat().st_size == 0:
+    p = path if isinstance(path, Path) else Path(path)
+    try:
+        st = os.stat(p)  # one stat for "exists", "is a file" and "is empty"
+    except OSError as exc:
+        if exc.errno not in (errno.ENOENT, errno.ENOTDIR, errno.ELOOP):  # as Path.exists()
+            raise
+        raise FileNotFoundError(f"{p}: no such file or directory") from None
+    if stat.S_ISREG(st.st_mode) and st.st_size == 0:
         raise FileFormatError(p, "empty file")
     return p
 
@@ -657,13 +664,6 @@ def _choose_topic(path: Path, topics: set[tuple[str, str]], topic: str | None, m
     return matching[0]
 
 
-def _topic_types(path: Path) -> set[tuple[str, str]]:
-    """``(topic, msgtype)`` pairs, reading only connection records (no message counts)."""
-    if _is_ros1(path):
-        return {(c.topic, c.msgtype) for c in _Ros1Bag(path)._all_connections()}
-    return {(c.topic, c.msgtype) for c, _ in _ros2_connections(path)}
-
-
 @functools.cache
 def _typestore(ros1: bool) -> Any:
     """One rosbags typestore per process and ROS version: a new store compiles its
@@ -697,9 +697,11 @@ def _deserialised(
     ros1 = _is_ros1(path)
     messages: Iterator[tuple[_Connection, int, bytes | memoryview]]
     if ros1:
-        chosen = _choose_topic(path, _topic_types(path), topic, msgtype)
+        bag = _Ros1Bag(path)
+        topics = {(c.topic, c.msgtype) for c in bag._all_connections()}
+        chosen = _choose_topic(path, topics, topic, msgtype)
         md5 = _ros1_md5(msgtype)
-        messages = _Ros1Bag(path).walk({chosen})
+        messages = bag.walk({chosen})
     else:
         chosen = ""  # set by the choice below, made on the bag's one open
 
