@@ -129,12 +129,14 @@ def analyse_degeneracy(
     min_constraint: float = DEFAULT_MIN_CONSTRAINT,
     noise_factor: float = DEFAULT_NOISE_FACTOR,
     basis: str = "plane_information",
+    removed_normal_noise: float = float("nan"),
 ) -> Degeneracy:
     """Name the weak directions of ``information`` (``Σ JᵀJ`` over ``count`` correspondences)."""
     dof = information.shape[0]
     s_inv = np.concatenate([np.ones(dim), 1.0 / np.asarray(levers, dtype=np.float64)])
     g = 0.5 * (information + information.T) * np.outer(s_inv, s_inv) / max(count, 1)
     vals, vecs = np.linalg.eigh(g)
+    vals = np.maximum(vals, 0.0)  # with normal noise removed the estimate can dip below 0
     threshold = float(min_constraint)
     if np.isfinite(typical_normal_noise):
         threshold = max(threshold, noise_factor * float(typical_normal_noise))
@@ -165,7 +167,45 @@ def analyse_degeneracy(
         typical_normal_noise=float(typical_normal_noise),
         basis=basis,
         num_correspondences=int(count),
+        removed_normal_noise=float(removed_normal_noise),
     )
+
+
+def noise_removed_information(
+    src: FloatArray, tn: FloatArray, corr: Any, pose: FloatArray, sample: Any, normals: FloatArray
+) -> tuple[FloatArray, float]:
+    """``(ε² Σ Aᵀ(I − m mᵀ)A, ε²)`` over the correspondences with a target normal, ``ε²`` half
+    the mean squared sine per tangent axis between the sampled source normals (rotated) and
+    their target normals; ``(0, nan)`` with 6 or fewer such pairs (3D)."""
+    r = pose[:3, :3]
+    corr = np.asarray(corr)
+    nt = np.zeros(src.shape)
+    has = corr >= 0
+    nt[has] = tn[corr[has]]
+    plane = has & (np.sum(nt**2, axis=1) >= 0.25)
+    ns = np.full(src.shape, np.nan)
+    ns[np.asarray(sample)] = normals
+    ns = ns @ r.T
+    pair = plane & np.isfinite(ns).all(axis=1) & (np.sum(np.nan_to_num(ns) ** 2, axis=1) >= 0.25)
+    if pair.sum() <= 6:
+        return np.zeros((6, 6)), math.nan
+    cos = np.sum(ns[pair] * nt[pair], axis=1)
+    eps2 = float(np.sum(np.maximum(1.0 - cos**2, 0.0)) / (pair.sum() * 4.0))
+    p = src[plane]
+    m = nt[plane] @ r  # Rᵀn per row
+    z = np.zeros(len(p))
+    skew = np.stack(
+        [
+            np.stack([z, -p[:, 2], p[:, 1]], axis=1),
+            np.stack([p[:, 2], z, -p[:, 0]], axis=1),
+            np.stack([-p[:, 1], p[:, 0], z], axis=1),
+        ],
+        axis=1,
+    )
+    a = np.concatenate([np.broadcast_to(np.eye(3), (len(p), 3, 3)), -skew], axis=2)
+    j = np.einsum("kij,ki->kj", a, m)
+    noise = np.einsum("kij,kil->jl", a, a) - j.T @ j
+    return eps2 * noise, eps2
 
 
 def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
@@ -232,13 +272,21 @@ def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
         num_threads=s.num_threads,
     )
     if ana.num_plane_correspondences > dof:
+        info, removed = np.array(ana.plane_information), math.nan
+        if dim == 3 and method != "gicp" and tn is not None:
+            sample, sample_normals = ctx.source_normals
+            fake, removed = noise_removed_information(
+                src, tn, corr, out.pose, sample, sample_normals
+            )
+            info = info - fake
         deg = analyse_degeneracy(
-            np.array(ana.plane_information),
+            info,
             ana.num_plane_correspondences,
             dim,
             levers(ctx),
             normal_noise=eps2,
             typical_normal_noise=eps2_typical,
+            removed_normal_noise=removed,
         )
     else:
         deg = analyse_degeneracy(

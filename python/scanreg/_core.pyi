@@ -283,6 +283,12 @@ class CensiAnalysis:
     def num_plane_correspondences(self) -> int: ...
     @property
     def num_correspondences(self) -> int: ...
+    @property
+    def plane_noise_information(self) -> NDArray[np.float64]: ...
+    @property
+    def normal_disagreement(self) -> float: ...
+    @property
+    def num_normal_pairs(self) -> int: ...
 
 def censi_analysis(
     source: NDArray[np.float64],
@@ -301,6 +307,7 @@ def censi_analysis(
     source_covariances: NDArray[np.float64] | None = None,
     target_covariances: NDArray[np.float64] | None = None,
     num_threads: int | None = None,
+    source_normals: NDArray[np.float64] | None = None,
 ) -> CensiAnalysis: ...
 
 # --- the trust arithmetic of one result (crates/scanreg-py/src/trust.rs) ---
@@ -321,6 +328,8 @@ class TrustNumbers:
     def degeneracy_threshold(self) -> float: ...
     @property
     def degeneracy_count(self) -> int: ...
+    @property
+    def degeneracy_removed_normal_noise(self) -> float: ...
     @property
     def point_variance(self) -> float: ...
     @property
@@ -386,7 +395,7 @@ def trust_numbers(
     | None = None,
     valley: NDArray[np.float64] | None = None,
     sampling: float = 0.0,
-    held: tuple[NDArray[np.float64], float, float, float, int] | None = None,
+    held: tuple[NDArray[np.float64], float, float, float, int, float] | None = None,
 ) -> TrustNumbers: ...
 def trust_scene(
     source: NDArray[np.float64], gate: float

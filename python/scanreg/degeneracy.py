@@ -12,6 +12,14 @@ size-independent before its eigenvalues are compared:
   direction ``v`` is then the mean squared constraint per correspondence, e.g. the mean of
   ``(n_i·v)²`` for a translation: 1 when every surface faces ``v``, 0 in a corridor along ``v``.
 
+Noisy normals fake information: a normal off by ``δn`` gives its correspondence a share
+``(δn·v)²`` along a direction ``v`` no surface faces (a tunnel's axis gains ``ε²`` per
+correspondence for a normal error of ``ε²`` per tangent axis; sparse LiDAR rings make a few
+normals badly wrong). Where both scans' normals are known at the correspondences, ``G`` is
+judged *less what that noise adds in expectation*, ``ε² Σ Aᵀ(I − m mᵀ)A`` (``m`` the normal
+in the source frame, ``A`` the point Jacobian), with ``ε²`` half the mean squared sine
+between the two normals of a correspondence per tangent axis (``removed_normal_noise``).
+
 A direction is **weak** when its eigenvalue is below ``threshold = max(min_constraint,
 noise_factor · ε̃²)``: ``ε̃²`` is the typical squared error of the target normals, measured on
 the data (half the median squared sine between each normal and its nearest neighbour's), i.e.
@@ -64,6 +72,9 @@ class Degeneracy:
     basis: str
     #: Correspondences ``n`` behind ``information`` (sets how well its eigenvectors are known).
     num_correspondences: int = 0
+    #: ``ε²`` whose expected information was removed from ``information`` (see the module
+    #: docstring); ``nan``: not measured (no source normals), nothing removed.
+    removed_normal_noise: float = math.nan
 
     @property
     def degenerate(self) -> bool:

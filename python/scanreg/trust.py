@@ -310,6 +310,15 @@ def correspondence_analysis(
         corr[used] = compact
     normal_var = 0.0
     agreement = None
+    src_normals = None
+    if method != "gicp" and len(src) > dim and dim == 3:
+        # The sampled source normals, in full (NaN rows: no normal): the degeneracy analysis
+        # measures the normals' noise from them (against the target's), and takes them as the
+        # plane normals where the target has none. 3D only: a 2D scan's normals come from
+        # dense, evenly spaced beams (no rings), and its analysis stays as calibrated.
+        sample, sample_normals = ctx.source_normals
+        src_normals = np.full(src.shape, np.nan)
+        src_normals[sample] = sample_normals
     if method != "gicp" and len(src) > dim and tn is not None:
         # Normals of a sample of the source, to measure the normal noise between the two scans
         # (Censi's normal term) and which pairs' normals disagree (the model-error term); the
@@ -351,6 +360,7 @@ def correspondence_analysis(
         source_covariances=ctx.source_covariances,
         target_covariances=tc if method == "gicp" else None,
         num_threads=s.num_threads,
+        source_normals=src_normals,
     )
     pose = pose_from_core(out, dim)
     moved = ctx.start.inverse() @ pose  # type: ignore[operator]
@@ -385,6 +395,7 @@ def correspondence_analysis(
             held.normal_noise,
             held.typical_normal_noise,
             held.num_correspondences,
+            held.removed_normal_noise,
         ),
     )
     if held is None:
@@ -431,6 +442,7 @@ def _degeneracy(
             "typical_normal_noise": float(eps2_typical),
             "basis": basis,
             "num_correspondences": int(num.degeneracy_count),
+            "removed_normal_noise": float(num.degeneracy_removed_normal_noise),
         },
     )
     # The eigen-decomposition the bases and tilts read: the core's, not a second one.

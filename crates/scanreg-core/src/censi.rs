@@ -27,8 +27,17 @@
 //! The same pass also sums the per-point scores `ψ_i = k J_iᵀ W r_i` by spatial block (cells of
 //! `block_size` in the source frame): `Σ_b ψ_b ψ_bᵀ` is the meat of a cluster-robust sandwich,
 //! which stays honest when residual errors are correlated in space (sampling, model error),
-//! and the point-to-plane information `Σ Jᵀ J` over correspondences with a target normal, the
-//! geometry-only matrix the degeneracy analysis uses for every method.
+//! and the point-to-plane information `Σ Jᵀ J` over correspondences with a plane normal, the
+//! geometry-only matrix the degeneracy analysis uses for every method. The plane normal is the
+//! target's; without target normals, GICP's target covariance's (its least axis), else the
+//! source's (its normal, or GICP's source covariance's) rotated into the target.
+//!
+//! Noisy normals fake information: a normal error `δn` (variance `ε²` per tangent axis) adds
+//! `Aᵀ(I − m mᵀ)A ε²` in expectation to a correspondence's `JᵀJ`, along directions no surface
+//! faces (a tunnel's axis gains `ε²` per correspondence). The pass sums that unit-noise term
+//! (`plane_noise_information`) and, where a correspondence has a target and a source normal,
+//! their squared sine (the two scans' normals disagree by `2ε²` per tangent axis), so that
+//! the degeneracy analysis can judge a direction by the information noise does not explain.
 
 use crate::error::{Error, Result};
 use crate::group::{Group, Planar, Spatial};
@@ -36,6 +45,7 @@ use crate::icp::Method;
 use crate::kernel::Kernel;
 use crate::points::{check_points, mat_at, split_pose, vec_at};
 use crate::reduce::{chunk_len, SEQUENTIAL_MAX};
+use crate::symeig;
 use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -57,6 +67,9 @@ pub struct Input<'a> {
     pub target_covariances: Option<&'a [f64]>,
     /// One target index per source point, [`NONE`] for none.
     pub correspondences: &'a [u32],
+    /// `N * D` unit source normals, a row of shorter than 1/2 for none (the plane information's
+    /// fallback without target normals, and the normal disagreement between the two scans).
+    pub source_normals: Option<&'a [f64]>,
 }
 
 /// Options of [`analyse`].
@@ -101,9 +114,16 @@ pub struct Analysis {
     /// `Σ Jᵀ J` of the point-to-plane factor over correspondences whose target has a normal
     /// (zeros without normals).
     pub plane_information: Vec<f64>,
-    /// Correspondences with a target normal.
+    /// Correspondences with a plane normal.
     pub num_plane_correspondences: usize,
     pub num_correspondences: usize,
+    /// `Σ Aᵀ(I − m mᵀ)A` over the same correspondences: the information unit normal noise
+    /// adds to `plane_information` in expectation (zeros without `source_normals`).
+    pub plane_noise_information: Vec<f64>,
+    /// `Σ sin²` of the angle between the source normal (rotated) and the target normal, over
+    /// `num_normal_pairs` plane correspondences that have both.
+    pub normal_disagreement: f64,
+    pub num_normal_pairs: usize,
 }
 
 /// What the sensitivities need beyond [`Group`] (whose point Jacobian `A(p)` and inverse they
@@ -111,11 +131,19 @@ pub struct Analysis {
 trait Geometry<const D: usize, const N: usize>: Group<D, N> {
     /// `∂(A(p)ᵀ w)/∂p` at fixed `w`.
     fn c(w: &SVector<f64, D>) -> SMatrix<f64, N, D>;
+    /// The normal of a plane-like (line-like in 2D) covariance: the unit eigenvector of its
+    /// least eigenvalue when that is under half the next (a voxel of too few points keeps the
+    /// identity, which has none).
+    fn plane_normal(cov: &SMatrix<f64, D, D>) -> Option<SVector<f64, D>>;
 }
 
 impl Geometry<2, 3> for Planar {
     fn c(w: &Vector2<f64>) -> SMatrix<f64, 3, 2> {
         SMatrix::<f64, 3, 2>::new(0.0, 0.0, 0.0, 0.0, w.y, -w.x)
+    }
+    fn plane_normal(cov: &SMatrix<f64, 2, 2>) -> Option<Vector2<f64>> {
+        let (l, v) = symeig::sym2(cov[(0, 0)], cov[(0, 1)], cov[(1, 1)]);
+        (l[0] < 0.5 * l[1]).then(|| Vector2::new(v[0][0], v[0][1]))
     }
 }
 
@@ -133,6 +161,11 @@ impl Geometry<3, 6> for Spatial {
         );
         c
     }
+    fn plane_normal(cov: &SMatrix<f64, 3, 3>) -> Option<Vector3<f64>> {
+        let m: [f64; 9] = std::array::from_fn(|k| cov[(k / 3, k % 3)]);
+        let (l, v) = symeig::sym3(&m);
+        (l[0] < 0.5 * l[1]).then(|| Vector3::new(v[0][0], v[0][1], v[0][2]))
+    }
 }
 
 /// What one correspondence contributes.
@@ -143,7 +176,20 @@ struct Term<const D: usize, const N: usize> {
     dq: SMatrix<f64, N, D>,
     /// `∂g/∂n` and the target normal `n` (point-to-plane only; `Σ_n ∝ I − n nᵀ`).
     dn: Option<(SMatrix<f64, N, D>, SVector<f64, D>)>,
-    plane: Option<(SMatrix<f64, N, N>, f64)>,
+    /// Plane information `JᵀJ`, `(nᵀe)²`, the unit-noise term `Aᵀ(I − m mᵀ)A`, and the
+    /// source/target normal `sin²` when both exist.
+    plane: Option<Plane<N>>,
+}
+
+struct Plane<const N: usize> {
+    info: SMatrix<f64, N, N>,
+    d2: f64,
+    noise: Option<SMatrix<f64, N, N>>,
+    sin2: Option<f64>,
+}
+
+fn unit<const D: usize>(v: SVector<f64, D>) -> Option<SVector<f64, D>> {
+    (v.iter().all(|x| x.is_finite()) && v.norm_squared() >= 0.25).then_some(v)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -160,13 +206,44 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
     let e = r * p + t - q;
     let a = G::point_jacobian(&p);
     let rt = r.transpose();
-    let normal: Option<SVector<f64, D>> = input
-        .target_normals
-        .map(|n| vec_at::<D>(n, j))
-        .filter(|n| n.norm_squared() >= 0.25);
-    let plane = normal.map(|n| {
-        let jrow = (rt * n).transpose() * a;
-        (jrow.transpose() * jrow, n.dot(&e).powi(2))
+    let normal: Option<SVector<f64, D>> =
+        input.target_normals.and_then(|n| unit(vec_at::<D>(n, j)));
+    // The source normal in the target frame: given, or (GICP) its covariance's.
+    let source_normal = || -> Option<SVector<f64, D>> {
+        let n = match (input.source_normals, input.source_covariances) {
+            (Some(sn), _) => unit(vec_at::<D>(sn, i)),
+            (None, Some(sc)) if opts.method == Method::Gicp => G::plane_normal(&mat_at::<D>(sc, i)),
+            _ => None,
+        };
+        n.map(|n| r * n)
+    };
+    // GICP against a target that keeps covariances only (odometry's voxel map): its own
+    // whitened `JᵀWJ` cannot show a tunnel (plane-regularised covariances weigh each
+    // correspondence ~1/2 along its tangent plane), the covariance's normal can.
+    let plane_normal = normal.or_else(|| match input.target_covariances {
+        Some(c) if opts.method == Method::Gicp => G::plane_normal(&mat_at::<D>(c, j)),
+        _ => None,
+    });
+    let (plane_normal, from_source) = match plane_normal {
+        Some(n) => (Some(n), false),
+        None => (source_normal(), true),
+    };
+    let plane = plane_normal.map(|n| {
+        let m = rt * n;
+        let jrow = m.transpose() * a;
+        let info = jrow.transpose() * jrow;
+        let sin2 = if from_source || input.source_normals.is_none() {
+            None
+        } else {
+            source_normal().map(|s| (1.0 - n.dot(&s).powi(2)).max(0.0))
+        };
+        Plane {
+            info,
+            d2: n.dot(&e).powi(2),
+            // Only the noise removal reads it, and that needs the source normals.
+            noise: input.source_normals.map(|_| a.transpose() * a - info),
+            sin2,
+        }
     });
     let mut dn = None;
     let (h, score, dp, dq, norm) = match opts.method {
@@ -247,8 +324,11 @@ struct Partial<const N: usize> {
     m_tgt: SMatrix<f64, N, N>,
     m_nrm: SMatrix<f64, N, N>,
     plane: SMatrix<f64, N, N>,
+    plane_noise: SMatrix<f64, N, N>,
     plane_ss: f64,
     plane_count: usize,
+    sin2: f64,
+    sin2_count: usize,
     count: usize,
     blocks: FxHashMap<[i64; 4], SVector<f64, N>>,
 }
@@ -261,8 +341,11 @@ impl<const N: usize> Partial<N> {
             m_tgt: SMatrix::zeros(),
             m_nrm: SMatrix::zeros(),
             plane: SMatrix::zeros(),
+            plane_noise: SMatrix::zeros(),
             plane_ss: 0.0,
             plane_count: 0,
+            sin2: 0.0,
+            sin2_count: 0,
             count: 0,
             blocks: FxHashMap::default(),
         }
@@ -274,8 +357,11 @@ impl<const N: usize> Partial<N> {
         self.m_tgt += other.m_tgt;
         self.m_nrm += other.m_nrm;
         self.plane += other.plane;
+        self.plane_noise += other.plane_noise;
         self.plane_ss += other.plane_ss;
         self.plane_count += other.plane_count;
+        self.sin2 += other.sin2;
+        self.sin2_count += other.sin2_count;
         self.count += other.count;
         for (key, score) in other.blocks {
             *self.blocks.entry(key).or_insert_with(SVector::zeros) += score;
@@ -337,10 +423,17 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
                 acc.count += 1;
                 acc.h += tm.h;
                 acc.m_src += tm.dp * tm.dp.transpose();
-                if let Some((pl, d2)) = tm.plane {
-                    acc.plane += pl;
-                    acc.plane_ss += d2;
+                if let Some(pl) = tm.plane {
+                    acc.plane += pl.info;
+                    if let Some(noise) = pl.noise {
+                        acc.plane_noise += noise;
+                    }
+                    acc.plane_ss += pl.d2;
                     acc.plane_count += 1;
+                    if let Some(s2) = pl.sin2 {
+                        acc.sin2 += s2;
+                        acc.sin2_count += 1;
+                    }
                 }
                 let p: SVector<f64, D> = vec_at(input.source, i);
                 *acc.blocks
@@ -390,6 +483,9 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
         plane_information: flat(acc.plane),
         num_plane_correspondences: acc.plane_count,
         num_correspondences: acc.count,
+        plane_noise_information: flat(acc.plane_noise),
+        normal_disagreement: acc.sin2,
+        num_normal_pairs: acc.sin2_count,
     }
 }
 
@@ -455,6 +551,19 @@ pub fn analyse(input: &Input<'_>, pose: &[f64], dim: usize, opts: &Options) -> R
     }
     if let Some(nrm) = input.target_normals {
         check_len("target_normals", nrm, m, dim)?;
+    }
+    if let Some(nrm) = input.source_normals {
+        // NaN rows are allowed: a point without a normal.
+        if nrm.len() != n * dim {
+            return Err(Error::invalid(
+                "source_normals",
+                format!(
+                    "expected {} values ({n} points x {dim}), got {}",
+                    n * dim,
+                    nrm.len()
+                ),
+            ));
+        }
     }
     match opts.method {
         Method::PointToPoint => {}

@@ -35,6 +35,12 @@ pub struct CensiAnalysis {
     num_plane_correspondences: usize,
     #[pyo3(get)]
     num_correspondences: usize,
+    #[pyo3(get)]
+    plane_noise_information: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    normal_disagreement: f64,
+    #[pyo3(get)]
+    num_normal_pairs: usize,
     /// The same sums for `trust_numbers`, without a round trip through numpy.
     pub(crate) inner: censi::Analysis,
 }
@@ -43,7 +49,7 @@ pub struct CensiAnalysis {
 #[pyo3(signature = (
     source, target, pose_matrix, correspondences, *, method, kernel, kernel_scale,
     source_variance, target_variance, block_size, normal_variance=0.0, target_normals=None, source_covariances=None,
-    target_covariances=None, num_threads=None
+    target_covariances=None, num_threads=None, source_normals=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn censi_analysis(
@@ -63,6 +69,7 @@ fn censi_analysis(
     source_covariances: Option<PyReadonlyArray3<'_, f64>>,
     target_covariances: Option<PyReadonlyArray3<'_, f64>>,
     num_threads: Option<usize>,
+    source_normals: Option<PyReadonlyArray2<'_, f64>>,
 ) -> PyResult<CensiAnalysis> {
     let (src, dim) = crate::convert::points(&source, "source")?;
     let tgt = points_dim(&target, "target", dim)?;
@@ -85,6 +92,11 @@ fn censi_analysis(
         .as_ref()
         .map(|a| points_dim(a, "target_normals", dim))
         .transpose()?;
+    // NaN rows mark points without a normal: not the finite check `points_dim` makes.
+    let src_nrm = source_normals
+        .as_ref()
+        .map(|a| c_slice(a, "source_normals"))
+        .transpose()?;
     let input = Input {
         source: src,
         source_covariances: covariances(&source_covariances, "source_covariances", n, dim)?,
@@ -92,6 +104,7 @@ fn censi_analysis(
         target_normals: nrm,
         target_covariances: covariances(&target_covariances, "target_covariances", m, dim)?,
         correspondences: &corr,
+        source_normals: src_nrm,
     };
     let opts = Options {
         method: Method::from_name(method).map_err(core_err)?,
@@ -120,6 +133,9 @@ fn censi_analysis(
         plane_information: square(py, out.plane_information.clone(), dof)?,
         num_plane_correspondences: out.num_plane_correspondences,
         num_correspondences: out.num_correspondences,
+        plane_noise_information: square(py, out.plane_noise_information.clone(), dof)?,
+        normal_disagreement: out.normal_disagreement,
+        num_normal_pairs: out.num_normal_pairs,
         inner: out,
     })
 }

@@ -31,6 +31,8 @@ pub struct TrustNumbers {
     #[pyo3(get)]
     degeneracy_count: usize,
     #[pyo3(get)]
+    degeneracy_removed_normal_noise: f64,
+    #[pyo3(get)]
     point_variance: f64,
     #[pyo3(get)]
     hessian: Py<PyArray2<f64>>,
@@ -100,7 +102,7 @@ type Agreement<'py> = (
     usize,
 );
 
-type Holding<'py> = (PyReadonlyArray2<'py, f64>, f64, f64, f64, usize);
+type Holding<'py> = (PyReadonlyArray2<'py, f64>, f64, f64, f64, usize, f64);
 
 fn system(
     h: &PyReadonlyArray2<'_, f64>,
@@ -167,15 +169,18 @@ fn trust_numbers(
         .transpose()?;
     let held = held
         .as_ref()
-        .map(|(g, threshold, eps2, eps2t, count)| -> PyResult<_> {
-            Ok(Held {
-                information: square_slice(g, "held", dof)?,
-                threshold: *threshold,
-                normal_noise: *eps2,
-                typical_normal_noise: *eps2t,
-                num_correspondences: *count,
-            })
-        })
+        .map(
+            |(g, threshold, eps2, eps2t, count, removed)| -> PyResult<_> {
+                Ok(Held {
+                    information: square_slice(g, "held", dof)?,
+                    threshold: *threshold,
+                    normal_noise: *eps2,
+                    typical_normal_noise: *eps2t,
+                    num_correspondences: *count,
+                    removed_normal_noise: *removed,
+                })
+            },
+        )
         .transpose()?;
     let input = Input {
         dim,
@@ -218,6 +223,7 @@ fn trust_numbers(
         degeneracy_descriptions: out.descriptions.clone(),
         degeneracy_threshold: deg.threshold,
         degeneracy_count: deg.num_correspondences,
+        degeneracy_removed_normal_noise: deg.removed_normal_noise,
         point_variance: out.point_variance,
         hessian: mat(py, &out.hessian)?,
         censi: mat(py, &out.censi)?,

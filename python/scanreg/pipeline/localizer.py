@@ -114,11 +114,11 @@ class Localizer(Odometry):
         source: FloatArray,
         prediction: SE3,
         settings: RegistrationSettings,
-        projector: FloatArray | None,
+        init_covariance: FloatArray | None,
         source_covariances: FloatArray | None,
     ) -> Aligned:
         if self.ndt_map is None:
-            return super()._align(source, prediction, settings, projector, source_covariances)
+            return super()._align(source, prediction, settings, init_covariance, source_covariances)
         # match_ndt's own stopping rule, not the odometry's (1e-3): NDT's steps shrink where
         # its cost flattens, so a loose tolerance stopped it 0.34-0.38 m from the truth on the
         # simulated street (8 iterations) where 1e-5 reaches 0.3-0.5 mm (30-50).

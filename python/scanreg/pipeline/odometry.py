@@ -56,7 +56,7 @@ OdometryMethod = Literal["point_to_point", "point_to_plane", "gicp"]
 ODOMETRY_METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "gicp")
 #: What the local map stores for each method.
 MAP_ATTRIBUTES: dict[str, Attributes] = {
-    "point_to_point": "none",
+    "point_to_point": "normals",
     "point_to_plane": "normals",
     "gicp": "voxel_covariances",
 }
@@ -147,20 +147,19 @@ class OdometryConfig:
     #: default): against 0.3 mm it saved 13 % of the KITTI frames' GICP iterations (6.1 -> 5.3)
     #: and 19 % on a simulated street, with drift and ATE equal to 0.1 %.
     convergence_tolerance: float = 1e-3
-    #: Hold the prediction along weakly constrained translation directions (a tunnel's axis):
-    #: the estimate's correction along them is dropped and the covariance there becomes the
-    #: prior's (``prior_sigma``). ``"prior"`` (default): only for frames given an external
-    #: motion ``prior`` — constant velocity is no evidence (from rest it would hold the vehicle
-    #: still); ``"always"``: also with constant velocity; ``"never"``. Needs the directional
-    #: information of ``point_to_plane`` or ``gicp``: point-to-point's is isotropic.
+    #: Hold the prediction along the directions the scan does not constrain (a tunnel's axis):
+    #: the registration's degeneracy-aware solve (``RegistrationSettings.degeneracy_aware``)
+    #: names them (:class:`~scanreg.Degeneracy`, the one verdict on weakness), solves again
+    #: from the prediction with every step kept off them, and its covariance takes the prior's
+    #: variance there, so the verdict and the covariance describe the pose returned.
+    #: ``"prior"`` (default): only for frames given an external motion ``prior`` — constant
+    #: velocity is no evidence (from rest it would hold the vehicle still); ``"always"``: also
+    #: with constant velocity; ``"never"``.
     degeneracy_aware: Literal["prior", "always", "never"] = "prior"
-    #: A translation direction is weak when its eigenvalue of the scan's point-to-plane
-    #: translation information (:func:`scan_translation_information`) is below this fraction
-    #: of the largest. Measured on 15-sweep simulated drives (min-median-max): tunnel VLP-16
-    #: 0.039-0.046-0.050, HDL-64 0.016-0.017-0.018; street VLP-16 0.128-0.156-0.208, HDL-64
-    #: 0.097-0.133-0.163; the real KITTI frames 0.216-0.248-0.291.
-    weak_translation_ratio: float = 0.07
-    #: Standard deviation (m) of the prediction along a held direction, per frame.
+    #: Standard deviation of an external ``prior`` per frame, in metres: of its translation,
+    #: and of its rotation at the scan's rotation levers (the RMS distance of the points from
+    #: each axis, as :class:`~scanreg.Degeneracy` measures directions): the covariance along a
+    #: held direction (with constant velocity, the registration's gate-wide prior instead).
     prior_sigma: float = 0.1
     #: Threads for registration (``None``: all cores).
     num_threads: int | None = None
@@ -215,10 +214,6 @@ class OdometryConfig:
             raise ValueError(
                 "degeneracy_aware: expected 'prior', 'always' or 'never', "
                 f"got {self.degeneracy_aware!r}"
-            )
-        if not 0.0 < float(self.weak_translation_ratio) < 1.0:
-            raise ValueError(
-                f"weak_translation_ratio: must be in (0, 1), got {self.weak_translation_ratio}"
             )
         _positive(self.prior_sigma, "prior_sigma")
         if not isinstance(self.thresholds, VerdictThresholds):
@@ -299,8 +294,8 @@ class FrameResult:
     num_map_points: int
     #: Whether this sweep joined the map.
     map_updated: bool
-    #: Directions held to the prediction by the degeneracy-aware update (sensor frame),
-    #: e.g. ``"translation along (1.00, 0.00, 0.00)"``; empty when none.
+    #: The weak directions the registration's degeneracy-aware solve held to the prediction
+    #: (sensor frame), e.g. ``"translation along (1.00, 0.00, 0.00)"``; empty when none.
     held_directions: tuple[str, ...]
     timing: FrameTiming
     #: The first registration was rejected as a wrong start and the sweep was registered again
@@ -315,63 +310,9 @@ class FrameResult:
     @property
     def degenerate(self) -> bool:
         """Whether the registration named weak directions (its :class:`~scanreg.Degeneracy`, the
-        one verdict on weakness), or the update held a direction to the prediction."""
+        one verdict on weakness; ``held_directions`` are those it held)."""
         deg = None if self.registration is None else self.registration.degeneracy
-        return bool(self.held_directions) or bool(deg is not None and deg.degenerate)
-
-
-def weak_translation_directions(hessian: FloatArray, ratio: float) -> list[FloatArray]:
-    """Unit translation directions whose eigenvalue of the translation block of ``JᵀJ`` is
-    below ``ratio`` times the largest (metres throughout, so the ratio needs no scaling)."""
-    h = np.asarray(hessian, dtype=np.float64)[:3, :3]
-    vals, vecs = np.linalg.eigh(0.5 * (h + h.T))
-    top = float(vals[-1])
-    if not top > 0:
-        return [vecs[:, i] for i in range(3)]
-    return [vecs[:, i] for i in range(3) if vals[i] < ratio * top]
-
-
-def scan_translation_information(points: FloatArray, k: int) -> FloatArray:
-    """``Σ n nᵀ`` over the scan's unit normals (k-NN PCA): how well the scene's surfaces pin
-    down each translation direction, in the sensor frame. The translation block of the
-    point-to-plane information — independent of the method registering the scan (GICP's
-    whitened information and point-to-point's, which is isotropic, cannot show it)."""
-    nrm = estimate_normals(points, num_neighbors=min(k, len(points)))
-    n = nrm.normals[nrm.valid]
-    out: FloatArray = n.T @ n
-    return out
-
-
-def hold_weak_translation(
-    covariance: FloatArray,
-    weak: list[FloatArray],
-    prior_sigma: float,
-) -> tuple[FloatArray, tuple[str, ...]]:
-    """The covariance of a pose held to its prediction along the weak translation directions
-    ``weak`` (sensor frame), and their names.
-
-    The hold itself happens inside the registration (its ``step_projector`` keeps every step
-    off those directions, so the pose it returns — the one its verdict judged — is the held
-    one). Here the covariance is projected off them and gets the prior's ``prior_sigma² v vᵀ``
-    there instead: along a direction the scan cannot see, the pose is as uncertain as the
-    prediction."""
-    if not weak:
-        return covariance, ()
-    proj = np.eye(6)
-    for v in weak:
-        p = np.zeros(6)
-        p[:3] = v
-        proj -= np.outer(p, p)
-    cov = proj @ covariance @ proj.T if np.isfinite(covariance).all() else covariance.copy()
-    for v in weak:
-        cov[:3, :3] += prior_sigma**2 * np.outer(v, v)
-    names = tuple(
-        "translation along ({:.2f}, {:.2f}, {:.2f})".format(
-            *(v if v[np.argmax(np.abs(v))] > 0 else -v)
-        )
-        for v in weak
-    )
-    return cov, names
+        return bool(deg is not None and deg.degenerate)
 
 
 class AdaptiveGate:
@@ -525,17 +466,13 @@ class Odometry:
                 index, prediction, pts, map_points, source, stamp, t_start, t_deskew, t_down
             )
 
-        # 4. gate (and, when holding to a prior, the directions the scan cannot observe: the
-        # solver keeps the prediction along them instead of sliding)
+        # 4. gate, and whether to hold the prediction along what the scan cannot observe
         gate = self.gate.gate
         hold = c.degeneracy_aware == "always" or (c.degeneracy_aware == "prior" and has_prior)
-        info = scan_translation_information(source, c.num_neighbors) if hold else None
-        weak = [] if info is None else weak_translation_directions(info, c.weak_translation_ratio)
-        projector = None
-        if weak:
-            projector = np.eye(6)
-            for v in weak:
-                projector[:3, :3] -= np.outer(v, v)
+        # An external prior's spread is prior_sigma; constant velocity ("always") keeps the
+        # registration's gate-wide prior: it is no measurement, and a vehicle starting from rest
+        # moves far beyond prior_sigma from it (its motion check would reject the frame).
+        prior_cov = self._prior_covariance(source) if hold and has_prior else None
         # 5. align
         t0 = time.perf_counter()
         settings = RegistrationSettings(
@@ -549,14 +486,15 @@ class Odometry:
             kernel_scale=None if c.kernel == "none" or c.method == "gicp" else self.gate.sigma,
             num_threads=c.num_threads,
             num_neighbors=c.num_neighbors,
+            degeneracy_aware=hold,
         )
-        aligned = self._align(source, prediction, settings, projector, source_covariances)
+        aligned = self._align(source, prediction, settings, prior_cov, source_covariances)
         reg = aligned.registration
         # 5b. wrong start: a wider search rather than a pose the verdict rejected
         fallback = failed = False
         if c.basin_fallback and reg is not None and _wrong_start(reg.verdict):
             retry = self._wider_search(
-                source, reg, prediction, previous, has_prior, projector, source_covariances
+                source, reg, prediction, previous, has_prior, prior_cov, source_covariances
             )
             fallback, failed = True, retry is None
             if retry is not None:
@@ -568,10 +506,10 @@ class Odometry:
         pose = aligned.pose if usable else prediction
         cov = np.array(aligned.covariance) if usable else np.full((6, 6), np.inf)
         held: tuple[str, ...] = ()
-        if usable and weak:
-            # The pose is the registration's own (held by its step projector; its verdict
-            # judged this pose); only the covariance takes the prior along the held directions.
-            cov, held = hold_weak_translation(cov, weak, c.prior_sigma)
+        if usable and hold and reg is not None and reg.degeneracy is not None:
+            # The registration held these to the prediction: its pose, verdict and covariance
+            # (the prior's variance along them) all describe the held estimate.
+            held = tuple(d.description for d in reg.degeneracy.weak_directions)
         if self._first_sweep is not None and times is not None and c.deskew:
             # The first sweep joined the map undeskewed (no motion was known), and this one was
             # matched undeskewed too: consistent, so `reg` is a sound first motion. Re-seed the
@@ -642,11 +580,12 @@ class Odometry:
         prediction: SE3,
         previous: SE3,
         has_prior: bool,
-        projector: FloatArray | None,
+        init_covariance: FloatArray | None,
         source_covariances: FloatArray | None,
     ) -> RegistrationResult | None:
         """The first accepted registration of ``source`` from the fallback's starts (see
-        ``OdometryConfig.basin_fallback``), with ``first``'s settings; None when none is."""
+        ``OdometryConfig.basin_fallback``), with ``first``'s settings (its degeneracy-aware solve
+        and prior included); None when none is."""
         starts: list[SE3] = []
         probe = None if first.quality is None else first.quality.basin
         if probe is not None and isinstance(probe.alternative, SE3):
@@ -665,7 +604,7 @@ class Odometry:
                 init=start,
                 settings=first.settings,
                 thresholds=self._thresholds,
-                step_projector=projector,
+                init_covariance=init_covariance,
                 source_covariances=source_covariances,
             )
             if res.verdict is not None and res.verdict.accepted:
@@ -677,7 +616,7 @@ class Odometry:
         source: FloatArray,
         prediction: SE3,
         settings: RegistrationSettings,
-        projector: FloatArray | None,
+        init_covariance: FloatArray | None,
         source_covariances: FloatArray | None,
     ) -> Aligned:
         """Step 5: register the sweep to the target from the prediction, judged there (the
@@ -689,7 +628,7 @@ class Odometry:
             init=prediction,
             settings=settings,
             thresholds=self._thresholds,
-            step_projector=projector,
+            init_covariance=init_covariance,
             source_covariances=source_covariances,
         )
         return _aligned(reg)
@@ -734,6 +673,15 @@ class Odometry:
 
     # --- helpers -------------------------------------------------------------------------
 
+    def _prior_covariance(self, source: FloatArray) -> FloatArray:
+        """The prediction's covariance over the tangent: ``prior_sigma²`` per translation axis
+        and ``(prior_sigma / L_a)²`` per rotation axis (``L_a`` the source's rotation levers)."""
+        sigma = self.config.prior_sigma
+        sq = source**2
+        # RMS distance of the points from each axis through the sensor (the rotation levers).
+        levers = np.maximum(np.sqrt(np.mean(sq.sum(axis=1)[:, None] - sq, axis=0)), 1e-9)
+        return np.diag(np.concatenate([np.full(3, sigma**2), (sigma / levers) ** 2]))
+
     def _period(self, times: FloatArray, stamp: float | None) -> float:
         last = self._stamps[-1] if self._stamps else None
         if stamp is not None and last is not None:
@@ -771,12 +719,13 @@ class Odometry:
         return mode == "sweep" or (mode == "auto" and len(fine) >= 4.0 * len(coarse))
 
     def _insert(self, pose: SE3, map_points: FloatArray) -> None:
-        """Add a sweep's map points (sensor frame) to the map at ``pose``. Point-to-plane: with
-        normals computed in the sweep and rotated into the world. GICP: the map derives each
-        voxel's covariance from its own points (``voxel_covariances``)."""
+        """Add a sweep's map points (sensor frame) to the map at ``pose``. Point-to-plane and
+        point-to-point: with normals computed in the sweep and rotated into the world
+        (point-to-point's degeneracy analysis compares them with the sweep's). GICP: the map
+        derives each voxel's covariance from its own points (``voxel_covariances``)."""
         c = self.config
         world = pose.apply(map_points)
-        if c.method != "point_to_plane":
+        if c.method == "gicp":
             self.map.insert(world)
         elif len(map_points) >= c.num_neighbors:
             nrm = estimate_normals(map_points, num_neighbors=c.num_neighbors)

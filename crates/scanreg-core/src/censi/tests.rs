@@ -27,6 +27,7 @@ fn with_normals<'a>(src: &'a [f64], tgt: &'a [f64], nrm: &'a [f64], corr: &'a [u
         target_normals: Some(nrm),
         target_covariances: None,
         correspondences: corr,
+        source_normals: None,
     }
 }
 

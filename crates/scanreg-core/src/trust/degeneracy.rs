@@ -27,6 +27,32 @@ pub struct Degeneracy {
     /// `ε̃²` (NaN: not measured).
     pub typical_normal_noise: f64,
     pub num_correspondences: usize,
+    /// `ε²` whose faked information was removed from `information` ([`noise_removed`]); NaN:
+    /// not measured, nothing removed.
+    pub removed_normal_noise: f64,
+}
+
+/// The plane information `G` less what normal noise of `ε²` per tangent axis adds to it in
+/// expectation, `ε² N` (`N = Σ Aᵀ(I − m mᵀ)A`, [`crate::censi::Analysis`]), and the `ε²` used.
+///
+/// `ε²` is measured between the two scans: half the mean squared sine between each
+/// correspondence's source and target normals, per tangent axis (`/ 2(D − 1)`). The mean, not
+/// a median: the information a few badly wrong normals fake (a VLP-16 ring's neighbourhood is
+/// nearly a line, its fitted normal can point anywhere about it) is a mean too. NaN (nothing
+/// removed) with `dof` or fewer pairs.
+pub fn noise_removed(
+    information: &Mat,
+    noise_information: &Mat,
+    disagreement: f64,
+    pairs: usize,
+    dim: usize,
+) -> (Mat, f64) {
+    let dof = information.nrows();
+    if pairs <= dof || !disagreement.is_finite() {
+        return (information.clone(), f64::NAN);
+    }
+    let eps2 = disagreement / (pairs as f64 * 2.0 * (dim - 1) as f64);
+    (information - noise_information * eps2, eps2)
 }
 
 /// `diag(S⁻¹)`: 1 for translation, `1/L_a` for rotation.
@@ -72,7 +98,9 @@ pub fn analyse(
 ) -> Degeneracy {
     let s_inv = scaling(dim, levers);
     let g = scale_both(&sym(information), &s_inv) / (count.max(1) as f64);
-    let (vals, vecs) = eigh(&g);
+    let (mut vals, vecs) = eigh(&g);
+    // With the noise removed the estimate can dip below zero: no information.
+    vals.apply(|v| *v = v.max(0.0));
     let mut threshold = MIN_CONSTRAINT;
     if typical_normal_noise.is_finite() {
         threshold = threshold.max(NOISE_FACTOR * typical_normal_noise);
@@ -88,6 +116,7 @@ pub fn analyse(
         normal_noise,
         typical_normal_noise,
         num_correspondences: count,
+        removed_normal_noise: f64::NAN,
     }
 }
 
@@ -147,10 +176,12 @@ pub fn from_normalised(
     normal_noise: f64,
     typical_normal_noise: f64,
     count: usize,
+    removed_normal_noise: f64,
 ) -> Degeneracy {
     let dim = g.nrows() - levers.len();
     let s_inv = scaling(dim, &levers);
-    let (vals, vecs) = eigh(&g);
+    let (mut vals, vecs) = eigh(&g);
+    vals.apply(|v| *v = v.max(0.0));
     let directions = unit_directions(&vecs, &s_inv, Some(&s_inv));
     Degeneracy {
         information: g,
@@ -162,5 +193,6 @@ pub fn from_normalised(
         normal_noise,
         typical_normal_noise,
         num_correspondences: count,
+        removed_normal_noise,
     }
 }

@@ -57,6 +57,7 @@ pub struct Held<'a> {
     pub normal_noise: f64,
     pub typical_normal_noise: f64,
     pub num_correspondences: usize,
+    pub removed_normal_noise: f64,
 }
 
 /// Everything one result's arithmetic reads; matrices row-major `dof × dof`.
@@ -179,15 +180,29 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
             h.normal_noise,
             h.typical_normal_noise,
             h.num_correspondences,
+            h.removed_normal_noise,
         ),
-        None if a.num_plane_correspondences > dof => degeneracy::analyse(
-            &from_rows(dof, &a.plane_information),
-            a.num_plane_correspondences,
-            dim,
-            &levers,
-            input.normal_noise,
-            input.typical_normal_noise,
-        ),
+        None if a.num_plane_correspondences > dof => {
+            // Judged by the information the normals' noise does not explain (a tunnel's axis
+            // gains ε² per correspondence from noisy normals alone).
+            let (g, eps2) = degeneracy::noise_removed(
+                &from_rows(dof, &a.plane_information),
+                &from_rows(dof, &a.plane_noise_information),
+                a.normal_disagreement,
+                a.num_normal_pairs,
+                dim,
+            );
+            let mut deg = degeneracy::analyse(
+                &g,
+                a.num_plane_correspondences,
+                dim,
+                &levers,
+                input.normal_noise,
+                input.typical_normal_noise,
+            );
+            deg.removed_normal_noise = eps2;
+            deg
+        }
         None => degeneracy::analyse(
             &from_rows(dof, &a.hessian),
             a.num_correspondences.max(1),

@@ -29,6 +29,9 @@ fn corridor() -> Analysis {
         plane_information: plane,
         num_plane_correspondences: n,
         num_correspondences: n,
+        plane_noise_information: vec![0.0; 9],
+        normal_disagreement: 0.0,
+        num_normal_pairs: 0,
     }
 }
 
