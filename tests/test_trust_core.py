@@ -224,6 +224,12 @@ def test_trust_numbers_refuses_malformed_input_naming_the_argument() -> None:
         _core.trust_numbers(ana, np.eye(6), 1e-4, **good)
     with pytest.raises(ValueError, match="source: is empty"):
         _core.trust_scene(np.zeros((0, 2)), 1.0)
+    with pytest.raises(ValueError, match=r"source_normals: expected \d+ values"):
+        _core.censi_analysis(
+            src, tgt, out.pose, np.asarray(out.correspondences), method="point_to_line",
+            kernel="none", kernel_scale=1.0, source_variance=1.0, target_variance=1.0,
+            block_size=2.0, target_normals=target.normals, source_normals=np.zeros((3, 2)),
+        )  # fmt: skip
 
 
 @pytest.mark.parametrize(
