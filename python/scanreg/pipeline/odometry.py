@@ -88,8 +88,8 @@ def _se3(pose: Any) -> SE3:
 def _default_thresholds() -> VerdictThresholds:
     # Odometry: the map covers the sweep's near field only, so half the points overlapping is
     # not guaranteed at a new street corner; a third is. Degeneracy is handled by the
-    # degeneracy-aware update and reported in FrameResult.held_directions, not rejected (a
-    # tunnel frame held to its prior is still the best estimate there is).
+    # registration's degeneracy-aware solve and reported in FrameResult.held_directions, not
+    # rejected (a tunnel frame held to its prior is still the best estimate there is).
     return VerdictThresholds(min_overlap=0.3, reject_degenerate=False)
 
 
