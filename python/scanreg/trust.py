@@ -358,7 +358,10 @@ def correspondence_analysis(
         normal_variance=1.0,
         target_normals=tn,
         source_covariances=ctx.source_covariances,
-        target_covariances=tc if method == "gicp" else None,
+        # Point-to-point in 3D: a covariance-only target (the odometry's voxel map) gives the
+        # degeneracy analysis its plane normals; the covariance itself does not read them.
+        target_covariances=tc if method == "gicp" or (method == "point_to_point" and dim == 3)
+        else None,
         num_threads=s.num_threads,
         source_normals=src_normals,
     )

@@ -217,11 +217,14 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
         };
         n.map(|n| r * n)
     };
-    // GICP against a target that keeps covariances only (odometry's voxel map): its own
-    // whitened `JᵀWJ` cannot show a tunnel (plane-regularised covariances weigh each
-    // correspondence ~1/2 along its tangent plane), the covariance's normal can.
+    // A target that keeps covariances only (odometry's voxel map): GICP's own whitened `JᵀWJ`
+    // cannot show a tunnel (plane-regularised covariances weigh each correspondence ~1/2 along
+    // its tangent plane) and point-to-point's is isotropic; the covariance's normal can, and
+    // its disagreement with the source normal measures the normals' noise.
     let plane_normal = normal.or_else(|| match input.target_covariances {
-        Some(c) if opts.method == Method::Gicp => G::plane_normal(&mat_at::<D>(c, j)),
+        Some(c) if matches!(opts.method, Method::Gicp | Method::PointToPoint) => {
+            G::plane_normal(&mat_at::<D>(c, j))
+        }
         _ => None,
     });
     let (plane_normal, from_source) = match plane_normal {
@@ -551,6 +554,9 @@ pub fn analyse(input: &Input<'_>, pose: &[f64], dim: usize, opts: &Options) -> R
     }
     if let Some(nrm) = input.target_normals {
         check_len("target_normals", nrm, m, dim)?;
+    }
+    if let Some(tc) = input.target_covariances {
+        check_len("target_covariances", tc, m, dim * dim)?;
     }
     if let Some(nrm) = input.source_normals {
         // NaN rows are allowed: a point without a normal.

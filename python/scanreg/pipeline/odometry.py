@@ -56,7 +56,7 @@ OdometryMethod = Literal["point_to_point", "point_to_plane", "gicp"]
 ODOMETRY_METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "gicp")
 #: What the local map stores for each method.
 MAP_ATTRIBUTES: dict[str, Attributes] = {
-    "point_to_point": "normals",
+    "point_to_point": "voxel_covariances",
     "point_to_plane": "normals",
     "gicp": "voxel_covariances",
 }
@@ -719,13 +719,14 @@ class Odometry:
         return mode == "sweep" or (mode == "auto" and len(fine) >= 4.0 * len(coarse))
 
     def _insert(self, pose: SE3, map_points: FloatArray) -> None:
-        """Add a sweep's map points (sensor frame) to the map at ``pose``. Point-to-plane and
-        point-to-point: with normals computed in the sweep and rotated into the world
-        (point-to-point's degeneracy analysis compares them with the sweep's). GICP: the map
-        derives each voxel's covariance from its own points (``voxel_covariances``)."""
+        """Add a sweep's map points (sensor frame) to the map at ``pose``. Point-to-plane: with
+        normals computed in the sweep and rotated into the world. GICP and point-to-point: the
+        map derives each voxel's covariance from its own points (``voxel_covariances``; GICP's
+        cost reads them, point-to-point's degeneracy analysis takes its plane normals from
+        them: cheaper than normals, and the registration's covariance stays point-to-point's)."""
         c = self.config
         world = pose.apply(map_points)
-        if c.method == "gicp":
+        if c.method != "point_to_plane":
             self.map.insert(world)
         elif len(map_points) >= c.num_neighbors:
             nrm = estimate_normals(map_points, num_neighbors=c.num_neighbors)
