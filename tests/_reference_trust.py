@@ -268,7 +268,8 @@ def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
         normal_variance=1.0,
         target_normals=tn,
         source_covariances=ctx.source_covariances,
-        target_covariances=tc if method == "gicp" or (method == "point_to_point" and dim == 3)
+        target_covariances=tc
+        if method == "gicp" or (method == "point_to_point" and dim == 3)
         else None,
         num_threads=s.num_threads,
     )

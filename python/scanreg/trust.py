@@ -360,7 +360,8 @@ def correspondence_analysis(
         source_covariances=ctx.source_covariances,
         # Point-to-point in 3D: a covariance-only target (the odometry's voxel map) gives the
         # degeneracy analysis its plane normals; the covariance itself does not read them.
-        target_covariances=tc if method == "gicp" or (method == "point_to_point" and dim == 3)
+        target_covariances=tc
+        if method == "gicp" or (method == "point_to_point" and dim == 3)
         else None,
         num_threads=s.num_threads,
         source_normals=src_normals,
