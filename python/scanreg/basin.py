@@ -34,6 +34,7 @@ at the registration's own gate they do not (26 correct flagged for 118 wrong).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -147,12 +148,19 @@ def restart_offsets(dim: int, gate: float) -> list[SE2 | SE3]:
     Intel and MbICP benchmark pairs ±45° found the most alternatives, then ±90°, then a
     half-gate move forward): turns about the source origin and, when the gate is finite,
     half-gate moves along each horizontal axis."""
+    return list(_restart_offsets(dim, float(gate)))
+
+
+@functools.lru_cache(maxsize=16)
+def _restart_offsets(dim: int, gate: float) -> tuple[SE2 | SE3, ...]:
+    # Built once per gate (a registration loop keeps its gate): eleven poses from vectors
+    # cost as much as the screen itself. The poses are immutable, so sharing them is safe.
     if dim == 3:
         # A 3D restart costs a registration's worth of iterations over thousands of points:
         # only the turns of the ambiguities a building or a street makes.
-        return [
+        return tuple(
             SE3.from_vector([0.0, 0.0, 0.0, 0.0, 0.0, math.radians(d)]) for d in RESTART_YAWS_3D_DEG
-        ]
+        )
     h = gate / 2.0 if math.isfinite(gate) else 0.0
     steps = [(0.0, 0.0, d) for d in RESTART_YAWS_DEG[:4]]
     steps += [(h, 0.0, 0.0)] if h else []
@@ -166,7 +174,7 @@ def restart_offsets(dim: int, gate: float) -> list[SE2 | SE3]:
             if dim == 2
             else SE3.from_vector([dx, dy, 0.0, 0.0, 0.0, a])
         )
-    return out
+    return tuple(out)
 
 
 def _correlative_start(
@@ -203,29 +211,12 @@ def orientation_symmetry(points: FloatArray, normals: FloatArray) -> float:
     by the wall length each point stands for (its range in 2D: one beam step of arc; one voxel
     in 3D). A rotational ambiguity needs it near 1; it does not suffice (it ignores where the
     walls are), so it only calls for the restarts."""
-    n = np.asarray(normals, dtype=np.float64)
-    p = np.asarray(points, dtype=np.float64)
+    n = np.ascontiguousarray(normals, dtype=np.float64)
+    p = np.ascontiguousarray(points, dtype=np.float64)
     if len(n) < 8 or n.shape != p.shape:
         return 0.0
-    # Turned toward the sensor: -n where n points away from the origin.
-    sign = np.where((n * p).sum(axis=1) > 0.0, -1.0, 1.0)
-    if p.shape[1] == 2:
-        weight = np.hypot(p[:, 0], p[:, 1])
-    else:
-        weight = (np.abs(n[:, 2]) < 0.7).astype(np.float64)  # walls only
-    angle = np.arctan2(sign * n[:, 1], sign * n[:, 0])
-    ok = np.isfinite(angle) & np.isfinite(weight)
-    bins = 72  # 5°: walls of a real room are straight to a few degrees
-    which = ((angle[ok] + math.pi) * (bins / (2.0 * math.pi))).astype(np.intp)
-    hist = np.bincount(np.minimum(which, bins - 1), weights=weight[ok], minlength=bins)
-    wrap = np.concatenate((hist[-1:], hist, hist[:1]))
-    hist = hist + 0.5 * (wrap[:-2] + wrap[2:])  # one bin of tolerance
-    zero = float(hist @ hist)
-    if zero <= 0:
-        return 0.0
-    twice = np.concatenate((hist, hist))  # circular shifts as slices (np.roll is slow here)
-    q = bins // 4
-    return max(float(hist @ twice[k * q : k * q + bins]) for k in (1, 2, 3)) / zero
+    # One pass in the core (``scanreg_core::symmetry``): 5° bins, one bin of tolerance.
+    return float(_core.orientation_symmetry(p, n))
 
 
 def _chi2(v: FloatArray, cov: FloatArray) -> float:
@@ -321,7 +312,7 @@ def _fraction(index: Any, source: FloatArray, pose: SE2 | SE3, gate: float) -> f
 
 
 def probe_basin(
-    solve: Callable[[SE2 | SE3, int], Any],
+    solve: Callable[[FloatArray, int], tuple[FloatArray, list[str]]],
     index: Any,
     source: FloatArray,
     pose: SE2 | SE3,
@@ -337,8 +328,9 @@ def probe_basin(
     inlier_rmse: float = 0.0,
     target_normals: FloatArray | None = None,
 ) -> BasinProbe:
-    """Restart ``solve`` (``(start, max_iterations) -> core outcome``, the registration's own
-    solve) around ``pose`` (see the module docstring).
+    """Restart ``solve`` around ``pose`` (see the module docstring): the registration's own
+    solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations) -> (poses
+    (K, D+1, D+1), stop reasons)`` (the core's ``register_icp_starts``).
 
     ``index`` is the target's k-d tree or map, ``source`` the registered source points,
     ``covariance`` the result's ``(dof, dof)`` covariance (non-finite: only the fixed
@@ -413,14 +405,17 @@ def probe_basin(
         and len(target_points)
     ):
         starts.append(_correlative_start(pose, source, target_points, gate))
-    starts += [pose @ offset for offset in restart_offsets(dim, gate)]  # type: ignore[operator]
+    starts += [pose @ offset for offset in _restart_offsets(dim, float(gate))]  # type: ignore[operator]
+    # Every restart in one core call, in parallel; read in order below, so the early stop
+    # leaves the same outcome (and count) as restarting one by one.
+    poses, reasons = solve(
+        np.stack([s.as_matrix() for s in starts]), RESTART_ITERATIONS
+    )
     ran = 0
-    for start in starts:
+    for m, reason in zip(poses, reasons, strict=True):
         ran += 1
-        out = solve(start, RESTART_ITERATIONS)
-        if str(out.stop_reason) not in ("converged", "max_iterations"):
+        if reason not in ("converged", "max_iterations"):
             continue
-        m = np.asarray(out.pose)
         # Most restarts come back to the result: told from the matrices alone (the pose
         # objects and their logarithm cost more than the restart's solve).
         rel = inverse_matrix @ m
