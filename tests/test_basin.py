@@ -332,9 +332,7 @@ def test_probe_restarts_in_one_call_equal_the_restarts_one_by_one() -> None:
         )
         assert poses.shape == (len(starts), 3, 3) and len(reasons) == len(starts)
         for start, pose, reason in zip(starts, poses, reasons, strict=True):
-            one = _core.register_icp(
-                src, target.index, start, *args, 1, None, target.normals
-            )
+            one = _core.register_icp(src, target.index, start, *args, 1, None, target.normals)
             assert np.array_equal(pose, one.pose) and reason == one.stop_reason
     with pytest.raises(ValueError, match="init_poses: expected shape"):
         _core.register_icp_starts(src, target.index, np.zeros((2, 4, 4)), *args)

@@ -408,9 +408,7 @@ def probe_basin(
     starts += [pose @ offset for offset in _restart_offsets(dim, float(gate))]  # type: ignore[operator]
     # Every restart in one core call, in parallel; read in order below, so the early stop
     # leaves the same outcome (and count) as restarting one by one.
-    poses, reasons = solve(
-        np.stack([s.as_matrix() for s in starts]), RESTART_ITERATIONS
-    )
+    poses, reasons = solve(np.stack([s.as_matrix() for s in starts]), RESTART_ITERATIONS)
     ran = 0
     for m, reason in zip(poses, reasons, strict=True):
         ran += 1
