@@ -53,7 +53,14 @@ from .quality import (
 )
 from .target import PreparedTarget
 from .transform import SE2, SE3
-from .verdict import QualityReport, Verdict, VerdictThresholds, _assess_checked, judge
+from .verdict import (
+    Assessment,
+    QualityReport,
+    Verdict,
+    VerdictThresholds,
+    _assess_checked,
+    judge,
+)
 
 if TYPE_CHECKING:
     from .register import RegistrationSettings
@@ -227,6 +234,10 @@ class CorrespondenceAnalysis:
     #: The core's arithmetic of this analysis (``_core.TrustNumbers``): covariances,
     #: conditioning, information and motion χ² of the outcome it was run on.
     numbers: Any = None
+    #: ``start⁻¹ · pose`` and the outcome's correspondences (int64, -1 for none), read once
+    #: here and again by the verdict (the core makes a new array per read).
+    moved: Any = None
+    correspondences: Any = None
 
 
 @dataclass(frozen=True)
@@ -300,6 +311,7 @@ def correspondence_analysis(
         else (math.nan, math.nan)
     )
     corr = np.asarray(out.correspondences)
+    matched = corr  # the core's, before a map's rows are compacted: the overlap's hints
     tp, tn, tc = ctx.target_points, ctx.target_normals, ctx.target_covariances
     if isinstance(prepared, LocalMap):
         # A map's rows are gathered for the matched ids only (a few thousand, not the storage).
@@ -411,6 +423,8 @@ def correspondence_analysis(
         agreement=agreement,
         valley=valley,
         numbers=num,
+        moved=moved,
+        correspondences=matched,
     )
 
 
@@ -534,8 +548,9 @@ def _trust(
         converged=stop == "converged",
         stop_reason=stop,
         degeneracy=deg,
-        hints=None if isinstance(ctx.target, LocalMap) else out.correspondences,
+        hints=None if isinstance(ctx.target, LocalMap) else corr.correspondences,
         motion_nees=num.motion_nees,
+        moved=corr.moved,
     )
     if checked.verdict.accepted and th.probes_basin(dim) and ctx.solve is not None:
         # Only a result every other check accepts is probed (the restarts cannot turn a
@@ -558,7 +573,9 @@ def _trust(
             target_normals=ctx.target_normals,
         )
         report = dataclasses.replace(checked.report, basin=probe)
-        checked = dataclasses.replace(checked, report=report, verdict=judge(report, th))
+        # Only an alternative can add a reason: without one the verdict stands as judged.
+        verdict = judge(report, th) if probe.alternative is not None else checked.verdict
+        checked = Assessment(report=report, verdict=verdict)
         if probe.covered:
             # Part of the calibrated covariance: alternatives in the same basin it must cover.
             chosen = _readonly(_psd(chosen + probe.growth))
