@@ -324,6 +324,7 @@ def probe_basin(
     target_points: FloatArray | None = None,
     screen: bool = False,
     start: SE2 | SE3 | None = None,
+    motion: FloatArray | None = None,
     prior: FloatArray | None = None,
     inlier_rmse: float = 0.0,
     target_normals: FloatArray | None = None,
@@ -343,7 +344,8 @@ def probe_basin(
     ``screen``: restart only when :func:`basin_doubts` finds a reason to, from ``start`` and
     its covariance ``prior``, the result's ``inlier_rmse`` within ``gate``, the tight overlap
     and the symmetry of ``target_points`` / ``target_normals`` (when given); otherwise the
-    probe returns with no restart (``evidence`` empty).
+    probe returns with no restart (``evidence`` empty). ``motion``: ``log(start⁻¹ · pose)``
+    when the caller has it already (the registration's trust analysis does).
     """
     t0 = time.perf_counter()
     dim = pose.DIM
@@ -372,7 +374,7 @@ def probe_basin(
             tight_overlap=here,
             inlier_rmse=inlier_rmse,
             gate=gate,
-            motion=None if start is None else _relative_log(start, pose),
+            motion=motion if motion is not None or start is None else _relative_log(start, pose),
             prior=prior,
             symmetry=sym,
         )

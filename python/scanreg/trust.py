@@ -234,9 +234,10 @@ class CorrespondenceAnalysis:
     #: The core's arithmetic of this analysis (``_core.TrustNumbers``): covariances,
     #: conditioning, information and motion χ² of the outcome it was run on.
     numbers: Any = None
-    #: ``start⁻¹ · pose`` and the outcome's correspondences (int64, -1 for none), read once
-    #: here and again by the verdict (the core makes a new array per read).
+    #: ``start⁻¹ · pose``, its logarithm and the outcome's correspondences (int64, -1 for
+    #: none): computed once here, read again by the verdict and the basin probe's screen.
     moved: Any = None
+    drift: Any = None
     correspondences: Any = None
 
 
@@ -376,6 +377,7 @@ def correspondence_analysis(
     )
     pose = pose_from_core(out, dim)
     moved = ctx.start.inverse() @ pose  # type: ignore[operator]
+    drift = moved.log()
     kernel = s.kernel != "none"
     # By position up to the keywords: the binding's order.
     num = _core.trust_numbers(
@@ -385,7 +387,7 @@ def correspondence_analysis(
         method=method,
         levers=ctx.levers,
         prior=ctx.prior,
-        drift=moved.log(),
+        drift=drift,
         motion=np.asarray(moved.translation, dtype=np.float64),
         length_scale=ctx.length_scale,
         covariance=s.covariance,
@@ -424,6 +426,7 @@ def correspondence_analysis(
         valley=valley,
         numbers=num,
         moved=moved,
+        drift=drift,
         correspondences=matched,
     )
 
@@ -568,6 +571,7 @@ def _trust(
             target_points=ctx.target_points,
             screen=th.basin_screen,
             start=ctx.start,
+            motion=corr.drift,
             prior=ctx.prior,
             inlier_rmse=checked.report.residual_rmse,
             target_normals=ctx.target_normals,
