@@ -152,6 +152,17 @@ def restart_offsets(dim: int, gate: float) -> list[SE2 | SE3]:
 
 
 @functools.lru_cache(maxsize=16)
+def _offset_stacks(dim: int, gate: float) -> tuple[FloatArray, FloatArray]:
+    """The rotations ``(K, D, D)`` and translations ``(K, D, 1)`` of the restart offsets."""
+    offsets = _restart_offsets(dim, gate)
+    rot = np.stack([o.rotation for o in offsets])
+    trans = np.stack([o.translation for o in offsets])[..., None]
+    rot.setflags(write=False)
+    trans.setflags(write=False)
+    return rot, trans
+
+
+@functools.lru_cache(maxsize=16)
 def _restart_offsets(dim: int, gate: float) -> tuple[SE2 | SE3, ...]:
     # Built once per gate (a registration loop keeps its gate): eleven poses from vectors
     # cost as much as the screen itself. The poses are immutable, so sharing them is safe.
@@ -391,14 +402,15 @@ def probe_basin(
                 growth=_frozen(np.zeros((dof, dof))),
                 seconds=time.perf_counter() - t0,
             )
-    info = np.linalg.pinv(cov, hermitian=True) if finite else None
+    # The pseudo-inverse only for an outcome that did not come back (most do).
+    info: FloatArray | None = None
     cover = cov
     inverse = pose.inverse()
     inverse_matrix = inverse.as_matrix()
     best: tuple[float, SE2 | SE3, FloatArray] | None = None
     distinct = 0
     covered = 0
-    starts: list[SE2 | SE3] = []
+    first: list[FloatArray] = []
     if (
         CORRELATIVE_START
         and dim == 2
@@ -406,21 +418,37 @@ def probe_basin(
         and math.isfinite(gate)
         and len(target_points)
     ):
-        starts.append(_correlative_start(pose, source, target_points, gate))
-    starts += [pose @ offset for offset in _restart_offsets(dim, float(gate))]  # type: ignore[operator]
+        first.append(_correlative_start(pose, source, target_points, gate).as_matrix())
+    offsets = _restart_offsets(dim, float(gate))
+    # ``pose @ offset`` for every offset at once: the same products, stacked (a pose object
+    # per start cost more than its restart's solve).
+    rot, trans = _offset_stacks(dim, float(gate))
+    starts = np.zeros((len(first) + len(offsets), dim + 1, dim + 1))
+    if first:
+        starts[0] = first[0]
+    starts[len(first) :, :dim, :dim] = np.matmul(pose.rotation, rot)
+    starts[len(first) :, :dim, dim] = np.matmul(pose.rotation, trans)[..., 0] + pose.translation
+    starts[:, dim, dim] = 1.0
     # Every restart in one core call, in parallel; read in order below, so the early stop
     # leaves the same outcome (and count) as restarting one by one.
-    poses, reasons = solve(np.stack([s.as_matrix() for s in starts]), RESTART_ITERATIONS)
+    poses, reasons = solve(starts, RESTART_ITERATIONS)
+    # Most restarts come back to the result: told from the matrices alone (the pose
+    # objects and their logarithm cost more than the restart's solve).
+    rels = np.matmul(inverse_matrix, poses)
     ran = 0
-    for m, reason in zip(poses, reasons, strict=True):
+    for m, rel, reason in zip(poses, rels, reasons, strict=True):
         ran += 1
         if reason not in ("converged", "max_iterations"):
             continue
-        # Most restarts come back to the result: told from the matrices alone (the pose
-        # objects and their logarithm cost more than the restart's solve).
-        rel = inverse_matrix @ m
-        cos = (float(np.trace(rel[:dim, :dim])) - (dim - 2)) / 2.0
-        if float(np.linalg.norm(rel[:dim, dim])) <= 0.5 * tight and cos >= COS_1DEG:
+        if dim == 2:
+            # np.trace and np.linalg.norm's sums, on Python floats.
+            cos = (float(rel[0, 0]) + float(rel[1, 1])) / 2.0
+            tx, ty = float(rel[0, 2]), float(rel[1, 2])
+            back = math.sqrt(tx * tx + ty * ty) <= 0.5 * tight
+        else:
+            cos = (float(np.trace(rel[:dim, :dim])) - (dim - 2)) / 2.0
+            back = float(np.linalg.norm(rel[:dim, dim])) <= 0.5 * tight
+        if back and cos >= COS_1DEG:
             continue
         # The core's rotation is orthonormal: no check (from_matrix costs a solve's worth).
         kind = SE2 if dim == 2 else SE3
@@ -430,6 +458,8 @@ def probe_basin(
         turned = abs(float(e[2])) if dim == 2 else float(np.linalg.norm(e[3:]))
         if moved <= 0.5 * tight and turned <= math.radians(1.0):
             continue
+        if finite and info is None:
+            info = np.linalg.pinv(cov, hermitian=True)
         if info is not None and float(e @ info @ e) <= CHI2_999[dof]:
             continue
         distinct += 1

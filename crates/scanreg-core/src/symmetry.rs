@@ -90,8 +90,13 @@ mod tests {
         }
         let room = orientation_symmetry(&pts, &nrm, 2).unwrap();
         assert!(room > 0.99, "{room}");
-        let wall = orientation_symmetry(&pts[..80], &nrm[..80], 2).unwrap();
-        assert!(wall < 0.6, "{wall}");
+        // One wall: its direction turned by any quarter is empty.
+        let line: Vec<f64> = (0..40)
+            .flat_map(|i| [2.0, -1.0 + i as f64 / 20.0])
+            .collect();
+        let facing: Vec<f64> = (0..40).flat_map(|_| [1.0, 0.0]).collect();
+        let wall = orientation_symmetry(&line, &facing, 2).unwrap();
+        assert!(wall < 1e-12, "{wall}");
         assert_eq!(
             orientation_symmetry(&pts[..14], &nrm[..14], 2).unwrap(),
             0.0
