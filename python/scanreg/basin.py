@@ -24,8 +24,9 @@ a Gaussian cannot cover two poses 90° apart.
 The restarts run only when cheap evidence doubts the basin (:func:`basin_doubts`: a low fit
 margin, a move beyond 1σ of the start's covariance, symmetric walls): a result nothing doubts
 costs one nearest-neighbour pass and a histogram. The restarts themselves are one core call
-(``_core.register_icp_starts``), their solves in parallel. In 3D the restarts are three yaw turns (90°,
-−90°, 180°) and the tight gate is at least the target's point spacing (voxelised clouds).
+(``_core.register_icp_starts``), their solves in parallel. In 3D the restarts are three yaw
+turns (90°, −90°, 180°) and the tight gate is at least the target's point spacing (voxelised
+clouds).
 
 Measured (``benchmarks/wrong_start.py``, ``benchmarks/README.md``): on real Intel pairs from
 starts turned by up to ±70° and moved by 0.6 m, the restarts separate wrong from correct
@@ -460,7 +461,7 @@ def probe_basin(
         if moved <= 0.5 * tight and turned <= math.radians(1.0):
             continue
         if finite and info is None:
-            info = np.linalg.pinv(cov, hermitian=True)
+            info = np.asarray(np.linalg.pinv(cov, hermitian=True), dtype=np.float64)
         if info is not None and float(e @ info @ e) <= CHI2_999[dof]:
             continue
         distinct += 1

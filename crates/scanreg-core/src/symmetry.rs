@@ -19,7 +19,7 @@ pub fn orientation_symmetry(points: &[f64], normals: &[f64], dim: usize) -> Resu
     if dim != 2 && dim != 3 {
         return Err(Error::invalid("points", "must be 2D or 3D"));
     }
-    if points.len() != normals.len() || points.len() % dim != 0 {
+    if points.len() != normals.len() || !points.len().is_multiple_of(dim) {
         return Err(Error::invalid(
             "normals",
             "must have the points' shape (N, D)",

@@ -134,7 +134,7 @@ pub fn register_many(
     use rayon::prelude::*;
     let dim = target.search.dim();
     let m = (dim + 1) * (dim + 1);
-    if inits.len() % m != 0 {
+    if !inits.len().is_multiple_of(m) {
         return Err(Error::invalid(
             "init_poses",
             format!("expected a multiple of {m} values, got {}", inits.len()),
