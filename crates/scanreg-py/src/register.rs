@@ -132,8 +132,8 @@ fn projector(arr: &Option<PyReadonlyArray2<'_, f64>>, dim: usize) -> PyResult<Op
 }
 
 /// The inputs every registration binding converts the same way (`starts(dim)` checks the
-/// start poses), and `solve` run on them with the GIL released (on the calling thread for a
-/// small source, else on the pool).
+/// start poses), and `solve` run on them with the GIL released: on the pool of `num_threads`,
+/// or, for one solve on a small source, on the calling thread.
 #[allow(clippy::too_many_arguments)]
 fn with_inputs<A: Send, T: Send>(
     py: Python<'_>,
