@@ -23,7 +23,7 @@ own error added to the covariance (``REFERENCE_SIGMA``; mbicp's truth is exact) 
 rejected-and-correct, and the median time of the call with its verdict read.
 
     .venv/bin/python benchmarks/wrong_start.py [--all] [--datasets intel,mbicp,kitti,outdoor]
-        [--jsonl out.jsonl] [--timing ROUNDS]
+        [--jsonl out.jsonl] [--timing ROUNDS [--cpu]]
 
 Default: every 15th Intel pair, 40 MbICP scans, 5 KITTI pairs; ``--all``: every pair.
 """
@@ -248,9 +248,12 @@ def _counts(rs: list[dict[str, Any]], dim: int) -> list[int]:
     return [n, correct, ac, aw, ao, aor, rc]
 
 
-def timing(rounds: int) -> None:
+def timing(rounds: int, cpu: bool = False) -> None:
     """The default 2D call (raw arrays, verdict read) with and without the probe, alternated
-    pair by pair in this process: medians of the per-round totals and their ratio."""
+    pair by pair in this process: medians of the per-round totals and their ratio. ``cpu``:
+    the process's CPU time (every thread's) instead of the wall clock, the usable clock on a
+    loaded machine."""
+    clock = time.process_time if cpu else time.perf_counter
     from scanreg.verdict import VerdictThresholds
 
     pairs = list(intel_pairs(15))
@@ -263,16 +266,17 @@ def timing(rounds: int) -> None:
             if (i + rnd) % 2:
                 order.reverse()
             for name, th in order:
-                t0 = time.perf_counter()
+                t0 = clock()
                 res = scanreg.register(src, tgt, method="point_to_line", init=ref, thresholds=th)
                 assert res.verdict is not None
-                sums[name] += time.perf_counter() - t0
+                sums[name] += clock() - t0
         for name in totals:
             totals[name].append(sums[name] / len(pairs))
     med = {k: float(np.median(v)) for k, v in totals.items()}
     ratio = float(np.median(np.array(totals["default"]) / np.array(totals["probe off"])))
     print(
-        f"Intel point-to-line, {len(pairs)} pairs x {rounds} rounds: default "
+        f"Intel point-to-line, {len(pairs)} pairs x {rounds} rounds, "
+        f"{'CPU' if cpu else 'wall'} time: default "
         f"{med['default'] * 1e3:.2f} ms, probe off {med['probe off'] * 1e3:.2f} ms, "
         f"ratio {ratio:.2f}"
     )
@@ -284,9 +288,10 @@ def main() -> None:
     parser.add_argument("--datasets", default="intel,mbicp,kitti,outdoor")
     parser.add_argument("--jsonl", type=Path, help="write one record per registration")
     parser.add_argument("--timing", type=int, default=0, help="only the A/B timing, N rounds")
+    parser.add_argument("--cpu", action="store_true", help="--timing in CPU time (all threads)")
     args = parser.parse_args()
     if args.timing:
-        timing(args.timing)
+        timing(args.timing, args.cpu)
         return
     chosen = args.datasets.split(",")
     records: list[dict[str, Any]] = []

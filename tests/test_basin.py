@@ -265,3 +265,74 @@ def test_3d_odometry_falls_back_when_a_prior_starts_it_in_the_wrong_basin() -> N
         else:
             assert not frames[bad].basin_fallback and not frames[bad].verdict.accepted
             assert np.linalg.norm(e[3:]) > math.radians(30.0), e
+
+
+def _symmetry_numpy(points: np.ndarray, normals: np.ndarray) -> float:
+    """The screen's symmetry signal written out in NumPy: an independent reference for the
+    core's one-pass ``orientation_symmetry``."""
+    n, p = np.asarray(normals, dtype=np.float64), np.asarray(points, dtype=np.float64)
+    if len(n) < 8:
+        return 0.0
+    sign = np.where((n * p).sum(axis=1) > 0.0, -1.0, 1.0)
+    if p.shape[1] == 2:
+        weight = np.hypot(p[:, 0], p[:, 1])
+    else:
+        weight = (np.abs(n[:, 2]) < 0.7).astype(np.float64)
+    angle = np.arctan2(sign * n[:, 1], sign * n[:, 0])
+    ok = np.isfinite(angle) & np.isfinite(weight)
+    which = ((angle[ok] + math.pi) * (72 / (2.0 * math.pi))).astype(np.intp)
+    hist = np.bincount(np.minimum(which, 71), weights=weight[ok], minlength=72)
+    hist = hist + 0.5 * (np.roll(hist, 1) + np.roll(hist, -1))
+    zero = float(hist @ hist)
+    return max(float(hist @ np.roll(hist, -18 * k)) for k in (1, 2, 3)) / zero if zero else 0.0
+
+
+def test_orientation_symmetry_equals_a_numpy_reference() -> None:
+    """The core's symmetry signal equals the NumPy formula on a square room (near 1), a
+    corridor, a lone wall and 3D points with a floor (left out) and walls."""
+    from scanreg.basin import orientation_symmetry
+
+    cases = []
+    for scene, pose in (
+        (sim.square_room(5.0), SE2.from_vector([0.5, 0.3, 0.3])),
+        (sim.corridor(length=16.0, width=3.0), SE2.from_vector([8.0, 0.05, 0.0])),
+    ):
+        target = scanreg.prepare(_scan(scene, pose, 0), normals=True)
+        cases.append((target.points, target.normals))
+    rng = np.random.default_rng(4)
+    wall = np.c_[np.full(50, 2.0), rng.uniform(-1, 1, 50)]
+    cases.append((wall, np.tile([1.0, 0.0], (50, 1))))
+    pts3 = rng.uniform(-3, 3, (200, 3))
+    nrm3 = rng.normal(size=(200, 3))
+    nrm3 /= np.linalg.norm(nrm3, axis=1, keepdims=True)
+    cases.append((pts3, nrm3))
+    values = [orientation_symmetry(p, n) for p, n in cases]
+    for (p, n), v in zip(cases, values, strict=True):
+        assert v == pytest.approx(_symmetry_numpy(p, n), rel=1e-12, abs=1e-15)
+    assert values[0] > 0.95 and values[2] < 0.6, values
+    assert orientation_symmetry(wall[:7], np.tile([1.0, 0.0], (7, 1))) == 0.0
+
+
+def test_probe_restarts_in_one_call_equal_the_restarts_one_by_one() -> None:
+    """The probe's restarts run in one parallel core call: each pose and stop reason is the
+    one ``register_icp`` gives from that start alone, bit for bit."""
+    from scanreg import _core
+    from scanreg.basin import restart_offsets
+
+    room = sim.square_room(5.0)
+    a = SE2.from_vector([0.5, 0.3, 0.3])
+    truth = SE2.from_vector([0.3, 0.1, math.radians(2.0)])
+    src, tgt = _scan(room, a @ truth, 1), _scan(room, a, 0)
+    target = scanreg.prepare(tgt, normals=True)
+    starts = np.stack([(truth @ o).as_matrix() for o in restart_offsets(2, 0.5)])
+    args = ("point_to_line", "none", 1.0, 0.5, 6, 1e-4, 1e-4, "gauss_newton", 4)
+    for threads in (1, 2):
+        poses, reasons = _core.register_icp_starts(
+            src, target.index, starts, *args, threads, None, target.normals
+        )
+        assert poses.shape == (len(starts), 3, 3) and len(reasons) == len(starts)
+        for start, pose, reason in zip(starts, poses, reasons, strict=True):
+            one = _core.register_icp(src, target.index, start, *args, 1, None, target.normals)
+            assert np.array_equal(pose, one.pose) and reason == one.stop_reason
+    with pytest.raises(ValueError, match="init_poses: expected shape"):
+        _core.register_icp_starts(src, target.index, np.zeros((2, 4, 4)), *args)

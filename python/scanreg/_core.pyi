@@ -256,6 +256,26 @@ def register_icp(
     step_projector: NDArray[np.float64] | None = None,
     extrapolate: bool = True,
 ) -> IcpOutcome: ...
+def register_icp_starts(
+    source: NDArray[np.float64],
+    target: KdTree | LocalMap,
+    init_poses: NDArray[np.float64],
+    method: str,
+    kernel: str,
+    kernel_scale: float,
+    max_correspondence_distance: float,
+    max_iterations: int,
+    translation_tolerance: float,
+    rotation_tolerance: float,
+    optimizer: str,
+    min_correspondences: int,
+    num_threads: int | None = None,
+    source_covariances: NDArray[np.float64] | None = None,
+    target_normals: NDArray[np.float64] | None = None,
+    target_covariances: NDArray[np.float64] | None = None,
+    step_projector: NDArray[np.float64] | None = None,
+    extrapolate: bool = True,
+) -> tuple[NDArray[np.float64], list[str]]: ...
 
 # --- Censi covariance and block scores (crates/scanreg-py/src/censi.rs) ---
 
@@ -412,6 +432,9 @@ def overlap_statistics(
     hints: NDArray[np.int64] | None = None,
 ) -> tuple[int, float, float, float, float]: ...
 def target_normal_noise(tree: KdTree, normals: NDArray[np.float64]) -> tuple[float, float]: ...
+def orientation_symmetry(
+    points_array: NDArray[np.float64], normals: NDArray[np.float64]
+) -> float: ...
 def sampled_normals(
     points_array: NDArray[np.float64], k: int, max_points: int
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]: ...

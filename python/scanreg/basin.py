@@ -23,8 +23,10 @@ a Gaussian cannot cover two poses 90° apart.
 
 The restarts run only when cheap evidence doubts the basin (:func:`basin_doubts`: a low fit
 margin, a move beyond 1σ of the start's covariance, symmetric walls): a result nothing doubts
-costs one nearest-neighbour pass and a histogram. In 3D the restarts are three yaw turns (90°,
-−90°, 180°) and the tight gate is at least the target's point spacing (voxelised clouds).
+costs one nearest-neighbour pass and a histogram. The restarts themselves are one core call
+(``_core.register_icp_starts``), their solves in parallel. In 3D the restarts are three yaw
+turns (90°, −90°, 180°) and the tight gate is at least the target's point spacing (voxelised
+clouds).
 
 Measured (``benchmarks/wrong_start.py``, ``benchmarks/README.md``): on real Intel pairs from
 starts turned by up to ±70° and moved by 0.6 m, the restarts separate wrong from correct
@@ -34,6 +36,7 @@ at the registration's own gate they do not (26 correct flagged for 118 wrong).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -147,12 +150,30 @@ def restart_offsets(dim: int, gate: float) -> list[SE2 | SE3]:
     Intel and MbICP benchmark pairs ±45° found the most alternatives, then ±90°, then a
     half-gate move forward): turns about the source origin and, when the gate is finite,
     half-gate moves along each horizontal axis."""
+    return list(_restart_offsets(dim, float(gate)))
+
+
+@functools.lru_cache(maxsize=16)
+def _offset_stacks(dim: int, gate: float) -> tuple[FloatArray, FloatArray]:
+    """The rotations ``(K, D, D)`` and translations ``(K, D, 1)`` of the restart offsets."""
+    offsets = _restart_offsets(dim, gate)
+    rot = np.stack([o.rotation for o in offsets])
+    trans = np.stack([o.translation for o in offsets])[..., None]
+    rot.setflags(write=False)
+    trans.setflags(write=False)
+    return rot, trans
+
+
+@functools.lru_cache(maxsize=16)
+def _restart_offsets(dim: int, gate: float) -> tuple[SE2 | SE3, ...]:
+    # Built once per gate (a registration loop keeps its gate): eleven poses from vectors
+    # cost as much as the screen itself. The poses are immutable, so sharing them is safe.
     if dim == 3:
         # A 3D restart costs a registration's worth of iterations over thousands of points:
         # only the turns of the ambiguities a building or a street makes.
-        return [
+        return tuple(
             SE3.from_vector([0.0, 0.0, 0.0, 0.0, 0.0, math.radians(d)]) for d in RESTART_YAWS_3D_DEG
-        ]
+        )
     h = gate / 2.0 if math.isfinite(gate) else 0.0
     steps = [(0.0, 0.0, d) for d in RESTART_YAWS_DEG[:4]]
     steps += [(h, 0.0, 0.0)] if h else []
@@ -166,7 +187,7 @@ def restart_offsets(dim: int, gate: float) -> list[SE2 | SE3]:
             if dim == 2
             else SE3.from_vector([dx, dy, 0.0, 0.0, 0.0, a])
         )
-    return out
+    return tuple(out)
 
 
 def _correlative_start(
@@ -203,29 +224,12 @@ def orientation_symmetry(points: FloatArray, normals: FloatArray) -> float:
     by the wall length each point stands for (its range in 2D: one beam step of arc; one voxel
     in 3D). A rotational ambiguity needs it near 1; it does not suffice (it ignores where the
     walls are), so it only calls for the restarts."""
-    n = np.asarray(normals, dtype=np.float64)
-    p = np.asarray(points, dtype=np.float64)
+    n = np.ascontiguousarray(normals, dtype=np.float64)
+    p = np.ascontiguousarray(points, dtype=np.float64)
     if len(n) < 8 or n.shape != p.shape:
         return 0.0
-    # Turned toward the sensor: -n where n points away from the origin.
-    sign = np.where((n * p).sum(axis=1) > 0.0, -1.0, 1.0)
-    if p.shape[1] == 2:
-        weight = np.hypot(p[:, 0], p[:, 1])
-    else:
-        weight = (np.abs(n[:, 2]) < 0.7).astype(np.float64)  # walls only
-    angle = np.arctan2(sign * n[:, 1], sign * n[:, 0])
-    ok = np.isfinite(angle) & np.isfinite(weight)
-    bins = 72  # 5°: walls of a real room are straight to a few degrees
-    which = ((angle[ok] + math.pi) * (bins / (2.0 * math.pi))).astype(np.intp)
-    hist = np.bincount(np.minimum(which, bins - 1), weights=weight[ok], minlength=bins)
-    wrap = np.concatenate((hist[-1:], hist, hist[:1]))
-    hist = hist + 0.5 * (wrap[:-2] + wrap[2:])  # one bin of tolerance
-    zero = float(hist @ hist)
-    if zero <= 0:
-        return 0.0
-    twice = np.concatenate((hist, hist))  # circular shifts as slices (np.roll is slow here)
-    q = bins // 4
-    return max(float(hist @ twice[k * q : k * q + bins]) for k in (1, 2, 3)) / zero
+    # One pass in the core (``scanreg_core::symmetry``): 5° bins, one bin of tolerance.
+    return float(_core.orientation_symmetry(p, n))
 
 
 def _chi2(v: FloatArray, cov: FloatArray) -> float:
@@ -321,7 +325,7 @@ def _fraction(index: Any, source: FloatArray, pose: SE2 | SE3, gate: float) -> f
 
 
 def probe_basin(
-    solve: Callable[[SE2 | SE3, int], Any],
+    solve: Callable[[FloatArray, int], tuple[FloatArray, list[str]]],
     index: Any,
     source: FloatArray,
     pose: SE2 | SE3,
@@ -333,12 +337,14 @@ def probe_basin(
     target_points: FloatArray | None = None,
     screen: bool = False,
     start: SE2 | SE3 | None = None,
+    motion: FloatArray | None = None,
     prior: FloatArray | None = None,
     inlier_rmse: float = 0.0,
     target_normals: FloatArray | None = None,
 ) -> BasinProbe:
-    """Restart ``solve`` (``(start, max_iterations) -> core outcome``, the registration's own
-    solve) around ``pose`` (see the module docstring).
+    """Restart ``solve`` around ``pose`` (see the module docstring): the registration's own
+    solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations) -> (poses
+    (K, D+1, D+1), stop reasons)`` (the core's ``register_icp_starts``).
 
     ``index`` is the target's k-d tree or map, ``source`` the registered source points,
     ``covariance`` the result's ``(dof, dof)`` covariance (non-finite: only the fixed
@@ -351,7 +357,8 @@ def probe_basin(
     ``screen``: restart only when :func:`basin_doubts` finds a reason to, from ``start`` and
     its covariance ``prior``, the result's ``inlier_rmse`` within ``gate``, the tight overlap
     and the symmetry of ``target_points`` / ``target_normals`` (when given); otherwise the
-    probe returns with no restart (``evidence`` empty).
+    probe returns with no restart (``evidence`` empty). ``motion``: ``log(start⁻¹ · pose)``
+    when the caller has it already (the registration's trust analysis does).
     """
     t0 = time.perf_counter()
     dim = pose.DIM
@@ -380,7 +387,7 @@ def probe_basin(
             tight_overlap=here,
             inlier_rmse=inlier_rmse,
             gate=gate,
-            motion=None if start is None else _relative_log(start, pose),
+            motion=motion if motion is not None or start is None else _relative_log(start, pose),
             prior=prior,
             symmetry=sym,
         )
@@ -397,14 +404,15 @@ def probe_basin(
                 growth=_frozen(np.zeros((dof, dof))),
                 seconds=time.perf_counter() - t0,
             )
-    info = np.linalg.pinv(cov, hermitian=True) if finite else None
+    # The pseudo-inverse only for an outcome that did not come back (most do).
+    info: FloatArray | None = None
     cover = cov
     inverse = pose.inverse()
     inverse_matrix = inverse.as_matrix()
     best: tuple[float, SE2 | SE3, FloatArray] | None = None
     distinct = 0
     covered = 0
-    starts: list[SE2 | SE3] = []
+    first: list[FloatArray] = []
     if (
         CORRELATIVE_START
         and dim == 2
@@ -412,20 +420,37 @@ def probe_basin(
         and math.isfinite(gate)
         and len(target_points)
     ):
-        starts.append(_correlative_start(pose, source, target_points, gate))
-    starts += [pose @ offset for offset in restart_offsets(dim, gate)]  # type: ignore[operator]
+        first.append(_correlative_start(pose, source, target_points, gate).as_matrix())
+    offsets = _restart_offsets(dim, float(gate))
+    # ``pose @ offset`` for every offset at once: the same products, stacked (a pose object
+    # per start cost more than its restart's solve).
+    rot, trans = _offset_stacks(dim, float(gate))
+    starts = np.zeros((len(first) + len(offsets), dim + 1, dim + 1))
+    if first:
+        starts[0] = first[0]
+    starts[len(first) :, :dim, :dim] = np.matmul(pose.rotation, rot)
+    starts[len(first) :, :dim, dim] = np.matmul(pose.rotation, trans)[..., 0] + pose.translation
+    starts[:, dim, dim] = 1.0
+    # Every restart in one core call, in parallel; read in order below, so the early stop
+    # leaves the same outcome (and count) as restarting one by one.
+    poses, reasons = solve(starts, RESTART_ITERATIONS)
+    # Most restarts come back to the result: told from the matrices alone (the pose
+    # objects and their logarithm cost more than the restart's solve).
+    rels = np.matmul(inverse_matrix, poses)
     ran = 0
-    for start in starts:
+    for m, rel, reason in zip(poses, rels, reasons, strict=True):
         ran += 1
-        out = solve(start, RESTART_ITERATIONS)
-        if str(out.stop_reason) not in ("converged", "max_iterations"):
+        if reason not in ("converged", "max_iterations"):
             continue
-        m = np.asarray(out.pose)
-        # Most restarts come back to the result: told from the matrices alone (the pose
-        # objects and their logarithm cost more than the restart's solve).
-        rel = inverse_matrix @ m
-        cos = (float(np.trace(rel[:dim, :dim])) - (dim - 2)) / 2.0
-        if float(np.linalg.norm(rel[:dim, dim])) <= 0.5 * tight and cos >= COS_1DEG:
+        if dim == 2:
+            # np.trace and np.linalg.norm's sums, on Python floats.
+            cos = (float(rel[0, 0]) + float(rel[1, 1])) / 2.0
+            tx, ty = float(rel[0, 2]), float(rel[1, 2])
+            back = math.sqrt(tx * tx + ty * ty) <= 0.5 * tight
+        else:
+            cos = (float(np.trace(rel[:dim, :dim])) - (dim - 2)) / 2.0
+            back = float(np.linalg.norm(rel[:dim, dim])) <= 0.5 * tight
+        if back and cos >= COS_1DEG:
             continue
         # The core's rotation is orthonormal: no check (from_matrix costs a solve's worth).
         kind = SE2 if dim == 2 else SE3
@@ -435,6 +460,8 @@ def probe_basin(
         turned = abs(float(e[2])) if dim == 2 else float(np.linalg.norm(e[3:]))
         if moved <= 0.5 * tight and turned <= math.radians(1.0):
             continue
+        if finite and info is None:
+            info = np.asarray(np.linalg.pinv(cov, hermitian=True), dtype=np.float64)
         if info is not None and float(e @ info @ e) <= CHI2_999[dof]:
             continue
         distinct += 1

@@ -653,6 +653,29 @@ def register(
             s.extrapolate,
         )
 
+    def run_starts(projector: FloatArray | None, starts: FloatArray, max_iterations: int) -> Any:
+        # ``run`` from each of ``starts`` (K, D+1, D+1), the solves in parallel in the core.
+        return _core.register_icp_starts(
+            src,
+            index,
+            starts,  # init_poses
+            method_eff,
+            s.kernel,
+            k_scale,  # kernel_scale
+            s.max_correspondence_distance,
+            max_iterations,
+            s.translation_tolerance,
+            s.rotation_tolerance,
+            s.optimizer,
+            min_corr,  # min_correspondences
+            s.num_threads,
+            source_covariances,
+            t_normals if method_eff in _PLANAR and not is_map else None,  # target_normals
+            t_covs if method_eff == "gicp" and not is_map else None,  # target_covariances
+            projector,  # step_projector
+            s.extrapolate,
+        )
+
     th = _DEFAULT_THRESHOLDS if thresholds is None else thresholds
 
     projector0 = None
@@ -699,7 +722,7 @@ def register(
             if method_eff == "point_to_point" and has_normals(prepared)
             else None
         ),
-        "solve": lambda start, iterations: run(held, start, max_iterations=iterations),
+        "solve": lambda starts, iterations: run_starts(held, starts, iterations),
     }
     # Built here only when the solve needs it; a lazy analysis builds it on first use.
     ctx: TrustInputs | dict[str, Any] = ctx_fields

@@ -9,8 +9,8 @@ call hands it — never the solver directly:
 * ``plane_solve(start)``: reading ``covariance`` after a point-to-point registration whose
   target has normals runs one point-to-plane/line registration from its pose (the
   ``calibrated`` covariance is that estimate's plus the offset between the two);
-* ``solve(start, iterations)``: the 2D verdict's wrong-basin probe (:mod:`scanreg.basin`)
-  restarts the registration's own solve around the result;
+* ``solve(starts, iterations)``: the 2D verdict's wrong-basin probe (:mod:`scanreg.basin`)
+  restarts the registration's own solve around the result, every start in one core call;
 * the degeneracy-aware solve (``degeneracy_aware=True``) measures its valley with two held
   solves per weak direction (:func:`valley_moment`, called by ``register`` itself).
 
@@ -53,7 +53,14 @@ from .quality import (
 )
 from .target import PreparedTarget
 from .transform import SE2, SE3
-from .verdict import QualityReport, Verdict, VerdictThresholds, _assess_checked, judge
+from .verdict import (
+    Assessment,
+    QualityReport,
+    Verdict,
+    VerdictThresholds,
+    _assess_checked,
+    judge,
+)
 
 if TYPE_CHECKING:
     from .register import RegistrationSettings
@@ -142,9 +149,9 @@ class TrustInputs:
     #: registration from ``pose`` (held along the weak directions where the solve was), for
     #: ``calibrated`` (:func:`_via_plane_reference`); None otherwise.
     plane_solve: Any = None
-    #: ``solve(start, max_iterations)``: the registration's own solve from another start (held
-    #: where it was),
-    #: for the verdict's wrong-basin probe (:mod:`scanreg.basin`).
+    #: ``solve(starts, max_iterations) -> (poses, stop_reasons)``: the registration's own solve
+    #: (held where it was) from each of ``starts`` (``(K, D+1, D+1)``), in one parallel core
+    #: call, for the verdict's wrong-basin probe (:mod:`scanreg.basin`).
     solve: Any = None
 
     @functools.cached_property
@@ -227,6 +234,11 @@ class CorrespondenceAnalysis:
     #: The core's arithmetic of this analysis (``_core.TrustNumbers``): covariances,
     #: conditioning, information and motion χ² of the outcome it was run on.
     numbers: Any = None
+    #: ``start⁻¹ · pose``, its logarithm and the outcome's correspondences (int64, -1 for
+    #: none): computed once here, read again by the verdict and the basin probe's screen.
+    moved: Any = None
+    drift: Any = None
+    correspondences: Any = None
 
 
 @dataclass(frozen=True)
@@ -300,6 +312,7 @@ def correspondence_analysis(
         else (math.nan, math.nan)
     )
     corr = np.asarray(out.correspondences)
+    matched = corr  # the core's, before a map's rows are compacted: the overlap's hints
     tp, tn, tc = ctx.target_points, ctx.target_normals, ctx.target_covariances
     if isinstance(prepared, LocalMap):
         # A map's rows are gathered for the matched ids only (a few thousand, not the storage).
@@ -368,6 +381,7 @@ def correspondence_analysis(
     )
     pose = pose_from_core(out, dim)
     moved = ctx.start.inverse() @ pose  # type: ignore[operator]
+    drift = moved.log()
     kernel = s.kernel != "none"
     # By position up to the keywords: the binding's order.
     num = _core.trust_numbers(
@@ -377,7 +391,7 @@ def correspondence_analysis(
         method=method,
         levers=ctx.levers,
         prior=ctx.prior,
-        drift=moved.log(),
+        drift=drift,
         motion=np.asarray(moved.translation, dtype=np.float64),
         length_scale=ctx.length_scale,
         covariance=s.covariance,
@@ -415,6 +429,9 @@ def correspondence_analysis(
         agreement=agreement,
         valley=valley,
         numbers=num,
+        moved=moved,
+        drift=drift,
+        correspondences=matched,
     )
 
 
@@ -538,8 +555,9 @@ def _trust(
         converged=stop == "converged",
         stop_reason=stop,
         degeneracy=deg,
-        hints=None if isinstance(ctx.target, LocalMap) else out.correspondences,
+        hints=None if isinstance(ctx.target, LocalMap) else corr.correspondences,
         motion_nees=num.motion_nees,
+        moved=corr.moved,
     )
     if checked.verdict.accepted and th.probes_basin(dim) and ctx.solve is not None:
         # Only a result every other check accepts is probed (the restarts cannot turn a
@@ -557,12 +575,15 @@ def _trust(
             target_points=ctx.target_points,
             screen=th.basin_screen,
             start=ctx.start,
+            motion=corr.drift,
             prior=ctx.prior,
             inlier_rmse=checked.report.residual_rmse,
             target_normals=ctx.target_normals,
         )
         report = dataclasses.replace(checked.report, basin=probe)
-        checked = dataclasses.replace(checked, report=report, verdict=judge(report, th))
+        # Only an alternative can add a reason: without one the verdict stands as judged.
+        verdict = judge(report, th) if probe.alternative is not None else checked.verdict
+        checked = Assessment(report=report, verdict=verdict)
         if probe.covered:
             # Part of the calibrated covariance: alternatives in the same basin it must cover.
             chosen = _readonly(_psd(chosen + probe.growth))

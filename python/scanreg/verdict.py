@@ -255,12 +255,14 @@ def _assess_checked(
     basin: BasinProbe | None = None,
     prior: FloatArray | None = None,
     motion_nees: float | None = None,
+    moved: SE2 | SE3 | None = None,
 ) -> Assessment:
     """:func:`assess` on inputs already checked (``source`` validated, ``target`` prepared
     and of the pose's dimension, ``conditioning`` at ``thresholds.weak_ratio``): what
     :func:`scanreg.register` calls, with no second validation of its own arrays. ``prior``:
     the covariance of ``start`` (the motion check is measured from it); else ``motion_nees``,
-    the registration's own (measured from *its* start). ``hints``:
+    the registration's own (measured from *its* start); ``moved``: ``start⁻¹ · pose`` when the
+    caller has it already. ``hints``:
     the registration's final correspondences (int64, ``-1`` for none), where the overlap
     search starts (same result, faster)."""
     is_map = isinstance(target, LocalMap)
@@ -268,7 +270,8 @@ def _assess_checked(
         raise ValueError(f"max_distance: must be finite and >= 0, got {gate}")
     index = target.native if isinstance(target, LocalMap) else target.index
     num_found, *stats = _core.overlap_statistics(index, source, pose.as_matrix(), gate, hints=hints)
-    moved = start.inverse() @ pose  # type: ignore[operator]
+    if moved is None:
+        moved = start.inverse() @ pose  # type: ignore[operator]
     if prior is not None:
         d = pose.DIM
         block = np.asarray(prior, dtype=np.float64)[:d, :d]

@@ -39,6 +39,7 @@ pub mod reduce;
 pub mod simulate;
 pub mod sweep;
 pub mod symeig;
+pub mod symmetry;
 pub mod threads;
 pub mod trust;
 pub mod voxel_map;

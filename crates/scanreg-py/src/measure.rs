@@ -11,7 +11,7 @@ use pyo3::prelude::*;
 use scanreg_core::kernel::Kernel;
 use scanreg_core::knn::check_max_distance;
 use scanreg_core::normal_agreement::{self, AgreementInput};
-use scanreg_core::{normal_noise, overlap};
+use scanreg_core::{normal_noise, overlap, symmetry};
 
 /// `(num_found, mean, median, rmse, trimmed_rmse)` of the distances from each source point,
 /// moved by `pose_matrix`, to its nearest target point within `max_distance`.
@@ -55,6 +55,18 @@ fn target_normal_noise(
     let nrm = points_dim(&normals, "normals", tree.dim())?;
     py.detach(|| normal_noise::target_normal_noise(tree, nrm))
         .map_err(core_err)
+}
+
+/// How much the walls of `points` (normals `normals`) look the same turned by a quarter, half
+/// or three quarters of a turn (`scanreg_core::symmetry`).
+#[pyfunction]
+fn orientation_symmetry(
+    points_array: PyReadonlyArray2<'_, f64>,
+    normals: PyReadonlyArray2<'_, f64>,
+) -> PyResult<f64> {
+    let (pts, dim) = points(&points_array, "points")?;
+    let nrm = c_slice(&normals, "normals")?;
+    symmetry::orientation_symmetry(pts, nrm, dim).map_err(core_err)
 }
 
 type Sampled = (Py<PyArray1<i64>>, Py<PyArray2<f64>>);
@@ -163,6 +175,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(overlap_statistics, m)?)?;
     m.add_function(wrap_pyfunction!(target_normal_noise, m)?)?;
     m.add_function(wrap_pyfunction!(sampled_normals, m)?)?;
+    m.add_function(wrap_pyfunction!(orientation_symmetry, m)?)?;
     m.add_function(wrap_pyfunction!(correspondence_normal_noise, m)?)?;
     Ok(())
 }

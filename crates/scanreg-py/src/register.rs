@@ -7,12 +7,13 @@ use crate::convert::{
     target_search, TargetSearch,
 };
 use numpy::PyUntypedArrayMethods;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray2, PyReadonlyArray3};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 use scanreg_core::icp::{self, Method, Optimizer, Settings, Source, Target};
 use scanreg_core::lie::nearest_rotation_2d;
+use scanreg_core::threads::in_pool;
 use scanreg_core::Kernel;
 
 /// What the core returns for one registration (or one evaluation). `pose`, `score_outer` and
@@ -130,6 +131,107 @@ fn projector(arr: &Option<PyReadonlyArray2<'_, f64>>, dim: usize) -> PyResult<Op
     Ok(Some(out))
 }
 
+/// The inputs every registration binding converts the same way (`starts(dim)` checks the
+/// start poses), and `solve` run on them with the GIL released: on the pool of `num_threads`,
+/// or, for one solve on a small source, on the calling thread.
+#[allow(clippy::too_many_arguments)]
+fn with_inputs<A: Send, T: Send>(
+    py: Python<'_>,
+    source: &PyReadonlyArray2<'_, f64>,
+    starts: impl FnOnce(usize) -> PyResult<A>,
+    // Several solves share out over the pool even on a small source.
+    parallel_starts: bool,
+    target: &Bound<'_, PyAny>,
+    method: &str,
+    kernel: &str,
+    kernel_scale: f64,
+    max_correspondence_distance: f64,
+    max_iterations: usize,
+    translation_tolerance: f64,
+    rotation_tolerance: f64,
+    optimizer: &str,
+    min_correspondences: usize,
+    num_threads: Option<usize>,
+    source_covariances: &Option<PyReadonlyArray3<'_, f64>>,
+    target_normals: &Option<PyReadonlyArray2<'_, f64>>,
+    target_covariances: &Option<PyReadonlyArray3<'_, f64>>,
+    step_projector: &Option<PyReadonlyArray2<'_, f64>>,
+    extrapolate: bool,
+    solve: impl FnOnce(A, &Source<'_>, &Target<'_>, &Settings) -> scanreg_core::Result<T> + Send,
+) -> PyResult<(usize, T)> {
+    // The target is a k-d tree over a fixed cloud (attributes passed in) or a local map
+    // (attributes stored in it, read under its lock for the whole registration).
+    let held = target_search(target)?;
+    let search = held.search();
+    let map_guard = match &held {
+        TargetSearch::Map(g) => Some(g),
+        TargetSearch::Tree(_) => None,
+    };
+    if map_guard.is_some() && (target_normals.is_some() || target_covariances.is_some()) {
+        return Err(PyValueError::new_err(
+            "target_normals/target_covariances: a LocalMap target carries its own",
+        ));
+    }
+    let dim = search.dim();
+    let src = points_dim(source, "source", dim)?;
+    let init = starts(dim)?;
+    let nrm = match &map_guard {
+        Some(g) => g.normals(),
+        None => target_normals
+            .as_ref()
+            .map(|a| points_dim(a, "target_normals", dim))
+            .transpose()?,
+    };
+    let tcov = match &map_guard {
+        Some(g) => g.covariances(),
+        None => covariances(
+            target_covariances,
+            "target_covariances",
+            search.id_count(),
+            dim,
+        )?,
+    };
+    let scov = covariances(
+        source_covariances,
+        "source_covariances",
+        src.len() / dim,
+        dim,
+    )?;
+    let settings = Settings {
+        method: Method::from_name(method).map_err(core_err)?,
+        kernel: Kernel::from_name(kernel, kernel_scale).map_err(core_err)?,
+        max_correspondence_distance,
+        max_iterations,
+        translation_tolerance,
+        rotation_tolerance,
+        optimizer: Optimizer::from_name(optimizer).map_err(core_err)?,
+        min_correspondences,
+        step_projector: projector(step_projector, dim)?,
+        extrapolate,
+    };
+    let src_in = Source {
+        points: src,
+        covariances: scov,
+    };
+    let tgt_in = Target {
+        search,
+        normals: nrm,
+        covariances: tcov,
+    };
+    let out = py
+        .detach(|| {
+            let run = || solve(init, &src_in, &tgt_in, &settings);
+            if parallel_starts {
+                in_pool(num_threads, run)
+            } else {
+                in_pool_unless_small(src.len() / dim, num_threads, run)
+            }
+            .and_then(|r| r)
+        })
+        .map_err(core_err)?;
+    Ok((dim, out))
+}
+
 #[pyfunction]
 // No `*`: `register()` passes every argument by position, in this order (PyO3 matches each
 // keyword against the names one by one: a call with all 20 arguments took 2.39 µs with 17 of
@@ -163,87 +265,43 @@ fn register_icp(
     step_projector: Option<PyReadonlyArray2<'_, f64>>,
     extrapolate: bool,
 ) -> PyResult<IcpOutcome> {
-    // The target is a k-d tree over a fixed cloud (attributes passed in) or a local map
-    // (attributes stored in it, read under its lock for the whole registration).
-    let held = target_search(target)?;
-    let search = held.search();
-    let map_guard = match &held {
-        TargetSearch::Map(g) => Some(g),
-        TargetSearch::Tree(_) => None,
-    };
-    if map_guard.is_some() && (target_normals.is_some() || target_covariances.is_some()) {
-        return Err(PyValueError::new_err(
-            "target_normals/target_covariances: a LocalMap target carries its own",
-        ));
-    }
-    let dim = search.dim();
-    let src = points_dim(&source, "source", dim)?;
-    let init = pose(&init_pose, "init_pose", dim)?;
-    let nrm = match &map_guard {
-        Some(g) => g.normals(),
-        None => target_normals
-            .as_ref()
-            .map(|a| points_dim(a, "target_normals", dim))
-            .transpose()?,
-    };
-    let tcov = match &map_guard {
-        Some(g) => g.covariances(),
-        None => covariances(
-            &target_covariances,
-            "target_covariances",
-            search.id_count(),
-            dim,
-        )?,
-    };
-    let scov = covariances(
-        &source_covariances,
-        "source_covariances",
-        src.len() / dim,
-        dim,
-    )?;
-    let settings = Settings {
-        method: Method::from_name(method).map_err(core_err)?,
-        kernel: Kernel::from_name(kernel, kernel_scale).map_err(core_err)?,
+    let (dim, out) = with_inputs(
+        py,
+        &source,
+        |dim| pose(&init_pose, "init_pose", dim),
+        false,
+        target,
+        method,
+        kernel,
+        kernel_scale,
         max_correspondence_distance,
         max_iterations,
         translation_tolerance,
         rotation_tolerance,
-        optimizer: Optimizer::from_name(optimizer).map_err(core_err)?,
+        optimizer,
         min_correspondences,
-        step_projector: projector(&step_projector, dim)?,
+        num_threads,
+        &source_covariances,
+        &target_normals,
+        &target_covariances,
+        &step_projector,
         extrapolate,
-    };
-    let src_in = Source {
-        points: src,
-        covariances: scov,
-    };
-    let tgt_in = Target {
-        search,
-        normals: nrm,
-        covariances: tcov,
-    };
-    let out = py
-        .detach(|| {
-            in_pool_unless_small(src.len() / dim, num_threads, || {
-                if iterate {
-                    icp::register(&src_in, &tgt_in, init, &settings)
-                } else {
-                    icp::evaluate_at(&src_in, &tgt_in, init, &settings).map(|evaluation| {
-                        icp::Outcome {
-                            pose: init.to_vec(),
-                            iterations: 0,
-                            stop_reason: icp::StopReason::MaxIterations,
-                            evaluation,
-                            iteration_seconds: Vec::new(),
-                            final_evaluation_seconds: 0.0,
-                            correspondences: Vec::new(),
-                        }
-                    })
-                }
-            })
-            .and_then(|r| r)
-        })
-        .map_err(core_err)?;
+        |init, src_in, tgt_in, settings| {
+            if iterate {
+                icp::register(src_in, tgt_in, init, settings)
+            } else {
+                icp::evaluate_at(src_in, tgt_in, init, settings).map(|evaluation| icp::Outcome {
+                    pose: init.to_vec(),
+                    iterations: 0,
+                    stop_reason: icp::StopReason::MaxIterations,
+                    evaluation,
+                    iteration_seconds: Vec::new(),
+                    final_evaluation_seconds: 0.0,
+                    correspondences: Vec::new(),
+                })
+            }
+        },
+    )?;
     let dof = out.evaluation.gradient.len();
     let (rotation, translation) = rigid_parts(&out.pose, dim)?;
     let ev = out.evaluation;
@@ -270,8 +328,87 @@ fn register_icp(
     })
 }
 
+#[pyfunction]
+// By position, as `register_icp` (whose arguments these are, `init_pose` replaced by
+// `init_poses` and no `iterate`).
+#[pyo3(signature = (
+    source, target, init_poses, method, kernel, kernel_scale, max_correspondence_distance,
+    max_iterations, translation_tolerance, rotation_tolerance, optimizer, min_correspondences,
+    num_threads=None, source_covariances=None, target_normals=None, target_covariances=None,
+    step_projector=None, extrapolate=true
+))]
+#[allow(clippy::too_many_arguments)]
+/// The registration from each of `init_poses` (`(K, D+1, D+1)`), the solves in parallel (the
+/// wrong-basin probe's restarts): `(poses (K, D+1, D+1), stop reasons)`, each pose the one
+/// `register_icp` returns from that start.
+fn register_icp_starts<'py>(
+    py: Python<'py>,
+    source: PyReadonlyArray2<'_, f64>,
+    target: &Bound<'_, PyAny>,
+    init_poses: PyReadonlyArray3<'_, f64>,
+    method: &str,
+    kernel: &str,
+    kernel_scale: f64,
+    max_correspondence_distance: f64,
+    max_iterations: usize,
+    translation_tolerance: f64,
+    rotation_tolerance: f64,
+    optimizer: &str,
+    min_correspondences: usize,
+    num_threads: Option<usize>,
+    source_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    target_normals: Option<PyReadonlyArray2<'_, f64>>,
+    target_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    step_projector: Option<PyReadonlyArray2<'_, f64>>,
+    extrapolate: bool,
+) -> PyResult<(Bound<'py, PyArray3<f64>>, Vec<&'static str>)> {
+    let (dim, outs) = with_inputs(
+        py,
+        &source,
+        |dim| {
+            let shape = init_poses.shape();
+            if shape[1] != dim + 1 || shape[2] != dim + 1 {
+                return Err(PyValueError::new_err(format!(
+                    "init_poses: expected shape (K, {0}, {0}), got {shape:?}",
+                    dim + 1
+                )));
+            }
+            c_slice(&init_poses, "init_poses")
+        },
+        true,
+        target,
+        method,
+        kernel,
+        kernel_scale,
+        max_correspondence_distance,
+        max_iterations,
+        translation_tolerance,
+        rotation_tolerance,
+        optimizer,
+        min_correspondences,
+        num_threads,
+        &source_covariances,
+        &target_normals,
+        &target_covariances,
+        &step_projector,
+        extrapolate,
+        |inits, src_in, tgt_in, settings| icp::register_many(src_in, tgt_in, inits, settings),
+    )?;
+    let m = dim + 1;
+    let mut poses = Vec::with_capacity(outs.len() * m * m);
+    let mut reasons = Vec::with_capacity(outs.len());
+    for out in &outs {
+        poses.extend_from_slice(&out.pose);
+        reasons.push(out.stop_reason.name());
+    }
+    let arr = numpy::ndarray::Array3::from_shape_vec((outs.len(), m, m), poses)
+        .map_err(|e| PyValueError::new_err(format!("internal: {e}")))?;
+    Ok((arr.into_pyarray(py), reasons))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<IcpOutcome>()?;
     m.add_function(wrap_pyfunction!(register_icp, m)?)?;
+    m.add_function(wrap_pyfunction!(register_icp_starts, m)?)?;
     Ok(())
 }

@@ -121,6 +121,41 @@ pub fn register(
     })
 }
 
+/// [`register`] from each of several starts (`inits`: row-major homogeneous poses, one after
+/// another), the solves in parallel: the wrong-basin probe's restarts in one call. Each
+/// outcome is the one [`register`] gives from that start alone (the solves share nothing but
+/// the read-only inputs; each one's reductions are deterministic).
+pub fn register_many(
+    source: &Source<'_>,
+    target: &Target<'_>,
+    inits: &[f64],
+    settings: &Settings,
+) -> Result<Vec<Outcome>> {
+    use rayon::prelude::*;
+    let dim = target.search.dim();
+    let m = (dim + 1) * (dim + 1);
+    if !inits.len().is_multiple_of(m) {
+        return Err(Error::invalid(
+            "init_poses",
+            format!("expected a multiple of {m} values, got {}", inits.len()),
+        ));
+    }
+    let pr = problem(source, target, settings)?;
+    for init in inits.chunks_exact(m) {
+        split_pose("init", init, dim)?;
+    }
+    Ok(inits
+        .par_chunks_exact(m)
+        .map(|init| {
+            if dim == 2 {
+                centred::run::<Planar, 2, 3>(&pr, init, settings)
+            } else {
+                centred::run::<Spatial, 3, 6>(&pr, init, settings)
+            }
+        })
+        .collect())
+}
+
 /// The normal equations at one pose (with score outer products), without iterating.
 pub fn evaluate_at(
     source: &Source<'_>,
