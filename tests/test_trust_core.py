@@ -121,6 +121,8 @@ def test_core_trust_equals_the_python_reference(scene: str, method: str, kernel:
     dof = 3 if dim == 2 else 6
     sigma2 = ref.residual_variance(out, ctx.components, ctx.settings.kernel, dof)
     want_corr = ref.correspondence_analysis(ctx, out)
+    # The 2D sampling term is part of what is compared (not skipped for want of normals).
+    assert (want_corr.sampling is not None) == (dim == 2)
     want = ref._covariance_estimates(ctx, out, pose, out.hessian, sigma2, want_corr)
 
     got = res.covariances
