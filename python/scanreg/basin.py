@@ -35,6 +35,7 @@ at the registration's own gate they do not (26 correct flagged for 118 wrong).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -265,13 +266,16 @@ def along_axis_lookalike(
     if not (math.isfinite(gate) and gate > 0 and np.isfinite(cov).all()):
         return 0.0, 0.0
     _, vecs = np.linalg.eigh(0.5 * (cov[:2, :2] + cov[:2, :2].T))
-    axis = vecs[:, -1]
+    matrix = pose.as_matrix()
+    step = matrix[:2, :2] @ vecs[:, -1]  # a unit move along the axis, in the target frame
+    n = float(source.shape[0])
     best = (0.0, 0.0)
     for k in LOOKALIKE_SHIFTS_GATES:
         for sign in (1.0, -1.0):
             d = sign * k * gate
-            moved = pose @ SE2.from_vector([d * axis[0], d * axis[1], 0.0])
-            f = _fraction(index, source, moved, tight)
+            moved = matrix.copy()
+            moved[:2, 2] += d * step
+            f = float(_core.overlap_statistics(index, source, moved, tight)[0]) / n
             if f > best[1]:
                 best = (d, f)
     return best
@@ -418,17 +422,20 @@ def probe_basin(
             if target_points is not None and target_normals is not None
             else 0.0
         )
-        if dim == 2 and here > 0.0:
-            lookalike = along_axis_lookalike(index, source, pose, cov, tight, gate)  # type: ignore[arg-type]
-        evidence = basin_doubts(
+        doubts = functools.partial(
+            basin_doubts,
             tight_overlap=here,
             inlier_rmse=inlier_rmse,
             gate=gate,
             motion=None if start is None else _relative_log(start, pose),
             prior=prior,
             symmetry=sym,
-            lookalike=lookalike,
         )
+        evidence = doubts()
+        if not evidence and isinstance(pose, SE2) and here > 0.0:
+            # The dearest signal (a dozen neighbour passes) only where the others are silent.
+            lookalike = along_axis_lookalike(index, source, pose, cov, tight, gate)
+            evidence = doubts(lookalike=lookalike)
         if not evidence:
             return BasinProbe(
                 overlap=here,
