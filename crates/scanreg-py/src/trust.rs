@@ -286,6 +286,9 @@ fn trust_scene<'py>(
     ))
 }
 
+/// `(H, M)`, each `(3, 3)`.
+type SamplingSystem = (Py<PyArray2<f64>>, Py<PyArray2<f64>>);
+
 /// `(H, M)`: the 2D sampling system of the source's beam phase at the final pose, steps up to
 /// `max_step`
 /// (`scanreg_core::trust::scene::sampling_system`), from the target's normals or, without
@@ -303,7 +306,7 @@ fn trust_sampling(
     max_step: f64,
     target_normals: Option<PyReadonlyArray2<'_, f64>>,
     target_covariances: Option<PyReadonlyArray3<'_, f64>>,
-) -> PyResult<Option<(Py<PyArray2<f64>>, Py<PyArray2<f64>>)>> {
+) -> PyResult<Option<SamplingSystem>> {
     let (pts, dim) = points(&source, "source")?;
     let corr = c_slice(&correspondences, "correspondences")?;
     if corr.len() * dim != pts.len() {
