@@ -42,6 +42,7 @@ class CorrespondenceAnalysis:
     normal_variance: float
     agreement: tuple[Any, Any] | None
     valley: FloatArray | None = None
+    sampling: tuple[FloatArray, FloatArray] | None = None
 
 
 def censi_from_inverse(h_inv: FloatArray, meat: FloatArray) -> FloatArray:
@@ -91,6 +92,59 @@ def beam_phase_variance(ctx: Any) -> float:
         return 0.0
     step = float(np.median(steps))
     return step * step / 12.0
+
+
+def sampling_system(
+    src: FloatArray,
+    corr: Any,
+    rotation: FloatArray,
+    max_step: float,
+    tn: Any,
+    tc: Any,
+) -> tuple[FloatArray, FloatArray] | None:
+    """2D: ``(H, M)`` of the source's beam phase (``scanreg_core::trust::scene``)."""
+    n = len(src)
+    if src.shape[1] != 2 or n < 3 or (tn is None and tc is None):
+        return None
+    order = np.argsort(np.arctan2(src[:, 1], src[:, 0]), kind="stable")
+    h, m, count = np.zeros((3, 3)), np.zeros((3, 3)), 0
+    for k in range(1, n - 1):
+        i = order[k]
+        j = int(corr[i])
+        if j < 0:
+            continue
+        if tn is not None:
+            nt = np.asarray(tn[j], dtype=np.float64)
+        else:
+            _, vecs = np.linalg.eigh(np.asarray(tc[j], dtype=np.float64))
+            nt = vecs[:, 0]
+        if not np.isfinite(nt).all():
+            continue
+        mm = rotation.T @ nt
+        step = 0.5 * (src[order[k + 1]] - src[order[k - 1]])
+        back = float(np.hypot(*(src[i] - src[order[k - 1]])))
+        ahead = float(np.hypot(*(src[order[k + 1]] - src[i])))
+        if min(back, ahead) > max_step:
+            continue
+        e = float(mm @ step)
+        p = src[i]
+        jac = np.array([mm[0], mm[1], -mm[0] * p[1] + mm[1] * p[0]])
+        h += np.outer(jac, jac)
+        m += np.outer(jac, jac) * e * e
+        count += 1
+    return (h, m) if count >= 3 else None
+
+
+def sampling_covariance(h: FloatArray, m: FloatArray, deg: Degeneracy) -> FloatArray | None:
+    """``¼ T A⁻¹ (Tᵀ M T) A⁻¹ Tᵀ`` on the strong subspace (``A = Tᵀ H T``)."""
+    t = deg.scaling()[:, None] * deg.strong_basis()
+    try:
+        a_inv = np.linalg.inv(t.T @ h @ t)
+    except np.linalg.LinAlgError:
+        return None
+    out = t @ a_inv @ (t.T @ m @ t) @ a_inv @ t.T * 0.25
+    out = 0.5 * (out + out.T)
+    return out if np.isfinite(out).all() else None
 
 
 def length_scale(points: FloatArray) -> float:
@@ -306,6 +360,14 @@ def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
         point_variance=_point_variance(out, ana, method, dim, dof),
         normal_variance=normal_var,
         agreement=agreement,
+        sampling=sampling_system(
+            src,
+            corr,
+            np.asarray(out.pose)[:dim, :dim],
+            0.5 * float(s.max_correspondence_distance),
+            tn,
+            tc,
+        ),
     )
 
 
@@ -345,6 +407,7 @@ def _covariance_estimates(
         _model_shift(corr.agreement, deg, ctx.method, dof),
         corr.valley,
         beam_phase_variance(ctx),
+        corr.sampling,
     )
     if ctx.plane_solve is not None:
         estimates = _via_plane_reference(ctx, pose, corr, estimates, dof)
@@ -401,14 +464,13 @@ def _point_variance(out: Any, ana: Any, method: str, dim: int, dof: int) -> floa
     target points are equally noisy).
 
     Point-to-plane/line: along the normal, ``Σ (nᵀe)² / (n - dof)`` — the noise its residual
-    feels. Point-to-point and GICP: ``Σ |e|² / (D n - dof)``, the along-surface sampling
-    offsets included. For GICP the normal-only estimate was measured too
-    (``docs/calibration.md``): consistent in 2D but 4× over-confident in the 3D street and
-    tunnel, where the along-surface offsets are part of the error; the Euclidean one errs on
-    the safe side (over-cautious in the degenerate 2D/3D scenes).
+    feels; GICP in 2D as well. Point-to-point and GICP in 3D: ``Σ |e|² / (D n - dof)``, the
+    along-surface sampling offsets included (the normal-only estimate is 4× over-confident in
+    the 3D street and tunnel, where those offsets are part of the error).
     """
     n_plane = int(ana.num_plane_correspondences)
-    if method in ("point_to_plane", "point_to_line") and n_plane > dof:
+    along_normal = method in ("point_to_plane", "point_to_line") or (method == "gicp" and dim == 2)
+    if along_normal and n_plane > dof:
         return float(ana.plane_sum_squares / (n_plane - dof)) / 2.0
     n = int(out.num_correspondences)
     return float(out.sum_squared_distances / max(dim * n - dof, 1)) / 2.0
@@ -427,6 +489,7 @@ def _estimates(
     shift: FloatArray,
     valley: FloatArray | None,
     sampling: float = 0.0,
+    sampling_system: tuple[FloatArray, FloatArray] | None = None,
 ) -> CovarianceEstimates:
     bad = np.full((dof, dof), np.inf)
     h = np.array(ana.hessian)
@@ -447,10 +510,15 @@ def _estimates(
         eps2 = deg.normal_noise if math.isfinite(deg.normal_noise) else normal_variance
         calibrated = _with_prior_along_weak(calibrated, deg, prior, drift, eps2, valley)
     calibrated = calibrated + np.outer(shift, shift)
-    if sampling > 0.0 and np.isfinite(calibrated).all():
-        # 2D: the beams' angular phase (see TrustInputs.beam_phase_variance).
-        calibrated = calibrated.copy()
-        calibrated[2, 2] += sampling
+    if np.isfinite(calibrated).all():
+        # 2D: the beams' phase (see TrustInputs.sampling_system; without target normals the
+        # beam-phase heading variance).
+        term = None if sampling_system is None else sampling_covariance(*sampling_system, deg)
+        if term is not None:
+            calibrated = calibrated + term
+        elif sampling_system is None and sampling > 0.0:
+            calibrated = calibrated.copy()
+            calibrated[2, 2] += sampling
     censi, blk, calibrated = _psd(censi), _psd(blk), _psd(calibrated)
     return CovarianceEstimates(
         hessian=_readonly(_psd(hessian_cov)),

@@ -336,3 +336,51 @@ def test_probe_restarts_in_one_call_equal_the_restarts_one_by_one() -> None:
             assert np.array_equal(pose, one.pose) and reason == one.stop_reason
     with pytest.raises(ValueError, match="init_poses: expected shape"):
         _core.register_icp_starts(src, target.index, np.zeros((2, 4, 4)), *args)
+
+
+def _corridor_with_posts(spacing: list[float]) -> np.ndarray:
+    """Two walls 3 m apart, 24 m long, sampled every 5 cm, with 0.4 m posts standing out of
+    both walls at ``spacing`` (x positions), each face sampled every 2 cm."""
+    x = np.arange(-12.0, 12.0, 0.05)
+    walls = [np.c_[x, np.full_like(x, y)] for y in (-1.5, 1.5)]
+    posts = []
+    for px in spacing:
+        for y0, dy in ((-1.5, 1.0), (1.5, -1.0)):
+            depth = np.arange(0.0, 0.4, 0.02)
+            for side in (px - 0.1, px + 0.1):
+                posts.append(np.c_[np.full_like(depth, side), y0 + dy * depth])
+            across = np.arange(px - 0.1, px + 0.1, 0.02)
+            posts.append(np.c_[across, np.full_like(across, y0 + dy * 0.4)])
+    return np.ascontiguousarray(np.vstack(walls + posts))
+
+
+@pytest.mark.parametrize("periodic", [True, False])
+def test_the_screen_doubts_a_look_alike_along_the_corridor_only_when_there_is_one(
+    periodic: bool,
+) -> None:
+    from scanreg.basin import along_axis_lookalike, basin_doubts
+
+    # Posts every 2 m repeat the scan 2 m along the corridor; irregular ones do not.
+    posts = list(np.arange(-10.0, 10.5, 2.0)) if periodic else [-9.3, -6.1, -1.7, 0.4, 3.9, 8.2]
+    pts = _corridor_with_posts(posts)
+    target = scanreg.prepare(pts)
+    source = np.ascontiguousarray(pts[(np.abs(pts[:, 0]) < 6.0)])  # the middle of it
+    cov = np.diag([0.04, 1e-5, 1e-6])  # along the corridor the least determined
+    tight = 0.1
+    here = float(scanreg._core.overlap_statistics(target.index, source, np.eye(3), tight)[0]) / len(
+        source
+    )
+    shift, fraction = along_axis_lookalike(target.index, source, SE2.identity(), cov, tight, 1.0)
+    doubts = basin_doubts(
+        tight_overlap=here,
+        inlier_rmse=0.0,
+        gate=1.0,
+        motion=None,
+        prior=None,
+        symmetry=0.0,
+        lookalike=(shift, fraction),
+    )
+    fired = any(d.startswith("look-alike") for d in doubts)
+    assert fired == periodic, (shift, fraction, here, doubts)
+    if periodic:
+        assert abs(abs(shift) - 2.0) < 1e-9 and fraction > 0.95 * here

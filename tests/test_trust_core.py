@@ -121,6 +121,8 @@ def test_core_trust_equals_the_python_reference(scene: str, method: str, kernel:
     dof = 3 if dim == 2 else 6
     sigma2 = ref.residual_variance(out, ctx.components, ctx.settings.kernel, dof)
     want_corr = ref.correspondence_analysis(ctx, out)
+    # The 2D sampling term is part of what is compared (not skipped for want of normals).
+    assert (want_corr.sampling is not None) == (dim == 2)
     want = ref._covariance_estimates(ctx, out, pose, out.hessian, sigma2, want_corr)
 
     got = res.covariances
@@ -230,6 +232,28 @@ def test_trust_numbers_refuses_malformed_input_naming_the_argument() -> None:
             kernel="none", kernel_scale=1.0, source_variance=1.0, target_variance=1.0,
             block_size=2.0, target_normals=target.normals, source_normals=np.zeros((3, 2)),
         )  # fmt: skip
+    system = np.eye(3), np.eye(3)
+    _core.trust_numbers(ana, np.eye(3), 1e-4, **good, sampling_system=system)
+    with pytest.raises(ValueError, match="sampling_system: expected a"):
+        _core.trust_numbers(ana, np.eye(3), 1e-4, **good, sampling_system=(np.eye(2), np.eye(3)))
+    # The sampling system: one correspondence per source point, a (D, D) rotation; an index
+    # beyond the target or a missing normal leaves that point out instead of reading past it.
+    corr = np.asarray(out.correspondences, dtype=np.int64)
+    args = (src, corr, np.eye(2), 0.5)
+    assert _core.trust_sampling(*args, target_normals=target.normals) is not None
+    assert _core.trust_sampling(*args) is None  # neither normals nor covariances
+    with pytest.raises(ValueError, match="correspondences: expected"):
+        _core.trust_sampling(src, corr[:-1], np.eye(2), 0.5, target_normals=target.normals)
+    with pytest.raises(ValueError, match="rotation: expected a"):
+        _core.trust_sampling(src, corr, np.eye(3), 0.5, target_normals=target.normals)
+    # A GICP target's least-spread axis is the same normal (closed form in the core).
+    both = scanreg.prepare(tgt, normals=True, covariances=True)
+    h, m = _core.trust_sampling(*args, target_normals=both.normals)  # type: ignore[misc]
+    hc, mc = _core.trust_sampling(*args, target_covariances=both.covariances)  # type: ignore[misc]
+    _close(hc, h, "H from covariances")
+    _close(mc, m, "M from covariances")
+    far = np.full_like(corr, 10**9)
+    assert _core.trust_sampling(src, far, np.eye(2), 0.5, target_normals=target.normals) is None
 
 
 @pytest.mark.parametrize(

@@ -414,9 +414,19 @@ def trust_numbers(
     ]
     | None = None,
     valley: NDArray[np.float64] | None = None,
+    sampling_system: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
     sampling: float = 0.0,
     held: tuple[NDArray[np.float64], float, float, float, int, float] | None = None,
 ) -> TrustNumbers: ...
+def trust_sampling(
+    source: NDArray[np.float64],
+    correspondences: NDArray[np.int64],
+    rotation: NDArray[np.float64],
+    max_step: float,
+    *,
+    target_normals: NDArray[np.float64] | None = None,
+    target_covariances: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None: ...
 def trust_scene(
     source: NDArray[np.float64], gate: float
 ) -> tuple[NDArray[np.float64], float, float, NDArray[np.float64]]: ...

@@ -22,11 +22,11 @@ grows to cover it (``BasinProbe.growth``). A *far* one decides the verdict
 a Gaussian cannot cover two poses 90° apart.
 
 The restarts run only when cheap evidence doubts the basin (:func:`basin_doubts`: a low fit
-margin, a move beyond 1σ of the start's covariance, symmetric walls): a result nothing doubts
-costs one nearest-neighbour pass and a histogram. The restarts themselves are one core call
-(``_core.register_icp_starts``), their solves in parallel. In 3D the restarts are three yaw
-turns (90°, −90°, 180°) and the tight gate is at least the target's point spacing (voxelised
-clouds).
+margin, a move beyond 1σ of the start's covariance, symmetric walls, in 2D a look-alike pose
+along the least-determined translation): a result nothing doubts costs one nearest-neighbour
+pass and a histogram. The restarts themselves are one core call (``_core.register_icp_starts``),
+their solves in parallel. In 3D the restarts are three yaw turns (90°, −90°, 180°) and the tight
+gate is at least the target's point spacing (voxelised clouds).
 
 Measured (``benchmarks/wrong_start.py``, ``benchmarks/README.md``): on real Intel pairs from
 starts turned by up to ±70° and moved by 0.6 m, the restarts separate wrong from correct
@@ -96,6 +96,14 @@ DOUBT_MOTION_CHI2 = 1.0
 #: 180° or 270° above this (square room 0.98, closed corridor 0.99; Intel targets: median
 #: 0.41 at 180°, largest 0.94; MbICP largest 0.96 at 180°, the simulated office 0.88).
 DOUBT_SYMMETRY = 0.95
+#: The along-axis look-alike (:func:`along_axis_lookalike`, 2D): the result moved along its
+#: least-determined translation (the covariance's widest axis) by these multiples of the gate,
+#: each way; the screen doubts when one explains at least ``DOUBT_LOOKALIKE_RATIO`` times as
+#: much of the scan (tight gate) as the result. A corridor's doors and pillars repeat along
+#: it: on the ACES loops a pose 2 m along the corridor explained 64 % of the scan against 48 %
+#: (``benchmarks/freiburg_mapping.py``), where nothing else doubted the result.
+LOOKALIKE_SHIFTS_GATES: tuple[float, ...] = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0)
+DOUBT_LOOKALIKE_RATIO = 0.9
 
 
 @dataclass(frozen=True)
@@ -248,6 +256,33 @@ def _chi2(v: FloatArray, cov: FloatArray) -> float:
         return 0.0
 
 
+def along_axis_lookalike(
+    index: Any, source: FloatArray, pose: SE2, covariance: FloatArray, tight: float, gate: float
+) -> tuple[float, float]:
+    """2D: ``(shift, fraction)`` of the best pose along the result's least-determined
+    translation (the widest axis of the covariance's translation block), moved by
+    ``LOOKALIKE_SHIFTS_GATES`` gates each way, and the fraction of the source it explains
+    within ``tight``; ``(0, 0)`` without a finite gate or covariance. A dozen nearest-neighbour
+    passes: cheap beside the restarts it may call for."""
+    cov = np.asarray(covariance, dtype=np.float64)
+    if not (math.isfinite(gate) and gate > 0 and np.isfinite(cov).all()):
+        return 0.0, 0.0
+    _, vecs = np.linalg.eigh(0.5 * (cov[:2, :2] + cov[:2, :2].T))
+    matrix = pose.as_matrix()
+    step = matrix[:2, :2] @ vecs[:, -1]  # a unit move along the axis, in the target frame
+    n = float(source.shape[0])
+    best = (0.0, 0.0)
+    for k in LOOKALIKE_SHIFTS_GATES:
+        for sign in (1.0, -1.0):
+            d = sign * k * gate
+            moved = matrix.copy()
+            moved[:2, 2] += d * step
+            f = float(_core.overlap_statistics(index, source, moved, tight)[0]) / n
+            if f > best[1]:
+                best = (d, f)
+    return best
+
+
 def basin_doubts(
     *,
     tight_overlap: float,
@@ -256,12 +291,14 @@ def basin_doubts(
     motion: FloatArray | None,
     prior: FloatArray | None,
     symmetry: float,
+    lookalike: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[str, ...]:
     """The cheap evidence that a result may sit in the wrong basin (see the ``DOUBT_*``
     constants), as readable lines; empty: none, the restarts are not needed.
 
     ``motion`` is ``log(start⁻¹ · pose)`` (tangent, translation first), ``prior`` the start's
-    covariance over it."""
+    covariance over it, ``lookalike`` the best ``(shift, fraction)`` along the result's weakest
+    translation (:func:`along_axis_lookalike`)."""
     out: list[str] = []
     margin = tight_overlap - (inlier_rmse / gate if math.isfinite(gate) and gate > 0 else 0.0)
     if not margin >= DOUBT_FIT_MARGIN:
@@ -279,6 +316,12 @@ def basin_doubts(
                 out.append(f"{name} from the start χ² {chi2:.3g} > {DOUBT_MOTION_CHI2}")
     if symmetry > DOUBT_SYMMETRY:
         out.append(f"symmetric walls {symmetry:.2f} > {DOUBT_SYMMETRY}")
+    shift, fraction = lookalike
+    if shift != 0.0 and fraction >= DOUBT_LOOKALIKE_RATIO * tight_overlap:
+        out.append(
+            f"look-alike {shift:+.3g} along the weakest axis explains {fraction:.2f} "
+            f"(the result {tight_overlap:.2f})"
+        )
     return tuple(out)
 
 
@@ -377,13 +420,15 @@ def probe_basin(
     cov = np.asarray(covariance, dtype=np.float64)
     finite = bool(np.isfinite(cov).all())
     evidence: tuple[str, ...] = ()
+    lookalike = (0.0, 0.0)
     if screen:
         sym = (
             orientation_symmetry(target_points, target_normals)
             if target_points is not None and target_normals is not None
             else 0.0
         )
-        evidence = basin_doubts(
+        doubts = functools.partial(
+            basin_doubts,
             tight_overlap=here,
             inlier_rmse=inlier_rmse,
             gate=gate,
@@ -391,6 +436,11 @@ def probe_basin(
             prior=prior,
             symmetry=sym,
         )
+        evidence = doubts()
+        if not evidence and isinstance(pose, SE2) and here > 0.0:
+            # The dearest signal (a dozen neighbour passes) only where the others are silent.
+            lookalike = along_axis_lookalike(index, source, pose, cov, tight, gate)
+            evidence = doubts(lookalike=lookalike)
         if not evidence:
             return BasinProbe(
                 overlap=here,
@@ -421,13 +471,18 @@ def probe_basin(
         and len(target_points)
     ):
         first.append(_correlative_start(pose, source, target_points, gate).as_matrix())
+    if lookalike[0] != 0.0 and any(e.startswith("look-alike") for e in evidence):
+        # The look-alike itself first: the turns and half-gate moves may not reach it.
+        _, vecs = np.linalg.eigh(0.5 * (cov[:2, :2] + cov[:2, :2].T))
+        d = lookalike[0] * vecs[:, -1]
+        first.append((pose @ SE2.from_vector([d[0], d[1], 0.0])).as_matrix())  # type: ignore[operator]
     offsets = _restart_offsets(dim, float(gate))
     # ``pose @ offset`` for every offset at once: the same products, stacked (a pose object
     # per start cost more than its restart's solve).
     rot, trans = _offset_stacks(dim, float(gate))
     starts = np.zeros((len(first) + len(offsets), dim + 1, dim + 1))
-    if first:
-        starts[0] = first[0]
+    for i, m in enumerate(first):
+        starts[i] = m
     starts[len(first) :, :dim, :dim] = np.matmul(pose.rotation, rot)
     starts[len(first) :, :dim, dim] = np.matmul(pose.rotation, trans)[..., 0] + pose.translation
     starts[:, dim, dim] = 1.0

@@ -197,6 +197,16 @@ class TrustInputs:
         ``benchmarks/covariance_calibration.py --split-beam``): RMS heading error 0.32° at a
         1° step (MbICP halves) and 0.68° at 2° (Intel halves), against Δα/√12 = 0.29° and
         0.58°, where the covariance claimed 0.08° and 0.45°.
+
+        Used only when the target has neither normals nor covariances. Otherwise
+        ``calibrated`` carries the evidence-based sampling term instead
+        (``_core.trust_sampling``, ``scanreg_core::trust::scene::sampling_system``): how far
+        each matched point's residual moves when its sample slides one beam step along the
+        scan (zero along a straight wall, up to the step at edges and on clutter), as a
+        sandwich ``¼ H⁻¹ (Σ J Jᵀ e²) H⁻¹`` on the well-constrained subspace (a phase of up to
+        ±½ step between the two scans). A fixed ``Δα²/12`` made the simulated corridor's
+        heading σ 12× its error, while leaving MbICP split-beam pairs 2× over-confident in
+        translation, which the fixed heading term cannot reach (``docs/calibration.md``).
         """
         return self._scene[2]
 
@@ -355,6 +365,21 @@ def correspondence_analysis(
             kernel_scale=ctx.kernel_scale,
         )
         agreement = ((ha, ga, na), (hk, gk, nk))
+    # 2D: how far the estimate depends on where the beams fell on the surfaces
+    # (TrustInputs.sampling_system); without a target normal or covariance to judge it by, the
+    # beam-phase heading variance instead.
+    sampling = (
+        _core.trust_sampling(
+            src,
+            np.ascontiguousarray(corr, dtype=np.int64),
+            np.ascontiguousarray(out.pose[:dim, :dim]),
+            0.5 * float(s.max_correspondence_distance),
+            target_normals=tn,
+            target_covariances=tc,
+        )
+        if dim == 2
+        else None
+    )
     # Unit variances: the meats scale linearly and are combined once the point noise is known
     # from the residuals of this very analysis.
     ana = _core.censi_analysis(
@@ -404,7 +429,8 @@ def correspondence_analysis(
         normal_variance=normal_var,
         agreement=None if agreement is None else (*agreement[0], *agreement[1]),
         valley=valley,
-        sampling=ctx.beam_phase_variance,
+        sampling_system=sampling,
+        sampling=ctx.beam_phase_variance if sampling is None else 0.0,
         held=None
         if held is None
         else (

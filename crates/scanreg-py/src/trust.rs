@@ -2,9 +2,12 @@
 //! per-point scene quantities it reads. Converts and validates only.
 
 use crate::censi::CensiAnalysis;
-use crate::convert::{c_slice, core_err, points, read_only};
+use crate::convert::{c_slice, core_err, covariances, points, points_dim, read_only};
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3,
+    PyUntypedArrayMethods,
+};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use scanreg_core::icp::Method;
@@ -131,7 +134,7 @@ fn system(
     analysis, hessian, sigma2, *, method, levers, prior, drift, motion, length_scale, covariance,
     num_correspondences, sum_squared_distances, score_outer=None, effective_residuals=0.0,
     normal_noise=f64::NAN, typical_normal_noise=f64::NAN, normal_variance=0.0, agreement=None,
-    valley=None, sampling=0.0, held=None
+    valley=None, sampling_system=None, sampling=0.0, held=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn trust_numbers(
@@ -155,6 +158,7 @@ fn trust_numbers(
     normal_variance: f64,
     agreement: Option<Agreement<'_>>,
     valley: Option<PyReadonlyArray2<'_, f64>>,
+    sampling_system: Option<(PyReadonlyArray2<'_, f64>, PyReadonlyArray2<'_, f64>)>,
     sampling: f64,
     held: Option<Holding<'_>>,
 ) -> PyResult<TrustNumbers> {
@@ -206,6 +210,15 @@ fn trust_numbers(
         valley: valley
             .as_ref()
             .map(|v| square_slice(v, "valley", dof))
+            .transpose()?,
+        sampling_system: sampling_system
+            .as_ref()
+            .map(|(h, m)| -> PyResult<_> {
+                Ok((
+                    square_slice(h, "sampling_system", dof)?,
+                    square_slice(m, "sampling_system", dof)?,
+                ))
+            })
             .transpose()?,
         sampling,
         length_scale,
@@ -273,7 +286,68 @@ fn trust_scene<'py>(
     ))
 }
 
+/// `(H, M)`, each `(3, 3)`.
+type SamplingSystem = (Py<PyArray2<f64>>, Py<PyArray2<f64>>);
+
+/// `(H, M)`: the 2D sampling system of the source's beam phase at the final pose, steps up to
+/// `max_step`
+/// (`scanreg_core::trust::scene::sampling_system`), from the target's normals or, without
+/// them, the least-spread axis of its covariances; None in 3D, with neither, or with fewer
+/// than 3 matched points.
+#[pyfunction]
+#[pyo3(signature = (
+    source, correspondences, rotation, max_step, *, target_normals=None, target_covariances=None
+))]
+fn trust_sampling(
+    py: Python<'_>,
+    source: PyReadonlyArray2<'_, f64>,
+    correspondences: PyReadonlyArray1<'_, i64>,
+    rotation: PyReadonlyArray2<'_, f64>,
+    max_step: f64,
+    target_normals: Option<PyReadonlyArray2<'_, f64>>,
+    target_covariances: Option<PyReadonlyArray3<'_, f64>>,
+) -> PyResult<Option<SamplingSystem>> {
+    let (pts, dim) = points(&source, "source")?;
+    let corr = c_slice(&correspondences, "correspondences")?;
+    if corr.len() * dim != pts.len() {
+        return Err(PyValueError::new_err(format!(
+            "correspondences: expected {} values (one per source point), got {}",
+            pts.len() / dim,
+            corr.len()
+        )));
+    }
+    let rot = square_slice(&rotation, "rotation", dim)?;
+    if dim != 2 {
+        return Ok(None);
+    }
+    let normals = target_normals
+        .as_ref()
+        .map(|n| points_dim(n, "target_normals", 2))
+        .transpose()?;
+    let covs = match &target_covariances {
+        Some(c) => covariances(&target_covariances, "target_covariances", c.shape()[0], 2)?,
+        None => None,
+    };
+    let out = match (normals, covs) {
+        (Some(n), _) => scene::sampling_system(pts, dim, corr, rot, max_step, |j| {
+            (2 * j + 1 < n.len()).then(|| [n[2 * j], n[2 * j + 1]])
+        }),
+        (None, Some(c)) => scene::sampling_system(pts, dim, corr, rot, max_step, |j| {
+            (4 * j + 3 < c.len()).then(|| scene::smallest_axis_2d(&c[4 * j..4 * j + 4]))
+        }),
+        (None, None) => None,
+    };
+    out.map(|(h, m)| {
+        Ok((
+            mat(py, &Mat::from_row_slice(3, 3, &h))?,
+            mat(py, &Mat::from_row_slice(3, 3, &m))?,
+        ))
+    })
+    .transpose()
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(trust_sampling, m)?)?;
     m.add_class::<TrustNumbers>()?;
     m.add_function(wrap_pyfunction!(trust_numbers, m)?)?;
     m.add_function(wrap_pyfunction!(trust_scene, m)?)?;

@@ -82,6 +82,26 @@ pub fn information(cov: &Mat) -> Mat {
     scale_columns(&vecs, &floored) * vecs.transpose()
 }
 
+/// The variance of the beam phase, in steps²: the other scan's samples may fall half-way
+/// between this one's (split-beam pairs: exactly), a phase of ±½ step.
+pub const SAMPLING_PHASE_VARIANCE: f64 = 0.25;
+
+/// The sampling term of `calibrated` (2D): `v · T A⁻¹ (Tᵀ M T) A⁻¹ Tᵀ`, `A = Tᵀ H T`, from
+/// the sampling system `(H, M)` ([`super::scene::sampling_system`]) on the well-constrained
+/// subspace (`T` its tangent directions; along weak directions the covariance is the
+/// prior's), `v` = [`SAMPLING_PHASE_VARIANCE`]. None when `A` is singular or the result is
+/// not finite.
+pub fn sampling(h: &Mat, m: &Mat, deg: &super::degeneracy::Degeneracy) -> Option<Mat> {
+    let dof = h.nrows();
+    let s_inv = deg.scaling();
+    let u = deg.strong_basis();
+    let t = Mat::from_fn(dof, u.ncols(), |i, j| s_inv[i] * u[(i, j)]);
+    let a_inv = inverse(&(t.transpose() * h * &t))?;
+    let core = &a_inv * (t.transpose() * m * &t) * &a_inv;
+    let out = sym(&(&t * core * t.transpose() * SAMPLING_PHASE_VARIANCE));
+    all_finite(&out).then_some(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::dense::from_rows;

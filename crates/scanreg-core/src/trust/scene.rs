@@ -1,5 +1,5 @@
 //! Per-point quantities of the source the trust analysis reads: the rotation levers, the
-//! length scale, the 2D beam phase, and the gate-wide prior built from them. Sums are numpy's
+//! length scale, the 2D beam phase and its sampling system, and the gate-wide prior built from them. Sums are numpy's
 //! pairwise sums (the Python reference's `np.mean`), so the two agree to the last bits.
 
 /// numpy's pairwise summation of a contiguous run (`pairwise_sum` in its umath loops): blocks of
@@ -120,6 +120,105 @@ pub fn beam_phase_variance(points: &[f64], dim: usize) -> f64 {
     step * step / 12.0
 }
 
+/// The direction of least spread of a 2×2 covariance `[a, b; b, c]` (row-major), unit length:
+/// the normal a GICP target carries in its covariance.
+pub fn smallest_axis_2d(cov: &[f64]) -> [f64; 2] {
+    let (a, b, c) = (cov[0], 0.5 * (cov[1] + cov[2]), cov[3]);
+    let half = 0.5 * (a - c);
+    let lam = 0.5 * (a + c) - (half * half + b * b).sqrt();
+    // Two forms of the same eigenvector; the longer one is the well-conditioned one.
+    let (u, v) = ([b, lam - a], [lam - c, b]);
+    let nu = u[0].hypot(u[1]);
+    let nv = v[0].hypot(v[1]);
+    let (w, n) = if nu >= nv { (u, nu) } else { (v, nv) };
+    if n > 0.0 && n.is_finite() {
+        [w[0] / n, w[1] / n]
+    } else {
+        [0.0, 1.0]
+    }
+}
+
+/// 2D: the sampling system `(H, M)`, each `3 × 3` row-major over `[ρx, ρy, θ]`, of the
+/// source's beam phase (`TrustInputs.sampling_system` in `scanreg.trust`).
+///
+/// The points, taken in the order of their bearing from the source origin (the sensor), are
+/// samples of the surfaces one beam step apart; the other scan sampled them elsewhere. Moving
+/// point `i`'s sample one step along the scan, `s_i = (p_{i+1} − p_{i−1}) / 2`, changes its
+/// point-to-line residual by `e_i = m_i · s_i` (`m_i = Rᵀ n_i`, its target normal in the
+/// source frame): zero along a straight wall, up to the step on clutter, corners and edges.
+/// `H = Σ J_i J_iᵀ` and `M = Σ J_i J_iᵀ e_i²` with the point-to-line Jacobian
+/// `J_i = [m_i, m_i · p_i^⊥]` over the matched points (`correspondences[i] ≥ 0`) with both
+/// neighbours. `normals` are the target's (`normal_of(j)` for target row `j`). A point whose
+/// steps to both neighbours are longer than `max_step` (half the gate) is left out: a wall
+/// seen at grazing incidence, along which moving a sample changes nothing but where the
+/// target's normal, fitted over a stretch longer than the wall is wide, is not the wall's.
+/// An edge (one long step across a depth jump, one short along its surface) stays: where it
+/// falls is what the beam phase decides. None with fewer than 3 matched points or in 3D.
+pub fn sampling_system(
+    source: &[f64],
+    dim: usize,
+    correspondences: &[i64],
+    rotation: &[f64],
+    max_step: f64,
+    normal_of: impl Fn(usize) -> Option<[f64; 2]>,
+) -> Option<([f64; 9], [f64; 9])> {
+    let n = source.len() / dim.max(1);
+    if dim != 2 || n < 3 || correspondences.len() != n || rotation.len() < 4 {
+        return None;
+    }
+    let mut order: Vec<usize> = (0..n).collect();
+    // Stable: points at the same bearing keep their input order (the reference's argsort).
+    order.sort_by(|&i, &j| {
+        let ai = source[2 * i + 1].atan2(source[2 * i]);
+        let aj = source[2 * j + 1].atan2(source[2 * j]);
+        ai.total_cmp(&aj)
+    });
+    let mut h = [0.0; 9];
+    let mut m = [0.0; 9];
+    let mut count = 0usize;
+    for k in 1..n - 1 {
+        let i = order[k];
+        let Ok(j) = usize::try_from(correspondences[i]) else {
+            continue;
+        };
+        let Some(nt) = normal_of(j) else {
+            continue;
+        };
+        if !(nt[0].is_finite() && nt[1].is_finite()) {
+            continue; // a target point without a normal (`drop_linear`)
+        }
+        // m = Rᵀ n (R row-major).
+        let mx = rotation[0] * nt[0] + rotation[2] * nt[1];
+        let my = rotation[1] * nt[0] + rotation[3] * nt[1];
+        let (prev, next) = (order[k - 1], order[k + 1]);
+        let sx = 0.5 * (source[2 * next] - source[2 * prev]);
+        let sy = 0.5 * (source[2 * next + 1] - source[2 * prev + 1]);
+        let back =
+            (source[2 * i] - source[2 * prev]).hypot(source[2 * i + 1] - source[2 * prev + 1]);
+        let ahead =
+            (source[2 * next] - source[2 * i]).hypot(source[2 * next + 1] - source[2 * i + 1]);
+        if back.min(ahead) > max_step {
+            continue;
+        }
+        let e = mx * sx + my * sy;
+        let (px, py) = (source[2 * i], source[2 * i + 1]);
+        let jac = [mx, my, -mx * py + my * px];
+        let e2 = e * e;
+        for r in 0..3 {
+            for c in 0..3 {
+                let v = jac[r] * jac[c];
+                h[3 * r + c] += v;
+                m[3 * r + c] += v * e2;
+            }
+        }
+        count += 1;
+    }
+    if count < 3 {
+        return None;
+    }
+    Some((h, m))
+}
+
 /// The gate-wide prior of the initial guess: `diag(δ², …, (δ/L_a)², …) / 3` with `δ` the gate
 /// (the RMS lever when the gate is infinite), row-major.
 pub fn default_prior(dim: usize, levers: &[f64], gate: f64) -> Vec<f64> {
@@ -162,5 +261,24 @@ mod tests {
         assert!((beam_phase_variance(&pts, 2) - step * step / 12.0).abs() < 1e-15);
         let sum: f64 = pairwise_sum(&vec![0.1; 1000]);
         assert!((sum - 100.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_straight_wall_has_no_sampling_error_and_a_zigzag_has() {
+        let eye = [1.0, 0.0, 0.0, 1.0];
+        let corr: Vec<i64> = vec![0; 40];
+        // A wall at y = 2, normal (0, 1): moving a sample along it changes no residual.
+        let wall: Vec<f64> = (0..40).flat_map(|i| [i as f64 * 0.1 - 2.0, 2.0]).collect();
+        let (h, m) = sampling_system(&wall, 2, &corr, &eye, 1.0, |_| Some([0.0, 1.0])).unwrap();
+        assert!(h[4] > 37.0 && m.iter().all(|v| v.abs() < 1e-24));
+        // Every third point 5 cm off the wall (clutter): a step crosses the surface.
+        let zig: Vec<f64> = (0..40)
+            .flat_map(|i| [i as f64 * 0.1 - 2.0, 2.0 + 0.05 * f64::from(i % 3 == 0)])
+            .collect();
+        let (_, m) = sampling_system(&zig, 2, &corr, &eye, 1.0, |_| Some([0.0, 1.0])).unwrap();
+        assert!(m[4] > 0.0);
+        assert!(sampling_system(&wall, 3, &corr, &eye, 1.0, |_| None).is_none());
+        let axis = smallest_axis_2d(&[4.0, 0.0, 0.0, 0.01]);
+        assert!((axis[0].abs() - 0.0).abs() < 1e-12 && (axis[1].abs() - 1.0).abs() < 1e-12);
     }
 }

@@ -58,6 +58,7 @@ fn corridor_is_weak_along_x_and_takes_the_prior_there() {
         drift: &[0.0; 3],
         agreement: None,
         valley: None,
+        sampling_system: None,
         sampling: 0.0,
         length_scale: 3.0,
         chosen: Kind::Calibrated,
