@@ -602,7 +602,10 @@ def _trust(
             screen=th.basin_screen,
             start=ctx.start,
             motion=corr.drift,
-            prior=ctx.prior,
+            # In 3D only a stated start uncertainty is evidence: the gate-wide default made an
+            # ordinary 0.7 m KITTI step "beyond 1σ" and tripled the call; wrong 3D starts are
+            # rejected without it (wrong_start.py: none accepted from 30°/60°).
+            prior=ctx.prior if dim == 2 or ctx.init_covariance is not None else None,
             inlier_rmse=checked.report.residual_rmse,
             target_normals=ctx.target_normals,
         )
