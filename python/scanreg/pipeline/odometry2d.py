@@ -23,17 +23,18 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
+from .. import _core
 from .._validate import FloatArray, as_points, frozen
 from ..correlative import CorrelativeGrid, match_correlative, prepare_correlative
 from ..preprocess import voxel_downsample
 from ..register import RegistrationResult, register
-from ..target import PreparedTarget, prepare
+from ..preprocess import DEFAULT_K
+from ..target import PreparedTarget, prepared_from_normals
 from ..transform import SE2, as_pose
 from ..verdict import QualityReport, Verdict, VerdictThresholds, assess
 
@@ -201,7 +202,10 @@ class Odometry2D:
         if not isinstance(cfg, OdometryConfig2D):
             raise TypeError(f"config: expected OdometryConfig2D, got {type(cfg).__name__}")
         self.config = cfg
-        self._keyframes: deque[FloatArray] = deque(maxlen=cfg.max_keyframes)
+        self._num_neighbors = DEFAULT_K
+        self._map = _core.KeyframeMap(
+            2, cfg.map_voxel_size, DEFAULT_K, cfg.max_keyframes, np.zeros(2)
+        )
         self._last_keyframe: SE2 | None = None
         self._pose: SE2 | None = None
         self._velocity = SE2.identity()
@@ -221,18 +225,14 @@ class Odometry2D:
         """The local map, ``(M, 2)`` world-frame points (read-only)."""
         return self._map_points
 
-    def _rebuild(self) -> None:
-        pts = np.ascontiguousarray(np.concatenate(list(self._keyframes)))
-        if self.config.map_voxel_size > 0:
-            pts = np.ascontiguousarray(voxel_downsample(pts, self.config.map_voxel_size).points)
-        self._map_points = frozen(pts)
-        self._target = prepare(self._map_points, normals=True)
-        self._grid = None
-
     def _add_keyframe(self, points: FloatArray, pose: SE2) -> None:
-        self._keyframes.append(pose.apply(points))
+        # The map is updated, not rebuilt: only the voxels this keyframe and the one it
+        # evicts touch get a new centroid and normal (scanreg._core.KeyframeMap).
+        index, normals, valid, _ = self._map.insert(pose.apply(points))
         self._last_keyframe = pose
-        self._rebuild()
+        self._target = prepared_from_normals(index, normals, valid, self._num_neighbors)
+        self._map_points = self._target.points
+        self._grid = None
 
     def step(
         self,
