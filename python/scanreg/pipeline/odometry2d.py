@@ -203,6 +203,7 @@ class Odometry2D:
             raise TypeError(f"config: expected OdometryConfig2D, got {type(cfg).__name__}")
         self.config = cfg
         self._num_neighbors = DEFAULT_K
+        self._register_thresholds = _without_default_probe(cfg.thresholds)
         self._map = _core.KeyframeMap(
             2, cfg.map_voxel_size, DEFAULT_K, cfg.max_keyframes, np.zeros(2)
         )
@@ -351,7 +352,7 @@ class Odometry2D:
             max_correspondence_distance=cfg.max_correspondence_distance,
             kernel=cfg.kernel,
             max_iterations=cfg.max_iterations,
-            thresholds=_without_default_probe(cfg.thresholds),
+            thresholds=self._register_thresholds,
         )
         fallback = False
         probe = None if res.quality is None else res.quality.basin
@@ -388,7 +389,7 @@ class Odometry2D:
                 max_correspondence_distance=cfg.max_correspondence_distance,
                 kernel=cfg.kernel,
                 max_iterations=cfg.max_iterations,
-                thresholds=_without_default_probe(cfg.thresholds),
+                thresholds=self._register_thresholds,
             )
         t_align = time.perf_counter() - t0
         pose = _accepted_pose(res, start, cfg)
