@@ -2,11 +2,11 @@
 //!
 //! The map is the voxel-centroid downsampling of the union of the last `max_keyframes`
 //! keyframes' points (world frame): one point per occupied voxel, the mean of every point of
-//! those keyframes that fell into it — the same points as voxel-downsampling the concatenated
-//! keyframes. Each voxel keeps one `(keyframe, sum, count)` part per keyframe that saw it, so
-//! adding a keyframe and dropping the oldest touch only the voxels those two keyframes saw, and
-//! each centroid is re-summed from its parts in keyframe order (no running subtraction: the
-//! same bits whatever the history).
+//! those keyframes that fell into it — the same points, in the same order and to the bit, as
+//! voxel-downsampling the concatenated keyframes. Each voxel keeps its points per keyframe that
+//! saw it, so adding a keyframe and dropping the oldest touch only the voxels those two
+//! keyframes saw, and a touched centroid is summed again in the order a full downsampling sums
+//! it (no running subtraction: the same bits whatever the history).
 //!
 //! Normals (k-NN PCA, [`crate::normals`]) are recomputed only where they can have changed: for
 //! the voxels that are new or whose centroid moved, and for those with a changed point (an old
@@ -22,6 +22,7 @@
 
 use crate::error::{Error, Result};
 use crate::knn::KdTree;
+use crate::normal_noise::noise_with_neighbour;
 use crate::normals::{eigen, facing, scatter, spans, Scratch};
 use crate::points::{check_points, voxel_of};
 use rustc_hash::FxHashMap;
@@ -31,8 +32,10 @@ use std::collections::VecDeque;
 #[derive(Debug, Clone)]
 struct Part {
     keyframe: u64,
-    sum: [f64; 3],
-    count: u32,
+    /// The keyframe's index of its first point in the voxel.
+    first: usize,
+    /// Its points in the voxel, `count * dim`, in input order.
+    points: Vec<f64>,
 }
 
 /// One occupied voxel: its parts (oldest keyframe first), centroid and normal.
@@ -46,6 +49,8 @@ struct Cell {
     /// Squared distance to the farthest of the `k` neighbours the normal was computed from
     /// (`inf` while the map held fewer than `k` points).
     radius_sq: f64,
+    /// The voxel of the nearest other map point (the second of the `k` neighbours).
+    nearest: Option<[i64; 3]>,
 }
 
 /// The map after an insert: points, their normals and the tree over them (row `i` of each is
@@ -61,6 +66,9 @@ pub struct MapState {
     pub tree: KdTree,
     /// Voxels whose normal was (re)computed by this insert.
     pub num_updated: usize,
+    /// `(ε̂², ε̃²)` of the normals, as [`crate::normal_noise::target_normal_noise`] of `tree`
+    /// and `normals` gives them (each point's nearest neighbour known from its normal's).
+    pub normal_noise: (f64, f64),
 }
 
 /// The sliding keyframe map (module docs).
@@ -180,23 +188,19 @@ impl KeyframeMap {
         // This keyframe's parts, one per voxel, in the order of the voxel's first point.
         let mut mine: FxHashMap<[i64; 3], usize> = FxHashMap::default();
         let mut parts: Vec<([i64; 3], Part)> = Vec::new();
-        for (p, key) in points.chunks_exact(dim).zip(&keys) {
+        for (i, (p, key)) in points.chunks_exact(dim).zip(&keys).enumerate() {
             let at = *mine.entry(*key).or_insert_with(|| {
                 parts.push((
                     *key,
                     Part {
                         keyframe: id,
-                        sum: [0.0; 3],
-                        count: 0,
+                        first: i,
+                        points: Vec::with_capacity(dim),
                     },
                 ));
                 parts.len() - 1
             });
-            let part = &mut parts[at].1;
-            for c in 0..dim {
-                part.sum[c] += p[c];
-            }
-            part.count += 1;
+            parts[at].1.points.extend_from_slice(p);
         }
         self.next_id += 1;
 
@@ -229,6 +233,7 @@ impl KeyframeMap {
                         normal: [0.0; 3],
                         valid: false,
                         radius_sq: f64::INFINITY,
+                        nearest: None,
                     });
                     touched.push(true);
                 }
@@ -263,19 +268,47 @@ impl KeyframeMap {
                 self.slot.insert(cell.key, s);
             }
         }
+        // Rows in the order of each voxel's first point in the window's keyframes, oldest
+        // first: the order of downsampling their concatenation, so the tree, the normals'
+        // neighbour order and every sum over the map are those of a full rebuild, to the bit.
+        let order_key = |c: &Cell| (c.parts[0].keyframe, c.parts[0].first);
+        if !self
+            .cells
+            .windows(2)
+            .all(|w| order_key(&w[0]) < order_key(&w[1]))
+        {
+            let mut paired: Vec<(Cell, bool)> = std::mem::take(&mut self.cells)
+                .into_iter()
+                .zip(touched)
+                .collect();
+            paired.sort_by_key(|(c, _)| order_key(c));
+            (self.cells, touched) = paired.into_iter().unzip();
+            self.slot.clear();
+            for (s, cell) in self.cells.iter().enumerate() {
+                self.slot.insert(cell.key, s);
+            }
+        }
         for (cell, &t) in self.cells.iter_mut().zip(&touched) {
             if t {
+                // As `voxel_downsample` sums a voxel: its first point, plus the others in
+                // order, divided by the count when there is more than one.
+                let mut all = cell.parts.iter().flat_map(|p| p.points.chunks_exact(dim));
                 let mut sum = [0.0; 3];
-                let mut count = 0u64;
-                for part in &cell.parts {
+                let mut count = 0usize;
+                if let Some(first) = all.next() {
+                    sum[..dim].copy_from_slice(first);
+                    count = 1;
+                }
+                for q in all {
                     for c in 0..dim {
-                        sum[c] += part.sum[c];
+                        sum[c] += q[c];
                     }
-                    count += u64::from(part.count);
+                    count += 1;
                 }
-                for c in 0..dim {
-                    cell.point[c] = sum[c] / count as f64;
+                if count > 1 {
+                    sum.iter_mut().for_each(|v| *v /= count as f64);
                 }
+                cell.point = sum;
                 changed.extend_from_slice(&cell.point[..dim]);
             }
         }
@@ -301,6 +334,7 @@ impl KeyframeMap {
                 });
             }
         }
+        let keys_now: Vec<[i64; 3]> = self.cells.iter().map(|c| c.key).collect();
         let k = self.k.min(self.cells.len());
         // In the tree's leaf order, each query bounded by the previous one (as a full
         // recomputation does): consecutive points share most of their traversal.
@@ -319,8 +353,12 @@ impl KeyframeMap {
             } else {
                 buf.last().map_or(f64::INFINITY, |&(_, d)| d)
             };
+            // The k neighbours are sorted by (distance, index): the second is the nearest
+            // other point, as the 2-NN query of the noise statistic finds it.
+            let nearest = buf.get(1).map(|&(j, _)| j as usize);
             let (vals, vecs) = eigen(&scatter(&tree, buf), dim);
             cell.valid = k >= dim && spans(&vals, dim);
+            cell.nearest = nearest.map(|j| keys_now[j]);
             cell.normal = if cell.valid {
                 facing(&vecs[0], tree.point(i), &self.viewpoint[..dim], dim)
             } else {
@@ -331,7 +369,14 @@ impl KeyframeMap {
         for cell in &self.cells {
             normals.extend_from_slice(&cell.normal[..dim]);
         }
+        // A voxel whose neighbours did not change kept its nearest one too.
+        let slot = &self.slot;
+        let cells = &self.cells;
+        let normal_noise = noise_with_neighbour(&normals, dim, |i| {
+            cells[i].nearest.and_then(|key| slot.get(&key).copied())
+        });
         Ok(MapState {
+            normal_noise,
             points: flat,
             normals,
             valid: self.cells.iter().map(|c| c.valid).collect(),
@@ -345,6 +390,7 @@ impl KeyframeMap {
 mod tests {
     use super::*;
     use crate::downsample::{voxel_downsample, VoxelMethod};
+    use crate::normal_noise::target_normal_noise;
     use crate::normals::local_geometry;
 
     /// Points on the walls of a 4 x 3 m room, seen from `(x, 0)`, every 2 cm, jittered.
@@ -371,14 +417,6 @@ mod tests {
         out
     }
 
-    fn sorted_rows(points: &[f64], dim: usize) -> Vec<Vec<f64>> {
-        let mut rows: Vec<Vec<f64>> = points.chunks_exact(dim).map(|r| r.to_vec()).collect();
-        // By voxel: centroids summed in another order differ in the last bits.
-        let key = |r: &Vec<f64>| ((r[0] / 0.05).floor() as i64, (r[1] / 0.05).floor() as i64);
-        rows.sort_by_key(key);
-        rows
-    }
-
     #[test]
     fn points_equal_downsampling_of_the_window() {
         let mut map = KeyframeMap::new(2, 0.05, 10, 3, &[0.0, 0.0]).unwrap();
@@ -387,12 +425,7 @@ mod tests {
             let state = map.insert(f).unwrap();
             let window: Vec<f64> = frames[j.saturating_sub(2)..=j].concat();
             let want = voxel_downsample(&window, 2, 0.05, VoxelMethod::Centroid).unwrap();
-            let got = sorted_rows(&state.points, 2);
-            let exp = sorted_rows(&want.points, 2);
-            assert_eq!(got.len(), exp.len());
-            for (a, b) in got.iter().zip(&exp) {
-                assert!((a[0] - b[0]).abs() < 1e-12 && (a[1] - b[1]).abs() < 1e-12);
-            }
+            assert_eq!(state.points, want.points);
             assert_eq!(map.num_keyframes(), (j + 1).min(3));
             assert_eq!(state.tree.len(), map.len());
         }
@@ -409,11 +442,11 @@ mod tests {
             for i in 0..state.valid.len() {
                 let a = &state.normals[2 * i..2 * i + 2];
                 let b = &full_normals[2 * i..2 * i + 2];
-                let cos = a[0] * b[0] + a[1] * b[1];
-                assert!(cos > 1.0 - 1e-9, "normal {i}: {a:?} vs {b:?}");
                 same += usize::from(a == b);
             }
             assert_eq!(same, state.valid.len());
+            let (mean, median) = target_normal_noise(&state.tree, &state.normals).unwrap();
+            assert_eq!(state.normal_noise, (mean, median));
             if j == 0 {
                 assert_eq!(state.num_updated, state.valid.len());
             }

@@ -7,8 +7,14 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2}
 use pyo3::prelude::*;
 use scanreg_core::keyframe_map;
 
-/// `(tree, normals (M, dim), valid (M,), num_updated)` after an insert.
-type Inserted = (Py<KdTree>, Py<PyArray2<f64>>, Py<PyArray1<bool>>, usize);
+/// `(tree, normals (M, dim), valid (M,), (ε̂², ε̃²), num_updated)` after an insert.
+type Inserted = (
+    Py<KdTree>,
+    Py<PyArray2<f64>>,
+    Py<PyArray1<bool>>,
+    (f64, f64),
+    usize,
+);
 
 /// The last `max_keyframes` keyframes voxel-downsampled into one map, with normals recomputed
 /// only where a keyframe changed the map. Mutable: one owner (the odometry) updates it.
@@ -49,7 +55,8 @@ impl KeyframeMap {
     }
 
     /// Add a keyframe's `(N, dim)` world-frame points (dropping the oldest keyframe when the
-    /// window is full): `(tree over the map, normals, valid, voxels whose normal was computed)`.
+    /// window is full): `(tree over the map, normals, valid, normal noise (as
+    /// `target_normal_noise` of the two), voxels whose normal was computed)`.
     fn insert(
         &mut self,
         py: Python<'_>,
@@ -65,6 +72,7 @@ impl KeyframeMap {
             Py::new(py, KdTree { inner: state.tree })?,
             read_only(normals.into_bound(py)),
             read_only(valid),
+            state.normal_noise,
             state.num_updated,
         ))
     }
