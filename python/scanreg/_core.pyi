@@ -100,6 +100,25 @@ class KdTree:
     def radius_outliers(self, radius: float, min_neighbors: int) -> NDArray[np.int64]: ...
 
 @final
+class KeyframeMap:
+    def __new__(
+        cls,
+        dim: int,
+        voxel_size: float,
+        num_neighbors: int,
+        max_keyframes: int,
+        viewpoint: NDArray[np.float64],
+    ) -> KeyframeMap: ...
+    @property
+    def dim(self) -> int: ...
+    def __len__(self) -> int: ...
+    @property
+    def num_keyframes(self) -> int: ...
+    def insert(
+        self, points_array: NDArray[np.float64]
+    ) -> tuple[KdTree, NDArray[np.float64], NDArray[np.bool_], tuple[float, float], int]: ...
+
+@final
 class LocalMap:
     def __new__(
         cls,

@@ -226,3 +226,39 @@ def prepare(
             "epsilon": eps,
         },
     )
+
+
+def prepared_from_normals(
+    index: _core.KdTree,
+    normals: FloatArray,
+    valid: BoolArray,
+    num_neighbors: int,
+    normal_noise: tuple[float, float] | None = None,
+) -> PreparedTarget:
+    """A :class:`PreparedTarget` (normals, no covariances) from a tree and normals computed
+    elsewhere — a map maintained incrementally (:class:`scanreg._core.KeyframeMap`) — with
+    the defaults of :func:`prepare`; the caller vouches that row ``i`` of ``normals`` is the
+    normal of ``index``'s point ``i``, and that ``normal_noise`` (when given) is what
+    :attr:`PreparedTarget.normal_noise` would measure."""
+    if normals.shape != (len(index), index.dim) or valid.shape != (len(index),):
+        raise ValueError(
+            f"normals: expected shape ({len(index)}, {index.dim}) and valid ({len(index)},), "
+            f"got {normals.shape} and {valid.shape}"
+        )
+    target = build(
+        PreparedTarget,
+        {
+            "points": index.points,
+            "index": index,
+            "normals": normals,
+            "covariances": None,
+            "valid": valid,
+            "num_neighbors": int(num_neighbors),
+            "regularization": "plane",
+            "epsilon": 1e-3,
+        },
+    )
+    if normal_noise is not None:
+        # Where functools.cached_property keeps its value: the first read returns it.
+        target.__dict__["normal_noise"] = (float(normal_noise[0]), float(normal_noise[1]))
+    return target

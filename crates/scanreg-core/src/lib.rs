@@ -22,6 +22,7 @@ pub mod global;
 pub mod group;
 pub mod icp;
 pub mod kernel;
+pub mod keyframe_map;
 pub mod knn;
 pub mod lie;
 pub mod lzf;

@@ -67,31 +67,44 @@ fn check_finite(arg: &'static str, data: &[f64]) -> Result<()> {
 pub fn target_normal_noise(tree: &KdTree, normals: &[f64]) -> Result<(f64, f64)> {
     let dim = tree.dim();
     check_normals(normals, tree.len(), dim)?;
+    let mut buf = Vec::with_capacity(3);
+    Ok(noise_with_neighbour(normals, dim, |i| {
+        buf.clear();
+        tree.knn_into(tree.point(i), 2, f64::INFINITY, &mut buf);
+        buf.get(1).map(|&(j, _)| j as usize)
+    }))
+}
+
+/// [`target_normal_noise`] with each point's nearest neighbour given by `nearest(i)` (a map
+/// that already knows it: `crate::keyframe_map`); `normals` are `N * dim`, checked.
+pub(crate) fn noise_with_neighbour(
+    normals: &[f64],
+    dim: usize,
+    mut nearest: impl FnMut(usize) -> Option<usize>,
+) -> (f64, f64) {
     let nan = (f64::NAN, f64::NAN);
-    let valid: Vec<usize> = (0..tree.len())
+    let n = normals.len() / dim;
+    let valid: Vec<usize> = (0..n)
         .filter(|&i| dot(at(normals, i, dim), at(normals, i, dim)) > VALID_SQ)
         .collect();
     if valid.len() < 2 {
-        return Ok(nan);
+        return nan;
     }
     let step = (valid.len() / TARGET_SAMPLE).max(1);
-    let mut buf = Vec::with_capacity(3);
     let mut sin2 = Vec::with_capacity(valid.len() / step + 1);
     for &i in valid.iter().step_by(step) {
-        buf.clear();
-        tree.knn_into(tree.point(i), 2, f64::INFINITY, &mut buf);
-        let Some(&(j, _)) = buf.get(1) else { continue };
-        let nj = at(normals, j as usize, dim);
+        let Some(j) = nearest(i) else { continue };
+        let nj = at(normals, j, dim);
         if dot(nj, nj) > VALID_SQ {
             sin2.push(sine_squared(at(normals, i, dim), nj));
         }
     }
     if sin2.is_empty() {
-        return Ok(nan);
+        return nan;
     }
     let m = mean(&sin2);
     sin2.sort_by(f64::total_cmp);
-    Ok((0.5 * m, 0.5 * median_sorted(&sin2)))
+    (0.5 * m, 0.5 * median_sorted(&sin2))
 }
 
 /// Unit normal (smallest principal axis) of the `k` nearest points of `q`; sign arbitrary.

@@ -131,6 +131,61 @@ pub(crate) fn eigen(c: &[f64; 9], dim: usize) -> ([f64; 3], [[f64; 3]; 3]) {
     }
 }
 
+/// Centred second moment `(1/m) Σ (q − q̄)(q − q̄)ᵀ` of the neighbours `buf` (row-major
+/// `dim x dim` in a 3x3 array). Two passes: mean, then centred sum (no cancellation far from 0).
+pub(crate) fn scatter(tree: &KdTree, buf: &[(u32, f64)]) -> [f64; 9] {
+    let dim = tree.dim();
+    let mut mean = [0.0; 3];
+    for &(j, _) in buf.iter() {
+        let q = tree.point(j as usize);
+        for c in 0..dim {
+            mean[c] += q[c];
+        }
+    }
+    let m = buf.len() as f64;
+    for v in mean.iter_mut() {
+        *v /= m;
+    }
+    let mut cov = [0.0; 9];
+    for &(j, _) in buf.iter() {
+        let q = tree.point(j as usize);
+        let mut d = [0.0; 3];
+        for c in 0..dim {
+            d[c] = q[c] - mean[c];
+        }
+        for r in 0..dim {
+            for c in r..dim {
+                cov[r * dim + c] += d[r] * d[c];
+            }
+        }
+    }
+    for r in 0..dim {
+        for c in r..dim {
+            cov[r * dim + c] /= m;
+            cov[c * dim + r] = cov[r * dim + c];
+        }
+    }
+    cov
+}
+
+/// Whether a neighbourhood with ascending eigenvalues `vals` spans a line (2D) or a plane
+/// (3D): the module's non-degeneracy rule.
+pub(crate) fn spans(vals: &[f64; 3], dim: usize) -> bool {
+    let lmax = vals[dim - 1];
+    lmax > 0.0 && (dim == 2 || vals[1] > DEGENERATE_RATIO * lmax)
+}
+
+/// The unit vector `v` (a normal of the point `p`), flipped to face `viewpoint`.
+pub(crate) fn facing(v: &[f64; 3], p: &[f64], viewpoint: &[f64], dim: usize) -> [f64; 3] {
+    let mut normal = [0.0; 3];
+    normal[..dim].copy_from_slice(&v[..dim]);
+    let toward: f64 = (0..dim).map(|c| normal[c] * (viewpoint[c] - p[c])).sum();
+    if toward < 0.0 {
+        normal.iter_mut().for_each(|x| *x = -*x);
+    }
+    normal
+}
+
 /// Normals and/or covariances of every indexed point from its `k` nearest neighbours.
 /// `viewpoint` has `dim` coordinates; `k` must be in `dim..=N`. Linear 3D neighbourhoods keep
 /// their normal (see [`local_geometry_with`]).
@@ -150,20 +205,20 @@ pub fn local_geometry(
 /// (the unbounded search accepts every point of the first leaves until it holds k). Exact: when
 /// the bounded search finds k points they are the k nearest, and if rounding ever left it
 /// short the query is repeated unbounded.
-struct Scratch {
+pub(crate) struct Scratch {
     buf: Vec<(u32, f64)>,
     prev: Option<(usize, f64)>,
 }
 
 impl Scratch {
-    fn new(k: usize) -> Self {
+    pub(crate) fn new(k: usize) -> Self {
         Scratch {
             buf: Vec::with_capacity(k + 1),
             prev: None,
         }
     }
 
-    fn neighbours(&mut self, tree: &KdTree, i: usize, k: usize) -> &[(u32, f64)] {
+    pub(crate) fn neighbours(&mut self, tree: &KdTree, i: usize, k: usize) -> &[(u32, f64)] {
         self.buf.clear();
         let p = tree.point(i);
         let bound = self.prev.map_or(f64::INFINITY, |(j, dk)| {
@@ -233,48 +288,14 @@ pub fn local_geometry_with(
         let i = i as usize;
         let p = tree.point(i);
         let buf = state.neighbours(tree, i, k);
-        // Two passes: mean, then centred second moment (no cancellation far from 0).
-        let mut mean = [0.0; 3];
-        for &(j, _) in buf.iter() {
-            let q = tree.point(j as usize);
-            for c in 0..dim {
-                mean[c] += q[c];
-            }
-        }
-        let m = buf.len() as f64;
-        for v in mean.iter_mut() {
-            *v /= m;
-        }
-        let mut cov = [0.0; 9];
-        for &(j, _) in buf.iter() {
-            let q = tree.point(j as usize);
-            let mut d = [0.0; 3];
-            for c in 0..dim {
-                d[c] = q[c] - mean[c];
-            }
-            for r in 0..dim {
-                for c in r..dim {
-                    cov[r * dim + c] += d[r] * d[c];
-                }
-            }
-        }
-        for r in 0..dim {
-            for c in r..dim {
-                cov[r * dim + c] /= m;
-                cov[c * dim + r] = cov[r * dim + c];
-            }
-        }
+        let cov = scatter(tree, buf);
         let (vals, vecs) = eigen(&cov, dim);
         let lmax = vals[dim - 1];
-        let valid = lmax > 0.0 && (dim == 2 || vals[1] > DEGENERATE_RATIO * lmax);
+        let valid = spans(&vals, dim);
         let mut normal = [0.0; 3];
         let linear = drop_linear && dim == 3 && valid && is_linear(&vals);
         if valid && !linear {
-            normal[..dim].copy_from_slice(&vecs[0][..dim]);
-            let facing: f64 = (0..dim).map(|c| normal[c] * (viewpoint[c] - p[c])).sum();
-            if facing < 0.0 {
-                normal.iter_mut().for_each(|v| *v = -*v);
-            }
+            normal = facing(&vecs[0], p, viewpoint, dim);
         }
         let mut out = [0.0; 9];
         match (valid, covariances) {

@@ -11,6 +11,7 @@ mod correlative;
 mod deskew;
 mod global;
 mod io;
+mod keyframe_map;
 pub mod knn;
 mod local_map;
 mod measure;
@@ -34,6 +35,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     ndt3d::register(m)?;
     deskew::register(m)?;
     knn::register(m)?;
+    keyframe_map::register(m)?;
     local_map::register(m)?;
     preprocess::register(m)?;
     simulate::register(m)?;

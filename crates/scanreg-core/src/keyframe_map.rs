@@ -1,0 +1,481 @@
+//! A sliding local map of the last `K` keyframes, updated per keyframe instead of rebuilt.
+//!
+//! The map is the voxel-centroid downsampling of the union of the last `max_keyframes`
+//! keyframes' points (world frame): one point per occupied voxel, the mean of every point of
+//! those keyframes that fell into it — the same points, in the same order and to the bit, as
+//! voxel-downsampling the concatenated keyframes. Each voxel keeps its points per keyframe that
+//! saw it, so adding a keyframe and dropping the oldest touch only the voxels those two
+//! keyframes saw, and a touched centroid is summed again in the order a full downsampling sums
+//! it (no running subtraction: the same bits whatever the history).
+//!
+//! Normals (k-NN PCA, [`crate::normals`]) are recomputed only where they can have changed: for
+//! the voxels that are new or whose centroid moved, and for those with a changed point (an old
+//! or a new centroid) within the radius of the `k` neighbours their normal was computed from.
+//! Any other voxel has the same `k` neighbours at the same places, so the map's normals are
+//! those of a full recomputation (up to ties in the neighbour order). Keeping a normal whose
+//! neighbourhood changed is not safe: a distant wall seen first by one sparse scan gets its
+//! normal from points spread across a corner, and later keyframes fill it in.
+//! The k-d tree is rebuilt over the map on every insert: a few thousand 2D points build in tens
+//! of microseconds, far less than the normals it saves.
+
+#![allow(clippy::needless_range_loop)] // fixed-size coordinate loops read better indexed
+
+use crate::error::{Error, Result};
+use crate::knn::KdTree;
+use crate::normal_noise::noise_with_neighbour;
+use crate::normals::{eigen, facing, scatter, spans, Scratch};
+use crate::points::{check_points, voxel_of};
+use rustc_hash::FxHashMap;
+use std::collections::VecDeque;
+
+/// What one keyframe put into one voxel.
+#[derive(Debug, Clone)]
+struct Part {
+    keyframe: u64,
+    /// The keyframe's index of its first point in the voxel.
+    first: usize,
+    /// Its points in the voxel, `count * dim`, in input order.
+    points: Vec<f64>,
+}
+
+/// One occupied voxel: its parts (oldest keyframe first), centroid and normal.
+#[derive(Debug, Clone)]
+struct Cell {
+    key: [i64; 3],
+    parts: Vec<Part>,
+    point: [f64; 3],
+    normal: [f64; 3],
+    valid: bool,
+    /// Squared distance to the farthest of the `k` neighbours the normal was computed from
+    /// (`inf` while the map held fewer than `k` points).
+    radius_sq: f64,
+    /// The voxel of the nearest other map point (the second of the `k` neighbours).
+    nearest: Option<[i64; 3]>,
+}
+
+/// The map after an insert: points, their normals and the tree over them (row `i` of each is
+/// the same voxel).
+pub struct MapState {
+    /// `M * dim` map points (voxel centroids).
+    pub points: Vec<f64>,
+    /// `M * dim` unit normals facing the viewpoint, zero where `!valid`.
+    pub normals: Vec<f64>,
+    /// Whether each point's neighbourhood spanned a line (2D) / plane (3D).
+    pub valid: Vec<bool>,
+    /// The k-d tree over `points`.
+    pub tree: KdTree,
+    /// Voxels whose normal was (re)computed by this insert.
+    pub num_updated: usize,
+    /// `(ε̂², ε̃²)` of the normals, as [`crate::normal_noise::target_normal_noise`] of `tree`
+    /// and `normals` gives them (each point's nearest neighbour known from its normal's).
+    pub normal_noise: (f64, f64),
+}
+
+/// The sliding keyframe map (module docs).
+#[derive(Debug, Clone)]
+pub struct KeyframeMap {
+    dim: usize,
+    /// `1 / voxel_size`, or 0 for no downsampling (every point its own voxel).
+    inv: f64,
+    k: usize,
+    max_keyframes: usize,
+    viewpoint: [f64; 3],
+    cells: Vec<Cell>,
+    slot: FxHashMap<[i64; 3], usize>,
+    /// The keys each keyframe in the window touched, oldest first.
+    keyframes: VecDeque<(u64, Vec<[i64; 3]>)>,
+    next_id: u64,
+}
+
+impl KeyframeMap {
+    /// An empty map of `dim`-D points (2 or 3): voxels of `voxel_size` (0: no downsampling),
+    /// normals from `k >= dim` neighbours facing `viewpoint`, the last `max_keyframes >= 1`.
+    pub fn new(
+        dim: usize,
+        voxel_size: f64,
+        k: usize,
+        max_keyframes: usize,
+        viewpoint: &[f64],
+    ) -> Result<Self> {
+        if dim != 2 && dim != 3 {
+            return Err(Error::invalid("dim", format!("must be 2 or 3, got {dim}")));
+        }
+        if !voxel_size.is_finite() || voxel_size < 0.0 {
+            return Err(Error::invalid(
+                "voxel_size",
+                format!("must be finite and >= 0, got {voxel_size}"),
+            ));
+        }
+        if k < dim {
+            return Err(Error::invalid(
+                "num_neighbors",
+                format!("must be >= {dim} to fit a normal in {dim}D, got {k}"),
+            ));
+        }
+        if max_keyframes == 0 {
+            return Err(Error::invalid("max_keyframes", "must be >= 1, got 0"));
+        }
+        if viewpoint.len() != dim || viewpoint.iter().any(|v| !v.is_finite()) {
+            return Err(Error::invalid(
+                "viewpoint",
+                format!("expected {dim} finite coordinates, got {viewpoint:?}"),
+            ));
+        }
+        let mut vp = [0.0; 3];
+        vp[..dim].copy_from_slice(viewpoint);
+        Ok(KeyframeMap {
+            dim,
+            inv: if voxel_size > 0.0 {
+                1.0 / voxel_size
+            } else {
+                0.0
+            },
+            k,
+            max_keyframes,
+            viewpoint: vp,
+            cells: Vec::new(),
+            slot: FxHashMap::default(),
+            keyframes: VecDeque::new(),
+            next_id: 0,
+        })
+    }
+
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    /// Map points.
+    pub fn len(&self) -> usize {
+        self.cells.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+
+    /// Keyframes in the window.
+    pub fn num_keyframes(&self) -> usize {
+        self.keyframes.len()
+    }
+
+    /// The voxel key of every point (with no downsampling, a key no voxel can have).
+    fn keys(&self, points: &[f64], id: u64) -> Result<Vec<[i64; 3]>> {
+        let dim = self.dim;
+        points
+            .chunks_exact(dim)
+            .enumerate()
+            .map(|(i, p)| {
+                if self.inv == 0.0 {
+                    return Ok([i64::MIN, id as i64, i as i64]);
+                }
+                voxel_of(p, self.inv).ok_or_else(|| {
+                    Error::invalid("voxel_size", "too small for the extent of the points")
+                })
+            })
+            .collect()
+    }
+
+    /// Add a keyframe's `N * dim` world-frame points (`N >= 1`, finite), dropping the oldest
+    /// keyframe when the window is full; the map after the update.
+    pub fn insert(&mut self, points: &[f64]) -> Result<MapState> {
+        let dim = self.dim;
+        let n = check_points("points", points, dim)?;
+        if n == 0 {
+            return Err(Error::invalid("points", "is empty"));
+        }
+        let id = self.next_id;
+        let keys = self.keys(points, id)?;
+        // This keyframe's parts, one per voxel, in the order of the voxel's first point.
+        let mut mine: FxHashMap<[i64; 3], usize> = FxHashMap::default();
+        let mut parts: Vec<([i64; 3], Part)> = Vec::new();
+        for (i, (p, key)) in points.chunks_exact(dim).zip(&keys).enumerate() {
+            let at = *mine.entry(*key).or_insert_with(|| {
+                parts.push((
+                    *key,
+                    Part {
+                        keyframe: id,
+                        first: i,
+                        points: Vec::with_capacity(dim),
+                    },
+                ));
+                parts.len() - 1
+            });
+            parts[at].1.points.extend_from_slice(p);
+        }
+        self.next_id += 1;
+
+        let existing = self.cells.len();
+        let mut touched = vec![false; existing];
+        if self.keyframes.len() == self.max_keyframes {
+            if let Some((old, old_keys)) = self.keyframes.pop_front() {
+                for key in old_keys {
+                    if let Some(&s) = self.slot.get(&key) {
+                        self.cells[s].parts.retain(|p| p.keyframe != old);
+                        touched[s] = true;
+                    }
+                }
+            }
+        }
+        let mut my_keys = Vec::with_capacity(parts.len());
+        for (key, part) in parts {
+            my_keys.push(key);
+            match self.slot.get(&key) {
+                Some(&s) => {
+                    self.cells[s].parts.push(part);
+                    touched[s] = true;
+                }
+                None => {
+                    self.slot.insert(key, self.cells.len());
+                    self.cells.push(Cell {
+                        key,
+                        parts: vec![part],
+                        point: [0.0; 3],
+                        normal: [0.0; 3],
+                        valid: false,
+                        radius_sq: f64::INFINITY,
+                        nearest: None,
+                    });
+                    touched.push(true);
+                }
+            }
+        }
+        self.keyframes.push_back((id, my_keys));
+
+        // Where the map changed: the old centroid of every touched voxel that existed (moved or
+        // removed) and, below, the new centroid of every touched voxel that remains.
+        let mut changed: Vec<f64> = Vec::new();
+        for (cell, _) in self.cells[..existing]
+            .iter()
+            .zip(&touched)
+            .filter(|(_, &t)| t)
+        {
+            changed.extend_from_slice(&cell.point[..dim]);
+        }
+        // Drop emptied voxels, keeping the others in order (deterministic rows).
+        if self.cells.iter().any(|c| c.parts.is_empty()) {
+            let mut kept = Vec::with_capacity(self.cells.len());
+            let mut kept_touched = Vec::with_capacity(self.cells.len());
+            for (cell, t) in std::mem::take(&mut self.cells).into_iter().zip(touched) {
+                if !cell.parts.is_empty() {
+                    kept.push(cell);
+                    kept_touched.push(t);
+                }
+            }
+            self.cells = kept;
+            touched = kept_touched;
+            self.slot.clear();
+            for (s, cell) in self.cells.iter().enumerate() {
+                self.slot.insert(cell.key, s);
+            }
+        }
+        // Rows in the order of each voxel's first point in the window's keyframes, oldest
+        // first: the order of downsampling their concatenation, so the tree, the normals'
+        // neighbour order and every sum over the map are those of a full rebuild, to the bit.
+        let order_key = |c: &Cell| (c.parts[0].keyframe, c.parts[0].first);
+        if !self
+            .cells
+            .windows(2)
+            .all(|w| order_key(&w[0]) < order_key(&w[1]))
+        {
+            let mut paired: Vec<(Cell, bool)> = std::mem::take(&mut self.cells)
+                .into_iter()
+                .zip(touched)
+                .collect();
+            paired.sort_by_key(|(c, _)| order_key(c));
+            (self.cells, touched) = paired.into_iter().unzip();
+            self.slot.clear();
+            for (s, cell) in self.cells.iter().enumerate() {
+                self.slot.insert(cell.key, s);
+            }
+        }
+        for (cell, &t) in self.cells.iter_mut().zip(&touched) {
+            if t {
+                // As `voxel_downsample` sums a voxel: its first point, plus the others in
+                // order, divided by the count when there is more than one.
+                let mut all = cell.parts.iter().flat_map(|p| p.points.chunks_exact(dim));
+                let mut sum = [0.0; 3];
+                let mut count = 0usize;
+                if let Some(first) = all.next() {
+                    sum[..dim].copy_from_slice(first);
+                    count = 1;
+                }
+                for q in all {
+                    for c in 0..dim {
+                        sum[c] += q[c];
+                    }
+                    count += 1;
+                }
+                if count > 1 {
+                    sum.iter_mut().for_each(|v| *v /= count as f64);
+                }
+                cell.point = sum;
+                changed.extend_from_slice(&cell.point[..dim]);
+            }
+        }
+
+        let mut flat = Vec::with_capacity(self.cells.len() * dim);
+        for cell in &self.cells {
+            flat.extend_from_slice(&cell.point[..dim]);
+        }
+        let tree = KdTree::build(&flat, dim)?;
+        // A voxel's k neighbours can only have changed if a changed point (an old or a new
+        // centroid) lies within its neighbourhood radius: those get their normal again, the
+        // rest keep theirs — the same normals as a full recomputation, for a fraction of it.
+        let moved = if changed.is_empty() {
+            None
+        } else {
+            Some(KdTree::build(&changed, dim)?)
+        };
+        for (cell, t) in self.cells.iter().zip(touched.iter_mut()) {
+            if !*t {
+                *t = moved.as_ref().is_some_and(|m| {
+                    m.nearest_within(&cell.point[..dim], cell.radius_sq)
+                        .is_some()
+                });
+            }
+        }
+        let keys_now: Vec<[i64; 3]> = self.cells.iter().map(|c| c.key).collect();
+        let k = self.k.min(self.cells.len());
+        // In the tree's leaf order, each query bounded by the previous one (as a full
+        // recomputation does): consecutive points share most of their traversal.
+        let mut scratch = Scratch::new(k);
+        let mut num_updated = 0;
+        for &i in tree.leaf_order() {
+            let i = i as usize;
+            if !touched[i] {
+                continue;
+            }
+            num_updated += 1;
+            let buf = scratch.neighbours(&tree, i, k);
+            let cell = &mut self.cells[i];
+            cell.radius_sq = if k < self.k {
+                f64::INFINITY
+            } else {
+                buf.last().map_or(f64::INFINITY, |&(_, d)| d)
+            };
+            // The k neighbours are sorted by (distance, index): the second is the nearest
+            // other point, as the 2-NN query of the noise statistic finds it.
+            let nearest = buf.get(1).map(|&(j, _)| j as usize);
+            let (vals, vecs) = eigen(&scatter(&tree, buf), dim);
+            cell.valid = k >= dim && spans(&vals, dim);
+            cell.nearest = nearest.map(|j| keys_now[j]);
+            cell.normal = if cell.valid {
+                facing(&vecs[0], tree.point(i), &self.viewpoint[..dim], dim)
+            } else {
+                [0.0; 3]
+            };
+        }
+        let mut normals = Vec::with_capacity(flat.len());
+        for cell in &self.cells {
+            normals.extend_from_slice(&cell.normal[..dim]);
+        }
+        // A voxel whose neighbours did not change kept its nearest one too.
+        let slot = &self.slot;
+        let cells = &self.cells;
+        let normal_noise = noise_with_neighbour(&normals, dim, |i| {
+            cells[i].nearest.and_then(|key| slot.get(&key).copied())
+        });
+        Ok(MapState {
+            normal_noise,
+            points: flat,
+            normals,
+            valid: self.cells.iter().map(|c| c.valid).collect(),
+            tree,
+            num_updated,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::downsample::{voxel_downsample, VoxelMethod};
+    use crate::normal_noise::target_normal_noise;
+    use crate::normals::local_geometry;
+
+    /// Points on the walls of a 4 x 3 m room, seen from `(x, 0)`, every 2 cm, jittered.
+    fn room(x: f64, seed: u64) -> Vec<f64> {
+        let mut s = seed.wrapping_mul(6364136223846793005).wrapping_add(1);
+        let mut jitter = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.01
+        };
+        let mut out = Vec::new();
+        for i in 0..200 {
+            let u = -2.0 + 0.02 * i as f64;
+            if (u - x).abs() < 1.5 {
+                out.extend_from_slice(&[u, 1.5 + jitter()]);
+                out.extend_from_slice(&[u, -1.5 + jitter()]);
+            }
+        }
+        for i in 0..150 {
+            let v = -1.5 + 0.02 * i as f64;
+            out.extend_from_slice(&[2.0 + jitter(), v]);
+        }
+        out
+    }
+
+    #[test]
+    fn points_equal_downsampling_of_the_window() {
+        let mut map = KeyframeMap::new(2, 0.05, 10, 3, &[0.0, 0.0]).unwrap();
+        let frames: Vec<Vec<f64>> = (0..6).map(|j| room(-1.0 + 0.4 * j as f64, j)).collect();
+        for (j, f) in frames.iter().enumerate() {
+            let state = map.insert(f).unwrap();
+            let window: Vec<f64> = frames[j.saturating_sub(2)..=j].concat();
+            let want = voxel_downsample(&window, 2, 0.05, VoxelMethod::Centroid).unwrap();
+            assert_eq!(state.points, want.points);
+            assert_eq!(map.num_keyframes(), (j + 1).min(3));
+            assert_eq!(state.tree.len(), map.len());
+        }
+    }
+
+    #[test]
+    fn normals_equal_a_full_recomputation() {
+        let mut map = KeyframeMap::new(2, 0.05, 10, 2, &[0.0, 0.0]).unwrap();
+        for j in 0..4 {
+            let state = map.insert(&room(0.3 * j as f64, j)).unwrap();
+            let full = local_geometry(&state.tree, 10, &[0.0, 0.0], true, None).unwrap();
+            let full_normals = full.normals.unwrap();
+            let mut same = 0;
+            for i in 0..state.valid.len() {
+                let a = &state.normals[2 * i..2 * i + 2];
+                let b = &full_normals[2 * i..2 * i + 2];
+                same += usize::from(a == b);
+            }
+            assert_eq!(same, state.valid.len());
+            let (mean, median) = target_normal_noise(&state.tree, &state.normals).unwrap();
+            assert_eq!(state.normal_noise, (mean, median));
+            if j == 0 {
+                assert_eq!(state.num_updated, state.valid.len());
+            }
+        }
+    }
+
+    #[test]
+    fn no_downsampling_keeps_every_point() {
+        let mut map = KeyframeMap::new(2, 0.0, 5, 2, &[0.0, 0.0]).unwrap();
+        let a = room(0.0, 1);
+        let b = room(0.5, 2);
+        let c = room(1.0, 3);
+        assert_eq!(map.insert(&a).unwrap().points.len(), a.len());
+        assert_eq!(map.insert(&b).unwrap().points.len(), a.len() + b.len());
+        assert_eq!(map.insert(&c).unwrap().points.len(), b.len() + c.len());
+    }
+
+    #[test]
+    fn bad_input_is_refused() {
+        assert!(KeyframeMap::new(4, 0.05, 10, 3, &[0.0; 4]).is_err());
+        assert!(KeyframeMap::new(2, -1.0, 10, 3, &[0.0, 0.0]).is_err());
+        assert!(KeyframeMap::new(2, 0.05, 1, 3, &[0.0, 0.0]).is_err());
+        assert!(KeyframeMap::new(2, 0.05, 10, 0, &[0.0, 0.0]).is_err());
+        let mut map = KeyframeMap::new(2, 0.05, 10, 3, &[0.0, 0.0]).unwrap();
+        assert!(map.insert(&[]).is_err());
+        assert!(map.insert(&[0.0, f64::NAN]).is_err());
+        assert!(map.insert(&[0.0, 1.0, 2.0]).is_err());
+        // A single point: a map without normals, not an error.
+        let state = map.insert(&[1.0, 2.0]).unwrap();
+        assert_eq!(state.valid, vec![false]);
+    }
+}
