@@ -39,6 +39,25 @@ pub struct GlobalMatch {
     /// `(stage, seconds)` in pipeline order; empty for paired input.
     #[pyo3(get)]
     stage_seconds: Vec<(String, f64)>,
+    /// `(stage, seconds)` of process CPU time (all threads), in the same order; empty for
+    /// paired input, NaN where the platform has no process CPU clock.
+    #[pyo3(get)]
+    stage_cpu_seconds: Vec<(String, f64)>,
+}
+
+fn stage_list(seconds: Option<StageSeconds>) -> Vec<(String, f64)> {
+    seconds.map_or_else(Vec::new, |s| {
+        [
+            ("keypoints", s.keypoints),
+            ("descriptors", s.descriptors),
+            ("matching", s.matching),
+            ("pruning", s.pruning),
+            ("solve", s.solve),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
+    })
 }
 
 fn build(
@@ -48,7 +67,7 @@ fn build(
     target_keypoints: Vec<f64>,
     descriptors: (usize, usize),
     pairs: Vec<(u32, u32)>,
-    seconds: Option<StageSeconds>,
+    seconds: Option<(StageSeconds, StageSeconds)>,
 ) -> PyResult<GlobalMatch> {
     let k = hyps.len();
     let flat: Vec<f64> = hyps.iter().flat_map(|h| h.pose).collect();
@@ -83,18 +102,8 @@ fn build(
         num_source_descriptors: descriptors.0,
         num_target_descriptors: descriptors.1,
         correspondences: rows(py, pair_flat, 2)?,
-        stage_seconds: seconds.map_or_else(Vec::new, |s| {
-            [
-                ("keypoints", s.keypoints),
-                ("descriptors", s.descriptors),
-                ("matching", s.matching),
-                ("pruning", s.pruning),
-                ("solve", s.solve),
-            ]
-            .into_iter()
-            .map(|(k, v)| (k.to_string(), v))
-            .collect()
-        }),
+        stage_seconds: stage_list(seconds.map(|s| s.0)),
+        stage_cpu_seconds: stage_list(seconds.map(|s| s.1)),
     })
 }
 
@@ -140,7 +149,7 @@ fn register_global(
         out.target.points,
         counts,
         out.correspondences,
-        Some(out.seconds),
+        Some((out.seconds, out.cpu_seconds)),
     )
 }
 

@@ -125,7 +125,12 @@ impl<'a> DescriptorTree<'a> {
 
     /// Nearest row to `q` as `(squared distance, row)`.
     fn nearest(&self, q: &[f32], offsets: &mut [f32]) -> (f32, u32) {
-        let mut best = (f32::INFINITY, u32::MAX);
+        self.better_than(q, (f32::INFINITY, u32::MAX), offsets)
+    }
+
+    /// The nearest row to `q` if it beats `best` (`(squared distance, row)`, ties to the lower
+    /// row), else `best`: with a tight `best` most cells are pruned from the start.
+    fn better_than(&self, q: &[f32], mut best: (f32, u32), offsets: &mut [f32]) -> (f32, u32) {
         offsets.iter_mut().for_each(|o| *o = 0.0);
         self.search(0, q, 0.0, offsets, &mut best);
         best
@@ -180,8 +185,14 @@ impl<'a> DescriptorTree<'a> {
     }
 }
 
-/// Nearest row of `tree` for every row of `queries` flagged valid (`u32::MAX` otherwise).
-fn nearest_all(tree: &DescriptorTree<'_>, queries: &[f32], valid: &[bool], dim: usize) -> Vec<u32> {
+/// Nearest row of `tree` for every row of `queries` flagged valid, as `(squared distance,
+/// row)` (`row` `u32::MAX` otherwise).
+fn nearest_all(
+    tree: &DescriptorTree<'_>,
+    queries: &[f32],
+    valid: &[bool],
+    dim: usize,
+) -> Vec<(f32, u32)> {
     let n = queries.len() / dim;
     (0..n)
         .into_par_iter()
@@ -190,9 +201,9 @@ fn nearest_all(tree: &DescriptorTree<'_>, queries: &[f32], valid: &[bool], dim: 
             || vec![0.0f32; dim],
             |offsets, i| {
                 if valid[i] {
-                    tree.nearest(&queries[i * dim..(i + 1) * dim], offsets).1
+                    tree.nearest(&queries[i * dim..(i + 1) * dim], offsets)
                 } else {
-                    u32::MAX
+                    (f32::INFINITY, u32::MAX)
                 }
             },
         )
@@ -202,6 +213,13 @@ fn nearest_all(tree: &DescriptorTree<'_>, queries: &[f32], valid: &[bool], dim: 
 /// Pairs `(i, j)` where target row `j` is the nearest to source row `i` and source row `i` is
 /// the nearest to target row `j` (Euclidean, rows of `dim` values). Rows whose `*_valid` flag
 /// is false take no part. Sorted by `i`.
+///
+/// Each source row's nearest target row first; then only a target row that is some source
+/// row's nearest can be in a pair, and only with the nearest `i` of those (ties to the lower
+/// index), so its reverse search asks whether any source row beats that `i`: started from
+/// `i`'s distance it prunes most of the tree at once (the reverse direction had cost as much
+/// as the forward one). The distance is symmetric bit for bit, so the answer is the two
+/// independent searches'.
 pub fn mutual_nearest(
     source: &[f32],
     source_valid: &[bool],
@@ -218,22 +236,40 @@ pub fn mutual_nearest(
     if src_ids.is_empty() || tgt_ids.is_empty() {
         return Vec::new();
     }
-    let (to_target, to_source) = rayon::join(
+    let (to_target, source_tree) = rayon::join(
         || {
             let tree = DescriptorTree::build(target, dim, tgt_ids);
             nearest_all(&tree, source, source_valid, dim)
         },
-        || {
-            let tree = DescriptorTree::build(source, dim, src_ids);
-            nearest_all(&tree, target, target_valid, dim)
-        },
+        || DescriptorTree::build(source, dim, src_ids),
     );
-    to_target
+    // The best source row of each target row that is someone's nearest.
+    let mut claim = vec![(f32::INFINITY, u32::MAX); target.len() / dim];
+    for (i, &(d, j)) in to_target.iter().enumerate() {
+        if j != u32::MAX && better((d, i as u32), claim[j as usize]) {
+            claim[j as usize] = (d, i as u32);
+        }
+    }
+    let claimed: Vec<(u32, (f32, u32))> = claim
         .iter()
         .enumerate()
-        .filter(|&(i, &j)| j != u32::MAX && to_source[j as usize] == i as u32)
-        .map(|(i, &j)| (i as u32, j))
-        .collect()
+        .filter(|(_, c)| c.1 != u32::MAX)
+        .map(|(j, &c)| (j as u32, c))
+        .collect();
+    let mut pairs: Vec<(u32, u32)> = claimed
+        .par_iter()
+        .with_min_len(64)
+        .map_init(
+            || vec![0.0f32; dim],
+            |offsets, &(j, c)| {
+                let q = &target[j as usize * dim..(j as usize + 1) * dim];
+                (source_tree.better_than(q, c, offsets).1 == c.1).then_some((c.1, j))
+            },
+        )
+        .flatten()
+        .collect();
+    pairs.sort_unstable();
+    pairs
 }
 
 #[cfg(test)]

@@ -85,7 +85,7 @@ pub struct Keypoints {
     pub valid: Vec<bool>,
 }
 
-/// Wall time of each stage of [`register_global`], seconds (both clouds together where a stage
+/// Time of each stage of [`register_global`], seconds (both clouds together where a stage
 /// runs on both: they run side by side).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct StageSeconds {
@@ -111,6 +111,49 @@ pub struct GlobalRegistration {
     /// Mutual nearest-neighbour pairs `(source keypoint, target keypoint)`.
     pub correspondences: Vec<(u32, u32)>,
     pub seconds: StageSeconds,
+    /// The process's CPU time per stage (every thread's; NaN where the platform has no
+    /// such clock): on a shared machine the wall time also counts other jobs' turns.
+    pub cpu_seconds: StageSeconds,
+}
+
+/// CPU seconds the whole process has used (all threads), NaN where unavailable.
+fn process_cpu_seconds() -> f64 {
+    #[cfg(unix)]
+    {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: `ts` is a valid, writable timespec; the call only writes to it.
+        if unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) } == 0 {
+            return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
+        }
+    }
+    f64::NAN
+}
+
+/// Wall and process-CPU stopwatch of one stage.
+#[derive(Clone, Copy)]
+struct Clock {
+    wall: Instant,
+    cpu: f64,
+}
+
+impl Clock {
+    fn start() -> Self {
+        Clock {
+            wall: Instant::now(),
+            cpu: process_cpu_seconds(),
+        }
+    }
+
+    /// `(wall, cpu)` seconds since [`Clock::start`].
+    fn elapsed(&self) -> (f64, f64) {
+        (
+            self.wall.elapsed().as_secs_f64(),
+            process_cpu_seconds() - self.cpu,
+        )
+    }
 }
 
 fn check_settings(s: &GlobalSettings) -> Result<()> {
@@ -264,14 +307,14 @@ pub fn solve_correspondences(
     .map(|(h, _, _)| h)
 }
 
-/// [`solve_correspondences`] and the seconds it spent pruning and solving.
+/// [`solve_correspondences`] and the `(wall, cpu)` seconds it spent pruning and solving.
 fn solve_timed(
     source: &[f64],
     target: &[f64],
     noise_bound: f64,
     max_hypotheses: usize,
     clique_search_budget: usize,
-) -> Result<(Vec<Hypothesis>, f64, f64)> {
+) -> Result<(Vec<Hypothesis>, (f64, f64), (f64, f64))> {
     let n = check_points("source", source, 3)?;
     let nt = check_points("target", target, 3)?;
     if n != nt {
@@ -286,18 +329,22 @@ fn solve_timed(
             format!("must be finite and > 0, got {noise_bound}"),
         ));
     }
-    let mut t_prune = 0.0;
-    let mut t_solve = 0.0;
-    let clock = Instant::now();
+    let mut t_prune = (0.0, 0.0);
+    let mut t_solve = (0.0, 0.0);
+    let add = |acc: &mut (f64, f64), (w, c): (f64, f64)| {
+        acc.0 += w;
+        acc.1 += c;
+    };
+    let clock = Clock::start();
     let graph = pruning::consistency_graph(source, target, 2.0 * noise_bound);
-    t_prune += clock.elapsed().as_secs_f64();
+    add(&mut t_prune, clock.elapsed());
     let vec3 = |p: &[f64], i: usize| Vector3::new(p[3 * i], p[3 * i + 1], p[3 * i + 2]);
     let all_s: Vec<Vector3<f64>> = (0..n).map(|i| vec3(source, i)).collect();
     let all_t: Vec<Vector3<f64>> = (0..n).map(|i| vec3(target, i)).collect();
     let mut active = vec![true; n];
     let mut out = Vec::new();
     for k in 0..max_hypotheses {
-        let clock = Instant::now();
+        let clock = Clock::start();
         // The runner-up cliques lie among the first one's outliers, where proving a clique
         // maximum is the expensive part of the search (most of the pruning time on the
         // outdoor and KITTI pairs); a rival that matters is large and found early, so they
@@ -308,18 +355,18 @@ fn solve_timed(
             (clique_search_budget / LATER_BUDGET_DIVISOR).max(1)
         };
         let (clique, exact) = pruning::max_clique(&graph, &active, budget);
-        t_prune += clock.elapsed().as_secs_f64();
+        add(&mut t_prune, clock.elapsed());
         if clique.len() < MIN_CLIQUE {
             break;
         }
         for &v in &clique {
             active[v] = false;
         }
-        let clock = Instant::now();
+        let clock = Clock::start();
         let cs: Vec<_> = clique.iter().map(|&i| all_s[i]).collect();
         let ct: Vec<_> = clique.iter().map(|&i| all_t[i]).collect();
         let Some(sol) = gnc::gnc_tls(&cs, &ct, noise_bound, 100) else {
-            t_solve += clock.elapsed().as_secs_f64();
+            add(&mut t_solve, clock.elapsed());
             continue;
         };
         let (r, t) = (sol.rotation, sol.translation);
@@ -353,7 +400,7 @@ fn solve_timed(
             num_inliers,
             exact,
         });
-        t_solve += clock.elapsed().as_secs_f64();
+        add(&mut t_solve, clock.elapsed());
     }
     // Stable: equal counts keep the order of discovery (larger clique first).
     out.sort_by(|a, b| {
@@ -372,18 +419,19 @@ pub fn register_global(
 ) -> Result<GlobalRegistration> {
     check_settings(s)?;
     let mut seconds = StageSeconds::default();
-    let clock = Instant::now();
+    let mut cpu_seconds = StageSeconds::default();
+    let clock = Clock::start();
     let (src, tgt) = rayon::join(
         || oriented("source", source, s),
         || oriented("target", target, s),
     );
     let (src, tgt) = (src?, tgt?);
-    seconds.keypoints = clock.elapsed().as_secs_f64();
-    let clock = Instant::now();
+    (seconds.keypoints, cpu_seconds.keypoints) = clock.elapsed();
+    let clock = Clock::start();
     let (src, tgt) = rayon::join(|| describe(src), || describe(tgt));
     let (src, tgt) = (src?, tgt?);
-    seconds.descriptors = clock.elapsed().as_secs_f64();
-    let clock = Instant::now();
+    (seconds.descriptors, cpu_seconds.descriptors) = clock.elapsed();
+    let clock = Clock::start();
     let pairs = correspondences::mutual_nearest(
         &src.descriptors,
         &src.valid,
@@ -391,7 +439,7 @@ pub fn register_global(
         &tgt.valid,
         fpfh::FPFH_DIM,
     );
-    seconds.matching = clock.elapsed().as_secs_f64();
+    (seconds.matching, cpu_seconds.matching) = clock.elapsed();
     let mut ps = Vec::with_capacity(pairs.len() * 3);
     let mut pt = Vec::with_capacity(pairs.len() * 3);
     for &(i, j) in &pairs {
@@ -405,14 +453,15 @@ pub fn register_global(
         s.max_hypotheses,
         s.clique_search_budget,
     )?;
-    seconds.pruning = t_prune;
-    seconds.solve = t_solve;
+    (seconds.pruning, cpu_seconds.pruning) = t_prune;
+    (seconds.solve, cpu_seconds.solve) = t_solve;
     Ok(GlobalRegistration {
         hypotheses,
         source: src,
         target: tgt,
         correspondences: pairs,
         seconds,
+        cpu_seconds,
     })
 }
 
