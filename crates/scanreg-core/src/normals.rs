@@ -237,6 +237,24 @@ impl Scratch {
     }
 }
 
+/// The unit normal [`local_geometry`] gives point `p` of a 3D `tree` from its `neighbours`
+/// (its k nearest, itself included, sorted by (squared distance, index)) oriented towards
+/// `viewpoint`, or zero where the neighbourhood has no plane: for a caller that found the
+/// neighbours in a larger search already.
+pub(crate) fn normal_from(
+    tree: &KdTree,
+    p: &[f64],
+    neighbours: &[(u32, f64)],
+    viewpoint: &[f64; 3],
+) -> [f64; 3] {
+    let (vals, vecs) = eigen(&scatter(tree, neighbours), 3);
+    if spans(&vals, 3) {
+        facing(&vecs[0], p, viewpoint, 3)
+    } else {
+        [0.0; 3]
+    }
+}
+
 /// `f` over the points in the tree's leaf order (`order`), in parallel unless the cloud is
 /// small (a 2D scan: waking the pool costs more), each worker with its own [`Scratch`].
 fn in_leaf_order<T: Send>(
