@@ -119,11 +119,13 @@ def _sets(num_pairs: int) -> dict[str, list[tuple[np.ndarray, np.ndarray, SE3]]]
 
 
 STAGES: dict[str, list[dict[str, float]]] = {}
+STAGES_CPU: dict[str, list[dict[str, float]]] = {}
 
 
 def _ours(src: np.ndarray, tgt: np.ndarray, voxel: float) -> tuple[SE3 | None, SE3 | None, bool]:
     res = register_global(src, tgt)
     STAGES.setdefault(CURRENT_SET[0], []).append(res.stage_seconds)
+    STAGES_CPU.setdefault(CURRENT_SET[0], []).append(res.stage_cpu_seconds)
     h = max(res.hypotheses, key=lambda h: h.clique_size) if res.hypotheses else None
     pose = res.pose if res.accepted else (res.hypotheses[0].pose if res.hypotheses else None)
     return (h.initial_pose if h else None), pose, res.accepted
@@ -242,19 +244,22 @@ def main() -> None:
     for set_name, pairs in _sets(args.pairs).items():
         CURRENT_SET[0] = set_name
         stats: dict[str, dict[str, list[float]]] = {
-            n: {"ok": [], "false": [], "t": [], "ratio": []} for n in names
+            n: {"ok": [], "false": [], "t": [], "ratio": [], "cpu": [], "cpu_ratio": []}
+            for n in names
         }
         for k, (src, tgt, truth) in enumerate(pairs):
             voxel = None
             order = names[k % len(names) :] + names[: k % len(names)]  # alternate
             times: dict[str, float] = {}
+            cpu: dict[str, float] = {}
             for n in order:
                 if voxel is None:
                     src_c = np.ascontiguousarray(src)
                     voxel = register_global(src_c, tgt, refine=False, max_hypotheses=1).voxel_size
-                t0 = time.perf_counter()
+                c0, t0 = time.process_time(), time.perf_counter()
                 initial, pose, accepted = contenders[n](np.ascontiguousarray(src), tgt, voxel)
                 times[n] = time.perf_counter() - t0
+                cpu[n] = time.process_time() - c0
                 if set_name == "3dmatch":
                     rot, tr = _errors(initial, truth) if initial is not None else (180.0, 1e9)
                     ok = rot < 15 and tr < 0.3
@@ -267,8 +272,10 @@ def main() -> None:
                 stats[n]["ok"].append(float(ok))
                 stats[n]["false"].append(float(claimed and not ok))
                 stats[n]["t"].append(times[n])
+                stats[n]["cpu"].append(cpu[n])
             for n in names:
                 stats[n]["ratio"].append(times["ours"] / times[n])
+                stats[n]["cpu_ratio"].append(cpu["ours"] / cpu[n])
         for n in names:
             s = stats[n]
             rows.append(
@@ -279,25 +286,32 @@ def main() -> None:
                     100 * statistics.mean(s["ok"]),
                     statistics.median(s["t"]),
                     statistics.median(s["ratio"]),
+                    statistics.median(s["cpu"]),
+                    statistics.median(s["cpu_ratio"]),
                     100 * statistics.mean(s["false"]),
                 )
             )
     print(f"RAYON_NUM_THREADS={os.environ['RAYON_NUM_THREADS']}")
     print(
-        "| set | method | pairs | success % | median time s | ours / it (median) "
-        "| false success % |"
+        "| set | method | pairs | success % | median wall s | ours / it wall | median CPU s "
+        "| ours / it CPU | false success % |"
     )
-    print("|---|---|---:|---:|---:|---:|---:|")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]:.0f} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.0f} |")
-    # Where our time goes: median wall seconds per stage (GlobalRegistrationResult.stage_seconds).
-    names_s = list(next(iter(STAGES.values()))[0]) if STAGES else []
-    print()
-    print("| set | " + " | ".join(names_s) + " |")
-    print("|---|" + "---:|" * len(names_s))
-    for set_name, runs in STAGES.items():
-        cells = [f"{statistics.median(r[k] for r in runs):.3f}" for k in names_s]
-        print(f"| {set_name} | " + " | ".join(cells) + " |")
+        print(
+            f"| {r[0]} | {r[1]} | {r[2]} | {r[3]:.0f} | {r[4]:.2f} | {r[5]:.2f} | {r[6]:.2f} "
+            f"| {r[7]:.2f} | {r[8]:.0f} |"
+        )
+    # Where our time goes: median wall and process-CPU seconds per stage
+    # (GlobalRegistrationResult.stage_seconds / stage_cpu_seconds).
+    for title, table in (("wall", STAGES), ("CPU", STAGES_CPU)):
+        names_s = list(next(iter(table.values()))[0]) if table else []
+        print()
+        print(f"| set ({title} s) | " + " | ".join(names_s) + " |")
+        print("|---|" + "---:|" * len(names_s))
+        for set_name, runs in table.items():
+            cells = [f"{statistics.median(r[k] for r in runs):.3f}" for k in names_s]
+            print(f"| {set_name} | " + " | ".join(cells) + " |")
 
 
 if __name__ == "__main__":
