@@ -137,8 +137,9 @@ class GlobalHypothesis:
 class GlobalRegistrationResult:
     """Result of :func:`register_global`."""
 
-    #: The candidates, best first (accepted before rejected, then by overlap after
-    #: refinement, then by inlier count).
+    #: The candidates: the answer first when there is one (the first accepted in the order
+    #: below), then by the fraction of the source they explain after refinement
+    #: (``close_fraction``), then by inlier count.
     hypotheses: tuple[GlobalHypothesis, ...]
     accepted: bool
     #: Empty when accepted; otherwise ``"no reliable alignment"`` and why.

@@ -132,6 +132,9 @@ fn process_cpu_seconds() -> f64 {
     f64::NAN
 }
 
+/// `(wall, cpu)` seconds.
+type Lap = (f64, f64);
+
 /// Wall and process-CPU stopwatch of one stage.
 #[derive(Clone, Copy)]
 struct Clock {
@@ -148,7 +151,7 @@ impl Clock {
     }
 
     /// `(wall, cpu)` seconds since [`Clock::start`].
-    fn elapsed(&self) -> (f64, f64) {
+    fn elapsed(&self) -> Lap {
         (
             self.wall.elapsed().as_secs_f64(),
             process_cpu_seconds() - self.cpu,
@@ -238,7 +241,10 @@ fn oriented(arg: &'static str, points: &[f64], s: &GlobalSettings) -> Result<Ori
     })
 }
 
-/// What [`local_geometry`] (normals from the `k` nearest, towards `viewpoint`) and then
+/// A keypoint's radius neighbourhood, sorted by (squared distance, index).
+type Neighbourhood = Vec<(u32, f64)>;
+
+/// What [`crate::normals::local_geometry`] (normals from the `k` nearest, towards `viewpoint`) and then
 /// [`fpfh::neighbourhoods`] give, from one radius search per point: sorted by (squared
 /// distance, index) like the k-NN search, its first `k` points are the `k` nearest whenever
 /// the radius holds that many (a k-NN search only where it does not). The two searches had
@@ -249,9 +255,9 @@ fn normals_and_neighbourhoods(
     viewpoint: &[f64; 3],
     radius: f64,
     max_neighbors: usize,
-) -> (Vec<f64>, Vec<Vec<(u32, f64)>>) {
+) -> (Vec<f64>, Vec<Neighbourhood>) {
     let sq = radius * radius;
-    let (normals, found): (Vec<[f64; 3]>, Vec<Vec<(u32, f64)>>) = (0..tree.len())
+    let (normals, found): (Vec<[f64; 3]>, Vec<Neighbourhood>) = (0..tree.len())
         .into_par_iter()
         .map_init(Vec::new, |knn, i| {
             let p = tree.point(i);
@@ -364,7 +370,7 @@ fn solve_timed(
     noise_bound: f64,
     max_hypotheses: usize,
     clique_search_budget: usize,
-) -> Result<(Vec<Hypothesis>, (f64, f64), (f64, f64))> {
+) -> Result<(Vec<Hypothesis>, Lap, Lap)> {
     let n = check_points("source", source, 3)?;
     let nt = check_points("target", target, 3)?;
     if n != nt {
