@@ -244,11 +244,11 @@ fn oriented(arg: &'static str, points: &[f64], s: &GlobalSettings) -> Result<Ori
 /// A keypoint's radius neighbourhood, sorted by (squared distance, index).
 type Neighbourhood = Vec<(u32, f64)>;
 
-/// What [`crate::normals::local_geometry`] (normals from the `k` nearest, towards `viewpoint`) and then
-/// [`fpfh::neighbourhoods`] give, from one radius search per point: sorted by (squared
-/// distance, index) like the k-NN search, its first `k` points are the `k` nearest whenever
-/// the radius holds that many (a k-NN search only where it does not). The two searches had
-/// cost a fifth of the core's time.
+/// What [`crate::normals::local_geometry`] (normals from the `k` nearest, towards
+/// `viewpoint`) and then [`fpfh::neighbourhoods`] give, from one radius search per point:
+/// sorted by (squared distance, index) like the k-NN search, its first `k` points are the `k`
+/// nearest whenever the radius holds that many (a k-NN search only where it does not). The
+/// two searches had cost a fifth of the core's time.
 fn normals_and_neighbourhoods(
     tree: &KdTree,
     k: usize,
