@@ -195,6 +195,15 @@ def test_3dmatch_pair_within_the_benchmark_criterion_before_refinement() -> None
     assert res.pose is not None
     rot, trans = _errors(res.pose, gt)
     assert rot < 2 and trans < 0.15, (rot, trans)  # measured 1.4°, 11 cm
+    # The answer comes first; the runner-ups (one refined onto the answer, one not refined)
+    # could not make it ambiguous, so their trust analysis has not run, and runs on access.
+    assert len(res.hypotheses) == 3
+    assert all("verdict" not in vars(h) for h in res.hypotheses[1:])
+    assert [h.verdict.accepted for h in res.hypotheses] == [True, False, False]
+    assert "refinement moved the source centre" in res.hypotheses[1].verdict.reasons[-1]
+    assert np.isfinite(res.hypotheses[1].covariance).all()
+    assert set(res.stage_cpu_seconds) == set(res.stage_seconds)
+    assert all(v >= 0 for v in res.stage_cpu_seconds.values())
 
 
 # --- failures reported as failures --------------------------------------------------------
