@@ -21,7 +21,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -272,7 +272,10 @@ class _Refiner:
         )
         self.gate = gate
         self.close = 0.5 * voxel
-        self.thresholds = thresholds
+        # No local basin probe: its restarts (yaw turns around the result) ask whether another
+        # basin explains the scan better, which the hypotheses' own rival check below answers
+        # over the whole search space; on 3DMatch they were a third of the refinement's time.
+        self.thresholds = replace(thresholds, basin_probe=False)
         self.done: list[tuple[SE3, RegistrationResult, float]] = []
         self.source_covariances: FloatArray | None = None
 
