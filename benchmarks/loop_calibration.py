@@ -66,7 +66,7 @@ def run(seed: int, identical: bool) -> dict[str, Any]:
     for k, (scan, prior) in enumerate(
         zip(r.scans, _wheel(truth, np.random.default_rng(seed + 100)), strict=True)
     ):
-        mapper.step(scan.points, prior, stamp=k / RATE)
+        mapper.step(scan.points, prior=prior, stamp=k / RATE)
     res = mapper.finish()
     cpu = time.process_time() - cpu
     nees, normalized, false, elsewhere = [], [], 0, 0

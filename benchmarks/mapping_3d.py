@@ -57,11 +57,11 @@ def _ate(poses: np.ndarray, truth: np.ndarray, stamps: np.ndarray) -> float:
 
 
 def loop_statistics(
-    res: Any, truth: np.ndarray, min_travel: float, floor: np.ndarray
+    res: Any, truth: np.ndarray, min_travel: float, floor: np.ndarray, floor_range: float
 ) -> dict[str, Any]:
     """Precision, recall, false loops and NEES of a run's loop records against the truth
-    (``floor``: the covariance the mapper adds to the registration's, for the NEES of the
-    registration's own covariance)."""
+    (``floor``: the covariance the mapper adds to the registration's at a keyframe of RMS
+    range ``floor_range``, for the NEES of the registration's own covariance)."""
     true_acc = false_acc = 0
     nees: list[float] = []
     nees_registration: list[float] = []
@@ -78,7 +78,10 @@ def loop_statistics(
             good_nodes.add(m.node)
             info = np.asarray(m.information)
             nees.append(float(e @ info @ e))
-            nees_registration.append(float(e @ np.linalg.solve(m.covariance - floor, e)))
+            # The floor scales with the keyframe's RMS range (LoopSettings3D.submap_sigma_range).
+            pts = res.node_points[m.node]
+            scale = float(np.sqrt(np.mean(np.sum(pts * pts, axis=1)))) / floor_range
+            nees_registration.append(float(e @ np.linalg.solve(m.covariance - floor * scale**2, e)))
             ranks.append(int(np.linalg.matrix_rank(info, tol=1e-6 * np.abs(info).max())))
         else:
             false_acc += 1
@@ -180,6 +183,7 @@ def run_scene(
             truth,
             cfg.loop_min_travel,
             np.diag([cfg.loops.submap_sigma[0] ** 2] * 3 + [cfg.loops.submap_sigma[1] ** 2] * 3),
+            cfg.loops.submap_sigma_range,
         ),
     }
     if kiss_poses:

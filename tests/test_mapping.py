@@ -8,6 +8,7 @@ import itertools
 import json
 import math
 from functools import cache
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -258,6 +259,9 @@ def test_bad_input() -> None:
         Mapper().step(np.zeros((5, 3)))
     with pytest.raises(ValueError, match=r"points: .*NaN"):
         Mapper().step(np.full((5, 2), np.nan))
+    # Per-point times: a 2D scan is instantaneous; refused by name, never taken for a prior.
+    with pytest.raises(ValueError, match="timestamps: Mapper takes each 2D scan as instantaneous"):
+        Mapper().step(scan, step)
     with pytest.raises(ValueError, match="loop_max_range"):
         MappingConfig(loop_max_range=-1.0)
     with pytest.raises(TypeError, match="odometry: expected OdometryConfig2D"):
@@ -310,7 +314,7 @@ def test_identical_rooms_give_no_false_loop() -> None:
     truth = [run.poses[0].inverse() @ p for p in run.poses]
     mapper = Mapper(MappingConfig())
     for k, (scan, prior) in enumerate(zip(run.scans, _wheel(truth, 7), strict=True)):
-        mapper.step(scan.points, prior, stamp=k / RATE)
+        mapper.step(scan.points, prior=prior, stamp=k / RATE)
     res = mapper.finish()
     # The trap was presented: candidates whose scans are truly in different places (> 4 m
     # apart) were matched ...
@@ -367,3 +371,102 @@ def test_fully_degenerate_candidate_is_rejected_with_reasons() -> None:
     weak = match.weak_vectors[:, 0]
     assert np.linalg.norm(weak[:2]) < 1e-3 * abs(weak[2])  # a pure turn (metres at 3 m)
     assert weak @ match.information @ weak < 1e-9 * match.information[0, 0]
+
+
+def test_step_signature_matches_3d() -> None:
+    import inspect
+
+    from scanreg.pipeline.mapping3d import Mapper3D
+
+    def shape(fn: object) -> list[tuple[str, object]]:
+        sig = inspect.signature(fn)  # type: ignore[arg-type]
+        return [(p.name, p.kind) for p in sig.parameters.values()]
+
+    assert shape(Mapper.step) == shape(Mapper3D.step)
+
+
+def _log_with_odometry(lag: float) -> Any:
+    """A CARMEN log of a robot driving x = t (1 m/s) for 10 s: ODOM every 0.1 s, a laser scan
+    every 0.2 s, ``lag`` after the ODOM message its odometry fields copy."""
+    from scanreg.io.carmen import CarmenLog, LaserScan, Odometry
+
+    t_odom = np.arange(100) * 0.1
+    poses = np.c_[t_odom, np.zeros_like(t_odom), np.zeros_like(t_odom)]
+    beams = (np.full(4, 2.0), np.linspace(-1.0, 1.0, 4), 80.0)
+    scans = tuple(
+        LaserScan("FLASER", *beams, poses[k], poses[k], t_odom[k] + lag, t_odom[k] + lag)
+        for k in range(3, 95, 2)
+    )
+    odom = Odometry(poses, np.zeros((len(t_odom), 3)), t_odom)
+    return CarmenLog(path=Path("synthetic.clf"), scans=scans, odometry=odom)
+
+
+def test_scan_odometry_is_read_at_the_scan_time() -> None:
+    from scanreg.pipeline.mapping import scan_odometry
+
+    # Stale fields (0.05 s old): the ODOM stream is interpolated at each scan's time
+    # less the latency; the truth is x = t.
+    log = _log_with_odometry(lag=0.05)
+    idx = list(range(len(log.scans)))
+    stamps = np.array([s.timestamp for s in log.scans])
+    stale = np.array([s.odometry_pose[0] for s in log.scans])
+    assert np.abs(stale - stamps).min() > 0.04  # what the fields say is off by >= 4 cm
+    fresh = np.array([p.translation[0] for p in scan_odometry(log, idx)])
+    np.testing.assert_allclose(fresh, stamps, atol=1e-9)
+    late = np.array([p.translation[0] for p in scan_odometry(log, idx, latency=0.08)])
+    np.testing.assert_allclose(late, stamps - 0.08, atol=1e-9)
+    # Synchronous fields (within STALE_ODOMETRY of the scan) are kept as they are.
+    sync = _log_with_odometry(lag=0.0)
+    kept = scan_odometry(sync, idx)
+    for s, p in zip(sync.scans, kept, strict=True):
+        assert p is not None and p.is_close(SE2.from_vector(s.odometry_pose))
+
+
+def test_fuse_motion_takes_the_wheel_distance_along_a_corridor_only() -> None:
+    from scanreg.pipeline.mapping import fuse_motion
+
+    scan = SE2.from_vector([0.30, 0.010, 0.0])
+    wheel = SE2.from_vector([0.20, 0.0, 0.30])
+    # A corridor along x: the scan leaves x open (σ 1 m) and pins y and θ (1 mm, 0.01°).
+    cov = np.diag([1.0, 1e-6, math.radians(0.01) ** 2])
+    fused = fuse_motion(scan, cov, wheel, 0.05).as_vector()
+    assert abs(fused[0] - 0.20) < 1e-3  # along: the wheels'
+    assert abs(fused[1] - 0.010) < 1e-3 and abs(fused[2]) < 1e-6  # across, heading: the scan's
+    # A scan that pins every direction keeps its own motion; a failed one is left alone.
+    pinned = fuse_motion(scan, np.diag([1e-8, 1e-8, 1e-10]), wheel, 0.05).as_vector()
+    np.testing.assert_allclose(pinned, scan.as_vector(), atol=1e-3)
+    assert fuse_motion(scan, np.full((3, 3), np.nan), wheel, 0.05) is scan
+    with pytest.raises(ValueError, match="wheel_distance_noise"):
+        MappingConfig(wheel_distance_noise=0.0)
+    with pytest.raises(ValueError, match="laser_latency"):
+        MappingConfig(laser_latency=-0.1)
+
+
+def test_aces_odometry_at_scan_time_and_latency() -> None:
+    # ACES' laser messages carry the last ODOM message, 0.02-0.25 s old: read at the scan's
+    # time less the latency measured on the log itself, the wheel odometry agrees better with
+    # the Kümmerle relations (measured: 0.0377 m / 0.88° -> 0.0324 m / 0.42° on the 1191
+    # relations under 60 s; latency 0.07 s).
+    from scanreg.eval.relations import read_relations, relation_error
+    from scanreg.io import read_scans
+    from scanreg.io.trajectory import Trajectory
+    from scanreg.pipeline.mapping import estimate_laser_latency, scan_odometry
+
+    folder = data_dir("freiburg-slam-benchmark")
+    log = read_scans(folder / "aces.clf.bz2")
+    relations = read_relations(folder / "aces.relations")
+    short = np.abs(relations.t2 - relations.t1) < 60
+    idx = [i for i, s in enumerate(log.scans) if s.kind == "FLASER"]
+    stamps = np.array([log.scans[i].timestamp for i in idx])
+    latency = estimate_laser_latency(log, idx)
+    assert 0.05 <= latency <= 0.10
+
+    def error(poses: list[Any]) -> Any:
+        err = relation_error(Trajectory.from_poses(poses, stamps), relations)
+        keep = short[err.used]
+        return err.translation.errors[keep].mean(), err.rotation_deg.errors[keep].mean()
+
+    fields = error([log.scans[i].odometry_se2 for i in idx])
+    timed = error(scan_odometry(log, idx, latency=latency))
+    assert fields[0] > 0.036 and fields[1] > 0.8
+    assert timed[0] < 0.034 and timed[1] < 0.5

@@ -9,7 +9,9 @@ with the :class:`~scanreg.pipeline.Odometry2D` signature and its :class:`Frame2D
 1. **predict** — from the wheel-odometry ``prior`` when given, else constant velocity;
    before the first fix there is no prediction, and the scan is located globally (3.);
 2. **track** — point-to-line :func:`scanreg.register` against the map from the prediction,
-   judged by :func:`scanreg.verdict.assess`;
+   judged by :func:`scanreg.verdict.assess`; an accepted step is fused with the distance the
+   wheels rolled (:func:`~scanreg.pipeline.mapping.fuse_motion`), which holds the track where
+   the map pins it only weakly (along a corridor);
 3. **relocalize** — when there is no fix yet, or ``lost_after`` consecutive scans were
    rejected: :func:`scanreg.match_correlative` by branch and bound over the whole map (every
    position, every heading) on a coarse grid, the best refined by point-to-line and judged.
@@ -39,6 +41,7 @@ from ..register import RegistrationResult, register
 from ..target import PreparedTarget, prepare
 from ..transform import SE2, as_pose
 from ..verdict import Verdict, VerdictThresholds, assess
+from .mapping import fuse_motion
 from .odometry2d import Frame2D, FrameTiming2D, _count, _positive, _without_default_probe
 
 
@@ -59,6 +62,10 @@ class LocalizationConfig2D:
     #: at least ``ambiguity_ratio`` of the best.
     ambiguity_distance: float = 1.0
     ambiguity_ratio: float = 0.95
+    #: σ of the distance the wheels rolled between two scans, as a fraction of it: a tracked
+    #: pose is the registration's fused with it (:func:`~scanreg.pipeline.mapping.fuse_motion`)
+    #: when a ``prior`` is given. ``0``: the registration's pose alone.
+    wheel_distance_noise: float = 0.05
     thresholds: VerdictThresholds = field(default_factory=VerdictThresholds)
 
     def __post_init__(self) -> None:
@@ -67,6 +74,7 @@ class LocalizationConfig2D:
         _count(self.lost_after, "lost_after", 1)
         _positive(self.global_resolution, "global_resolution")
         _positive(self.ambiguity_distance, "ambiguity_distance")
+        _positive(self.wheel_distance_noise, "wheel_distance_noise", allow_zero=True)
         if not 0.0 < float(self.ambiguity_ratio) <= 1.0:
             raise ValueError(f"ambiguity_ratio: must be in (0, 1], got {self.ambiguity_ratio}")
         if not isinstance(self.thresholds, VerdictThresholds):
@@ -225,6 +233,17 @@ class Localizer2D:
         res = self._register(pts, predicted)
         t_align = time.perf_counter() - t0
         frame = self._judged(pts, res, predicted, how, index, stamp, t_start, t_align)
+        if frame.verdict.accepted and motion is not None and self.config.wheel_distance_noise:
+            # Along a corridor the map pins the scan only weakly and point-to-line slides
+            # (Intel: tracks accepted 0.2-0.5 m off the wheels' step, ending 1-14 m from the
+            # mapped pose): the distance the wheels rolled holds that direction.
+            step = fuse_motion(
+                _se2(previous.inverse() @ frame.pose),
+                frame.covariance,
+                motion,
+                self.config.wheel_distance_noise,
+            )
+            frame = dataclasses.replace(frame, pose=_se2(previous @ step), motion=step)
         if frame.verdict.accepted:
             self._velocity = previous.inverse() @ frame.pose
             self._pose = frame.pose

@@ -137,6 +137,12 @@ class LoopSettings3D:
     #: refined submaps): errors 4 mm and 0.016° RMS per axis against a median registration σ
     #: of 2 mm and 0.008°, mean NEES 14.9 for 6 dof; with this floor 5.8 (median 1.3).
     submap_sigma: tuple[float, float] = (0.002, math.radians(0.01))
+    #: ... at keyframes of this RMS range (m; the full-range VLP-16 lap's nodes: 27-37 m,
+    #: median 32); they scale with the keyframe's own RMS range. Measured: the registration's
+    #: covariance alone is over-confident at full range (NEES 10.7 for 6 dof on the ordinary
+    #: block) but not with the odometry's range cut to 25 m (RMS range 16 m: NEES 5.0), where
+    #: the fixed floor made loops 2.3x cautious (2.65).
+    submap_sigma_range: float = 32.0
     #: χ² bound on the loop's disagreement with the graph (6 dof, 0.999: 22.46).
     chi2_threshold: float = 22.46
     thresholds: VerdictThresholds = field(default_factory=_default_thresholds)
@@ -148,7 +154,12 @@ class LoopSettings3D:
     global_voxel_size: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("max_correspondence_distance", "window_sigmas", "chi2_threshold"):
+        for name in (
+            "max_correspondence_distance",
+            "window_sigmas",
+            "chi2_threshold",
+            "submap_sigma_range",
+        ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not v > 0:
                 raise ValueError(f"{name}: must be > 0, got {v!r}")
@@ -189,8 +200,8 @@ class LoopMatch3D:
     overlap: float
     chi2: float
     #: 6×6 covariance of ``measured`` (right perturbation, translation first): the match's
-    #: calibrated one plus ``submap_sigma``; the information the constraint carries (its
-    #: inverse, weak directions removed).
+    #: calibrated one plus ``submap_sigma`` (scaled by range); the information the constraint
+    #: carries (its inverse, weak directions removed).
     covariance: FloatArray
     information: FloatArray
     degenerate_directions: tuple[str, ...]
@@ -215,6 +226,11 @@ def search_window_3d(
     dt = min(max(s.window_sigmas * sigma_t, s.min_window[0]), s.max_window[0])
     dr = min(max(s.window_sigmas * sigma_r, s.min_window[1]), s.max_window[1])
     return dt, dr
+
+
+def _rms_range(points: FloatArray) -> float:
+    """Root-mean-square distance of ``points`` from the sensor (m)."""
+    return float(np.sqrt(np.mean(np.sum(points * points, axis=1)))) if len(points) else 0.0
 
 
 def _angle(pose: SE3) -> float:
@@ -278,7 +294,9 @@ def match_loop_3d(
             f"{math.degrees(window[1]):.1f} deg"
         )
     st, sr = s.submap_sigma
-    cov = np.array(res.covariance, dtype=np.float64) + np.diag([st**2] * 3 + [sr**2] * 3)
+    scale = _rms_range(points) / s.submap_sigma_range
+    floor = np.diag([st**2] * 3 + [sr**2] * 3) * scale**2
+    cov = np.array(res.covariance, dtype=np.float64) + floor
     combined = relative_covariance + cov
     if _well_posed(cov) and _well_posed(combined):
         info, weak, vectors = _information(cov, res)
