@@ -847,7 +847,7 @@ def _odometry_carmen(args: argparse.Namespace) -> dict[str, Any]:
 
     from .config import load_config, write_config
     from .io import Trajectory, read_scans, write_kitti_poses, write_tum
-    from .pipeline.mapping import MappingConfig
+    from .pipeline.mapping import MappingConfig, scan_odometry
     from .pipeline.odometry2d import Odometry2D, OdometryConfig2D
 
     for flag in ("preset", "method", "topic", "bag", "save_map", "report"):
@@ -879,15 +879,15 @@ def _odometry_carmen(args: argparse.Namespace) -> dict[str, Any]:
     skipped = 0
     t0 = time.perf_counter()
     enabled = not (args.quiet or args.json)
+    # The wheel odometry at each scan's own time (a log whose laser messages carry stale
+    # odometry, as ACES', is read from its ODOM stream; the mapping pipeline's prior).
+    wheel = dict(zip(indices, scan_odometry(log, indices, latency=None), strict=True))
     with Progress(len(indices), description="odometry", unit="scans", enabled=enabled) as bar:
         for i in indices:
             scan = log.scans[i]
-            if (
-                previous is not None
-                and scan.odometry_pose is not None
-                and log.scans[previous].odometry_pose is not None
-            ):
-                step = log.motion_prior(previous, i)  # wheel odometry, laser frame
+            before, here = None if previous is None else wheel[previous], wheel[i]
+            if before is not None and here is not None:
+                step = before.inverse() @ here
                 pending = step if pending is None else pending @ step
             previous = i
             pts = scan.to_points(0.1, 40.0)
@@ -1159,6 +1159,7 @@ def _localize(args: argparse.Namespace) -> dict[str, Any]:
     from ._progress import Progress
     from .io import Trajectory, read_scans, write_tum
     from .pipeline.localizer2d import Localizer2D
+    from .pipeline.mapping import scan_odometry
 
     if args.max_scans is not None and args.max_scans < 1:
         raise ValueError(f"--max-scans must be >= 1, got {args.max_scans}")
@@ -1177,17 +1178,16 @@ def _localize(args: argparse.Namespace) -> dict[str, Any]:
     previous: int | None = None
     t0 = time.perf_counter()
     enabled = not (args.quiet or args.json)
+    # The wheel odometry at each scan's own time, as the mapping run read it.
+    wheel = dict(zip(indices, scan_odometry(log, indices, latency=None), strict=True))
     with Progress(len(indices), description="localize", unit="scans", enabled=enabled) as bar:
         for i in indices:
             scan = log.scans[i]
             pts = scan.to_points(0.1, 40.0)
             prior = None
-            if (
-                previous is not None
-                and scan.odometry_pose is not None
-                and log.scans[previous].odometry_pose is not None
-            ):
-                prior = log.motion_prior(previous, i)  # wheel odometry, laser frame
+            before, here = None if previous is None else wheel[previous], wheel[i]
+            if before is not None and here is not None:
+                prior = before.inverse() @ here
             previous = i
             if len(pts) < 3:
                 bar.update()
