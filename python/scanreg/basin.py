@@ -22,8 +22,8 @@ grows to cover it (``BasinProbe.growth``). A *far* one decides the verdict
 a Gaussian cannot cover two poses 90° apart.
 
 The restarts run only when cheap evidence doubts the basin (:func:`basin_doubts`: a low fit
-margin, a move beyond 1σ of the start's covariance, symmetric walls, in 2D a look-alike pose
-along the least-determined translation): a result nothing doubts costs one nearest-neighbour
+margin, a move beyond 1σ of the start's covariance, symmetric walls, and on request in 2D a
+look-alike pose along the least-determined translation): a result nothing doubts costs one nearest-neighbour
 pass and a histogram. The restarts themselves are one core call (``_core.register_icp_starts``),
 their solves in parallel. In 3D the restarts are three yaw turns (90°, −90°, 180°) and the tight
 gate is at least the target's point spacing (voxelised clouds).
@@ -379,6 +379,7 @@ def probe_basin(
     cover_ratio: float = math.inf,
     target_points: FloatArray | None = None,
     screen: bool = False,
+    lookalike_signal: bool = False,
     start: SE2 | SE3 | None = None,
     motion: FloatArray | None = None,
     prior: FloatArray | None = None,
@@ -400,8 +401,10 @@ def probe_basin(
     ``screen``: restart only when :func:`basin_doubts` finds a reason to, from ``start`` and
     its covariance ``prior``, the result's ``inlier_rmse`` within ``gate``, the tight overlap
     and the symmetry of ``target_points`` / ``target_normals`` (when given); otherwise the
-    probe returns with no restart (``evidence`` empty). ``motion``: ``log(start⁻¹ · pose)``
-    when the caller has it already (the registration's trust analysis does).
+    probe returns with no restart (``evidence`` empty). ``lookalike_signal``: also the 2D
+    look-alike along the least-determined translation (:func:`along_axis_lookalike`) when the
+    other signals are silent. ``motion``: ``log(start⁻¹ · pose)`` when the caller has it
+    already (the registration's trust analysis does).
     """
     t0 = time.perf_counter()
     dim = pose.DIM
@@ -437,7 +440,7 @@ def probe_basin(
             symmetry=sym,
         )
         evidence = doubts()
-        if not evidence and isinstance(pose, SE2) and here > 0.0:
+        if lookalike_signal and not evidence and isinstance(pose, SE2) and here > 0.0:
             # The dearest signal (a dozen neighbour passes) only where the others are silent.
             lookalike = along_axis_lookalike(index, source, pose, cov, tight, gate)
             evidence = doubts(lookalike=lookalike)

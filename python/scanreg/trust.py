@@ -600,6 +600,7 @@ def _trust(
             cover_ratio=th.basin_ambiguous_ratio,
             target_points=ctx.target_points,
             screen=th.basin_screen,
+            lookalike_signal=th.basin_lookalike,
             start=ctx.start,
             motion=corr.drift,
             # In 3D only a stated start uncertainty is evidence: the gate-wide default made an
