@@ -23,10 +23,11 @@ a Gaussian cannot cover two poses 90° apart.
 
 The restarts run only when cheap evidence doubts the basin (:func:`basin_doubts`: a low fit
 margin, a move beyond 1σ of the start's covariance, symmetric walls, and on request in 2D a
-look-alike pose along the least-determined translation): a result nothing doubts costs one nearest-neighbour
-pass and a histogram. The restarts themselves are one core call (``_core.register_icp_starts``),
-their solves in parallel. In 3D the restarts are three yaw turns (90°, −90°, 180°) and the tight
-gate is at least the target's point spacing (voxelised clouds).
+look-alike pose along the least-determined translation): a result nothing doubts costs one
+nearest-neighbour pass and a histogram. The restarts themselves are one core call
+(``_core.register_icp_starts``), their solves in parallel. In 3D the restarts are three yaw
+turns (90°, −90°, 180°) and the tight gate is at least the target's point spacing (voxelised
+clouds).
 
 Measured (``benchmarks/wrong_start.py``, ``benchmarks/README.md``): on real Intel pairs from
 starts turned by up to ±70° and moved by 0.6 m, the restarts separate wrong from correct
