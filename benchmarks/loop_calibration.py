@@ -19,34 +19,16 @@ Run: ``.venv/bin/python benchmarks/loop_calibration.py [--seeds 0 1 2] [--withou
 from __future__ import annotations
 
 import argparse
-import itertools
 import math
 import time
 from typing import Any
 
 import numpy as np
-from scanreg import SE2
 from scanreg import simulate as sim
 from scanreg.pipeline import mapping
 from scanreg.pipeline.mapping import Mapper, MappingConfig
 
 RATE = 5.0
-
-
-def _wheel(truth: list[SE2], rng: np.random.Generator) -> list[SE2 | None]:
-    """5 % of the step along, 2 % across, 5 % of the turn plus 1°/m of heading noise."""
-    out: list[SE2 | None] = [None]
-    for a, b in itertools.pairwise(truth):
-        v = (a.inverse() @ b).log()
-        sigma = np.array(
-            [
-                0.05 * abs(v[0]) + 1e-3,
-                0.02 * abs(v[0]) + 1e-3,
-                0.05 * abs(v[2]) + math.radians(1.0) * abs(v[0]) + 1e-4,
-            ]
-        )
-        out.append(SE2.exp(v + rng.normal(0.0, 1.0, 3) * sigma))
-    return out
 
 
 def run(seed: int, identical: bool) -> dict[str, Any]:
@@ -64,7 +46,7 @@ def run(seed: int, identical: bool) -> dict[str, Any]:
     mapper = Mapper(MappingConfig())
     cpu = time.process_time()
     for k, (scan, prior) in enumerate(
-        zip(r.scans, _wheel(truth, np.random.default_rng(seed + 100)), strict=True)
+        zip(r.scans, sim.wheel_odometry(truth, np.random.default_rng(seed + 100)), strict=True)
     ):
         mapper.step(scan.points, prior=prior, stamp=k / RATE)
     res = mapper.finish()

@@ -4,7 +4,6 @@ a corridor loop, a real Intel excerpt, outputs and hostile input."""
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import json
 import math
 from functools import cache
@@ -279,24 +278,6 @@ def test_singular_loop_covariance_is_rejected_not_raised() -> None:
     assert not loops._well_posed(np.full((3, 3), np.nan))
 
 
-def _wheel(truth: list[SE2], seed: int) -> list[SE2 | None]:
-    """Wheel odometry between consecutive true poses: 5 % of the step along and 2 % across,
-    5 % of the turn plus 1°/m of heading noise (a noisy differential drive)."""
-    rng = np.random.default_rng(seed)
-    out: list[SE2 | None] = [None]
-    for a, b in itertools.pairwise(truth):
-        v = (a.inverse() @ b).log()
-        sigma = np.array(
-            [
-                0.05 * abs(v[0]) + 1e-3,
-                0.02 * abs(v[0]) + 1e-3,
-                0.05 * abs(v[2]) + math.radians(1.0) * abs(v[0]) + 1e-4,
-            ]
-        )
-        out.append(SE2.exp(v + rng.normal(0.0, 1.0, 3) * sigma))
-    return out
-
-
 def test_identical_rooms_give_no_false_loop() -> None:
     # Every room the same room (sim.room_tour(identical_rooms=True)): the same spot of two
     # rooms looks the same, so a matcher that trusted appearance alone would close loops
@@ -313,7 +294,7 @@ def test_identical_rooms_give_no_false_loop() -> None:
     )
     truth = [run.poses[0].inverse() @ p for p in run.poses]
     mapper = Mapper(MappingConfig())
-    for k, (scan, prior) in enumerate(zip(run.scans, _wheel(truth, 7), strict=True)):
+    for k, (scan, prior) in enumerate(zip(run.scans, sim.wheel_odometry(truth, 7), strict=True)):
         mapper.step(scan.points, prior=prior, stamp=k / RATE)
     res = mapper.finish()
     # The trap was presented: candidates whose scans are truly in different places (> 4 m

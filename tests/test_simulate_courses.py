@@ -241,3 +241,19 @@ def test_loop_sequences_open_from_a_sim_spec() -> None:
     assert trap[1].points.shape[1] == 3
     with pytest.raises(ValueError, match="ramp, weave: not supported on sim:loop"):
         open_sequence("sim:loop,ramp=2")
+
+
+def test_wheel_odometry_draws_the_stated_noise_and_refuses_non_poses() -> None:
+    """Increments of a straight 1 m step: the along / across / heading spreads are 5 cm,
+    2 cm and 1°/m + 1e-4 rad (+ the 1 mm floors), within sampling error."""
+    wheel_odometry = sim.wheel_odometry
+    truth = [SE2.from_vector([float(k), 0.0, 0.0]) for k in range(4001)]
+    steps = wheel_odometry(truth, 3)
+    assert steps[0] is None and len(steps) == len(truth)
+    v = np.array([s.log() for s in steps[1:] if s is not None])
+    expected = [0.051, 0.021, math.radians(1.0) + 1e-4]
+    assert np.std(v, axis=0) == pytest.approx(expected, rel=0.05)
+    assert np.mean(v[:, 0]) == pytest.approx(1.0, abs=0.005)
+    assert wheel_odometry(truth[:5], 3) == wheel_odometry(truth[:5], np.random.default_rng(3))
+    with pytest.raises(TypeError, match="truth: expected a sequence of SE2"):
+        wheel_odometry([np.eye(3)], 0)  # type: ignore[list-item]

@@ -36,6 +36,7 @@ from .scan import (
 from .scene import Scene, SceneBuilder, corridor, floor_plan, square_room, street, tunnel
 from .sensors import LASER_PRESETS, LIDAR_PRESETS, LaserModel, LidarModel
 from .trajectory import Trajectory
+from .wheel import wheel_odometry
 
 __all__ = [
     "DROPOUT",
@@ -63,4 +64,5 @@ __all__ = [
     "square_room",
     "street",
     "tunnel",
+    "wheel_odometry",
 ]
