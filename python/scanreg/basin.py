@@ -235,7 +235,9 @@ def orientation_symmetry(points: FloatArray, normals: FloatArray) -> float:
     walls are), so it only calls for the restarts."""
     n = np.ascontiguousarray(normals, dtype=np.float64)
     p = np.ascontiguousarray(points, dtype=np.float64)
-    if len(n) < 8 or n.shape != p.shape:
+    if n.shape != p.shape or p.ndim != 2:
+        raise ValueError(f"normals: expected the points' shape {p.shape}, got {n.shape}")
+    if len(n) < 8:
         return 0.0
     # One pass in the core (``scanreg_core::symmetry``): 5° bins, one bin of tolerance.
     return float(_core.orientation_symmetry(p, n))
@@ -428,7 +430,9 @@ def probe_basin(
     if screen:
         sym = (
             orientation_symmetry(target_points, target_normals)
-            if target_points is not None and target_normals is not None
+            if target_points is not None
+            and target_normals is not None
+            and np.shape(target_points) == np.shape(target_normals)
             else 0.0
         )
         doubts = functools.partial(

@@ -367,9 +367,9 @@ fn register_icp_starts<'py>(
         &source,
         |dim| {
             let shape = init_poses.shape();
-            if shape[1] != dim + 1 || shape[2] != dim + 1 {
+            if shape[0] == 0 || shape[1] != dim + 1 || shape[2] != dim + 1 {
                 return Err(PyValueError::new_err(format!(
-                    "init_poses: expected shape (K, {0}, {0}), got {shape:?}",
+                    "init_poses: expected shape (K, {0}, {0}) with K >= 1, got {shape:?}",
                     dim + 1
                 )));
             }

@@ -587,7 +587,11 @@ def fuse_motion(scan: SE2, covariance: Any, wheel: SE2, distance_noise: float) -
     rolled is what encoders measure well. ``scan`` unchanged when its covariance is not
     finite and positive definite (a failed alignment)."""
     cov = np.asarray(covariance, dtype=np.float64)
-    if cov.shape != (3, 3) or not np.isfinite(cov).all():
+    if cov.shape != (3, 3):
+        raise ValueError(f"covariance: expected shape (3, 3), got {cov.shape}")
+    if not (math.isfinite(distance_noise) and distance_noise >= 0.0):
+        raise ValueError(f"distance_noise: must be finite and >= 0, got {distance_noise}")
+    if not np.isfinite(cov).all():
         return scan
     block = 0.5 * (cov[:2, :2] + cov[:2, :2].T)
     if float(np.linalg.eigvalsh(block)[0]) <= 0.0:
