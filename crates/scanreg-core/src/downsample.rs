@@ -55,7 +55,7 @@ fn check_voxel_size(voxel_size: f64) -> Result<f64> {
 ///
 /// A hash map from voxel key to voxel slot: a voxel's slot is assigned when its first point is
 /// seen, so the output comes out ordered by first index with no sort (a sort of `(key, index)`
-/// pairs, which this replaced, cost ~2x more). Where every voxel coordinate fits the packed
+/// pairs costs ~2x more). Where every voxel coordinate fits the packed
 /// key (any cloud of sensor range at any sane voxel size) it runs in three passes: the keys
 /// in parallel, the slots (one sequential pass over the map), the sums in input order. One
 /// fused loop doing all three per point took 2–3× as long (70k points: 3.0 ms against

@@ -18,9 +18,9 @@ pub const MIN_PAR_ITEMS: usize = 256;
 
 /// Points per chunk for `n` points: about 64 chunks, each of 256 to 8192 points.
 ///
-/// A function of `n` only, never of the thread count, so results stay thread-independent. It
-/// used to be a fixed 2048, which split a typical downsampled scan (~6k points) into 3 full
-/// chunks and a sliver: on 2 threads one thread did two thirds of every ICP iteration.
+/// A function of `n` only, never of the thread count, so results stay thread-independent. Not
+/// a fixed size: 2048 would split a typical downsampled scan (~6k points) into 3 full chunks
+/// and a sliver, and on 2 threads one thread would do two thirds of every ICP iteration.
 pub fn chunk_len(n: usize) -> usize {
     n.div_ceil(64).clamp(256, 8192)
 }
