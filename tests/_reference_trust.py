@@ -360,15 +360,40 @@ def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
         point_variance=_point_variance(out, ana, method, dim, dof),
         normal_variance=normal_var,
         agreement=agreement,
-        sampling=sampling_system(
-            src,
-            corr,
-            np.asarray(out.pose)[:dim, :dim],
-            0.5 * float(s.max_correspondence_distance),
-            tn,
-            tc,
+        sampling=_scaled(
+            sampling_system(
+                src,
+                corr,
+                np.asarray(out.pose)[:dim, :dim],
+                0.5 * float(s.max_correspondence_distance),
+                tn,
+                tc,
+            ),
+            _density_ratio(ctx),
         ),
     )
+
+
+def _median_spacing(points: FloatArray) -> float:
+    """Median distance to the nearest other point, by brute force."""
+    d2 = ((points[:, None, :] - points[None, :, :]) ** 2).sum(-1)
+    np.fill_diagonal(d2, np.inf)
+    return float(np.sqrt(np.median(d2.min(axis=1))))
+
+
+def _density_ratio(ctx: Any) -> float:
+    """The target's point spacing over the source's, at most 1 (``TrustInputs``)."""
+    target = getattr(ctx.target, "points", None)
+    if target is None or len(target) < 2 or len(ctx.source) < 2:
+        return 1.0
+    source = _median_spacing(np.asarray(ctx.source))
+    return min(1.0, _median_spacing(np.asarray(target)) / source) if source > 0 else 1.0
+
+
+def _scaled(
+    system: tuple[FloatArray, FloatArray] | None, ratio: float
+) -> tuple[FloatArray, FloatArray] | None:
+    return None if system is None else (system[0], system[1] * ratio**2)
 
 
 def _covariance_estimates(

@@ -88,6 +88,15 @@ class RadiusNeighbors:
         return out
 
 
+def median_spacing(index: _core.KdTree, points: FloatArray) -> float:
+    """Median distance from each of ``points`` (the points ``index`` holds) to its nearest
+    other point; NaN with fewer than 2 points."""
+    if len(points) < 2:
+        return math.nan
+    _, d2 = index.knn(points, 2)
+    return float(np.sqrt(np.median(d2[:, 1])))
+
+
 @dataclass(frozen=True, eq=False)
 class PreparedTarget:
     """A target cloud with its k-d tree and (optionally) normals and covariances.
@@ -126,6 +135,13 @@ class PreparedTarget:
         if self.normals is None:
             raise ValueError("normal_noise: this target has no normals")
         return normal_noise(self.points, self.normals, self.index)
+
+    @functools.cached_property
+    def spacing(self) -> float:
+        """Median distance from a target point to its nearest other point: how densely the
+        target samples its surfaces (a map merged from many scans more densely than one scan).
+        Measured on first use and kept; NaN with fewer than 2 points."""
+        return median_spacing(self.index, self.points)
 
     def nearest(self, query_points: FloatArray, max_distance: float = math.inf) -> Nearest:
         """Nearest target point of each query point within ``max_distance`` (not squared;
