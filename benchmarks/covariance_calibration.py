@@ -18,7 +18,8 @@ Two protocols:
   (the gate-wide prior ``diag(δ², …, (δ/L_a)², …) / 3``, δ = 1 m) — and no covariance
   passed. ``identity`` samples one point of that law (the fixed step, 0.3 m / 0.5 m along a
   corridor's / tunnel's axis against σ = 0.58 m); ``gate`` tests the default along weak
-  directions over the law it states.
+  directions over the law it states. Run in the corridor and the tunnel only: elsewhere
+  nothing reports that prior, and starts a gate away test the basin instead.
 
 Per row, the NEES is also split by axis (``weak`` / ``rest`` in the JSON rows and the
 printed table): in the scaled coordinates of the result's degeneracy analysis, with ``W``
@@ -76,6 +77,9 @@ class Scene:
     scan: Callable[[object, int], np.ndarray]  # (pose, seed) -> points in the sensor frame
     pose_a: SE2 | SE3
     step: SE2 | SE3  # T_A_B
+    #: Degenerate along an axis: the ``gate`` protocol runs here only (elsewhere the gate-wide
+    #: prior is not reported, and starts a gate away measure the basin, not the covariance).
+    weak_axis: bool = False
 
 
 def scenes() -> list[Scene]:
@@ -100,9 +104,9 @@ def scenes() -> list[Scene]:
     step3 = SE3.from_vector([0.5, 0.1, 0.0, 0.0, 0.0, np.deg2rad(2.0)])
     return [
         Scene("2D room", 2, scan2d(room), SE2.from_vector([0.5, 0.3, 0.3]), step2),
-        Scene("2D corridor", 2, scan2d(corridor), SE2.from_vector([100.0, 0.0, 0.0]), step2),
+        Scene("2D corridor", 2, scan2d(corridor), SE2.from_vector([100.0, 0.0, 0.0]), step2, True),
         Scene("3D street", 3, sweep3d(street), SE3.from_vector([0, 1.75, 1.73, 0, 0, 0]), step3),
-        Scene("3D tunnel", 3, sweep3d(tunnel), SE3.from_vector([0, 0, 1.8, 0, 0, 0]), step3),
+        Scene("3D tunnel", 3, sweep3d(tunnel), SE3.from_vector([0, 0, 1.8, 0, 0, 0]), step3, True),
     ]
 
 
@@ -295,6 +299,8 @@ def main() -> None:
             continue
         for method in args.methods:
             for protocol in args.protocols:
+                if protocol == "gate" and not scene.weak_axis:
+                    continue
                 row = run_scene(
                     scene, method, reps, protocol, args.drop_linear, args.randomise_pose
                 )
