@@ -15,8 +15,9 @@ use super::dense::{inverse, scale_both, sym, unscale_both, Mat, Vector};
 /// determine it; zero when held). `W` is itself estimated from noisy normals: an error of `σ_w`
 /// along the true axis shows as `σ_w · tilt_j` along each `u_j`
 /// ([`Degeneracy::tilt_variances`]) or, for a translation, as its rotation rows
-/// ([`axis_cover`]), added there. With the degeneracy-aware solve, `valley` (the spread of the
-/// strong coordinates over held re-solves, `scanreg.trust.valley_moment`) is added as well.
+/// ([`axis_cover`]), added there. With the degeneracy-aware solve, `valley` (how the strong
+/// coordinates follow the held weak ones, from held re-solves, `scanreg.trust.valley_moment`)
+/// is added as well.
 pub fn with_prior_along_weak(
     cov: &Mat,
     deg: &Degeneracy,
