@@ -577,7 +577,7 @@ def test_corridor_from_the_identity_is_cautious_by_its_fixed_step_not_by_its_mod
     # the default states (uniform within the gate), the same model is calibrated. Measured
     # (30 realisations, point-to-line, weak / rest): identity 0.25 / 0.83 (the rest
     # heavy-tailed), gate-law start 0.80 / 1.00; covariance_calibration.py at 100: identity
-    # 0.28 / 0.66, gate 1.02 / 0.94.
+    # 0.28 / 0.67, gate 1.02 / 0.94.
     truth = STEP2.inverse()
     ident, gate = [], []
     for k in range(30):
@@ -648,7 +648,7 @@ def test_corridor_with_a_prior_is_calibrated_across_its_axis() -> None:
     # prior's (weak part ~1). Across it the valley term had counted the held re-solves' own
     # sampling jitter (2–45 mdeg of heading between re-solves 0.05 m apart) on top of the
     # sampling term that covers it: rest 0.57 × dof (point-to-line, 100 realisations of
-    # covariance_calibration.py), 0.97 with the coupling alone. Measured here (30): weak
+    # covariance_calibration.py), 0.98 with the coupling alone. Measured here (30): weak
     # 0.90, rest 0.72 (0.49 with the second moment of both re-solves).
     truth = STEP2.inverse()
     parts = []

@@ -797,8 +797,8 @@ def valley_coupling(
     ``log(T̂⁻¹ T)``; so it carries jitter only. The antisymmetric part keeps a real coupling
     (a corridor's lateral estimate following the held along-axis one) exactly.
     ``benchmarks/covariance_calibration.py`` (prior rows, 100 realisations): corridor
-    0.49 / 0.71 / 0.64 → 0.53 / 0.98 / 0.79 × dof (point-to-point / point-to-plane / GICP),
-    the across-axis part 0.24 / 0.57 / 0.46 → 0.29 / 0.97 / 0.69 with the weak axis at 1.00."""
+    0.49 / 0.71 / 0.64 → 0.53 / 0.99 / 0.80 × dof (point-to-point / point-to-plane / GICP),
+    the across-axis part 0.24 / 0.57 / 0.46 → 0.30 / 0.98 / 0.70 with the weak axis at 1.00."""
     if plus is not None and minus is not None:
         return (plus - minus) / (2.0 * h)
     one = plus if plus is not None else minus
