@@ -6,7 +6,7 @@ register source (A) to target (B); error ``δ = log(T_est⁻¹ T_true)`` in scan
 convention; ``NEES = δᵀ Σ⁻¹ δ`` for every covariance kind of the result. A calibrated
 covariance gives mean NEES ≈ dof (3 in 2D, 6 in 3D), inside the printed 95 % band.
 
-Two protocols:
+Protocols (``--protocols``, default ``identity prior``):
 
 * ``identity``: registered from the identity, default settings (the gate-wide prior is used
   along degenerate directions); ``identity-aware``: the same with ``degeneracy_aware=True``;
@@ -37,7 +37,7 @@ of the sampling, as they are for a robot.
 
     .venv/bin/python benchmarks/covariance_calibration.py [--realisations 200] [--quick]
         [--methods point_to_plane gicp] [--scenes "2D room" ...] [--json out.json]
-        [--drop-linear] [--randomise-pose]
+        [--drop-linear] [--randomise-pose] [--protocols identity prior gate]
 
 Scenes: 2D square room, 2D long corridor (degenerate along x), 3D street, 3D tunnel
 (degenerate along x). Also printed: how often each scene was flagged degenerate.
