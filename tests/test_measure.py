@@ -77,12 +77,18 @@ def test_overlap_statistics_match_numpy(dim: int) -> None:
     src = _cloud(dim, 5000, 3)  # above the core's parallel threshold
     pose = SE2.from_vector([0.1, -0.2, 0.05]) if dim == 2 else SE3.exp([0.1, 0, 0.2, 0, 0.05, 0])
     tree = _core.KdTree(tgt)
-    found, mean, median, rmse, trimmed = _core.overlap_statistics(tree, src, pose.as_matrix(), 0.3)
+    found, mean, median, rmse, trimmed, within = _core.overlap_statistics(
+        tree, src, pose.as_matrix(), 0.3
+    )
     idx, d2 = tree.nearest(pose.apply(src), 0.3)
     dist = np.sqrt(d2[idx >= 0])
     assert found == dist.size > 0
     kept = np.sort(dist)[: math.ceil(0.9 * dist.size)]
     want = (dist.mean(), np.median(dist), np.sqrt(np.mean(dist**2)), np.sqrt(np.mean(kept**2)))
     np.testing.assert_allclose((mean, median, rmse, trimmed), want, rtol=1e-12)
+    # The tight count of the same pass equals a search with that gate (default: the gate).
+    tight = _core.overlap_statistics(tree, src, pose.as_matrix(), 0.3, within=0.1)[5]
+    alone = _core.overlap_statistics(tree, src, pose.as_matrix(), 0.1)[0]
+    assert within == found and tight == alone == np.count_nonzero(dist <= 0.1) < found
     none = _core.overlap_statistics(tree, src + 1e3, pose.as_matrix(), 0.3)
-    assert none[0] == 0 and all(math.isnan(v) for v in none[1:])
+    assert none[0] == 0 and none[5] == 0 and all(math.isnan(v) for v in none[1:5])

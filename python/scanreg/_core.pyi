@@ -459,7 +459,8 @@ def overlap_statistics(
     max_distance: float,
     num_threads: int | None = None,
     hints: NDArray[np.int64] | None = None,
-) -> tuple[int, float, float, float, float]: ...
+    within: float | None = None,
+) -> tuple[int, float, float, float, float, int]: ...
 def target_normal_noise(tree: KdTree, normals: NDArray[np.float64]) -> tuple[float, float]: ...
 def orientation_symmetry(
     points_array: NDArray[np.float64], normals: NDArray[np.float64]

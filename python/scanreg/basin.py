@@ -365,6 +365,24 @@ def _log2(m: FloatArray) -> FloatArray:
     return np.array([(a * tx + b * ty) / d, (a * ty - b * tx) / d, theta])
 
 
+def tight_gate(
+    index: Any, source: FloatArray, pose: SE2 | SE3, gate: float, target_points: FloatArray | None
+) -> float:
+    """The gate of the probe's overlaps (:data:`TIGHT_GATE_FRACTION` of ``gate``; in 3D at
+    least the target's point spacing; with an infinite gate, three times the median distance
+    to the target at ``pose``)."""
+    tight = TIGHT_GATE_FRACTION * gate if math.isfinite(gate) else math.inf
+    if not math.isfinite(tight):
+        # An infinite gate: three times the median distance to the target at the result.
+        med = _core.overlap_statistics(index, source, pose.as_matrix(), math.inf)[2]
+        tight = 3.0 * float(med) if math.isfinite(med) and med > 0 else 1.0
+    if pose.DIM == 3:
+        # Voxel-downsampled clouds: a tenth of the gate is below the spacing of the points (0.5 m
+        # voxels, 1 m gate), where even the right pose finds a neighbour for a fifth of them.
+        tight = max(tight, _spacing(index, target_points))
+    return tight
+
+
 def _fraction(index: Any, source: FloatArray, pose: SE2 | SE3, gate: float) -> float:
     found = _core.overlap_statistics(index, source, pose.as_matrix(), gate)[0]
     return float(found) / float(source.shape[0])
@@ -388,6 +406,7 @@ def probe_basin(
     prior: FloatArray | None = None,
     inlier_rmse: float = 0.0,
     target_normals: FloatArray | None = None,
+    tight_overlap: tuple[float, float] | None = None,
 ) -> BasinProbe:
     """Restart ``solve`` around ``pose`` (see the module docstring): the registration's own
     solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations) -> (poses
@@ -407,22 +426,18 @@ def probe_basin(
     probe returns with no restart (``evidence`` empty). ``lookalike_signal``: also the 2D
     look-alike along the least-determined translation (:func:`along_axis_lookalike`) when the
     other signals are silent. ``motion``: ``log(start⁻¹ · pose)`` when the caller has it
-    already (the registration's trust analysis does).
+    already (the registration's trust analysis does); ``tight_overlap``: ``(tight_gate(...),
+    fraction of the source within it at pose)`` likewise (counted with the verdict's overlap).
     """
     t0 = time.perf_counter()
     dim = pose.DIM
     dof = 3 if dim == 2 else 6
-    tight = TIGHT_GATE_FRACTION * gate if math.isfinite(gate) else math.inf
-    if not math.isfinite(tight):
-        # An infinite gate: three times the median distance to the target at the result.
-        med = _core.overlap_statistics(index, source, pose.as_matrix(), math.inf)[2]
-        tight = 3.0 * float(med) if math.isfinite(med) and med > 0 else 1.0
-    if dim == 3:
-        # Voxel-downsampled clouds: a tenth of the gate is below the spacing of the points (0.5 m
-        # voxels, 1 m gate), where even the right pose finds a neighbour for a fifth of them.
-        tight = max(tight, _spacing(index, target_points))
+    if tight_overlap is None:
+        tight = tight_gate(index, source, pose, gate, target_points)
+        here = _fraction(index, source, pose, tight)
+    else:
+        tight, here = tight_overlap
     near_move = 0.5 * gate if math.isfinite(gate) else 5.0 * tight
-    here = _fraction(index, source, pose, tight)
     cov = np.asarray(covariance, dtype=np.float64)
     finite = bool(np.isfinite(cov).all())
     evidence: tuple[str, ...] = ()

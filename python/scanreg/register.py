@@ -44,7 +44,7 @@ from .degeneracy import (
     Degeneracy,
 )
 from .local_map import LocalMap
-from .preprocess import DEFAULT_K, check_k, positive_int, voxel_downsample
+from .preprocess import DEFAULT_K, _voxel_centroids, check_k, positive_int
 from .quality import (
     Conditioning,
 )
@@ -463,7 +463,7 @@ def _prepared_target(
         return target
     points = as_points(target, "target", dim=dim)
     if settings.voxel_size is not None:
-        points = voxel_downsample(points, settings.voxel_size).points
+        points = _voxel_centroids(points, settings.voxel_size)
     # Normals for every method when there are enough points: the degeneracy analysis uses the
     # plane information.
     if len(points) < dim + 1 and not (want_normals or want_covs):
@@ -569,7 +569,7 @@ def register(
 
     t0 = time.perf_counter()
     if s.voxel_size is not None:
-        src = voxel_downsample(src, s.voxel_size).points
+        src = _voxel_centroids(src, s.voxel_size)  # checked finite above
     source_covariances = None
     if source_attributes is not None:
         if method_eff != "gicp":

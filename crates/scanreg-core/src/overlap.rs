@@ -15,6 +15,10 @@ use rayon::prelude::*;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Overlap {
     pub num_found: usize,
+    /// Of those, the points whose nearest target point is within the second, tighter gate
+    /// (`within_sq`; at most the gate): the wrong-basin probe's tight overlap, counted in the
+    /// same pass instead of a second search.
+    pub num_within: usize,
     pub mean: f64,
     pub median: f64,
     pub rmse: f64,
@@ -25,12 +29,15 @@ pub struct Overlap {
 /// Search the nearest target point of each source point moved by `pose` (row-major
 /// homogeneous), within `max_sq` (squared gate), and summarise the distances found.
 /// `hints`: one likely nearest target id per source point (`< 0`: none), e.g. the
-/// registration's final correspondences — the same result, searched faster.
+/// registration's final correspondences — the same result, searched faster. `within_sq`: the
+/// squared tight gate of [`Overlap::num_within`] (the searches are exact: the nearest point
+/// within the gate is within `within_sq` exactly when a search with that gate finds one).
 pub fn overlap(
     search: &dyn NeighborSearch,
     source: &[f64],
     pose: &[f64],
     max_sq: f64,
+    within_sq: f64,
     hints: Option<&[i64]>,
 ) -> Result<Overlap> {
     let dim = search.dim();
@@ -60,7 +67,7 @@ pub fn overlap(
         let hint = hints.and_then(|h| usize::try_from(h[i]).ok());
         search
             .nearest_within_hinted(&q[..dim], max_sq, hint)
-            .map(|(_, d2)| d2.sqrt())
+            .map(|(_, d2)| d2)
     };
     let mut found: Vec<f64> = if n <= SEQUENTIAL_MAX {
         source
@@ -75,10 +82,13 @@ pub fn overlap(
             .filter_map(distance)
             .collect()
     };
+    let num_within = found.iter().filter(|&&d2| d2 <= within_sq).count();
+    found.iter_mut().for_each(|d| *d = d.sqrt());
     let n = found.len();
     if n == 0 {
         return Ok(Overlap {
             num_found: 0,
+            num_within,
             mean: f64::NAN,
             median: f64::NAN,
             rmse: f64::NAN,
@@ -91,6 +101,7 @@ pub fn overlap(
     let trimmed = ((0.9 * n as f64).ceil() as usize).clamp(1, n);
     Ok(Overlap {
         num_found: n,
+        num_within,
         mean: found.iter().sum::<f64>() / n as f64,
         median: median_sorted(&found),
         rmse: rms(&found),
@@ -113,12 +124,12 @@ mod tests {
         let pose = [1.0, 0.0, 0.1, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
         let mut source = target.clone();
         source.extend([50.0, 50.0]); // far from everything
-        let o = overlap(&tree, &source, &pose, 0.2 * 0.2, None).unwrap();
+        let o = overlap(&tree, &source, &pose, 0.2 * 0.2, 0.2 * 0.2, None).unwrap();
         assert_eq!(o.num_found, 100);
         for v in [o.mean, o.median, o.rmse, o.trimmed_rmse] {
             assert!((v - 0.1).abs() < 1e-12, "{o:?}");
         }
-        let none = overlap(&tree, &source, &pose, 0.05 * 0.05, None).unwrap();
+        let none = overlap(&tree, &source, &pose, 0.05 * 0.05, 0.05 * 0.05, None).unwrap();
         assert_eq!(none.num_found, 0);
         assert!(none.mean.is_nan() && none.trimmed_rmse.is_nan());
     }
@@ -128,7 +139,7 @@ mod tests {
         let tree = KdTree::build(&[0.0, 0.0], 2).unwrap();
         let source: Vec<f64> = (1..=10).flat_map(|i| [i as f64, 0.0]).collect();
         let eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-        let o = overlap(&tree, &source, &eye, f64::INFINITY, None).unwrap();
+        let o = overlap(&tree, &source, &eye, f64::INFINITY, f64::INFINITY, None).unwrap();
         let want = ((1..=9).map(|i| (i * i) as f64).sum::<f64>() / 9.0).sqrt();
         assert!((o.trimmed_rmse - want).abs() < 1e-12);
         assert_eq!(o.median, 5.5);
@@ -143,18 +154,26 @@ mod tests {
         let pose = [0.99, -0.141, 0.03, 0.141, 0.99, -0.02, 0.0, 0.0, 1.0];
         let source = target.clone();
         let n = source.len() / 2;
-        let plain = overlap(&tree, &source, &pose, 0.3 * 0.3, None).unwrap();
+        let plain = overlap(&tree, &source, &pose, 0.3 * 0.3, 0.1 * 0.1, None).unwrap();
         for hints in [
             (0..n as i64).collect::<Vec<_>>(),
             (0..n as i64).map(|i| (i * 7) % n as i64).collect(),
             vec![-1; n],
         ] {
-            let hinted = overlap(&tree, &source, &pose, 0.3 * 0.3, Some(&hints)).unwrap();
+            let hinted =
+                overlap(&tree, &source, &pose, 0.3 * 0.3, 0.1 * 0.1, Some(&hints)).unwrap();
             assert_eq!(hinted, plain);
         }
-        let e = overlap(&tree, &source, &pose, 1.0, Some(&[0, 1])).unwrap_err();
+        // The tight count equals a search with the tight gate, point for point.
+        let tight = overlap(&tree, &source, &pose, 0.1 * 0.1, 0.1 * 0.1, None).unwrap();
+        assert_eq!(plain.num_within, tight.num_found);
+        assert!(
+            0 < tight.num_found && tight.num_found < plain.num_found,
+            "{plain:?} {tight:?}"
+        );
+        let e = overlap(&tree, &source, &pose, 1.0, 1.0, Some(&[0, 1])).unwrap_err();
         assert!(e.to_string().contains("hints"), "{e}");
-        let e = overlap(&tree, &source, &pose, 1.0, Some(&vec![n as i64; n])).unwrap_err();
+        let e = overlap(&tree, &source, &pose, 1.0, 1.0, Some(&vec![n as i64; n])).unwrap_err();
         assert!(e.to_string().contains("out of range"), "{e}");
     }
 
@@ -162,8 +181,9 @@ mod tests {
     fn refuses_non_finite_source_points() {
         let tree = KdTree::build(&[0.0, 0.0, 1.0, 0.0], 2).unwrap();
         let eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-        let e = overlap(&tree, &[0.0, 0.0, f64::NAN, 1.0], &eye, 1.0, None).unwrap_err();
+        let e = overlap(&tree, &[0.0, 0.0, f64::NAN, 1.0], &eye, 1.0, 1.0, None).unwrap_err();
         assert!(e.to_string().contains("source"), "{e}");
-        assert!(overlap(&tree, &[0.0, 0.0, 1.0], &eye, 1.0, None).is_err()); // not N x 2
+        assert!(overlap(&tree, &[0.0, 0.0, 1.0], &eye, 1.0, 1.0, None).is_err());
+        // not N x 2
     }
 }

@@ -13,10 +13,12 @@ use scanreg_core::knn::check_max_distance;
 use scanreg_core::normal_agreement::{self, AgreementInput};
 use scanreg_core::{normal_noise, overlap, symmetry};
 
-/// `(num_found, mean, median, rmse, trimmed_rmse)` of the distances from each source point,
-/// moved by `pose_matrix`, to its nearest target point within `max_distance`.
+/// `(num_found, mean, median, rmse, trimmed_rmse, num_within)` of the distances from each
+/// source point, moved by `pose_matrix`, to its nearest target point within `max_distance`;
+/// `num_within` counts those within `within` too (default: `max_distance`).
 #[pyfunction]
-#[pyo3(signature = (target, source, pose_matrix, max_distance, num_threads=None, hints=None))]
+#[pyo3(signature = (target, source, pose_matrix, max_distance, num_threads=None, hints=None, within=None))]
+#[allow(clippy::too_many_arguments)]
 fn overlap_statistics(
     py: Python<'_>,
     target: &Bound<'_, PyAny>,
@@ -25,7 +27,8 @@ fn overlap_statistics(
     max_distance: f64,
     num_threads: Option<usize>,
     hints: Option<PyReadonlyArray1<'_, i64>>,
-) -> PyResult<(usize, f64, f64, f64, f64)> {
+    within: Option<f64>,
+) -> PyResult<(usize, f64, f64, f64, f64, usize)> {
     let hints = hints.as_ref().map(|h| c_slice(h, "hints")).transpose()?;
     let held = target_search(target)?;
     let search = held.search();
@@ -33,15 +36,26 @@ fn overlap_statistics(
     let src = points_dim(&source, "source", dim)?;
     let pm = pose(&pose_matrix, "pose_matrix", dim)?;
     let max_sq = check_max_distance("max_distance", max_distance).map_err(core_err)?;
+    let within_sq = match within {
+        Some(w) => check_max_distance("within", w).map_err(core_err)?,
+        None => max_sq,
+    };
     let o = py
         .detach(|| {
             in_pool_unless_small(src.len() / dim, num_threads, || {
-                overlap::overlap(search, src, pm, max_sq, hints)
+                overlap::overlap(search, src, pm, max_sq, within_sq, hints)
             })
         })
         .and_then(|r| r)
         .map_err(core_err)?;
-    Ok((o.num_found, o.mean, o.median, o.rmse, o.trimmed_rmse))
+    Ok((
+        o.num_found,
+        o.mean,
+        o.median,
+        o.rmse,
+        o.trimmed_rmse,
+        o.num_within,
+    ))
 }
 
 /// `(mean, median)` halves of `sin²` between the tree's normals and their nearest neighbour's.
