@@ -23,9 +23,11 @@ own error added to the covariance (``REFERENCE_SIGMA``; mbicp's truth is exact) 
 rejected-and-correct, and the median time of the call with its verdict read.
 
     .venv/bin/python benchmarks/wrong_start.py [--all] [--datasets intel,mbicp,kitti,outdoor]
-        [--jsonl out.jsonl] [--timing ROUNDS [--cpu]]
+        [--jsonl out.jsonl] [--timing ROUNDS [--cpu] [--dim 3]]
 
 Default: every 15th Intel pair, 40 MbICP scans, 5 KITTI pairs; ``--all``: every pair.
+``--timing``: the default call with and without the wrong-basin probe, alternated in one
+process (2D: Intel point-to-line; ``--dim 3``: the KITTI and outdoor pairs, each method).
 """
 
 from __future__ import annotations
@@ -248,38 +250,46 @@ def _counts(rs: list[dict[str, Any]], dim: int) -> list[int]:
     return [n, correct, ac, aw, ao, aor, rc]
 
 
-def timing(rounds: int, cpu: bool = False) -> None:
-    """The default 2D call (raw arrays, verdict read) with and without the probe, alternated
+def timing(rounds: int, cpu: bool = False, dim: int = 2) -> None:
+    """The default call (raw arrays, verdict read) with and without the probe, alternated
     pair by pair in this process: medians of the per-round totals and their ratio. ``cpu``:
     the process's CPU time (every thread's) instead of the wall clock, the usable clock on a
-    loaded machine."""
+    loaded machine. 2D: the Intel pairs, point-to-line; 3D: the KITTI and outdoor pairs from
+    their reference (an accepted result: only those are probed), one line per method."""
     clock = time.process_time if cpu else time.perf_counter
     from scanreg.verdict import VerdictThresholds
 
-    pairs = list(intel_pairs(15))
+    if dim == 2:
+        pairs, methods = list(intel_pairs(15)), ["point_to_line"]
+        label = "Intel"
+    else:
+        pairs, methods = [*kitti_pairs(5), *outdoor_pairs()], list(METHODS[3])
+        label = "KITTI + outdoor"
     off = VerdictThresholds(basin_probe=False)
-    totals: dict[str, list[float]] = {"default": [], "probe off": []}
-    for rnd in range(rounds):
-        sums = dict.fromkeys(totals, 0.0)
-        for i, (src, tgt, ref) in enumerate(pairs):
-            order = [("default", None), ("probe off", off)]
-            if (i + rnd) % 2:
-                order.reverse()
-            for name, th in order:
-                t0 = clock()
-                res = scanreg.register(src, tgt, method="point_to_line", init=ref, thresholds=th)
-                assert res.verdict is not None
-                sums[name] += clock() - t0
-        for name in totals:
-            totals[name].append(sums[name] / len(pairs))
-    med = {k: float(np.median(v)) for k, v in totals.items()}
-    ratio = float(np.median(np.array(totals["default"]) / np.array(totals["probe off"])))
-    print(
-        f"Intel point-to-line, {len(pairs)} pairs x {rounds} rounds, "
-        f"{'CPU' if cpu else 'wall'} time: default "
-        f"{med['default'] * 1e3:.2f} ms, probe off {med['probe off'] * 1e3:.2f} ms, "
-        f"ratio {ratio:.2f}"
-    )
+    for method in methods:
+        totals: dict[str, list[float]] = {"default": [], "probe off": []}
+        for rnd in range(rounds):
+            sums = dict.fromkeys(totals, 0.0)
+            for i, (src, tgt, ref) in enumerate(pairs):
+                order = [("default", None), ("probe off", off)]
+                if (i + rnd) % 2:
+                    order.reverse()
+                for name, th in order:
+                    t0 = clock()
+                    res = scanreg.register(src, tgt, method=method, init=ref, thresholds=th)  # type: ignore[arg-type]
+                    assert res.verdict is not None
+                    sums[name] += clock() - t0
+            for name in totals:
+                totals[name].append(sums[name] / len(pairs))
+        med = {k: float(np.median(v)) for k, v in totals.items()}
+        ratio = float(np.median(np.array(totals["default"]) / np.array(totals["probe off"])))
+        print(
+            f"{label} {method}, {len(pairs)} pairs x {rounds} rounds, "
+            f"{'CPU' if cpu else 'wall'} time: default "
+            f"{med['default'] * 1e3:.2f} ms, probe off {med['probe off'] * 1e3:.2f} ms, "
+            f"ratio {ratio:.2f}",
+            flush=True,
+        )
 
 
 def main() -> None:
@@ -289,9 +299,10 @@ def main() -> None:
     parser.add_argument("--jsonl", type=Path, help="write one record per registration")
     parser.add_argument("--timing", type=int, default=0, help="only the A/B timing, N rounds")
     parser.add_argument("--cpu", action="store_true", help="--timing in CPU time (all threads)")
+    parser.add_argument("--dim", type=int, choices=(2, 3), default=2, help="--timing: 2D or 3D")
     args = parser.parse_args()
     if args.timing:
-        timing(args.timing, args.cpu)
+        timing(args.timing, args.cpu, args.dim)
         return
     chosen = args.datasets.split(",")
     records: list[dict[str, Any]] = []
