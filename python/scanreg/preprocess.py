@@ -170,8 +170,8 @@ def _voxel_centroids(points: FloatArray, voxel_size: float) -> FloatArray:
     """``voxel_downsample(points, voxel_size).points`` for points the caller has checked already
     (finite, ``(N, D)`` float64, C-contiguous; ``voxel_size`` validated): ``register`` on a raw
     KITTI sweep scanned its 120k points for NaN twice more on the way."""
-    out: FloatArray = _core.voxel_downsample(points, voxel_size, "centroid")[0]
-    return _readonly(out)
+    out: FloatArray = _readonly(_core.voxel_downsample(points, voxel_size, "centroid")[0])
+    return out
 
 
 def voxel_downsample(
