@@ -251,8 +251,8 @@ class RegistrationResult:
     converged: bool
     #: ``converged``: the last step was below both tolerances (under LM: no step lowered the
     #: cost, a minimum), or Gauss–Newton circled near a minimum among correspondence sets — its
-    #: truncated cost repeating, or not below its best for three small steps (under 0.5 % of
-    #: the gate each) — and the best iterate is returned; ``max_iterations``;
+    #: truncated cost repeating, or (3D) not below its best for three small steps (under 0.5 %
+    #: of the gate each) — and the best iterate is returned; ``max_iterations``;
     #: ``too_few_correspondences`` (fewer than ``min_correspondences`` inside the gate — the
     #: pose is where it stopped);
     #: ``diverged``: a step was non-finite or implausibly large (over ten times the gate, or
