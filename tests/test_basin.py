@@ -402,3 +402,31 @@ def test_symmetry_and_wheel_fusion_refuse_mismatched_input() -> None:
     # A failed alignment (no finite covariance) keeps the scan's motion, as documented.
     scan = SE2.from_vector([0.3, 0.1, 0.05])
     assert fuse_motion(scan, np.full((3, 3), np.nan), SE2.identity(), 0.05) is scan
+
+
+def test_3d_odometry_with_a_wheel_prior_keeps_its_heading_in_a_symmetric_tunnel() -> None:
+    """The tunnel turned by 180° explains a sweep as well as the truth (51 % against 48 % of
+    the points within the tight gate): without a stated prior that is a wrong basin or an
+    ambiguity. With a wheel prior whose covariance rules the turn out, it is no rival — the
+    odometry keeps the truth instead of falling back to the turned pose (before, frame 3
+    turned by 180° and the drive ended 180 m off)."""
+    from scanreg import Odometry, OdometryConfig
+    from scanreg.io.sequences import SimulatedSequence
+
+    seq = SimulatedSequence("tunnel", num_frames=6, sensor="hdl64", ramp=2.0)
+    frames, gt = list(seq), seq.ground_truth_at("middle")
+    rng = np.random.default_rng(7)
+    odo = Odometry(OdometryConfig(min_range=1.0, method="gicp"))
+    for k, f in enumerate(frames):
+        prior = None
+        if k:
+            inc = SE3.from_matrix(np.linalg.inv(gt[k - 1]) @ gt[k]).log()
+            inc[:3] = inc[:3] * 1.02 + rng.normal(0.0, 0.02, 3)
+            inc[3:] += rng.normal(0.0, math.radians(0.1), 3)
+            prior = SE3.exp(inc)
+        r = odo.step(f.points, f.timestamps, prior, stamp=float(f.stamp))
+        truth = SE3.from_matrix(np.linalg.inv(gt[0]) @ gt[k])
+        e = (truth.inverse() @ r.pose).log()  # type: ignore[operator]
+        assert np.linalg.norm(e[3:]) < math.radians(1.0), (k, e)
+        assert np.linalg.norm(e[:3]) < 0.1, (k, e)
+        assert not r.basin_fallback, k

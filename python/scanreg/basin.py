@@ -343,6 +343,25 @@ def _spacing(index: Any, points: FloatArray | None) -> float:
     return float(np.median(d)) if len(d) else 0.0
 
 
+def _beyond(
+    start: SE2 | SE3, covariance: FloatArray | None, dof: int
+) -> Callable[[SE2 | SE3], bool] | None:
+    """Whether a pose lies beyond χ² (99.9 %) of ``start`` under ``covariance`` (None when no
+    usable covariance was stated)."""
+    if covariance is None:
+        return None
+    cov = np.asarray(covariance, dtype=np.float64)
+    if cov.shape != (dof, dof) or not np.isfinite(cov).all():
+        return None
+    info = np.linalg.pinv(0.5 * (cov + cov.T), hermitian=True)
+
+    def beyond(pose: SE2 | SE3) -> bool:
+        e = _relative_log(start, pose)
+        return bool(float(e @ info @ e) > CHI2_999[dof])
+
+    return beyond
+
+
 def _relative_log(a: SE2 | SE3, b: SE2 | SE3) -> FloatArray:
     """``log(a⁻¹ · b)`` (in 2D from the matrices, without building the poses)."""
     if a.DIM == 2:
@@ -407,6 +426,7 @@ def probe_basin(
     inlier_rmse: float = 0.0,
     target_normals: FloatArray | None = None,
     tight_overlap: tuple[float, float] | None = None,
+    stated_prior: FloatArray | None = None,
 ) -> BasinProbe:
     """Restart ``solve`` around ``pose`` (see the module docstring): the registration's own
     solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations) -> (poses
@@ -428,6 +448,10 @@ def probe_basin(
     other signals are silent. ``motion``: ``log(start⁻¹ · pose)`` when the caller has it
     already (the registration's trust analysis does); ``tight_overlap``: ``(tight_gate(...),
     fraction of the source within it at pose)`` likewise (counted with the verdict's overlap).
+    ``stated_prior``: the covariance the caller *stated* for ``start`` (``init_covariance``: a
+    wheel odometry, an IMU): a far outcome beyond its χ² (99.9 %) from ``start`` is no rival —
+    the measurement that gave the start rules it out (a tunnel turned by 180° explains the
+    sweep as well, but the wheels say the vehicle did not turn).
     """
     t0 = time.perf_counter()
     dim = pose.DIM
@@ -477,6 +501,7 @@ def probe_basin(
                 growth=_frozen(np.zeros((dof, dof))),
                 seconds=time.perf_counter() - t0,
             )
+    implausible = _beyond(start, stated_prior, dof) if start is not None else None
     # The pseudo-inverse only for an outcome that did not come back (most do).
     info: FloatArray | None = None
     cover = cov
@@ -550,6 +575,8 @@ def probe_basin(
                 # alternative (the smallest covariance covering both).
                 cover = covariance_upper_bound(cover, cov + np.outer(e, e))
                 covered += 1
+            continue
+        if implausible is not None and implausible(alt):
             continue
         if best is None or f > best[0]:
             best = (f, alt, e)

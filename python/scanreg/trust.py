@@ -654,6 +654,7 @@ def _trust(
             # ordinary 0.7 m KITTI step "beyond 1σ" and tripled the call; wrong 3D starts are
             # rejected without it (wrong_start.py: none accepted from 30°/60°).
             prior=ctx.prior if dim == 2 or ctx.init_covariance is not None else None,
+            stated_prior=ctx.init_covariance,
             inlier_rmse=checked.report.residual_rmse,
             target_normals=ctx.target_normals,
             tight_overlap=None
