@@ -403,7 +403,51 @@ class TrustNumbers:
     def weakest_ratio(self) -> float: ...
     @property
     def weakest_description(self) -> str: ...
+    @property
+    def num_blocks(self) -> int: ...
+    @property
+    def num_plane_correspondences(self) -> int: ...
+    @property
+    def normal_variance(self) -> float: ...
+    @property
+    def source_normals(self) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None: ...
 
+def trust_analysis(
+    source: NDArray[np.float64],
+    target: NDArray[np.float64],
+    pose_matrix: NDArray[np.float64],
+    correspondences: NDArray[np.int64],
+    method: str,
+    kernel: str,
+    kernel_scale: float,
+    block_size: float,
+    num_neighbors: int,
+    target_normals: NDArray[np.float64] | None,
+    target_covariances: NDArray[np.float64] | None,
+    source_covariances: NDArray[np.float64] | None,
+    num_threads: int | None,
+    hessian: NDArray[np.float64],
+    sigma2: float,
+    levers: NDArray[np.float64],
+    prior: NDArray[np.float64],
+    drift: NDArray[np.float64],
+    motion: NDArray[np.float64],
+    length_scale: float,
+    covariance: str,
+    num_correspondences: int,
+    sum_squared_distances: float,
+    score_outer: NDArray[np.float64] | None,
+    effective_residuals: float,
+    normal_noise: float,
+    typical_normal_noise: float,
+    beam_phase_variance: float,
+    max_step: float,
+    min_agreement: float,
+    sampling_scale: float,
+    source_normals: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None,
+    valley: NDArray[np.float64] | None = None,
+    held: tuple[NDArray[np.float64], float, float, float, int, float] | None = None,
+) -> TrustNumbers: ...
 def trust_numbers(
     analysis: CensiAnalysis,
     hessian: NDArray[np.float64],

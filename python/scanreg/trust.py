@@ -41,7 +41,6 @@ from ._validate import readonly as _readonly
 from .basin import probe_basin, tight_gate
 from .degeneracy import (
     Degeneracy,
-    correspondence_normal_noise,
     sampled_normals,
 )
 from .local_map import LocalMap
@@ -253,16 +252,12 @@ class TrustInputs:
 
 @dataclass(frozen=True)
 class CorrespondenceAnalysis:
-    """Censi's and the block meats at the final correspondences, the scene's degeneracy and
-    the noise levels measured from the residuals and normals."""
+    """The analysis of one outcome at its final correspondences: the scene's degeneracy, the
+    noise levels measured from the residuals and normals, and the core's numbers."""
 
-    censi: Any
     degeneracy: Degeneracy
     point_variance: float
     normal_variance: float
-    #: ``(all, agreeing)`` point-to-plane/line systems ``(H, g, count)`` of the sampled
-    #: pairs, or None.
-    agreement: tuple[Any, Any] | None
     #: The degeneracy-aware solve's :func:`valley_moment`, or None.
     valley: FloatArray | None = None
     #: The core's arithmetic of this analysis (``_core.TrustNumbers``): covariances,
@@ -355,109 +350,59 @@ def correspondence_analysis(
         tp, tn, tc = prepared.native.gather(np.ascontiguousarray(ids, dtype=np.int64))
         corr = np.full(corr.shape, -1, dtype=np.int64)
         corr[used] = compact
-    normal_var = 0.0
-    agreement = None
-    src_normals = None
-    if method != "gicp" and len(src) > dim and dim == 3:
-        # The sampled source normals, in full (NaN rows: no normal): the degeneracy analysis
-        # measures the normals' noise from them (against the target's), and takes them as the
-        # plane normals where the target has none. 3D only: a 2D scan's normals come from
-        # dense, evenly spaced beams (no rings), and its analysis stays as calibrated.
-        sample, sample_normals = ctx.source_normals
-        src_normals = np.full(src.shape, np.nan)
-        src_normals[sample] = sample_normals
-    if method != "gicp" and len(src) > dim and tn is not None:
-        # Normals of a sample of the source, to measure the normal noise between the two scans
-        # (Censi's normal term) and which pairs' normals disagree (the model-error term); the
-        # registration itself does not use them.
-        sample, sample_normals = ctx.source_normals
-        if method != "point_to_point":
-            normal_var = correspondence_normal_noise(
-                sample_normals, tn, out.pose[:dim, :dim], corr[sample]
-            )
-            normal_var = normal_var if math.isfinite(normal_var) else 0.0
-        ha, ga, na, hk, gk, nk = _core.normal_agreement_systems(
-            sample,
-            sample_normals,
-            src,
-            tp,
-            tn,
-            corr,
-            out.pose,
-            MIN_NORMAL_AGREEMENT,
-            kernel=s.kernel,
-            kernel_scale=ctx.kernel_scale,
-        )
-        agreement = ((ha, ga, na), (hk, gk, nk))
-    # 2D: how far the estimate depends on where the beams fell on the surfaces
-    # (TrustInputs.sampling_system); without a target normal or covariance to judge it by, the
-    # beam-phase heading variance instead.
-    sampling = (
-        _core.trust_sampling(
-            src,
-            np.ascontiguousarray(corr, dtype=np.int64),
-            np.ascontiguousarray(out.pose[:dim, :dim]),
-            0.5 * float(s.max_correspondence_distance),
-            target_normals=tn,
-            target_covariances=tc,
-        )
-        if dim == 2
-        else None
-    )
-    if sampling is not None:
-        sampling = (sampling[0], sampling[1] * ctx.sampling_density_ratio**2)
-    # Unit variances: the meats scale linearly and are combined once the point noise is known
-    # from the residuals of this very analysis.
-    ana = _core.censi_analysis(
-        src,
-        tp,
-        out.pose,
-        corr,
-        method=method,
-        kernel=s.kernel,
-        kernel_scale=ctx.kernel_scale,
-        source_variance=1.0,
-        target_variance=1.0,
-        block_size=max(ctx.block_size, 1e-9),
-        normal_variance=1.0,
-        target_normals=tn,
-        source_covariances=ctx.source_covariances,
-        # Point-to-point in 3D: a covariance-only target (the odometry's voxel map) gives the
-        # degeneracy analysis its plane normals; the covariance itself does not read them.
-        target_covariances=tc
-        if method == "gicp" or (method == "point_to_point" and dim == 3)
-        else None,
-        num_threads=s.num_threads,
-        source_normals=src_normals,
-    )
+    n = len(src)
+    if method != "gicp" and n > dim and (dim == 3 or tn is not None):
+        check_k(min(s.num_neighbors, n), n, dim)  # the sampled normals' neighbourhood
     pose = pose_from_core(out, dim)
     moved = ctx.start.inverse() @ pose  # type: ignore[operator]
     drift = moved.log()
     kernel = s.kernel != "none"
-    # By position up to the keywords: the binding's order.
-    num = _core.trust_numbers(
-        ana,
+    # One core call (``_core.trust_analysis``), by position in the binding's order: the
+    # source's sampled normals (measured once per call: the degeneracy-aware solve and the
+    # plane reference analyse the same source again), the normal noise between the two scans
+    # (Censi's normal term) and which pairs' normals disagree (the model-error term), the 2D
+    # sampling system (how far the estimate depends on where the beams fell; without a target
+    # normal or covariance, the beam-phase heading variance instead), Censi's and the block
+    # sums at unit variances (they scale linearly and are combined once the point noise is
+    # known from the residuals of this very analysis), then the arithmetic of
+    # ``scanreg_core::trust``. Point-to-point in 3D: a covariance-only target (the odometry's
+    # voxel map) gives the degeneracy analysis its plane normals.
+    num = _core.trust_analysis(
+        src,
+        tp,
+        out.pose,
+        corr,
+        method,
+        s.kernel,
+        ctx.kernel_scale,
+        max(ctx.block_size, 1e-9),
+        min(s.num_neighbors, n),
+        tn,
+        tc,
+        ctx.source_covariances,
+        s.num_threads,
         out.hessian,
         residual_variance(out, ctx.components, s.kernel, dof),
-        method=method,
-        levers=ctx.levers,
-        prior=ctx.prior,
-        drift=drift,
-        motion=np.asarray(moved.translation, dtype=np.float64),
-        length_scale=ctx.length_scale,
-        covariance=s.covariance,
-        num_correspondences=int(out.num_correspondences),
-        sum_squared_distances=float(out.sum_squared_distances),
-        score_outer=out.score_outer if kernel else None,
-        effective_residuals=ctx.components * float(out.irls_weight_sum) if kernel else 0.0,
-        normal_noise=eps2,
-        typical_normal_noise=eps2_typical,
-        normal_variance=normal_var,
-        agreement=None if agreement is None else (*agreement[0], *agreement[1]),
-        valley=valley,
-        sampling_system=sampling,
-        sampling=ctx.beam_phase_variance if sampling is None else 0.0,
-        held=None
+        ctx.levers,
+        ctx.prior,
+        drift,
+        np.asarray(moved.translation, dtype=np.float64),
+        ctx.length_scale,
+        s.covariance,
+        int(out.num_correspondences),
+        float(out.sum_squared_distances),
+        out.score_outer if kernel else None,
+        ctx.components * float(out.irls_weight_sum) if kernel else 0.0,
+        eps2,
+        eps2_typical,
+        ctx.beam_phase_variance,
+        0.5 * float(s.max_correspondence_distance),
+        MIN_NORMAL_AGREEMENT,
+        # The sampling term scaled by how much finer the target samples the surfaces.
+        ctx.sampling_density_ratio**2 if dim == 2 and (tn is not None or tc is not None) else 1.0,
+        ctx.__dict__.get("source_normals"),
+        valley,
+        None
         if held is None
         else (
             held.information,
@@ -468,17 +413,17 @@ def correspondence_analysis(
             held.removed_normal_noise,
         ),
     )
+    if num.source_normals is not None and "source_normals" not in ctx.__dict__:
+        ctx.__dict__["source_normals"] = num.source_normals
     if held is None:
-        basis = "plane_information" if ana.num_plane_correspondences > dof else "hessian"
+        basis = "plane_information" if num.num_plane_correspondences > dof else "hessian"
         deg = _degeneracy(num, ctx.levers, eps2, eps2_typical, basis)
     else:
         deg = held
     return CorrespondenceAnalysis(
-        censi=ana,
         degeneracy=deg,
         point_variance=float(num.point_variance),
-        normal_variance=normal_var,
-        agreement=agreement,
+        normal_variance=float(num.normal_variance),
         valley=valley,
         numbers=num,
         moved=moved,
@@ -543,7 +488,7 @@ def _covariance_estimates(
             "point_variance": float(num.point_variance),
             "normal_variance": float(corr.normal_variance),
             "block_size": float(ctx.block_size),
-            "num_blocks": int(corr.censi.num_blocks),
+            "num_blocks": int(num.num_blocks),
             "prior": _frozen(ctx.prior),
             "model_shift": num.model_shift,
         },

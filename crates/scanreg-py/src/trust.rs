@@ -2,17 +2,23 @@
 //! per-point scene quantities it reads. Converts and validates only.
 
 use crate::censi::CensiAnalysis;
-use crate::convert::{c_slice, core_err, covariances, points, points_dim, read_only};
+use crate::convert::{
+    c_slice, core_err, covariances, in_pool_unless_small, points, points_dim, pose, read_only,
+};
 use numpy::ndarray::Array2;
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3,
-    PyUntypedArrayMethods,
+    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
+    PyReadonlyArray3, PyUntypedArrayMethods,
 };
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use scanreg_core::censi::{self, NONE};
 use scanreg_core::icp::Method;
+use scanreg_core::normal_agreement::{self, AgreementInput};
+use scanreg_core::normal_noise;
 use scanreg_core::trust::dense::{flat, Mat, Vector};
 use scanreg_core::trust::{self, scene, shift::System, Held, Input, Kind};
+use scanreg_core::Kernel;
 
 #[pyclass(frozen, module = "scanreg._core")]
 pub struct TrustNumbers {
@@ -69,6 +75,18 @@ pub struct TrustNumbers {
     weakest_ratio: f64,
     #[pyo3(get)]
     weakest_description: String,
+    /// The correspondence analysis's spatial blocks and plane correspondences.
+    #[pyo3(get)]
+    num_blocks: usize,
+    #[pyo3(get)]
+    num_plane_correspondences: usize,
+    /// The normal variance between the two scans the covariances used (rad², 0 if not measured).
+    #[pyo3(get)]
+    normal_variance: f64,
+    /// `trust_analysis`: the source's sampled normals `(indices, normals)` it measured or was
+    /// given (for the next analysis of the same source), None if it needed none.
+    #[pyo3(get)]
+    source_normals: Option<(Py<PyArray1<i64>>, Py<PyArray2<f64>>)>,
 }
 
 fn mat(py: Python<'_>, m: &Mat) -> PyResult<Py<PyArray2<f64>>> {
@@ -226,6 +244,16 @@ fn trust_numbers(
         motion: c_slice(&motion, "motion")?,
     };
     let out = trust::analyse(&input).map_err(core_err)?;
+    numbers(py, &out, a, normal_variance, None)
+}
+
+fn numbers(
+    py: Python<'_>,
+    out: &trust::Outcome,
+    analysis: &scanreg_core::censi::Analysis,
+    normal_variance: f64,
+    source_normals: Option<(Py<PyArray1<i64>>, Py<PyArray2<f64>>)>,
+) -> PyResult<TrustNumbers> {
     let deg = &out.degeneracy;
     let cond = &out.conditioning;
     Ok(TrustNumbers {
@@ -254,7 +282,290 @@ fn trust_numbers(
         weakest: vec1(py, &cond.weakest),
         weakest_ratio: cond.weakest_ratio,
         weakest_description: out.weakest_description.clone(),
+        num_blocks: analysis.num_blocks,
+        num_plane_correspondences: analysis.num_plane_correspondences,
+        normal_variance,
+        source_normals,
     })
+}
+
+/// The source's sampled normals as the Python side caches them: `(indices, normals)`.
+type SampledNormals<'py> = (PyReadonlyArray1<'py, i64>, PyReadonlyArray2<'py, f64>);
+
+/// The whole correspondence analysis of one outcome and its arithmetic, in one call (what
+/// `scanreg.trust.correspondence_analysis` runs): the source's sampled normals (given, or
+/// measured here with `num_neighbors`), the normal noise between the two scans, the normal
+/// agreement systems, the 2D sampling system, Censi's and the block sums at unit variances and
+/// `trust::analyse`; the sampling system's `M` times `sampling_scale`. `target*` are the matched rows' storage (a map's gathered rows), the
+/// correspondences index them. The same arithmetic as the separate calls, to the bit.
+#[pyfunction]
+#[pyo3(signature = (
+    source, target, pose_matrix, correspondences, method, kernel, kernel_scale, block_size,
+    num_neighbors, target_normals, target_covariances, source_covariances, num_threads,
+    hessian, sigma2, levers, prior, drift, motion, length_scale, covariance,
+    num_correspondences, sum_squared_distances, score_outer, effective_residuals,
+    normal_noise, typical_normal_noise, beam_phase_variance, max_step, min_agreement,
+    sampling_scale, source_normals=None, valley=None, held=None
+))]
+#[allow(clippy::too_many_arguments)]
+fn trust_analysis(
+    py: Python<'_>,
+    source: PyReadonlyArray2<'_, f64>,
+    target: PyReadonlyArray2<'_, f64>,
+    pose_matrix: PyReadonlyArray2<'_, f64>,
+    correspondences: PyReadonlyArray1<'_, i64>,
+    method: &str,
+    kernel: &str,
+    kernel_scale: f64,
+    block_size: f64,
+    num_neighbors: usize,
+    target_normals: Option<PyReadonlyArray2<'_, f64>>,
+    target_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    source_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    num_threads: Option<usize>,
+    hessian: PyReadonlyArray2<'_, f64>,
+    sigma2: f64,
+    levers: PyReadonlyArray1<'_, f64>,
+    prior: PyReadonlyArray2<'_, f64>,
+    drift: PyReadonlyArray1<'_, f64>,
+    motion: PyReadonlyArray1<'_, f64>,
+    length_scale: f64,
+    covariance: &str,
+    num_correspondences: usize,
+    sum_squared_distances: f64,
+    score_outer: Option<PyReadonlyArray2<'_, f64>>,
+    effective_residuals: f64,
+    normal_noise: f64,
+    typical_normal_noise: f64,
+    beam_phase_variance: f64,
+    max_step: f64,
+    min_agreement: f64,
+    sampling_scale: f64,
+    source_normals: Option<SampledNormals<'_>>,
+    valley: Option<PyReadonlyArray2<'_, f64>>,
+    held: Option<Holding<'_>>,
+) -> PyResult<TrustNumbers> {
+    let (src, dim) = points(&source, "source")?;
+    let n = src.len() / dim;
+    let dof = if dim == 2 { 3 } else { 6 };
+    let tgt = points_dim(&target, "target", dim)?;
+    let m = tgt.len() / dim;
+    let pm = pose(&pose_matrix, "pose_matrix", dim)?;
+    let corr = c_slice(&correspondences, "correspondences")?;
+    if corr.len() != n {
+        return Err(PyValueError::new_err(format!(
+            "correspondences: expected {n} values (one per source point), got {}",
+            corr.len()
+        )));
+    }
+    let method = Method::from_name(method).map_err(core_err)?;
+    let kernel = Kernel::from_name(kernel, kernel_scale).map_err(core_err)?;
+    let tn = target_normals
+        .as_ref()
+        .map(|a| points_dim(a, "target_normals", dim))
+        .transpose()?;
+    let tc = covariances(&target_covariances, "target_covariances", m, dim)?;
+    let sc = covariances(&source_covariances, "source_covariances", n, dim)?;
+    let corr32: Vec<u32> = corr
+        .iter()
+        .map(|&j| {
+            if j < 0 {
+                Ok(NONE)
+            } else {
+                u32::try_from(j).ok().filter(|&v| v != NONE).ok_or_else(|| {
+                    PyValueError::new_err(format!("correspondences: index {j} out of range"))
+                })
+            }
+        })
+        .collect::<PyResult<_>>()?;
+    let given = source_normals
+        .as_ref()
+        .map(|(idx, nrm)| -> PyResult<(Vec<usize>, &[f64])> {
+            let idx = c_slice(idx, "source_normals")?
+                .iter()
+                .map(|&i| usize::try_from(i).ok().filter(|&i| i < n))
+                .collect::<Option<Vec<_>>>()
+                .ok_or_else(|| PyValueError::new_err("source_normals: index out of range"))?;
+            let nrm = c_slice(nrm, "source_normals")?;
+            if nrm.len() != idx.len() * dim {
+                return Err(PyValueError::new_err(format!(
+                    "source_normals: expected {} values, got {}",
+                    idx.len() * dim,
+                    nrm.len()
+                )));
+            }
+            Ok((idx, nrm))
+        })
+        .transpose()?;
+    let held = held
+        .as_ref()
+        .map(
+            |(g, threshold, eps2, eps2t, count, removed)| -> PyResult<_> {
+                Ok(Held {
+                    information: square_slice(g, "held", dof)?,
+                    threshold: *threshold,
+                    normal_noise: *eps2,
+                    typical_normal_noise: *eps2t,
+                    num_correspondences: *count,
+                    removed_normal_noise: *removed,
+                })
+            },
+        )
+        .transpose()?;
+    let hessian = square_slice(&hessian, "hessian", dof)?;
+    let score_outer = score_outer
+        .as_ref()
+        .map(|s| square_slice(s, "score_outer", dof))
+        .transpose()?;
+    let levers = c_slice(&levers, "levers")?;
+    let prior = square_slice(&prior, "prior", dof)?;
+    let drift = c_slice(&drift, "drift")?;
+    let motion = c_slice(&motion, "motion")?;
+    let valley = valley
+        .as_ref()
+        .map(|v| square_slice(v, "valley", dof))
+        .transpose()?;
+    let chosen = Kind::from_name(covariance).map_err(core_err)?;
+    let rot: Vec<f64> = (0..dim)
+        .flat_map(|r| (0..dim).map(move |c| pm[r * (dim + 1) + c]))
+        .collect();
+    let is_gicp = method == Method::Gicp;
+    let is_p2p = method == Method::PointToPoint;
+    // The source's normals are measured only where something reads them: the normal noise and
+    // agreement need target normals; 3D's plane information falls back on them.
+    let wants_normals = !is_gicp && n > dim && (dim == 3 || tn.is_some());
+    let run = || -> scanreg_core::Result<_> {
+        let sampled: Option<(Vec<usize>, std::borrow::Cow<'_, [f64]>)> = if !wants_normals {
+            None
+        } else if let Some((idx, nrm)) = &given {
+            Some((idx.clone(), std::borrow::Cow::Borrowed(*nrm)))
+        } else {
+            let (idx, nrm) = normal_noise::sampled_normals(src, dim, num_neighbors, 1500)?;
+            Some((idx, std::borrow::Cow::Owned(nrm)))
+        };
+        let mut normal_variance = 0.0;
+        let mut agreement = None;
+        if let (Some((idx, nrm)), Some(tn)) = (&sampled, tn) {
+            if !is_p2p {
+                let v = normal_noise::correspondence_normal_noise(idx, nrm, tn, &rot, corr, dim)?;
+                normal_variance = if v.is_finite() { v } else { 0.0 };
+            }
+            let input = AgreementInput {
+                sample: idx,
+                sample_normals: nrm,
+                source: src,
+                target: tgt,
+                target_normals: tn,
+                correspondences: corr,
+                pose: pm,
+                dim,
+            };
+            let out = normal_agreement::normal_agreement_systems(&input, min_agreement, kernel)?;
+            let system = |s: normal_agreement::NormalSystem| System {
+                hessian: Mat::from_row_slice(dof, dof, &s.hessian),
+                gradient: Vector::from_column_slice(&s.gradient),
+                count: s.count,
+            };
+            agreement = Some((system(out.all), system(out.agreeing)));
+        }
+        // Scaled as the caller says (the target's sampling density relative to the source's).
+        let scaled = |(h, m): ([f64; 9], [f64; 9])| (h, m.map(|v| v * sampling_scale));
+        let sampling_system = if dim == 2 {
+            match (tn, tc) {
+                (Some(nr), _) => scene::sampling_system(src, dim, corr, &rot, max_step, |j| {
+                    (2 * j + 1 < nr.len()).then(|| [nr[2 * j], nr[2 * j + 1]])
+                }),
+                (None, Some(c)) => scene::sampling_system(src, dim, corr, &rot, max_step, |j| {
+                    (4 * j + 3 < c.len()).then(|| scene::smallest_axis_2d(&c[4 * j..4 * j + 4]))
+                }),
+                (None, None) => None,
+            }
+            .map(scaled)
+        } else {
+            None
+        };
+        // 3D: the sampled normals in full (NaN rows: none) for the plane information.
+        let full_normals = match (&sampled, dim) {
+            (Some((idx, nrm)), 3) => {
+                let mut full = vec![f64::NAN; n * dim];
+                for (s, &i) in idx.iter().enumerate() {
+                    full[i * dim..(i + 1) * dim].copy_from_slice(&nrm[s * dim..(s + 1) * dim]);
+                }
+                Some(full)
+            }
+            _ => None,
+        };
+        let input = censi::Input {
+            source: src,
+            source_covariances: sc,
+            target: tgt,
+            target_normals: tn,
+            // Point-to-point in 3D: a covariance-only target gives the plane normals.
+            target_covariances: if is_gicp || (is_p2p && dim == 3) {
+                tc
+            } else {
+                None
+            },
+            correspondences: &corr32,
+            source_normals: full_normals.as_deref(),
+        };
+        let opts = censi::Options {
+            method,
+            kernel,
+            source_variance: 1.0,
+            target_variance: 1.0,
+            normal_variance: 1.0,
+            block_size,
+        };
+        let analysis = censi::analyse(&input, pm, dim, &opts)?;
+        let sampling_flat = sampling_system.as_ref().map(|(h, m)| (&h[..], &m[..]));
+        let input = Input {
+            dim,
+            method,
+            analysis: &analysis,
+            hessian,
+            sigma2,
+            score_outer,
+            effective_residuals,
+            num_correspondences,
+            sum_squared_distances,
+            levers,
+            normal_noise,
+            typical_normal_noise,
+            normal_variance,
+            held,
+            prior,
+            drift,
+            agreement,
+            valley,
+            sampling_system: sampling_flat,
+            sampling: if sampling_system.is_none() {
+                beam_phase_variance
+            } else {
+                0.0
+            },
+            length_scale,
+            chosen,
+            motion,
+        };
+        let out = trust::analyse(&input)?;
+        let sampled = sampled.map(|(idx, nrm)| (idx, nrm.into_owned()));
+        Ok((out, analysis, normal_variance, sampled))
+    };
+    let (out, analysis, normal_variance, sampled) = py
+        .detach(|| in_pool_unless_small(n, num_threads, run).and_then(|r| r))
+        .map_err(core_err)?;
+    let sampled = sampled
+        .map(|(idx, nrm)| -> PyResult<_> {
+            let count = idx.len();
+            let idx: Vec<i64> = idx.into_iter().map(|i| i as i64).collect();
+            Ok((
+                read_only(idx.into_pyarray(py)),
+                read_only(nrm.into_pyarray(py).reshape([count, dim])?),
+            ))
+        })
+        .transpose()?;
+    numbers(py, &out, &analysis, normal_variance, sampled)
 }
 
 /// `(levers, length_scale, beam_phase_variance, default_prior)`.
@@ -350,6 +661,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(trust_sampling, m)?)?;
     m.add_class::<TrustNumbers>()?;
     m.add_function(wrap_pyfunction!(trust_numbers, m)?)?;
+    m.add_function(wrap_pyfunction!(trust_analysis, m)?)?;
     m.add_function(wrap_pyfunction!(trust_scene, m)?)?;
     Ok(())
 }
