@@ -251,38 +251,35 @@ impl KeyframeMap {
         {
             changed.extend_from_slice(&cell.point[..dim]);
         }
-        // Drop emptied voxels, keeping the others in order (deterministic rows).
-        if self.cells.iter().any(|c| c.parts.is_empty()) {
-            let mut kept = Vec::with_capacity(self.cells.len());
-            let mut kept_touched = Vec::with_capacity(self.cells.len());
-            for (cell, t) in std::mem::take(&mut self.cells).into_iter().zip(touched) {
-                if !cell.parts.is_empty() {
-                    kept.push(cell);
-                    kept_touched.push(t);
+        // Drop emptied voxels and put the rest in the order of each voxel's first point in the
+        // window's keyframes, oldest first: the order of downsampling their concatenation, so
+        // the tree, the normals' neighbour order and every sum over the map are those of a full
+        // rebuild, to the bit. The keys are unique (a point lies in one voxel): one sort of the
+        // row indices, one move of the cells and one rebuild of the slots at most.
+        let order_key = |c: &Cell| (c.parts[0].keyframe, c.parts[0].first);
+        let mut rows: Vec<u32> = (0..self.cells.len() as u32)
+            .filter(|&i| !self.cells[i as usize].parts.is_empty())
+            .collect();
+        let in_order = rows.len() == self.cells.len()
+            && rows.windows(2).all(|w| {
+                order_key(&self.cells[w[0] as usize]) < order_key(&self.cells[w[1] as usize])
+            });
+        if !in_order {
+            rows.sort_unstable_by_key(|&i| order_key(&self.cells[i as usize]));
+            let mut old: Vec<Option<Cell>> = std::mem::take(&mut self.cells)
+                .into_iter()
+                .map(Some)
+                .collect();
+            let old_touched = std::mem::take(&mut touched);
+            self.cells = Vec::with_capacity(rows.len());
+            touched = Vec::with_capacity(rows.len());
+            for &i in &rows {
+                let i = i as usize;
+                if let Some(cell) = old[i].take() {
+                    self.cells.push(cell);
+                    touched.push(old_touched[i]);
                 }
             }
-            self.cells = kept;
-            touched = kept_touched;
-            self.slot.clear();
-            for (s, cell) in self.cells.iter().enumerate() {
-                self.slot.insert(cell.key, s);
-            }
-        }
-        // Rows in the order of each voxel's first point in the window's keyframes, oldest
-        // first: the order of downsampling their concatenation, so the tree, the normals'
-        // neighbour order and every sum over the map are those of a full rebuild, to the bit.
-        let order_key = |c: &Cell| (c.parts[0].keyframe, c.parts[0].first);
-        if !self
-            .cells
-            .windows(2)
-            .all(|w| order_key(&w[0]) < order_key(&w[1]))
-        {
-            let mut paired: Vec<(Cell, bool)> = std::mem::take(&mut self.cells)
-                .into_iter()
-                .zip(touched)
-                .collect();
-            paired.sort_by_key(|(c, _)| order_key(c));
-            (self.cells, touched) = paired.into_iter().unzip();
             self.slot.clear();
             for (s, cell) in self.cells.iter().enumerate() {
                 self.slot.insert(cell.key, s);

@@ -40,7 +40,7 @@ from ..preprocess import DEFAULT_K, voxel_downsample
 from ..register import RegistrationResult, register
 from ..target import PreparedTarget, prepared_from_normals
 from ..transform import SE2, as_pose
-from ..verdict import QualityReport, Verdict, VerdictThresholds, assess
+from ..verdict import Assessment, QualityReport, Verdict, VerdictThresholds, assess
 
 FrontEnd = Literal["icp", "correlative"]
 FRONT_ENDS: tuple[str, ...] = ("icp", "correlative")
@@ -400,7 +400,14 @@ class Odometry2D:
 
         # 3. judge
         t0 = time.perf_counter()
-        out = assess(res, pts, self._target, init=predicted, thresholds=cfg.thresholds)
+        if start is predicted and res.quality is not None and res.verdict is not None:
+            # Registered from the prediction itself, with thresholds that differ from the
+            # pipeline's at most in whether the probe runs (which judging does not read): the
+            # registration's own verdict is the one ``assess`` would give (the same overlap
+            # pass, degeneracy, motion χ² and probe), without a second overlap pass.
+            out = Assessment(report=res.quality, verdict=res.verdict)
+        else:
+            out = assess(res, pts, self._target, init=predicted, thresholds=cfg.thresholds)
         t_judge = time.perf_counter() - t0
 
         # 4. update
