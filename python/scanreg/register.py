@@ -627,17 +627,11 @@ def register(
         index = prepared.index
         t_points, t_normals, t_covs = prepared.points, prepared.normals, prepared.covariances
 
-    def run(
-        projector: FloatArray | None,
-        start: SE2 | SE3 = pose0,
-        method: str = method_eff,
-        max_iterations: int = s.max_iterations,
-    ) -> Any:
-        # By position, in the binding's order (17 keywords cost 0.7 µs a call).
-        return _core.register_icp(
-            src,
-            index,
-            start.as_matrix(),  # init_pose
+    def solver_args(method: str, max_iterations: int) -> tuple[Any, ...]:
+        # The binding's arguments after the start(s) and before the step projector, by
+        # position in its order (17 keywords cost 0.7 µs a call): one builder for the single
+        # solve and the restarts.
+        return (
             method,
             s.kernel,
             k_scale,  # kernel_scale
@@ -651,6 +645,19 @@ def register(
             source_covariances,
             t_normals if method in _PLANAR and not is_map else None,  # target_normals
             t_covs if method == "gicp" and not is_map else None,  # target_covariances
+        )
+
+    def run(
+        projector: FloatArray | None,
+        start: SE2 | SE3 = pose0,
+        method: str = method_eff,
+        max_iterations: int = s.max_iterations,
+    ) -> Any:
+        return _core.register_icp(
+            src,
+            index,
+            start.as_matrix(),  # init_pose
+            *solver_args(method, max_iterations),
             True,  # iterate
             projector,  # step_projector
             s.extrapolate,
@@ -662,19 +669,7 @@ def register(
             src,
             index,
             starts,  # init_poses
-            method_eff,
-            s.kernel,
-            k_scale,  # kernel_scale
-            s.max_correspondence_distance,
-            max_iterations,
-            s.translation_tolerance,
-            s.rotation_tolerance,
-            s.optimizer,
-            min_corr,  # min_correspondences
-            s.num_threads,
-            source_covariances,
-            t_normals if method_eff in _PLANAR and not is_map else None,  # target_normals
-            t_covs if method_eff == "gicp" and not is_map else None,  # target_covariances
+            *solver_args(method_eff, max_iterations),
             projector,  # step_projector
             s.extrapolate,
         )
