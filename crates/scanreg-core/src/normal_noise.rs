@@ -5,6 +5,7 @@
 
 use crate::error::{Error, Result};
 use crate::knn::KdTree;
+use crate::normals::Scratch;
 use crate::reduce::SEQUENTIAL_MAX;
 use crate::symeig::{sym2, sym3};
 use rayon::prelude::*;
@@ -109,9 +110,15 @@ pub(crate) fn noise_with_neighbour(
 
 /// Unit normal (smallest principal axis) of the `k` nearest points of `q`; sign arbitrary.
 fn pca_normal(tree: &KdTree, q: &[f64], k: usize, buf: &mut Vec<(u32, f64)>) -> [f64; 3] {
-    let dim = tree.dim();
     buf.clear();
     tree.knn_into(q, k, f64::INFINITY, buf);
+    pca_of(tree, buf)
+}
+
+/// The unit normal of [`pca_normal`] from the `k` nearest neighbours already found (sorted by
+/// (squared distance, index), as `knn_into` gives them).
+fn pca_of(tree: &KdTree, buf: &[(u32, f64)]) -> [f64; 3] {
+    let dim = tree.dim();
     // Two passes: mean, then centred scatter (no cancellation far from the origin).
     let mut centre = [0.0; 3];
     for &(j, _) in buf.iter() {
@@ -156,8 +163,18 @@ pub fn sampled_normals(
     let idx: Vec<usize> = (0..n).step_by(step).collect();
     let normal = |buf: &mut Vec<(u32, f64)>, &i: &usize| pca_normal(&tree, tree.point(i), k, buf);
     let per_point: Vec<[f64; 3]> = if idx.len() <= SEQUENTIAL_MAX {
-        let mut buf = Vec::with_capacity(k + 1);
-        idx.iter().map(|i| normal(&mut buf, i)).collect()
+        // In the tree's leaf order, each search bounded by the previous point's k-th distance
+        // plus the step between them (as `local_geometry` does): the same k neighbours in the
+        // same order, found with most of the traversal pruned.
+        let mut scratch = Scratch::new(k);
+        let mut out = vec![[0.0; 3]; idx.len()];
+        for &i in tree.leaf_order() {
+            let i = i as usize;
+            if i % step == 0 && i / step < out.len() {
+                out[i / step] = pca_of(&tree, scratch.neighbours(&tree, i, k));
+            }
+        }
+        out
     } else {
         idx.par_iter()
             .map_init(|| Vec::with_capacity(k + 1), normal)
