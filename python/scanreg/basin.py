@@ -200,14 +200,19 @@ def _restart_offsets(dim: int, gate: float) -> tuple[SE2 | SE3, ...]:
 
 
 def _correlative_start(
-    pose: SE2 | SE3, source: FloatArray, target_points: FloatArray, gate: float
+    pose: SE2 | SE3,
+    source: FloatArray,
+    target_points: FloatArray,
+    gate: float,
+    grid_of: Callable[[float], Any] | None = None,
 ) -> SE2:
     """2D: the best pose of a coarse correlative search (the core's branch and bound) over
     every heading and ±2 gates of translation around ``pose``: a start in the right basin
     when the result is turned *and* moved (the turns and half-gate moves of the restarts
     reach one or the other). Cells of a fifth of the gate, blur the same, 2° steps."""
     res = CORRELATIVE_CELL_FRACTION * gate
-    grid = _core.CorrelativeGrid(target_points, res, res, 6)
+    # ``grid_of(res)``: the same grid kept by the target (PreparedTarget._probe_grid).
+    grid = _core.CorrelativeGrid(target_points, res, res, 6) if grid_of is None else grid_of(res)
     centre = pose.as_vector()
     n = math.ceil(CORRELATIVE_WINDOW_GATES * gate / res)
     step = math.radians(CORRELATIVE_ANGLE_DEG)
@@ -427,6 +432,7 @@ def probe_basin(
     target_normals: FloatArray | None = None,
     tight_overlap: tuple[float, float] | None = None,
     stated_prior: FloatArray | None = None,
+    correlative_grid: Callable[[float], Any] | None = None,
 ) -> BasinProbe:
     """Restart ``solve`` around ``pose`` (see the module docstring): the registration's own
     solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations) -> (poses
@@ -451,7 +457,9 @@ def probe_basin(
     ``stated_prior``: the covariance the caller *stated* for ``start`` (``init_covariance``: a
     wheel odometry, an IMU): a far outcome beyond its χ² (99.9 %) from ``start`` is no rival —
     the measurement that gave the start rules it out (a tunnel turned by 180° explains the
-    sweep as well, but the wheels say the vehicle did not turn).
+    sweep as well, but the wheels say the vehicle did not turn). ``correlative_grid(resolution)``:
+    the correlative start's grid of ``target_points`` when the target keeps one (built here
+    otherwise).
     """
     t0 = time.perf_counter()
     dim = pose.DIM
@@ -518,7 +526,9 @@ def probe_basin(
         and math.isfinite(gate)
         and len(target_points)
     ):
-        first.append(_correlative_start(pose, source, target_points, gate).as_matrix())
+        first.append(
+            _correlative_start(pose, source, target_points, gate, correlative_grid).as_matrix()
+        )
     if lookalike[0] != 0.0 and any(e.startswith("look-alike") for e in evidence):
         # The look-alike itself first: the turns and half-gate moves may not reach it.
         _, vecs = np.linalg.eigh(0.5 * (cov[:2, :2] + cov[:2, :2].T))

@@ -143,6 +143,25 @@ class PreparedTarget:
         Measured on first use and kept; NaN with fewer than 2 points."""
         return median_spacing(self.index, self.points)
 
+    def _probe_grid(self, resolution: float) -> _core.CorrelativeGrid:
+        """2D: the wrong-basin probe's coarse correlative grid of these points at
+        ``resolution`` (its blur the same, :mod:`scanreg.basin`), built on first use and kept:
+        every probe against this target with the same gate reads the same grid (one build was
+        about half of a correlative start's cost). Not pickled: rebuilt on demand."""
+        grids: dict[float, _core.CorrelativeGrid] = self.__dict__.setdefault("_grids", {})
+        grid = grids.get(resolution)
+        if grid is None:
+            # Two threads may both build it; either grid is the same.
+            grid = grids[resolution] = _core.CorrelativeGrid(
+                self.points, resolution, resolution, 6
+            )
+        return grid
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state.pop("_grids", None)  # the core's grids do not pickle; rebuilt when read
+        return state
+
     def nearest(self, query_points: FloatArray, max_distance: float = math.inf) -> Nearest:
         """Nearest target point of each query point within ``max_distance`` (not squared;
         inclusive). Exact; ties go to a fixed, reproducible point."""

@@ -605,6 +605,9 @@ def _trust(
             tight_overlap=None
             if overlap is None or tight is None
             else (tight, float(overlap[5]) / float(src.shape[0])),
+            correlative_grid=ctx.target._probe_grid
+            if isinstance(ctx.target, PreparedTarget) and dim == 2
+            else None,
         )
         report = dataclasses.replace(checked.report, basin=probe)
         # Only an alternative can add a reason: without one the verdict stands as judged.
