@@ -51,6 +51,33 @@ def test_square_room_is_ambiguous_by_90_degrees(turn_deg: float) -> None:
     assert plain.verdict is not None and plain.verdict.accepted, plain.verdict.reasons
 
 
+def test_a_prepared_target_keeps_the_probes_correlative_grid() -> None:
+    """The restarted probe's correlative start reads a grid the PreparedTarget builds once
+    (per gate) and keeps, with the same outcome as a grid built for the call; it is not
+    pickled."""
+    import pickle
+
+    room = sim.square_room(5.0)
+    a = SE2.from_vector([0.5, 0.3, 0.3])
+    truth = SE2.from_vector([0.3, 0.1, math.radians(2.0)])
+    src, tgt = _scan(room, a @ truth, 1), _scan(room, a, 0)
+    start = truth @ SE2.from_vector([0.0, 0.0, math.radians(90.0)])
+    target = scanreg.prepare(tgt)
+    first = scanreg.register(src, target, method="point_to_line", init=start)
+    assert first.quality is not None and first.quality.basin is not None
+    assert first.quality.basin.restarts > 0, "the probe must restart for the grid to be read"
+    grids = target.__dict__["_grids"]
+    assert len(grids) == 1
+    grid = next(iter(grids.values()))
+    again = scanreg.register(src, target, method="point_to_line", init=start)
+    assert next(iter(target.__dict__["_grids"].values())) is grid
+    fresh = scanreg.register(src, tgt, method="point_to_line", init=start)
+    for res in (again, fresh):
+        assert res.verdict == first.verdict
+        np.testing.assert_array_equal(res.covariance, first.covariance)
+    assert "_grids" not in pickle.loads(pickle.dumps(target)).__dict__
+
+
 def test_symmetric_corridor_is_ambiguous_by_180_degrees() -> None:
     """A closed 16 m corridor seen from its middle looks the same turned by 180°."""
     hall = sim.corridor(length=16.0, width=3.0)

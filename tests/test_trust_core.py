@@ -256,6 +256,78 @@ def test_trust_numbers_refuses_malformed_input_naming_the_argument() -> None:
     assert _core.trust_sampling(src, far, np.eye(2), 0.5, target_normals=target.normals) is None
 
 
+def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_input() -> None:
+    """``_core.trust_analysis`` (what a registration's analysis runs) against the same
+    arithmetic composed from the separate core calls: equal to the bit; malformed input is
+    refused naming the argument."""
+    from scanreg import _core
+    from scanreg.degeneracy import correspondence_normal_noise, sampled_normals
+
+    src, tgt = _scene("room")
+    target = scanreg.prepare(tgt)
+    res = scanreg.register(src, target, thresholds=NO_PROBE)
+    _, out, _, _ = res._trust._args  # type: ignore[misc]
+    corr = np.asarray(out.correspondences, dtype=np.int64)
+    sample, normals = sampled_normals(src, 10)
+    eps2, eps2t = target.normal_noise
+    levers, length, phase, prior = _core.trust_scene(src, 1.0)
+    rot = np.ascontiguousarray(out.pose[:2, :2])
+    nvar = correspondence_normal_noise(normals, target.normals, rot, corr[sample])
+    ha, ga, na, hk, gk, nk = _core.normal_agreement_systems(
+        sample, normals, src, tgt, target.normals, corr, out.pose, 0.995
+    )
+    system = _core.trust_sampling(src, corr, rot, 0.5, target_normals=target.normals)
+    ana = _core.censi_analysis(
+        src, tgt, out.pose, corr, method="point_to_line", kernel="none", kernel_scale=1.0,
+        source_variance=1.0, target_variance=1.0, block_size=2.0, normal_variance=1.0,
+        target_normals=target.normals,
+    )  # fmt: skip
+    common: dict[str, Any] = {"levers": levers, "prior": prior, "drift": np.zeros(3),
+                              "motion": np.zeros(2), "length_scale": length}  # fmt: skip
+    want = _core.trust_numbers(
+        ana, out.hessian, 1e-4, method="point_to_line", covariance="calibrated",
+        num_correspondences=int(out.num_correspondences),
+        sum_squared_distances=float(out.sum_squared_distances), normal_noise=eps2,
+        typical_normal_noise=eps2t, normal_variance=nvar, agreement=(ha, ga, na, hk, gk, nk),
+        sampling_system=system, **common,
+    )  # fmt: skip
+
+    def call(**change: Any) -> Any:
+        args: dict[str, Any] = {
+            "source": src, "target": tgt, "pose_matrix": out.pose, "correspondences": corr,
+            "method": "point_to_line", "kernel": "none", "kernel_scale": 1.0,
+            "block_size": 2.0, "num_neighbors": 10, "target_normals": target.normals,
+            "target_covariances": None, "source_covariances": None, "num_threads": None,
+            "hessian": out.hessian, "sigma2": 1e-4, **common, "covariance": "calibrated",
+            "num_correspondences": int(out.num_correspondences),
+            "sum_squared_distances": float(out.sum_squared_distances), "score_outer": None,
+            "effective_residuals": 0.0, "normal_noise": eps2, "typical_normal_noise": eps2t,
+            "beam_phase_variance": phase, "max_step": 0.5, "min_agreement": 0.995,
+        }  # fmt: skip
+        return _core.trust_analysis(**{**args, **change})
+
+    got = call()
+    for name in ("calibrated", "censi", "block", "hessian", "model_shift", "information",
+                 "degeneracy_information", "degeneracy_eigenvalues"):  # fmt: skip
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    assert got.normal_variance == nvar and got.num_blocks == ana.num_blocks
+    # The sampled normals it measured come back; given again, the same numbers.
+    assert got.source_normals is not None
+    np.testing.assert_array_equal(got.source_normals[1], normals)
+    again = call(source_normals=got.source_normals)
+    np.testing.assert_array_equal(again.calibrated, got.calibrated)
+    for change, msg in (
+        ({"correspondences": corr[:-1]}, "correspondences: expected"),
+        ({"source_normals": (np.array([10**6]), np.zeros((1, 2)))}, "source_normals: index"),
+        ({"source_normals": (sample, normals[:-1])}, "source_normals: expected"),
+        ({"prior": np.eye(2)}, "prior: expected a"),
+        ({"method": "nearest"}, "method: unknown"),
+        ({"target_normals": np.zeros((3, 2))}, "target_normals"),
+    ):
+        with pytest.raises(ValueError, match=msg):
+            call(**change)
+
+
 @pytest.mark.parametrize(
     ("scene", "method"),
     [("corridor", "point_to_line"), ("corridor", "point_to_point"), ("tunnel", "point_to_plane")],

@@ -152,9 +152,7 @@ class PreparedTarget:
         grid = grids.get(resolution)
         if grid is None:
             # Two threads may both build it; either grid is the same.
-            grid = grids[resolution] = _core.CorrelativeGrid(
-                self.points, resolution, resolution, 6
-            )
+            grid = grids[resolution] = _core.CorrelativeGrid(self.points, resolution, resolution, 6)
         return grid
 
     def __getstate__(self) -> dict[str, Any]:

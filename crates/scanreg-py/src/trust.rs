@@ -364,6 +364,14 @@ fn trust_analysis(
         .as_ref()
         .map(|a| points_dim(a, "target_normals", dim))
         .transpose()?;
+    if let Some(t) = tn {
+        if t.len() != tgt.len() {
+            return Err(PyValueError::new_err(format!(
+                "target_normals: expected one row per target point ({m}), got {}",
+                t.len() / dim
+            )));
+        }
+    }
     let tc = covariances(&target_covariances, "target_covariances", m, dim)?;
     let sc = covariances(&source_covariances, "source_covariances", n, dim)?;
     let corr32: Vec<u32> = corr
