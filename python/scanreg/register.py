@@ -197,6 +197,10 @@ _DEFAULT_THRESHOLDS = VerdictThresholds()
 
 _PLANAR = ("point_to_plane", "point_to_line")
 
+#: The core solve's arguments from ``method`` to ``target_covariances``, in the binding's
+#: order (``_core.register_icp`` and ``_core.register_icp_starts`` share them).
+_SolverArgs = tuple[str, str, float, float, int, float, float, str, int, int | None, Any, Any, Any]
+
 
 @dataclass(frozen=True)
 class RegistrationTiming:
@@ -627,7 +631,7 @@ def register(
         index = prepared.index
         t_points, t_normals, t_covs = prepared.points, prepared.normals, prepared.covariances
 
-    def solver_args(method: str, max_iterations: int) -> tuple[Any, ...]:
+    def solver_args(method: str, max_iterations: int) -> _SolverArgs:
         # The binding's arguments after the start(s) and before the step projector, by
         # position in its order (17 keywords cost 0.7 µs a call): one builder for the single
         # solve and the restarts.

@@ -170,7 +170,7 @@ pub fn sampled_normals(
         let mut out = vec![[0.0; 3]; idx.len()];
         for &i in tree.leaf_order() {
             let i = i as usize;
-            if i % step == 0 && i / step < out.len() {
+            if i.is_multiple_of(step) && i / step < out.len() {
                 out[i / step] = pca_of(&tree, scratch.neighbours(&tree, i, k));
             }
         }

@@ -20,6 +20,9 @@ use scanreg_core::trust::dense::{flat, Mat, Vector};
 use scanreg_core::trust::{self, scene, shift::System, Held, Input, Kind};
 use scanreg_core::Kernel;
 
+/// A source's sampled normals `(indices, normals)`, as `sampled_normals` returns them.
+type Sampled = (Py<PyArray1<i64>>, Py<PyArray2<f64>>);
+
 #[pyclass(frozen, module = "scanreg._core")]
 pub struct TrustNumbers {
     /// `Ĝ`, its eigenvalues (ascending), eigenvectors (scaled coordinates) and the
@@ -86,7 +89,7 @@ pub struct TrustNumbers {
     /// `trust_analysis`: the source's sampled normals `(indices, normals)` it measured or was
     /// given (for the next analysis of the same source), None if it needed none.
     #[pyo3(get)]
-    source_normals: Option<(Py<PyArray1<i64>>, Py<PyArray2<f64>>)>,
+    source_normals: Option<Sampled>,
 }
 
 fn mat(py: Python<'_>, m: &Mat) -> PyResult<Py<PyArray2<f64>>> {
@@ -252,7 +255,7 @@ fn numbers(
     out: &trust::Outcome,
     analysis: &scanreg_core::censi::Analysis,
     normal_variance: f64,
-    source_normals: Option<(Py<PyArray1<i64>>, Py<PyArray2<f64>>)>,
+    source_normals: Option<Sampled>,
 ) -> PyResult<TrustNumbers> {
     let deg = &out.degeneracy;
     let cond = &out.conditioning;
