@@ -42,6 +42,23 @@ def _ref_target_noise(points: np.ndarray, normals: np.ndarray, tree: _core.KdTre
 
 
 @pytest.mark.parametrize("dim", [2, 3])
+def test_prepare_reads_the_normal_noise_off_its_own_neighbour_searches(dim: int) -> None:
+    # ``prepare`` measures the noise from the normals' k-NN lists (their second entry), not a
+    # second 2-NN search: the same numbers, duplicated points (distance ties) included.
+    rng = np.random.default_rng(3)
+    for n in (40, 2500):
+        pts = rng.normal(size=(n, dim))
+        m = len(pts[1::7])
+        pts[0 : 7 * m : 7] = pts[1::7]
+        for drop_linear in (False, dim == 3):
+            target = scanreg.prepare(pts, normals=True, drop_linear=drop_linear)
+            assert target.normals is not None
+            want = normal_noise(target.points, target.normals, target.index)
+            assert "normal_noise" in target.__dict__  # measured by prepare itself
+            np.testing.assert_array_equal(target.normal_noise, want)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
 def test_normal_noise_matches_numpy(dim: int) -> None:
     pts = _cloud(dim, 3000, 1)
     idx, nrm = sampled_normals(pts, 10, 1500)

@@ -94,6 +94,22 @@ class KdTree:
     ) -> tuple[
         NDArray[np.float64] | None, NDArray[np.float64] | None, NDArray[np.bool_], NDArray[np.bool_]
     ]: ...
+    def local_geometry_noise(
+        self,
+        k: int,
+        viewpoint: NDArray[np.float64],
+        *,
+        normals: bool = True,
+        regularization: str | None = None,
+        epsilon: float = 1e-3,
+        drop_linear: bool = False,
+    ) -> tuple[
+        NDArray[np.float64] | None,
+        NDArray[np.float64] | None,
+        NDArray[np.bool_],
+        NDArray[np.bool_],
+        tuple[float, float],
+    ]: ...
     def statistical_outliers(
         self, k: int, std_ratio: float
     ) -> tuple[NDArray[np.int64], NDArray[np.float64], float]: ...

@@ -433,6 +433,7 @@ def probe_basin(
     tight_overlap: tuple[float, float] | None = None,
     stated_prior: FloatArray | None = None,
     correlative_grid: Callable[[float], Any] | None = None,
+    symmetry: float | None = None,
 ) -> BasinProbe:
     """Restart ``solve`` around ``pose`` (see the module docstring): the registration's own
     solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations) -> (poses
@@ -459,7 +460,8 @@ def probe_basin(
     the measurement that gave the start rules it out (a tunnel turned by 180° explains the
     sweep as well, but the wheels say the vehicle did not turn). ``correlative_grid(resolution)``:
     the correlative start's grid of ``target_points`` when the target keeps one (built here
-    otherwise).
+    otherwise); ``symmetry``: :func:`orientation_symmetry` of ``target_points`` /
+    ``target_normals`` when the target keeps it (measured here otherwise).
     """
     t0 = time.perf_counter()
     dim = pose.DIM
@@ -476,7 +478,9 @@ def probe_basin(
     lookalike = (0.0, 0.0)
     if screen:
         sym = (
-            orientation_symmetry(target_points, target_normals)
+            symmetry
+            if symmetry is not None
+            else orientation_symmetry(target_points, target_normals)
             if target_points is not None
             and target_normals is not None
             and np.shape(target_points) == np.shape(target_normals)

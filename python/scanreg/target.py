@@ -143,6 +143,16 @@ class PreparedTarget:
         Measured on first use and kept; NaN with fewer than 2 points."""
         return median_spacing(self.index, self.points)
 
+    @functools.cached_property
+    def _symmetry(self) -> float:
+        """How much the walls look the same turned by 90°, 180° or 270°
+        (:func:`scanreg.basin.orientation_symmetry` of the points and normals): the wrong-basin
+        screen reads it on every probed result against this target. Needs normals."""
+        from .basin import orientation_symmetry  # basin imports this module
+
+        assert self.normals is not None
+        return orientation_symmetry(self.points, self.normals)
+
     def _probe_grid(self, resolution: float) -> _core.CorrelativeGrid:
         """2D: the wrong-basin probe's coarse correlative grid of these points at
         ``resolution`` (its blur the same, :mod:`scanreg.basin`), built on first use and kept:
@@ -231,11 +241,14 @@ def prepare(
     index = _core.KdTree(pts)
     kk = positive_int(num_neighbors, "num_neighbors")
     nrm = cov = valid = None
+    noise = None
     eps = check_regularization(regularization, epsilon)
     if normals or covariances:
         kk = check_k(kk, int(pts.shape[0]), dim)
         vp = as_viewpoint(viewpoint, dim)
-        nrm, cov, valid, _ = index.local_geometry(
+        # The normals' noise (what every registration's analysis reads) from the same
+        # neighbour searches, instead of a second search on first use.
+        nrm, cov, valid, _, noise = index.local_geometry_noise(
             kk,
             vp,
             normals=bool(normals),
@@ -246,7 +259,7 @@ def prepare(
         for a in (nrm, cov, valid):
             if a is not None:
                 a.setflags(write=False)
-    return build(
+    target = build(
         PreparedTarget,
         {
             "points": index.points,  # a fresh read-only copy
@@ -259,6 +272,10 @@ def prepare(
             "epsilon": eps,
         },
     )
+    if nrm is not None and noise is not None:
+        # Where functools.cached_property keeps its value: the first read returns it.
+        target.__dict__["normal_noise"] = (float(noise[0]), float(noise[1]))
+    return target
 
 
 def prepared_from_normals(

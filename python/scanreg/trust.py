@@ -14,11 +14,13 @@ call hands it — never the solver directly:
 * the degeneracy-aware solve (``degeneracy_aware=True``) measures its valley with two held
   solves per weak direction (:func:`valley_moment`, called by ``register`` itself).
 
-The arithmetic runs in the core: the per-correspondence sums (Censi's meats, the block
-sandwich, the normal agreement) and, in one call per analysis (``_core.trust_numbers``,
-``scanreg_core::trust``), everything the ≤ 6×6 matrices give — the degeneracy, every covariance
-kind, the prior along weak directions, the model shift, the conditioning, the information and
-the motion χ². Here: which analyses and extra solves run, and the result dataclasses.
+The arithmetic runs in the core, one call per analysed outcome (``_core.trust_analysis``): the
+source's sampled normals (once per call), the per-correspondence sums (the normal noise between
+the two scans, the normal agreement, the 2D sampling system, Censi's meats, the block sandwich)
+and everything the ≤ 6×6 matrices give (``scanreg_core::trust``) — the degeneracy, every
+covariance kind, the prior along weak directions, the model shift, the conditioning, the
+information and the motion χ². Here: which analyses and extra solves run, the verdict, and the
+result dataclasses.
 """
 
 from __future__ import annotations
@@ -607,6 +609,9 @@ def _trust(
             else (tight, float(overlap[5]) / float(src.shape[0])),
             correlative_grid=ctx.target._probe_grid
             if isinstance(ctx.target, PreparedTarget) and dim == 2
+            else None,
+            symmetry=ctx.target._symmetry
+            if isinstance(ctx.target, PreparedTarget) and ctx.target.normals is not None
             else None,
         )
         report = dataclasses.replace(checked.report, basin=probe)

@@ -78,6 +78,28 @@ pub struct LocalGeometry {
     pub linear: Vec<bool>,
     /// How many of `linear` are true.
     pub num_linear: usize,
+    /// Each point's nearest other point (the second of its `k` neighbours, sorted by (squared
+    /// distance, index), as a 2-NN query finds it), `u32::MAX` for none.
+    pub nearest: Vec<u32>,
+}
+
+impl LocalGeometry {
+    /// `(ε̂², ε̃²)` of the normals, as [`crate::normal_noise::target_normal_noise`] of the same
+    /// tree gives them, from the neighbours the normals were computed from (no second search);
+    /// None without normals.
+    pub fn normal_noise(&self, dim: usize) -> Option<(f64, f64)> {
+        let normals = self.normals.as_ref()?;
+        Some(crate::normal_noise::noise_with_neighbour(
+            normals,
+            dim,
+            |i| {
+                self.nearest
+                    .get(i)
+                    .filter(|&&j| j != u32::MAX)
+                    .map(|&j| j as usize)
+            },
+        ))
+    }
 }
 
 /// Demantké et al. 2011: the neighbourhood with ascending eigenvalues `vals` is linear (its
@@ -306,6 +328,7 @@ pub fn local_geometry_with(
         let i = i as usize;
         let p = tree.point(i);
         let buf = state.neighbours(tree, i, k);
+        let nearest = buf.get(1).map_or(u32::MAX, |&(j, _)| j);
         let cov = scatter(tree, buf);
         let (vals, vecs) = eigen(&cov, dim);
         let lmax = vals[dim - 1];
@@ -345,7 +368,7 @@ pub fn local_geometry_with(
                 }
             }
         }
-        (normal, out, valid, linear)
+        (normal, out, valid, linear, nearest)
     };
     // Results in leaf order, then each put in its input slot. Only what was asked for is
     // kept per point (a covariance is 72 bytes): this buffer is the call's peak memory.
@@ -353,27 +376,33 @@ pub fn local_geometry_with(
     let mut covs = covariances.map(|_| vec![0.0; n * dim * dim]);
     let mut valid = vec![false; n];
     let mut linear = vec![false; n];
-    let mut place = |i: usize, normal: &[f64; 3], cov: Option<&[f64; 9]>, ok: bool, lin: bool| {
-        if let Some(out) = normals.as_mut() {
-            out[i * dim..(i + 1) * dim].copy_from_slice(&normal[..dim]);
-        }
-        if let (Some(out), Some(c)) = (covs.as_mut(), cov) {
-            out[i * dim * dim..(i + 1) * dim * dim].copy_from_slice(&c[..dim * dim]);
-        }
-        valid[i] = ok;
-        linear[i] = lin;
-    };
+    let mut nearest = vec![u32::MAX; n];
+    let mut place =
+        |i: usize, normal: &[f64; 3], cov: Option<&[f64; 9]>, ok: bool, lin: bool, near: u32| {
+            if let Some(out) = normals.as_mut() {
+                out[i * dim..(i + 1) * dim].copy_from_slice(&normal[..dim]);
+            }
+            if let (Some(out), Some(c)) = (covs.as_mut(), cov) {
+                out[i * dim * dim..(i + 1) * dim * dim].copy_from_slice(&c[..dim * dim]);
+            }
+            valid[i] = ok;
+            linear[i] = lin;
+            nearest[i] = near;
+        };
     if covariances.is_some() {
-        for (&i, (nrm, cov, ok, lin)) in order.iter().zip(in_leaf_order(n, order, k, &geometry)) {
-            place(i as usize, &nrm, Some(&cov), ok, lin);
+        for (&i, (nrm, cov, ok, lin, near)) in
+            order.iter().zip(in_leaf_order(n, order, k, &geometry))
+        {
+            place(i as usize, &nrm, Some(&cov), ok, lin, near);
         }
     } else {
         let without_cov = |st: &mut Scratch, i: &u32| {
-            let (nrm, _, ok, lin) = geometry(st, i);
-            (nrm, ok, lin)
+            let (nrm, _, ok, lin, near) = geometry(st, i);
+            (nrm, ok, lin, near)
         };
-        for (&i, (nrm, ok, lin)) in order.iter().zip(in_leaf_order(n, order, k, &without_cov)) {
-            place(i as usize, &nrm, None, ok, lin);
+        for (&i, (nrm, ok, lin, near)) in order.iter().zip(in_leaf_order(n, order, k, &without_cov))
+        {
+            place(i as usize, &nrm, None, ok, lin, near);
         }
     }
     let num_invalid = valid.iter().filter(|v| !**v).count();
@@ -385,6 +414,7 @@ pub fn local_geometry_with(
         num_invalid,
         linear,
         num_linear,
+        nearest,
     })
 }
 

@@ -156,6 +156,57 @@ impl KdTree {
         ))
     }
 
+    /// `local_geometry`, and the normals' `(ε̂², ε̃²)` (as `target_normal_noise` of this tree
+    /// gives them, read off the same neighbour searches; NaN without normals).
+    #[pyo3(signature = (k, viewpoint, *, normals=true, regularization=None, epsilon=1e-3, drop_linear=false))]
+    #[allow(clippy::type_complexity, clippy::too_many_arguments)]
+    fn local_geometry_noise(
+        &self,
+        py: Python<'_>,
+        k: usize,
+        viewpoint: PyReadonlyArray1<'_, f64>,
+        normals: bool,
+        regularization: Option<&str>,
+        epsilon: f64,
+        drop_linear: bool,
+    ) -> PyResult<(
+        Option<Py<PyArray2<f64>>>,
+        Option<Py<PyArray3<f64>>>,
+        Py<PyArray1<bool>>,
+        Py<PyArray1<bool>>,
+        (f64, f64),
+    )> {
+        let vp = vector(&viewpoint, "viewpoint")?;
+        let reg = regularization
+            .map(|name| Regularization::from_name(name, epsilon))
+            .transpose()
+            .map_err(core_err)?;
+        let dim = self.inner.dim();
+        let (g, noise) = py
+            .detach(|| -> scanreg_core::Result<_> {
+                let g =
+                    normals::local_geometry_with(&self.inner, k, vp, normals, reg, drop_linear)?;
+                let noise = g.normal_noise(dim).unwrap_or((f64::NAN, f64::NAN));
+                Ok((g, noise))
+            })
+            .map_err(core_err)?;
+        let n = self.inner.len();
+        let nrm = g.normals.map(|v| rows(py, v, dim)).transpose()?;
+        let cov = g
+            .covariances
+            .map(|v| -> PyResult<Py<PyArray3<f64>>> {
+                Ok(v.into_pyarray(py).reshape([n, dim, dim])?.unbind())
+            })
+            .transpose()?;
+        Ok((
+            nrm,
+            cov,
+            g.valid.into_pyarray(py).unbind(),
+            g.linear.into_pyarray(py).unbind(),
+            noise,
+        ))
+    }
+
     /// Statistical outlier removal: `(kept (K,), mean_distance (N,), threshold)`.
     fn statistical_outliers(
         &self,
