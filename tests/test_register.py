@@ -433,7 +433,9 @@ def test_results_built_without_init_hold_exactly_their_fields() -> None:
     assert set(ctx_fields) == {f.name for f in dataclasses.fields(trust_inputs)}
     for obj in (prepared, res, res.timing):
         names = {f.name for f in dataclasses.fields(obj)}
-        assert set(vars(obj)) == names, type(obj).__name__
+        # prepare() measures the normals' noise with the normals (a cached property's slot).
+        cached = {"normal_noise"} if obj is prepared else set()
+        assert set(vars(obj)) - cached == names, type(obj).__name__
     # Equal to (and hashed like) the same values through __init__.
     assert dataclasses.replace(res.timing) == res.timing
     assert hash(dataclasses.replace(res.timing)) == hash(res.timing)

@@ -676,6 +676,10 @@ def _via_plane_reference(
         return estimates
     dim = int(ctx.source.shape[1])
     ref_ctx = dataclasses.replace(ctx, method=PLANE_METHOD[dim], components=1, plane_solve=None)
+    for name in ("_scene", "block_size", "source_normals"):
+        # The same source and settings: its scene pass and sampled normals once per call.
+        if name in ctx.__dict__:
+            ref_ctx.__dict__[name] = ctx.__dict__[name]
     aware = ctx.settings.degeneracy_aware  # the solve's weak directions and valley, as register's
     ref_corr = correspondence_analysis(
         ref_ctx,

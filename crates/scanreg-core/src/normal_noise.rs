@@ -34,6 +34,23 @@ fn mean(values: &[f64]) -> f64 {
     values.iter().sum::<f64>() / values.len() as f64
 }
 
+/// [`median_sorted`] of `values` without sorting them (two selections: the same middle values,
+/// so the same result to the bit); `values` is reordered. Non-empty.
+fn median_in_place(values: &mut [f64]) -> f64 {
+    let n = values.len();
+    let (lower, &mut upper, _) = values.select_nth_unstable_by(n / 2, f64::total_cmp);
+    if n % 2 == 1 {
+        upper
+    } else {
+        let below = lower
+            .iter()
+            .copied()
+            .max_by(f64::total_cmp)
+            .unwrap_or(upper);
+        (below + upper) / 2.0
+    }
+}
+
 /// Median of ascending `sorted` (the mean of the middle two for an even count).
 pub fn median_sorted(sorted: &[f64]) -> f64 {
     let n = sorted.len();
@@ -104,8 +121,7 @@ pub(crate) fn noise_with_neighbour(
         return nan;
     }
     let m = mean(&sin2);
-    sin2.sort_by(f64::total_cmp);
-    (0.5 * m, 0.5 * median_sorted(&sin2))
+    (0.5 * m, 0.5 * median_in_place(&mut sin2))
 }
 
 /// Unit normal (smallest principal axis) of the `k` nearest points of `q`; sign arbitrary.
@@ -344,5 +360,8 @@ mod tests {
     fn median_of_even_and_odd_counts() {
         assert_eq!(median_sorted(&[1.0, 2.0, 4.0]), 2.0);
         assert_eq!(median_sorted(&[1.0, 2.0, 4.0, 8.0]), 3.0);
+        assert_eq!(median_in_place(&mut [4.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median_in_place(&mut [8.0, 1.0, 4.0, 2.0]), 3.0);
+        assert_eq!(median_in_place(&mut [0.3]), 0.3);
     }
 }
