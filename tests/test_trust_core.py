@@ -303,6 +303,7 @@ def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_inpu
             "sum_squared_distances": float(out.sum_squared_distances), "score_outer": None,
             "effective_residuals": 0.0, "normal_noise": eps2, "typical_normal_noise": eps2t,
             "beam_phase_variance": phase, "max_step": 0.5, "min_agreement": 0.995,
+            "sampling_scale": 1.0,
         }  # fmt: skip
         return _core.trust_analysis(**{**args, **change})
 
@@ -316,6 +317,16 @@ def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_inpu
     np.testing.assert_array_equal(got.source_normals[1], normals)
     again = call(source_normals=got.source_normals)
     np.testing.assert_array_equal(again.calibrated, got.calibrated)
+    # The sampling system's M scaled (the target's sampling density against the source's).
+    assert system is not None
+    scaled = _core.trust_numbers(
+        ana, out.hessian, 1e-4, method="point_to_line", covariance="calibrated",
+        num_correspondences=int(out.num_correspondences),
+        sum_squared_distances=float(out.sum_squared_distances), normal_noise=eps2,
+        typical_normal_noise=eps2t, normal_variance=nvar, agreement=(ha, ga, na, hk, gk, nk),
+        sampling_system=(system[0], system[1] * 0.25), **common,
+    )  # fmt: skip
+    np.testing.assert_array_equal(call(sampling_scale=0.25).calibrated, scaled.calibrated)
     for change, msg in (
         ({"correspondences": corr[:-1]}, "correspondences: expected"),
         ({"source_normals": (np.array([10**6]), np.zeros((1, 2)))}, "source_normals: index"),
