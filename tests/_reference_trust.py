@@ -31,6 +31,9 @@ from scanreg.transform import SE2, SE3
 from scanreg.trust import MIN_NORMAL_AGREEMENT, PLANE_METHOD, CovarianceEstimates, pose_from_core
 
 DEFAULT_MIN_CONSTRAINT = 0.03
+# With the linear neighbourhoods known and left out: this floor, or 20 correspondences' worth.
+DETERMINED_MIN_CONSTRAINT = 0.01
+MIN_FACING = 20.0
 DEFAULT_NOISE_FACTOR = 6.0
 
 
@@ -226,17 +229,26 @@ def analyse_degeneracy(
 
 
 def noise_removed_information(
-    src: FloatArray, tn: FloatArray, corr: Any, pose: FloatArray, sample: Any, normals: FloatArray
+    src: FloatArray,
+    tn: FloatArray,
+    corr: Any,
+    pose: FloatArray,
+    sample: Any,
+    normals: FloatArray,
+    linear: Any = None,
 ) -> tuple[FloatArray, float]:
-    """``(ε² Σ Aᵀ(I − m mᵀ)A, ε²)`` over the correspondences with a target normal, ``ε²`` half
-    the mean squared sine per tangent axis between the sampled source normals (rotated) and
-    their target normals; ``(0, nan)`` with 6 or fewer such pairs (3D)."""
+    """``(ε² Σ Aᵀ(I − m mᵀ)A, ε²)`` over the correspondences with a target normal (not a
+    ``linear`` one), ``ε²`` half the mean squared sine per tangent axis between the sampled
+    source normals (rotated) and their target normals; ``(0, nan)`` with 6 or fewer such
+    pairs (3D)."""
     r = pose[:3, :3]
     corr = np.asarray(corr)
     nt = np.zeros(src.shape)
     has = corr >= 0
     nt[has] = tn[corr[has]]
     plane = has & (np.sum(nt**2, axis=1) >= 0.25)
+    if linear is not None:
+        plane[has] &= ~np.asarray(linear)[corr[has]]
     ns = np.full(src.shape, np.nan)
     ns[np.asarray(sample)] = normals
     ns = ns @ r.T
@@ -281,6 +293,12 @@ def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
         tp, tn, tc = prepared.native.gather(np.ascontiguousarray(ids, dtype=np.int64))
         corr = np.full(corr.shape, -1, dtype=np.int64)
         corr[used] = compact
+    # The target's linear neighbourhoods (their normals are guesses), known for its own normals.
+    linear = (
+        prepared.linear
+        if isinstance(prepared, PreparedTarget) and tn is not None and tn is prepared.normals
+        else None
+    )
     normal_var = 0.0
     agreement = None
     if method != "gicp" and len(src) > dim and tn is not None:
@@ -326,23 +344,28 @@ def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
         if method == "gicp" or (method == "point_to_point" and dim == 3)
         else None,
         num_threads=s.num_threads,
+        target_linear=linear,
     )
-    if ana.num_plane_correspondences > dof:
+    n_det = ana.num_determined_correspondences
+    if n_det > dof:
         info, removed = np.array(ana.plane_information), math.nan
         if dim == 3 and method != "gicp" and tn is not None:
             sample, sample_normals = ctx.source_normals
             fake, removed = noise_removed_information(
-                src, tn, corr, out.pose, sample, sample_normals
+                src, tn, corr, out.pose, sample, sample_normals, linear
             )
             info = info - fake
         deg = analyse_degeneracy(
             info,
-            ana.num_plane_correspondences,
+            n_det,
             dim,
             levers(ctx),
             normal_noise=eps2,
             typical_normal_noise=eps2_typical,
             removed_normal_noise=removed,
+            min_constraint=DEFAULT_MIN_CONSTRAINT
+            if linear is None
+            else max(DETERMINED_MIN_CONSTRAINT, MIN_FACING / n_det),
         )
     else:
         deg = analyse_degeneracy(

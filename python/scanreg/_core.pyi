@@ -337,6 +337,8 @@ class CensiAnalysis:
     @property
     def num_plane_correspondences(self) -> int: ...
     @property
+    def num_determined_correspondences(self) -> int: ...
+    @property
     def num_correspondences(self) -> int: ...
     @property
     def plane_noise_information(self) -> NDArray[np.float64]: ...
@@ -363,6 +365,7 @@ def censi_analysis(
     target_covariances: NDArray[np.float64] | None = None,
     num_threads: int | None = None,
     source_normals: NDArray[np.float64] | None = None,
+    target_linear: NDArray[np.bool_] | None = None,
 ) -> CensiAnalysis: ...
 
 # --- the trust arithmetic of one result (crates/scanreg-py/src/trust.rs) ---

@@ -352,7 +352,9 @@ def estimate_normals(
         kk, vp, normals=True, drop_linear=drop
     )
     assert normals is not None
-    valid = spans & ~linear  # `linear` is all false without drop_linear
+    if not drop:
+        linear = np.zeros_like(linear)  # flagged, but their normals kept
+    valid = spans & ~linear
     return Normals(
         normals=_readonly(normals),
         valid=_readonly(valid),

@@ -120,6 +120,11 @@ class PreparedTarget:
     num_neighbors: int
     regularization: str
     epsilon: float
+    #: ``(N,)`` 3D: whether each point's neighbourhood is linear (a sparse LiDAR's ring, a
+    #: pole, an edge), so that its normal is a guess about the line; the degeneracy analysis
+    #: leaves those correspondences out (:mod:`scanreg.degeneracy`). None in 2D, without
+    #: normals, or when not known (normals computed elsewhere).
+    linear: BoolArray | None = None
 
     @property
     def dim(self) -> int:
@@ -240,7 +245,7 @@ def prepare(
     dim = int(pts.shape[1])
     index = _core.KdTree(pts)
     kk = positive_int(num_neighbors, "num_neighbors")
-    nrm = cov = valid = None
+    nrm = cov = valid = linear = None
     noise = None
     eps = check_regularization(regularization, epsilon)
     if normals or covariances:
@@ -248,7 +253,7 @@ def prepare(
         vp = as_viewpoint(viewpoint, dim)
         # The normals' noise (what every registration's analysis reads) from the same
         # neighbour searches, instead of a second search on first use.
-        nrm, cov, valid, _, noise = index.local_geometry_noise(
+        nrm, cov, valid, linear, noise = index.local_geometry_noise(
             kk,
             vp,
             normals=bool(normals),
@@ -256,7 +261,9 @@ def prepare(
             epsilon=eps,
             drop_linear=check_flag(drop_linear, "drop_linear"),
         )
-        for a in (nrm, cov, valid):
+        if nrm is None or dim != 3:
+            linear = None
+        for a in (nrm, cov, valid, linear):
             if a is not None:
                 a.setflags(write=False)
     target = build(
@@ -270,6 +277,7 @@ def prepare(
             "num_neighbors": kk,
             "regularization": regularization,
             "epsilon": eps,
+            "linear": linear,
         },
     )
     if nrm is not None and noise is not None:
@@ -306,6 +314,7 @@ def prepared_from_normals(
             "num_neighbors": int(num_neighbors),
             "regularization": "plane",
             "epsilon": 1e-3,
+            "linear": None,
         },
     )
     if normal_noise is not None:

@@ -414,6 +414,11 @@ def correspondence_analysis(
             held.num_correspondences,
             held.removed_normal_noise,
         ),
+        # Which target normals are linear neighbourhoods' guesses (a sparse LiDAR's ring): the
+        # degeneracy analysis leaves them out (known for a prepared target's own normals only).
+        prepared.linear
+        if isinstance(prepared, PreparedTarget) and tn is not None and tn is prepared.normals
+        else None,
     )
     if num.source_normals is not None and "source_normals" not in ctx.__dict__:
         ctx.__dict__["source_normals"] = num.source_normals

@@ -70,6 +70,10 @@ pub struct Input<'a> {
     /// `N * D` unit source normals, a row of shorter than 1/2 for none (the plane information's
     /// fallback without target normals, and the normal disagreement between the two scans).
     pub source_normals: Option<&'a [f64]>,
+    /// `M` flags: the target point's neighbourhood is linear, so its normal is not determined
+    /// (3D; [`crate::normals::LocalGeometry::linear`]). Such correspondences are left out of
+    /// the plane information. `None`: not known, every target normal counts.
+    pub target_linear: Option<&'a [bool]>,
 }
 
 /// Options of [`analyse`].
@@ -111,11 +115,16 @@ pub struct Analysis {
     pub block_meat: Vec<f64>,
     /// Blocks holding at least one correspondence.
     pub num_blocks: usize,
-    /// `Σ Jᵀ J` of the point-to-plane factor over correspondences whose target has a normal
-    /// (zeros without normals).
+    /// `Σ Jᵀ J` of the point-to-plane factor over correspondences whose target has a normal,
+    /// a determined one when `target_linear` is given (zeros without normals).
     pub plane_information: Vec<f64>,
     /// Correspondences with a plane normal.
     pub num_plane_correspondences: usize,
+    /// Of those, the ones `plane_information` (and its noise terms) sums: all of them unless
+    /// `target_linear` left some out.
+    pub num_determined_correspondences: usize,
+    /// Whether `target_linear` was given (the degeneracy's floor depends on it).
+    pub linear_known: bool,
     pub num_correspondences: usize,
     /// `Σ Aᵀ(I − m mᵀ)A` over the same correspondences: the information unit normal noise
     /// adds to `plane_information` in expectation (zeros without `source_normals`).
@@ -186,6 +195,8 @@ struct Plane<const N: usize> {
     d2: f64,
     noise: Option<SMatrix<f64, N, N>>,
     sin2: Option<f64>,
+    /// The normal is not a linear neighbourhood's guess (see [`Input::target_linear`]).
+    determined: bool,
 }
 
 fn unit<const D: usize>(v: SVector<f64, D>) -> Option<SVector<f64, D>> {
@@ -231,6 +242,8 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
         Some(n) => (Some(n), false),
         None => (source_normal(), true),
     };
+    // Only the target's own normals carry the flags (a covariance's or the source's do not).
+    let determined = !(normal.is_some() && input.target_linear.is_some_and(|l| l[j]));
     let plane = plane_normal.map(|n| {
         let m = rt * n;
         let jrow = m.transpose() * a;
@@ -246,6 +259,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
             // Only the noise removal reads it, and that needs the source normals.
             noise: input.source_normals.map(|_| a.transpose() * a - info),
             sin2,
+            determined,
         }
     });
     let mut dn = None;
@@ -330,6 +344,7 @@ struct Partial<const N: usize> {
     plane_noise: SMatrix<f64, N, N>,
     plane_ss: f64,
     plane_count: usize,
+    determined_count: usize,
     sin2: f64,
     sin2_count: usize,
     count: usize,
@@ -347,6 +362,7 @@ impl<const N: usize> Partial<N> {
             plane_noise: SMatrix::zeros(),
             plane_ss: 0.0,
             plane_count: 0,
+            determined_count: 0,
             sin2: 0.0,
             sin2_count: 0,
             count: 0,
@@ -363,6 +379,7 @@ impl<const N: usize> Partial<N> {
         self.plane_noise += other.plane_noise;
         self.plane_ss += other.plane_ss;
         self.plane_count += other.plane_count;
+        self.determined_count += other.determined_count;
         self.sin2 += other.sin2;
         self.sin2_count += other.sin2_count;
         self.count += other.count;
@@ -427,15 +444,19 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
                 acc.h += tm.h;
                 acc.m_src += tm.dp * tm.dp.transpose();
                 if let Some(pl) = tm.plane {
-                    acc.plane += pl.info;
-                    if let Some(noise) = pl.noise {
-                        acc.plane_noise += noise;
-                    }
+                    // The residual along the normal counts for the point noise either way.
                     acc.plane_ss += pl.d2;
                     acc.plane_count += 1;
-                    if let Some(s2) = pl.sin2 {
-                        acc.sin2 += s2;
-                        acc.sin2_count += 1;
+                    if pl.determined {
+                        acc.plane += pl.info;
+                        if let Some(noise) = pl.noise {
+                            acc.plane_noise += noise;
+                        }
+                        acc.determined_count += 1;
+                        if let Some(s2) = pl.sin2 {
+                            acc.sin2 += s2;
+                            acc.sin2_count += 1;
+                        }
                     }
                 }
                 let p: SVector<f64, D> = vec_at(input.source, i);
@@ -485,6 +506,8 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
         num_blocks: blocks.len(),
         plane_information: flat(acc.plane),
         num_plane_correspondences: acc.plane_count,
+        num_determined_correspondences: acc.determined_count,
+        linear_known: input.target_linear.is_some(),
         num_correspondences: acc.count,
         plane_noise_information: flat(acc.plane_noise),
         normal_disagreement: acc.sin2,
@@ -557,6 +580,17 @@ pub fn analyse(input: &Input<'_>, pose: &[f64], dim: usize, opts: &Options) -> R
     }
     if let Some(tc) = input.target_covariances {
         check_len("target_covariances", tc, m, dim * dim)?;
+    }
+    if let Some(lin) = input.target_linear {
+        if lin.len() != m {
+            return Err(Error::invalid(
+                "target_linear",
+                format!(
+                    "expected one flag per target point ({m}), got {}",
+                    lin.len()
+                ),
+            ));
+        }
     }
     if let Some(nrm) = input.source_normals {
         // NaN rows are allowed: a point without a normal.

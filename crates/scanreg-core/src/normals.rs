@@ -73,8 +73,9 @@ pub struct LocalGeometry {
     /// Whether the neighbourhood of each point was non-degenerate.
     pub valid: Vec<bool>,
     pub num_invalid: usize,
-    /// Valid points left without a normal because their 3D neighbourhood is linear (only with
-    /// `drop_linear`; all false otherwise).
+    /// Valid points whose 3D neighbourhood is linear (a ring of a sparse LiDAR, a pole, an
+    /// edge: its fitted normal can point anywhere about the line); left without a normal only
+    /// with `drop_linear`. All false in 2D.
     pub linear: Vec<bool>,
     /// How many of `linear` are true.
     pub num_linear: usize,
@@ -334,8 +335,8 @@ pub fn local_geometry_with(
         let lmax = vals[dim - 1];
         let valid = spans(&vals, dim);
         let mut normal = [0.0; 3];
-        let linear = drop_linear && dim == 3 && valid && is_linear(&vals);
-        if valid && !linear {
+        let linear = dim == 3 && valid && is_linear(&vals);
+        if valid && !(drop_linear && linear) {
             normal = facing(&vecs[0], p, viewpoint, dim);
         }
         let mut out = [0.0; 9];
@@ -516,7 +517,8 @@ mod tests {
         let tree = KdTree::build(&pts, 3).unwrap();
         let keep = local_geometry(&tree, 8, &[0.0; 3], true, None).unwrap();
         let drop = local_geometry_with(&tree, 8, &[0.0; 3], true, None, true).unwrap();
-        assert_eq!(keep.num_linear, 0);
+        // Flagged either way; only `drop_linear` drops their normals.
+        assert_eq!(keep.linear, drop.linear);
         assert_eq!(drop.valid, keep.valid);
         let (kn, dn) = (keep.normals.unwrap(), drop.normals.unwrap());
         for i in 0..40 {

@@ -34,6 +34,8 @@ pub struct CensiAnalysis {
     #[pyo3(get)]
     num_plane_correspondences: usize,
     #[pyo3(get)]
+    num_determined_correspondences: usize,
+    #[pyo3(get)]
     num_correspondences: usize,
     #[pyo3(get)]
     plane_noise_information: Py<PyArray2<f64>>,
@@ -49,7 +51,7 @@ pub struct CensiAnalysis {
 #[pyo3(signature = (
     source, target, pose_matrix, correspondences, *, method, kernel, kernel_scale,
     source_variance, target_variance, block_size, normal_variance=0.0, target_normals=None, source_covariances=None,
-    target_covariances=None, num_threads=None, source_normals=None
+    target_covariances=None, num_threads=None, source_normals=None, target_linear=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn censi_analysis(
@@ -70,6 +72,7 @@ fn censi_analysis(
     target_covariances: Option<PyReadonlyArray3<'_, f64>>,
     num_threads: Option<usize>,
     source_normals: Option<PyReadonlyArray2<'_, f64>>,
+    target_linear: Option<PyReadonlyArray1<'_, bool>>,
 ) -> PyResult<CensiAnalysis> {
     let (src, dim) = crate::convert::points(&source, "source")?;
     let tgt = points_dim(&target, "target", dim)?;
@@ -97,6 +100,10 @@ fn censi_analysis(
         .as_ref()
         .map(|a| c_slice(a, "source_normals"))
         .transpose()?;
+    let linear = target_linear
+        .as_ref()
+        .map(|a| c_slice(a, "target_linear"))
+        .transpose()?;
     let input = Input {
         source: src,
         source_covariances: covariances(&source_covariances, "source_covariances", n, dim)?,
@@ -105,6 +112,7 @@ fn censi_analysis(
         target_covariances: covariances(&target_covariances, "target_covariances", m, dim)?,
         correspondences: &corr,
         source_normals: src_nrm,
+        target_linear: linear,
     };
     let opts = Options {
         method: Method::from_name(method).map_err(core_err)?,
@@ -132,6 +140,7 @@ fn censi_analysis(
         num_blocks: out.num_blocks,
         plane_information: square(py, out.plane_information.clone(), dof)?,
         num_plane_correspondences: out.num_plane_correspondences,
+        num_determined_correspondences: out.num_determined_correspondences,
         num_correspondences: out.num_correspondences,
         plane_noise_information: square(py, out.plane_noise_information.clone(), dof)?,
         normal_disagreement: out.normal_disagreement,

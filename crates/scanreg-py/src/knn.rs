@@ -111,8 +111,8 @@ impl KdTree {
     }
 
     /// k-NN PCA of every indexed point: `(normals (N, D) | None, covariances (N, D, D) | None,
-    /// valid (N,), linear (N,))`. `regularization=None` skips covariances. `drop_linear`: no
-    /// normal (zero) where a 3D neighbourhood is linear, marked in `linear` (`valid`, a
+    /// valid (N,), linear (N,))`. `regularization=None` skips covariances. `linear` marks the
+    /// 3D neighbourhoods that are linear; `drop_linear`: no normal (zero) there (`valid`, a
     /// non-degenerate neighbourhood, unchanged).
     #[pyo3(signature = (k, viewpoint, *, normals=true, regularization=None, epsilon=1e-3, drop_linear=false))]
     #[allow(clippy::type_complexity, clippy::too_many_arguments)]

@@ -182,6 +182,7 @@ fn trust_numbers(
     sampling_system: Option<(PyReadonlyArray2<'_, f64>, PyReadonlyArray2<'_, f64>)>,
     sampling: f64,
     held: Option<Holding<'_>>,
+    target_linear: Option<PyReadonlyArray1<'_, bool>>,
 ) -> PyResult<TrustNumbers> {
     let a = &analysis.inner;
     let dof = (a.hessian.len() as f64).sqrt() as usize;
@@ -308,7 +309,7 @@ type SampledNormals<'py> = (PyReadonlyArray1<'py, i64>, PyReadonlyArray2<'py, f6
     hessian, sigma2, levers, prior, drift, motion, length_scale, covariance,
     num_correspondences, sum_squared_distances, score_outer, effective_residuals,
     normal_noise, typical_normal_noise, beam_phase_variance, max_step, min_agreement,
-    sampling_scale, source_normals=None, valley=None, held=None
+    sampling_scale, source_normals=None, valley=None, held=None, target_linear=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn trust_analysis(
@@ -377,6 +378,18 @@ fn trust_analysis(
     }
     let tc = covariances(&target_covariances, "target_covariances", m, dim)?;
     let sc = covariances(&source_covariances, "source_covariances", n, dim)?;
+    let linear = target_linear
+        .as_ref()
+        .map(|a| c_slice(a, "target_linear"))
+        .transpose()?;
+    if let Some(l) = linear {
+        if l.len() != m {
+            return Err(PyValueError::new_err(format!(
+                "target_linear: expected one flag per target point ({m}), got {}",
+                l.len()
+            )));
+        }
+    }
     let corr32: Vec<u32> = corr
         .iter()
         .map(|&j| {
@@ -519,6 +532,7 @@ fn trust_analysis(
             },
             correspondences: &corr32,
             source_normals: full_normals.as_deref(),
+            target_linear: linear,
         };
         let opts = censi::Options {
             method,

@@ -28,6 +28,7 @@ fn with_normals<'a>(src: &'a [f64], tgt: &'a [f64], nrm: &'a [f64], corr: &'a [u
         target_covariances: None,
         correspondences: corr,
         source_normals: None,
+        target_linear: None,
     }
 }
 
@@ -317,4 +318,49 @@ fn all_meats_match_finite_differences_2d_and_3d() {
         failures.extend(check_all_meats::<Spatial, 3, 6>(method, &pose3));
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn linear_targets_are_left_out_of_the_plane_information_only() {
+    // The scene's target points 0, 4 and 8 flagged linear: the plane information (and the
+    // count the degeneracy divides by) is that of the scene without their correspondences,
+    // while the point noise along the normals still reads every residual.
+    let (src, tgt, nrm, corr) = scene();
+    let pose = planar_pose(0.141f64.atan2(0.99), 0.2, -0.1);
+    let opts = unkernelled(Method::PointToPlane, [1.0, 1.0, 1.0]);
+    let m = tgt.len() / 2;
+    let linear: Vec<bool> = (0..m).map(|j| j % 4 == 0).collect();
+    let flagged = Input {
+        target_linear: Some(&linear),
+        ..with_normals(&src, &tgt, &nrm, &corr)
+    };
+    let all = analyse(&with_normals(&src, &tgt, &nrm, &corr), &pose, 2, &opts).unwrap();
+    let got = analyse(&flagged, &pose, 2, &opts).unwrap();
+    let dropped: Vec<u32> = corr
+        .iter()
+        .map(|&j| if linear[j as usize] { NONE } else { j })
+        .collect();
+    let kept = analyse(&with_normals(&src, &tgt, &nrm, &dropped), &pose, 2, &opts).unwrap();
+    assert!(got.linear_known && !all.linear_known);
+    assert_eq!(
+        all.num_determined_correspondences,
+        all.num_plane_correspondences
+    );
+    assert_eq!(got.num_plane_correspondences, all.num_plane_correspondences);
+    assert_eq!(
+        got.num_determined_correspondences,
+        kept.num_plane_correspondences
+    );
+    assert!(got.num_determined_correspondences < all.num_plane_correspondences);
+    for (a, b) in got.plane_information.iter().zip(&kept.plane_information) {
+        assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+    }
+    assert_eq!(got.plane_sum_squares, all.plane_sum_squares);
+    assert_eq!(got.hessian, all.hessian);
+    let short = [false; 2];
+    let bad = Input {
+        target_linear: Some(&short),
+        ..with_normals(&src, &tgt, &nrm, &corr)
+    };
+    assert!(analyse(&bad, &pose, 2, &opts).is_err());
 }

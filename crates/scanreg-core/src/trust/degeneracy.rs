@@ -4,8 +4,22 @@
 
 use super::dense::{eigh, scale_both, sym, Mat, Vector};
 
-/// Floor of the weak-direction threshold (a mean squared constraint per correspondence).
+/// Floor of the weak-direction threshold (a mean squared constraint per correspondence) when
+/// the plane information counts every target normal: a linear neighbourhood (a sparse LiDAR's
+/// ring, a pole) fits its normal anywhere about its line, and the information those guesses
+/// claim sits inside `Ĝ` (0.019-0.023 per correspondence along the simulated VLP-16 tunnel's
+/// axis), so the floor must sit above it.
 pub const MIN_CONSTRAINT: f64 = 0.03;
+/// The floor when the linear neighbourhoods are known and left out ([`floor`]): what is left
+/// along the tunnel's axis is 0.0028 per correspondence and along the 2D corridor's 0.004-0.005
+/// (clutter, the normals' own noise), while the weakest direction of simulated VLP-16 / HDL-32
+/// street pairs keeps 0.017-0.027 (a rotation about a horizontal axis: the ground near the
+/// sensor, at a short lever). Twice the corridor's.
+pub const MIN_DETERMINED_CONSTRAINT: f64 = 0.01;
+/// ... and at least this many correspondences' worth of it (a correspondence facing a
+/// direction gives 1): a few stray correspondences must not be able to hold a direction of a
+/// small cloud, whatever their share.
+pub const MIN_FACING: f64 = 20.0;
 /// The threshold is at least this many times the typical normal noise `ε̃²`.
 pub const NOISE_FACTOR: f64 = 6.0;
 
@@ -87,7 +101,20 @@ pub fn unit_directions(vecs: &Mat, s_inv: &Vector, norm_scale: Option<&Vector>) 
     out
 }
 
-/// Name the weak directions of `information` (`Σ JᵀJ` over `count` correspondences).
+/// The floor of the threshold for `count` correspondences: [`MIN_CONSTRAINT`] when the
+/// information may hold linear neighbourhoods' normals (`linear_known` false: a map's, a
+/// covariance's, 2D), else [`MIN_DETERMINED_CONSTRAINT`] or [`MIN_FACING`] correspondences'
+/// worth, the larger.
+pub fn floor(linear_known: bool, count: usize) -> f64 {
+    if linear_known {
+        MIN_DETERMINED_CONSTRAINT.max(MIN_FACING / count.max(1) as f64)
+    } else {
+        MIN_CONSTRAINT
+    }
+}
+
+/// Name the weak directions of `information` (`Σ JᵀJ` over `count` correspondences), below
+/// `floor` ([`floor`]) or the normal-noise term.
 pub fn analyse(
     information: &Mat,
     count: usize,
@@ -95,13 +122,14 @@ pub fn analyse(
     levers: &Vector,
     normal_noise: f64,
     typical_normal_noise: f64,
+    floor: f64,
 ) -> Degeneracy {
     let s_inv = scaling(dim, levers);
     let g = scale_both(&sym(information), &s_inv) / (count.max(1) as f64);
     let (mut vals, vecs) = eigh(&g);
     // With the noise removed the estimate can dip below zero: no information.
     vals.apply(|v| *v = v.max(0.0));
-    let mut threshold = MIN_CONSTRAINT;
+    let mut threshold = floor;
     if typical_normal_noise.is_finite() {
         threshold = threshold.max(NOISE_FACTOR * typical_normal_noise);
     }

@@ -195,9 +195,11 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
             h.num_correspondences,
             h.removed_normal_noise,
         ),
-        None if a.num_plane_correspondences > dof => {
+        None if a.num_determined_correspondences > dof => {
             // Judged by the information the normals' noise does not explain (a tunnel's axis
-            // gains ε² per correspondence from noisy normals alone).
+            // gains ε² per correspondence from noisy normals alone), over the correspondences
+            // whose normal is determined when the target says which are (linear
+            // neighbourhoods' normals are guesses: `degeneracy::MIN_CONSTRAINT`).
             let (g, eps2) = degeneracy::noise_removed(
                 &from_rows(dof, &a.plane_information),
                 &from_rows(dof, &a.plane_noise_information),
@@ -207,11 +209,12 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
             );
             let mut deg = degeneracy::analyse(
                 &g,
-                a.num_plane_correspondences,
+                a.num_determined_correspondences,
                 dim,
                 &levers,
                 input.normal_noise,
                 input.typical_normal_noise,
+                degeneracy::floor(a.linear_known, a.num_determined_correspondences),
             );
             deg.removed_normal_noise = eps2;
             deg
@@ -223,6 +226,7 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
             &levers,
             input.normal_noise,
             input.typical_normal_noise,
+            degeneracy::MIN_CONSTRAINT,
         ),
     };
     let pv = point_variance(input, dof);

@@ -28,6 +28,8 @@ fn corridor() -> Analysis {
         num_blocks: 10,
         plane_information: plane,
         num_plane_correspondences: n,
+        num_determined_correspondences: n,
+        linear_known: false,
         num_correspondences: n,
         plane_noise_information: vec![0.0; 9],
         normal_disagreement: 0.0,
@@ -81,4 +83,14 @@ fn corridor_is_weak_along_x_and_takes_the_prior_there() {
         ..input
     };
     assert!(analyse(&bad).is_err());
+}
+
+#[test]
+fn the_floor_is_lower_without_linear_guesses_but_never_under_twenty_facing() {
+    use super::degeneracy::{floor, MIN_CONSTRAINT, MIN_DETERMINED_CONSTRAINT};
+    assert_eq!(floor(false, 5000), MIN_CONSTRAINT);
+    assert_eq!(floor(true, 5000), MIN_DETERMINED_CONSTRAINT);
+    // 500 correspondences: 20 of them facing a direction is 0.04 each.
+    assert!((floor(true, 500) - 0.04).abs() < 1e-12);
+    assert_eq!(floor(true, 0), 20.0);
 }
