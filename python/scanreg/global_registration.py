@@ -89,7 +89,8 @@ class GlobalHypothesis:
     ``verdict`` and ``covariance`` come from the refinement's trust analysis, run on first
     access: :func:`register_global` runs it only for the hypotheses that decide the answer
     (the best accepted one and any rival that could make it ambiguous), so a runner-up that
-    converged onto the answer costs its GICP solve only.
+    converged onto the answer costs its GICP solve only, and one whose clique is under
+    :data:`RIVAL_CLIQUE_RATIO` of an accepted hypothesis' is not even refined.
     """
 
     #: ``T_target_source`` after GICP refinement (the robust solve's when refinement failed).
