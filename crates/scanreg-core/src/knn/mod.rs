@@ -604,6 +604,12 @@ impl<const D: usize> Inner<D> {
     #[inline]
     fn radius(&self, q: &[f64; D], sq_radius: f64, out: &mut Vec<(u32, f64)>) {
         let start = out.len();
+        self.radius_unsorted(q, sq_radius, out);
+        canonical(&mut out[start..]);
+    }
+
+    #[inline]
+    fn radius_unsorted(&self, q: &[f64; D], sq_radius: f64, out: &mut Vec<(u32, f64)>) {
         let pts = &self.pts;
         let ids = &self.ids;
         self.traverse(
@@ -618,7 +624,6 @@ impl<const D: usize> Inner<D> {
                 }
             },
         );
-        canonical(&mut out[start..]);
     }
 }
 
@@ -658,9 +663,14 @@ fn arr<const D: usize>(q: &[f64]) -> [f64; D] {
     a
 }
 
+/// The canonical order of neighbours: by (squared distance, index), independent of tree layout.
+pub fn canonical_order(a: &(u32, f64), b: &(u32, f64)) -> std::cmp::Ordering {
+    a.1.total_cmp(&b.1).then(a.0.cmp(&b.0))
+}
+
 /// Sort neighbour lists by (distance, index): a canonical order independent of tree layout.
 fn canonical(v: &mut [(u32, f64)]) {
-    v.sort_unstable_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+    v.sort_unstable_by(canonical_order);
 }
 
 macro_rules! with_tree {
@@ -811,6 +821,12 @@ impl KdTree {
     /// (squared distance, index).
     pub fn radius_into(&self, q: &[f64], sq_radius: f64, out: &mut Vec<(u32, f64)>) {
         with_tree!(self, t, D => t.radius(&arr::<D>(q), sq_radius, out));
+    }
+
+    /// [`KdTree::radius_into`] in the tree's own order (deterministic for a given tree, not
+    /// sorted): for a caller that needs only some of them in order ([`canonical_order`]).
+    pub fn radius_unsorted_into(&self, q: &[f64], sq_radius: f64, out: &mut Vec<(u32, f64)>) {
+        with_tree!(self, t, D => t.radius_unsorted(&arr::<D>(q), sq_radius, out));
     }
 
     fn check_queries(&self, queries: &[f64]) -> Result<usize> {
