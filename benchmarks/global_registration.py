@@ -3,7 +3,7 @@
 Run (peers optional: ``pip install open3d-cpu kiss-matcher``; Open3D needs Debian
 ``libusb-1.0-0``):
 
-    RAYON_NUM_THREADS=2 .venv/bin/python benchmarks/global_registration.py [--pairs 4]
+    RAYON_NUM_THREADS=2 .venv/bin/python benchmarks/global_registration.py [--pairs 4] [--rounds 5]
 
 Sets (exact truth by construction except 3DMatch, whose truth ships with the pair):
 ``3dmatch`` the fragment pair; ``outdoor`` the small_gicp source scan and ``kitti`` KITTI 00
@@ -11,7 +11,9 @@ scans 0, 5, 10, 15: each as two crops (a 60 m window shifted ±8 m along a rando
 direction), the source re-noised (σ 2 cm) and moved by a random transform (any yaw, roll and
 pitch within ±10°, up to 10 m); ``street`` two HDL-64 sweeps of a simulated street from
 positions 4-8 m apart with any yaw. Every contender gets the same clouds and the same voxel
-(ours picks it; the peers are given it), runs in this process, in alternating order.
+(ours picks it; the peers are given it), runs in this process, in alternating order; with
+``--rounds`` each pair is timed that many times and its median time and ratio kept (success and
+false success count every round: RANSAC draws differ).
 
 Success: rotation < 5° and translation < 0.3 m after refinement (every contender's estimate
 refined by the same GICP); 3DMatch: < 15° / 0.3 m before refinement. A false success is a pose
@@ -237,6 +239,13 @@ def _refine(src: np.ndarray, tgt: np.ndarray, pose: SE3, voxel: float) -> SE3:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", type=int, default=4, help="pairs per set (3DMatch has one)")
+    ap.add_argument(
+        "--rounds",
+        type=int,
+        default=1,
+        help="time each pair this many times (contenders alternating; per-pair median): "
+        "3DMatch is a single pair, whose one timing swings with the machine's load",
+    )
     args = ap.parse_args()
     contenders = _available()
     names = list(contenders)
@@ -248,41 +257,45 @@ def main() -> None:
             for n in names
         }
         for k, (src, tgt, truth) in enumerate(pairs):
-            voxel = None
-            order = names[k % len(names) :] + names[: k % len(names)]  # alternate
-            times: dict[str, float] = {}
-            cpu: dict[str, float] = {}
-            for n in order:
-                if voxel is None:
-                    src_c = np.ascontiguousarray(src)
-                    voxel = register_global(src_c, tgt, refine=False, max_hypotheses=1).voxel_size
-                c0, t0 = time.process_time(), time.perf_counter()
-                initial, pose, accepted = contenders[n](np.ascontiguousarray(src), tgt, voxel)
-                times[n] = time.perf_counter() - t0
-                cpu[n] = time.process_time() - c0
-                if set_name == "3dmatch":
-                    rot, tr = _errors(initial, truth) if initial is not None else (180.0, 1e9)
-                    ok = rot < 15 and tr < 0.3
-                else:
-                    if pose is not None and accepted is None:
-                        pose = _refine(np.ascontiguousarray(src), tgt, pose, voxel)
-                    rot, tr = _errors(pose, truth) if pose is not None else (180.0, 1e9)
-                    ok = rot < 5 and tr < 0.3
-                claimed = accepted if accepted is not None else True
-                stats[n]["ok"].append(float(ok))
-                stats[n]["false"].append(float(claimed and not ok))
-                stats[n]["t"].append(times[n])
-                stats[n]["cpu"].append(cpu[n])
+            src_c = np.ascontiguousarray(src)
+            voxel = register_global(src_c, tgt, refine=False, max_hypotheses=1).voxel_size
+            times: dict[str, list[float]] = {n: [] for n in names}
+            cpu: dict[str, list[float]] = {n: [] for n in names}
+            for r in range(args.rounds):
+                turn = k + r
+                order = names[turn % len(names) :] + names[: turn % len(names)]  # alternate
+                for n in order:
+                    c0, t0 = time.process_time(), time.perf_counter()
+                    initial, pose, accepted = contenders[n](np.ascontiguousarray(src), tgt, voxel)
+                    times[n].append(time.perf_counter() - t0)
+                    cpu[n].append(time.process_time() - c0)
+                    if set_name == "3dmatch":
+                        rot, tr = _errors(initial, truth) if initial is not None else (180.0, 1e9)
+                        ok = rot < 15 and tr < 0.3
+                    else:
+                        if pose is not None and accepted is None:
+                            pose = _refine(np.ascontiguousarray(src), tgt, pose, voxel)
+                        rot, tr = _errors(pose, truth) if pose is not None else (180.0, 1e9)
+                        ok = rot < 5 and tr < 0.3
+                    claimed = accepted if accepted is not None else True
+                    stats[n]["ok"].append(float(ok))
+                    stats[n]["false"].append(float(claimed and not ok))
             for n in names:
-                stats[n]["ratio"].append(times["ours"] / times[n])
-                stats[n]["cpu_ratio"].append(cpu["ours"] / cpu[n])
+                stats[n]["t"].append(statistics.median(times[n]))
+                stats[n]["cpu"].append(statistics.median(cpu[n]))
+                stats[n]["ratio"].append(
+                    statistics.median(a / b for a, b in zip(times["ours"], times[n], strict=True))
+                )
+                stats[n]["cpu_ratio"].append(
+                    statistics.median(a / b for a, b in zip(cpu["ours"], cpu[n], strict=True))
+                )
         for n in names:
             s = stats[n]
             rows.append(
                 (
                     set_name,
                     n,
-                    len(s["ok"]),
+                    len(s["t"]),
                     100 * statistics.mean(s["ok"]),
                     statistics.median(s["t"]),
                     statistics.median(s["ratio"]),
