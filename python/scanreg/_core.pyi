@@ -466,6 +466,7 @@ def trust_analysis(
     source_normals: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None,
     valley: NDArray[np.float64] | None = None,
     held: tuple[NDArray[np.float64], float, float, float, int, float] | None = None,
+    target_linear: NDArray[np.bool_] | None = None,
 ) -> TrustNumbers: ...
 def trust_numbers(
     analysis: CensiAnalysis,

@@ -182,7 +182,6 @@ fn trust_numbers(
     sampling_system: Option<(PyReadonlyArray2<'_, f64>, PyReadonlyArray2<'_, f64>)>,
     sampling: f64,
     held: Option<Holding<'_>>,
-    target_linear: Option<PyReadonlyArray1<'_, bool>>,
 ) -> PyResult<TrustNumbers> {
     let a = &analysis.inner;
     let dof = (a.hessian.len() as f64).sqrt() as usize;
@@ -348,6 +347,7 @@ fn trust_analysis(
     source_normals: Option<SampledNormals<'_>>,
     valley: Option<PyReadonlyArray2<'_, f64>>,
     held: Option<Holding<'_>>,
+    target_linear: Option<PyReadonlyArray1<'_, bool>>,
 ) -> PyResult<TrustNumbers> {
     let (src, dim) = points(&source, "source")?;
     let n = src.len() / dim;
