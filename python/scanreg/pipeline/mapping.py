@@ -46,6 +46,7 @@ from ..transform import SE2, SE3, as_pose
 from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, match_loop
 from .loops3d import LoopMatch3D
 from .odometry2d import Odometry2D, OdometryConfig2D, _count, _positive
+from .wheel import WheelNoise, WheelOdometry
 
 #: The pose type of a run (2D or 3D) and of its loop matches: one result shape for both.
 PoseT = TypeVar("PoseT", SE2, SE3)
@@ -92,6 +93,13 @@ class MappingConfig:
     #: Returns kept from a range scan (:func:`run_mapping` on a CARMEN log), metres.
     min_range: float = 0.1
     max_range: float = 40.0
+    #: The wheel odometry's noise model: each ``prior`` (scaled by the wheels' distance scale,
+    #: learned online from the well-constrained steps: :class:`~scanreg.pipeline.wheel.
+    #: WheelOdometry`) enters the odometry's solve with its covariance, so that along a
+    #: direction the scan does not constrain (a corridor's axis) the wheels hold the pose
+    #: (:meth:`Odometry2D.step`'s ``prior_covariance``). ``None``: the prior only starts the
+    #: odometry's search.
+    wheel: WheelNoise | None = field(default_factory=WheelNoise)
     #: Each scan's motion is the scan matcher's fused with the distance the wheels rolled,
     #: weighted by their information (:func:`fuse_motion`): where the scan pins the pose only
     #: weakly (along a corridor) the wheels decide. ``False``: the scan matcher's alone. Off by
@@ -143,6 +151,8 @@ class MappingConfig:
             raise TypeError(f"loop_kernel: expected Kernel, got {type(self.loop_kernel).__name__}")
         if not isinstance(self.loops, LoopSettings):
             raise TypeError(f"loops: expected LoopSettings, got {type(self.loops).__name__}")
+        if self.wheel is not None and not isinstance(self.wheel, WheelNoise):
+            raise TypeError(f"wheel: expected WheelNoise or None, got {type(self.wheel).__name__}")
 
 
 @dataclass(frozen=True)
@@ -280,6 +290,7 @@ class Mapper:
             raise TypeError(f"config: expected MappingConfig, got {type(cfg).__name__}")
         self.config = cfg
         self._odometry = Odometry2D(cfg.odometry)
+        self._wheels = None if cfg.wheel is None else WheelOdometry(cfg.wheel)
         self._graph = Graph(2)
         self._odom_poses: list[SE2 | None] = []
         self._stamps: list[float | None] = []
@@ -309,6 +320,11 @@ class Mapper:
     @property
     def loops(self) -> tuple[LoopRecord[LoopMatch], ...]:
         return tuple(self._loops)
+
+    @property
+    def wheel_scale(self) -> float:
+        """The wheels' distance scale learned so far (1 without a wheel model)."""
+        return 1.0 if self._wheels is None else self._wheels.scale
 
     # -- per scan ------------------------------------------------------------------------
     def step(
@@ -353,7 +369,13 @@ class Mapper:
 
         first = self._last_pose is None
         wheel = None if first or prior is None else self._pending
-        frame = self._odometry.step(pts, prior=wheel)
+        if wheel is not None and self._wheels is not None:
+            scaled, cov = self._wheels.prior(wheel)
+            frame = self._odometry.step(pts, prior=scaled, prior_covariance=cov)
+            if _well_constrained(frame):
+                self._wheels.observe(wheel, frame.motion)
+        else:
+            frame = self._odometry.step(pts, prior=wheel)
         self._pending = SE2.identity()
         if self._last_pose is None:
             pose = frame.pose
@@ -567,6 +589,17 @@ class Mapper:
     def node_points(self, node: int) -> FloatArray:
         """The kept (downsampled) scan of ``node``, in its own frame."""
         return self._node_points[node]
+
+
+def _well_constrained(frame: Any) -> bool:
+    """Whether a frame's step can calibrate the wheels: registered, accepted, and held along
+    no direction nor named degenerate in any (its motion is the scans' alone)."""
+    return bool(
+        frame.registration is not None
+        and frame.verdict.accepted
+        and not frame.held_directions
+        and not frame.degenerate
+    )
 
 
 #: Floor of the wheel odometry's distance noise (m): a standing robot's wheels are not exact.

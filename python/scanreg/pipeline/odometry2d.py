@@ -219,6 +219,8 @@ class Odometry2D:
         self._map_points: FloatArray | None = None
         self._index = 0
         self._last_time: float | None = None
+        #: Covariance of the latest pose (zeros: the first scan defines the map frame).
+        self._covariance: FloatArray = np.zeros((3, 3))
 
     @property
     def pose(self) -> SE2 | None:
@@ -246,6 +248,7 @@ class Odometry2D:
         prior: Any = None,
         *,
         stamp: float | None = None,
+        prior_covariance: Any = None,
     ) -> Frame2D:
         """Register one scan to the local map; the signature of :meth:`scanreg.Odometry.step`.
 
@@ -261,6 +264,16 @@ class Odometry2D:
             prediction instead of constant velocity.
         stamp
             The scan's time (s); must not decrease from scan to scan.
+        prior_covariance
+            ``(3, 3)`` covariance of ``prior`` over its right-perturbation tangent (a wheel
+            noise model: :class:`~scanreg.pipeline.wheel.WheelNoise`). With it the prior is
+            part of the solve: where the registration names directions the map does not
+            constrain (a corridor's axis), the scan is registered again held to the
+            prediction along them (:func:`hold_to_prediction`), so there the wheels decide
+            and elsewhere the scan; the frame's verdict and covariance are those of the held
+            registration (the prediction's variance along the held directions: the previous
+            pose's, carried through the motion, plus ``prior_covariance``), and
+            ``held_directions`` names them. ``None``: the prior only starts the search.
         """
         t_start = time.perf_counter()
         pts = as_points(points, "points", dim=2)
@@ -284,6 +297,7 @@ class Odometry2D:
                 )
         motion = None if prior is None else as_pose(prior, "prior", 2)
         assert motion is None or isinstance(motion, SE2)
+        prior_cov = _checked_prior_covariance(prior_covariance, motion)
         cfg = self.config
         if cfg.scan_voxel_size > 0:
             pts = np.ascontiguousarray(voxel_downsample(pts, cfg.scan_voxel_size).points)
@@ -395,6 +409,26 @@ class Odometry2D:
                 max_iterations=cfg.max_iterations,
                 thresholds=self._register_thresholds,
             )
+        held: tuple[str, ...] = ()
+        if prior_cov is not None and motion is not None and res.stop_reason not in _FAILED:
+            # The prediction's covariance: the previous pose's, carried through the motion,
+            # plus the wheels' over this step.
+            carry = motion.inverse().adjoint()
+            predicted_cov = carry @ self._covariance @ carry.T + prior_cov
+            res, held, held_start = hold_to_prediction(
+                res,
+                pts,
+                self._target,
+                predicted,
+                predicted_cov,
+                method="point_to_line",
+                max_correspondence_distance=cfg.max_correspondence_distance,
+                kernel=cfg.kernel,
+                max_iterations=cfg.max_iterations,
+                thresholds=self._register_thresholds,
+            )
+            if held:
+                start = held_start
         t_align = time.perf_counter() - t0
         pose = _accepted_pose(res, start, cfg)
 
@@ -412,7 +446,7 @@ class Odometry2D:
 
         # 4. update
         t0 = time.perf_counter()
-        failed = res.stop_reason in ("diverged", "too_few_correspondences")
+        failed = res.stop_reason in _FAILED
         assert self._last_keyframe is not None
         since = self._last_keyframe.inverse() @ pose
         moved = (
@@ -428,6 +462,10 @@ class Odometry2D:
         assert isinstance(velocity, SE2)
         self._velocity = velocity
         self._pose = pose
+        cov = np.array(res.covariance, dtype=np.float64)
+        # The pose's covariance, carried to the next prediction; a failed alignment's is
+        # none (the pose stays at the start) and the prediction's would grow without bound.
+        self._covariance = cov if np.isfinite(cov).all() and not failed else np.zeros((3, 3))
         return Frame2D(
             index=index,
             stamp=None if stamp is None else float(stamp),
@@ -446,7 +484,74 @@ class Odometry2D:
                 align=t_align, judge=t_judge, map_update=t_map, total=time.perf_counter() - t_start
             ),
             basin_fallback=fallback,
+            held_directions=held,
         )
+
+
+_FAILED = ("diverged", "too_few_correspondences")
+
+
+def _checked_prior_covariance(value: Any, motion: SE2 | None) -> FloatArray | None:
+    """``prior_covariance`` checked: ``(3, 3)``, finite, symmetric, positive semi-definite,
+    and only with a ``prior``."""
+    if value is None:
+        return None
+    if motion is None:
+        raise ValueError("prior_covariance: given without a prior (the motion it describes)")
+    try:
+        cov = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"prior_covariance: expected a (3, 3) array, got {type(value).__name__}"
+        ) from None
+    if cov.shape != (3, 3):
+        raise ValueError(f"prior_covariance: expected shape (3, 3), got {cov.shape}")
+    if not np.isfinite(cov).all() or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
+        raise ValueError("prior_covariance: must be finite and symmetric")
+    if float(np.linalg.eigvalsh(cov)[0]) < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
+        raise ValueError("prior_covariance: must be positive semi-definite")
+    return cov
+
+
+def hold_to_prediction(
+    res: RegistrationResult,
+    points: FloatArray,
+    target: PreparedTarget,
+    predicted: SE2,
+    covariance: FloatArray,
+    **settings: Any,
+) -> tuple[RegistrationResult, tuple[str, ...], SE2]:
+    """``res`` registered again held to ``predicted`` along the directions it names degenerate.
+
+    The held registration starts from ``res``'s pose with its weak components (the oblique
+    projector of :meth:`~scanreg.Degeneracy.weak_projector`) replaced by the prediction's, and
+    solves with every step kept off them (``step_projector``), ``covariance`` (the
+    prediction's, over its tangent) as ``init_covariance``: its pose keeps the prediction
+    where the scan says nothing and the scan's fit elsewhere, and its covariance, degeneracy
+    and quality (hence the verdict) are computed at that pose, with the prediction's variance
+    along the held directions. Returns the registration, the held directions' names and
+    where the held solve started; ``res`` itself, no names and its pose when it names no
+    degenerate direction or the held solve fails. ``settings``: the
+    :func:`scanreg.register` keywords ``res`` was registered with."""
+    deg = res.degeneracy
+    pose = res.pose
+    assert isinstance(pose, SE2)
+    if deg is None or not deg.degenerate:
+        return res, (), pose
+    weak = deg.weak_projector()
+    offset = (predicted.inverse() @ pose).log()
+    start = predicted @ SE2.exp(offset - weak @ offset)
+    held = register(
+        points,
+        target,
+        init=start,
+        init_covariance=covariance,
+        step_projector=np.eye(3) - weak,
+        **settings,
+    )
+    if held.stop_reason in _FAILED:
+        return res, (), pose
+    return held, tuple(d.description for d in deg.weak_directions), start
 
 
 def _without_default_probe(thresholds: VerdictThresholds) -> VerdictThresholds:
