@@ -9,9 +9,14 @@ with the :class:`~scanreg.pipeline.Odometry2D` signature and its :class:`Frame2D
 1. **predict** — from the wheel-odometry ``prior`` when given, else constant velocity;
    before the first fix there is no prediction, and the scan is located globally (3.);
 2. **track** — point-to-line :func:`scanreg.register` against the map from the prediction,
-   judged by :func:`scanreg.verdict.assess`; an accepted step is fused with the distance the
-   wheels rolled (:func:`~scanreg.pipeline.mapping.fuse_motion`), which holds the track where
-   the map pins it only weakly (along a corridor);
+   judged by :func:`scanreg.verdict.assess`. With a ``prior`` and a wheel noise model
+   (``config.wheel``) the prior is part of the solve: the prediction's covariance (the last
+   pose's, carried through the wheels' step, plus the wheels' own, their distance scale
+   learned online: :class:`~scanreg.pipeline.wheel.WheelOdometry`) is the registration's
+   ``init_covariance``, so a step that slides along a corridor beyond it is rejected by the
+   verdict, and along directions the map does not constrain the scan is held to the
+   prediction (:func:`~scanreg.pipeline.odometry2d.hold_to_prediction`); the verdict and
+   covariance are always those of the returned pose;
 3. **relocalize** — when there is no fix yet, or ``lost_after`` consecutive scans were
    rejected: :func:`scanreg.match_correlative` by branch and bound over the whole map (every
    position, every heading) on a coarse grid, the best refined by point-to-line and judged.
@@ -41,8 +46,16 @@ from ..register import RegistrationResult, register
 from ..target import PreparedTarget, prepare
 from ..transform import SE2, as_pose
 from ..verdict import Verdict, VerdictThresholds, assess
-from .mapping import fuse_motion
-from .odometry2d import Frame2D, FrameTiming2D, _count, _positive, _without_default_probe
+from .odometry2d import (
+    _FAILED,
+    Frame2D,
+    FrameTiming2D,
+    _count,
+    _positive,
+    _without_default_probe,
+    hold_to_prediction,
+)
+from .wheel import WheelNoise, WheelOdometry
 
 
 @dataclass(frozen=True)
@@ -62,10 +75,10 @@ class LocalizationConfig2D:
     #: at least ``ambiguity_ratio`` of the best.
     ambiguity_distance: float = 1.0
     ambiguity_ratio: float = 0.95
-    #: σ of the distance the wheels rolled between two scans, as a fraction of it: a tracked
-    #: pose is the registration's fused with it (:func:`~scanreg.pipeline.mapping.fuse_motion`)
-    #: when a ``prior`` is given. ``0``: the registration's pose alone.
-    wheel_distance_noise: float = 0.05
+    #: The wheel odometry's noise model (see the module docstring), used when a ``prior`` is
+    #: given; ``None``: the prior only starts the registration (its gate-wide prior judges
+    #: how far it may move).
+    wheel: WheelNoise | None = field(default_factory=WheelNoise)
     thresholds: VerdictThresholds = field(default_factory=VerdictThresholds)
 
     def __post_init__(self) -> None:
@@ -74,7 +87,8 @@ class LocalizationConfig2D:
         _count(self.lost_after, "lost_after", 1)
         _positive(self.global_resolution, "global_resolution")
         _positive(self.ambiguity_distance, "ambiguity_distance")
-        _positive(self.wheel_distance_noise, "wheel_distance_noise", allow_zero=True)
+        if self.wheel is not None and not isinstance(self.wheel, WheelNoise):
+            raise TypeError(f"wheel: expected WheelNoise or None, got {type(self.wheel).__name__}")
         if not 0.0 < float(self.ambiguity_ratio) <= 1.0:
             raise ValueError(f"ambiguity_ratio: must be in (0, 1], got {self.ambiguity_ratio}")
         if not isinstance(self.thresholds, VerdictThresholds):
@@ -188,6 +202,9 @@ class Localizer2D:
         self._velocity = SE2.identity()
         self._rejected = 0
         self._index = 0
+        self._wheels = None if cfg.wheel is None else WheelOdometry(cfg.wheel)
+        #: Covariance of the tracked pose (over its tangent): the prediction's starting point.
+        self._covariance: FloatArray = np.zeros((3, 3))
 
     @classmethod
     def from_map_server(
@@ -224,32 +241,57 @@ class Localizer2D:
             return fix.frame
         assert self._pose is not None
         previous = self._pose
+        step_cov = None
         if motion is not None:
-            predicted, how = previous @ motion, "prior"
+            step = motion
+            if self._wheels is not None:
+                step, step_cov = self._wheels.prior(motion)
+            predicted, how = previous @ step, "prior"
         else:
-            predicted, how = previous @ self._velocity, "constant_velocity"
+            step = self._velocity
+            predicted, how = previous @ step, "constant_velocity"
         predicted = predicted.orthonormalized()  # see Odometry2D.step: held frames feed it back
+        predicted_cov = None
+        if step_cov is not None:
+            carry = step.inverse().adjoint()
+            predicted_cov = carry @ self._covariance @ carry.T + step_cov
         t0 = time.perf_counter()
-        res = self._register(pts, predicted)
-        t_align = time.perf_counter() - t0
-        frame = self._judged(pts, res, predicted, how, index, stamp, t_start, t_align)
-        if frame.verdict.accepted and motion is not None and self.config.wheel_distance_noise:
+        res = self._register(pts, predicted, predicted_cov)
+        held: tuple[str, ...] = ()
+        if predicted_cov is not None and res.stop_reason not in _FAILED:
+            cfg = self.config
             # Along a corridor the map pins the scan only weakly and point-to-line slides
             # (Intel: tracks accepted 0.2-0.5 m off the wheels' step, ending 1-14 m from the
-            # mapped pose): the distance the wheels rolled holds that direction.
-            step = fuse_motion(
-                _se2(previous.inverse() @ frame.pose),
-                frame.covariance,
-                motion,
-                self.config.wheel_distance_noise,
+            # mapped pose): there the prediction holds.
+            res, held, _ = hold_to_prediction(
+                res,
+                pts,
+                self._target,
+                predicted,
+                predicted_cov,
+                method="point_to_line",
+                max_correspondence_distance=cfg.max_correspondence_distance,
+                kernel=cfg.kernel,
+                max_iterations=cfg.max_iterations,
+                thresholds=_without_default_probe(cfg.thresholds),
             )
-            frame = dataclasses.replace(frame, pose=_se2(previous @ step), motion=step)
+        t_align = time.perf_counter() - t0
+        frame = self._judged(pts, res, predicted, how, index, stamp, t_start, t_align)
+        if held:
+            frame = dataclasses.replace(frame, held_directions=held)
         if frame.verdict.accepted:
+            if motion is not None and self._wheels is not None and not held:
+                if not frame.degenerate:
+                    self._wheels.observe(motion, previous.inverse() @ frame.pose)
             self._velocity = previous.inverse() @ frame.pose
             self._pose = frame.pose
+            self._covariance = _finite_or_zero(frame.covariance)
             self._rejected = 0
         else:
             self._pose = predicted  # dead-reckon on the prediction until found again
+            self._covariance = _finite_or_zero(
+                np.zeros((3, 3)) if predicted_cov is None else predicted_cov
+            )
             self._rejected += 1
         return frame
 
@@ -297,6 +339,7 @@ class Localizer2D:
         if frame.verdict.accepted:
             self._pose = frame.pose
             self._velocity = SE2.identity()
+            self._covariance = _finite_or_zero(frame.covariance)
             self._rejected = 0
         return GlobalFix(frame=frame, score=score, runner_up_score=runner_up, search_seconds=search)
 
@@ -327,13 +370,18 @@ class Localizer2D:
                     top = max(top, float(res.score))
         return top
 
-    def _register(self, pts: FloatArray, start: SE2) -> RegistrationResult:
+    def _register(
+        self, pts: FloatArray, start: SE2, start_covariance: FloatArray | None = None
+    ) -> RegistrationResult:
         cfg = self.config
         return register(
             pts,
             self._target,
             method="point_to_line",
             init=start,
+            # The prediction's own spread, when known: the verdict's motion check rejects a
+            # step that slid beyond it (else the gate-wide prior).
+            init_covariance=start_covariance,
             max_correspondence_distance=cfg.max_correspondence_distance,
             kernel=cfg.kernel,
             max_iterations=cfg.max_iterations,
@@ -382,6 +430,12 @@ class Localizer2D:
 def _se2(pose: Any) -> SE2:
     assert isinstance(pose, SE2)
     return pose
+
+
+def _finite_or_zero(cov: Any) -> FloatArray:
+    """``cov`` as a float array when finite, else zeros (nothing known to carry)."""
+    out = np.array(cov, dtype=np.float64)
+    return out if np.isfinite(out).all() else np.zeros((3, 3))
 
 
 def _replace_verdict(frame: Frame2D, verdict: Verdict) -> Frame2D:
