@@ -4,6 +4,7 @@ a corridor loop, a real Intel excerpt, outputs and hostile input."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 from functools import cache
@@ -403,24 +404,105 @@ def test_scan_odometry_is_read_at_the_scan_time() -> None:
         assert p is not None and p.is_close(SE2.from_vector(s.odometry_pose))
 
 
-def test_fuse_motion_takes_the_wheel_distance_along_a_corridor_only() -> None:
-    from scanreg.pipeline.mapping import fuse_motion
+def test_wheel_prior_holds_the_corridor_axis_only() -> None:
+    # A featureless corridor along x (its ends out of range): the scan pins y and θ, not x.
+    # With the wheels' noise model the odometry holds x to the wheels' step and takes y and
+    # θ from the scan; its covariance along x is the prediction's, growing step by step.
+    from scanreg.pipeline import Odometry2D, OdometryConfig2D
+    from scanreg.pipeline.wheel import WheelNoise
 
-    scan = SE2.from_vector([0.30, 0.010, 0.0])
-    wheel = SE2.from_vector([0.20, 0.0, 0.30])
-    # A corridor along x: the scan leaves x open (σ 1 m) and pins y and θ (1 mm, 0.01°).
-    cov = np.diag([1.0, 1e-6, math.radians(0.01) ** 2])
-    fused = fuse_motion(scan, cov, wheel, 0.05).as_vector()
-    assert abs(fused[0] - 0.20) < 1e-3  # along: the wheels'
-    assert abs(fused[1] - 0.010) < 1e-3 and abs(fused[2]) < 1e-6  # across, heading: the scan's
-    # A scan that pins every direction keeps its own motion; a failed one is left alone.
-    pinned = fuse_motion(scan, np.diag([1e-8, 1e-8, 1e-10]), wheel, 0.05).as_vector()
-    np.testing.assert_allclose(pinned, scan.as_vector(), atol=1e-3)
-    assert fuse_motion(scan, np.full((3, 3), np.nan), wheel, 0.05) is scan
-    with pytest.raises(ValueError, match="wheel_distance_noise"):
-        MappingConfig(wheel_distance_noise=0.0)
+    scene = sim.corridor(length=80.0, width=2.0, closed_ends=False)
+    laser = dataclasses.replace(sim.LaserModel.preset("laser_360"), max_range=8.0)
+    truth = [SE2.from_vector([30.0 + 0.2 * k, 0.0, 0.0]) for k in range(8)]
+    # The wheels read each 0.2 m step 1 cm long and 2 cm to the left.
+    wheel = SE2.from_vector([0.21, 0.02, 0.0])
+    noise = WheelNoise()
+    odo = Odometry2D(OdometryConfig2D(front_end="correlative", kernel="cauchy"))
+    frames = []
+    for k, pose in enumerate(truth):
+        pts = sim.simulate_scan(scene, laser, pose, seed=k).points
+        if k == 0:
+            frames.append(odo.step(pts))
+        else:
+            frames.append(odo.step(pts, prior=wheel, prior_covariance=noise.covariance(wheel)))
+    variances = []
+    for k, frame in enumerate(frames[1:], start=1):
+        assert any("translation along (1.00" in d for d in frame.held_directions), k
+        x, y, theta = frame.pose.as_vector()
+        assert abs(x - 0.21 * k) < 1e-3  # along: the wheels' (the truth is 0.2 k)
+        assert abs(y) < 0.01 and abs(theta) < math.radians(0.3)  # across: the scan's
+        variances.append(float(frame.covariance[0, 0]))
+    # Along the axis the variance is the prediction's: at least the wheels' per step, growing.
+    step_var = float(noise.covariance(wheel)[0, 0])
+    assert variances[0] >= 0.99 * step_var
+    assert all(b > a for a, b in itertools.pairwise(variances))
+    # Without the noise model the prior only starts the search: nothing is held.
+    odo = Odometry2D(OdometryConfig2D(front_end="correlative", kernel="cauchy"))
+    odo.step(sim.simulate_scan(scene, laser, truth[0], seed=0).points)
+    free = odo.step(sim.simulate_scan(scene, laser, truth[1], seed=1).points, prior=wheel)
+    assert free.held_directions == ()
+
+
+def test_wheel_scale_is_learned_from_well_constrained_steps() -> None:
+    from scanreg.pipeline.wheel import WheelNoise, WheelOdometry
+
+    wheels = WheelOdometry(WheelNoise(scale_settle=2.0))
+    step = SE2.from_vector([0.05, 0.0, 0.01])
+    long = SE2.from_vector([0.05 * 1.046, 0.0, 0.01])  # wheels reading 4.6 % long (Intel's)
+    rng = np.random.default_rng(0)
+    for k in range(200):  # 10 m
+        if k == 30:
+            assert wheels.scale == 1.0  # 1.5 m observed: not settled yet
+        measured = step @ SE2.from_vector([rng.normal(0, 0.001), rng.normal(0, 0.001), 0.0])
+        wheels.observe(long, measured)
+        # A robot turning on the spot: its wheels' floor noise says nothing about scale.
+        wheels.observe(SE2.from_vector([0.0004, 0.0, 0.2]), SE2.from_vector([0, 0, 0.2]))
+    assert abs(wheels.scale - 1 / 1.046) < 2e-3
+    assert abs(wheels.observed_distance - 200 * 0.05 * 1.046) < 1e-9
+    scaled, cov = wheels.prior(long)
+    assert abs(scaled.translation[0] - 0.05) < 1e-4 and scaled.angle == pytest.approx(0.01)
+    np.testing.assert_allclose(cov, WheelNoise().covariance(scaled))
+    # σ along: 5 % of the distance + 1 mm; across 2 % + 1 mm; heading 5 % of the turn
+    # + 1°/m + 1e-4 rad.
+    sd = np.sqrt(np.diag(WheelNoise().covariance(SE2.from_vector([1.0, 0.0, 0.5]))))
+    np.testing.assert_allclose(
+        sd, [0.051, 0.021, 0.025 + math.radians(1.0) + 1e-4], rtol=0, atol=2e-3
+    )
+    # A wrong unit or slipping wheels (scale 2) is not used.
+    slip = WheelOdometry()
+    for _ in range(100):
+        slip.observe(SE2.from_vector([0.05, 0, 0]), SE2.from_vector([0.1, 0, 0]))
+    assert slip.scale == 1.0
+    assert WheelOdometry(WheelNoise(calibrate_scale=False)).scale == 1.0
+
+
+def test_wheel_prior_bad_input() -> None:
+    from scanreg.pipeline import Odometry2D
+    from scanreg.pipeline.wheel import WheelNoise, WheelOdometry
+
+    with pytest.raises(ValueError, match="along: must be finite"):
+        WheelNoise(along=-0.1)
+    with pytest.raises(ValueError, match="max_scale_error: must exceed 1"):
+        WheelNoise(max_scale_error=1.0)
+    with pytest.raises(TypeError, match="calibrate_scale: expected a bool"):
+        WheelNoise(calibrate_scale=1)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="noise: expected WheelNoise"):
+        WheelOdometry(0.05)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="wheel: expected WheelNoise or None"):
+        MappingConfig(wheel=0.05)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="laser_latency"):
         MappingConfig(laser_latency=-0.1)
+    odo = Odometry2D()
+    pts = np.random.default_rng(0).uniform(-5, 5, (50, 2))
+    odo.step(pts)
+    with pytest.raises(ValueError, match="prior_covariance: given without a prior"):
+        odo.step(pts, prior_covariance=np.eye(3))
+    with pytest.raises(ValueError, match=r"prior_covariance: expected shape \(3, 3\)"):
+        odo.step(pts, prior=SE2.identity(), prior_covariance=np.eye(2))
+    with pytest.raises(ValueError, match="prior_covariance: must be finite and symmetric"):
+        odo.step(pts, prior=SE2.identity(), prior_covariance=np.full((3, 3), np.nan))
+    with pytest.raises(ValueError, match="prior_covariance: must be positive semi-definite"):
+        odo.step(pts, prior=SE2.identity(), prior_covariance=-np.eye(3))
 
 
 def test_aces_odometry_at_scan_time_and_latency() -> None:

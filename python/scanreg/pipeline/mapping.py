@@ -100,14 +100,6 @@ class MappingConfig:
     #: (:meth:`Odometry2D.step`'s ``prior_covariance``). ``None``: the prior only starts the
     #: odometry's search.
     wheel: WheelNoise | None = field(default_factory=WheelNoise)
-    #: Each scan's motion is the scan matcher's fused with the distance the wheels rolled,
-    #: weighted by their information (:func:`fuse_motion`): where the scan pins the pose only
-    #: weakly (along a corridor) the wheels decide. ``False``: the scan matcher's alone. Off by
-    #: default: with the current Odometry2D it moves the identical-rooms tour's ATE from 0.013
-    #: to 0.054 m (it gave the Freiburg table of benchmarks/README.md with the earlier one).
-    fuse_wheel_odometry: bool = False
-    #: σ of the distance the wheels rolled, as a fraction of it (:func:`fuse_motion`).
-    wheel_distance_noise: float = 0.05
     #: How long before its timestamp a scan was taken (s), where :func:`run_mapping` reads
     #: the odometry from the log's ``ODOM`` stream (:func:`scan_odometry`); ``None``: measured
     #: on the log (:func:`estimate_laser_latency`).
@@ -134,12 +126,6 @@ class MappingConfig:
         _positive(self.max_range, "max_range")
         if self.laser_latency is not None:
             _positive(self.laser_latency, "laser_latency", allow_zero=True)
-        if not isinstance(self.fuse_wheel_odometry, bool):
-            raise TypeError(
-                "fuse_wheel_odometry: expected a bool, got "
-                f"{type(self.fuse_wheel_odometry).__name__}"
-            )
-        _positive(self.wheel_distance_noise, "wheel_distance_noise")
         if self.max_range <= self.min_range:
             raise ValueError(
                 f"max_range: must exceed min_range ({self.min_range}), got {self.max_range}"
@@ -380,12 +366,7 @@ class Mapper:
         if self._last_pose is None:
             pose = frame.pose
         else:
-            motion = frame.motion
-            if wheel is not None and self.config.fuse_wheel_odometry:
-                motion = fuse_motion(
-                    motion, frame.covariance, wheel, self.config.wheel_distance_noise
-                )
-            pose = (self._last_pose @ motion).orthonormalized()
+            pose = (self._last_pose @ frame.motion).orthonormalized()
         assert isinstance(pose, SE2)
         self._last_pose = pose
         self._odom_poses.append(pose)
@@ -600,46 +581,6 @@ def _well_constrained(frame: Any) -> bool:
         and not frame.held_directions
         and not frame.degenerate
     )
-
-
-#: Floor of the wheel odometry's distance noise (m): a standing robot's wheels are not exact.
-_WHEEL_FLOOR = 0.001
-
-
-def fuse_motion(scan: SE2, covariance: Any, wheel: SE2, distance_noise: float) -> SE2:
-    """One motion ``T_prev_curr`` from two measurements of it: the scan matcher's ``scan``,
-    whose translation has ``covariance[:2, :2]`` (the scan's against the local map), and the
-    distance the wheels rolled, ``|t|`` of ``wheel`` along its direction, with σ =
-    ``distance_noise`` · d (+ 1 mm); the translations are combined by information. Along a
-    direction the scan leaves open (a corridor's axis) its covariance is large and the wheels
-    decide; where it pins the pose, the scan does. The heading is the scan's: the wheels'
-    comes from the difference of two wheel speeds and slips in every turn (Intel's raw
-    odometry is off by 1.5° on relations a second apart, scan matching by 0.2°), and letting
-    the distance pull the heading through the scan's translation-heading correlation made
-    ACES' drift worse (0.37° -> 0.59° over all relations before loop closure); the distance
-    rolled is what encoders measure well. ``scan`` unchanged when its covariance is not
-    finite and positive definite (a failed alignment)."""
-    cov = np.asarray(covariance, dtype=np.float64)
-    if cov.shape != (3, 3):
-        raise ValueError(f"covariance: expected shape (3, 3), got {cov.shape}")
-    if not (math.isfinite(distance_noise) and distance_noise >= 0.0):
-        raise ValueError(f"distance_noise: must be finite and >= 0, got {distance_noise}")
-    if not np.isfinite(cov).all():
-        return scan
-    block = 0.5 * (cov[:2, :2] + cov[:2, :2].T)
-    if float(np.linalg.eigvalsh(block)[0]) <= 0.0:
-        return scan
-    m, w = scan.as_vector(), wheel.as_vector()
-    # The covariance is over the right perturbation of the scan's pose (its own frame); the
-    # motion's translation is in the previous scan's frame: rotate by the motion's heading.
-    c, s = math.cos(m[2]), math.sin(m[2])
-    frame = np.array([[c, -s], [s, c]])
-    info_scan = np.linalg.inv(frame @ block @ frame.T)
-    d = float(np.linalg.norm(w[:2]))
-    u = w[:2] / d if d > 1e-9 else np.array([1.0, 0.0])
-    info_wheel = np.outer(u, u) / (_WHEEL_FLOOR + distance_noise * d) ** 2
-    t = np.linalg.solve(info_scan + info_wheel, info_scan @ m[:2] + info_wheel @ w[:2])
-    return SE2.from_vector([t[0], t[1], m[2]])
 
 
 def _blind_sector(points: FloatArray) -> tuple[float, float]:
