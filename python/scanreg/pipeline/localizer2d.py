@@ -280,9 +280,9 @@ class Localizer2D:
         if held:
             frame = dataclasses.replace(frame, held_directions=held)
         if frame.verdict.accepted:
-            if motion is not None and self._wheels is not None and not held:
-                if not frame.degenerate:
-                    self._wheels.observe(motion, previous.inverse() @ frame.pose)
+            pinned = not held and not frame.degenerate
+            if motion is not None and self._wheels is not None and pinned:
+                self._wheels.observe(motion, previous.inverse() @ frame.pose)
             self._velocity = previous.inverse() @ frame.pose
             self._pose = frame.pose
             self._covariance = _finite_or_zero(frame.covariance)
