@@ -129,3 +129,39 @@ def test_bad_input_is_named() -> None:
         loc.step(world[:50], np.zeros(50))
     with pytest.raises(ValueError, match="points: need at least 3 points"):
         loc.step(world[:2])
+
+
+def test_wheel_prior_holds_a_corridor_axis_in_the_map() -> None:
+    # A map of a featureless corridor along x (ends out of range): the map pins y and θ, not
+    # x. Each step is held to the wheels' prediction along x and accepted (the hold is how
+    # the weakness is handled), the map decides y; the covariance is the held registration's.
+    import dataclasses
+    import math
+
+    scene = sim.corridor(length=80.0, width=2.0, closed_ends=False)
+    laser = dataclasses.replace(sim.LaserModel.preset("laser_360"), max_range=8.0)
+    scans = [
+        sim.simulate_scan(scene, laser, SE2.from_vector([x, 0.0, 0.0]), seed=9).points
+        + np.array([x, 0.0])
+        for x in np.arange(25.0, 45.0, 4.0)
+    ]
+    world = scanreg.preprocess.voxel_downsample(np.concatenate(scans), 0.05).points
+    start = SE2.from_vector([30.0, 0.0, 0.0])
+    loc = Localizer2D(world, initial_pose=start)
+    wheel = SE2.from_vector([0.21, 0.005, 0.0])  # 1 cm long, 5 mm to the left per 0.2 m step
+    for k in range(1, 6):
+        truth = SE2.from_vector([30.0 + 0.2 * k, 0.0, 0.0])
+        frame = loc.step(sim.simulate_scan(scene, laser, truth, seed=k).points, prior=wheel)
+        assert frame.verdict.accepted, (k, frame.verdict.reasons)
+        assert any("translation along (1.00" in d for d in frame.held_directions), k
+        x, y, theta = frame.pose.as_vector()
+        assert abs(x - (30.0 + 0.21 * k)) < 1e-3  # the wheels' along the axis
+        assert abs(y) < 0.01 and abs(theta) < math.radians(0.3)  # the map's across it
+        assert frame.covariance[0, 0] > 0.001**2 and np.isfinite(frame.covariance).all()
+    # Without the noise model nothing is held, and the corridor step is rejected as
+    # degenerate (as before the wheels entered the solve).
+    free = Localizer2D(world, LocalizationConfig2D(wheel=None), initial_pose=start)
+    scan = sim.simulate_scan(scene, laser, SE2.from_vector([30.2, 0.0, 0.0]), seed=1).points
+    frame = free.step(scan, prior=wheel)
+    assert frame.held_directions == ()
+    assert any(r.startswith("degenerate") for r in frame.verdict.reasons)

@@ -276,9 +276,9 @@ class Localizer2D:
                 thresholds=_without_default_probe(cfg.thresholds),
             )
         t_align = time.perf_counter() - t0
-        frame = self._judged(pts, res, predicted, how, index, stamp, t_start, t_align)
-        if held:
-            frame = dataclasses.replace(frame, held_directions=held)
+        frame = self._judged(
+            pts, res, predicted, how, index, stamp, t_start, t_align, held_directions=held
+        )
         if frame.verdict.accepted:
             pinned = not held and not frame.degenerate
             if motion is not None and self._wheels is not None and pinned:
@@ -400,9 +400,16 @@ class Localizer2D:
         stamp: float | None,
         t_start: float,
         t_align: float,
+        held_directions: tuple[str, ...] = (),
     ) -> Frame2D:
         t0 = time.perf_counter()
-        out = assess(res, pts, self._target, init=predicted, thresholds=self.config.thresholds)
+        th = self.config.thresholds
+        if held_directions:
+            # Held to the prediction along its weak directions: that is how the weakness was
+            # handled, not a reason to reject the pose (a corridor step held to the wheels is
+            # the best estimate there is), as the 3D odometry's held frames.
+            th = dataclasses.replace(th, reject_degenerate=False)
+        out = assess(res, pts, self._target, init=predicted, thresholds=th)
         t_judge = time.perf_counter() - t0
         pose = res.pose
         assert isinstance(pose, SE2)
@@ -424,6 +431,7 @@ class Localizer2D:
             timing=FrameTiming2D(
                 align=t_align, judge=t_judge, map_update=0.0, total=time.perf_counter() - t_start
             ),
+            held_directions=held_directions,
         )
 
 

@@ -434,14 +434,19 @@ class Odometry2D:
 
         # 3. judge
         t0 = time.perf_counter()
-        if start is predicted and res.quality is not None and res.verdict is not None:
+        if not held and start is predicted and res.quality is not None and res.verdict is not None:
             # Registered from the prediction itself, with thresholds that differ from the
             # pipeline's at most in whether the probe runs (which judging does not read): the
             # registration's own verdict is the one ``assess`` would give (the same overlap
             # pass, degeneracy, motion χ² and probe), without a second overlap pass.
             out = Assessment(report=res.quality, verdict=res.verdict)
         else:
-            out = assess(res, pts, self._target, init=predicted, thresholds=cfg.thresholds)
+            # A frame held to its prediction along its weak directions is not rejected for
+            # them (that is how the weakness was handled), as the 3D odometry's held frames.
+            th = cfg.thresholds
+            if held:
+                th = dataclasses.replace(th, reject_degenerate=False)
+            out = assess(res, pts, self._target, init=predicted, thresholds=th)
         t_judge = time.perf_counter() - t0
 
         # 4. update
