@@ -45,7 +45,8 @@ from ..preprocess import voxel_downsample
 from ..transform import SE2, SE3, as_pose
 from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, match_loop
 from .loops3d import LoopMatch3D
-from .odometry2d import Odometry2D, OdometryConfig2D, _count, _positive
+from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph_fields
+from .odometry2d import Odometry2D, OdometryConfig2D, _positive
 from .wheel import WheelNoise, WheelOdometry
 
 #: The pose type of a run (2D or 3D) and of its loop matches: one result shape for both.
@@ -110,18 +111,7 @@ class MappingConfig:
             raise TypeError(
                 f"odometry: expected OdometryConfig2D, got {type(self.odometry).__name__}"
             )
-        for name in (
-            "node_distance",
-            "node_angle",
-            "node_voxel_size",
-            "drift_translation",
-            "drift_rotation",
-            "loop_min_travel",
-            "loop_max_range",
-        ):
-            _positive(getattr(self, name), name, allow_zero=True)
-        for name in ("drift_floor_translation", "drift_floor_rotation", "loop_gate_sigmas"):
-            _positive(getattr(self, name), name)
+        validate_graph_fields(self)
         _positive(self.min_range, "min_range", allow_zero=True)
         _positive(self.max_range, "max_range")
         if self.laser_latency is not None:
@@ -130,11 +120,6 @@ class MappingConfig:
             raise ValueError(
                 f"max_range: must exceed min_range ({self.min_range}), got {self.max_range}"
             )
-        _count(self.submap_half_size, "submap_half_size", 0)
-        _count(self.max_candidates, "max_candidates", 0)
-        _count(self.loop_every, "loop_every", 1)
-        if not isinstance(self.loop_kernel, Kernel):
-            raise TypeError(f"loop_kernel: expected Kernel, got {type(self.loop_kernel).__name__}")
         if not isinstance(self.loops, LoopSettings):
             raise TypeError(f"loops: expected LoopSettings, got {type(self.loops).__name__}")
         if self.wheel is not None and not isinstance(self.wheel, WheelNoise):
@@ -388,7 +373,7 @@ class Mapper:
         if self._node_scans:
             rel = self._node_odom[self.num_nodes - 1].inverse() @ pose
             dist = float(np.linalg.norm(rel.translation))
-            if dist <= cfg.node_distance and abs(rel.angle) <= cfg.node_angle:
+            if not is_new_node(dist, rel.angle, cfg):
                 return None
         node = self.num_nodes
         kept = pts
@@ -410,12 +395,7 @@ class Mapper:
             dist = float(np.linalg.norm(rel.translation))
             self._node_travel.append(self._node_travel[-1] + dist)
             g.add_node(node, g.pose(prev) @ rel)  # type: ignore[operator]
-            st = cfg.drift_floor_translation + cfg.drift_translation * dist
-            sr = cfg.drift_floor_rotation + cfg.drift_rotation * dist
-            cov = np.diag([st**2, st**2, sr**2])
-            measured = np.asarray(covariance, dtype=np.float64)
-            if measured.shape == (3, 3) and np.isfinite(measured).all():
-                cov = cov + 0.5 * (measured + measured.T)
+            cov = odometry_edge_covariance(dist, covariance, cfg, 2)
             g.add_edge(prev, node, rel, np.linalg.inv(cov))
         g.update()
         self._timing.add("optimization", t0)

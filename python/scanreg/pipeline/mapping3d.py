@@ -47,8 +47,9 @@ from ..preprocess import voxel_downsample
 from ..transform import SE3, as_pose
 from .loops3d import LoopMatch3D, LoopSettings3D, Submap3D, build_submap_3d, match_loop_3d
 from .mapping import LoopRecord, MappingResult, MappingStep, MappingTiming
+from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph_fields
 from .odometry import Odometry, OdometryConfig
-from .odometry2d import _count, _positive
+from .odometry2d import _count
 
 
 def _se3(pose: Any) -> SE3:
@@ -101,28 +102,12 @@ class MappingConfig3D:
             raise TypeError(
                 f"odometry: expected OdometryConfig, got {type(self.odometry).__name__}"
             )
-        for name in (
-            "node_distance",
-            "node_angle",
-            "node_voxel_size",
-            "drift_translation",
-            "drift_rotation",
-            "loop_min_travel",
-            "loop_max_range",
-        ):
-            _positive(getattr(self, name), name, allow_zero=True)
-        for name in ("drift_floor_translation", "drift_floor_rotation", "loop_gate_sigmas"):
-            _positive(getattr(self, name), name)
-        _count(self.submap_half_size, "submap_half_size", 0)
-        _count(self.max_candidates, "max_candidates", 0)
-        _count(self.loop_every, "loop_every", 1)
+        validate_graph_fields(self)
         _count(self.place_every, "place_every", 0)
         if not isinstance(self.refine_submaps, bool):
             raise TypeError(
                 f"refine_submaps: expected a bool, got {type(self.refine_submaps).__name__}"
             )
-        if not isinstance(self.loop_kernel, Kernel):
-            raise TypeError(f"loop_kernel: expected Kernel, got {type(self.loop_kernel).__name__}")
         if not isinstance(self.loops, LoopSettings3D):
             raise TypeError(f"loops: expected LoopSettings3D, got {type(self.loops).__name__}")
 
@@ -288,7 +273,7 @@ class Mapper3D:
         if self._node_scans:
             rel = _se3(self._node_odom[self.num_nodes - 1].inverse() @ pose)
             dist = float(np.linalg.norm(rel.translation))
-            if dist <= cfg.node_distance and rel.angle <= cfg.node_angle:
+            if not is_new_node(dist, rel.angle, cfg):
                 return None
         node = self.num_nodes
         self._node_scans.append(index)
@@ -304,12 +289,7 @@ class Mapper3D:
             dist = float(np.linalg.norm(rel.translation))
             self._node_travel.append(self._node_travel[-1] + dist)
             g.add_node(node, _se3(self._pose(prev) @ rel))
-            st = cfg.drift_floor_translation + cfg.drift_translation * dist
-            sr = cfg.drift_floor_rotation + cfg.drift_rotation * dist
-            cov = np.diag([st**2] * 3 + [sr**2] * 3)
-            measured = np.asarray(covariance, dtype=np.float64)
-            if measured.shape == (6, 6) and np.isfinite(measured).all():
-                cov = cov + 0.5 * (measured + measured.T)
+            cov = odometry_edge_covariance(dist, covariance, cfg, 3)
             g.add_edge(prev, node, rel, np.linalg.inv(cov))
         g.update()
         self._timing.optimization += time.perf_counter() - t0
