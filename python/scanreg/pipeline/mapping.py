@@ -96,8 +96,9 @@ class MappingConfig:
     max_range: float = 40.0
     #: The wheel odometry's noise model: each ``prior`` (scaled by the wheels' distance scale,
     #: learned online from the well-constrained steps:
-    #: :class:`~scanreg.pipeline.wheel.WheelOdometry`) enters the odometry's solve with its covariance, so that along a
-    #: direction the scan does not constrain (a corridor's axis) the wheels hold the pose
+    #: :class:`~scanreg.pipeline.wheel.WheelOdometry`) enters the odometry's solve with its
+    #: covariance, so that along a direction the scan does not constrain (a corridor's axis)
+    #: the wheels hold the pose
     #: (:meth:`Odometry2D.step`'s ``prior_covariance``). ``None``: the prior only starts the
     #: odometry's search. Off by default: on the data at hand it did not help — Intel 0.0158
     #: against 0.0155 m, ACES 0.0415 against 0.0391 m (benchmarks/README.md,
