@@ -176,7 +176,8 @@ class Frame2D:
     #: Whether the scan joined the map (as a keyframe).
     map_updated: bool
     timing: FrameTiming2D
-    #: Directions held to the prediction; the 2D pipeline holds none (kept for the shared shape).
+    #: Directions held to the prediction (with a ``prior_covariance``: the weak directions of
+    #: the registration, :func:`hold_to_prediction`); empty otherwise.
     held_directions: tuple[str, ...] = ()
     #: The ICP front end's first result was rejected as a wrong basin or as a slide beyond
     #: the prediction's uncertainty (with ``thresholds.basin_probe=True``) and the scan was
