@@ -123,6 +123,44 @@ def test_tunnel_is_held_to_the_motion_prior() -> None:
     assert w[0] / w[-1] < 0.05 and abs(v[0, 0]) > 0.99
 
 
+def test_stated_prior_covariance_holds_the_tunnel_axis() -> None:
+    # A stated prior covariance replaces the prior_sigma spread: along the held axis the
+    # frame's covariance is the stated variance, not prior_sigma².
+    seq, gt = _tunnel()
+    stated = np.diag([0.02**2] * 3 + [np.deg2rad(0.1) ** 2] * 3)
+    odo = Odometry(OdometryConfig())
+    for k in range(len(seq)):
+        f = seq[k]
+        prior = scanreg.SE3.from_matrix(np.linalg.inv(gt[k - 1]) @ gt[k]) if k else None
+        r = odo.step(
+            f.points, f.timestamps, prior, stamp=f.stamp, prior_covariance=stated if k else None
+        )
+    assert float(np.linalg.norm(r.pose.translation - gt[-1][:3, 3])) < 0.05
+    assert r.held_directions and r.held_directions[0].startswith("translation along (1.00")
+    assert r.covariance[0, 0] == pytest.approx(0.02**2, rel=0.05)
+
+
+def test_step_signature_and_prior_covariance_checks_match_2d() -> None:
+    import inspect
+
+    from scanreg.pipeline import Odometry2D
+
+    def shape(fn: object) -> list[tuple[str, object]]:
+        return [(p.name, p.kind) for p in inspect.signature(fn).parameters.values()]  # type: ignore[arg-type]
+
+    assert shape(Odometry.step) == shape(Odometry2D.step)
+    odo = Odometry(OdometryConfig())
+    pts = np.random.default_rng(0).uniform(-10, 10, (500, 3))
+    with pytest.raises(ValueError, match="prior_covariance: given without a prior"):
+        odo.step(pts, prior_covariance=np.eye(6))
+    with pytest.raises(ValueError, match=r"prior_covariance: expected shape \(6, 6\)"):
+        odo.step(pts, prior=np.eye(4), prior_covariance=np.eye(3))
+    with pytest.raises(ValueError, match="prior_covariance: must be finite and symmetric"):
+        odo.step(pts, prior=np.eye(4), prior_covariance=np.full((6, 6), np.nan))
+    with pytest.raises(ValueError, match="prior_covariance: must be positive semi-definite"):
+        odo.step(pts, prior=np.eye(4), prior_covariance=-np.eye(6))
+
+
 def test_deskew_matters_at_speed() -> None:
     # 15 m/s: a sweep is smeared by 1.5 m. Without deskew the street estimate is worse.
     run = _run("street", 15.0, 15)

@@ -50,7 +50,7 @@ from ..robust import check_kernel
 from ..target import PreparedTarget
 from ..transform import SE3, as_pose
 from ..verdict import QualityReport, Verdict, VerdictThresholds
-from .odometry2d import _positive  # the same number check as the 2D pipeline
+from .odometry2d import _checked_prior_covariance, _positive  # the 2D pipeline's checks
 
 OdometryMethod = Literal["point_to_point", "point_to_plane", "gicp"]
 ODOMETRY_METHODS: tuple[str, ...] = ("point_to_point", "point_to_plane", "gicp")
@@ -403,8 +403,9 @@ class Odometry:
         prior: Any = None,
         *,
         stamp: float | None = None,
+        prior_covariance: Any = None,
     ) -> FrameResult:
-        """Process one sweep.
+        """Process one sweep; the signature of :meth:`scanreg.pipeline.Odometry2D.step`.
 
         Parameters
         ----------
@@ -418,8 +419,17 @@ class Odometry:
         stamp
             The sweep's time (s); with the previous sweep's it gives the deskew period
             (otherwise the span of ``timestamps``).
+        prior_covariance
+            ``(6, 6)`` covariance of ``prior`` over its right-perturbation tangent (``[ρ, φ]``).
+            It replaces the default ``prior_sigma`` spread as the prediction's covariance:
+            the registration's ``init_covariance`` (its verdict's motion check, the basin
+            probe's plausible alternatives) and, with ``degeneracy_aware``, what holds the
+            directions the sweep cannot observe. ``None``: the ``prior_sigma`` spread.
         """
-        return self._step(points, timestamps, prior, stamp, external_prior=prior is not None)
+        checked = _checked_prior_covariance(prior_covariance, prior, 6)
+        return self._step(
+            points, timestamps, prior, stamp, external_prior=prior is not None, stated=checked
+        )
 
     def _step(
         self,
@@ -429,6 +439,7 @@ class Odometry:
         stamp: float | None,
         *,
         external_prior: bool,
+        stated: FloatArray | None = None,
     ) -> FrameResult:
         t_start = time.perf_counter()
         c = self.config
@@ -472,7 +483,13 @@ class Odometry:
         # An external prior's spread is prior_sigma; constant velocity ("always") keeps the
         # registration's gate-wide prior: it is no measurement, and a vehicle starting from rest
         # moves far beyond prior_sigma from it (its motion check would reject the frame).
-        prior_cov = self._prior_covariance(source) if hold and has_prior else None
+        prior_cov = (
+            stated
+            if stated is not None
+            else self._prior_covariance(source)
+            if hold and has_prior
+            else None
+        )
         # 5. align
         t0 = time.perf_counter()
         settings = RegistrationSettings(
@@ -521,7 +538,9 @@ class Odometry:
                 velocity = velocity_from_motion(motion, self._period(times, stamp))
                 self.map.clear()
                 self._insert(previous, self._grids(first_pts, first_times, velocity)[0])
-                return self._step(points, timestamps, motion, stamp, external_prior=has_prior)
+                return self._step(
+                    points, timestamps, motion, stamp, external_prior=has_prior, stated=stated
+                )
         self._first_sweep = None
 
         # 6. judge: the alignment judged the result against the map, from the prediction

@@ -497,9 +497,9 @@ class Odometry2D:
 _FAILED = ("diverged", "too_few_correspondences")
 
 
-def _checked_prior_covariance(value: Any, motion: SE2 | None) -> FloatArray | None:
-    """``prior_covariance`` checked: ``(3, 3)``, finite, symmetric, positive semi-definite,
-    and only with a ``prior``."""
+def _checked_prior_covariance(value: Any, motion: Any, dof: int = 3) -> FloatArray | None:
+    """``prior_covariance`` checked: ``(dof, dof)``, finite, symmetric, positive
+    semi-definite, and only with a ``prior`` (``motion``); shared by the 2D and 3D odometry."""
     if value is None:
         return None
     if motion is None:
@@ -508,10 +508,10 @@ def _checked_prior_covariance(value: Any, motion: SE2 | None) -> FloatArray | No
         cov = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise TypeError(
-            f"prior_covariance: expected a (3, 3) array, got {type(value).__name__}"
+            f"prior_covariance: expected a ({dof}, {dof}) array, got {type(value).__name__}"
         ) from None
-    if cov.shape != (3, 3):
-        raise ValueError(f"prior_covariance: expected shape (3, 3), got {cov.shape}")
+    if cov.shape != (dof, dof):
+        raise ValueError(f"prior_covariance: expected shape ({dof}, {dof}), got {cov.shape}")
     if not np.isfinite(cov).all() or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
         raise ValueError("prior_covariance: must be finite and symmetric")
     if float(np.linalg.eigvalsh(cov)[0]) < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
