@@ -139,21 +139,7 @@ impl KdTree {
         let g = py
             .detach(|| normals::local_geometry_with(&self.inner, k, vp, normals, reg, drop_linear))
             .map_err(core_err)?;
-        let dim = self.inner.dim();
-        let n = self.inner.len();
-        let nrm = g.normals.map(|v| rows(py, v, dim)).transpose()?;
-        let cov = g
-            .covariances
-            .map(|v| -> PyResult<Py<PyArray3<f64>>> {
-                Ok(v.into_pyarray(py).reshape([n, dim, dim])?.unbind())
-            })
-            .transpose()?;
-        Ok((
-            nrm,
-            cov,
-            g.valid.into_pyarray(py).unbind(),
-            g.linear.into_pyarray(py).unbind(),
-        ))
+        self.geometry_arrays(py, g)
     }
 
     /// `local_geometry`, and the normals' `(ε̂², ε̃²)` (as `target_normal_noise` of this tree
@@ -190,21 +176,8 @@ impl KdTree {
                 Ok((g, noise))
             })
             .map_err(core_err)?;
-        let n = self.inner.len();
-        let nrm = g.normals.map(|v| rows(py, v, dim)).transpose()?;
-        let cov = g
-            .covariances
-            .map(|v| -> PyResult<Py<PyArray3<f64>>> {
-                Ok(v.into_pyarray(py).reshape([n, dim, dim])?.unbind())
-            })
-            .transpose()?;
-        Ok((
-            nrm,
-            cov,
-            g.valid.into_pyarray(py).unbind(),
-            g.linear.into_pyarray(py).unbind(),
-            noise,
-        ))
+        let (nrm, cov, valid, linear) = self.geometry_arrays(py, g)?;
+        Ok((nrm, cov, valid, linear, noise))
     }
 
     /// Statistical outlier removal: `(kept (K,), mean_distance (N,), threshold)`.
@@ -243,4 +216,38 @@ impl KdTree {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<KdTree>()?;
     Ok(())
+}
+
+/// `(normals (N, D) | None, covariances (N, D, D) | None, valid (N,), linear (N,))`.
+type GeometryArrays = (
+    Option<Py<PyArray2<f64>>>,
+    Option<Py<PyArray3<f64>>>,
+    Py<PyArray1<bool>>,
+    Py<PyArray1<bool>>,
+);
+
+impl KdTree {
+    /// A [`normals::LocalGeometry`] of this tree's points as the arrays `local_geometry` and
+    /// `local_geometry_noise` return.
+    fn geometry_arrays(
+        &self,
+        py: Python<'_>,
+        g: normals::LocalGeometry,
+    ) -> PyResult<GeometryArrays> {
+        let dim = self.inner.dim();
+        let n = self.inner.len();
+        let nrm = g.normals.map(|v| rows(py, v, dim)).transpose()?;
+        let cov = g
+            .covariances
+            .map(|v| -> PyResult<Py<PyArray3<f64>>> {
+                Ok(v.into_pyarray(py).reshape([n, dim, dim])?.unbind())
+            })
+            .transpose()?;
+        Ok((
+            nrm,
+            cov,
+            g.valid.into_pyarray(py).unbind(),
+            g.linear.into_pyarray(py).unbind(),
+        ))
+    }
 }
