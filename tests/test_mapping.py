@@ -488,6 +488,13 @@ def test_wheel_prior_bad_input() -> None:
         WheelNoise(calibrate_scale=1)  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="noise: expected WheelNoise"):
         WheelOdometry(0.05)  # type: ignore[arg-type]
+    np.testing.assert_array_equal(
+        WheelNoise().covariance(SE2.from_vector([0.3, 0.0, 0.1]).as_matrix()),
+        WheelNoise().covariance(SE2.from_vector([0.3, 0.0, 0.1])),
+    )
+    for bad in (np.full((3, 3), np.nan), np.eye(4), np.empty(0)):
+        with pytest.raises(ValueError, match="motion"):
+            WheelNoise().covariance(bad)
     with pytest.raises(TypeError, match="wheel: expected WheelNoise or None"):
         MappingConfig(wheel=0.05)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="laser_latency"):

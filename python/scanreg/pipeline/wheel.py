@@ -76,11 +76,13 @@ class WheelNoise:
                 f"calibrate_scale: expected a bool, got {type(self.calibrate_scale).__name__}"
             )
 
-    def covariance(self, motion: SE2) -> FloatArray:
-        """``(3, 3)`` covariance of the increment ``motion`` over its right-perturbation
-        tangent ``[ρx, ρy, θ]`` (its end frame; for a step of centimetres and degrees the
-        robot frame the noise is drawn in)."""
-        x, _, theta = motion.log()
+    def covariance(self, motion: Any) -> FloatArray:
+        """``(3, 3)`` covariance of the increment ``motion`` (``SE2`` or ``3x3``) over its
+        right-perturbation tangent ``[ρx, ρy, θ]`` (its end frame; for a step of centimetres
+        and degrees the robot frame the noise is drawn in)."""
+        step = as_pose(motion, "motion", 2)
+        assert isinstance(step, SE2)
+        x, _, theta = step.log()
         d = abs(float(x))
         sigma = np.array(
             [
