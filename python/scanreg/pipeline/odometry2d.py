@@ -250,6 +250,7 @@ class Odometry2D:
         *,
         stamp: float | None = None,
         prior_covariance: Any = None,
+        search_covariance: Any = None,
     ) -> Frame2D:
         """Register one scan to the local map; the signature of :meth:`scanreg.Odometry.step`.
 
@@ -275,6 +276,13 @@ class Odometry2D:
             registration (the prediction's variance along the held directions: the previous
             pose's, carried through the motion, plus ``prior_covariance``), and
             ``held_directions`` names them. ``None``: the prior only starts the search.
+        search_covariance
+            ``(3, 3)`` covariance of ``prior`` (as ``prior_covariance``), positive definite,
+            used only to rank the correlative front end's candidates: a motion cost
+            (:func:`scanreg.match_correlative`'s ``init_covariance``), so that of two poses
+            the scan supports about equally the one nearer the prediction is refined, while
+            the refinement, verdict and covariance stay the scan's own. Ignored by the ICP
+            front end.
         """
         t_start = time.perf_counter()
         pts = as_points(points, "points", dim=2)
@@ -299,6 +307,9 @@ class Odometry2D:
         motion = None if prior is None else as_pose(prior, "prior", 2)
         assert motion is None or isinstance(motion, SE2)
         prior_cov = _checked_prior_covariance(prior_covariance, motion)
+        search_cov = _checked_prior_covariance(
+            search_covariance, motion, name="search_covariance", definite=True
+        )
         cfg = self.config
         if cfg.scan_voxel_size > 0:
             pts = np.ascontiguousarray(voxel_downsample(pts, cfg.scan_voxel_size).points)
@@ -355,12 +366,16 @@ class Odometry2D:
                 self._grid = prepare_correlative(
                     self._map_points, resolution=cfg.correlative_resolution
                 )
+            # With a motion cost the lattice's candidates are ranked by their posterior: of
+            # two that the scan scores about alike (a corridor's axis, a repeated doorway)
+            # the one the wheels' step supports wins; a clearly better basin still does.
             coarse = match_correlative(
                 pts,
                 self._grid,
                 init=predicted,
                 window=cfg.correlative_window,
                 search="branch_and_bound",
+                init_covariance=search_cov,
             )
             start = coarse.pose
         res = register(
@@ -497,25 +512,31 @@ class Odometry2D:
 _FAILED = ("diverged", "too_few_correspondences")
 
 
-def _checked_prior_covariance(value: Any, motion: Any, dof: int = 3) -> FloatArray | None:
-    """``prior_covariance`` checked: ``(dof, dof)``, finite, symmetric, positive
-    semi-definite, and only with a ``prior`` (``motion``); shared by the 2D and 3D odometry."""
+def _checked_prior_covariance(
+    value: Any, motion: Any, dof: int = 3, *, name: str = "prior_covariance", definite: bool = False
+) -> FloatArray | None:
+    """``prior_covariance`` (or the argument ``name``) checked: ``(dof, dof)``, finite,
+    symmetric, positive semi-definite (``definite``: positive definite), and only with a
+    ``prior`` (``motion``); shared by the 2D and 3D odometry."""
     if value is None:
         return None
     if motion is None:
-        raise ValueError("prior_covariance: given without a prior (the motion it describes)")
+        raise ValueError(f"{name}: given without a prior (the motion it describes)")
     try:
         cov = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise TypeError(
-            f"prior_covariance: expected a ({dof}, {dof}) array, got {type(value).__name__}"
+            f"{name}: expected a ({dof}, {dof}) array, got {type(value).__name__}"
         ) from None
     if cov.shape != (dof, dof):
-        raise ValueError(f"prior_covariance: expected shape ({dof}, {dof}), got {cov.shape}")
+        raise ValueError(f"{name}: expected shape ({dof}, {dof}), got {cov.shape}")
     if not np.isfinite(cov).all() or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
-        raise ValueError("prior_covariance: must be finite and symmetric")
-    if float(np.linalg.eigvalsh(cov)[0]) < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
-        raise ValueError("prior_covariance: must be positive semi-definite")
+        raise ValueError(f"{name}: must be finite and symmetric")
+    low = float(np.linalg.eigvalsh(cov)[0])
+    if definite and low <= 0.0:
+        raise ValueError(f"{name}: must be positive definite")
+    if low < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
+        raise ValueError(f"{name}: must be positive semi-definite")
     return cov
 
 
