@@ -510,6 +510,12 @@ def test_wheel_prior_bad_input() -> None:
         odo.step(pts, prior=SE2.identity(), prior_covariance=np.full((3, 3), np.nan))
     with pytest.raises(ValueError, match="prior_covariance: must be positive semi-definite"):
         odo.step(pts, prior=SE2.identity(), prior_covariance=-np.eye(3))
+    with pytest.raises(ValueError, match="search_covariance: given without a prior"):
+        odo.step(pts, search_covariance=np.eye(3))
+    with pytest.raises(ValueError, match="search_covariance: must be positive definite"):
+        odo.step(pts, prior=SE2.identity(), search_covariance=np.diag([1.0, 0.0, 1.0]))
+    with pytest.raises(TypeError, match="motion_cost: expected WheelNoise or None"):
+        MappingConfig(motion_cost=0.1)  # type: ignore[arg-type]
 
 
 def test_aces_odometry_at_scan_time_and_latency() -> None:
