@@ -267,7 +267,8 @@ def test_motion_cost_keeps_the_predicted_basin_in_a_repeating_corridor() -> None
     # A corridor lined with posts every 0.35 m: inside the ±0.3 m search window a step has a
     # twin basin one period away that the scan scores about as well. Ranked by the scan
     # alone the search takes twins (the track falls behind by periods); with the wheels'
-    # step as a motion cost (``search_covariance``) it keeps the basin the wheels support,
+    # step as a motion cost (``prior_covariance_use="search"``) it keeps the basin the wheels
+    # support,
     # even where the wheels' step is 12 cm short (injected at step 5).
     from scanreg.pipeline.wheel import WheelNoise
     from scanreg.simulate.scene import SceneBuilder
@@ -282,7 +283,10 @@ def test_motion_cost_keeps_the_predicted_basin_in_a_repeating_corridor() -> None
     noise = WheelNoise()
     worst: dict[bool, float] = {}
     for cost in (False, True):
-        odo = Odometry2D(OdometryConfig2D(front_end="correlative", kernel="cauchy"))
+        use = "search" if cost else "solve"
+        odo = Odometry2D(
+            OdometryConfig2D(front_end="correlative", kernel="cauchy", prior_covariance_use=use)
+        )
         errors = []
         for k, pose in enumerate(truth):
             pts = sim.simulate_scan(scene, laser, pose, seed=k).points
@@ -293,7 +297,7 @@ def test_motion_cost_keeps_the_predicted_basin_in_a_repeating_corridor() -> None
             if k == 5:
                 step = step @ SE2.from_vector([-0.12, 0.0, 0.0])
             cov = noise.covariance(step) if cost else None
-            frame = odo.step(pts, prior=step, search_covariance=cov)
+            frame = odo.step(pts, prior=step, prior_covariance=cov)
             errors.append(
                 float(np.linalg.norm(frame.pose.translation - pose.translation + [20, 0]))
             )

@@ -30,6 +30,7 @@ are the odometry front end and the loop matcher (:mod:`scanreg.pipeline.loops`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -107,11 +108,12 @@ class MappingConfig:
     wheel: WheelNoise | None = None
     #: The motion cost of the odometry's correlative search: the wheels' step (its distance
     #: scale learned online, as for ``wheel``) with this noise model's covariance ranks the
-    #: candidates (:meth:`Odometry2D.step`'s ``search_covariance``), so that where the scan
+    #: candidates (``OdometryConfig2D.prior_covariance_use="search"``), so that where the scan
     #: barely prefers one pose over another (a corridor's axis, a repeated doorway) the one
     #: the wheels support is refined; the refinement, verdict and covariance stay the scan's.
     #: ``None``: the candidates are ranked by the scan alone and the raw wheels predict.
-    #: Unused while ``wheel`` is set (the wheels are then in the solve itself).
+    #: Unused while ``wheel`` is set (the wheels are then in the solve itself); otherwise the
+    #: odometry runs with ``prior_covariance_use="search"``.
     motion_cost: WheelNoise | None = field(default_factory=WheelNoise)
     #: How long before its timestamp a scan was taken (s), where :func:`run_mapping` reads
     #: the odometry from the log's ``ODOM`` stream (:func:`scan_odometry`); ``None``: measured
@@ -276,7 +278,10 @@ class Mapper:
         if not isinstance(cfg, MappingConfig):
             raise TypeError(f"config: expected MappingConfig, got {type(cfg).__name__}")
         self.config = cfg
-        self._odometry = Odometry2D(cfg.odometry)
+        odometry = cfg.odometry
+        if cfg.motion_cost is not None and cfg.wheel is None:
+            odometry = dataclasses.replace(odometry, prior_covariance_use="search")
+        self._odometry = Odometry2D(odometry)
         self._wheels = None if cfg.wheel is None else WheelOdometry(cfg.wheel)
         # The motion cost's wheels, their distance scale learned as the wheel prior's is.
         self._cost_wheels = (
@@ -372,7 +377,7 @@ class Mapper:
             # The wheels' step (rescaled) both predicts and, with its covariance, ranks the
             # correlative candidates; the scan alone refines and is judged.
             scaled, cost = self._cost_wheels.prior(wheel)
-            frame = self._odometry.step(pts, prior=scaled, search_covariance=cost)
+            frame = self._odometry.step(pts, prior=scaled, prior_covariance=cost)
             if _well_constrained(frame):
                 self._cost_wheels.observe(wheel, frame.motion)
         else:
