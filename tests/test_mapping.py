@@ -477,7 +477,7 @@ def test_wheel_scale_is_learned_from_well_constrained_steps() -> None:
 
 
 def test_wheel_prior_bad_input() -> None:
-    from scanreg.pipeline import Odometry2D
+    from scanreg.pipeline import Odometry2D, OdometryConfig2D
     from scanreg.pipeline.wheel import WheelNoise, WheelOdometry
 
     with pytest.raises(ValueError, match="along: must be finite"):
@@ -510,6 +510,15 @@ def test_wheel_prior_bad_input() -> None:
         odo.step(pts, prior=SE2.identity(), prior_covariance=np.full((3, 3), np.nan))
     with pytest.raises(ValueError, match="prior_covariance: must be positive semi-definite"):
         odo.step(pts, prior=SE2.identity(), prior_covariance=-np.eye(3))
+    # As a motion cost only (the correlative search's ranking) it must be positive definite.
+    search = Odometry2D(OdometryConfig2D(front_end="correlative", prior_covariance_use="search"))
+    search.step(pts)
+    with pytest.raises(ValueError, match="prior_covariance: must be positive definite"):
+        search.step(pts, prior=SE2.identity(), prior_covariance=np.diag([1.0, 0.0, 1.0]))
+    with pytest.raises(ValueError, match="prior_covariance_use: unknown 'x'"):
+        OdometryConfig2D(prior_covariance_use="x")  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="motion_cost: expected WheelNoise or None"):
+        MappingConfig(motion_cost=0.1)  # type: ignore[arg-type]
 
 
 def test_aces_odometry_at_scan_time_and_latency() -> None:

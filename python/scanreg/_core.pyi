@@ -608,6 +608,7 @@ class CorrelativeGrid:
         angular_step: float,
         method: str,
         covariance_radius: int,
+        penalty: tuple[float, ...] | None = None,
     ) -> CorrelativeMatch: ...
 
 # --- motion compensation (crates/scanreg-py/src/deskew.rs) ---

@@ -80,6 +80,12 @@ pub struct Window {
     pub ntheta: i64,
     /// `δθ`, radians.
     pub angular_step: f64,
+    /// A motion cost: the information matrix `P` (row-major 3×3, symmetric positive
+    /// semi-definite) over the window frame's offsets `x = (i·r, j·r, k·δθ)` from `center`;
+    /// each candidate's objective is then `S − ½ xᵀ P x` instead of `S` (a real-time
+    /// correlative matcher's pull towards the prediction: of two nearly equal basins the one
+    /// nearer `center`, in the prediction's own metric, wins). `None`: `S` alone.
+    pub penalty: Option<[f64; 9]>,
 }
 
 /// The answer of a search.
@@ -105,6 +111,85 @@ pub struct Match {
     pub bounds: u64,
     /// Candidates whose `p` entered the covariance.
     pub covariance_candidates: u64,
+}
+
+/// The motion cost in lattice units `u = (i, j, k)`: `½ uᵀ Q u` with `Q = S P S`,
+/// `S = diag(r, r, δθ)`.
+#[derive(Debug, Clone, Copy)]
+struct Cost {
+    q: [[f64; 3]; 3],
+}
+
+impl Cost {
+    fn new(w: &Window, resolution: f64) -> Option<Cost> {
+        let p = w.penalty?;
+        let s = [resolution, resolution, w.angular_step];
+        let mut q = [[0.0; 3]; 3];
+        for a in 0..3 {
+            for b in 0..3 {
+                q[a][b] = p[a * 3 + b] * s[a] * s[b];
+            }
+        }
+        Some(Cost { q })
+    }
+
+    #[inline]
+    fn at(&self, i: f64, j: f64, k: f64) -> f64 {
+        let u = [i, j, k];
+        let mut v = 0.0;
+        for a in 0..3 {
+            for b in 0..3 {
+                v += u[a] * self.q[a][b] * u[b];
+            }
+        }
+        0.5 * v
+    }
+
+    /// A lower bound of the cost over `i ∈ [i0, i1]`, `j ∈ [j0, j1]` at rotation `k`: the
+    /// minimum of the convex quadratic over the rectangle (its free minimum when inside, else
+    /// the least of the four edges'), less a margin for round-off, so that a node's bound stays
+    /// `≥` every leaf below it.
+    fn lower_bound(&self, k: f64, i0: f64, i1: f64, j0: f64, j1: f64) -> f64 {
+        let q = &self.q;
+        // q(i, j) = ½ (a i² + 2 b i j + c j²) + (d i + e j) + f, with k fixed.
+        let (a, b, c) = (q[0][0], q[0][1], q[1][1]);
+        let (d, e) = (q[0][2] * k, q[1][2] * k);
+        let det = a * c - b * b;
+        let mut best = f64::INFINITY;
+        if det > 1e-12 * (a * c).max(1e-300) {
+            let i = (b * e - c * d) / det;
+            let j = (b * d - a * e) / det;
+            if (i0..=i1).contains(&i) && (j0..=j1).contains(&j) {
+                best = self.at(i, j, k);
+            }
+        }
+        if best.is_infinite() {
+            // Along an edge i = const: ½ c j² + (b i + e) j + ..., minimised at j = −(b i + e)/c.
+            for i in [i0, i1] {
+                let j = if c > 0.0 {
+                    (-(b * i + e) / c).clamp(j0, j1)
+                } else {
+                    j0
+                };
+                best = best.min(self.at(i, j, k));
+                if c <= 0.0 {
+                    best = best.min(self.at(i, j1, k));
+                }
+            }
+            for j in [j0, j1] {
+                let i = if a > 0.0 {
+                    (-(b * j + d) / a).clamp(i0, i1)
+                } else {
+                    i0
+                };
+                best = best.min(self.at(i, j, k));
+                if a <= 0.0 {
+                    best = best.min(self.at(i1, j, k));
+                }
+            }
+        }
+        (best - 1e-9 * (1.0 + best.abs())).max(0.0)
+    }
 }
 
 /// The source points of one rotation, as cells: `(cx, cy)` per point.
@@ -452,8 +537,10 @@ impl LikelihoodGrid {
         evaluated: u64,
         bounds: u64,
     ) -> Match {
-        let (sum, [k, i, j]) = best;
+        let [k, i, j] = best.1;
         let slice = &slices[(k + w.ntheta) as usize];
+        // `best.0` is the objective (less the motion cost, if any): report the scan's own sum.
+        let sum = self.sum(0, slice, i, j);
         let n = slice.cells.len() as f64;
         let (covariance, mean) = moments.covariance(w, self.resolution);
         Match {
@@ -487,6 +574,15 @@ fn check_window(w: &Window) -> Result<()> {
             "angular_resolution",
             format!("must be finite and > 0, got {}", w.angular_step),
         ));
+    }
+    if let Some(p) = w.penalty {
+        let symmetric = (0..3).all(|a| (0..3).all(|b| p[a * 3 + b] == p[b * 3 + a]));
+        if !p.iter().all(|v| v.is_finite()) || !symmetric || (0..3).any(|a| p[a * 4] < 0.0) {
+            return Err(Error::invalid(
+                "penalty",
+                "must be a finite, symmetric positive semi-definite 3x3 matrix",
+            ));
+        }
     }
     let count = (2 * w.nx + 1) as f64 * (2 * w.ny + 1) as f64 * (2 * w.ntheta + 1) as f64;
     if count > 1e12 {
@@ -604,6 +700,7 @@ pub fn match_exhaustive(grid: &LikelihoodGrid, source: &[f64], w: &Window) -> Re
     check_points(source, "source")?;
     check_window(w)?;
     let slices = grid.slices(source, w);
+    let cost = Cost::new(w, grid.resolution);
     let per_theta: Vec<((f64, [i64; 3]), Moments)> = slices
         .par_iter()
         .enumerate()
@@ -615,8 +712,12 @@ pub fn match_exhaustive(grid: &LikelihoodGrid, source: &[f64], w: &Window) -> Re
                 for j in -w.ny..=w.ny {
                     let s = grid.sum(0, slice, i, j);
                     m.add(s, [i as f64, j as f64, k as f64]);
-                    if better((s, [k, i, j]), best) {
-                        best = (s, [k, i, j]);
+                    let o = match &cost {
+                        Some(c) => s - c.at(i as f64, j as f64, k as f64),
+                        None => s,
+                    };
+                    if better((o, [k, i, j]), best) {
+                        best = (o, [k, i, j]);
                     }
                 }
             }
@@ -639,9 +740,39 @@ struct BnB<'a> {
     grid: &'a LikelihoodGrid,
     slices: &'a [Slice],
     w: &'a Window,
+    cost: Option<Cost>,
     best: (f64, [i64; 3]),
     evaluated: u64,
     bounds: u64,
+}
+
+/// A node's bound (level > 0) or a leaf's objective (level 0): the sum on that level, less
+/// the motion cost's minimum over the node's block of candidates.
+fn node_bound(
+    grid: &LikelihoodGrid,
+    slice: &Slice,
+    w: &Window,
+    cost: &Option<Cost>,
+    level: usize,
+    key: [i64; 3],
+) -> f64 {
+    let sum = grid.sum(level, slice, key[1], key[2]);
+    match cost {
+        None => sum,
+        Some(c) if level == 0 => sum - c.at(key[1] as f64, key[2] as f64, key[0] as f64),
+        Some(c) => {
+            let span = (1i64 << level) - 1;
+            let (i1, j1) = ((key[1] + span).min(w.nx), (key[2] + span).min(w.ny));
+            let low = c.lower_bound(
+                key[0] as f64,
+                key[1] as f64,
+                i1 as f64,
+                key[2] as f64,
+                j1 as f64,
+            );
+            sum - low
+        }
+    }
 }
 
 #[derive(Clone, Copy)]
@@ -654,7 +785,7 @@ struct Node {
 impl BnB<'_> {
     fn node(&mut self, level: usize, key: [i64; 3]) -> Node {
         let slice = &self.slices[(key[0] + self.w.ntheta) as usize];
-        let bound = self.grid.sum(level, slice, key[1], key[2]);
+        let bound = node_bound(self.grid, slice, self.w, &self.cost, level, key);
         if level == 0 {
             self.evaluated += 1;
         } else {
@@ -720,6 +851,7 @@ pub fn match_branch_and_bound(
         depth += 1;
     }
     let slices = grid.slices(source, w);
+    let cost = Cost::new(w, grid.resolution);
     // Pool every level the search reads here, before the parallel sections: a level first
     // pooled inside a rayon task could re-enter its own OnceLock from a stolen task.
     let _ = grid.level(depth);
@@ -736,7 +868,14 @@ pub fn match_branch_and_bound(
     let mut roots: Vec<Node> = keys
         .par_iter()
         .map(|&key| Node {
-            bound: grid.sum(depth, &slices[(key[0] + w.ntheta) as usize], key[1], key[2]),
+            bound: node_bound(
+                grid,
+                &slices[(key[0] + w.ntheta) as usize],
+                w,
+                &cost,
+                depth,
+                key,
+            ),
             key,
             level: depth,
         })
@@ -745,6 +884,7 @@ pub fn match_branch_and_bound(
         grid,
         slices: &slices,
         w,
+        cost,
         best: (f64::NEG_INFINITY, [i64::MAX; 3]),
         evaluated: if depth == 0 { roots.len() as u64 } else { 0 },
         bounds: if depth == 0 { 0 } else { roots.len() as u64 },
@@ -894,6 +1034,7 @@ mod tests {
             ny: 8,
             ntheta: 10,
             angular_step: 0.02,
+            penalty: None,
         };
         let ex = match_exhaustive(&grid, &source, &w).unwrap();
         assert!((ex.pose[0] - truth[0]).abs() <= 0.05, "{:?}", ex.pose);
@@ -922,6 +1063,7 @@ mod tests {
                 ny: 6,
                 ntheta,
                 angular_step: 0.01,
+                penalty: None,
             };
             let ex = match_exhaustive(&grid, &[0.0, 0.0], &w).unwrap();
             let bb = match_branch_and_bound(&grid, &[0.0, 0.0], &w, 2).unwrap();
@@ -946,6 +1088,7 @@ mod tests {
             ny: 1,
             ntheta: 1,
             angular_step: 0.0,
+            penalty: None,
         };
         assert!(match_exhaustive(&g, &[0.0, 0.0], &w).is_err());
         let w = Window {
@@ -954,5 +1097,54 @@ mod tests {
         };
         assert!(match_exhaustive(&g, &[0.0], &w).is_err());
         assert!(match_exhaustive(&g, &[0.0, 0.0], &w).is_ok());
+    }
+
+    #[test]
+    fn motion_cost_picks_the_nearest_of_equal_candidates_and_bnb_agrees() {
+        // A long wall: every shift along it scores the same, so without a cost the tie rule
+        // takes the smallest key (the window's end); with one, the candidate nearest the
+        // centre wins — and branch and bound, its bounds lowered by the cost, still returns
+        // the exhaustive answer, over anisotropic and correlated costs.
+        let wall: Vec<f64> = (0..400)
+            .flat_map(|k| [(k as f64 + 0.5) * 0.05 - 10.0, 1.01])
+            .collect();
+        let grid = LikelihoodGrid::build(&wall, 0.05, 0.05, 6).unwrap();
+        let source: Vec<f64> = (0..20).flat_map(|k| [k as f64 * 0.1 - 1.0, 1.0]).collect();
+        let costs = [
+            [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            [0.5, 0.0, 0.0, 0.0, 400.0, 0.0, 0.0, 0.0, 100.0],
+            [2.0, 1.5, 0.3, 1.5, 2.0, 0.0, 0.3, 0.0, 50.0],
+            [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 10.0],
+        ];
+        for (n, p) in costs.iter().enumerate() {
+            for center in [[0.3, 0.95, 0.0], [-0.2, 1.07, 0.02]] {
+                let w = Window {
+                    center,
+                    nx: 20,
+                    ny: 6,
+                    ntheta: 3,
+                    angular_step: 0.01,
+                    penalty: Some(*p),
+                };
+                let ex = match_exhaustive(&grid, &source, &w).unwrap();
+                let bb = match_branch_and_bound(&grid, &source, &w, 2).unwrap();
+                assert_eq!(ex.index, bb.index, "cost {n}");
+                assert_eq!(ex.sum, bb.sum, "cost {n}");
+                if n < 3 {
+                    assert_eq!(ex.index[1], 0, "cost {n}: the centre along the wall");
+                } else {
+                    assert_eq!(ex.index[1], -20, "cost {n}: no cost along x, the tie rule");
+                }
+            }
+        }
+        let bad = Window {
+            center: [0.0; 3],
+            nx: 1,
+            ny: 1,
+            ntheta: 1,
+            angular_step: 0.1,
+            penalty: Some([1.0, 2.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]),
+        };
+        assert!(match_exhaustive(&grid, &source, &bad).is_err());
     }
 }

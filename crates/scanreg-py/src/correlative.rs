@@ -96,8 +96,9 @@ impl CorrelativeGrid {
         grid_array(py, self.inner.dist2().to_vec(), self.inner.shape())
     }
 
-    /// Search `(2nx+1)(2ny+1)(2ntheta+1)` candidates around `center` = `[x, y, θ]`.
-    #[pyo3(signature = (source, center, nx, ny, ntheta, angular_step, method, covariance_radius))]
+    /// Search `(2nx+1)(2ny+1)(2ntheta+1)` candidates around `center` = `[x, y, θ]`;
+    /// `penalty`: the motion cost's information matrix over `[x, y, θ]` offsets (row-major 9).
+    #[pyo3(signature = (source, center, nx, ny, ntheta, angular_step, method, covariance_radius, penalty=None))]
     #[allow(clippy::too_many_arguments)]
     fn search(
         &self,
@@ -110,6 +111,7 @@ impl CorrelativeGrid {
         angular_step: f64,
         method: &str,
         covariance_radius: i64,
+        penalty: Option<[f64; 9]>,
     ) -> PyResult<CorrelativeMatch> {
         let data = points_dim(&source, "source", 2)?;
         let window = Window {
@@ -118,6 +120,7 @@ impl CorrelativeGrid {
             ny,
             ntheta,
             angular_step,
+            penalty,
         };
         let m = match method {
             "exhaustive" => py.detach(|| correlative::match_exhaustive(&self.inner, data, &window)),

@@ -30,6 +30,7 @@ are the odometry front end and the loop matcher (:mod:`scanreg.pipeline.loops`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -105,6 +106,15 @@ class MappingConfig:
     #: "freiburg_mapping.py"), the Intel excerpt of tests/test_mapping.py 0.023 against
     #: 0.017 m, the simulated room tours' mean ATE 0.0144 against 0.0135 m.
     wheel: WheelNoise | None = None
+    #: The motion cost of the odometry's correlative search: the wheels' step (its distance
+    #: scale learned online, as for ``wheel``) with this noise model's covariance ranks the
+    #: candidates (``OdometryConfig2D.prior_covariance_use="search"``), so that where the scan
+    #: barely prefers one pose over another (a corridor's axis, a repeated doorway) the one
+    #: the wheels support is refined; the refinement, verdict and covariance stay the scan's.
+    #: ``None``: the candidates are ranked by the scan alone and the raw wheels predict.
+    #: Unused while ``wheel`` is set (the wheels are then in the solve itself); otherwise the
+    #: odometry runs with ``prior_covariance_use="search"``.
+    motion_cost: WheelNoise | None = field(default_factory=WheelNoise)
     #: How long before its timestamp a scan was taken (s), where :func:`run_mapping` reads
     #: the odometry from the log's ``ODOM`` stream (:func:`scan_odometry`); ``None``: measured
     #: on the log (:func:`estimate_laser_latency`).
@@ -128,6 +138,10 @@ class MappingConfig:
             raise TypeError(f"loops: expected LoopSettings, got {type(self.loops).__name__}")
         if self.wheel is not None and not isinstance(self.wheel, WheelNoise):
             raise TypeError(f"wheel: expected WheelNoise or None, got {type(self.wheel).__name__}")
+        if self.motion_cost is not None and not isinstance(self.motion_cost, WheelNoise):
+            raise TypeError(
+                f"motion_cost: expected WheelNoise or None, got {type(self.motion_cost).__name__}"
+            )
 
 
 @dataclass(frozen=True)
@@ -264,8 +278,17 @@ class Mapper:
         if not isinstance(cfg, MappingConfig):
             raise TypeError(f"config: expected MappingConfig, got {type(cfg).__name__}")
         self.config = cfg
-        self._odometry = Odometry2D(cfg.odometry)
+        odometry = cfg.odometry
+        if cfg.motion_cost is not None and cfg.wheel is None:
+            odometry = dataclasses.replace(odometry, prior_covariance_use="search")
+        self._odometry = Odometry2D(odometry)
         self._wheels = None if cfg.wheel is None else WheelOdometry(cfg.wheel)
+        # The motion cost's wheels, their distance scale learned as the wheel prior's is.
+        self._cost_wheels = (
+            None
+            if cfg.motion_cost is None or cfg.wheel is not None
+            else WheelOdometry(cfg.motion_cost)
+        )
         self._graph = Graph(2)
         self._odom_poses: list[SE2 | None] = []
         self._stamps: list[float | None] = []
@@ -299,7 +322,8 @@ class Mapper:
     @property
     def wheel_scale(self) -> float:
         """The wheels' distance scale learned so far (1 without a wheel model)."""
-        return 1.0 if self._wheels is None else self._wheels.scale
+        wheels = self._wheels if self._wheels is not None else self._cost_wheels
+        return 1.0 if wheels is None else wheels.scale
 
     # -- per scan ------------------------------------------------------------------------
     def step(
@@ -349,6 +373,13 @@ class Mapper:
             frame = self._odometry.step(pts, prior=scaled, prior_covariance=cov)
             if _well_constrained(frame):
                 self._wheels.observe(wheel, frame.motion)
+        elif wheel is not None and self._cost_wheels is not None:
+            # The wheels' step (rescaled) both predicts and, with its covariance, ranks the
+            # correlative candidates; the scan alone refines and is judged.
+            scaled, cost = self._cost_wheels.prior(wheel)
+            frame = self._odometry.step(pts, prior=scaled, prior_covariance=cost)
+            if _well_constrained(frame):
+                self._cost_wheels.observe(wheel, frame.motion)
         else:
             frame = self._odometry.step(pts, prior=wheel)
         self._pending = SE2.identity()

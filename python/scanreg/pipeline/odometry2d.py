@@ -44,6 +44,9 @@ from ..verdict import Assessment, QualityReport, Verdict, VerdictThresholds, ass
 
 FrontEnd = Literal["icp", "correlative"]
 FRONT_ENDS: tuple[str, ...] = ("icp", "correlative")
+#: What a step's ``prior_covariance`` does (:attr:`OdometryConfig2D.prior_covariance_use`).
+PriorUse = Literal["solve", "search"]
+PRIOR_USES: tuple[str, ...] = ("solve", "search")
 ROBUST_KERNELS: tuple[str, ...] = ("none", "huber", "cauchy", "tukey", "geman_mcclure", "welsch")
 
 
@@ -100,6 +103,13 @@ class OdometryConfig2D:
     max_refinement_step: float | None = None
     #: Verdict thresholds (gate: the point-to-line gate).
     thresholds: VerdictThresholds = field(default_factory=VerdictThresholds)
+    #: What a step's ``prior_covariance`` does: ``"solve"`` — the prior is part of the solve
+    #: (directions the scan leaves open are held to the prediction, :func:`hold_to_prediction`);
+    #: ``"search"`` — it only ranks the correlative front end's candidates, as a motion cost
+    #: (:func:`scanreg.match_correlative`'s ``init_covariance``; positive definite), so that of
+    #: two poses the scan supports about equally the one nearer the prediction is refined,
+    #: while the refinement, verdict and covariance stay the scan's own.
+    prior_covariance_use: PriorUse = "solve"
 
     def __post_init__(self) -> None:
         if self.front_end not in FRONT_ENDS:
@@ -128,6 +138,11 @@ class OdometryConfig2D:
         step = self.max_refinement_step
         if step is not None and not (isinstance(step, float) and step == math.inf):
             _positive(step, "max_refinement_step")
+        if self.prior_covariance_use not in PRIOR_USES:
+            raise ValueError(
+                f"prior_covariance_use: unknown {self.prior_covariance_use!r}; expected one of "
+                f"{', '.join(PRIOR_USES)}"
+            )
         if not isinstance(self.thresholds, VerdictThresholds):
             raise TypeError(
                 f"thresholds: expected VerdictThresholds, got {type(self.thresholds).__name__}"
@@ -275,6 +290,8 @@ class Odometry2D:
             registration (the prediction's variance along the held directions: the previous
             pose's, carried through the motion, plus ``prior_covariance``), and
             ``held_directions`` names them. ``None``: the prior only starts the search.
+            With ``config.prior_covariance_use="search"`` it instead only ranks the
+            correlative front end's candidates (a motion cost; nothing is held).
         """
         t_start = time.perf_counter()
         pts = as_points(points, "points", dim=2)
@@ -298,8 +315,12 @@ class Odometry2D:
                 )
         motion = None if prior is None else as_pose(prior, "prior", 2)
         assert motion is None or isinstance(motion, SE2)
-        prior_cov = _checked_prior_covariance(prior_covariance, motion)
         cfg = self.config
+        search = cfg.prior_covariance_use == "search"
+        prior_cov = _checked_prior_covariance(prior_covariance, motion, definite=search)
+        search_cov = prior_cov if search else None
+        if search:
+            prior_cov = None
         if cfg.scan_voxel_size > 0:
             pts = np.ascontiguousarray(voxel_downsample(pts, cfg.scan_voxel_size).points)
         index = self._index
@@ -355,12 +376,16 @@ class Odometry2D:
                 self._grid = prepare_correlative(
                     self._map_points, resolution=cfg.correlative_resolution
                 )
+            # With a motion cost the lattice's candidates are ranked by their posterior: of
+            # two that the scan scores about alike (a corridor's axis, a repeated doorway)
+            # the one the wheels' step supports wins; a clearly better basin still does.
             coarse = match_correlative(
                 pts,
                 self._grid,
                 init=predicted,
                 window=cfg.correlative_window,
                 search="branch_and_bound",
+                init_covariance=search_cov,
             )
             start = coarse.pose
         res = register(
@@ -497,9 +522,12 @@ class Odometry2D:
 _FAILED = ("diverged", "too_few_correspondences")
 
 
-def _checked_prior_covariance(value: Any, motion: Any, dof: int = 3) -> FloatArray | None:
+def _checked_prior_covariance(
+    value: Any, motion: Any, dof: int = 3, *, definite: bool = False
+) -> FloatArray | None:
     """``prior_covariance`` checked: ``(dof, dof)``, finite, symmetric, positive
-    semi-definite, and only with a ``prior`` (``motion``); shared by the 2D and 3D odometry."""
+    semi-definite (``definite``: positive definite), and only with a ``prior``
+    (``motion``); shared by the 2D and 3D odometry."""
     if value is None:
         return None
     if motion is None:
@@ -514,7 +542,10 @@ def _checked_prior_covariance(value: Any, motion: Any, dof: int = 3) -> FloatArr
         raise ValueError(f"prior_covariance: expected shape ({dof}, {dof}), got {cov.shape}")
     if not np.isfinite(cov).all() or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
         raise ValueError("prior_covariance: must be finite and symmetric")
-    if float(np.linalg.eigvalsh(cov)[0]) < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
+    low = float(np.linalg.eigvalsh(cov)[0])
+    if definite and low <= 0.0:
+        raise ValueError("prior_covariance: must be positive definite")
+    if low < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
         raise ValueError("prior_covariance: must be positive semi-definite")
     return cov
 
