@@ -113,8 +113,12 @@ class MappingConfig:
     #: the wheels support is refined; the refinement, verdict and covariance stay the scan's.
     #: ``None``: the candidates are ranked by the scan alone and the raw wheels predict.
     #: Unused while ``wheel`` is set (the wheels are then in the solve itself); otherwise the
-    #: odometry runs with ``prior_covariance_use="search"``.
-    motion_cost: WheelNoise | None = field(default_factory=WheelNoise)
+    #: odometry runs with ``prior_covariance_use="search"``. Off by default (a TOML table
+    #: ``[motion_cost]`` turns it on): it removes ACES' single-scan spikes (0.0390 → 0.0377–
+    #: 0.0379 m, within a run's ±3 mm) but lets the odometry drift more over long relations
+    #: (ACES before closure 0.0625 → 0.107 m) and reads the Intel excerpt of
+    #: tests/test_mapping.py 0.023 against 0.017 m (benchmarks/README.md, "freiburg_mapping.py").
+    motion_cost: WheelNoise | None = None
     #: How long before its timestamp a scan was taken (s), where :func:`run_mapping` reads
     #: the odometry from the log's ``ODOM`` stream (:func:`scan_odometry`); ``None``: measured
     #: on the log (:func:`estimate_laser_latency`).
