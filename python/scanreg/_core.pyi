@@ -526,6 +526,16 @@ def overlap_statistics(
     within: float | None = None,
 ) -> tuple[int, float, float, float, float, int]: ...
 def target_normal_noise(tree: KdTree, normals: NDArray[np.float64]) -> tuple[float, float]: ...
+def compare_basin_outcomes(
+    target: KdTree | LocalMap,
+    source: NDArray[np.float64],
+    result: NDArray[np.float64],
+    poses: NDArray[np.float64],
+    usable: list[bool],
+    tight: float,
+    covariance: NDArray[np.float64] | None,
+    chi2: float,
+) -> tuple[list[int], NDArray[np.float64], list[float]]: ...
 def orientation_symmetry(
     points_array: NDArray[np.float64], normals: NDArray[np.float64]
 ) -> float: ...

@@ -75,6 +75,9 @@ CORRELATIVE_MAX_POINTS = 64
 #: The tight gate as a fraction of the registration's gate.
 TIGHT_GATE_FRACTION = 0.1
 COS_1DEG = math.cos(math.radians(1.0))
+#: ``_core.compare_basin_outcomes``'s kind of a distinct outcome (0 failed, 1 back at the
+#: result, 2 inside its covariance).
+_DISTINCT = 3
 #: χ²(dof) at 99.9 %: an alternative inside this Mahalanobis distance is the same answer.
 CHI2_999 = {3: 16.266, 6: 22.458}
 
@@ -514,11 +517,7 @@ def probe_basin(
                 seconds=time.perf_counter() - t0,
             )
     implausible = _beyond(start, stated_prior, dof) if start is not None else None
-    # The pseudo-inverse only for an outcome that did not come back (most do).
-    info: FloatArray | None = None
     cover = cov
-    inverse = pose.inverse()
-    inverse_matrix = inverse.as_matrix()
     best: tuple[float, SE2 | SE3, FloatArray] | None = None
     distinct = 0
     covered = 0
@@ -551,38 +550,28 @@ def probe_basin(
     # Every restart in one core call, in parallel; read in order below, so the early stop
     # leaves the same outcome (and count) as restarting one by one.
     poses, reasons = solve(starts, RESTART_ITERATIONS)
-    # Most restarts come back to the result: told from the matrices alone (the pose
-    # objects and their logarithm cost more than the restart's solve).
-    rels = np.matmul(inverse_matrix, poses)
-    ran = 0
-    for m, rel, reason in zip(poses, rels, reasons, strict=True):
-        ran += 1
-        if reason not in ("converged", "max_iterations"):
-            continue
-        if dim == 2:
-            # np.trace and np.linalg.norm's sums, on Python floats.
-            cos = (float(rel[0, 0]) + float(rel[1, 1])) / 2.0
-            tx, ty = float(rel[0, 2]), float(rel[1, 2])
-            back = math.sqrt(tx * tx + ty * ty) <= 0.5 * tight
-        else:
-            cos = (float(np.trace(rel[:dim, :dim])) - (dim - 2)) / 2.0
-            back = float(np.linalg.norm(rel[:dim, dim])) <= 0.5 * tight
-        if back and cos >= COS_1DEG:
-            continue
-        # The core's rotation is orthonormal: no check (from_matrix costs a solve's worth).
-        kind = SE2 if dim == 2 else SE3
-        alt: SE2 | SE3 = kind._unchecked(m[:dim, :dim], m[:dim, dim])
-        e = _log2(rel) if dim == 2 else kind._unchecked(rel[:3, :3], rel[:3, 3]).log()
-        moved = float(np.linalg.norm(e[:dim]))
-        turned = abs(float(e[2])) if dim == 2 else float(np.linalg.norm(e[3:]))
-        if moved <= 0.5 * tight and turned <= math.radians(1.0):
-            continue
-        if finite and info is None:
-            info = np.asarray(np.linalg.pinv(cov, hermitian=True), dtype=np.float64)
-        if info is not None and float(e @ info @ e) <= CHI2_999[dof]:
+    # One core call compares them with the result: most come back to it or stay inside its
+    # covariance; the distinct ones come with their offset and their tight-gate overlap.
+    kinds, offsets, fractions = _core.compare_basin_outcomes(
+        index,
+        source,
+        pose.as_matrix(),
+        poses,
+        [r in ("converged", "max_iterations") for r in reasons],
+        tight,
+        cov if finite else None,
+        CHI2_999[dof],
+    )
+    ran = len(kinds)
+    kind = SE2 if dim == 2 else SE3
+    for i, k in enumerate(kinds):
+        if k != _DISTINCT:
             continue
         distinct += 1
-        f = _fraction(index, source, alt, tight)
+        e = offsets[i]
+        f = fractions[i]
+        moved = float(np.linalg.norm(e[:dim]))
+        turned = abs(float(e[2])) if dim == 2 else float(np.linalg.norm(e[3:]))
         if moved <= near_move and turned <= math.radians(NEAR_ROTATION_DEG):
             if finite and f >= cover_ratio * here:
                 # The same basin, its floor wider than the covariance says: cover the
@@ -590,11 +579,15 @@ def probe_basin(
                 cover = covariance_upper_bound(cover, cov + np.outer(e, e))
                 covered += 1
             continue
+        # The core's rotation is orthonormal: no check (from_matrix costs a solve's worth).
+        m = poses[i]
+        alt: SE2 | SE3 = kind._unchecked(m[:dim, :dim], m[:dim, dim])
         if implausible is not None and implausible(alt):
             continue
         if best is None or f > best[0]:
-            best = (f, alt, e)
+            best = (f, alt, np.array(e))
         if here > 0 and f > stop_ratio * here:
+            ran = i + 1
             break
     return BasinProbe(
         overlap=here,
