@@ -310,6 +310,9 @@ def register_icp_starts(
     target_covariances: NDArray[np.float64] | None = None,
     step_projector: NDArray[np.float64] | None = None,
     extrapolate: bool = True,
+    home: NDArray[np.float64] | None = None,
+    home_radius: float = 0.0,
+    home_cos_angle: float = 1.0,
 ) -> tuple[NDArray[np.float64], list[str]]: ...
 
 # --- Censi covariance and block scores (crates/scanreg-py/src/censi.rs) ---

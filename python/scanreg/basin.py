@@ -75,6 +75,9 @@ CORRELATIVE_MAX_POINTS = 64
 #: The tight gate as a fraction of the registration's gate.
 TIGHT_GATE_FRACTION = 0.1
 COS_1DEG = math.cos(math.radians(1.0))
+#: A restart stops when it comes within this fraction of the "back" distances (half the tight
+#: gate, 1°) of the result.
+HOME_SHRINK = 0.9
 #: ``_core.compare_basin_outcomes``'s kind of a distinct outcome (0 failed, 1 back at the
 #: result, 2 inside its covariance).
 _DISTINCT = 3
@@ -416,7 +419,7 @@ def _fraction(index: Any, source: FloatArray, pose: SE2 | SE3, gate: float) -> f
 
 
 def probe_basin(
-    solve: Callable[[FloatArray, int], tuple[FloatArray, list[str]]],
+    solve: Callable[..., tuple[FloatArray, list[str]]],
     index: Any,
     source: FloatArray,
     pose: SE2 | SE3,
@@ -439,8 +442,10 @@ def probe_basin(
     symmetry: float | None = None,
 ) -> BasinProbe:
     """Restart ``solve`` around ``pose`` (see the module docstring): the registration's own
-    solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations) -> (poses
-    (K, D+1, D+1), stop reasons)`` (the core's ``register_icp_starts``).
+    solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations, home=(pose,
+    radius, cos_angle)) -> (poses (K, D+1, D+1), stop reasons)`` (the core's
+    ``register_icp_starts``; a solve stops on arriving within ``radius`` and the angle of
+    ``home``).
 
     ``index`` is the target's k-d tree or map, ``source`` the registered source points,
     ``covariance`` the result's ``(dof, dof)`` covariance (non-finite: only the fixed
@@ -549,7 +554,14 @@ def probe_basin(
     starts[:, dim, dim] = 1.0
     # Every restart in one core call, in parallel; read in order below, so the early stop
     # leaves the same outcome (and count) as restarting one by one.
-    poses, reasons = solve(starts, RESTART_ITERATIONS)
+    # A restart that comes back to the result stops there (the core's ``home``): it has
+    # answered, and would only refine the same pose. A shade inside the comparison's "back"
+    # test below, so that the rounding of the two never tells them apart.
+    poses, reasons = solve(
+        starts,
+        RESTART_ITERATIONS,
+        home=(pose.as_matrix(), HOME_SHRINK * 0.5 * tight, math.cos(HOME_SHRINK * math.radians(1.0))),
+    )
     # One core call compares them with the result: most come back to it or stay inside its
     # covariance; the distinct ones come with their offset and their tight-gate overlap.
     kinds, offsets, fractions = _core.compare_basin_outcomes(
