@@ -31,6 +31,35 @@ pub const MAX_CELLS: usize = 64 * 1024 * 1024;
 /// Deepest branch-and-bound level (`2^12` cells per node side).
 pub const MAX_LEVELS: usize = 12;
 
+/// Grids of at most this many cells are built on one thread, and searches of at most
+/// `SEQUENTIAL_WORK` candidate-points run on one: their parallel sections take microseconds
+/// each, and every one handed to the pool and back costs a wake-up and the workers' idle spin
+/// (the wrong-basin probe's correlative start, a 3,600-cell grid and ~17 such sections, spent
+/// about as much CPU on those as on its work). The results are the same either way.
+const SEQUENTIAL_CELLS: usize = 1 << 16;
+const SEQUENTIAL_WORK: u64 = 1 << 20;
+
+/// `f()`, on one thread when `small` (one hand-off to a one-thread pool, inside which every
+/// parallel section runs inline), else as it is.
+fn sequential_if<T: Send>(small: bool, f: impl FnOnce() -> T + Send) -> T {
+    if small && rayon::current_thread_index().is_none() {
+        if let Ok(out) = crate::threads::in_pool(Some(1), f) {
+            return out;
+        }
+        unreachable!("a one-thread pool is always valid");
+    }
+    f()
+}
+
+/// Candidate-points of a search over `w` with `n` source points (the exhaustive count).
+fn search_work(w: &Window, n: usize) -> u64 {
+    let c = |h: i64| (2 * h.max(0) + 1) as u64;
+    c(w.nx)
+        .saturating_mul(c(w.ny))
+        .saturating_mul(c(w.ntheta))
+        .saturating_mul(n as u64)
+}
+
 /// One max-pooled grid: `value(x, y) = max g[x..x+w, y..y+w]` for `x ∈ [−(w−1), W−1]`.
 #[derive(Debug, Clone)]
 struct Level {
@@ -401,13 +430,29 @@ impl LikelihoodGrid {
             ));
         }
         let (width, height) = (cells_x as usize, cells_y as usize);
+        let grid = sequential_if(width * height <= SEQUENTIAL_CELLS, || {
+            Self::rasterise(reference, origin, width, height, resolution, sigma, levels)
+        });
+        let _ = n;
+        Ok(grid)
+    }
+
+    /// The distance transform and likelihood of `reference` on the given lattice.
+    fn rasterise(
+        reference: &[f64],
+        origin: [f64; 2],
+        width: usize,
+        height: usize,
+        resolution: f64,
+        sigma: f64,
+        levels: usize,
+    ) -> Self {
         let mut d2 = vec![f64::INFINITY; width * height];
         for p in reference.chunks_exact(2) {
             let cx = ((p[0] - origin[0]) / resolution).floor() as usize;
             let cy = ((p[1] - origin[1]) / resolution).floor() as usize;
             d2[cy.min(height - 1) * width + cx.min(width - 1)] = 0.0;
         }
-        let _ = n;
         transform_lines(&mut d2, width); // along x (rows)
         let mut cols = transpose(&d2, width, height);
         transform_lines(&mut cols, height); // along y (columns)
@@ -424,7 +469,7 @@ impl LikelihoodGrid {
             height: height as i64,
             data: likelihood,
         };
-        Ok(LikelihoodGrid {
+        LikelihoodGrid {
             origin,
             resolution,
             sigma,
@@ -433,7 +478,7 @@ impl LikelihoodGrid {
             dist2,
             base,
             pooled: (0..levels).map(|_| OnceLock::new()).collect(),
-        })
+        }
     }
 
     /// Level `h` (`0`: the likelihood), pooling it on first use.
@@ -697,8 +742,14 @@ fn better(a: (f64, [i64; 3]), b: (f64, [i64; 3])) -> bool {
 
 /// Score every candidate of the window (parallel over θ); covariance over all of them.
 pub fn match_exhaustive(grid: &LikelihoodGrid, source: &[f64], w: &Window) -> Result<Match> {
-    check_points(source, "source")?;
+    let n = check_points(source, "source")?;
     check_window(w)?;
+    Ok(sequential_if(search_work(w, n) <= SEQUENTIAL_WORK, || {
+        exhaustive(grid, source, w)
+    }))
+}
+
+fn exhaustive(grid: &LikelihoodGrid, source: &[f64], w: &Window) -> Match {
     let slices = grid.slices(source, w);
     let cost = Cost::new(w, grid.resolution);
     let per_theta: Vec<((f64, [i64; 3]), Moments)> = slices
@@ -733,7 +784,7 @@ pub fn match_exhaustive(grid: &LikelihoodGrid, source: &[f64], w: &Window) -> Re
         moments = moments.merge(m);
     }
     let evaluated = moments.count;
-    Ok(grid.finish(w, &slices, best, moments, evaluated, 0))
+    grid.finish(w, &slices, best, moments, evaluated, 0)
 }
 
 struct BnB<'a> {
@@ -840,11 +891,17 @@ pub fn match_branch_and_bound(
     w: &Window,
     cov_radius: i64,
 ) -> Result<Match> {
-    check_points(source, "source")?;
+    let n = check_points(source, "source")?;
     check_window(w)?;
     if cov_radius < 0 {
         return Err(Error::invalid("covariance_radius", "must be >= 0"));
     }
+    Ok(sequential_if(search_work(w, n) <= SEQUENTIAL_WORK, || {
+        branch_and_bound(grid, source, w, cov_radius)
+    }))
+}
+
+fn branch_and_bound(grid: &LikelihoodGrid, source: &[f64], w: &Window, cov_radius: i64) -> Match {
     let span = 2 * w.nx.max(w.ny) + 1;
     let mut depth = 0usize;
     while (1i64 << depth) < span && depth < grid.levels() {
@@ -911,7 +968,7 @@ pub fn match_branch_and_bound(
         .collect::<Vec<_>>()
         .into_iter()
         .fold(Moments::new(), Moments::merge);
-    Ok(grid.finish(w, &slices, best, moments, evaluated, bounds))
+    grid.finish(w, &slices, best, moments, evaluated, bounds)
 }
 
 #[cfg(test)]
