@@ -158,16 +158,19 @@ pub fn register_many(
             ));
         }
     }
-    Ok(inits
-        .par_chunks_exact(m)
-        .map(|init| {
-            if dim == 2 {
-                centred::run_home::<Planar, 2, 3>(&pr, init, settings, home)
-            } else {
-                centred::run_home::<Spatial, 3, 6>(&pr, init, settings, home)
-            }
-        })
-        .collect())
+    let solve = |init: &[f64]| {
+        if dim == 2 {
+            centred::run_home::<Planar, 2, 3>(&pr, init, settings, home)
+        } else {
+            centred::run_home::<Spatial, 3, 6>(&pr, init, settings, home)
+        }
+    };
+    // With one thread in the pool, handing the solves to it only adds a wake-up and its idle
+    // spin: run them here, in the same order (each solve is independent).
+    if rayon::current_num_threads() == 1 {
+        return Ok(inits.chunks_exact(m).map(solve).collect());
+    }
+    Ok(inits.par_chunks_exact(m).map(solve).collect())
 }
 
 /// A pose [`register_many`]'s solves stop at on arrival: within `radius` (translation of

@@ -310,6 +310,20 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
         prev_corr = corr;
         prev_certs = cert;
     }
+    if home.is_some() && !accel.is_pending() && stop != StopReason::Converged {
+        // A restart (the wrong-basin probe's) needs only where it ended: no final evaluation
+        // unless a stretched last step waits for its check. (Its stop reason is then the
+        // loop's: fewer than `min_correspondences` is judged at its last linearisation.)
+        return Outcome {
+            pose: pose.to_flat(),
+            iterations,
+            stop_reason: stop,
+            evaluation: Evaluation::empty::<N>(),
+            iteration_seconds: times,
+            final_evaluation_seconds: 0.0,
+            correspondences: Vec::new(),
+        };
+    }
     let t0 = Instant::now();
     // After a converged (sub-tolerance) last step the correspondences cannot have changed
     // meaningfully: re-use them instead of a full search (saves one nearest-neighbour pass).
