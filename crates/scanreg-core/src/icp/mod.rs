@@ -145,7 +145,10 @@ pub fn register_many(
             format!("expected a multiple of {m} values, got {}", inits.len()),
         ));
     }
-    let pr = problem(source, target, settings)?;
+    let mut pr = problem(source, target, settings)?;
+    if home.is_some() {
+        pr.certify = false;
+    }
     for init in inits.chunks_exact(m) {
         split_pose("init", init, dim)?;
     }
