@@ -383,7 +383,8 @@ def test_restarts_stop_on_arriving_at_home() -> None:
 
     src, target, truth = _room_pair()
     args = ("point_to_line", "none", 1.0, 0.5, 6, 1e-4, 1e-4, "gauss_newton", 4)
-    result = _core.register_icp(src, target.index, truth.as_matrix(), *args, 1, None, target.normals)
+    start = truth.as_matrix()
+    result = _core.register_icp(src, target.index, start, *args, 1, None, target.normals)
     home = np.asarray(result.pose)
     starts = np.stack([(SE2.from_matrix(home) @ o).as_matrix() for o in restart_offsets(2, 0.5)])
     radius, cos_angle = 0.02, math.cos(math.radians(0.9))

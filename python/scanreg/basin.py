@@ -67,15 +67,15 @@ NEAR_ROTATION_DEG = 10.0
 RESTART_ITERATIONS = 6
 #: The correlative start (2D): cell and blur as a fraction of the gate, translation half-width
 #: in gates, heading step in degrees, source points searched (every k-th). The start only has
-#: to land in the right basin for the restart's solve: 6° steps over about 32 points found the
-#: same verdicts on every wrong_start.py record as 2° over 64 (Intel and MbICP, every
-#: accepted / rejected the same, Intel's two covered NEES moved) at a fifth of the search's
-#: cost (0.49 → 0.10 ms CPU on the restarted Intel pairs).
+#: to land in the right basin for the restart's solve: 4° steps found the same verdicts on
+#: every wrong_start.py record as 2° (Intel and MbICP; two covered NEES moved) at half the
+#: search's cost (0.48 → 0.26 ms CPU on the restarted Intel pairs); 6°, 8° or 32 points let
+#: 60° starts through (tests/test_basin.py).
 CORRELATIVE_START = True
 CORRELATIVE_CELL_FRACTION = 0.3
 CORRELATIVE_WINDOW_GATES = 2.0
-CORRELATIVE_ANGLE_DEG = 6.0
-CORRELATIVE_MAX_POINTS = 32
+CORRELATIVE_ANGLE_DEG = 4.0
+CORRELATIVE_MAX_POINTS = 64
 #: The tight gate as a fraction of the registration's gate.
 TIGHT_GATE_FRACTION = 0.1
 COS_1DEG = math.cos(math.radians(1.0))
@@ -565,11 +565,15 @@ def probe_basin(
     poses, reasons = solve(
         starts,
         RESTART_ITERATIONS,
-        home=(pose.as_matrix(), HOME_SHRINK * 0.5 * tight, math.cos(HOME_SHRINK * math.radians(1.0))),
+        home=(
+            pose.as_matrix(),
+            HOME_SHRINK * 0.5 * tight,
+            math.cos(HOME_SHRINK * math.radians(1.0)),
+        ),
     )
     # One core call compares them with the result: most come back to it or stay inside its
     # covariance; the distinct ones come with their offset and their tight-gate overlap.
-    kinds, offsets, fractions = _core.compare_basin_outcomes(
+    kinds, tangents, fractions = _core.compare_basin_outcomes(
         index,
         source,
         pose.as_matrix(),
@@ -585,7 +589,7 @@ def probe_basin(
         if k != _DISTINCT:
             continue
         distinct += 1
-        e = offsets[i]
+        e = tangents[i]
         f = fractions[i]
         moved = float(np.linalg.norm(e[:dim]))
         turned = abs(float(e[2])) if dim == 2 else float(np.linalg.norm(e[3:]))
