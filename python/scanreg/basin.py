@@ -69,8 +69,8 @@ RESTART_ITERATIONS = 6
 #: in gates, heading step in degrees, source points searched (every k-th). The start only has
 #: to land in the right basin for the restart's solve: 4° steps found the same verdicts on
 #: every wrong_start.py record as 2° (Intel and MbICP; two covered NEES moved) at half the
-#: search's cost (0.48 → 0.26 ms CPU on the restarted Intel pairs); 6°, 8° or 32 points let
-#: 60° starts through (tests/test_basin.py).
+#: search's cost (0.48 → 0.26 ms CPU on the restarted Intel pairs); 8°, or 32 points, let two
+#: Intel pairs from a 60° start through (tests/test_basin.py; 6° passed, the edge: 4° is kept).
 CORRELATIVE_START = True
 CORRELATIVE_CELL_FRACTION = 0.3
 CORRELATIVE_WINDOW_GATES = 2.0
