@@ -25,7 +25,10 @@ The restarts run only when cheap evidence doubts the basin (:func:`basin_doubts`
 margin, a move beyond 1σ of the start's covariance, symmetric walls, and on request in 2D a
 look-alike pose along the least-determined translation): a result nothing doubts costs one
 nearest-neighbour pass and a histogram. The restarts themselves are one core call
-(``_core.register_icp_starts``), their solves in parallel. In 3D the restarts are three yaw
+(``_core.register_icp_starts``), their solves in parallel, each stopping as soon as it comes
+back to the result, and their outcomes are compared with the result in one more
+(``_core.compare_basin_outcomes``: back, inside the covariance, or distinct with its offset and
+tight-gate overlap). In 3D the restarts are three yaw
 turns (90°, −90°, 180°) and the tight gate is at least the target's point spacing (voxelised
 clouds).
 
