@@ -588,21 +588,26 @@ def probe_basin(
     )
     ran = len(kinds)
     kind = SE2 if dim == 2 else SE3
+    near_turn = math.radians(NEAR_ROTATION_DEG)
     for i, k in enumerate(kinds):
         if k != _DISTINCT:
             continue
         distinct += 1
         e = tangents[i]
         f = fractions[i]
-        moved = float(np.linalg.norm(e[:dim]))
-        turned = abs(float(e[2])) if dim == 2 else float(np.linalg.norm(e[3:]))
-        if moved <= near_move and turned <= math.radians(NEAR_ROTATION_DEG):
+        if dim == 2:
+            moved, turned = math.hypot(e[0], e[1]), abs(float(e[2]))
+        else:
+            moved, turned = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
+        if moved <= near_move and turned <= near_turn:
             if finite and f >= cover_ratio * here:
                 # The same basin, its floor wider than the covariance says: cover the
                 # alternative (the smallest covariance covering both).
                 cover = covariance_upper_bound(cover, cov + np.outer(e, e))
                 covered += 1
             continue
+        if best is not None and f <= best[0] and implausible is None:
+            continue  # neither the best so far nor a reason to stop (f <= best's)
         # The core's rotation is orthonormal: no check (from_matrix costs a solve's worth).
         m = poses[i]
         alt: SE2 | SE3 = kind._unchecked(m[:dim, :dim], m[:dim, dim])
