@@ -367,6 +367,105 @@ def test_probe_restarts_in_one_call_equal_the_restarts_one_by_one() -> None:
         _core.register_icp_starts(src, target.index, np.zeros((0, 3, 3)), *args)
 
 
+def _room_pair() -> tuple[np.ndarray, Any, SE2]:
+    room = sim.square_room(5.0)
+    a = SE2.from_vector([0.5, 0.3, 0.3])
+    truth = SE2.from_vector([0.3, 0.1, math.radians(2.0)])
+    src, tgt = _scan(room, a @ truth, 1), _scan(room, a, 0)
+    return src, scanreg.prepare(tgt, normals=True), truth
+
+
+def test_restarts_stop_on_arriving_at_home() -> None:
+    """``home``: a restart whose iterate comes within the radius and angle of the result stops
+    there, converged, in fewer iterations; every other restart ends where it ends without it."""
+    from scanreg import _core
+    from scanreg.basin import restart_offsets
+
+    src, target, truth = _room_pair()
+    args = ("point_to_line", "none", 1.0, 0.5, 6, 1e-4, 1e-4, "gauss_newton", 4)
+    start = truth.as_matrix()
+    result = _core.register_icp(src, target.index, start, *args, 1, None, target.normals)
+    home = np.asarray(result.pose)
+    starts = np.stack([(SE2.from_matrix(home) @ o).as_matrix() for o in restart_offsets(2, 0.5)])
+    radius, cos_angle = 0.02, math.cos(math.radians(0.9))
+    for threads in (1, 2):
+        plain, plain_reasons = _core.register_icp_starts(
+            src, target.index, starts, *args, threads, None, target.normals
+        )
+        poses, reasons = _core.register_icp_starts(
+            src, target.index, starts, *args, threads, None, target.normals,
+            None, None, True, home, radius, cos_angle,
+        )  # fmt: skip
+        arrived = 0
+        for pose, reason, p0, r0 in zip(poses, reasons, plain, plain_reasons, strict=True):
+            rel = np.linalg.inv(home) @ pose
+            at_home = np.hypot(*rel[:2, 2]) <= radius and rel[0, 0] >= cos_angle
+            if at_home and not np.array_equal(pose, p0):
+                arrived += 1
+                assert reason == "converged"
+            else:
+                assert np.array_equal(pose, p0) and reason == r0
+        # The half-gate moves come back to the result in this room: stopped on arrival.
+        assert arrived >= 2, arrived
+    with pytest.raises(ValueError, match="home: expected"):
+        _core.register_icp_starts(
+            src, target.index, starts, *args, 1, None, target.normals,
+            None, None, True, np.eye(2), radius, cos_angle,
+        )  # fmt: skip
+
+
+def test_outcome_comparison_equals_a_numpy_reference() -> None:
+    """``_core.compare_basin_outcomes`` against the same comparison in numpy: the kind of each
+    outcome (back, inside the covariance, distinct), its offset ``log(result⁻¹ · pose)`` and,
+    when distinct, the fraction of the source within the tight gate."""
+    from scanreg import _core
+
+    src, target, truth = _room_pair()
+    rng = np.random.default_rng(3)
+    tight = 0.05
+    cov = np.diag([4e-4, 1e-4, 3e-5])
+    cov[0, 2] = cov[2, 0] = 2e-5
+    steps = [[0.001, -0.001, 0.001], [0.03, 0.0, 0.0], [0.0, 0.0, math.pi / 2], [1.0, -0.5, 2.0]]
+    steps += list(rng.normal(0.0, [0.3, 0.3, 0.5], (8, 3)))
+    poses = np.stack([(truth @ SE2.exp(np.asarray(v))).as_matrix() for v in steps])
+    poses = np.concatenate([poses, poses[2:3]])  # the same distinct pose twice
+    usable = [True] * len(poses)
+    usable[5] = False
+    info = np.linalg.pinv(cov, hermitian=True)
+    for covariance in (cov, None):
+        kinds, offsets, fractions = _core.compare_basin_outcomes(
+            target.index, src, truth.as_matrix(), poses, usable, tight, covariance, CHI2_3_999
+        )
+        expected = []
+        for i, m in enumerate(poses):
+            if not usable[i]:
+                expected.append(0)
+                continue
+            e = (truth.inverse() @ SE2.from_matrix(m)).log()
+            assert offsets[i] == pytest.approx(e, abs=1e-12)
+            if np.hypot(e[0], e[1]) <= tight / 2 and abs(e[2]) <= math.radians(1.0):
+                expected.append(1)
+            elif covariance is not None and e @ info @ e <= CHI2_3_999:
+                expected.append(2)
+            else:
+                expected.append(3)
+                moved = SE2.from_matrix(m).apply(src)
+                found = target.nearest(moved, tight).indices
+                assert fractions[i] == np.count_nonzero(found >= 0) / len(src)
+        assert list(kinds) == expected
+        assert all(math.isnan(f) for f, k in zip(fractions, kinds, strict=True) if k != 3)
+        assert 1 in kinds and 3 in kinds and (covariance is None or 2 in kinds), kinds
+    bad = (target.index, src, truth.as_matrix(), poses)
+    with pytest.raises(ValueError, match="usable: expected one per pose"):
+        _core.compare_basin_outcomes(*bad, usable[:-1], tight, cov, CHI2_3_999)
+    with pytest.raises(ValueError, match="tight: must be finite and > 0"):
+        _core.compare_basin_outcomes(*bad, usable, 0.0, cov, CHI2_3_999)
+    with pytest.raises(ValueError, match="covariance: expected shape"):
+        _core.compare_basin_outcomes(*bad, usable, tight, np.eye(2), CHI2_3_999)
+    with pytest.raises(ValueError, match="poses: expected shape"):
+        _core.compare_basin_outcomes(*bad[:3], np.zeros((2, 4, 4)), [True] * 2, tight, None, 1.0)
+
+
 def _corridor_with_posts(spacing: list[float]) -> np.ndarray:
     """Two walls 3 m apart, 24 m long, sampled every 5 cm, with 0.4 m posts standing out of
     both walls at ``spacing`` (x positions), each face sampled every 2 cm."""

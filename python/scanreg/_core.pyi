@@ -310,6 +310,9 @@ def register_icp_starts(
     target_covariances: NDArray[np.float64] | None = None,
     step_projector: NDArray[np.float64] | None = None,
     extrapolate: bool = True,
+    home: NDArray[np.float64] | None = None,
+    home_radius: float = 0.0,
+    home_cos_angle: float = 1.0,
 ) -> tuple[NDArray[np.float64], list[str]]: ...
 
 # --- Censi covariance and block scores (crates/scanreg-py/src/censi.rs) ---
@@ -526,6 +529,16 @@ def overlap_statistics(
     within: float | None = None,
 ) -> tuple[int, float, float, float, float, int]: ...
 def target_normal_noise(tree: KdTree, normals: NDArray[np.float64]) -> tuple[float, float]: ...
+def compare_basin_outcomes(
+    target: KdTree | LocalMap,
+    source: NDArray[np.float64],
+    result: NDArray[np.float64],
+    poses: NDArray[np.float64],
+    usable: list[bool],
+    tight: float,
+    covariance: NDArray[np.float64] | None,
+    chi2: float,
+) -> tuple[list[int], NDArray[np.float64], list[float]]: ...
 def orientation_symmetry(
     points_array: NDArray[np.float64], normals: NDArray[np.float64]
 ) -> float: ...

@@ -667,8 +667,15 @@ def register(
             s.extrapolate,
         )
 
-    def run_starts(projector: FloatArray | None, starts: FloatArray, max_iterations: int) -> Any:
-        # ``run`` from each of ``starts`` (K, D+1, D+1), the solves in parallel in the core.
+    def run_starts(
+        projector: FloatArray | None,
+        starts: FloatArray,
+        max_iterations: int,
+        home: tuple[FloatArray, float, float] | None = None,
+    ) -> Any:
+        # ``run`` from each of ``starts`` (K, D+1, D+1), the solves in parallel in the core;
+        # ``home``: (pose, radius, cos of the angle) where a solve stops on arrival.
+        pose_h, radius, cos_angle = (None, 0.0, 1.0) if home is None else home
         return _core.register_icp_starts(
             src,
             index,
@@ -676,6 +683,9 @@ def register(
             *solver_args(method_eff, max_iterations),
             projector,  # step_projector
             s.extrapolate,
+            pose_h,
+            radius,
+            cos_angle,
         )
 
     th = _DEFAULT_THRESHOLDS if thresholds is None else thresholds
@@ -724,7 +734,7 @@ def register(
             if method_eff == "point_to_point" and has_normals(prepared)
             else None
         ),
-        "solve": lambda starts, iterations: run_starts(held, starts, iterations),
+        "solve": lambda starts, iterations, home=None: run_starts(held, starts, iterations, home),
     }
     # Built here only when the solve needs it; a lazy analysis builds it on first use.
     ctx: TrustInputs | dict[str, Any] = ctx_fields

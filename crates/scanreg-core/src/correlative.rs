@@ -31,6 +31,37 @@ pub const MAX_CELLS: usize = 64 * 1024 * 1024;
 /// Deepest branch-and-bound level (`2^12` cells per node side).
 pub const MAX_LEVELS: usize = 12;
 
+/// Grids of at most this many cells are built, and searches of at most `SEQUENTIAL_WORK`
+/// candidate-points run, on the calling thread: their parallel sections take microseconds
+/// each, and every one handed to the pool and back costs a wake-up, the workers' idle spin and,
+/// on a loaded machine, the wait for a core (the wrong-basin probe's correlative start, a
+/// 3,600-cell grid and ~17 such sections, spent about as much CPU on those as on its work).
+/// The results are the same either way (the same reductions in the same order).
+const SEQUENTIAL_CELLS: usize = 1 << 16;
+const SEQUENTIAL_WORK: u64 = 1 << 20;
+/// Branch and bound scores a few per cent of its lattice (the probe's correlative start: 700 to
+/// 2,800 bounds and leaves of 21,000 candidates): the same limit on the work it does.
+const SEQUENTIAL_BNB_WORK: u64 = 1 << 23;
+
+/// The `with_min_len` of every parallel section: a section no longer than this is not split,
+/// so it runs where it is called, without the pool.
+fn min_len(sequential: bool) -> usize {
+    if sequential {
+        usize::MAX
+    } else {
+        1
+    }
+}
+
+/// Candidate-points of a search over `w` with `n` source points (the exhaustive count).
+fn search_work(w: &Window, n: usize) -> u64 {
+    let c = |h: i64| (2 * h.max(0) + 1) as u64;
+    c(w.nx)
+        .saturating_mul(c(w.ny))
+        .saturating_mul(c(w.ntheta))
+        .saturating_mul(n as u64)
+}
+
 /// One max-pooled grid: `value(x, y) = max g[x..x+w, y..y+w]` for `x ∈ [−(w−1), W−1]`.
 #[derive(Debug, Clone)]
 struct Level {
@@ -273,22 +304,27 @@ fn dt1d(f: &mut [f64], v: &mut [usize], z: &mut [f64], out: &mut [f64]) {
     f.copy_from_slice(out);
 }
 
-fn transform_lines(data: &mut [f64], len: usize) {
-    data.par_chunks_mut(len).for_each(|line| {
-        let mut v = vec![0usize; len];
-        let mut z = vec![0.0; len + 1];
-        let mut out = vec![0.0; len];
-        dt1d(line, &mut v, &mut z, &mut out);
-    });
+fn transform_lines(data: &mut [f64], len: usize, sequential: bool) {
+    data.par_chunks_mut(len)
+        .with_min_len(min_len(sequential))
+        .for_each(|line| {
+            let mut v = vec![0usize; len];
+            let mut z = vec![0.0; len + 1];
+            let mut out = vec![0.0; len];
+            dt1d(line, &mut v, &mut z, &mut out);
+        });
 }
 
-fn transpose(data: &[f64], width: usize, height: usize) -> Vec<f64> {
+fn transpose(data: &[f64], width: usize, height: usize, sequential: bool) -> Vec<f64> {
     let mut out = vec![0.0; data.len()];
-    out.par_chunks_mut(height).enumerate().for_each(|(x, col)| {
-        for (y, c) in col.iter_mut().enumerate() {
-            *c = data[y * width + x];
-        }
-    });
+    out.par_chunks_mut(height)
+        .with_min_len(min_len(sequential))
+        .enumerate()
+        .for_each(|(x, col)| {
+            for (y, c) in col.iter_mut().enumerate() {
+                *c = data[y * width + x];
+            }
+        });
     out
 }
 
@@ -313,7 +349,7 @@ fn max_with_shifted(a: &[f32], half: usize, out: &mut [f32]) {
 /// Level `h` from level `h − 1` (`prev`, stride `half = 2^(h−1)`): each cell the maximum of the
 /// 2 × 2 cells `half` apart, i.e. of a `2^h × 2^h` window of the likelihood. Separable: rows
 /// first, then pairs of rows, without per-cell bounds checks.
-fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64) -> Level {
+fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64, sequential: bool) -> Level {
     let w = 2 * half;
     let shift = w - 1;
     let width = base_w + shift;
@@ -325,24 +361,28 @@ fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64) -> Level {
     let mut rows = vec![0.0f32; hp * wu];
     rows.par_chunks_mut(wu)
         .zip(prev.data.par_chunks(wp))
+        .with_min_len(min_len(sequential))
         .for_each(|(out, a)| max_with_shifted(a, h, out));
     let mut data = vec![0.0f32; wu * height as usize];
-    data.par_chunks_mut(wu).enumerate().for_each(|(r, out)| {
-        let upper = r
-            .checked_sub(h)
-            .filter(|&j| j < hp)
-            .map(|j| &rows[j * wu..(j + 1) * wu]);
-        let lower = (r < hp).then(|| &rows[r * wu..(r + 1) * wu]);
-        match (upper, lower) {
-            (Some(a), Some(b)) => {
-                for ((o, x), y) in out.iter_mut().zip(a).zip(b) {
-                    *o = x.max(*y);
+    data.par_chunks_mut(wu)
+        .with_min_len(min_len(sequential))
+        .enumerate()
+        .for_each(|(r, out)| {
+            let upper = r
+                .checked_sub(h)
+                .filter(|&j| j < hp)
+                .map(|j| &rows[j * wu..(j + 1) * wu]);
+            let lower = (r < hp).then(|| &rows[r * wu..(r + 1) * wu]);
+            match (upper, lower) {
+                (Some(a), Some(b)) => {
+                    for ((o, x), y) in out.iter_mut().zip(a).zip(b) {
+                        *o = x.max(*y);
+                    }
                 }
+                (Some(a), None) | (None, Some(a)) => out.copy_from_slice(a),
+                (None, None) => {}
             }
-            (Some(a), None) | (None, Some(a)) => out.copy_from_slice(a),
-            (None, None) => {}
-        }
-    });
+        });
     Level {
         shift,
         width,
@@ -401,30 +441,51 @@ impl LikelihoodGrid {
             ));
         }
         let (width, height) = (cells_x as usize, cells_y as usize);
+        let _ = n;
+        Ok(Self::rasterise(
+            reference, origin, width, height, resolution, sigma, levels,
+        ))
+    }
+
+    /// The distance transform and likelihood of `reference` on the given lattice.
+    fn rasterise(
+        reference: &[f64],
+        origin: [f64; 2],
+        width: usize,
+        height: usize,
+        resolution: f64,
+        sigma: f64,
+        levels: usize,
+    ) -> Self {
         let mut d2 = vec![f64::INFINITY; width * height];
         for p in reference.chunks_exact(2) {
             let cx = ((p[0] - origin[0]) / resolution).floor() as usize;
             let cy = ((p[1] - origin[1]) / resolution).floor() as usize;
             d2[cy.min(height - 1) * width + cx.min(width - 1)] = 0.0;
         }
-        let _ = n;
-        transform_lines(&mut d2, width); // along x (rows)
-        let mut cols = transpose(&d2, width, height);
-        transform_lines(&mut cols, height); // along y (columns)
-        let d2 = transpose(&cols, height, width);
+        let seq = width * height <= SEQUENTIAL_CELLS;
+        transform_lines(&mut d2, width, seq); // along x (rows)
+        let mut cols = transpose(&d2, width, height, seq);
+        transform_lines(&mut cols, height, seq); // along y (columns)
+        let d2 = transpose(&cols, height, width, seq);
         let s2 = (sigma / resolution).powi(2);
         let likelihood: Vec<f32> = d2
             .par_iter()
+            .with_min_len(min_len(seq))
             .map(|&d| (-0.5 * d / s2).exp() as f32)
             .collect();
-        let dist2: Vec<f32> = d2.par_iter().map(|&d| d.min(1e30) as f32).collect();
+        let dist2: Vec<f32> = d2
+            .par_iter()
+            .with_min_len(min_len(seq))
+            .map(|&d| d.min(1e30) as f32)
+            .collect();
         let base = Level {
             shift: 0,
             width: width as i64,
             height: height as i64,
             data: likelihood,
         };
-        Ok(LikelihoodGrid {
+        LikelihoodGrid {
             origin,
             resolution,
             sigma,
@@ -433,7 +494,7 @@ impl LikelihoodGrid {
             dist2,
             base,
             pooled: (0..levels).map(|_| OnceLock::new()).collect(),
-        })
+        }
     }
 
     /// Level `h` (`0`: the likelihood), pooling it on first use.
@@ -448,6 +509,7 @@ impl LikelihoodGrid {
                 half,
                 self.width as i64,
                 self.height as i64,
+                self.width * self.height <= SEQUENTIAL_CELLS,
             )
         })
     }
@@ -521,10 +583,14 @@ impl LikelihoodGrid {
         hits as f64 / slice.cells.len() as f64
     }
 
-    fn slices(&self, source: &[f64], w: &Window) -> Vec<Slice> {
-        (-w.ntheta..=w.ntheta)
+    fn slices(&self, source: &[f64], w: &Window, sequential: bool) -> Vec<Slice> {
+        (0..(2 * w.ntheta + 1) as usize)
             .into_par_iter()
-            .map(|k| self.slice(source, w.center, w.center[2] + k as f64 * w.angular_step))
+            .with_min_len(min_len(sequential))
+            .map(|i| {
+                let k = i as i64 - w.ntheta;
+                self.slice(source, w.center, w.center[2] + k as f64 * w.angular_step)
+            })
             .collect()
     }
 
@@ -697,12 +763,14 @@ fn better(a: (f64, [i64; 3]), b: (f64, [i64; 3])) -> bool {
 
 /// Score every candidate of the window (parallel over θ); covariance over all of them.
 pub fn match_exhaustive(grid: &LikelihoodGrid, source: &[f64], w: &Window) -> Result<Match> {
-    check_points(source, "source")?;
+    let n = check_points(source, "source")?;
     check_window(w)?;
-    let slices = grid.slices(source, w);
+    let seq = search_work(w, n) <= SEQUENTIAL_WORK;
+    let slices = grid.slices(source, w, seq);
     let cost = Cost::new(w, grid.resolution);
     let per_theta: Vec<((f64, [i64; 3]), Moments)> = slices
         .par_iter()
+        .with_min_len(min_len(seq))
         .enumerate()
         .map(|(idx, slice)| {
             let k = idx as i64 - w.ntheta;
@@ -840,17 +908,18 @@ pub fn match_branch_and_bound(
     w: &Window,
     cov_radius: i64,
 ) -> Result<Match> {
-    check_points(source, "source")?;
+    let n = check_points(source, "source")?;
     check_window(w)?;
     if cov_radius < 0 {
         return Err(Error::invalid("covariance_radius", "must be >= 0"));
     }
+    let seq = search_work(w, n) <= SEQUENTIAL_BNB_WORK;
     let span = 2 * w.nx.max(w.ny) + 1;
     let mut depth = 0usize;
     while (1i64 << depth) < span && depth < grid.levels() {
         depth += 1;
     }
-    let slices = grid.slices(source, w);
+    let slices = grid.slices(source, w, seq);
     let cost = Cost::new(w, grid.resolution);
     // Pool every level the search reads here, before the parallel sections: a level first
     // pooled inside a rayon task could re-enter its own OnceLock from a stolen task.
@@ -867,6 +936,7 @@ pub fn match_branch_and_bound(
         .collect();
     let mut roots: Vec<Node> = keys
         .par_iter()
+        .with_min_len(min_len(seq))
         .map(|&key| Node {
             bound: node_bound(
                 grid,
@@ -898,6 +968,7 @@ pub fn match_branch_and_bound(
         ((kb - cov_radius).max(-w.ntheta)..=(kb + cov_radius).min(w.ntheta)).collect();
     let moments = ks
         .par_iter()
+        .with_min_len(min_len(seq))
         .map(|&k| {
             let slice = &slices[(k + w.ntheta) as usize];
             let mut m = Moments::new();

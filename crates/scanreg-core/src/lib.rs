@@ -12,6 +12,7 @@
 //!
 //! Nothing here panics on user input: every entry point validates and returns [`Error`].
 
+pub mod basin;
 pub mod censi;
 pub mod correlative;
 pub mod deskew;

@@ -335,12 +335,14 @@ fn register_icp(
     source, target, init_poses, method, kernel, kernel_scale, max_correspondence_distance,
     max_iterations, translation_tolerance, rotation_tolerance, optimizer, min_correspondences,
     num_threads=None, source_covariances=None, target_normals=None, target_covariances=None,
-    step_projector=None, extrapolate=true
+    step_projector=None, extrapolate=true, home=None, home_radius=0.0, home_cos_angle=1.0
 ))]
 #[allow(clippy::too_many_arguments)]
 /// The registration from each of `init_poses` (`(K, D+1, D+1)`), the solves in parallel (the
 /// wrong-basin probe's restarts): `(poses (K, D+1, D+1), stop reasons)`, each pose the one
-/// `register_icp` returns from that start.
+/// `register_icp` returns from that start. `home` (`(D+1, D+1)`): a solve whose iterate comes
+/// within `home_radius` and a rotation of cosine `home_cos_angle` of it stops there,
+/// `"converged"` (`scanreg_core::icp::Home`).
 fn register_icp_starts<'py>(
     py: Python<'py>,
     source: PyReadonlyArray2<'_, f64>,
@@ -361,7 +363,26 @@ fn register_icp_starts<'py>(
     target_covariances: Option<PyReadonlyArray3<'_, f64>>,
     step_projector: Option<PyReadonlyArray2<'_, f64>>,
     extrapolate: bool,
+    home: Option<PyReadonlyArray2<'_, f64>>,
+    home_radius: f64,
+    home_cos_angle: f64,
 ) -> PyResult<(Bound<'py, PyArray3<f64>>, Vec<&'static str>)> {
+    let home = home
+        .as_ref()
+        .map(|h| -> PyResult<icp::Home> {
+            let shape = h.shape();
+            if shape[0] != shape[1] || !(3..=4).contains(&shape[0]) {
+                return Err(PyValueError::new_err(format!(
+                    "home: expected a (3, 3) or (4, 4) homogeneous matrix, got {shape:?}"
+                )));
+            }
+            Ok(icp::Home {
+                pose: c_slice(h, "home")?.to_vec(),
+                radius: home_radius,
+                cos_angle: home_cos_angle,
+            })
+        })
+        .transpose()?;
     let (dim, outs) = with_inputs(
         py,
         &source,
@@ -392,7 +413,9 @@ fn register_icp_starts<'py>(
         &target_covariances,
         &step_projector,
         extrapolate,
-        |inits, src_in, tgt_in, settings| icp::register_many(src_in, tgt_in, inits, settings),
+        |inits, src_in, tgt_in, settings| {
+            icp::register_many(src_in, tgt_in, inits, settings, home.as_ref())
+        },
     )?;
     let m = dim + 1;
     let mut poses = Vec::with_capacity(outs.len() * m * m);

@@ -4,7 +4,7 @@
 use super::evaluate::{evaluate, Evaluation, Problem};
 use super::pose::Pose;
 use super::settings::Settings;
-use super::solver::{iterate, Outcome};
+use super::solver::{iterate, Arrival, Outcome};
 use crate::group::Group;
 use crate::points::vec_at;
 use nalgebra::{SMatrix, SVector};
@@ -87,6 +87,16 @@ pub(super) fn run<G: Group<D, N>, const D: usize, const N: usize>(
     init: &[f64],
     s: &Settings,
 ) -> Outcome {
+    run_home::<G, D, N>(pr, init, s, None)
+}
+
+/// [`run`], stopping on arrival at `home` (see [`super::Home`]).
+pub(super) fn run_home<G: Group<D, N>, const D: usize, const N: usize>(
+    pr: &Problem<'_>,
+    init: &[f64],
+    s: &Settings,
+    home: Option<&super::Home>,
+) -> Outcome {
     let c = centroid::<D>(pr.source);
     let centred = centred_copy::<D>(pr.source, &c);
     let local = Problem {
@@ -99,7 +109,14 @@ pub(super) fn run<G: Group<D, N>, const D: usize, const N: usize>(
         r: start.r,
     };
     let m = recentring::<G, D, N>(&c);
-    let mut out = iterate::<G, D, N>(&local, start, s, &m);
+    // The iterates are about the centroid: `T = T_c · Tr(−c)` is compared with home.
+    let arrival = home.map(|h| Arrival {
+        home: Pose::<D>::from_flat(&h.pose),
+        centroid: c,
+        radius: h.radius,
+        cos_angle: h.cos_angle,
+    });
+    let mut out = iterate::<G, D, N>(&local, start, s, &m, arrival.as_ref());
     let mut pose = Pose::<D>::from_flat(&out.pose);
     pose.t -= pose.r * c;
     out.pose = pose.to_flat();

@@ -43,6 +43,24 @@ pub struct Evaluation {
     pub sum_squared_distances: f64,
 }
 
+impl Evaluation {
+    /// No evaluation (zeros): an outcome returned without one.
+    pub(super) fn empty<const N: usize>() -> Self {
+        Evaluation {
+            hessian: vec![0.0; N * N],
+            gradient: vec![0.0; N],
+            score_outer: vec![0.0; N * N],
+            cost: 0.0,
+            num_correspondences: 0,
+            num_in_gate: 0,
+            sum_squares: 0.0,
+            irls_sum_squares: 0.0,
+            irls_weight_sum: 0.0,
+            sum_squared_distances: 0.0,
+        }
+    }
+}
+
 /// Inputs of one evaluation, shared by every chunk.
 #[derive(Clone, Copy)]
 pub(super) struct Problem<'a> {

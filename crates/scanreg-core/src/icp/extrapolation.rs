@@ -55,6 +55,11 @@ impl<const D: usize, const N: usize> Extrapolation<D, N> {
         Some(plain)
     }
 
+    /// Whether a stretched step waits for its [`Self::check`].
+    pub(super) fn is_pending(&self) -> bool {
+        self.fallback.is_some()
+    }
+
     pub(super) fn pending(&mut self, plain: Pose<D>, energy: f64) {
         self.fallback = Some((plain, energy));
     }

@@ -125,11 +125,16 @@ pub fn register(
 /// another), the solves in parallel: the wrong-basin probe's restarts in one call. Each
 /// outcome is the one [`register`] gives from that start alone (the solves share nothing but
 /// the read-only inputs; each one's reductions are deterministic).
+///
+/// `home`: a pose where a solve stops on arrival (see [`Home`]): the probe's result, which a
+/// restart that comes back to it has answered — it returns that iterate, `Converged`, without
+/// the final evaluation (its `evaluation` empty), instead of iterating on to the same pose.
 pub fn register_many(
     source: &Source<'_>,
     target: &Target<'_>,
     inits: &[f64],
     settings: &Settings,
+    home: Option<&Home>,
 ) -> Result<Vec<Outcome>> {
     use rayon::prelude::*;
     let dim = target.search.dim();
@@ -140,20 +145,46 @@ pub fn register_many(
             format!("expected a multiple of {m} values, got {}", inits.len()),
         ));
     }
-    let pr = problem(source, target, settings)?;
+    let mut pr = problem(source, target, settings)?;
+    if home.is_some() {
+        pr.certify = false;
+    }
     for init in inits.chunks_exact(m) {
         split_pose("init", init, dim)?;
     }
-    Ok(inits
-        .par_chunks_exact(m)
-        .map(|init| {
-            if dim == 2 {
-                centred::run::<Planar, 2, 3>(&pr, init, settings)
-            } else {
-                centred::run::<Spatial, 3, 6>(&pr, init, settings)
-            }
-        })
-        .collect())
+    if let Some(h) = home {
+        split_pose("home", &h.pose, dim)?;
+        if !(h.radius.is_finite() && h.radius >= 0.0 && h.cos_angle.is_finite()) {
+            return Err(Error::invalid(
+                "home",
+                "radius must be finite and >= 0, cos_angle finite",
+            ));
+        }
+    }
+    let solve = |init: &[f64]| {
+        if dim == 2 {
+            centred::run_home::<Planar, 2, 3>(&pr, init, settings, home)
+        } else {
+            centred::run_home::<Spatial, 3, 6>(&pr, init, settings, home)
+        }
+    };
+    // With one thread in the pool, handing the solves to it only adds a wake-up and its idle
+    // spin: run them here, in the same order (each solve is independent).
+    if rayon::current_num_threads() == 1 {
+        return Ok(inits.chunks_exact(m).map(solve).collect());
+    }
+    Ok(inits.par_chunks_exact(m).map(solve).collect())
+}
+
+/// A pose [`register_many`]'s solves stop at on arrival: within `radius` (translation of
+/// `home⁻¹ · T`, in the points' units) and at a rotation whose cosine is at least `cos_angle`
+/// (the angle's cosine in 2D; `(trace(R) − 1) / 2` in 3D).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Home {
+    /// Row-major homogeneous `T_target_source`.
+    pub pose: Vec<f64>,
+    pub radius: f64,
+    pub cos_angle: f64,
 }
 
 /// The normal equations at one pose (with score outer products), without iterating.

@@ -53,6 +53,26 @@ const STALL_ITERATIONS: usize = 3;
 /// orbits this test is for move by millimetres per step (0.2–0.4 % of the gate).
 const STALL_STEP: f64 = 0.005;
 
+/// Where a restart stops (see [`super::Home`]), for iterates about `centroid`.
+pub(super) struct Arrival<const D: usize> {
+    pub(super) home: Pose<D>,
+    pub(super) centroid: SVector<f64, D>,
+    pub(super) radius: f64,
+    pub(super) cos_angle: f64,
+}
+
+impl<const D: usize> Arrival<D> {
+    /// Whether the centred iterate `p` (`T_c`) is at home.
+    fn reached(&self, p: &Pose<D>) -> bool {
+        let t = p.t - p.r * self.centroid;
+        let rt = self.home.r.transpose();
+        let rel_r = rt * p.r;
+        let rel_t = rt * (t - self.home.t);
+        let cos = (rel_r.trace() - (D as f64 - 2.0)) / 2.0;
+        rel_t.norm() <= self.radius && cos >= self.cos_angle
+    }
+}
+
 /// The loop of [`super::centred::run`] on a centred problem from `start`; `m` maps a step about the source
 /// origin to one about the centroid (the caller's `step_projector` is over the former).
 pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
@@ -60,6 +80,7 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
     start: Pose<D>,
     s: &Settings,
     m: &SMatrix<f64, N, N>,
+    home: Option<&Arrival<D>>,
 ) -> Outcome {
     let mut pose = start;
     let lm = s.optimizer == Optimizer::LevenbergMarquardt;
@@ -267,6 +288,19 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
             }
         } else {
             pose = next;
+            // Back at home (a plain step: a stretched one may yet fall back): the answer is
+            // known, whatever the remaining iterations would refine.
+            if !converged && home.is_some_and(|h| h.reached(&pose)) {
+                return Outcome {
+                    pose: pose.to_flat(),
+                    iterations,
+                    stop_reason: StopReason::Converged,
+                    evaluation: Evaluation::empty::<N>(),
+                    iteration_seconds: times,
+                    final_evaluation_seconds: 0.0,
+                    correspondences: Vec::new(),
+                };
+            }
         }
         if converged {
             stop = StopReason::Converged;
@@ -275,6 +309,20 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
         }
         prev_corr = corr;
         prev_certs = cert;
+    }
+    if home.is_some() && !accel.is_pending() && stop != StopReason::Converged {
+        // A restart (the wrong-basin probe's) needs only where it ended: no final evaluation
+        // unless a stretched last step waits for its check. (Its stop reason is then the
+        // loop's: fewer than `min_correspondences` is judged at its last linearisation.)
+        return Outcome {
+            pose: pose.to_flat(),
+            iterations,
+            stop_reason: stop,
+            evaluation: Evaluation::empty::<N>(),
+            iteration_seconds: times,
+            final_evaluation_seconds: 0.0,
+            correspondences: Vec::new(),
+        };
     }
     let t0 = Instant::now();
     // After a converged (sub-tolerance) last step the correspondences cannot have changed
