@@ -109,3 +109,47 @@ def test_overlap_statistics_match_numpy(dim: int) -> None:
     assert within == found and tight == alone == np.count_nonzero(dist <= 0.1) < found
     none = _core.overlap_statistics(tree, src + 1e3, pose.as_matrix(), 0.3)
     assert none[0] == 0 and none[5] == 0 and all(math.isnan(v) for v in none[1:5])
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_overlap_from_the_registrations_certificates_is_the_searched_one(dim: int) -> None:
+    # The verdict's overlap answers its queries from the registration's search certificates:
+    # the same statistics to the bit, at the result's pose and off it, at other gates; an
+    # outcome computed against another index is refused.
+    tgt = _cloud(dim, 3000, 4)
+    truth = (
+        SE2.from_vector([0.05, -0.03, 0.02])
+        if dim == 2
+        else SE3.exp([0.05, 0, -0.03, 0, 0.01, 0.02])
+    )
+    src = np.ascontiguousarray(truth.inverse().apply(tgt) + 0.005)
+    target = scanreg.prepare(tgt)
+    out = _core.register_icp(
+        src,
+        target.index,
+        np.eye(dim + 1),
+        "point_to_point",
+        "none",
+        1.0,
+        0.5,
+        30,
+        1e-6,
+        1e-6,
+        "gauss_newton",
+        10,
+    )
+    # Converged: its final evaluation re-used the last search's correspondences.
+    assert out.stop_reason == "converged"
+    pose = out.pose
+    moved = pose.copy()
+    moved[0, dim] += 0.002
+    for at in (pose, moved):
+        for gate in (0.5, 0.1, 2.0):
+            plain = _core.overlap_statistics(target.index, src, at, gate, within=gate / 3)
+            fast = _core.overlap_statistics(
+                target.index, src, at, gate, within=gate / 3, outcome=out
+            )
+            assert fast == plain
+    other = _core.KdTree(tgt)
+    with pytest.raises(ValueError, match="certificates"):
+        _core.overlap_statistics(other, src, pose, 0.5, outcome=out)

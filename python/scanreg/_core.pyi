@@ -527,6 +527,7 @@ def overlap_statistics(
     num_threads: int | None = None,
     hints: NDArray[np.int64] | None = None,
     within: float | None = None,
+    outcome: IcpOutcome | None = None,
 ) -> tuple[int, float, float, float, float, int]: ...
 def target_normal_noise(tree: KdTree, normals: NDArray[np.float64]) -> tuple[float, float]: ...
 def compare_basin_outcomes(

@@ -468,15 +468,29 @@ def _prepared_target(
                 "prepare(points, covariances=True)"
             )
         return target
-    points = as_points(target, "target", dim=dim)
+    # A voxel grid scans the points for NaN/inf itself (one scan of a raw sweep, not two).
+    points = as_points(target, "target", dim=dim, finite=settings.voxel_size is None)
     if settings.voxel_size is not None:
-        points = _voxel_centroids(points, settings.voxel_size)
+        points = _voxel_checked(points, settings.voxel_size, "target")
     # Normals for every method when there are enough points: the degeneracy analysis uses the
     # plane information.
     if len(points) < dim + 1 and not (want_normals or want_covs):
         return prepare(points, normals=False)
     k = check_k(min(settings.num_neighbors, len(points)), len(points), dim)
     return prepare(points, normals=True, covariances=want_covs, num_neighbors=k)
+
+
+def _voxel_checked(points: FloatArray, voxel_size: float, name: str) -> FloatArray:
+    """``_voxel_centroids`` of points not yet scanned for NaN/inf: the core's grid scans them
+    and refuses one with :func:`check_finite_points`'s message, here naming ``name`` (a raw
+    KITTI sweep's 120k points were scanned twice)."""
+    try:
+        return _voxel_centroids(points, voxel_size)
+    except ValueError as e:
+        msg = str(e)
+        if msg.startswith("points: "):
+            raise ValueError(f"{name}: {msg.removeprefix('points: ')}") from None
+        raise
 
 
 def _checked_init_covariance(init_covariance: Any, dof: int) -> FloatArray | None:
@@ -561,9 +575,9 @@ def register(
     if budget.LIMIT is not None:
         gicp = method_eff == "gicp" and source_covariances is None
         budget.check("register: source", len(src), ("source", "source_covariances")[: 1 + gicp])
-    if s.voxel_size is not None or (method_eff == "gicp" and source_covariances is None):
-        # Downsampled or given covariances here first; otherwise register_icp's own scan
-        # refuses a NaN/inf with the same message.
+    if s.voxel_size is None and method_eff == "gicp" and source_covariances is None:
+        # Covariances are computed here first; otherwise register_icp's own scan (or the voxel
+        # grid's, below) refuses a NaN/inf with the same message.
         check_finite_points(src, "source")
     # A composed guess carries round-off in its rotation; the core keeps whatever it is given.
     pose0 = pose_class(dim).identity()
@@ -576,7 +590,7 @@ def register(
 
     t0 = time.perf_counter()
     if s.voxel_size is not None:
-        src = _voxel_centroids(src, s.voxel_size)  # checked finite above
+        src = _voxel_checked(src, s.voxel_size, "source")
     source_covariances = None
     if source_attributes is not None:
         if method_eff != "gicp":

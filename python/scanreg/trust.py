@@ -566,6 +566,7 @@ def _trust(
                 verdict_gate,
                 hints=corr.correspondences,
                 within=tight,
+                outcome=out,  # its certificates settle most searches near its pose
             )
     # The verdict reads the same eigen-analysis unless it asks for another weak ratio.
     checked = _assess_checked(
@@ -583,6 +584,7 @@ def _trust(
         motion_nees=num.motion_nees,
         moved=corr.moved,
         overlap=overlap,
+        outcome=out,
     )
     if checked.verdict.accepted and probing:
         # Only a result every other check accepts is probed (the restarts cannot turn a

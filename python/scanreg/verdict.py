@@ -268,6 +268,7 @@ def _assess_checked(
     motion_nees: float | None = None,
     moved: SE2 | SE3 | None = None,
     overlap: tuple[Any, ...] | None = None,
+    outcome: Any = None,
 ) -> Assessment:
     """:func:`assess` on inputs already checked (``source`` validated, ``target`` prepared
     and of the pose's dimension, ``conditioning`` at ``thresholds.weak_ratio``): what
@@ -278,13 +279,17 @@ def _assess_checked(
     the registration's final correspondences (int64, ``-1`` for none), where the overlap
     search starts (same result, faster). ``overlap``: ``_core.overlap_statistics`` at ``pose``
     within ``gate`` when the caller has it already (the trust analysis counts the wrong-basin
-    probe's tight overlap in the same pass)."""
+    probe's tight overlap in the same pass). ``outcome``: the registration's core outcome at
+    ``pose`` against ``target``, whose search certificates answer most of the overlap's queries
+    (the same answers, to the bit)."""
     is_map = isinstance(target, LocalMap)
     if is_map and not math.isfinite(gate):
         raise ValueError(f"max_distance: must be finite and >= 0, got {gate}")
     index = target.native if isinstance(target, LocalMap) else target.index
     if overlap is None:
-        overlap = _core.overlap_statistics(index, source, pose.as_matrix(), gate, hints=hints)
+        overlap = _core.overlap_statistics(
+            index, source, pose.as_matrix(), gate, hints=hints, outcome=outcome
+        )
     num_found, *stats = overlap
     if moved is None:
         moved = start.inverse() @ pose  # type: ignore[operator]

@@ -4,7 +4,7 @@
 //! array operations per registration.
 
 use crate::error::{Error, Result};
-use crate::icp::NeighborSearch;
+use crate::icp::{Certificates, NeighborSearch};
 use crate::normal_noise::median_sorted;
 use crate::points::{check_points, split_pose};
 use crate::reduce::SEQUENTIAL_MAX;
@@ -32,6 +32,9 @@ pub struct Overlap {
 /// registration's final correspondences — the same result, searched faster. `within_sq`: the
 /// squared tight gate of [`Overlap::num_within`] (the searches are exact: the nearest point
 /// within the gate is within `within_sq` exactly when a search with that gate finds one).
+/// `certificates`: the registration's own ([`crate::icp::Outcome::certificates`], stated
+/// against this `search`), which answer most queries near its pose without a search — the
+/// same answers, to the bit.
 pub fn overlap(
     search: &dyn NeighborSearch,
     source: &[f64],
@@ -39,6 +42,7 @@ pub fn overlap(
     max_sq: f64,
     within_sq: f64,
     hints: Option<&[i64]>,
+    certificates: Option<&Certificates>,
 ) -> Result<Overlap> {
     let dim = search.dim();
     // Finite too: a NaN point would find no neighbour and silently lower the overlap.
@@ -59,10 +63,25 @@ pub fn overlap(
             ));
         }
     }
+    let pts = search.points();
+    if let Some(c) = certificates {
+        if c.len() != n || !c.states(pts) {
+            return Err(Error::invalid(
+                "certificates",
+                format!(
+                    "not stated against this target for these {n} source points (a \
+                     registration's own, against the same index)"
+                ),
+            ));
+        }
+    }
     let distance = |(i, p): (usize, &[f64])| {
         let mut q = [0.0; 3];
         for (row, out) in q.iter_mut().enumerate().take(dim) {
             *out = (0..dim).map(|c| p[c] * r[row * dim + c]).sum::<f64>() + t[row];
+        }
+        if let Some(found) = certificates.and_then(|c| c.answer(i, &q[..dim], pts, max_sq)) {
+            return found.map(|(_, d2)| d2);
         }
         let hint = hints.and_then(|h| usize::try_from(h[i]).ok());
         search
@@ -124,12 +143,12 @@ mod tests {
         let pose = [1.0, 0.0, 0.1, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
         let mut source = target.clone();
         source.extend([50.0, 50.0]); // far from everything
-        let o = overlap(&tree, &source, &pose, 0.2 * 0.2, 0.2 * 0.2, None).unwrap();
+        let o = overlap(&tree, &source, &pose, 0.2 * 0.2, 0.2 * 0.2, None, None).unwrap();
         assert_eq!(o.num_found, 100);
         for v in [o.mean, o.median, o.rmse, o.trimmed_rmse] {
             assert!((v - 0.1).abs() < 1e-12, "{o:?}");
         }
-        let none = overlap(&tree, &source, &pose, 0.05 * 0.05, 0.05 * 0.05, None).unwrap();
+        let none = overlap(&tree, &source, &pose, 0.05 * 0.05, 0.05 * 0.05, None, None).unwrap();
         assert_eq!(none.num_found, 0);
         assert!(none.mean.is_nan() && none.trimmed_rmse.is_nan());
     }
@@ -139,7 +158,16 @@ mod tests {
         let tree = KdTree::build(&[0.0, 0.0], 2).unwrap();
         let source: Vec<f64> = (1..=10).flat_map(|i| [i as f64, 0.0]).collect();
         let eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-        let o = overlap(&tree, &source, &eye, f64::INFINITY, f64::INFINITY, None).unwrap();
+        let o = overlap(
+            &tree,
+            &source,
+            &eye,
+            f64::INFINITY,
+            f64::INFINITY,
+            None,
+            None,
+        )
+        .unwrap();
         let want = ((1..=9).map(|i| (i * i) as f64).sum::<f64>() / 9.0).sqrt();
         assert!((o.trimmed_rmse - want).abs() < 1e-12);
         assert_eq!(o.median, 5.5);
@@ -154,26 +182,43 @@ mod tests {
         let pose = [0.99, -0.141, 0.03, 0.141, 0.99, -0.02, 0.0, 0.0, 1.0];
         let source = target.clone();
         let n = source.len() / 2;
-        let plain = overlap(&tree, &source, &pose, 0.3 * 0.3, 0.1 * 0.1, None).unwrap();
+        let plain = overlap(&tree, &source, &pose, 0.3 * 0.3, 0.1 * 0.1, None, None).unwrap();
         for hints in [
             (0..n as i64).collect::<Vec<_>>(),
             (0..n as i64).map(|i| (i * 7) % n as i64).collect(),
             vec![-1; n],
         ] {
-            let hinted =
-                overlap(&tree, &source, &pose, 0.3 * 0.3, 0.1 * 0.1, Some(&hints)).unwrap();
+            let hinted = overlap(
+                &tree,
+                &source,
+                &pose,
+                0.3 * 0.3,
+                0.1 * 0.1,
+                Some(&hints),
+                None,
+            )
+            .unwrap();
             assert_eq!(hinted, plain);
         }
         // The tight count equals a search with the tight gate, point for point.
-        let tight = overlap(&tree, &source, &pose, 0.1 * 0.1, 0.1 * 0.1, None).unwrap();
+        let tight = overlap(&tree, &source, &pose, 0.1 * 0.1, 0.1 * 0.1, None, None).unwrap();
         assert_eq!(plain.num_within, tight.num_found);
         assert!(
             0 < tight.num_found && tight.num_found < plain.num_found,
             "{plain:?} {tight:?}"
         );
-        let e = overlap(&tree, &source, &pose, 1.0, 1.0, Some(&[0, 1])).unwrap_err();
+        let e = overlap(&tree, &source, &pose, 1.0, 1.0, Some(&[0, 1]), None).unwrap_err();
         assert!(e.to_string().contains("hints"), "{e}");
-        let e = overlap(&tree, &source, &pose, 1.0, 1.0, Some(&vec![n as i64; n])).unwrap_err();
+        let e = overlap(
+            &tree,
+            &source,
+            &pose,
+            1.0,
+            1.0,
+            Some(&vec![n as i64; n]),
+            None,
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("out of range"), "{e}");
     }
 
@@ -181,9 +226,18 @@ mod tests {
     fn refuses_non_finite_source_points() {
         let tree = KdTree::build(&[0.0, 0.0, 1.0, 0.0], 2).unwrap();
         let eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
-        let e = overlap(&tree, &[0.0, 0.0, f64::NAN, 1.0], &eye, 1.0, 1.0, None).unwrap_err();
+        let e = overlap(
+            &tree,
+            &[0.0, 0.0, f64::NAN, 1.0],
+            &eye,
+            1.0,
+            1.0,
+            None,
+            None,
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("source"), "{e}");
-        assert!(overlap(&tree, &[0.0, 0.0, 1.0], &eye, 1.0, 1.0, None).is_err());
+        assert!(overlap(&tree, &[0.0, 0.0, 1.0], &eye, 1.0, 1.0, None, None).is_err());
         // not N x 2
     }
 }

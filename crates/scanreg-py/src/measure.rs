@@ -5,6 +5,7 @@ use crate::convert::{
     c_slice, core_err, in_pool_unless_small, points, points_dim, pose, target_search,
 };
 use crate::knn::KdTree;
+use crate::register::IcpOutcome;
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
     PyReadonlyArray3, PyUntypedArrayMethods,
@@ -18,9 +19,11 @@ use scanreg_core::{basin, normal_noise, overlap, symmetry};
 
 /// `(num_found, mean, median, rmse, trimmed_rmse, num_within)` of the distances from each
 /// source point, moved by `pose_matrix`, to its nearest target point within `max_distance`;
-/// `num_within` counts those within `within` too (default: `max_distance`).
+/// `num_within` counts those within `within` too (default: `max_distance`). `outcome`: the
+/// registration of `source` against this `target` whose pose this is (about): its search
+/// certificates answer most queries without a search, with the same result.
 #[pyfunction]
-#[pyo3(signature = (target, source, pose_matrix, max_distance, num_threads=None, hints=None, within=None))]
+#[pyo3(signature = (target, source, pose_matrix, max_distance, num_threads=None, hints=None, within=None, outcome=None))]
 #[allow(clippy::too_many_arguments)]
 fn overlap_statistics(
     py: Python<'_>,
@@ -31,6 +34,7 @@ fn overlap_statistics(
     num_threads: Option<usize>,
     hints: Option<PyReadonlyArray1<'_, i64>>,
     within: Option<f64>,
+    outcome: Option<&Bound<'_, IcpOutcome>>,
 ) -> PyResult<(usize, f64, f64, f64, f64, usize)> {
     let hints = hints.as_ref().map(|h| c_slice(h, "hints")).transpose()?;
     let held = target_search(target)?;
@@ -43,10 +47,11 @@ fn overlap_statistics(
         Some(w) => check_max_distance("within", w).map_err(core_err)?,
         None => max_sq,
     };
+    let certificates = outcome.and_then(|o| o.get().certificates.as_ref());
     let o = py
         .detach(|| {
             in_pool_unless_small(src.len() / dim, num_threads, || {
-                overlap::overlap(search, src, pm, max_sq, within_sq, hints)
+                overlap::overlap(search, src, pm, max_sq, within_sq, hints, certificates)
             })
         })
         .and_then(|r| r)

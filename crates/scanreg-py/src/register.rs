@@ -62,6 +62,9 @@ pub struct IcpOutcome {
     final_evaluation_seconds: f64,
     /// Target index per source point at `pose` (`u32::MAX`: none).
     correspondences: Vec<u32>,
+    /// What the last searches proved (`scanreg_core::icp::Certificates`): `overlap_statistics`
+    /// at this pose answers most queries from them.
+    pub(crate) certificates: Option<icp::Certificates>,
 }
 
 #[pymethods]
@@ -298,6 +301,7 @@ fn register_icp(
                     iteration_seconds: Vec::new(),
                     final_evaluation_seconds: 0.0,
                     correspondences: Vec::new(),
+                    certificates: None,
                 })
             }
         },
@@ -325,6 +329,7 @@ fn register_icp(
         iteration_seconds: PyTuple::new(py, out.iteration_seconds)?.unbind(),
         final_evaluation_seconds: out.final_evaluation_seconds,
         correspondences: out.correspondences,
+        certificates: out.certificates,
     })
 }
 

@@ -100,3 +100,89 @@ impl<const D: usize> Cert<D> {
         }
     }
 }
+
+/// The certificates of a registration's last searches, kept with its outcome: a later pass at
+/// (about) the returned pose — the verdict's overlap — answers its nearest-neighbour queries
+/// from them instead of searching, exactly as the search would (see [`Cert`]). `ids[i]` is the
+/// answer source point `i`'s certificate was stated for (`u32::MAX`: none), `data` holds each
+/// certificate's anchor offset and bound (`D + 1` values a point).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Certificates {
+    dim: usize,
+    ids: Vec<u32>,
+    data: Vec<f32>,
+    /// The target points the certificates were stated against (address and length of the
+    /// search's `points()`): a pass against another index must not use them.
+    target: (usize, usize),
+}
+
+impl Certificates {
+    /// `certs[i]`, stated for the answer `ids[i]`, against the search whose points are `pts`;
+    /// None unless there is one per source point.
+    pub(super) fn new<const D: usize>(certs: &[Cert<D>], ids: &[u32], pts: &[f64]) -> Option<Self> {
+        if certs.is_empty() || certs.len() != ids.len() {
+            return None;
+        }
+        let mut data = Vec::with_capacity(certs.len() * (D + 1));
+        for c in certs {
+            data.extend_from_slice(&c.offset);
+            data.push(c.clear);
+        }
+        Some(Certificates {
+            dim: D,
+            ids: ids.to_vec(),
+            data,
+            target: (pts.as_ptr() as usize, pts.len()),
+        })
+    }
+
+    /// Source points covered (one certificate each).
+    pub fn len(&self) -> usize {
+        self.ids.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.ids.is_empty()
+    }
+
+    /// Whether these certificates were stated against the search whose points are `pts`
+    /// (the same storage, not merely equal values).
+    pub fn states(&self, pts: &[f64]) -> bool {
+        self.target == (pts.as_ptr() as usize, pts.len())
+    }
+
+    /// The nearest point of `pts` within `max_sq` to the query `q` of source point `i`, when
+    /// its certificate settles it (`Some(None)`: settled, none within the gate), exactly as
+    /// the search would answer (the same point, the same squared distance to the bit); None
+    /// when a search is needed.
+    #[inline]
+    pub fn answer(
+        &self,
+        i: usize,
+        q: &[f64],
+        pts: &[f64],
+        max_sq: f64,
+    ) -> Option<Option<(usize, f64)>> {
+        match self.dim {
+            2 => self.answer_d::<2>(i, q, pts, max_sq),
+            _ => self.answer_d::<3>(i, q, pts, max_sq),
+        }
+    }
+
+    #[inline]
+    fn answer_d<const D: usize>(
+        &self,
+        i: usize,
+        q: &[f64],
+        pts: &[f64],
+        max_sq: f64,
+    ) -> Option<Option<(usize, f64)>> {
+        let raw = &self.data[i * (D + 1)..(i + 1) * (D + 1)];
+        let cert = Cert::<D> {
+            offset: std::array::from_fn(|c| raw[c]),
+            clear: raw[D],
+        };
+        let tp: SVector<f64, D> = vec_at(q, 0);
+        cert.answer(&tp, self.ids[i], pts, max_sq).ok()
+    }
+}

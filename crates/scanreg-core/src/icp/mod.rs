@@ -28,6 +28,7 @@ mod search;
 mod settings;
 mod solver;
 
+pub use certificate::Certificates;
 pub use evaluate::Evaluation;
 pub use search::{NeighborSearch, Source, Target};
 pub use settings::{Method, Optimizer, Settings, StopReason};

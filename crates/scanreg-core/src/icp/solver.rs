@@ -2,7 +2,7 @@
 //! equations of [`super::evaluate`], with the step bound, the convergence and cycle tests, the
 //! degeneracy-aware projection and the step extrapolation; then the final evaluation.
 
-use super::certificate::Cert;
+use super::certificate::{Cert, Certificates};
 use super::evaluate::{certs, evaluate, fixed_cost, hints, Evaluation, Problem};
 use super::extrapolation::Extrapolation;
 use super::pose::Pose;
@@ -30,6 +30,10 @@ pub struct Outcome {
     /// `evaluation`: its nearest target point inside the gate, whether or not that formed a
     /// factor (a target point without a normal forms none).
     pub correspondences: Vec<u32>,
+    /// What the last searches proved about the returned pose's neighbourhoods (see
+    /// [`Certificates`]; None where the search gives no certificates): the verdict's overlap
+    /// answers most of its queries from them.
+    pub certificates: Option<Certificates>,
 }
 
 /// Iterations remembered to recognise a periodic orbit (cycles of up to this length).
@@ -89,6 +93,9 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
     let mut stop = StopReason::MaxIterations;
     let mut times = Vec::with_capacity(s.max_iterations);
     let mut last_corr: Vec<u32> = Vec::new();
+    // ... and the certificates of the search that found them (the final evaluation re-uses
+    // those correspondences without a search, so these are the ones its pose has).
+    let mut last_certs: Vec<Cert<D>> = Vec::new();
     // The previous iteration's correspondences: each search starts from them.
     let mut prev_corr: Vec<u32> = Vec::new();
     // ... and what those searches proved (see `Cert`).
@@ -238,6 +245,7 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
         if at_minimum {
             stop = StopReason::Converged;
             last_corr = corr;
+            last_certs = cert;
             break;
         }
         let Some(d) = step else {
@@ -299,12 +307,14 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
                     iteration_seconds: times,
                     final_evaluation_seconds: 0.0,
                     correspondences: Vec::new(),
+                    certificates: None,
                 };
             }
         }
         if converged {
             stop = StopReason::Converged;
             last_corr = corr;
+            last_certs = cert;
             break;
         }
         prev_corr = corr;
@@ -322,6 +332,7 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
             iteration_seconds: times,
             final_evaluation_seconds: 0.0,
             correspondences: Vec::new(),
+            certificates: None,
         };
     }
     let t0 = Instant::now();
@@ -329,7 +340,7 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
     // meaningfully: re-use them instead of a full search (saves one nearest-neighbour pass).
     // (Not after a cycle: the best pose's correspondences were not kept.)
     let fixed = (stop == StopReason::Converged && !cycled).then_some(last_corr.as_slice());
-    let (mut evaluation, mut correspondences, cert) = evaluate::<G, D, N>(
+    let (mut evaluation, mut correspondences, mut cert) = evaluate::<G, D, N>(
         pr,
         &pose,
         true,
@@ -342,7 +353,7 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
     if let Some(plain) = accel.check(energy(&evaluation)) {
         pose = plain;
         // (After a fixed evaluation there are no certificates for its correspondences.)
-        (evaluation, correspondences, _) = evaluate::<G, D, N>(
+        (evaluation, correspondences, cert) = evaluate::<G, D, N>(
             pr,
             &pose,
             true,
@@ -352,6 +363,15 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
             certs(&cert),
         );
     }
+    // A searched final evaluation certified its own answers; a fixed one re-used the last
+    // search's correspondences, whose certificates still hold wherever they are (a certificate
+    // is a statement about space around its anchor, not about one pose).
+    let pts = pr.target.search.points();
+    let certificates = if cert.is_empty() {
+        Certificates::new(&last_certs, &last_corr, pts)
+    } else {
+        Certificates::new(&cert, &correspondences, pts)
+    };
     if evaluation.num_correspondences < s.min_correspondences {
         stop = StopReason::TooFewCorrespondences;
     }
@@ -363,5 +383,6 @@ pub(super) fn iterate<G: Group<D, N>, const D: usize, const N: usize>(
         iteration_seconds: times,
         final_evaluation_seconds: t0.elapsed().as_secs_f64(),
         correspondences,
+        certificates,
     }
 }

@@ -1,5 +1,5 @@
 use super::centred::run;
-use super::evaluate::{evaluate, Problem};
+use super::evaluate::{evaluate, Problem, NONE};
 use super::pose::Pose;
 use super::*;
 use crate::group::{Group, Planar, Spatial};
@@ -607,4 +607,65 @@ fn skipped<G: Group<D, N>, const D: usize, const N: usize>(
         }
     }
     (settled, k2.len())
+}
+
+/// The overlap pass answered from a registration's certificates equals the searched one, to
+/// the bit: at the returned pose, moved off it, with other gates, after a converged solve (its
+/// final evaluation re-uses the last search's correspondences) and after an iteration cap (a
+/// searched final evaluation); refused against another index.
+#[test]
+fn certificates_answer_the_overlap_as_its_search_does() {
+    use crate::overlap::overlap;
+    fn check<const D: usize>(tgt: &[f64], src: &[f64]) {
+        let tree = KdTree::build(tgt, D).unwrap();
+        let target = Target {
+            search: &tree,
+            normals: None,
+            covariances: None,
+        };
+        let source = Source {
+            points: src,
+            covariances: None,
+        };
+        for (cap, want) in [(60, StopReason::Converged), (2, StopReason::MaxIterations)] {
+            let mut s = settings(Method::PointToPoint, Kernel::None, Optimizer::GaussNewton);
+            s.max_iterations = cap;
+            let out = register(&source, &target, &identity(D), &s).unwrap();
+            assert_eq!(out.stop_reason, want);
+            let certs = out
+                .certificates
+                .as_ref()
+                .expect("a k-d tree certifies its searches");
+            assert_eq!(certs.len(), src.len() / D);
+            let hints: Vec<i64> = out
+                .correspondences
+                .iter()
+                .map(|&j| if j == NONE { -1 } else { i64::from(j) })
+                .collect();
+            let mut moved = out.pose.clone();
+            moved[D] += 2e-3; // the first row's translation
+            for pose in [&out.pose, &moved] {
+                for gate in [1.0f64, 0.3, 0.05, 2.0] {
+                    let (g2, w2) = (gate * gate, 0.25 * gate * gate);
+                    let plain = overlap(&tree, src, pose, g2, w2, None, None).unwrap();
+                    let fast = overlap(&tree, src, pose, g2, w2, Some(&hints), Some(certs));
+                    assert_eq!(fast.unwrap(), plain, "cap {cap}, gate {gate}");
+                }
+            }
+            let other = KdTree::build(tgt, D).unwrap();
+            let e = overlap(&other, src, &out.pose, 1.0, 1.0, None, Some(certs)).unwrap_err();
+            assert!(e.to_string().contains("certificates"), "{e}");
+        }
+    }
+    // Jittered sources, so that the distances are not all zero.
+    let jitter = |pts: Vec<f64>| -> Vec<f64> {
+        pts.iter()
+            .enumerate()
+            .map(|(k, v)| v + 0.01 * (((k * 7919) % 101) as f64 / 101.0 - 0.5))
+            .collect()
+    };
+    let tgt = room_3d();
+    check::<3>(&tgt, &jitter(source_of(&tgt, &truth_3d())));
+    let tgt = room_2d();
+    check::<2>(&tgt, &jitter(source_of(&tgt, &truth_2d())));
 }
