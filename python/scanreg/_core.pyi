@@ -132,7 +132,9 @@ class KeyframeMap:
     def num_keyframes(self) -> int: ...
     def insert(
         self, points_array: NDArray[np.float64]
-    ) -> tuple[KdTree, NDArray[np.float64], NDArray[np.bool_], tuple[float, float], int]: ...
+    ) -> tuple[
+        KdTree, NDArray[np.float64], NDArray[np.bool_], tuple[float, float], float, int
+    ]: ...
 
 @final
 class LocalMap:

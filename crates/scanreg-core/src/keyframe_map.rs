@@ -51,6 +51,8 @@ struct Cell {
     radius_sq: f64,
     /// The voxel of the nearest other map point (the second of the `k` neighbours).
     nearest: Option<[i64; 3]>,
+    /// Its squared distance (NaN while the map holds one point).
+    nearest_sq: f64,
 }
 
 /// The map after an insert: points, their normals and the tree over them (row `i` of each is
@@ -69,6 +71,9 @@ pub struct MapState {
     /// `(ε̂², ε̃²)` of the normals, as [`crate::normal_noise::target_normal_noise`] of `tree`
     /// and `normals` gives them (each point's nearest neighbour known from its normal's).
     pub normal_noise: (f64, f64),
+    /// The median distance from a map point to its nearest other point (NaN with fewer than
+    /// two points), as `scanreg.target.median_spacing` measures it with a 2-NN search.
+    pub spacing: f64,
 }
 
 /// The sliding keyframe map (module docs).
@@ -234,6 +239,7 @@ impl KeyframeMap {
                         valid: false,
                         radius_sq: f64::INFINITY,
                         nearest: None,
+                        nearest_sq: f64::NAN,
                     });
                     touched.push(true);
                 }
@@ -353,6 +359,7 @@ impl KeyframeMap {
             // The k neighbours are sorted by (distance, index): the second is the nearest
             // other point, as the 2-NN query of the noise statistic finds it.
             let nearest = buf.get(1).map(|&(j, _)| j as usize);
+            cell.nearest_sq = buf.get(1).map_or(f64::NAN, |&(_, d)| d);
             let (vals, vecs) = eigen(&scatter(&tree, buf), dim);
             cell.valid = k >= dim && spans(&vals, dim);
             cell.nearest = nearest.map(|j| keys_now[j]);
@@ -372,8 +379,12 @@ impl KeyframeMap {
         let normal_noise = noise_with_neighbour(&normals, dim, |i| {
             cells[i].nearest.and_then(|key| slot.get(&key).copied())
         });
+        // Kept like the nearest voxel: an unchanged neighbourhood has its nearest point at the
+        // same place, so the map's spacing needs no search of its own.
+        let spacing = median_spacing(self.cells.iter().map(|c| c.nearest_sq).collect());
         Ok(MapState {
             normal_noise,
+            spacing,
             points: flat,
             normals,
             valid: self.cells.iter().map(|c| c.valid).collect(),
@@ -381,6 +392,24 @@ impl KeyframeMap {
             num_updated,
         })
     }
+}
+
+/// The square root of the median of `nearest_sq` (the mean of the middle two for an even
+/// count, as NumPy's median), NaN when fewer than two points or any is NaN.
+fn median_spacing(mut nearest_sq: Vec<f64>) -> f64 {
+    let n = nearest_sq.len();
+    if n < 2 || nearest_sq.iter().any(|d| d.is_nan()) {
+        return f64::NAN;
+    }
+    let mid = n / 2;
+    let (below, &mut upper, _) = nearest_sq.select_nth_unstable_by(mid, f64::total_cmp);
+    let median = if n % 2 == 1 {
+        upper
+    } else {
+        let lower = below.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        (lower + upper) / 2.0
+    };
+    median.sqrt()
 }
 
 #[cfg(test)]
@@ -444,6 +473,16 @@ mod tests {
             assert_eq!(same, state.valid.len());
             let (mean, median) = target_normal_noise(&state.tree, &state.normals).unwrap();
             assert_eq!(state.normal_noise, (mean, median));
+            let (_, d2) = state.tree.knn_batch(&state.points, 2).unwrap();
+            let mut second: Vec<f64> = d2.chunks_exact(2).map(|d| d[1]).collect();
+            second.sort_by(f64::total_cmp);
+            let m = second.len();
+            let want = if m % 2 == 1 {
+                second[m / 2]
+            } else {
+                (second[m / 2 - 1] + second[m / 2]) / 2.0
+            };
+            assert_eq!(state.spacing, want.sqrt());
             if j == 0 {
                 assert_eq!(state.num_updated, state.valid.len());
             }
@@ -474,5 +513,6 @@ mod tests {
         // A single point: a map without normals, not an error.
         let state = map.insert(&[1.0, 2.0]).unwrap();
         assert_eq!(state.valid, vec![false]);
+        assert!(state.spacing.is_nan());
     }
 }

@@ -251,9 +251,13 @@ class Odometry2D:
     def _add_keyframe(self, points: FloatArray, pose: SE2) -> None:
         # The map is updated, not rebuilt: only the voxels this keyframe and the one it
         # evicts touch get a new centroid and normal (scanreg._core.KeyframeMap).
-        index, normals, valid, noise, _ = self._map.insert(pose.apply(points))
+        # The map also knows each point's nearest neighbour, hence the target's spacing (the
+        # trust analysis's sampling-density ratio reads it), without a 2-NN search of its own.
+        index, normals, valid, noise, spacing, _ = self._map.insert(pose.apply(points))
         self._last_keyframe = pose
-        self._target = prepared_from_normals(index, normals, valid, self._num_neighbors, noise)
+        self._target = prepared_from_normals(
+            index, normals, valid, self._num_neighbors, noise, spacing
+        )
         self._map_points = self._target.points
         self._grid = None
 
