@@ -262,16 +262,18 @@ impl KeyframeMap {
         // the tree, the normals' neighbour order and every sum over the map are those of a full
         // rebuild, to the bit. The keys are unique (a point lies in one voxel): one sort of the
         // row indices, one move of the cells and one rebuild of the slots at most.
-        let order_key = |c: &Cell| (c.parts[0].keyframe, c.parts[0].first);
-        let mut rows: Vec<u32> = (0..self.cells.len() as u32)
-            .filter(|&i| !self.cells[i as usize].parts.is_empty())
+        // The keys are read once into one array: comparing through the cells would chase each
+        // voxel's parts on every comparison.
+        let mut rows: Vec<(u64, usize, u32)> = self
+            .cells
+            .iter()
+            .enumerate()
+            .filter_map(|(i, c)| c.parts.first().map(|p| (p.keyframe, p.first, i as u32)))
             .collect();
         let in_order = rows.len() == self.cells.len()
-            && rows.windows(2).all(|w| {
-                order_key(&self.cells[w[0] as usize]) < order_key(&self.cells[w[1] as usize])
-            });
+            && rows.windows(2).all(|w| (w[0].0, w[0].1) < (w[1].0, w[1].1));
         if !in_order {
-            rows.sort_unstable_by_key(|&i| order_key(&self.cells[i as usize]));
+            rows.sort_unstable();
             let mut old: Vec<Option<Cell>> = std::mem::take(&mut self.cells)
                 .into_iter()
                 .map(Some)
@@ -279,7 +281,7 @@ impl KeyframeMap {
             let old_touched = std::mem::take(&mut touched);
             self.cells = Vec::with_capacity(rows.len());
             touched = Vec::with_capacity(rows.len());
-            for &i in &rows {
+            for &(_, _, i) in &rows {
                 let i = i as usize;
                 if let Some(cell) = old[i].take() {
                     self.cells.push(cell);
@@ -331,10 +333,9 @@ impl KeyframeMap {
         };
         for (cell, t) in self.cells.iter().zip(touched.iter_mut()) {
             if !*t {
-                *t = moved.as_ref().is_some_and(|m| {
-                    m.nearest_within(&cell.point[..dim], cell.radius_sq)
-                        .is_some()
-                });
+                *t = moved
+                    .as_ref()
+                    .is_some_and(|m| m.any_within(&cell.point[..dim], cell.radius_sq));
             }
         }
         let keys_now: Vec<[i64; 3]> = self.cells.iter().map(|c| c.key).collect();
