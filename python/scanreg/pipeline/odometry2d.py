@@ -441,22 +441,8 @@ class Odometry2D:
             )
         held: tuple[str, ...] = ()
         if prior_cov is not None and motion is not None and res.stop_reason not in _FAILED:
-            # The prediction's covariance: the previous pose's, carried through the motion,
-            # plus the wheels' over this step.
-            carry = motion.inverse().adjoint()
-            predicted_cov = carry @ self._covariance @ carry.T + prior_cov
-            res, held, held_start = hold_to_prediction(
-                res,
-                pts,
-                self._target,
-                predicted,
-                predicted_cov,
-                method="point_to_line",
-                max_correspondence_distance=cfg.max_correspondence_distance,
-                kernel=cfg.kernel,
-                max_iterations=cfg.max_iterations,
-                thresholds=self._register_thresholds,
-            )
+            predicted_cov = predicted_covariance(self._covariance, motion, prior_cov)
+            res, held, held_start = _hold(res, pts, self._target, predicted, predicted_cov, cfg)
             if held:
                 start = held_start
         t_align = time.perf_counter() - t0
@@ -552,6 +538,38 @@ def _checked_prior_covariance(
     if low < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
         raise ValueError("prior_covariance: must be positive semi-definite")
     return cov
+
+
+def predicted_covariance(previous: FloatArray, motion: SE2, motion_covariance: Any) -> FloatArray:
+    """The prediction's covariance over its tangent: ``previous`` (the last pose's) carried
+    through ``motion``, plus ``motion_covariance`` (the wheels' over this step)."""
+    carry = motion.inverse().adjoint()
+    out: FloatArray = carry @ previous @ carry.T + motion_covariance
+    return out
+
+
+def _hold(
+    res: RegistrationResult,
+    points: FloatArray,
+    target: PreparedTarget,
+    predicted: SE2,
+    covariance: FloatArray,
+    config: Any,
+) -> tuple[RegistrationResult, tuple[str, ...], SE2]:
+    """:func:`hold_to_prediction` with the point-to-line settings of a 2D pipeline's
+    ``config`` (:class:`OdometryConfig2D`, ``LocalizationConfig2D``): the one call both make."""
+    return hold_to_prediction(
+        res,
+        points,
+        target,
+        predicted,
+        covariance,
+        method="point_to_line",
+        max_correspondence_distance=config.max_correspondence_distance,
+        kernel=config.kernel,
+        max_iterations=config.max_iterations,
+        thresholds=_without_default_probe(config.thresholds),
+    )
 
 
 def hold_to_prediction(
