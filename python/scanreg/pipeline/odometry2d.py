@@ -483,7 +483,8 @@ class Odometry2D:
         assert isinstance(velocity, SE2)
         self._velocity = velocity
         self._pose = pose
-        cov = np.array(res.covariance, dtype=np.float64)
+        # One read-only copy serves the frame and the next prediction (which only reads it).
+        cov = frozen(res.covariance)
         # The pose's covariance, carried to the next prediction; a failed alignment's is
         # none (the pose stays at the start) and the prediction's would grow without bound.
         self._covariance = cov if np.isfinite(cov).all() and not failed else np.zeros((3, 3))
@@ -494,7 +495,7 @@ class Odometry2D:
             motion=velocity,
             prediction=predicted,
             prediction_source=how,
-            covariance=frozen(np.array(res.covariance, dtype=np.float64)),
+            covariance=cov,
             verdict=out.verdict,
             quality=out.report,
             registration=res,
@@ -636,6 +637,8 @@ def _accepted_pose(res: RegistrationResult, start: SE2, cfg: OdometryConfig2D) -
     bound = cfg.max_refinement_step
     if bound is None:
         bound = 0.15 if cfg.front_end == "correlative" else math.inf
+    if bound == math.inf:
+        return pose  # no step is longer than that: no need to measure it
     step = start.inverse() @ pose
     if float(np.linalg.norm(step.translation)) > bound:
         return start
