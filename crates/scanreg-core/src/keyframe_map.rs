@@ -15,6 +15,8 @@
 //! those of a full recomputation (up to ties in the neighbour order). Keeping a normal whose
 //! neighbourhood changed is not safe: a distant wall seen first by one sparse scan gets its
 //! normal from points spread across a corner, and later keyframes fill it in.
+//! Each voxel also keeps the distance to its nearest other point (the second of its `k`
+//! neighbours), so the map's median spacing comes without a search of its own.
 //! The k-d tree is rebuilt over the map on every insert: a few thousand 2D points build in tens
 //! of microseconds, far less than the normals it saves.
 

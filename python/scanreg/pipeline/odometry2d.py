@@ -15,7 +15,7 @@ One :meth:`Odometry2D.step` per scan, in four stages:
    keyframes, voxel-downsampled to ``map_voxel_size``. A keyframe updates it in the core
    (:class:`scanreg._core.KeyframeMap`): only the voxels the new keyframe and the evicted one
    touch get a new centroid, and only normals whose neighbourhood holds a changed point are
-   computed again — the same map, normals and normal noise as downsampling and
+   computed again — the same map, normals, normal noise and point spacing as downsampling and
    :func:`scanreg.prepare` of the window from scratch, at about half the cost on the Intel log
    (the k-d tree is rebuilt).
    The correlative grid is rebuilt when next needed.
