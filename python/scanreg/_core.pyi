@@ -132,9 +132,7 @@ class KeyframeMap:
     def num_keyframes(self) -> int: ...
     def insert(
         self, points_array: NDArray[np.float64]
-    ) -> tuple[
-        KdTree, NDArray[np.float64], NDArray[np.bool_], tuple[float, float], float, int
-    ]: ...
+    ) -> tuple[KdTree, NDArray[np.float64], NDArray[np.bool_], tuple[float, float], float, int]: ...
 
 @final
 class LocalMap:
