@@ -14,6 +14,7 @@ from scanreg import SE2
 from scanreg import simulate as sim
 from scanreg.pipeline import Frame2D, Odometry2D, OdometryConfig2D
 from scanreg.preprocess import voxel_downsample
+from scanreg.target import median_spacing
 from scanreg.verdict import VerdictThresholds
 
 SICK = sim.LaserModel.preset("sick_lms200")
@@ -233,11 +234,12 @@ def test_incremental_map_equals_a_full_rebuild() -> None:
         full = scanreg.prepare(voxel_downsample(window, 0.05).points)
         mine = odo._target
         # Measured by the map as it was updated (seeded), not by the property on first read.
-        assert mine is not None and "normal_noise" in mine.__dict__
+        assert mine is not None and "normal_noise" in mine.__dict__ and "spacing" in mine.__dict__
         # To the bit, in the same order: the odometry runs exactly as with a full rebuild.
         np.testing.assert_array_equal(mine.points, full.points)
         np.testing.assert_array_equal(mine.normals, full.normals)
         assert mine.normal_noise == full.normal_noise
+        assert mine.spacing == full.spacing
         checked += 1
     assert checked > 8 and len(keyframes) > 4
     assert odo.map_points is not None and not odo.map_points.flags.writeable
@@ -255,12 +257,14 @@ def test_keyframe_map_refuses_bad_input() -> None:
         m.insert(np.array([[0.0, np.nan]]))
     with pytest.raises(ValueError, match="points"):
         m.insert(np.zeros((2, 3)))
-    tree, normals, valid, noise, updated = m.insert(
+    tree, normals, valid, noise, spacing, updated = m.insert(
         np.array([[1.0, 2.0], [1.01, 2.0], [1.1, 2.0], [1.2, 2.01]])
     )
     # 1.0 and 1.01 share a 5 cm voxel: one centroid.
     assert len(tree) == 3 and normals.shape == (3, 2) and valid.all() and updated == 3
     assert noise == scanreg._core.target_normal_noise(tree, normals)
+    # Nearest-neighbour distances 0.095 (1.005 <-> 1.1, both ways) and 0.1005: the median.
+    assert spacing == median_spacing(tree, tree.points) and abs(spacing - 0.095) < 1e-12
 
 
 def test_motion_cost_keeps_the_predicted_basin_in_a_repeating_corridor() -> None:

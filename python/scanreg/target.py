@@ -292,12 +292,14 @@ def prepared_from_normals(
     valid: BoolArray,
     num_neighbors: int,
     normal_noise: tuple[float, float] | None = None,
+    spacing: float | None = None,
 ) -> PreparedTarget:
     """A :class:`PreparedTarget` (normals, no covariances) from a tree and normals computed
     elsewhere — a map maintained incrementally (:class:`scanreg._core.KeyframeMap`) — with
     the defaults of :func:`prepare`; the caller vouches that row ``i`` of ``normals`` is the
-    normal of ``index``'s point ``i``, and that ``normal_noise`` (when given) is what
-    :attr:`PreparedTarget.normal_noise` would measure."""
+    normal of ``index``'s point ``i``, and that ``normal_noise`` and ``spacing`` (when given)
+    are what :attr:`PreparedTarget.normal_noise` and :attr:`PreparedTarget.spacing` would
+    measure."""
     if normals.shape != (len(index), index.dim) or valid.shape != (len(index),):
         raise ValueError(
             f"normals: expected shape ({len(index)}, {index.dim}) and valid ({len(index)},), "
@@ -320,4 +322,6 @@ def prepared_from_normals(
     if normal_noise is not None:
         # Where functools.cached_property keeps its value: the first read returns it.
         target.__dict__["normal_noise"] = (float(normal_noise[0]), float(normal_noise[1]))
+    if spacing is not None:
+        target.__dict__["spacing"] = float(spacing)
     return target

@@ -15,6 +15,8 @@
 //! those of a full recomputation (up to ties in the neighbour order). Keeping a normal whose
 //! neighbourhood changed is not safe: a distant wall seen first by one sparse scan gets its
 //! normal from points spread across a corner, and later keyframes fill it in.
+//! Each voxel also keeps the distance to its nearest other point (the second of its `k`
+//! neighbours), so the map's median spacing comes without a search of its own.
 //! The k-d tree is rebuilt over the map on every insert: a few thousand 2D points build in tens
 //! of microseconds, far less than the normals it saves.
 
@@ -51,6 +53,8 @@ struct Cell {
     radius_sq: f64,
     /// The voxel of the nearest other map point (the second of the `k` neighbours).
     nearest: Option<[i64; 3]>,
+    /// Its squared distance (NaN while the map holds one point).
+    nearest_sq: f64,
 }
 
 /// The map after an insert: points, their normals and the tree over them (row `i` of each is
@@ -69,6 +73,9 @@ pub struct MapState {
     /// `(ε̂², ε̃²)` of the normals, as [`crate::normal_noise::target_normal_noise`] of `tree`
     /// and `normals` gives them (each point's nearest neighbour known from its normal's).
     pub normal_noise: (f64, f64),
+    /// The median distance from a map point to its nearest other point (NaN with fewer than
+    /// two points), as `scanreg.target.median_spacing` measures it with a 2-NN search.
+    pub spacing: f64,
 }
 
 /// The sliding keyframe map (module docs).
@@ -234,6 +241,7 @@ impl KeyframeMap {
                         valid: false,
                         radius_sq: f64::INFINITY,
                         nearest: None,
+                        nearest_sq: f64::NAN,
                     });
                     touched.push(true);
                 }
@@ -256,16 +264,18 @@ impl KeyframeMap {
         // the tree, the normals' neighbour order and every sum over the map are those of a full
         // rebuild, to the bit. The keys are unique (a point lies in one voxel): one sort of the
         // row indices, one move of the cells and one rebuild of the slots at most.
-        let order_key = |c: &Cell| (c.parts[0].keyframe, c.parts[0].first);
-        let mut rows: Vec<u32> = (0..self.cells.len() as u32)
-            .filter(|&i| !self.cells[i as usize].parts.is_empty())
+        // The keys are read once into one array: comparing through the cells would chase each
+        // voxel's parts on every comparison.
+        let mut rows: Vec<(u64, usize, u32)> = self
+            .cells
+            .iter()
+            .enumerate()
+            .filter_map(|(i, c)| c.parts.first().map(|p| (p.keyframe, p.first, i as u32)))
             .collect();
         let in_order = rows.len() == self.cells.len()
-            && rows.windows(2).all(|w| {
-                order_key(&self.cells[w[0] as usize]) < order_key(&self.cells[w[1] as usize])
-            });
+            && rows.windows(2).all(|w| (w[0].0, w[0].1) < (w[1].0, w[1].1));
         if !in_order {
-            rows.sort_unstable_by_key(|&i| order_key(&self.cells[i as usize]));
+            rows.sort_unstable();
             let mut old: Vec<Option<Cell>> = std::mem::take(&mut self.cells)
                 .into_iter()
                 .map(Some)
@@ -273,7 +283,7 @@ impl KeyframeMap {
             let old_touched = std::mem::take(&mut touched);
             self.cells = Vec::with_capacity(rows.len());
             touched = Vec::with_capacity(rows.len());
-            for &i in &rows {
+            for &(_, _, i) in &rows {
                 let i = i as usize;
                 if let Some(cell) = old[i].take() {
                     self.cells.push(cell);
@@ -325,10 +335,9 @@ impl KeyframeMap {
         };
         for (cell, t) in self.cells.iter().zip(touched.iter_mut()) {
             if !*t {
-                *t = moved.as_ref().is_some_and(|m| {
-                    m.nearest_within(&cell.point[..dim], cell.radius_sq)
-                        .is_some()
-                });
+                *t = moved
+                    .as_ref()
+                    .is_some_and(|m| m.any_within(&cell.point[..dim], cell.radius_sq));
             }
         }
         let keys_now: Vec<[i64; 3]> = self.cells.iter().map(|c| c.key).collect();
@@ -353,6 +362,7 @@ impl KeyframeMap {
             // The k neighbours are sorted by (distance, index): the second is the nearest
             // other point, as the 2-NN query of the noise statistic finds it.
             let nearest = buf.get(1).map(|&(j, _)| j as usize);
+            cell.nearest_sq = buf.get(1).map_or(f64::NAN, |&(_, d)| d);
             let (vals, vecs) = eigen(&scatter(&tree, buf), dim);
             cell.valid = k >= dim && spans(&vals, dim);
             cell.nearest = nearest.map(|j| keys_now[j]);
@@ -372,8 +382,12 @@ impl KeyframeMap {
         let normal_noise = noise_with_neighbour(&normals, dim, |i| {
             cells[i].nearest.and_then(|key| slot.get(&key).copied())
         });
+        // Kept like the nearest voxel: an unchanged neighbourhood has its nearest point at the
+        // same place, so the map's spacing needs no search of its own.
+        let spacing = median_spacing(self.cells.iter().map(|c| c.nearest_sq).collect());
         Ok(MapState {
             normal_noise,
+            spacing,
             points: flat,
             normals,
             valid: self.cells.iter().map(|c| c.valid).collect(),
@@ -381,6 +395,24 @@ impl KeyframeMap {
             num_updated,
         })
     }
+}
+
+/// The square root of the median of `nearest_sq` (the mean of the middle two for an even
+/// count, as NumPy's median), NaN when fewer than two points or any is NaN.
+fn median_spacing(mut nearest_sq: Vec<f64>) -> f64 {
+    let n = nearest_sq.len();
+    if n < 2 || nearest_sq.iter().any(|d| d.is_nan()) {
+        return f64::NAN;
+    }
+    let mid = n / 2;
+    let (below, &mut upper, _) = nearest_sq.select_nth_unstable_by(mid, f64::total_cmp);
+    let median = if n % 2 == 1 {
+        upper
+    } else {
+        let lower = below.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        (lower + upper) / 2.0
+    };
+    median.sqrt()
 }
 
 #[cfg(test)]
@@ -444,6 +476,16 @@ mod tests {
             assert_eq!(same, state.valid.len());
             let (mean, median) = target_normal_noise(&state.tree, &state.normals).unwrap();
             assert_eq!(state.normal_noise, (mean, median));
+            let (_, d2) = state.tree.knn_batch(&state.points, 2).unwrap();
+            let mut second: Vec<f64> = d2.chunks_exact(2).map(|d| d[1]).collect();
+            second.sort_by(f64::total_cmp);
+            let m = second.len();
+            let want = if m % 2 == 1 {
+                second[m / 2]
+            } else {
+                (second[m / 2 - 1] + second[m / 2]) / 2.0
+            };
+            assert_eq!(state.spacing, want.sqrt());
             if j == 0 {
                 assert_eq!(state.num_updated, state.valid.len());
             }
@@ -474,5 +516,6 @@ mod tests {
         // A single point: a map without normals, not an error.
         let state = map.insert(&[1.0, 2.0]).unwrap();
         assert_eq!(state.valid, vec![false]);
+        assert!(state.spacing.is_nan());
     }
 }

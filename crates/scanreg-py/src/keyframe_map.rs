@@ -7,12 +7,13 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2}
 use pyo3::prelude::*;
 use scanreg_core::keyframe_map;
 
-/// `(tree, normals (M, dim), valid (M,), (ε̂², ε̃²), num_updated)` after an insert.
+/// `(tree, normals (M, dim), valid (M,), (ε̂², ε̃²), spacing, num_updated)` after an insert.
 type Inserted = (
     Py<KdTree>,
     Py<PyArray2<f64>>,
     Py<PyArray1<bool>>,
     (f64, f64),
+    f64,
     usize,
 );
 
@@ -56,7 +57,8 @@ impl KeyframeMap {
 
     /// Add a keyframe's `(N, dim)` world-frame points (dropping the oldest keyframe when the
     /// window is full): `(tree over the map, normals, valid, normal noise (as
-    /// `target_normal_noise` of the two), voxels whose normal was computed)`.
+    /// `target_normal_noise` of the two), median nearest-neighbour spacing, voxels whose normal
+    /// was computed)`.
     fn insert(
         &mut self,
         py: Python<'_>,
@@ -73,6 +75,7 @@ impl KeyframeMap {
             read_only(normals.into_bound(py)),
             read_only(valid),
             state.normal_noise,
+            state.spacing,
             state.num_updated,
         ))
     }

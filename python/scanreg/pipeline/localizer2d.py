@@ -51,9 +51,10 @@ from .odometry2d import (
     Frame2D,
     FrameTiming2D,
     _count,
+    _hold,
     _positive,
     _without_default_probe,
-    hold_to_prediction,
+    predicted_covariance,
 )
 from .wheel import WheelNoise, WheelOdometry
 
@@ -253,28 +254,15 @@ class Localizer2D:
         predicted = predicted.orthonormalized()  # see Odometry2D.step: held frames feed it back
         predicted_cov = None
         if step_cov is not None:
-            carry = step.inverse().adjoint()
-            predicted_cov = carry @ self._covariance @ carry.T + step_cov
+            predicted_cov = predicted_covariance(self._covariance, step, step_cov)
         t0 = time.perf_counter()
         res = self._register(pts, predicted, predicted_cov)
         held: tuple[str, ...] = ()
         if predicted_cov is not None and res.stop_reason not in _FAILED:
-            cfg = self.config
             # Along a corridor the map pins the scan only weakly and point-to-line slides
             # (Intel: tracks accepted 0.2-0.5 m off the wheels' step, ending 1-14 m from the
             # mapped pose): there the prediction holds.
-            res, held, _ = hold_to_prediction(
-                res,
-                pts,
-                self._target,
-                predicted,
-                predicted_cov,
-                method="point_to_line",
-                max_correspondence_distance=cfg.max_correspondence_distance,
-                kernel=cfg.kernel,
-                max_iterations=cfg.max_iterations,
-                thresholds=_without_default_probe(cfg.thresholds),
-            )
+            res, held, _ = _hold(res, pts, self._target, predicted, predicted_cov, self.config)
         t_align = time.perf_counter() - t0
         frame = self._judged(
             pts, res, predicted, how, index, stamp, t_start, t_align, held_directions=held

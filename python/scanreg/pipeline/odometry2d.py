@@ -15,7 +15,7 @@ One :meth:`Odometry2D.step` per scan, in four stages:
    keyframes, voxel-downsampled to ``map_voxel_size``. A keyframe updates it in the core
    (:class:`scanreg._core.KeyframeMap`): only the voxels the new keyframe and the evicted one
    touch get a new centroid, and only normals whose neighbourhood holds a changed point are
-   computed again — the same map, normals and normal noise as downsampling and
+   computed again — the same map, normals, normal noise and point spacing as downsampling and
    :func:`scanreg.prepare` of the window from scratch, at about half the cost on the Intel log
    (the k-d tree is rebuilt).
    The correlative grid is rebuilt when next needed.
@@ -251,9 +251,13 @@ class Odometry2D:
     def _add_keyframe(self, points: FloatArray, pose: SE2) -> None:
         # The map is updated, not rebuilt: only the voxels this keyframe and the one it
         # evicts touch get a new centroid and normal (scanreg._core.KeyframeMap).
-        index, normals, valid, noise, _ = self._map.insert(pose.apply(points))
+        # The map also knows each point's nearest neighbour, hence the target's spacing (the
+        # trust analysis's sampling-density ratio reads it), without a 2-NN search of its own.
+        index, normals, valid, noise, spacing, _ = self._map.insert(pose.apply(points))
         self._last_keyframe = pose
-        self._target = prepared_from_normals(index, normals, valid, self._num_neighbors, noise)
+        self._target = prepared_from_normals(
+            index, normals, valid, self._num_neighbors, noise, spacing
+        )
         self._map_points = self._target.points
         self._grid = None
 
@@ -437,22 +441,8 @@ class Odometry2D:
             )
         held: tuple[str, ...] = ()
         if prior_cov is not None and motion is not None and res.stop_reason not in _FAILED:
-            # The prediction's covariance: the previous pose's, carried through the motion,
-            # plus the wheels' over this step.
-            carry = motion.inverse().adjoint()
-            predicted_cov = carry @ self._covariance @ carry.T + prior_cov
-            res, held, held_start = hold_to_prediction(
-                res,
-                pts,
-                self._target,
-                predicted,
-                predicted_cov,
-                method="point_to_line",
-                max_correspondence_distance=cfg.max_correspondence_distance,
-                kernel=cfg.kernel,
-                max_iterations=cfg.max_iterations,
-                thresholds=self._register_thresholds,
-            )
+            predicted_cov = predicted_covariance(self._covariance, motion, prior_cov)
+            res, held, held_start = _hold(res, pts, self._target, predicted, predicted_cov, cfg)
             if held:
                 start = held_start
         t_align = time.perf_counter() - t0
@@ -493,7 +483,8 @@ class Odometry2D:
         assert isinstance(velocity, SE2)
         self._velocity = velocity
         self._pose = pose
-        cov = np.array(res.covariance, dtype=np.float64)
+        # One read-only copy serves the frame and the next prediction (which only reads it).
+        cov = frozen(res.covariance)
         # The pose's covariance, carried to the next prediction; a failed alignment's is
         # none (the pose stays at the start) and the prediction's would grow without bound.
         self._covariance = cov if np.isfinite(cov).all() and not failed else np.zeros((3, 3))
@@ -504,7 +495,7 @@ class Odometry2D:
             motion=velocity,
             prediction=predicted,
             prediction_source=how,
-            covariance=frozen(np.array(res.covariance, dtype=np.float64)),
+            covariance=cov,
             verdict=out.verdict,
             quality=out.report,
             registration=res,
@@ -548,6 +539,38 @@ def _checked_prior_covariance(
     if low < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
         raise ValueError("prior_covariance: must be positive semi-definite")
     return cov
+
+
+def predicted_covariance(previous: FloatArray, motion: SE2, motion_covariance: Any) -> FloatArray:
+    """The prediction's covariance over its tangent: ``previous`` (the last pose's) carried
+    through ``motion``, plus ``motion_covariance`` (the wheels' over this step)."""
+    carry = motion.inverse().adjoint()
+    out: FloatArray = carry @ previous @ carry.T + motion_covariance
+    return out
+
+
+def _hold(
+    res: RegistrationResult,
+    points: FloatArray,
+    target: PreparedTarget,
+    predicted: SE2,
+    covariance: FloatArray,
+    config: Any,
+) -> tuple[RegistrationResult, tuple[str, ...], SE2]:
+    """:func:`hold_to_prediction` with the point-to-line settings of a 2D pipeline's
+    ``config`` (:class:`OdometryConfig2D`, ``LocalizationConfig2D``): the one call both make."""
+    return hold_to_prediction(
+        res,
+        points,
+        target,
+        predicted,
+        covariance,
+        method="point_to_line",
+        max_correspondence_distance=config.max_correspondence_distance,
+        kernel=config.kernel,
+        max_iterations=config.max_iterations,
+        thresholds=_without_default_probe(config.thresholds),
+    )
 
 
 def hold_to_prediction(
@@ -614,6 +637,8 @@ def _accepted_pose(res: RegistrationResult, start: SE2, cfg: OdometryConfig2D) -
     bound = cfg.max_refinement_step
     if bound is None:
         bound = 0.15 if cfg.front_end == "correlative" else math.inf
+    if bound == math.inf:
+        return pose  # no step is longer than that: no need to measure it
     step = start.inverse() @ pose
     if float(np.linalg.norm(step.translation)) > bound:
         return start

@@ -432,6 +432,25 @@ impl<const D: usize> Inner<D> {
         (bi != u32::MAX).then_some((bi as usize, bd))
     }
 
+    /// Whether any point lies within `max_sq` of `q`: the search stops at the first one (a
+    /// negative bound then prunes every cell left), instead of looking on for the nearest.
+    #[inline]
+    fn any_within(&self, q: &[f64; D], max_sq: f64) -> bool {
+        let pts = &self.pts;
+        let bound = std::cell::Cell::new(max_sq);
+        self.traverse_near(
+            q,
+            || bound.get(),
+            |lo, hi| {
+                if pts[lo..hi].iter().any(|p| sq_dist(p, q) <= max_sq) {
+                    bound.set(-1.0);
+                }
+            },
+            |_| {},
+        );
+        bound.get() < 0.0
+    }
+
     /// [`Self::nearest`] (the same answer, ties included) and a certificate for it: a lower
     /// bound `clear` on the squared distance from `q` to every point but the answer (to every
     /// point when there is none within `max_sq`). Cells are searched out to `slack` beyond the
@@ -761,6 +780,13 @@ impl KdTree {
     #[inline]
     pub fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
         with_tree!(self, t, D => t.nearest(&arr::<D>(q), max_sq))
+    }
+
+    /// Whether some point lies within `max_sq` (squared, inclusive) of `q`: the same answer
+    /// as `nearest_within(q, max_sq).is_some()`, stopping at the first point found.
+    #[inline]
+    pub fn any_within(&self, q: &[f64], max_sq: f64) -> bool {
+        !max_sq.is_nan() && with_tree!(self, t, D => t.any_within(&arr::<D>(q), max_sq))
     }
 
     /// [`Self::nearest_within`] given a likely answer `hint` (a point index, e.g. the previous

@@ -212,3 +212,24 @@ fn rejects_bad_input() {
     assert!(t.nearest_batch(&[0.0, 0.0], -1.0).is_err());
     assert!(t.nearest_batch(&[0.0, 0.0], f64::NAN).is_err());
 }
+
+/// `any_within` says whether the brute-force nearest lies within the gate, the gate included
+/// (queries on a grid sit at exactly the gate from some points).
+#[test]
+fn any_within_agrees_with_brute_force() {
+    for dim in [2, 3] {
+        for grid in [false, true] {
+            let pts = lcg_cloud(500, dim, 3 + dim as u64, grid);
+            let qs = lcg_cloud(200, dim, 9, grid);
+            let tree = KdTree::build(&pts, dim).unwrap();
+            for q in qs.chunks_exact(dim) {
+                let nearest = brute(&pts, dim, q)[0].1;
+                for max_sq in [0.0, 0.05, 1.0, 2.0, f64::INFINITY, f64::NAN] {
+                    assert_eq!(tree.any_within(q, max_sq), nearest <= max_sq, "{dim}D");
+                }
+                assert!(tree.any_within(q, nearest));
+                assert!(nearest == 0.0 || !tree.any_within(q, nearest * 0.999));
+            }
+        }
+    }
+}
