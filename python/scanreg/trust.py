@@ -230,10 +230,7 @@ class TrustInputs:
         src = self.source
         if not math.isfinite(spacing) or len(src) < 2:
             return 1.0
-        source = median_spacing(_core.KdTree(src), src)
-        if not (math.isfinite(source) and source > 0.0):
-            return 1.0
-        return min(1.0, spacing / source)
+        return _density_ratio(spacing, median_spacing(_core.KdTree(src), src))
 
     @functools.cached_property
     def source_normals(self) -> tuple[Any, FloatArray]:
@@ -250,6 +247,13 @@ class TrustInputs:
         if math.isfinite(block):
             return block
         return float(np.sqrt(np.mean(self.levers**2))) / 5.0
+
+
+def _density_ratio(target: float, source: float) -> float:
+    """``min(1, target / source)`` of two median spacings; 1 where the source's is not known."""
+    if not (math.isfinite(source) and source > 0.0):
+        return 1.0
+    return min(1.0, target / source)
 
 
 @dataclass(frozen=True)
@@ -355,6 +359,17 @@ def correspondence_analysis(
     n = len(src)
     if method != "gicp" and n > dim and (dim == 3 or tn is not None):
         check_k(min(s.num_neighbors, n), n, dim)  # the sampled normals' neighbourhood
+    # The sampling term scaled by how much finer the target samples the surfaces
+    # (:attr:`TrustInputs.sampling_density_ratio`): on the first analysis of a call the core
+    # measures the source's spacing off the search of its sampled normals.
+    sampling_scale, target_spacing = 1.0, None
+    if dim == 2 and (tn is not None or tc is not None):
+        ratio = ctx.__dict__.get("sampling_density_ratio")
+        spacing = prepared.spacing if isinstance(prepared, PreparedTarget) else math.nan
+        if ratio is None and math.isfinite(spacing) and n >= 2:
+            target_spacing = spacing
+        else:
+            sampling_scale = ctx.sampling_density_ratio**2
     pose = pose_from_core(out, dim)
     moved = ctx.start.inverse() @ pose  # type: ignore[operator]
     drift = moved.log()
@@ -400,8 +415,7 @@ def correspondence_analysis(
         ctx.beam_phase_variance,
         0.5 * float(s.max_correspondence_distance),
         MIN_NORMAL_AGREEMENT,
-        # The sampling term scaled by how much finer the target samples the surfaces.
-        ctx.sampling_density_ratio**2 if dim == 2 and (tn is not None or tc is not None) else 1.0,
+        sampling_scale,
         ctx.__dict__.get("source_normals"),
         valley,
         None
@@ -419,7 +433,12 @@ def correspondence_analysis(
         prepared.linear
         if isinstance(prepared, PreparedTarget) and tn is not None and tn is prepared.normals
         else None,
+        target_spacing,
     )
+    if target_spacing is not None:
+        ctx.__dict__["sampling_density_ratio"] = _density_ratio(
+            target_spacing, float(num.source_spacing)
+        )
     if num.source_normals is not None and "source_normals" not in ctx.__dict__:
         ctx.__dict__["source_normals"] = num.source_normals
     if held is None:
@@ -683,7 +702,7 @@ def _via_plane_reference(
         return estimates
     dim = int(ctx.source.shape[1])
     ref_ctx = dataclasses.replace(ctx, method=PLANE_METHOD[dim], components=1, plane_solve=None)
-    for name in ("_scene", "block_size", "source_normals"):
+    for name in ("_scene", "block_size", "source_normals", "sampling_density_ratio"):
         # The same source and settings: its scene pass and sampled normals once per call.
         if name in ctx.__dict__:
             ref_ctx.__dict__[name] = ctx.__dict__[name]
