@@ -518,7 +518,7 @@ def trust_sampling(
     target_covariances: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None: ...
 def trust_scene(
-    source: NDArray[np.float64], gate: float
+    source: NDArray[np.float64], gate: float, *, beam_phase: bool = True
 ) -> tuple[NDArray[np.float64], float, float, NDArray[np.float64]]: ...
 
 # --- overlap and normal noise (crates/scanreg-py/src/measure.rs) ---

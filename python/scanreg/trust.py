@@ -157,10 +157,11 @@ class TrustInputs:
 
     @functools.cached_property
     def _scene(self) -> tuple[FloatArray, float, float, FloatArray]:
-        """``(levers, length_scale, beam_phase_variance, gate_prior)`` of the source, one pass
-        in the core (``scanreg_core::trust::scene``)."""
+        """``(levers, length_scale, nan, gate_prior)`` of the source, one pass in the core
+        (``scanreg_core::trust::scene``); the beam phase (an angular sort of the scan, most of
+        the pass) is measured where it is used (:attr:`beam_phase_variance`)."""
         out: tuple[FloatArray, float, float, FloatArray] = _core.trust_scene(
-            self.source, float(self.settings.max_correspondence_distance)
+            self.source, float(self.settings.max_correspondence_distance), beam_phase=False
         )
         return out
 
@@ -185,7 +186,7 @@ class TrustInputs:
             return self.init_covariance
         return self._scene[3]
 
-    @property
+    @functools.cached_property
     def beam_phase_variance(self) -> float:
         """2D: ``Δα²/12`` (rad²) for the source's median angular step ``Δα`` between
         neighbouring points as seen from its origin (the sensor); 0 in 3D.
@@ -209,7 +210,8 @@ class TrustInputs:
         heading σ 12× its error, while leaving MbICP split-beam pairs 2× over-confident in
         translation, which the fixed heading term cannot reach (``docs/calibration.md``).
         """
-        return self._scene[2]
+        phase: float = _core.trust_scene(self.source, math.inf)[2]
+        return phase
 
     @functools.cached_property
     def sampling_density_ratio(self) -> float:
@@ -412,7 +414,8 @@ def correspondence_analysis(
         ctx.components * float(out.irls_weight_sum) if kernel else 0.0,
         eps2,
         eps2_typical,
-        ctx.beam_phase_variance,
+        # Measured by the core only where it is used (a 2D result without a sampling system).
+        ctx.__dict__.get("beam_phase_variance", math.nan),
         0.5 * float(s.max_correspondence_distance),
         MIN_NORMAL_AGREEMENT,
         sampling_scale,

@@ -309,8 +309,10 @@ type SampledNormals<'py> = (PyReadonlyArray1<'py, i64>, PyReadonlyArray2<'py, f6
 /// `trust::analyse`; the sampling system's `M` times `sampling_scale`, or, given
 /// `target_spacing` (the target's median spacing), times `min(1, target_spacing /
 /// source_spacing)²` with the source's spacing read off the same k-d tree and searches as its
-/// sampled normals (`scanreg_core::normal_noise::sampled_normals_and_spacing`). `target*` are the matched rows' storage (a map's gathered rows), the
-/// correspondences index them. The same arithmetic as the separate calls, to the bit.
+/// sampled normals (`scanreg_core::normal_noise::sampled_normals_and_spacing`).
+/// `beam_phase_variance` NaN: measured here, where it is used (no sampling system). `target*`
+/// are the matched rows' storage (a map's gathered rows), the correspondences index them. The
+/// same arithmetic as the separate calls, to the bit.
 #[pyfunction]
 #[pyo3(signature = (
     source, target, pose_matrix, correspondences, method, kernel, kernel_scale, block_size,
@@ -597,10 +599,12 @@ fn trust_analysis(
             agreement,
             valley,
             sampling_system: sampling_flat,
-            sampling: if sampling_system.is_none() {
-                beam_phase_variance
-            } else {
-                0.0
+            // NaN: measured here, only where it is used (a 2D result without a sampling
+            // system): the scan's angular sort is most of the scene pass.
+            sampling: match (sampling_system.is_none(), beam_phase_variance.is_nan()) {
+                (false, _) => 0.0,
+                (true, false) => beam_phase_variance,
+                (true, true) => scene::beam_phase_variance(src, dim),
             },
             length_scale,
             chosen,
@@ -637,13 +641,15 @@ fn trust_analysis(
 type Scene = (Py<PyArray1<f64>>, f64, f64, Py<PyArray2<f64>>);
 
 /// `(levers, length_scale, beam_phase_variance, default_prior)` of a source cloud; the prior
-/// is the gate-wide one for `gate` (`scanreg_core::trust::scene`).
+/// is the gate-wide one for `gate` (`scanreg_core::trust::scene`). `beam_phase=False`: the
+/// phase is not measured (NaN; `trust_analysis` measures it where it is used).
 #[pyfunction]
-#[pyo3(signature = (source, gate))]
+#[pyo3(signature = (source, gate, *, beam_phase=true))]
 fn trust_scene<'py>(
     py: Python<'py>,
     source: PyReadonlyArray2<'_, f64>,
     gate: f64,
+    beam_phase: bool,
 ) -> PyResult<Scene> {
     let (pts, dim) = points(&source, "source")?;
     if pts.is_empty() {
@@ -651,7 +657,11 @@ fn trust_scene<'py>(
     }
     let levers = scene::rotation_levers(pts, dim);
     let length = scene::length_scale(pts, dim);
-    let phase = scene::beam_phase_variance(pts, dim);
+    let phase = if beam_phase {
+        scene::beam_phase_variance(pts, dim)
+    } else {
+        f64::NAN
+    };
     let dof = dim + levers.len();
     let prior = Mat::from_row_slice(dof, dof, &scene::default_prior(dim, &levers, gate));
     Ok((
