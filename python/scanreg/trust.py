@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray
+from ._validate import FloatArray, build_lazy
 from ._validate import build as _build
 from ._validate import frozen as _frozen
 from ._validate import readonly as _readonly
@@ -466,24 +466,35 @@ def _degeneracy(
 ) -> Degeneracy:
     """:class:`Degeneracy` from the core's eigen-analysis of ``Ĝ`` (``num``)."""
     vals = num.degeneracy_eigenvalues
-    units = num.degeneracy_directions
-    ev = [float(v) for v in vals]
-    top = max(ev[-1], 1e-300)
+    ev: list[float] = vals.tolist()
     threshold = float(num.degeneracy_threshold)
-    directions = tuple(
-        WeakDirection(vector=_frozen(units[:, i]), ratio=ev[i] / top, description=text)
-        for i, text in enumerate(num.degeneracy_descriptions)
-    )
-    deg = _build(
+    memo: list[tuple[WeakDirection, ...]] = []
+
+    # The direction objects are built on first read (most results are read for their
+    # covariance and verdict only): both fields share them.
+    def directions() -> tuple[WeakDirection, ...]:
+        if not memo:
+            units = num.degeneracy_directions
+            top = max(ev[-1], 1e-300)
+            memo.append(
+                tuple(
+                    WeakDirection(vector=_frozen(units[:, i]), ratio=ev[i] / top, description=text)
+                    for i, text in enumerate(num.degeneracy_descriptions)
+                )
+            )
+        return memo[0]
+
+    def weak_directions() -> tuple[WeakDirection, ...]:
+        if not any(lam < threshold for lam in ev):
+            return ()
+        return tuple(d for d, lam in zip(directions(), ev, strict=True) if lam < threshold)
+
+    deg = build_lazy(
         Degeneracy,
         {
             "information": num.degeneracy_information,
             "levers": levers,
             "eigenvalues": vals,
-            "directions": directions,
-            "weak_directions": tuple(
-                d for d, lam in zip(directions, ev, strict=True) if lam < threshold
-            ),
             "threshold": threshold,
             "normal_noise": float(eps2),
             "typical_normal_noise": float(eps2_typical),
@@ -491,6 +502,7 @@ def _degeneracy(
             "num_correspondences": int(num.degeneracy_count),
             "removed_normal_noise": float(num.degeneracy_removed_normal_noise),
         },
+        {"directions": directions, "weak_directions": weak_directions},
     )
     # The eigen-decomposition the bases and tilts read: the core's, not a second one.
     deg.__dict__["_eigen"] = (vals, num.degeneracy_eigenvectors)
