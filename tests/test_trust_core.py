@@ -336,9 +336,7 @@ def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_inpu
     for given in (None, got.source_normals):
         own = call(target_spacing=target.spacing, source_normals=given)
         assert own.source_spacing == pytest.approx(spacing, rel=1e-15)
-        np.testing.assert_array_equal(
-            own.calibrated, call(sampling_scale=ratio * ratio).calibrated
-        )
+        np.testing.assert_array_equal(own.calibrated, call(sampling_scale=ratio * ratio).calibrated)
     # A target twice as fine: the ratio is ½, the sampling term a quarter.
     half = call(target_spacing=0.5 * own.source_spacing, sampling_scale=1.0)
     np.testing.assert_array_equal(half.calibrated, call(sampling_scale=0.25).calibrated)

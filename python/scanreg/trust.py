@@ -572,10 +572,13 @@ def _trust(
             "length_scale": float(num.length_scale),
             "scaled_eigenvalues": num.scaled_eigenvalues,
             "scaled_condition_number": float(num.scaled_condition_number),
-            "weakest": WeakDirection(
-                vector=weakest,
-                ratio=float(num.weakest_ratio),
-                description=num.weakest_description,
+            "weakest": _build(
+                WeakDirection,
+                {
+                    "vector": weakest,
+                    "ratio": float(num.weakest_ratio),
+                    "description": num.weakest_description,
+                },
             ),
         },
     )

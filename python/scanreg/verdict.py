@@ -345,7 +345,8 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
         deg = report.degeneracy
         if deg is not None:
             # Its directions (built on first read) only where one is below the threshold.
-            if bool((np.asarray(deg.eigenvalues) < deg.threshold).any()):
+            threshold = deg.threshold
+            if any(lam < threshold for lam in np.asarray(deg.eigenvalues).tolist()):
                 for weak, lam in zip(deg.directions, deg.eigenvalues, strict=True):
                     if lam < deg.threshold:
                         reasons.append(
