@@ -449,15 +449,18 @@ def correspondence_analysis(
         deg = _degeneracy(num, ctx.levers, eps2, eps2_typical, basis)
     else:
         deg = held
-    return CorrespondenceAnalysis(
-        degeneracy=deg,
-        point_variance=float(num.point_variance),
-        normal_variance=float(num.normal_variance),
-        valley=valley,
-        numbers=num,
-        moved=moved,
-        drift=drift,
-        correspondences=matched,
+    return _build(
+        CorrespondenceAnalysis,
+        {
+            "degeneracy": deg,
+            "point_variance": float(num.point_variance),
+            "normal_variance": float(num.normal_variance),
+            "valley": valley,
+            "numbers": num,
+            "moved": moved,
+            "drift": drift,
+            "correspondences": matched,
+        },
     )
 
 
@@ -668,15 +671,18 @@ def _trust(
             info = information_from_covariance(chosen)
             if s.covariance == "calibrated":
                 estimates = dataclasses.replace(estimates, calibrated=chosen)
-    return _Trust(
-        covariance=chosen,
-        information=_readonly(info),
-        conditioning=cond,
-        covariances=estimates,
-        degeneracy=deg,
-        quality=checked.report,
-        verdict=checked.verdict,
-        seconds=time.perf_counter() - t0,
+    return _build(
+        _Trust,
+        {
+            "covariance": chosen,
+            "information": _readonly(info),
+            "conditioning": cond,
+            "covariances": estimates,
+            "degeneracy": deg,
+            "quality": checked.report,
+            "verdict": checked.verdict,
+            "seconds": time.perf_counter() - t0,
+        },
     )
 
 

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray, LazyFields, as_points, build_lazy
+from ._validate import FloatArray, LazyFields, as_points, build, build_lazy
 from .basin import BasinProbe
 from .degeneracy import Degeneracy
 from .local_map import LocalMap
@@ -327,7 +327,7 @@ def _assess_checked(
             ),
         },
     )
-    return Assessment(report=report, verdict=judge(report, thresholds))
+    return build(Assessment, {"report": report, "verdict": judge(report, thresholds)})
 
 
 def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
@@ -383,4 +383,4 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
             reasons.append(f"wrong basin: {probe.describe()}")
         elif ratio >= th.basin_ambiguous_ratio:
             reasons.append(f"ambiguous: {probe.describe()}")
-    return Verdict(accepted=not reasons, reasons=tuple(reasons))
+    return build(Verdict, {"accepted": not reasons, "reasons": tuple(reasons)})
