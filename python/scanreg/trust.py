@@ -15,12 +15,13 @@ call hands it — never the solver directly:
   solves per weak direction (:func:`valley_moment`, called by ``register`` itself).
 
 The arithmetic runs in the core, one call per analysed outcome (``_core.trust_analysis``): the
-source's sampled normals (once per call), the per-correspondence sums (the normal noise between
-the two scans, the normal agreement, the 2D sampling system, Censi's meats, the block sandwich)
-and everything the ≤ 6×6 matrices give (``scanreg_core::trust``) — the degeneracy, every
+source's sampled normals and, in 2D, its point spacing off the same neighbour search (once per
+call), the per-correspondence sums (the normal noise between the two scans, the normal
+agreement, the 2D sampling system, Censi's meats, the block sandwich) and everything the ≤ 6×6 matrices give (``scanreg_core::trust``) — the degeneracy, every
 covariance kind, the prior along weak directions, the model shift, the conditioning, the
 information and the motion χ². Here: which analyses and extra solves run, the verdict, and the
-result dataclasses.
+result dataclasses (the parts few callers read — the degeneracy's direction objects, the
+report's motion from the start — built on first read, :class:`~scanreg._validate.LazyFields`).
 """
 
 from __future__ import annotations
@@ -226,7 +227,11 @@ class TrustInputs:
         from many scans (an odometry's local map, a loop's submap) it is a fraction of that.
         Measured on simulated room tours (``benchmarks/loop_calibration.py``): without it the
         loop edges' mean NEES was 0.85 against an ideal 3, their errors a third of their σ. A
-        target sparser than the source is not modelled further (ratio 1)."""
+        target sparser than the source is not modelled further (ratio 1).
+
+        The first analysis of a call has the core measure the source's spacing off the search
+        of its sampled normals (:func:`correspondence_analysis` keeps the ratio here); this
+        property measures it alone when read before."""
         target = self.target
         spacing = target.spacing if isinstance(target, PreparedTarget) else math.nan
         src = self.source
@@ -378,7 +383,9 @@ def correspondence_analysis(
     kernel = s.kernel != "none"
     # One core call (``_core.trust_analysis``), by position in the binding's order: the
     # source's sampled normals (measured once per call: the degeneracy-aware solve and the
-    # plane reference analyse the same source again), the normal noise between the two scans
+    # plane reference analyse the same source again) and, on the first 2D analysis, the
+    # source's spacing off the same search (the sampling-density ratio), the normal noise
+    # between the two scans
     # (Censi's normal term) and which pairs' normals disagree (the model-error term), the 2D
     # sampling system (how far the estimate depends on where the beams fell; without a target
     # normal or covariance, the beam-phase heading variance instead), Censi's and the block
