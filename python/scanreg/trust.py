@@ -16,12 +16,13 @@ call hands it — never the solver directly:
 
 The arithmetic runs in the core, one call per analysed outcome (``_core.trust_analysis``): the
 source's sampled normals and, in 2D, its point spacing off the same neighbour search (once per
-call), the per-correspondence sums (the normal noise between the two scans, the normal
-agreement, the 2D sampling system, Censi's meats, the block sandwich) and everything the ≤ 6×6 matrices give (``scanreg_core::trust``) — the degeneracy, every
-covariance kind, the prior along weak directions, the model shift, the conditioning, the
-information and the motion χ². Here: which analyses and extra solves run, the verdict, and the
-result dataclasses (the parts few callers read — the degeneracy's direction objects, the
-report's motion from the start — built on first read, :class:`~scanreg._validate.LazyFields`).
+call), the per-correspondence sums (the normal noise between the two scans, the normal agreement,
+the 2D sampling system, Censi's meats, the block sandwich) and everything the ≤ 6×6 matrices give
+(``scanreg_core::trust``) — the degeneracy, every covariance kind, the prior along weak directions,
+the model shift, the conditioning, the information and the motion χ². Here: which analyses and
+extra solves run, the verdict, and the result dataclasses (the parts few callers read — the
+degeneracy's direction objects, the report's motion from the start — built on first read,
+:class:`~scanreg._validate.LazyFields`).
 """
 
 from __future__ import annotations
