@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import pickle
 import sys
 
 import numpy as np
@@ -453,6 +454,18 @@ def test_results_built_without_init_hold_exactly_their_fields() -> None:
         assert held | set(vars(obj)["_lazy"]) == names, type(obj).__name__
         assert dataclasses.replace(obj) == obj
         assert set(vars(obj)) - {"_lazy", "_eigen"} == names  # every field read now
+    # A pickle carries every field, computed or not yet.
+    fresh = register(
+        source,
+        prepared,
+        method="point_to_line",
+        thresholds=scanreg.VerdictThresholds(basin_probe=False),
+    )
+    assert "_lazy" in vars(fresh.quality)
+    copy = pickle.loads(pickle.dumps(fresh.quality))
+    assert "_lazy" not in vars(copy)
+    for name in ("translation_from_init", "rotation_from_init", "overlap", "residual_rmse"):
+        assert getattr(copy, name) == getattr(fresh.quality, name)
     deg = unprobed.degeneracy
     assert deg.weak_directions == tuple(
         d for d, lam in zip(deg.directions, deg.eigenvalues, strict=True) if lam < deg.threshold
