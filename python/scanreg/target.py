@@ -252,7 +252,7 @@ def prepare(
     if normals or covariances:
         kk = check_k(kk, int(pts.shape[0]), dim)
         vp = as_viewpoint(viewpoint, dim)
-        # The normals' noise and the points' spacing (what every 2D registration's analysis
+        # The normals' noise and, in 2D, the points' spacing (what every registration's analysis
         # reads) from the same neighbour searches, instead of a second search on first use.
         nrm, cov, valid, linear, noise, spacing = index.local_geometry_noise(
             kk,
@@ -284,7 +284,7 @@ def prepare(
     if nrm is not None and noise is not None:
         # Where functools.cached_property keeps its value: the first read returns it.
         target.__dict__["normal_noise"] = (float(noise[0]), float(noise[1]))
-    if spacing is not None:
+    if spacing is not None and dim == 2:  # measured in 2D only (the 2D analysis reads it)
         target.__dict__["spacing"] = float(spacing)
     return target
 

@@ -143,8 +143,9 @@ impl KdTree {
     }
 
     /// `local_geometry`, the normals' `(ε̂², ε̃²)` (as `target_normal_noise` of this tree
-    /// gives them, read off the same neighbour searches; NaN without normals) and the points'
-    /// median spacing (each point's nearest other point from the same searches).
+    /// gives them, read off the same neighbour searches; NaN without normals) and, in 2D, the
+    /// points' median spacing (each point's nearest other point from the same searches; NaN in
+    /// 3D, where no analysis reads it).
     #[pyo3(signature = (k, viewpoint, *, normals=true, regularization=None, epsilon=1e-3, drop_linear=false))]
     #[allow(clippy::type_complexity, clippy::too_many_arguments)]
     fn local_geometry_noise(
@@ -175,7 +176,11 @@ impl KdTree {
                 let g =
                     normals::local_geometry_with(&self.inner, k, vp, normals, reg, drop_linear)?;
                 let noise = g.normal_noise(dim).unwrap_or((f64::NAN, f64::NAN));
-                let spacing = g.spacing(&self.inner);
+                let spacing = if dim == 2 {
+                    g.spacing(&self.inner)
+                } else {
+                    f64::NAN
+                };
                 Ok((g, noise, spacing))
             })
             .map_err(core_err)?;
