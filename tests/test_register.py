@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import pickle
 import sys
 
 import numpy as np
@@ -433,9 +434,45 @@ def test_results_built_without_init_hold_exactly_their_fields() -> None:
     assert set(ctx_fields) == {f.name for f in dataclasses.fields(trust_inputs)}
     for obj in (prepared, res, res.timing):
         names = {f.name for f in dataclasses.fields(obj)}
-        # prepare() measures the normals' noise with the normals (a cached property's slot).
-        cached = {"normal_noise"} if obj is prepared else set()
+        # prepare() measures the normals' noise and the spacing with the normals (cached
+        # properties' slots).
+        cached = {"normal_noise", "spacing"} if obj is prepared else set()
         assert set(vars(obj)) - cached == names, type(obj).__name__
+    # The degeneracy and quality report leave some fields to be computed on first read
+    # (_validate.build_lazy): those and the rest are exactly the fields, and reading them gives
+    # the values the dataclass would hold.
+    # (Without the wrong-basin probe: a probed report is rebuilt whole.)
+    unprobed = register(
+        source,
+        prepared,
+        method="point_to_line",
+        thresholds=scanreg.VerdictThresholds(basin_probe=False),
+    )
+    for obj in (unprobed.degeneracy, unprobed.quality):
+        names = {f.name for f in dataclasses.fields(obj)}
+        held = set(vars(obj)) - {"_lazy", "_eigen"}
+        assert held | set(vars(obj)["_lazy"]) == names, type(obj).__name__
+        assert dataclasses.replace(obj) == obj
+        assert set(vars(obj)) - {"_lazy", "_eigen"} == names  # every field read now
+    # A pickle carries every field, computed or not yet.
+    fresh = register(
+        source,
+        prepared,
+        method="point_to_line",
+        thresholds=scanreg.VerdictThresholds(basin_probe=False),
+    )
+    assert "_lazy" in vars(fresh.quality)
+    copy = pickle.loads(pickle.dumps(fresh.quality))
+    assert "_lazy" not in vars(copy)
+    for name in ("translation_from_init", "rotation_from_init", "overlap", "residual_rmse"):
+        assert getattr(copy, name) == getattr(fresh.quality, name)
+    deg = unprobed.degeneracy
+    assert deg.weak_directions == tuple(
+        d for d, lam in zip(deg.directions, deg.eigenvalues, strict=True) if lam < deg.threshold
+    )
+    assert unprobed.quality.translation_from_init == pytest.approx(
+        float(np.hypot(*unprobed.pose.translation)), abs=1e-15
+    )
     # Equal to (and hashed like) the same values through __init__.
     assert dataclasses.replace(res.timing) == res.timing
     assert hash(dataclasses.replace(res.timing)) == hash(res.timing)

@@ -327,6 +327,20 @@ def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_inpu
         sampling_system=(system[0], system[1] * 0.25), **common,
     )  # fmt: skip
     np.testing.assert_array_equal(call(sampling_scale=0.25).calibrated, scaled.calibrated)
+    # Given the target's spacing, the core measures the source's off the search of its sampled
+    # normals (or, with them given, one 2-NN pass) and scales by min(1, ratio)²: the same
+    # numbers as the scale computed outside, the spacing the brute-force median's.
+    spacing = ref._median_spacing(src)
+    assert target.spacing == pytest.approx(ref._median_spacing(tgt), rel=1e-15)
+    ratio = min(1.0, target.spacing / spacing)
+    for given in (None, got.source_normals):
+        own = call(target_spacing=target.spacing, source_normals=given)
+        assert own.source_spacing == pytest.approx(spacing, rel=1e-15)
+        np.testing.assert_array_equal(own.calibrated, call(sampling_scale=ratio * ratio).calibrated)
+    # A target twice as fine: the ratio is ½, the sampling term a quarter.
+    half = call(target_spacing=0.5 * own.source_spacing, sampling_scale=1.0)
+    np.testing.assert_array_equal(half.calibrated, call(sampling_scale=0.25).calibrated)
+    assert math.isnan(call().source_spacing)
     for change, msg in (
         ({"correspondences": corr[:-1]}, "correspondences: expected"),
         ({"source_normals": (np.array([10**6]), np.zeros((1, 2)))}, "source_normals: index"),

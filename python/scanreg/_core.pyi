@@ -109,6 +109,7 @@ class KdTree:
         NDArray[np.bool_],
         NDArray[np.bool_],
         tuple[float, float],
+        float,
     ]: ...
     def statistical_outliers(
         self, k: int, std_ratio: float
@@ -433,6 +434,8 @@ class TrustNumbers:
     def normal_variance(self) -> float: ...
     @property
     def source_normals(self) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None: ...
+    @property
+    def source_spacing(self) -> float: ...
 
 def trust_analysis(
     source: NDArray[np.float64],
@@ -470,6 +473,7 @@ def trust_analysis(
     valley: NDArray[np.float64] | None = None,
     held: tuple[NDArray[np.float64], float, float, float, int, float] | None = None,
     target_linear: NDArray[np.bool_] | None = None,
+    target_spacing: float | None = None,
 ) -> TrustNumbers: ...
 def trust_numbers(
     analysis: CensiAnalysis,
@@ -514,7 +518,7 @@ def trust_sampling(
     target_covariances: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None: ...
 def trust_scene(
-    source: NDArray[np.float64], gate: float
+    source: NDArray[np.float64], gate: float, *, beam_phase: bool = True
 ) -> tuple[NDArray[np.float64], float, float, NDArray[np.float64]]: ...
 
 # --- overlap and normal noise (crates/scanreg-py/src/measure.rs) ---

@@ -9,8 +9,10 @@ Points must be finite.
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import Any, TypeVar
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -137,6 +139,46 @@ def readonly(arr: Any) -> Any:
     """Mark a freshly made array read-only in place (no copy) and return it."""
     arr.setflags(write=False)
     return arr
+
+
+class LazyFields:
+    """Mixin of a frozen dataclass whose instances :func:`build_lazy` may leave some fields out
+    of: each is computed on first read by its thunk, then kept like any field (equality, repr,
+    copies and pickles see every field). For results whose parts most callers never read: a
+    2D registration's degeneracy directions cost as much as a tenth of its own solve."""
+
+    __slots__ = ()
+
+    if not TYPE_CHECKING:  # mypy keeps checking the declared fields
+
+        def __getattr__(self, name: str) -> Any:
+            # Called only for a name not found otherwise: a lazy field not computed yet.
+            try:
+                thunk = self.__dict__["_lazy"][name]
+            except KeyError:
+                raise AttributeError(
+                    f"{type(self).__name__!r} object has no attribute {name!r}"
+                ) from None
+            # Two threads may both compute it: the same value either way.
+            return self.__dict__.setdefault(name, thunk())
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        lazy = state.pop("_lazy", None)
+        if lazy:
+            for f in dataclasses.fields(self):  # type: ignore[arg-type]
+                if f.name not in state:
+                    state[f.name] = getattr(self, f.name)
+        return state
+
+
+def build_lazy(cls: type[T], fields: dict[str, Any], lazy: dict[str, Callable[[], Any]]) -> T:
+    """:func:`build` with the fields in ``lazy`` computed on first read (``cls`` is a
+    :class:`LazyFields`); ``fields`` and ``lazy`` together are every field."""
+    obj = object.__new__(cls)
+    obj.__dict__.update(fields)
+    obj.__dict__["_lazy"] = lazy
+    return obj
 
 
 def build(cls: type[T], fields: dict[str, Any]) -> T:

@@ -61,12 +61,12 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray
+from ._validate import FloatArray, LazyFields
 from .quality import WeakDirection
 
 
 @dataclass(frozen=True)
-class Degeneracy:
+class Degeneracy(LazyFields):
     """Eigen-analysis of the normalised, scaled plane information (see module docstring)."""
 
     #: ``Ĝ = S⁻¹ G S⁻¹ / n`` (dof × dof), unitless.

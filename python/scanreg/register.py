@@ -580,8 +580,9 @@ def register(
         # grid's, below) refuses a NaN/inf with the same message.
         check_finite_points(src, "source")
     # A composed guess carries round-off in its rotation; the core keeps whatever it is given.
-    pose0 = pose_class(dim).identity()
-    if init is not None:
+    if init is None:
+        pose0 = pose_class(dim).identity()
+    else:
         pose0 = as_pose(init, "init", dim).orthonormalized()
 
     t0 = time.perf_counter()

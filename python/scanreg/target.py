@@ -247,13 +247,14 @@ def prepare(
     kk = positive_int(num_neighbors, "num_neighbors")
     nrm = cov = valid = linear = None
     noise = None
+    spacing = None
     eps = check_regularization(regularization, epsilon)
     if normals or covariances:
         kk = check_k(kk, int(pts.shape[0]), dim)
         vp = as_viewpoint(viewpoint, dim)
-        # The normals' noise (what every registration's analysis reads) from the same
-        # neighbour searches, instead of a second search on first use.
-        nrm, cov, valid, linear, noise = index.local_geometry_noise(
+        # The normals' noise and, in 2D, the points' spacing (what every registration's analysis
+        # reads) from the same neighbour searches, instead of a second search on first use.
+        nrm, cov, valid, linear, noise, spacing = index.local_geometry_noise(
             kk,
             vp,
             normals=bool(normals),
@@ -283,6 +284,8 @@ def prepare(
     if nrm is not None and noise is not None:
         # Where functools.cached_property keeps its value: the first read returns it.
         target.__dict__["normal_noise"] = (float(noise[0]), float(noise[1]))
+    if spacing is not None and dim == 2:  # measured in 2D only (the 2D analysis reads it)
+        target.__dict__["spacing"] = float(spacing)
     return target
 
 

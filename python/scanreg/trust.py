@@ -15,12 +15,14 @@ call hands it — never the solver directly:
   solves per weak direction (:func:`valley_moment`, called by ``register`` itself).
 
 The arithmetic runs in the core, one call per analysed outcome (``_core.trust_analysis``): the
-source's sampled normals (once per call), the per-correspondence sums (the normal noise between
-the two scans, the normal agreement, the 2D sampling system, Censi's meats, the block sandwich)
-and everything the ≤ 6×6 matrices give (``scanreg_core::trust``) — the degeneracy, every
-covariance kind, the prior along weak directions, the model shift, the conditioning, the
-information and the motion χ². Here: which analyses and extra solves run, the verdict, and the
-result dataclasses.
+source's sampled normals and, in 2D, its point spacing off the same neighbour search (once per
+call), the per-correspondence sums (the normal noise between the two scans, the normal agreement,
+the 2D sampling system, Censi's meats, the block sandwich) and everything the ≤ 6×6 matrices give
+(``scanreg_core::trust``) — the degeneracy, every covariance kind, the prior along weak directions,
+the model shift, the conditioning, the information and the motion χ². Here: which analyses and
+extra solves run, the verdict, and the result dataclasses (the parts few callers read — the
+degeneracy's direction objects, the report's motion from the start — built on first read,
+:class:`~scanreg._validate.LazyFields`).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray
+from ._validate import FloatArray, build_lazy
 from ._validate import build as _build
 from ._validate import frozen as _frozen
 from ._validate import readonly as _readonly
@@ -157,10 +159,11 @@ class TrustInputs:
 
     @functools.cached_property
     def _scene(self) -> tuple[FloatArray, float, float, FloatArray]:
-        """``(levers, length_scale, beam_phase_variance, gate_prior)`` of the source, one pass
-        in the core (``scanreg_core::trust::scene``)."""
+        """``(levers, length_scale, nan, gate_prior)`` of the source, one pass in the core
+        (``scanreg_core::trust::scene``); the beam phase (an angular sort of the scan, most of
+        the pass) is measured where it is used (:attr:`beam_phase_variance`)."""
         out: tuple[FloatArray, float, float, FloatArray] = _core.trust_scene(
-            self.source, float(self.settings.max_correspondence_distance)
+            self.source, float(self.settings.max_correspondence_distance), beam_phase=False
         )
         return out
 
@@ -185,7 +188,7 @@ class TrustInputs:
             return self.init_covariance
         return self._scene[3]
 
-    @property
+    @functools.cached_property
     def beam_phase_variance(self) -> float:
         """2D: ``Δα²/12`` (rad²) for the source's median angular step ``Δα`` between
         neighbouring points as seen from its origin (the sensor); 0 in 3D.
@@ -209,7 +212,8 @@ class TrustInputs:
         heading σ 12× its error, while leaving MbICP split-beam pairs 2× over-confident in
         translation, which the fixed heading term cannot reach (``docs/calibration.md``).
         """
-        return self._scene[2]
+        phase: float = _core.trust_scene(self.source, math.inf)[2]
+        return phase
 
     @functools.cached_property
     def sampling_density_ratio(self) -> float:
@@ -224,16 +228,17 @@ class TrustInputs:
         from many scans (an odometry's local map, a loop's submap) it is a fraction of that.
         Measured on simulated room tours (``benchmarks/loop_calibration.py``): without it the
         loop edges' mean NEES was 0.85 against an ideal 3, their errors a third of their σ. A
-        target sparser than the source is not modelled further (ratio 1)."""
+        target sparser than the source is not modelled further (ratio 1).
+
+        The first analysis of a call has the core measure the source's spacing off the search
+        of its sampled normals (:func:`correspondence_analysis` keeps the ratio here); this
+        property measures it alone when read before."""
         target = self.target
         spacing = target.spacing if isinstance(target, PreparedTarget) else math.nan
         src = self.source
         if not math.isfinite(spacing) or len(src) < 2:
             return 1.0
-        source = median_spacing(_core.KdTree(src), src)
-        if not (math.isfinite(source) and source > 0.0):
-            return 1.0
-        return min(1.0, spacing / source)
+        return _density_ratio(spacing, median_spacing(_core.KdTree(src), src))
 
     @functools.cached_property
     def source_normals(self) -> tuple[Any, FloatArray]:
@@ -250,6 +255,13 @@ class TrustInputs:
         if math.isfinite(block):
             return block
         return float(np.sqrt(np.mean(self.levers**2))) / 5.0
+
+
+def _density_ratio(target: float, source: float) -> float:
+    """``min(1, target / source)`` of two median spacings; 1 where the source's is not known."""
+    if not (math.isfinite(source) and source > 0.0):
+        return 1.0
+    return min(1.0, target / source)
 
 
 @dataclass(frozen=True)
@@ -355,13 +367,26 @@ def correspondence_analysis(
     n = len(src)
     if method != "gicp" and n > dim and (dim == 3 or tn is not None):
         check_k(min(s.num_neighbors, n), n, dim)  # the sampled normals' neighbourhood
+    # The sampling term scaled by how much finer the target samples the surfaces
+    # (:attr:`TrustInputs.sampling_density_ratio`): on the first analysis of a call the core
+    # measures the source's spacing off the search of its sampled normals.
+    sampling_scale, target_spacing = 1.0, None
+    if dim == 2 and (tn is not None or tc is not None):
+        ratio = ctx.__dict__.get("sampling_density_ratio")
+        spacing = prepared.spacing if isinstance(prepared, PreparedTarget) else math.nan
+        if ratio is None and math.isfinite(spacing) and n >= 2:
+            target_spacing = spacing
+        else:
+            sampling_scale = ctx.sampling_density_ratio**2
     pose = pose_from_core(out, dim)
     moved = ctx.start.inverse() @ pose  # type: ignore[operator]
     drift = moved.log()
     kernel = s.kernel != "none"
     # One core call (``_core.trust_analysis``), by position in the binding's order: the
     # source's sampled normals (measured once per call: the degeneracy-aware solve and the
-    # plane reference analyse the same source again), the normal noise between the two scans
+    # plane reference analyse the same source again) and, on the first 2D analysis, the
+    # source's spacing off the same search (the sampling-density ratio), the normal noise
+    # between the two scans
     # (Censi's normal term) and which pairs' normals disagree (the model-error term), the 2D
     # sampling system (how far the estimate depends on where the beams fell; without a target
     # normal or covariance, the beam-phase heading variance instead), Censi's and the block
@@ -397,11 +422,11 @@ def correspondence_analysis(
         ctx.components * float(out.irls_weight_sum) if kernel else 0.0,
         eps2,
         eps2_typical,
-        ctx.beam_phase_variance,
+        # Measured by the core only where it is used (a 2D result without a sampling system).
+        ctx.__dict__.get("beam_phase_variance", math.nan),
         0.5 * float(s.max_correspondence_distance),
         MIN_NORMAL_AGREEMENT,
-        # The sampling term scaled by how much finer the target samples the surfaces.
-        ctx.sampling_density_ratio**2 if dim == 2 and (tn is not None or tc is not None) else 1.0,
+        sampling_scale,
         ctx.__dict__.get("source_normals"),
         valley,
         None
@@ -419,7 +444,12 @@ def correspondence_analysis(
         prepared.linear
         if isinstance(prepared, PreparedTarget) and tn is not None and tn is prepared.normals
         else None,
+        target_spacing,
     )
+    if target_spacing is not None:
+        ctx.__dict__["sampling_density_ratio"] = _density_ratio(
+            target_spacing, float(num.source_spacing)
+        )
     if num.source_normals is not None and "source_normals" not in ctx.__dict__:
         ctx.__dict__["source_normals"] = num.source_normals
     if held is None:
@@ -427,15 +457,18 @@ def correspondence_analysis(
         deg = _degeneracy(num, ctx.levers, eps2, eps2_typical, basis)
     else:
         deg = held
-    return CorrespondenceAnalysis(
-        degeneracy=deg,
-        point_variance=float(num.point_variance),
-        normal_variance=float(num.normal_variance),
-        valley=valley,
-        numbers=num,
-        moved=moved,
-        drift=drift,
-        correspondences=matched,
+    return _build(
+        CorrespondenceAnalysis,
+        {
+            "degeneracy": deg,
+            "point_variance": float(num.point_variance),
+            "normal_variance": float(num.normal_variance),
+            "valley": valley,
+            "numbers": num,
+            "moved": moved,
+            "drift": drift,
+            "correspondences": matched,
+        },
     )
 
 
@@ -444,24 +477,35 @@ def _degeneracy(
 ) -> Degeneracy:
     """:class:`Degeneracy` from the core's eigen-analysis of ``Ĝ`` (``num``)."""
     vals = num.degeneracy_eigenvalues
-    units = num.degeneracy_directions
-    ev = [float(v) for v in vals]
-    top = max(ev[-1], 1e-300)
+    ev: list[float] = vals.tolist()
     threshold = float(num.degeneracy_threshold)
-    directions = tuple(
-        WeakDirection(vector=_frozen(units[:, i]), ratio=ev[i] / top, description=text)
-        for i, text in enumerate(num.degeneracy_descriptions)
-    )
-    deg = _build(
+    memo: list[tuple[WeakDirection, ...]] = []
+
+    # The direction objects are built on first read (most results are read for their
+    # covariance and verdict only): both fields share them.
+    def directions() -> tuple[WeakDirection, ...]:
+        if not memo:
+            units = num.degeneracy_directions
+            top = max(ev[-1], 1e-300)
+            memo.append(
+                tuple(
+                    WeakDirection(vector=_frozen(units[:, i]), ratio=ev[i] / top, description=text)
+                    for i, text in enumerate(num.degeneracy_descriptions)
+                )
+            )
+        return memo[0]
+
+    def weak_directions() -> tuple[WeakDirection, ...]:
+        if not any(lam < threshold for lam in ev):
+            return ()
+        return tuple(d for d, lam in zip(directions(), ev, strict=True) if lam < threshold)
+
+    deg = build_lazy(
         Degeneracy,
         {
             "information": num.degeneracy_information,
             "levers": levers,
             "eigenvalues": vals,
-            "directions": directions,
-            "weak_directions": tuple(
-                d for d, lam in zip(directions, ev, strict=True) if lam < threshold
-            ),
             "threshold": threshold,
             "normal_noise": float(eps2),
             "typical_normal_noise": float(eps2_typical),
@@ -469,6 +513,7 @@ def _degeneracy(
             "num_correspondences": int(num.degeneracy_count),
             "removed_normal_noise": float(num.degeneracy_removed_normal_noise),
         },
+        {"directions": directions, "weak_directions": weak_directions},
     )
     # The eigen-decomposition the bases and tilts read: the core's, not a second one.
     deg.__dict__["_eigen"] = (vals, num.degeneracy_eigenvectors)
@@ -538,10 +583,13 @@ def _trust(
             "length_scale": float(num.length_scale),
             "scaled_eigenvalues": num.scaled_eigenvalues,
             "scaled_condition_number": float(num.scaled_condition_number),
-            "weakest": WeakDirection(
-                vector=weakest,
-                ratio=float(num.weakest_ratio),
-                description=num.weakest_description,
+            "weakest": _build(
+                WeakDirection,
+                {
+                    "vector": weakest,
+                    "ratio": float(num.weakest_ratio),
+                    "description": num.weakest_description,
+                },
             ),
         },
     )
@@ -631,15 +679,18 @@ def _trust(
             info = information_from_covariance(chosen)
             if s.covariance == "calibrated":
                 estimates = dataclasses.replace(estimates, calibrated=chosen)
-    return _Trust(
-        covariance=chosen,
-        information=_readonly(info),
-        conditioning=cond,
-        covariances=estimates,
-        degeneracy=deg,
-        quality=checked.report,
-        verdict=checked.verdict,
-        seconds=time.perf_counter() - t0,
+    return _build(
+        _Trust,
+        {
+            "covariance": chosen,
+            "information": _readonly(info),
+            "conditioning": cond,
+            "covariances": estimates,
+            "degeneracy": deg,
+            "quality": checked.report,
+            "verdict": checked.verdict,
+            "seconds": time.perf_counter() - t0,
+        },
     )
 
 
@@ -683,7 +734,7 @@ def _via_plane_reference(
         return estimates
     dim = int(ctx.source.shape[1])
     ref_ctx = dataclasses.replace(ctx, method=PLANE_METHOD[dim], components=1, plane_solve=None)
-    for name in ("_scene", "block_size", "source_normals"):
+    for name in ("_scene", "block_size", "source_normals", "sampling_density_ratio"):
         # The same source and settings: its scene pass and sampled normals once per call.
         if name in ctx.__dict__:
             ref_ctx.__dict__[name] = ctx.__dict__[name]

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray, as_points
+from ._validate import FloatArray, LazyFields, as_points, build, build_lazy
 from .basin import BasinProbe
 from .degeneracy import Degeneracy
 from .local_map import LocalMap
@@ -145,7 +145,7 @@ class VerdictThresholds:
 
 
 @dataclass(frozen=True)
-class QualityReport:
+class QualityReport(LazyFields):
     """Measurements behind a verdict (units of the points; angles in radians)."""
 
     #: Fraction of source points whose nearest target point is within ``gate``.
@@ -301,24 +301,33 @@ def _assess_checked(
             motion_nees = float(t @ np.linalg.solve(block, t))
         except np.linalg.LinAlgError:
             motion_nees = None
-    report = QualityReport(
-        overlap=num_found / source.shape[0],
-        gate=gate,
-        num_source_points=int(source.shape[0]),
-        residual_mean=stats[0],
-        residual_median=stats[1],
-        residual_rmse=stats[2],
-        residual_trimmed_rmse=stats[3],
-        translation_from_init=float(np.linalg.norm(moved.translation)),
-        rotation_from_init=float(moved.angle) if pose.DIM == 3 else abs(float(moved.angle)),
-        converged=converged,
-        stop_reason=stop_reason,
-        conditioning=conditioning,
-        degeneracy=degeneracy,
-        basin=basin,
-        motion_nees=motion_nees,
+    # Built without the dataclass __init__ (every field is checked here already); the motion
+    # from the start is measured when read (the verdict reads it only under a finite bound).
+    report = build_lazy(
+        QualityReport,
+        {
+            "overlap": num_found / source.shape[0],
+            "gate": gate,
+            "num_source_points": int(source.shape[0]),
+            "residual_mean": stats[0],
+            "residual_median": stats[1],
+            "residual_rmse": stats[2],
+            "residual_trimmed_rmse": stats[3],
+            "converged": converged,
+            "stop_reason": stop_reason,
+            "conditioning": conditioning,
+            "degeneracy": degeneracy,
+            "basin": basin,
+            "motion_nees": motion_nees,
+        },
+        {
+            "translation_from_init": lambda: float(np.linalg.norm(moved.translation)),
+            "rotation_from_init": lambda: (
+                float(moved.angle) if pose.DIM == 3 else abs(float(moved.angle))
+            ),
+        },
     )
-    return Assessment(report=report, verdict=judge(report, thresholds))
+    return build(Assessment, {"report": report, "verdict": judge(report, thresholds)})
 
 
 def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
@@ -335,22 +344,26 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
     if th.reject_degenerate:
         deg = report.degeneracy
         if deg is not None:
-            for weak, lam in zip(deg.directions, deg.eigenvalues, strict=True):
-                if lam < deg.threshold:
-                    reasons.append(
-                        f"degenerate: {weak.description} "
-                        f"(constraint {lam:.2g} < {deg.threshold:.2g})"
-                    )
+            # Its directions (built on first read) only where one is below the threshold.
+            threshold = deg.threshold
+            if any(lam < threshold for lam in np.asarray(deg.eigenvalues).tolist()):
+                for weak, lam in zip(deg.directions, deg.eigenvalues, strict=True):
+                    if lam < deg.threshold:
+                        reasons.append(
+                            f"degenerate: {weak.description} "
+                            f"(constraint {lam:.2g} < {deg.threshold:.2g})"
+                        )
         elif report.conditioning.weakest.ratio < th.weak_ratio:
             # No Degeneracy analysis behind this result: the one number that stands in for it.
             weak = report.conditioning.weakest
             reasons.append(f"degenerate: {weak.description} (ratio {weak.ratio:.1e})")
-    if report.translation_from_init > th.max_translation:
+    # An infinite bound (the default) rejects nothing: the motion is not read for it.
+    if th.max_translation < math.inf and report.translation_from_init > th.max_translation:
         reasons.append(
             f"moved {report.translation_from_init:.3g} from the initial guess "
             f"> bound {th.max_translation:.3g}"
         )
-    if report.rotation_from_init > th.max_rotation:
+    if th.max_rotation < math.inf and report.rotation_from_init > th.max_rotation:
         reasons.append(
             f"rotated {math.degrees(report.rotation_from_init):.3g}° from the initial guess "
             f"> bound {math.degrees(th.max_rotation):.3g}°"
@@ -370,4 +383,4 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
             reasons.append(f"wrong basin: {probe.describe()}")
         elif ratio >= th.basin_ambiguous_ratio:
             reasons.append(f"ambiguous: {probe.describe()}")
-    return Verdict(accepted=not reasons, reasons=tuple(reasons))
+    return build(Verdict, {"accepted": not reasons, "reasons": tuple(reasons)})

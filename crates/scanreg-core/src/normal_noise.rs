@@ -170,6 +170,40 @@ pub fn sampled_normals(
     max_points: usize,
 ) -> Result<(Vec<usize>, Vec<f64>)> {
     let tree = KdTree::build(points, dim)?;
+    let (idx, normals, _) = sampled_in(&tree, k, max_points, false)?;
+    Ok((idx, normals))
+}
+
+/// [`sampled_normals`] and the cloud's median spacing
+/// ([`crate::trust::scene::median_spacing`]) from one k-d tree: where the sample is every
+/// point, the spacing is read off the normals' own searches (a point's nearest other point is
+/// the second of its `k` neighbours, as a 2-NN query finds it), else one 2-NN pass of the same
+/// tree. The 2D trust analysis reads both of the source.
+pub fn sampled_normals_and_spacing(
+    points: &[f64],
+    dim: usize,
+    k: usize,
+    max_points: usize,
+) -> Result<(Vec<usize>, Vec<f64>, f64)> {
+    let tree = KdTree::build(points, dim)?;
+    let (idx, normals, nearest) = sampled_in(&tree, k, max_points, true)?;
+    let spacing = if idx.len() == tree.len() && k >= 2 {
+        crate::trust::scene::median_of_squared(nearest)
+    } else {
+        crate::trust::scene::median_spacing(&tree)
+    };
+    Ok((idx, normals, spacing))
+}
+
+/// The sampled normals of `tree`'s points and, with `nearest`, each sampled point's squared
+/// distance to its nearest other point (the second of its neighbours; NaN with one point).
+fn sampled_in(
+    tree: &KdTree,
+    k: usize,
+    max_points: usize,
+    nearest: bool,
+) -> Result<(Vec<usize>, Vec<f64>, Vec<f64>)> {
+    let dim = tree.dim();
     let n = tree.len();
     if k == 0 {
         return Err(Error::invalid("k", "must be >= 1"));
@@ -177,17 +211,22 @@ pub fn sampled_normals(
     let k = k.min(n);
     let step = (n / max_points.max(1)).max(1);
     let idx: Vec<usize> = (0..n).step_by(step).collect();
-    let normal = |buf: &mut Vec<(u32, f64)>, &i: &usize| pca_normal(&tree, tree.point(i), k, buf);
-    let per_point: Vec<[f64; 3]> = if idx.len() <= SEQUENTIAL_MAX {
+    let second = |buf: &[(u32, f64)]| buf.get(1).map_or(f64::NAN, |&(_, d)| d);
+    let normal = |buf: &mut Vec<(u32, f64)>, &i: &usize| {
+        let v = pca_normal(tree, tree.point(i), k, buf);
+        (v, second(buf))
+    };
+    let per_point: Vec<([f64; 3], f64)> = if idx.len() <= SEQUENTIAL_MAX {
         // In the tree's leaf order, each search bounded by the previous point's k-th distance
         // plus the step between them (as `local_geometry` does): the same k neighbours in the
         // same order, found with most of the traversal pruned.
         let mut scratch = Scratch::new(k);
-        let mut out = vec![[0.0; 3]; idx.len()];
+        let mut out = vec![([0.0; 3], f64::NAN); idx.len()];
         for &i in tree.leaf_order() {
             let i = i as usize;
             if i.is_multiple_of(step) && i / step < out.len() {
-                out[i / step] = pca_of(&tree, scratch.neighbours(&tree, i, k));
+                let buf = scratch.neighbours(tree, i, k);
+                out[i / step] = (pca_of(tree, buf), second(buf));
             }
         }
         out
@@ -196,8 +235,16 @@ pub fn sampled_normals(
             .map_init(|| Vec::with_capacity(k + 1), normal)
             .collect()
     };
-    let normals = per_point.iter().flat_map(|v| v[..dim].to_vec()).collect();
-    Ok((idx, normals))
+    let normals = per_point
+        .iter()
+        .flat_map(|(v, _)| v[..dim].to_vec())
+        .collect();
+    let nearest = if nearest {
+        per_point.iter().map(|&(_, d)| d).collect()
+    } else {
+        Vec::new()
+    };
+    Ok((idx, normals, nearest))
 }
 
 /// Variance of a normal's direction per tangent axis (rad²) between two scans: over the
@@ -272,6 +319,50 @@ mod tests {
             })
             .collect();
         (pts, nrm)
+    }
+
+    /// The spacing read off the normals' searches (every point sampled) or a 2-NN pass (a
+    /// sample) equals the brute-force median, numpy's rule for an even count included.
+    #[test]
+    fn spacing_from_the_normals_search_is_the_median_nearest_distance() {
+        let brute = |pts: &[f64]| {
+            let n = pts.len() / 2;
+            let mut d: Vec<f64> = (0..n)
+                .map(|i| {
+                    (0..n)
+                        .filter(|&j| j != i)
+                        .map(|j| {
+                            let (a, b) = (pts[2 * i] - pts[2 * j], pts[2 * i + 1] - pts[2 * j + 1]);
+                            a * a + b * b
+                        })
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .collect();
+            d.sort_by(f64::total_cmp);
+            let m = if n % 2 == 1 {
+                d[n / 2]
+            } else {
+                (d[n / 2 - 1] + d[n / 2]) / 2.0
+            };
+            m.sqrt()
+        };
+        for n in [7usize, 40, 41] {
+            // Irregular spacing along a curve: each point's nearest distance differs.
+            let pts: Vec<f64> = (0..n)
+                .flat_map(|i| {
+                    let t = (i * i) as f64 * 0.01;
+                    [t, (3.0 * t).sin()]
+                })
+                .collect();
+            let want = brute(&pts);
+            for max_points in [n, n / 3] {
+                let (idx, nrm, got) = sampled_normals_and_spacing(&pts, 2, 5, max_points).unwrap();
+                assert_eq!(got, want, "n {n} sample {max_points}");
+                assert_eq!((idx, nrm), sampled_normals(&pts, 2, 5, max_points).unwrap());
+            }
+        }
+        let (_, _, one) = sampled_normals_and_spacing(&[1.0, 2.0], 2, 1, 10).unwrap();
+        assert!(one.is_nan());
     }
 
     #[test]

@@ -101,6 +101,30 @@ impl LocalGeometry {
             },
         ))
     }
+
+    /// The median spacing of `tree`'s points ([`crate::trust::scene::median_spacing`]) from the
+    /// nearest neighbours these normals were computed from (no second search): the same
+    /// squared distances, in the same arithmetic, as the 2-NN pass.
+    pub fn spacing(&self, tree: &KdTree) -> f64 {
+        let d2 = self
+            .nearest
+            .iter()
+            .enumerate()
+            .map(|(i, &j)| {
+                if j == u32::MAX {
+                    return f64::NAN;
+                }
+                let (p, q) = (tree.point(i), tree.point(j as usize));
+                let mut d = 0.0;
+                for c in 0..p.len() {
+                    let e = p[c] - q[c];
+                    d += e * e;
+                }
+                d
+            })
+            .collect();
+        crate::trust::scene::median_of_squared(d2)
+    }
 }
 
 /// Demantké et al. 2011: the neighbourhood with ascending eigenvalues `vals` is linear (its

@@ -142,8 +142,10 @@ impl KdTree {
         self.geometry_arrays(py, g)
     }
 
-    /// `local_geometry`, and the normals' `(ε̂², ε̃²)` (as `target_normal_noise` of this tree
-    /// gives them, read off the same neighbour searches; NaN without normals).
+    /// `local_geometry`, the normals' `(ε̂², ε̃²)` (as `target_normal_noise` of this tree
+    /// gives them, read off the same neighbour searches; NaN without normals) and, in 2D, the
+    /// points' median spacing (each point's nearest other point from the same searches; NaN in
+    /// 3D, where no analysis reads it).
     #[pyo3(signature = (k, viewpoint, *, normals=true, regularization=None, epsilon=1e-3, drop_linear=false))]
     #[allow(clippy::type_complexity, clippy::too_many_arguments)]
     fn local_geometry_noise(
@@ -161,6 +163,7 @@ impl KdTree {
         Py<PyArray1<bool>>,
         Py<PyArray1<bool>>,
         (f64, f64),
+        f64,
     )> {
         let vp = vector(&viewpoint, "viewpoint")?;
         let reg = regularization
@@ -168,16 +171,21 @@ impl KdTree {
             .transpose()
             .map_err(core_err)?;
         let dim = self.inner.dim();
-        let (g, noise) = py
+        let (g, noise, spacing) = py
             .detach(|| -> scanreg_core::Result<_> {
                 let g =
                     normals::local_geometry_with(&self.inner, k, vp, normals, reg, drop_linear)?;
                 let noise = g.normal_noise(dim).unwrap_or((f64::NAN, f64::NAN));
-                Ok((g, noise))
+                let spacing = if dim == 2 {
+                    g.spacing(&self.inner)
+                } else {
+                    f64::NAN
+                };
+                Ok((g, noise, spacing))
             })
             .map_err(core_err)?;
         let (nrm, cov, valid, linear) = self.geometry_arrays(py, g)?;
-        Ok((nrm, cov, valid, linear, noise))
+        Ok((nrm, cov, valid, linear, noise, spacing))
     }
 
     /// Statistical outlier removal: `(kept (K,), mean_distance (N,), threshold)`.

@@ -14,6 +14,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use scanreg_core::censi::{self, NONE};
 use scanreg_core::icp::Method;
+use scanreg_core::knn::KdTree;
 use scanreg_core::normal_agreement::{self, AgreementInput};
 use scanreg_core::normal_noise;
 use scanreg_core::trust::dense::{flat, Mat, Vector};
@@ -90,6 +91,10 @@ pub struct TrustNumbers {
     /// given (for the next analysis of the same source), None if it needed none.
     #[pyo3(get)]
     source_normals: Option<Sampled>,
+    /// `trust_analysis` with `target_spacing`: the source's median spacing it measured (NaN
+    /// otherwise, or with fewer than 2 points).
+    #[pyo3(get)]
+    source_spacing: f64,
 }
 
 fn mat(py: Python<'_>, m: &Mat) -> PyResult<Py<PyArray2<f64>>> {
@@ -247,7 +252,7 @@ fn trust_numbers(
         motion: c_slice(&motion, "motion")?,
     };
     let out = trust::analyse(&input).map_err(core_err)?;
-    numbers(py, &out, a, normal_variance, None)
+    numbers(py, &out, a, normal_variance, None, f64::NAN)
 }
 
 fn numbers(
@@ -256,6 +261,7 @@ fn numbers(
     analysis: &scanreg_core::censi::Analysis,
     normal_variance: f64,
     source_normals: Option<Sampled>,
+    source_spacing: f64,
 ) -> PyResult<TrustNumbers> {
     let deg = &out.degeneracy;
     let cond = &out.conditioning;
@@ -289,6 +295,7 @@ fn numbers(
         num_plane_correspondences: analysis.num_plane_correspondences,
         normal_variance,
         source_normals,
+        source_spacing,
     })
 }
 
@@ -299,8 +306,13 @@ type SampledNormals<'py> = (PyReadonlyArray1<'py, i64>, PyReadonlyArray2<'py, f6
 /// `scanreg.trust.correspondence_analysis` runs): the source's sampled normals (given, or
 /// measured here with `num_neighbors`), the normal noise between the two scans, the normal
 /// agreement systems, the 2D sampling system, Censi's and the block sums at unit variances and
-/// `trust::analyse`; the sampling system's `M` times `sampling_scale`. `target*` are the matched rows' storage (a map's gathered rows), the
-/// correspondences index them. The same arithmetic as the separate calls, to the bit.
+/// `trust::analyse`; the sampling system's `M` times `sampling_scale`, or, given
+/// `target_spacing` (the target's median spacing), times `min(1, target_spacing /
+/// source_spacing)²` with the source's spacing read off the same k-d tree and searches as its
+/// sampled normals (`scanreg_core::normal_noise::sampled_normals_and_spacing`).
+/// `beam_phase_variance` NaN: measured here, where it is used (no sampling system). `target*`
+/// are the matched rows' storage (a map's gathered rows), the correspondences index them. The
+/// same arithmetic as the separate calls, to the bit.
 #[pyfunction]
 #[pyo3(signature = (
     source, target, pose_matrix, correspondences, method, kernel, kernel_scale, block_size,
@@ -308,7 +320,8 @@ type SampledNormals<'py> = (PyReadonlyArray1<'py, i64>, PyReadonlyArray2<'py, f6
     hessian, sigma2, levers, prior, drift, motion, length_scale, covariance,
     num_correspondences, sum_squared_distances, score_outer, effective_residuals,
     normal_noise, typical_normal_noise, beam_phase_variance, max_step, min_agreement,
-    sampling_scale, source_normals=None, valley=None, held=None, target_linear=None
+    sampling_scale, source_normals=None, valley=None, held=None, target_linear=None,
+    target_spacing=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn trust_analysis(
@@ -348,6 +361,7 @@ fn trust_analysis(
     valley: Option<PyReadonlyArray2<'_, f64>>,
     held: Option<Holding<'_>>,
     target_linear: Option<PyReadonlyArray1<'_, bool>>,
+    target_spacing: Option<f64>,
 ) -> PyResult<TrustNumbers> {
     let (src, dim) = points(&source, "source")?;
     let n = src.len() / dim;
@@ -459,13 +473,34 @@ fn trust_analysis(
     // agreement need target normals; 3D's plane information falls back on them.
     let wants_normals = !is_gicp && n > dim && (dim == 3 || tn.is_some());
     let run = || -> scanreg_core::Result<_> {
+        let mut source_spacing = f64::NAN;
         let sampled: Option<(Vec<usize>, std::borrow::Cow<'_, [f64]>)> = if !wants_normals {
             None
         } else if let Some((idx, nrm)) = &given {
             Some((idx.clone(), std::borrow::Cow::Borrowed(*nrm)))
+        } else if target_spacing.is_some() {
+            // One k-d tree and one neighbour search of the source for both.
+            let (idx, nrm, spacing) =
+                normal_noise::sampled_normals_and_spacing(src, dim, num_neighbors, 1500)?;
+            source_spacing = spacing;
+            Some((idx, std::borrow::Cow::Owned(nrm)))
         } else {
             let (idx, nrm) = normal_noise::sampled_normals(src, dim, num_neighbors, 1500)?;
             Some((idx, std::borrow::Cow::Owned(nrm)))
+        };
+        let sampling_scale = match target_spacing {
+            Some(target) => {
+                if source_spacing.is_nan() && n >= 2 {
+                    source_spacing = scene::median_spacing(&KdTree::build(src, dim)?);
+                }
+                let ratio = if source_spacing.is_finite() && source_spacing > 0.0 {
+                    (target / source_spacing).min(1.0)
+                } else {
+                    1.0
+                };
+                ratio * ratio
+            }
+            None => sampling_scale,
         };
         let mut normal_variance = 0.0;
         let mut agreement = None;
@@ -564,10 +599,12 @@ fn trust_analysis(
             agreement,
             valley,
             sampling_system: sampling_flat,
-            sampling: if sampling_system.is_none() {
-                beam_phase_variance
-            } else {
-                0.0
+            // NaN: measured here, only where it is used (a 2D result without a sampling
+            // system): the scan's angular sort is most of the scene pass.
+            sampling: match (sampling_system.is_none(), beam_phase_variance.is_nan()) {
+                (false, _) => 0.0,
+                (true, false) => beam_phase_variance,
+                (true, true) => scene::beam_phase_variance(src, dim),
             },
             length_scale,
             chosen,
@@ -575,9 +612,9 @@ fn trust_analysis(
         };
         let out = trust::analyse(&input)?;
         let sampled = sampled.map(|(idx, nrm)| (idx, nrm.into_owned()));
-        Ok((out, analysis, normal_variance, sampled))
+        Ok((out, analysis, normal_variance, sampled, source_spacing))
     };
-    let (out, analysis, normal_variance, sampled) = py
+    let (out, analysis, normal_variance, sampled, source_spacing) = py
         .detach(|| in_pool_unless_small(n, num_threads, run).and_then(|r| r))
         .map_err(core_err)?;
     let sampled = sampled
@@ -590,20 +627,29 @@ fn trust_analysis(
             ))
         })
         .transpose()?;
-    numbers(py, &out, &analysis, normal_variance, sampled)
+    numbers(
+        py,
+        &out,
+        &analysis,
+        normal_variance,
+        sampled,
+        source_spacing,
+    )
 }
 
 /// `(levers, length_scale, beam_phase_variance, default_prior)`.
 type Scene = (Py<PyArray1<f64>>, f64, f64, Py<PyArray2<f64>>);
 
 /// `(levers, length_scale, beam_phase_variance, default_prior)` of a source cloud; the prior
-/// is the gate-wide one for `gate` (`scanreg_core::trust::scene`).
+/// is the gate-wide one for `gate` (`scanreg_core::trust::scene`). `beam_phase=False`: the
+/// phase is not measured (NaN; `trust_analysis` measures it where it is used).
 #[pyfunction]
-#[pyo3(signature = (source, gate))]
+#[pyo3(signature = (source, gate, *, beam_phase=true))]
 fn trust_scene<'py>(
     py: Python<'py>,
     source: PyReadonlyArray2<'_, f64>,
     gate: f64,
+    beam_phase: bool,
 ) -> PyResult<Scene> {
     let (pts, dim) = points(&source, "source")?;
     if pts.is_empty() {
@@ -611,7 +657,11 @@ fn trust_scene<'py>(
     }
     let levers = scene::rotation_levers(pts, dim);
     let length = scene::length_scale(pts, dim);
-    let phase = scene::beam_phase_variance(pts, dim);
+    let phase = if beam_phase {
+        scene::beam_phase_variance(pts, dim)
+    } else {
+        f64::NAN
+    };
     let dof = dim + levers.len();
     let prior = Mat::from_row_slice(dof, dof, &scene::default_prior(dim, &levers, gate));
     Ok((

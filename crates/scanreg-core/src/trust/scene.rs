@@ -2,6 +2,10 @@
 //! length scale, the 2D beam phase and its sampling system, and the gate-wide prior built from them. Sums are numpy's
 //! pairwise sums (the Python reference's `np.mean`), so the two agree to the last bits.
 
+use crate::knn::KdTree;
+use crate::reduce::SEQUENTIAL_MAX;
+use rayon::prelude::*;
+
 /// numpy's pairwise summation of a contiguous run (`pairwise_sum` in its umath loops): blocks of
 /// at most 128 summed with eight accumulators, larger runs split in halves at a multiple of 8.
 pub fn pairwise_sum(a: &[f64]) -> f64 {
@@ -118,6 +122,49 @@ pub fn beam_phase_variance(points: &[f64], dim: usize) -> f64 {
         (steps[m / 2 - 1] + steps[m / 2]) / 2.0
     };
     step * step / 12.0
+}
+
+/// Median distance from each point of `tree` to its nearest other point (one 2-NN pass); NaN
+/// with fewer than 2 points. How densely a cloud samples its surfaces: the 2D sampling term
+/// scales with the target's spacing relative to the source's.
+pub fn median_spacing(tree: &KdTree) -> f64 {
+    let n = tree.len();
+    let nearest = |buf: &mut Vec<(u32, f64)>, i: usize| {
+        buf.clear();
+        tree.knn_into(tree.point(i), 2, f64::INFINITY, buf);
+        buf.get(1).map_or(f64::NAN, |&(_, d)| d)
+    };
+    let d2: Vec<f64> = if n <= SEQUENTIAL_MAX {
+        let mut buf = Vec::with_capacity(3);
+        (0..n).map(|i| nearest(&mut buf, i)).collect()
+    } else {
+        (0..n)
+            .into_par_iter()
+            .map_init(|| Vec::with_capacity(3), nearest)
+            .collect()
+    };
+    median_of_squared(d2)
+}
+
+/// `√median(d2)` as numpy takes a median (the mean of the middle two of an even count); NaN
+/// with fewer than 2 values or a NaN among them.
+pub fn median_of_squared(mut d2: Vec<f64>) -> f64 {
+    let m = d2.len();
+    if m < 2 || d2.iter().any(|v| v.is_nan()) {
+        return f64::NAN;
+    }
+    let (_, &mut hi, _) = d2.select_nth_unstable_by(m / 2, f64::total_cmp);
+    let mid = if m % 2 == 1 {
+        hi
+    } else {
+        // The largest of the lower half.
+        let lo = d2[..m / 2]
+            .iter()
+            .copied()
+            .fold(f64::NEG_INFINITY, f64::max);
+        (lo + hi) / 2.0
+    };
+    mid.sqrt()
 }
 
 /// The direction of least spread of a 2×2 covariance `[a, b; b, c]` (row-major), unit length:
