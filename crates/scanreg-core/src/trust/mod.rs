@@ -160,7 +160,7 @@ fn point_variance(input: &Input<'_>, dof: usize) -> f64 {
 /// random), when the target says which are (3D, a prepared target).
 fn gicp_systems(input: &Input<'_>, dof: usize) -> Option<(shift::System, shift::System)> {
     let a = input.analysis;
-    if input.method != Method::Gicp || !a.linear_known || a.score.len() != dof {
+    if input.method != Method::Gicp || input.dim != 3 || !a.linear_known || a.score.len() != dof {
         return None;
     }
     let system = |h: &[f64], g: &[f64], count: usize| shift::System {
