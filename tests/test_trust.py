@@ -367,10 +367,11 @@ def test_default_covariance_is_consistent_in_3d(
     # Reduced, seeded version of the 3D rows of docs/calibration.md: the tunnel with a motion
     # prior and the degeneracy-aware solve (200 realisations: 0.83 × dof; with the sensor
     # moved per realisation, 1.29 × dof, where the weak axis snapped to the sensor's x gave
-    # 2.4 ×), the street with GICP, sensor moved (1.1 × dof; with the fixed pose one voxel-grid
-    # phase's bias, 8σ, is sampled 12 times: 3.5 × dof, as point-to-plane's). The tunnel from the identity at a heading:
-    # the eigenvector's systematic pitch tilt (the ring pattern) claimed ~0.4 mrad of pitch
-    # the truth does not have (2.9 × dof here before _axis_cover).
+    # 2.4 ×), the street with GICP, sensor moved (1.06 × dof; with the fixed pose one
+    # voxel-grid phase's bias, 8σ, is sampled 12 times: 3.5 × dof, as point-to-plane's). The
+    # tunnel from the identity at a heading: the eigenvector's systematic pitch tilt (the ring
+    # pattern) claimed ~0.4 mrad of pitch the truth does not have (2.9 × dof here before
+    # _axis_cover).
     scene, pose_a = (
         (sim.tunnel(), SE3.from_vector([0, 0, 1.8, 0, 0, 0]))
         if name == "tunnel"
