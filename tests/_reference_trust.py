@@ -346,6 +346,13 @@ def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
         num_threads=s.num_threads,
         target_linear=linear,
     )
+    if method == "gicp" and linear is not None:
+        # GICP's own systems, over every pair and over the pairs whose target neighbourhood is
+        # not linear (the model-error term; the core's sums).
+        agreement = (
+            (ana.hessian, ana.score, ana.num_correspondences),
+            (ana.determined_hessian, ana.determined_score, ana.num_determined_pairs),
+        )
     n_det = ana.num_determined_correspondences
     if n_det > dof:
         info, removed = np.array(ana.plane_information), math.nan
@@ -511,13 +518,12 @@ def _point_variance(out: Any, ana: Any, method: str, dim: int, dof: int) -> floa
     """Noise variance of one coordinate of a point, half of the residual variance (source and
     target points are equally noisy).
 
-    Point-to-plane/line: along the normal, ``Σ (nᵀe)² / (n - dof)`` — the noise its residual
-    feels; GICP in 2D as well. Point-to-point and GICP in 3D: ``Σ |e|² / (D n - dof)``, the
-    along-surface sampling offsets included (the normal-only estimate is 4× over-confident in
-    the 3D street and tunnel, where those offsets are part of the error).
+    Point-to-plane/line and GICP: along the normal, ``Σ (nᵀe)² / (n - dof)`` — the noise
+    their residual feels. Point-to-point: ``Σ |e|² / (D n - dof)``, the along-surface sampling
+    offsets included.
     """
     n_plane = int(ana.num_plane_correspondences)
-    along_normal = method in ("point_to_plane", "point_to_line") or (method == "gicp" and dim == 2)
+    along_normal = method in ("point_to_plane", "point_to_line", "gicp")
     if along_normal and n_plane > dof:
         return float(ana.plane_sum_squares / (n_plane - dof)) / 2.0
     n = int(out.num_correspondences)

@@ -109,8 +109,10 @@ class CovarianceEstimates:
     #: minus the step with all sampled pairs (the shift the disagreeing pairs cause).
     #: Point-to-point: the offset to the point-to-plane/line estimate re-solved from its pose
     #: (and ``calibrated`` is that estimate's plus ``δδᵀ``); if that re-solve fails, the
-    #: agreeing step itself. Zeros for GICP, without target normals, or with too few agreeing
-    #: pairs; never along weak directions. See ``docs/calibration.md``.
+    #: agreeing step itself. GICP in 3D: its own step over the pairs whose target neighbourhood
+    #: is not linear (``PreparedTarget.linear``) minus its step over all pairs. Zeros for 2D
+    #: GICP, without target normals (GICP: without the target's linear flags), or with too few
+    #: agreeing pairs; never along weak directions. See ``docs/calibration.md``.
     model_shift: FloatArray
 
 

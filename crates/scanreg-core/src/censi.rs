@@ -129,6 +129,15 @@ pub struct Analysis {
     /// `Σ Aᵀ(I − m mᵀ)A` over the same correspondences: the information unit normal noise
     /// adds to `plane_information` in expectation (zeros without `source_normals`).
     pub plane_noise_information: Vec<f64>,
+    /// The solve's own gradient `Σ k JᵀWr` at `pose` (zero at a converged optimum).
+    pub score: Vec<f64>,
+    /// The solve's own `Σ k JᵀWJ` and `Σ k JᵀWr` over the correspondences whose target
+    /// neighbourhood is not flagged linear (all of them when `target_linear` is not given):
+    /// with `hessian` and `score`, the two systems of GICP's model-error shift
+    /// (`trust::shift`).
+    pub determined_hessian: Vec<f64>,
+    pub determined_score: Vec<f64>,
+    pub num_determined_pairs: usize,
     /// `Σ sin²` of the angle between the source normal (rotated) and the target normal, over
     /// `num_normal_pairs` plane correspondences that have both.
     pub normal_disagreement: f64,
@@ -337,6 +346,10 @@ fn block_key<const D: usize>(p: &SVector<f64, D>, size: f64, i: usize) -> [i64; 
 /// The sums of one run of consecutive target groups (see [`run`]).
 struct Partial<const N: usize> {
     h: SMatrix<f64, N, N>,
+    score: SVector<f64, N>,
+    h_det: SMatrix<f64, N, N>,
+    score_det: SVector<f64, N>,
+    det_pairs: usize,
     m_src: SMatrix<f64, N, N>,
     m_tgt: SMatrix<f64, N, N>,
     m_nrm: SMatrix<f64, N, N>,
@@ -355,6 +368,10 @@ impl<const N: usize> Partial<N> {
     fn new() -> Self {
         Partial {
             h: SMatrix::zeros(),
+            score: SVector::zeros(),
+            h_det: SMatrix::zeros(),
+            score_det: SVector::zeros(),
+            det_pairs: 0,
             m_src: SMatrix::zeros(),
             m_tgt: SMatrix::zeros(),
             m_nrm: SMatrix::zeros(),
@@ -372,6 +389,10 @@ impl<const N: usize> Partial<N> {
 
     fn add(mut self, other: Self) -> Self {
         self.h += other.h;
+        self.score += other.score;
+        self.h_det += other.h_det;
+        self.score_det += other.score_det;
+        self.det_pairs += other.det_pairs;
         self.m_src += other.m_src;
         self.m_tgt += other.m_tgt;
         self.m_nrm += other.m_nrm;
@@ -442,6 +463,12 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
                 };
                 acc.count += 1;
                 acc.h += tm.h;
+                acc.score += tm.score;
+                if !input.target_linear.is_some_and(|l| l[j as usize]) {
+                    acc.h_det += tm.h;
+                    acc.score_det += tm.score;
+                    acc.det_pairs += 1;
+                }
                 acc.m_src += tm.dp * tm.dp.transpose();
                 if let Some(pl) = tm.plane {
                     // The residual along the normal counts for the point noise either way.
@@ -510,6 +537,10 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
         linear_known: input.target_linear.is_some(),
         num_correspondences: acc.count,
         plane_noise_information: flat(acc.plane_noise),
+        score: acc.score.iter().copied().collect(),
+        determined_hessian: flat(acc.h_det),
+        determined_score: acc.score_det.iter().copied().collect(),
+        num_determined_pairs: acc.det_pairs,
         normal_disagreement: acc.sin2,
         num_normal_pairs: acc.sin2_count,
     }

@@ -4,7 +4,7 @@
 use crate::convert::{
     c_slice, core_err, covariances, in_pool_unless_small, points_dim, pose, square,
 };
-use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
+use numpy::{PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use scanreg_core::censi::{self, Input, Options, NONE};
@@ -43,6 +43,14 @@ pub struct CensiAnalysis {
     normal_disagreement: f64,
     #[pyo3(get)]
     num_normal_pairs: usize,
+    #[pyo3(get)]
+    score: Py<PyArray1<f64>>,
+    #[pyo3(get)]
+    determined_hessian: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    determined_score: Py<PyArray1<f64>>,
+    #[pyo3(get)]
+    num_determined_pairs: usize,
     /// The same sums for `trust_numbers`, without a round trip through numpy.
     pub(crate) inner: censi::Analysis,
 }
@@ -145,6 +153,10 @@ fn censi_analysis(
         plane_noise_information: square(py, out.plane_noise_information.clone(), dof)?,
         normal_disagreement: out.normal_disagreement,
         num_normal_pairs: out.num_normal_pairs,
+        score: PyArray1::from_vec(py, out.score.clone()).unbind(),
+        determined_hessian: square(py, out.determined_hessian.clone(), dof)?,
+        determined_score: PyArray1::from_vec(py, out.determined_score.clone()).unbind(),
+        num_determined_pairs: out.num_determined_pairs,
         inner: out,
     })
 }

@@ -135,13 +135,17 @@ class LoopSettings3D:
     #: point, which the match's covariance cannot see (it takes both clouds as exact up to
     #: independent noise). Measured on 43 true loops of a simulated lap (seed 1, VLP-16,
     #: refined submaps): errors 4 mm and 0.016° RMS per axis against a median registration σ
-    #: of 2 mm and 0.008°, mean NEES 14.9 for 6 dof; with this floor 5.8 (median 1.3).
-    submap_sigma: tuple[float, float] = (0.002, math.radians(0.01))
+    #: of 2 mm and 0.008°. GICP's point noise is now taken along the normal (its registration
+    #: σ about half that): the registration's covariance alone gives loop NEES 41 / 98 / 18
+    #: (ordinary block, repeated sides, 25 m odometry; 6 dof), a (2 mm, 0.01°) floor 9.1 /
+    #: 12.5 / –, this one 5.5 / 6.8 / 7.4 (`benchmarks/README.md`, mapping_3d.py).
+    submap_sigma: tuple[float, float] = (0.003, math.radians(0.015))
     #: ... at keyframes of this RMS range (m; the full-range VLP-16 lap's nodes: 27-37 m,
-    #: median 32); they scale with the keyframe's own RMS range. Measured: the registration's
-    #: covariance alone is over-confident at full range (NEES 10.7 for 6 dof on the ordinary
-    #: block) but not with the odometry's range cut to 25 m (RMS range 16 m: NEES 5.0), where
-    #: the fixed floor made loops 2.3x cautious (2.65).
+    #: median 32); they scale with the keyframe's own RMS range. Measured (with GICP's
+    #: Euclidean point noise then): the registration's covariance alone was over-confident at
+    #: full range (NEES 10.7 for 6 dof on the ordinary block) but not with the odometry's range
+    #: cut to 25 m (RMS range 16 m: NEES 5.0), where a fixed floor made loops 2.3x cautious
+    #: (2.65).
     submap_sigma_range: float = 32.0
     #: χ² bound on the loop's disagreement with the graph (6 dof, 0.999: 22.46).
     chi2_threshold: float = 22.46

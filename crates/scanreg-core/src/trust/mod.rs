@@ -134,25 +134,48 @@ fn check_len(name: &'static str, got: usize, want: usize) -> Result<()> {
 /// Noise variance of one coordinate of a point, half of the residual variance (source and
 /// target points are equally noisy).
 ///
-/// Point-to-plane/line: along the normal, `Σ (nᵀe)² / (n − dof)` — the noise its residual
-/// feels; GICP in 2D as well (with target normals). Point-to-point and GICP in 3D:
-/// `Σ |e|² / (D n − dof)`, the along-surface sampling offsets included. In 2D those offsets
-/// are no noise (GICP's combined covariances weigh them down, and where the sampling does
-/// move the estimate the sampling term of `calibrated` covers it): the Euclidean estimate
-/// made 2D GICP 6× over-cautious in the simulated corridor (0.16 × dof). In the 3D street and
-/// tunnel the normal-only estimate is 4× over-confident: there the offsets are part of the
-/// error (`docs/calibration.md`).
+/// Point-to-plane/line and GICP: along the normal, `Σ (nᵀe)² / (n − dof)` — the noise their
+/// residual feels (GICP's combined covariances weigh a residual along the surface ~1/(2ε)
+/// times less than one along the normal, so its gradient, and Censi's derivatives of it,
+/// move with the normal component). Point-to-point: `Σ |e|² / (D n − dof)`, the
+/// along-surface sampling offsets included (its cost sees them). The Euclidean estimate made
+/// GICP 2–8× over-cautious on every axis its bias leaves alone (3D street, tunnel, KITTI
+/// halves; 2D corridor 0.16 × dof); what it covered by accident in 3D, a bias along the road
+/// and in pitch, is GICP's `model_shift` now (`docs/calibration.md`).
 fn point_variance(input: &Input<'_>, dof: usize) -> f64 {
     let a = input.analysis;
     let n_plane = a.num_plane_correspondences;
-    let along_normal =
-        input.method == Method::PointToPlane || (input.method == Method::Gicp && input.dim == 2);
+    let along_normal = matches!(input.method, Method::PointToPlane | Method::Gicp);
     if along_normal && n_plane > dof {
         return a.plane_sum_squares / (n_plane - dof) as f64 / 2.0;
     }
     let n = input.num_correspondences;
     let denom = (input.dim * n).saturating_sub(dof).max(1) as f64;
     input.sum_squared_distances / denom / 2.0
+}
+
+/// GICP's systems for [`shift::model_shift`]: its own normal equations at the final pose over
+/// every correspondence and over those whose target neighbourhood is not linear (a sparse
+/// LiDAR's rings and poles, whose plane-regularised covariance orients its thin axis at
+/// random), when the target says which are (3D, a prepared target).
+fn gicp_systems(input: &Input<'_>, dof: usize) -> Option<(shift::System, shift::System)> {
+    let a = input.analysis;
+    if input.method != Method::Gicp || input.dim != 3 || !a.linear_known || a.score.len() != dof {
+        return None;
+    }
+    let system = |h: &[f64], g: &[f64], count: usize| shift::System {
+        hessian: from_rows(dof, h),
+        gradient: Vector::from_column_slice(g),
+        count,
+    };
+    Some((
+        system(&a.hessian, &a.score, a.num_correspondences),
+        system(
+            &a.determined_hessian,
+            &a.determined_score,
+            a.num_determined_pairs,
+        ),
+    ))
 }
 
 /// The whole arithmetic of one result (see the module docs).
@@ -243,11 +266,12 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
 
     let prior = from_rows(dof, input.prior);
     let drift = Vector::from_column_slice(input.drift);
-    let shift = match &input.agreement {
-        Some((all, agreeing)) => {
+    let shift = match (&input.agreement, gicp_systems(input, dof)) {
+        (Some((all, agreeing)), _) => {
             shift::model_shift(all, agreeing, &deg, input.method == Method::PointToPoint)
         }
-        None => Vector::zeros(dof),
+        (None, Some((all, determined))) => shift::model_shift(&all, &determined, &deg, false),
+        (None, None) => Vector::zeros(dof),
     };
     let bad = Mat::from_element(dof, dof, f64::INFINITY);
     let h = from_rows(dof, &a.hessian);

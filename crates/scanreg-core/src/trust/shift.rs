@@ -1,6 +1,8 @@
 //! The model-error shift of `calibrated` (`CovarianceEstimates.model_shift`): one Gauss–Newton
 //! step on the strong subspace with the pairs whose normals agree, minus the step with all
-//! sampled pairs (point-to-plane/line; point-to-point keeps the agreeing step).
+//! sampled pairs (point-to-plane/line; point-to-point keeps the agreeing step). GICP: its own
+//! step over the pairs whose target neighbourhood is not linear minus its step over all of
+//! them (`trust::gicp_systems`).
 
 use super::degeneracy::Degeneracy;
 use super::dense::{solve, Mat, Vector};

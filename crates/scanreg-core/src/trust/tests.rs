@@ -32,6 +32,10 @@ fn corridor() -> Analysis {
         linear_known: false,
         num_correspondences: n,
         plane_noise_information: vec![0.0; 9],
+        score: vec![0.0; 3],
+        determined_hessian: vec![0.0; 9],
+        determined_score: vec![0.0; 3],
+        num_determined_pairs: 0,
         normal_disagreement: 0.0,
         num_normal_pairs: 0,
     }
