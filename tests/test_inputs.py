@@ -158,3 +158,33 @@ def test_submodules_are_reachable_after_a_plain_import() -> None:
     assert out.stdout.split() == ["read_scans", "scanreg.eval", "Odometry2D", "True"]
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         _ = scanreg.nonexistent  # type: ignore[attr-defined]
+
+
+def test_covariance_arguments_share_one_check() -> None:
+    # register's init_covariance, match_correlative's motion cost and Odometry2D's
+    # prior_covariance go through one validator: the same errors, each naming its argument.
+    from scanreg import match_correlative, register
+
+    pts = np.random.default_rng(3).uniform(-5, 5, size=(300, 2))
+    with pytest.raises(TypeError, match=r"init_covariance: expected a \(3, 3\) array, got str"):
+        register(pts, pts, method="point_to_line", init_covariance="wide")
+    with pytest.raises(ValueError, match="init_covariance: must be finite and symmetric"):
+        register(
+            pts, pts, method="point_to_line", init_covariance=[[1, 2, 0], [0, 1, 0], [0, 0, 1]]
+        )
+    with pytest.raises(ValueError, match="init_covariance: must be positive semi-definite"):
+        register(pts, pts, method="point_to_line", init_covariance=-np.eye(3))
+    with pytest.raises(ValueError, match="init_covariance: must be positive definite"):
+        match_correlative(
+            pts,
+            pts,
+            init=SE2.identity(),
+            window=(0.3, 0.3, 0.1),
+            init_covariance=np.diag([1, 0, 1]),
+        )
+    odo = Odometry2D()
+    odo.step(pts)
+    with pytest.raises(
+        ValueError, match=r"prior_covariance: expected shape \(3, 3\), got \(2, 2\)"
+    ):
+        odo.step(pts, prior=SE2.identity(), prior_covariance=np.eye(2))

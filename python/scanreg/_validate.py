@@ -112,6 +112,28 @@ def as_matrix(value: Any, name: str, shape: tuple[int, ...]) -> FloatArray:
     return arr
 
 
+def as_covariance(value: Any, name: str, dof: int, *, definite: bool = False) -> FloatArray:
+    """Check a covariance, as a copy: ``(dof, dof)``, finite, symmetric (to round-off) and
+    positive semi-definite (``definite``: positive definite)."""
+    try:
+        cov = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"{name}: expected a ({dof}, {dof}) array, got {type(value).__name__}"
+        ) from None
+    if cov.shape != (dof, dof):
+        raise ValueError(f"{name}: expected shape ({dof}, {dof}), got {cov.shape}")
+    if not np.isfinite(cov).all() or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
+        raise ValueError(f"{name}: must be finite and symmetric")
+    low = float(np.linalg.eigvalsh(cov)[0])
+    if definite and low <= 0.0:
+        raise ValueError(f"{name}: must be positive definite")
+    # Round-off may leave a zero eigenvalue slightly negative.
+    if low < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
+        raise ValueError(f"{name}: must be positive semi-definite")
+    return cov
+
+
 def positive(value: float, name: str) -> float:
     """A finite, strictly positive number."""
     v = float(value)

@@ -43,7 +43,7 @@ from typing import Any, Literal
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray, as_points, positive, readonly
+from ._validate import FloatArray, as_covariance, as_points, positive, readonly
 from ._validate import frozen as _frozen
 from .quality import Conditioning, conditioning
 from .transform import SE2, as_pose
@@ -393,20 +393,8 @@ def match_correlative(
 def _window_information(covariance: Any, init: SE2) -> tuple[float, ...]:
     """``init_covariance`` (right tangent of ``init``) as the information matrix over the
     window frame's pose-vector offsets ``[x, y, θ]`` (``δt = R ρ``), row-major."""
-    try:
-        cov = np.array(covariance, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(
-            f"init_covariance: expected a (3, 3) array, got {type(covariance).__name__}"
-        ) from None
-    if cov.shape != (3, 3):
-        raise ValueError(f"init_covariance: expected shape (3, 3), got {cov.shape}")
-    if not np.isfinite(cov).all() or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
-        raise ValueError("init_covariance: must be finite and symmetric")
+    cov = as_covariance(covariance, "init_covariance", 3, definite=True)
     cov = 0.5 * (cov + cov.T)
-    lo = float(np.linalg.eigvalsh(cov)[0])
-    if lo <= 0.0:
-        raise ValueError("init_covariance: must be positive definite")
     jac = np.eye(3)
     jac[:2, :2] = init.rotation
     info = np.linalg.inv(jac @ cov @ jac.T)

@@ -37,7 +37,7 @@ from typing import Any, Literal
 import numpy as np
 
 from . import _core, budget
-from ._validate import FloatArray, as_matrix, as_points, check_finite_points
+from ._validate import FloatArray, as_covariance, as_matrix, as_points, check_finite_points
 from ._validate import build as _build
 from ._validate import frozen as _frozen
 from .degeneracy import (
@@ -497,14 +497,7 @@ def _checked_init_covariance(init_covariance: Any, dof: int) -> FloatArray | Non
     """``init_covariance`` checked, as a copy (the analysis may read it after the call)."""
     if init_covariance is None:
         return None
-    p = np.array(init_covariance, dtype=np.float64)
-    if p.shape != (dof, dof):
-        raise ValueError(f"init_covariance: expected shape ({dof}, {dof}), got {p.shape}")
-    if not np.isfinite(p).all() or not np.allclose(p, p.T, rtol=1e-9, atol=1e-12):
-        raise ValueError("init_covariance: must be finite and symmetric")
-    if np.linalg.eigvalsh(p)[0] < 0:
-        raise ValueError("init_covariance: must be positive semi-definite")
-    return p
+    return as_covariance(init_covariance, "init_covariance", dof)
 
 
 def register(

@@ -34,7 +34,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .. import _core
-from .._validate import FloatArray, as_points, frozen
+from .._validate import FloatArray, as_covariance, as_points, frozen
 from ..correlative import CorrelativeGrid, match_correlative, prepare_correlative
 from ..preprocess import DEFAULT_K, voxel_downsample
 from ..register import RegistrationResult, register
@@ -523,22 +523,7 @@ def _checked_prior_covariance(
         return None
     if motion is None:
         raise ValueError("prior_covariance: given without a prior (the motion it describes)")
-    try:
-        cov = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(
-            f"prior_covariance: expected a ({dof}, {dof}) array, got {type(value).__name__}"
-        ) from None
-    if cov.shape != (dof, dof):
-        raise ValueError(f"prior_covariance: expected shape ({dof}, {dof}), got {cov.shape}")
-    if not np.isfinite(cov).all() or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
-        raise ValueError("prior_covariance: must be finite and symmetric")
-    low = float(np.linalg.eigvalsh(cov)[0])
-    if definite and low <= 0.0:
-        raise ValueError("prior_covariance: must be positive definite")
-    if low < -1e-12 * max(float(np.abs(cov).max()), 1e-300):
-        raise ValueError("prior_covariance: must be positive semi-definite")
-    return cov
+    return as_covariance(value, "prior_covariance", dof, definite=definite)
 
 
 def predicted_covariance(previous: FloatArray, motion: SE2, motion_covariance: Any) -> FloatArray:
