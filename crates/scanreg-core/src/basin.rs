@@ -7,8 +7,9 @@
 
 use crate::error::{Error, Result};
 use crate::icp::NeighborSearch;
+use crate::lie::{se2_log, se3_log};
 use crate::points::{check_points, split_pose};
-use nalgebra::{DMatrix, Matrix3, Rotation3, Vector3};
+use nalgebra::{DMatrix, Matrix3, Vector3};
 
 /// What an outcome is, relative to the result.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -80,37 +81,6 @@ fn within(search: &dyn NeighborSearch, source: &[f64], r: &[f64], t: &[f64], max
             search.nearest_within(&q[..dim], max_sq).is_some()
         })
         .count()
-}
-
-/// `log` of a 2D rigid transform `(R, t)`: `[ρx, ρy, θ]` with `ρ = V(θ)⁻¹ t`.
-fn log2(r: [f64; 4], t: [f64; 2]) -> [f64; 3] {
-    let theta = r[2].atan2(r[0]);
-    let (a, b) = if theta.abs() < 1e-9 {
-        (1.0, 0.0)
-    } else {
-        (theta.sin() / theta, (1.0 - theta.cos()) / theta)
-    };
-    let d = a * a + b * b;
-    [(a * t[0] + b * t[1]) / d, (a * t[1] - b * t[0]) / d, theta]
-}
-
-/// `log` of a 3D rigid transform: `[ρ, φ]`, `ρ = J_l(φ)⁻¹ t`.
-fn log3(r: Matrix3<f64>, t: Vector3<f64>) -> [f64; 6] {
-    let phi = Rotation3::from_matrix_unchecked(r).scaled_axis();
-    let theta = phi.norm();
-    let k = Matrix3::new(
-        0.0, -phi[2], phi[1], //
-        phi[2], 0.0, -phi[0], //
-        -phi[1], phi[0], 0.0,
-    );
-    let d = if theta < 1e-4 {
-        1.0 / 12.0 + theta.powi(2) / 720.0 + theta.powi(4) / 30240.0
-    } else {
-        (1.0 - theta * theta.sin() / (2.0 * (1.0 - theta.cos()))) / (theta * theta)
-    };
-    let jinv = Matrix3::identity() - 0.5 * k + d * (k * k);
-    let rho = jinv * t;
-    [rho[0], rho[1], rho[2], phi[0], phi[1], phi[2]]
 }
 
 /// Compare the restarts' `poses` (`K` row-major homogeneous matrices, flat) with `result`:
@@ -189,10 +159,10 @@ pub fn compare_outcomes(
             let cos = (r[0] + r[3]) / 2.0;
             if (t[0] * t[0] + t[1] * t[1]).sqrt() <= half && cos >= cos_1deg {
                 kinds.push(Kind::Back);
-                offsets[k * dof..(k + 1) * dof].copy_from_slice(&log2(r, t));
+                offsets[k * dof..(k + 1) * dof].copy_from_slice(&se2_log(r, t));
                 continue;
             }
-            log2(r, t).to_vec()
+            se2_log(r, t).to_vec()
         } else {
             let ra = Matrix3::from_row_slice(&rr);
             let rb = Matrix3::from_row_slice(&pr);
@@ -201,10 +171,10 @@ pub fn compare_outcomes(
             let cos = (r.trace() - 1.0) / 2.0;
             if t.norm() <= half && cos >= cos_1deg {
                 kinds.push(Kind::Back);
-                offsets[k * dof..(k + 1) * dof].copy_from_slice(&log3(r, t));
+                offsets[k * dof..(k + 1) * dof].copy_from_slice(&se3_log(r, t));
                 continue;
             }
-            log3(r, t).to_vec()
+            se3_log(r, t).to_vec()
         };
         offsets[k * dof..(k + 1) * dof].copy_from_slice(&e);
         let moved = e[..dim].iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -302,7 +272,7 @@ mod tests {
     }
 
     #[test]
-    fn log3_matches_a_known_transform() {
+    fn se3_log_matches_a_known_transform() {
         // A turn of 0.3 rad about z with ρ = (1, 0, 0): t = V(φ) ρ.
         let th: f64 = 0.3;
         let r = Matrix3::new(
@@ -318,7 +288,7 @@ mod tests {
         );
         let (a, b) = (th.sin() / th, (1.0 - th.cos()) / th);
         let t = Vector3::new(a, b, 0.0);
-        let e = log3(r, t);
+        let e = se3_log(r, t);
         for (v, w) in e.iter().zip([1.0, 0.0, 0.0, 0.0, 0.0, th]) {
             assert!((v - w).abs() < 1e-12, "{e:?}");
         }

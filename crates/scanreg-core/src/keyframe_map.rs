@@ -27,6 +27,7 @@ use crate::knn::KdTree;
 use crate::normal_noise::noise_with_neighbour;
 use crate::normals::{eigen, facing, scatter, spans, Scratch};
 use crate::points::{check_points, voxel_of};
+use crate::trust::scene::median_of_squared;
 use rustc_hash::FxHashMap;
 use std::collections::VecDeque;
 
@@ -384,7 +385,7 @@ impl KeyframeMap {
         });
         // Kept like the nearest voxel: an unchanged neighbourhood has its nearest point at the
         // same place, so the map's spacing needs no search of its own.
-        let spacing = median_spacing(self.cells.iter().map(|c| c.nearest_sq).collect());
+        let spacing = median_of_squared(self.cells.iter().map(|c| c.nearest_sq).collect());
         Ok(MapState {
             normal_noise,
             spacing,
@@ -395,24 +396,6 @@ impl KeyframeMap {
             num_updated,
         })
     }
-}
-
-/// The square root of the median of `nearest_sq` (the mean of the middle two for an even
-/// count, as NumPy's median), NaN when fewer than two points or any is NaN.
-fn median_spacing(mut nearest_sq: Vec<f64>) -> f64 {
-    let n = nearest_sq.len();
-    if n < 2 || nearest_sq.iter().any(|d| d.is_nan()) {
-        return f64::NAN;
-    }
-    let mid = n / 2;
-    let (below, &mut upper, _) = nearest_sq.select_nth_unstable_by(mid, f64::total_cmp);
-    let median = if n % 2 == 1 {
-        upper
-    } else {
-        let lower = below.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        (lower + upper) / 2.0
-    };
-    median.sqrt()
 }
 
 #[cfg(test)]
