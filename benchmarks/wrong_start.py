@@ -23,11 +23,14 @@ own error added to the covariance (``REFERENCE_SIGMA``; mbicp's truth is exact) 
 rejected-and-correct, and the median time of the call with its verdict read.
 
     .venv/bin/python benchmarks/wrong_start.py [--all] [--datasets intel,mbicp,kitti,outdoor]
-        [--jsonl out.jsonl] [--timing ROUNDS [--cpu] [--dim 3]]
+        [--jsonl out.jsonl] [--timing ROUNDS [--cpu] [--dim 3] [--default-only]]
 
 Default: every 15th Intel pair, 40 MbICP scans, 5 KITTI pairs; ``--all``: every pair.
 ``--timing``: the default call with and without the wrong-basin probe, alternated in one
 process (2D: Intel point-to-line; ``--dim 3``: the KITTI and outdoor pairs, each method).
+``--default-only``: the default call alone (verdict and covariance read), to compare builds as
+alternating processes — e.g. main against the core at 9a19911, before the probe, run through
+this script with ``PYTHONPATH`` on that commit's ``python/``.
 """
 
 from __future__ import annotations
@@ -250,12 +253,14 @@ def _counts(rs: list[dict[str, Any]], dim: int) -> list[int]:
     return [n, correct, ac, aw, ao, aor, rc]
 
 
-def timing(rounds: int, cpu: bool = False, dim: int = 2) -> None:
+def timing(rounds: int, cpu: bool = False, dim: int = 2, default_only: bool = False) -> None:
     """The default call (raw arrays, verdict read) with and without the probe, alternated
     pair by pair in this process: medians of the per-round totals and their ratio. ``cpu``:
     the process's CPU time (every thread's) instead of the wall clock, the usable clock on a
     loaded machine. 2D: the Intel pairs, point-to-line; 3D: the KITTI and outdoor pairs from
-    their reference (an accepted result: only those are probed), one line per method."""
+    their reference (an accepted result: only those are probed), one line per method.
+    ``default_only``: the default call alone, with its covariance read as well, and only
+    arguments every build has (for comparing builds as alternating processes)."""
     clock = time.process_time if cpu else time.perf_counter
     from scanreg.verdict import VerdictThresholds
 
@@ -265,6 +270,22 @@ def timing(rounds: int, cpu: bool = False, dim: int = 2) -> None:
     else:
         pairs, methods = [*kitti_pairs(5), *outdoor_pairs()], list(METHODS[3])
         label = "KITTI + outdoor"
+    if default_only:
+        for method in methods:
+            per_call = []
+            for _ in range(rounds):
+                t0 = clock()
+                for src, tgt, ref in pairs:
+                    res = scanreg.register(src, tgt, method=method, init=ref)  # type: ignore[arg-type]
+                    assert res.verdict is not None and res.covariance is not None
+                per_call.append((clock() - t0) / len(pairs))
+            print(
+                f"{label} {method}, {len(pairs)} pairs x {rounds} rounds, "
+                f"{'CPU' if cpu else 'wall'} time, default call: "
+                f"{float(np.median(per_call)) * 1e3:.2f} ms ({scanreg.__file__})",
+                flush=True,
+            )
+        return
     off = VerdictThresholds(basin_probe=False)
     for method in methods:
         totals: dict[str, list[float]] = {"default": [], "probe off": []}
@@ -300,9 +321,12 @@ def main() -> None:
     parser.add_argument("--timing", type=int, default=0, help="only the A/B timing, N rounds")
     parser.add_argument("--cpu", action="store_true", help="--timing in CPU time (all threads)")
     parser.add_argument("--dim", type=int, choices=(2, 3), default=2, help="--timing: 2D or 3D")
+    parser.add_argument(
+        "--default-only", action="store_true", help="--timing: the default call alone (any build)"
+    )
     args = parser.parse_args()
     if args.timing:
-        timing(args.timing, args.cpu, args.dim)
+        timing(args.timing, args.cpu, args.dim, args.default_only)
         return
     chosen = args.datasets.split(",")
     records: list[dict[str, Any]] = []
