@@ -444,6 +444,8 @@ class TrustNumbers:
     def source_normals(self) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None: ...
     @property
     def source_spacing(self) -> float: ...
+    @property
+    def overlap(self) -> tuple[int, float, float, float, float, int] | None: ...
 
 def trust_analysis(
     source: NDArray[np.float64],
@@ -482,6 +484,9 @@ def trust_analysis(
     held: tuple[NDArray[np.float64], float, float, float, int, float] | None = None,
     target_linear: NDArray[np.bool_] | None = None,
     target_spacing: float | None = None,
+    overlap_target: KdTree | None = None,
+    overlap_gate: float | None = None,
+    outcome: IcpOutcome | None = None,
 ) -> TrustNumbers: ...
 def trust_numbers(
     analysis: CensiAnalysis,

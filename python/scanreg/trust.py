@@ -284,6 +284,9 @@ class CorrespondenceAnalysis:
     moved: Any = None
     drift: Any = None
     correspondences: Any = None
+    #: ``_core.overlap_statistics`` at the outcome's pose within the verdict's gate, when the
+    #: analysis ran it in the same core call (a 2D outcome against a PreparedTarget), else None.
+    overlap: Any = None
 
 
 @dataclass(frozen=True)
@@ -343,10 +346,13 @@ def correspondence_analysis(
     *,
     held: Degeneracy | None = None,
     valley: FloatArray | None = None,
+    overlap_gate: float | None = None,
 ) -> CorrespondenceAnalysis:
     """The analysis of one core outcome ``out``: the correspondence sums, then the core's
     arithmetic of them (one call). ``held``: the degeneracy-aware solve's weak directions, kept
-    as the first solve measured them; ``valley``: its :func:`valley_moment`."""
+    as the first solve measured them; ``valley``: its :func:`valley_moment`; ``overlap_gate``:
+    the verdict's overlap pass at the outcome's pose within this gate, in the same call (2D
+    against a PreparedTarget; the caller checks)."""
     s, src, prepared, method = ctx.settings, ctx.source, ctx.target, ctx.method
     dim = int(src.shape[1])
     dof = 3 if dim == 2 else 6
@@ -447,6 +453,11 @@ def correspondence_analysis(
         if isinstance(prepared, PreparedTarget) and tn is not None and tn is prepared.normals
         else None,
         target_spacing,
+        # The verdict's overlap pass, its searches started at these correspondences and most of
+        # them settled by the outcome's certificates (``_core.overlap_statistics``'s answers).
+        prepared.index if overlap_gate is not None else None,  # type: ignore[union-attr]
+        overlap_gate,
+        out if overlap_gate is not None else None,
     )
     if target_spacing is not None:
         ctx.__dict__["sampling_density_ratio"] = _density_ratio(
@@ -470,6 +481,7 @@ def correspondence_analysis(
             "moved": moved,
             "drift": drift,
             "correspondences": matched,
+            "overlap": num.overlap,
         },
     )
 
@@ -562,7 +574,15 @@ def _trust(
     s, src = ctx.settings, ctx.source
     dim = int(src.shape[1])
     dof = 3 if dim == 2 else 6
-    corr = first if first is not None else correspondence_analysis(ctx, out)
+    th = ctx.thresholds
+    gate = float(s.max_correspondence_distance)
+    verdict_gate = gate if th.overlap_gate is None else th.overlap_gate
+    if first is not None:
+        corr = first
+    else:
+        # 2D: the verdict's overlap pass rides on the analysis's core call.
+        fold = dim == 2 and isinstance(ctx.target, PreparedTarget)
+        corr = correspondence_analysis(ctx, out, overlap_gate=verdict_gate if fold else None)
     deg = corr.degeneracy
     num = corr.numbers
     estimates = _covariance_estimates(ctx, out, pose, corr)
@@ -595,16 +615,13 @@ def _trust(
             ),
         },
     )
-    th = ctx.thresholds
     stop = str(out.stop_reason)
-    gate = float(s.max_correspondence_distance)
-    verdict_gate = gate if th.overlap_gate is None else th.overlap_gate
     probing = th.probes_basin(dim) and ctx.solve is not None
     # The probe's tight overlap is counted in the verdict's overlap pass (one nearest-neighbour
     # search of the source instead of two: 3.7 ms of a 25k-point KITTI call) where that pass
     # sees it: a k-d tree target (exact searches) and a tight gate inside the verdict's. (3D
     # only so far: the 2D path is being reworked on its own; the same holds there.)
-    overlap = None
+    overlap = corr.overlap
     tight: float | None = None
     if probing and dim == 3 and isinstance(ctx.target, PreparedTarget) and math.isfinite(gate):
         tight = tight_gate(ctx.target.index, src, pose, gate, ctx.target_points)

@@ -97,7 +97,7 @@ impl IcpOutcome {
 /// The rotation and translation of a homogeneous `(dim+1)²` pose. In 2D the rotation is
 /// the nearest one (closed form), after checking the core kept it orthonormal to 1e-6 (a
 /// core bug otherwise, never the user's input).
-fn rigid_parts(pose: &[f64], dim: usize) -> PyResult<(Vec<f64>, Vec<f64>)> {
+pub(crate) fn rigid_parts(pose: &[f64], dim: usize) -> PyResult<(Vec<f64>, Vec<f64>)> {
     let m = dim + 1;
     let translation: Vec<f64> = (0..dim).map(|i| pose[i * m + dim]).collect();
     if dim != 2 {

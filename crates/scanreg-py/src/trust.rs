@@ -5,6 +5,8 @@ use crate::censi::CensiAnalysis;
 use crate::convert::{
     c_slice, core_err, covariances, in_pool_unless_small, points, points_dim, pose, read_only,
 };
+use crate::knn::KdTree as PyKdTree;
+use crate::register::{rigid_parts, IcpOutcome};
 use numpy::ndarray::Array2;
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
@@ -14,9 +16,10 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use scanreg_core::censi::{self, NONE};
 use scanreg_core::icp::Method;
-use scanreg_core::knn::KdTree;
+use scanreg_core::knn::{check_max_distance, KdTree};
 use scanreg_core::normal_agreement::{self, AgreementInput};
 use scanreg_core::normal_noise;
+use scanreg_core::overlap;
 use scanreg_core::trust::dense::{flat, Mat, Vector};
 use scanreg_core::trust::{self, scene, shift::System, Held, Input, Kind};
 use scanreg_core::Kernel;
@@ -95,7 +98,14 @@ pub struct TrustNumbers {
     /// otherwise, or with fewer than 2 points).
     #[pyo3(get)]
     source_spacing: f64,
+    /// `trust_analysis` with `overlap_target`: `overlap_statistics` at the outcome's pose (what
+    /// the verdict reads), from the same call; None otherwise.
+    #[pyo3(get)]
+    overlap: Option<OverlapTuple>,
 }
+
+/// `(num_found, mean, median, rmse, trimmed_rmse, num_within)`, as `overlap_statistics` gives.
+type OverlapTuple = (usize, f64, f64, f64, f64, usize);
 
 fn mat(py: Python<'_>, m: &Mat) -> PyResult<Py<PyArray2<f64>>> {
     let arr = Array2::from_shape_vec((m.nrows(), m.ncols()), flat(m))
@@ -296,6 +306,7 @@ fn numbers(
         normal_variance,
         source_normals,
         source_spacing,
+        overlap: None,
     })
 }
 
@@ -321,7 +332,7 @@ type SampledNormals<'py> = (PyReadonlyArray1<'py, i64>, PyReadonlyArray2<'py, f6
     num_correspondences, sum_squared_distances, score_outer, effective_residuals,
     normal_noise, typical_normal_noise, beam_phase_variance, max_step, min_agreement,
     sampling_scale, source_normals=None, valley=None, held=None, target_linear=None,
-    target_spacing=None
+    target_spacing=None, overlap_target=None, overlap_gate=None, outcome=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn trust_analysis(
@@ -362,6 +373,9 @@ fn trust_analysis(
     held: Option<Holding<'_>>,
     target_linear: Option<PyReadonlyArray1<'_, bool>>,
     target_spacing: Option<f64>,
+    overlap_target: Option<&Bound<'_, PyKdTree>>,
+    overlap_gate: Option<f64>,
+    outcome: Option<&Bound<'_, IcpOutcome>>,
 ) -> PyResult<TrustNumbers> {
     let (src, dim) = points(&source, "source")?;
     let n = src.len() / dim;
@@ -376,6 +390,24 @@ fn trust_analysis(
             corr.len()
         )));
     }
+    // The verdict's overlap pass in the same call (2D: the pose is the outcome's with its
+    // rotation projected as `SE2` holds it, what `pose.as_matrix()` gives the separate call).
+    let overlap_in = match overlap_target {
+        None => None,
+        Some(tree) => {
+            if dim != 2 {
+                return Err(PyValueError::new_err("overlap_target: 2D only"));
+            }
+            let gate = overlap_gate.ok_or_else(|| {
+                PyValueError::new_err("overlap_gate: required with overlap_target")
+            })?;
+            let max_sq = check_max_distance("overlap_gate", gate).map_err(core_err)?;
+            let (r, t) = rigid_parts(pm, dim)?;
+            let overlap_pose = [r[0], r[1], t[0], r[2], r[3], t[1], 0.0, 0.0, 1.0];
+            let certificates = outcome.and_then(|o| o.get().certificates.as_ref());
+            Some((&tree.get().inner, max_sq, overlap_pose, certificates))
+        }
+    };
     let method = Method::from_name(method).map_err(core_err)?;
     let kernel = Kernel::from_name(kernel, kernel_scale).map_err(core_err)?;
     let tn = target_normals
@@ -612,9 +644,34 @@ fn trust_analysis(
         };
         let out = trust::analyse(&input)?;
         let sampled = sampled.map(|(idx, nrm)| (idx, nrm.into_owned()));
-        Ok((out, analysis, normal_variance, sampled, source_spacing))
+        let overlap = overlap_in
+            .as_ref()
+            .map(|(tree, max_sq, pose, certificates)| {
+                let hints = Some(corr);
+                overlap::overlap(*tree, src, pose, *max_sq, *max_sq, hints, *certificates).map(
+                    |o| {
+                        (
+                            o.num_found,
+                            o.mean,
+                            o.median,
+                            o.rmse,
+                            o.trimmed_rmse,
+                            o.num_within,
+                        )
+                    },
+                )
+            })
+            .transpose()?;
+        Ok((
+            out,
+            analysis,
+            normal_variance,
+            sampled,
+            source_spacing,
+            overlap,
+        ))
     };
-    let (out, analysis, normal_variance, sampled, source_spacing) = py
+    let (out, analysis, normal_variance, sampled, source_spacing, overlap) = py
         .detach(|| in_pool_unless_small(n, num_threads, run).and_then(|r| r))
         .map_err(core_err)?;
     let sampled = sampled
@@ -627,14 +684,16 @@ fn trust_analysis(
             ))
         })
         .transpose()?;
-    numbers(
+    let mut numbers = numbers(
         py,
         &out,
         &analysis,
         normal_variance,
         sampled,
         source_spacing,
-    )
+    )?;
+    numbers.overlap = overlap;
+    Ok(numbers)
 }
 
 /// `(levers, length_scale, beam_phase_variance, default_prior)`.
