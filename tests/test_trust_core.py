@@ -341,6 +341,33 @@ def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_inpu
     half = call(target_spacing=0.5 * own.source_spacing, sampling_scale=1.0)
     np.testing.assert_array_equal(half.calibrated, call(sampling_scale=0.25).calibrated)
     assert math.isnan(call().source_spacing)
+    # The verdict's overlap pass in the same call: overlap_statistics's tuple at the pose SE2
+    # holds (rotation projected), with and without the outcome's certificates, at two gates.
+    assert got.overlap is None
+    for gate in (0.3, 0.05):
+        for outcome in (None, out):
+            alone = _core.overlap_statistics(
+                target.index, src, res.pose.as_matrix(), gate, hints=corr, outcome=outcome
+            )
+            both = call(overlap_target=target.index, overlap_gate=gate, outcome=outcome)
+            assert both.overlap == alone
+            np.testing.assert_array_equal(both.calibrated, got.calibrated)
+    assert call(overlap_target=target.index, overlap_gate=0.3).overlap[0] > 0.5 * len(src)
+    # The scene pass in the same call: trust_scene's tuple, and the same numbers.
+    assert got.scene is None
+    folded = call(levers=None, prior=None, length_scale=None, scene_gate=1.0)
+    f_levers, f_length, f_phase, f_prior = folded.scene
+    np.testing.assert_array_equal(f_levers, levers)
+    np.testing.assert_array_equal(f_prior, prior)
+    assert f_length == length and math.isnan(f_phase)
+    np.testing.assert_array_equal(folded.calibrated, got.calibrated)
+    assert folded.motion_nees == got.motion_nees
+    with pytest.raises(ValueError, match="scene_gate: required"):
+        call(levers=None, prior=None, length_scale=None)
+    with pytest.raises(ValueError, match="overlap_gate: required"):
+        call(overlap_target=target.index)
+    with pytest.raises(ValueError, match="overlap_gate: must be"):
+        call(overlap_target=target.index, overlap_gate=-1.0)
     for change, msg in (
         ({"correspondences": corr[:-1]}, "correspondences: expected"),
         ({"source_normals": (np.array([10**6]), np.zeros((1, 2)))}, "source_normals: index"),

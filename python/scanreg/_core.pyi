@@ -446,6 +446,10 @@ class TrustNumbers:
     def source_spacing(self) -> float: ...
     @property
     def overlap(self) -> tuple[int, float, float, float, float, int] | None: ...
+    @property
+    def scene(
+        self,
+    ) -> tuple[NDArray[np.float64], float, float, NDArray[np.float64]] | None: ...
 
 def trust_analysis(
     source: NDArray[np.float64],
@@ -463,11 +467,11 @@ def trust_analysis(
     num_threads: int | None,
     hessian: NDArray[np.float64],
     sigma2: float,
-    levers: NDArray[np.float64],
-    prior: NDArray[np.float64],
+    levers: NDArray[np.float64] | None,
+    prior: NDArray[np.float64] | None,
     drift: NDArray[np.float64],
     motion: NDArray[np.float64],
-    length_scale: float,
+    length_scale: float | None,
     covariance: str,
     num_correspondences: int,
     sum_squared_distances: float,
@@ -487,6 +491,7 @@ def trust_analysis(
     overlap_target: KdTree | None = None,
     overlap_gate: float | None = None,
     outcome: IcpOutcome | None = None,
+    scene_gate: float | None = None,
 ) -> TrustNumbers: ...
 def trust_numbers(
     analysis: CensiAnalysis,

@@ -390,6 +390,11 @@ def correspondence_analysis(
     moved = ctx.start.inverse() @ pose  # type: ignore[operator]
     drift = moved.log()
     kernel = s.kernel != "none"
+    # The scene pass (levers, length scale, gate-wide prior) rides on this call on the first
+    # analysis, unless the block size needs the levers first (an infinite gate).
+    fold_scene = "_scene" not in ctx.__dict__ and (
+        s.block_size is not None or math.isfinite(s.max_correspondence_distance)
+    )
     # One core call (``_core.trust_analysis``), by position in the binding's order: the
     # source's sampled normals (measured once per call: the degeneracy-aware solve and the
     # plane reference analyse the same source again) and, on the first 2D analysis, the
@@ -418,11 +423,11 @@ def correspondence_analysis(
         s.num_threads,
         out.hessian,
         residual_variance(out, ctx.components, s.kernel, dof),
-        ctx.levers,
-        ctx.prior,
+        None if fold_scene else ctx.levers,
+        ctx.init_covariance if fold_scene else ctx.prior,
         drift,
         np.asarray(moved.translation, dtype=np.float64),
-        ctx.length_scale,
+        None if fold_scene else ctx.length_scale,
         s.covariance,
         int(out.num_correspondences),
         float(out.sum_squared_distances),
@@ -458,7 +463,10 @@ def correspondence_analysis(
         prepared.index if overlap_gate is not None else None,  # type: ignore[union-attr]
         overlap_gate,
         out if overlap_gate is not None else None,
+        float(s.max_correspondence_distance) if fold_scene else None,
     )
+    if fold_scene:
+        ctx.__dict__["_scene"] = num.scene
     if target_spacing is not None:
         ctx.__dict__["sampling_density_ratio"] = _density_ratio(
             target_spacing, float(num.source_spacing)

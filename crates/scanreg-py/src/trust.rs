@@ -102,6 +102,10 @@ pub struct TrustNumbers {
     /// the verdict reads), from the same call; None otherwise.
     #[pyo3(get)]
     overlap: Option<OverlapTuple>,
+    /// `trust_analysis` without `levers`: `trust_scene(source, scene_gate, beam_phase=False)`'s
+    /// tuple, measured in the same call; None otherwise.
+    #[pyo3(get)]
+    scene: Option<Scene>,
 }
 
 /// `(num_found, mean, median, rmse, trimmed_rmse, num_within)`, as `overlap_statistics` gives.
@@ -307,6 +311,7 @@ fn numbers(
         source_normals,
         source_spacing,
         overlap: None,
+        scene: None,
     })
 }
 
@@ -332,7 +337,7 @@ type SampledNormals<'py> = (PyReadonlyArray1<'py, i64>, PyReadonlyArray2<'py, f6
     num_correspondences, sum_squared_distances, score_outer, effective_residuals,
     normal_noise, typical_normal_noise, beam_phase_variance, max_step, min_agreement,
     sampling_scale, source_normals=None, valley=None, held=None, target_linear=None,
-    target_spacing=None, overlap_target=None, overlap_gate=None, outcome=None
+    target_spacing=None, overlap_target=None, overlap_gate=None, outcome=None, scene_gate=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn trust_analysis(
@@ -352,11 +357,11 @@ fn trust_analysis(
     num_threads: Option<usize>,
     hessian: PyReadonlyArray2<'_, f64>,
     sigma2: f64,
-    levers: PyReadonlyArray1<'_, f64>,
-    prior: PyReadonlyArray2<'_, f64>,
+    levers: Option<PyReadonlyArray1<'_, f64>>,
+    prior: Option<PyReadonlyArray2<'_, f64>>,
     drift: PyReadonlyArray1<'_, f64>,
     motion: PyReadonlyArray1<'_, f64>,
-    length_scale: f64,
+    length_scale: Option<f64>,
     covariance: &str,
     num_correspondences: usize,
     sum_squared_distances: f64,
@@ -376,6 +381,7 @@ fn trust_analysis(
     overlap_target: Option<&Bound<'_, PyKdTree>>,
     overlap_gate: Option<f64>,
     outcome: Option<&Bound<'_, IcpOutcome>>,
+    scene_gate: Option<f64>,
 ) -> PyResult<TrustNumbers> {
     let (src, dim) = points(&source, "source")?;
     let n = src.len() / dim;
@@ -487,8 +493,38 @@ fn trust_analysis(
         .as_ref()
         .map(|s| square_slice(s, "score_outer", dof))
         .transpose()?;
-    let levers = c_slice(&levers, "levers")?;
-    let prior = square_slice(&prior, "prior", dof)?;
+    // The scene pass (`trust_scene`) in the same call where the caller has not run it: the
+    // rotation levers, the length scale and the gate-wide prior of `scene_gate`.
+    let scene_own = match &levers {
+        Some(_) => None,
+        None => {
+            if n == 0 {
+                return Err(PyValueError::new_err("source: is empty"));
+            }
+            let gate = scene_gate
+                .ok_or_else(|| PyValueError::new_err("scene_gate: required without levers"))?;
+            let own = scene::rotation_levers(src, dim);
+            let default = scene::default_prior(dim, &own, gate);
+            Some((own, scene::length_scale(src, dim), default))
+        }
+    };
+    let levers = match (&levers, &scene_own) {
+        (Some(a), _) => c_slice(a, "levers")?,
+        (None, Some((own, _, _))) => &own[..],
+        (None, None) => unreachable!("the scene is measured without levers"),
+    };
+    let prior = match (&prior, &scene_own) {
+        (Some(a), _) => square_slice(a, "prior", dof)?,
+        (None, Some((_, _, default))) => &default[..],
+        (None, None) => return Err(PyValueError::new_err("prior: required with levers")),
+    };
+    let length_scale = match (length_scale, &scene_own) {
+        (Some(l), _) => l,
+        (None, Some((_, l, _))) => *l,
+        (None, None) => {
+            return Err(PyValueError::new_err("length_scale: required with levers"));
+        }
+    };
     let drift = c_slice(&drift, "drift")?;
     let motion = c_slice(&motion, "motion")?;
     let valley = valley
@@ -693,6 +729,17 @@ fn trust_analysis(
         source_spacing,
     )?;
     numbers.overlap = overlap;
+    numbers.scene = scene_own
+        .map(|(own, length, default)| -> PyResult<Scene> {
+            let k = dim + own.len();
+            Ok((
+                read_only(own.into_pyarray(py)),
+                length,
+                f64::NAN,
+                mat(py, &Mat::from_row_slice(k, k, &default))?,
+            ))
+        })
+        .transpose()?;
     Ok(numbers)
 }
 
