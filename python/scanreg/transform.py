@@ -27,14 +27,22 @@ try:
     # The gufunc behind ``np.linalg.solve`` for one right-hand side: the same LAPACK solve, so
     # the same bits, without the wrapper's ~4 µs of checks (SE2.log runs in every 2D
     # registration's trust analysis). numpy's own wrapper where a numpy release moves it.
-    from numpy.linalg._umath_linalg import solve1 as _solve1  # type: ignore[import-untyped]
+    from numpy.linalg._umath_linalg import solve1 as _solve1
 
-    def _solve2(a: FloatArray, b: FloatArray) -> FloatArray:
-        out: FloatArray = _solve1(a, b, signature="dd->d")
-        return out
-
+    _GUFUNC = True
 except ImportError:  # pragma: no cover - numpy layout change
-    _solve2 = np.linalg.solve
+    _GUFUNC = False
+
+
+def _solve2(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.linalg.solve(a, b)`` for a nonsingular ``a`` and one right-hand side."""
+    out: FloatArray
+    if _GUFUNC:
+        out = _solve1(a, b, signature="dd->d")
+    else:  # pragma: no cover - numpy layout change
+        out = np.linalg.solve(a, b).astype(np.float64, copy=False)
+    return out
+
 
 #: Largest tolerated deviation of ``RᵀR`` from identity when a rotation is given; anything
 #: within it is projected onto the nearest rotation. Poses read from files carry a few

@@ -19,10 +19,13 @@ source's sampled normals and, in 2D, its point spacing off the same neighbour se
 call), the per-correspondence sums (the normal noise between the two scans, the normal agreement,
 the 2D sampling system, Censi's meats, the block sandwich) and everything the ≤ 6×6 matrices give
 (``scanreg_core::trust``) — the degeneracy, every covariance kind, the prior along weak directions,
-the model shift, the conditioning, the information and the motion χ². Here: which analyses and
-extra solves run, the verdict, and the result dataclasses (the parts few callers read — the
-degeneracy's direction objects, the report's motion from the start — built on first read,
-:class:`~scanreg._validate.LazyFields`).
+the model shift, the conditioning, the information and the motion χ². The same call measures the
+scene (rotation levers, length scale, gate-wide prior) on a result's first analysis and, in 2D
+against a :class:`~scanreg.PreparedTarget`, runs the verdict's overlap pass (its searches
+started at the final correspondences and mostly settled by the solve's certificates). Here:
+which analyses and extra solves run, the verdict, and the result dataclasses (the parts few
+callers read — the degeneracy's direction objects, the report's motion from the start — built
+on first read, :class:`~scanreg._validate.LazyFields`).
 """
 
 from __future__ import annotations
