@@ -540,6 +540,165 @@ mod tests {
         );
     }
 
+    /// A 4 m × 3 m room outline (10 cm spacing) with a short inner wall: nothing repeats
+    /// under a quarter turn, a half turn nearly does.
+    fn room() -> Vec<f64> {
+        let mut pts = Vec::new();
+        let mut seg = |a: [f64; 2], b: [f64; 2]| {
+            let n = (((b[0] - a[0]).powi(2) + (b[1] - a[1]).powi(2)).sqrt() / 0.1).ceil() as usize;
+            for s in 0..n {
+                let t = s as f64 / n as f64;
+                pts.extend([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
+            }
+        };
+        seg([-2.0, -1.5], [2.0, -1.5]);
+        seg([2.0, -1.5], [2.0, 1.5]);
+        seg([2.0, 1.5], [-2.0, 1.5]);
+        seg([-2.0, 1.5], [-2.0, -1.5]);
+        seg([0.5, -1.5], [0.5, -0.7]);
+        pts
+    }
+
+    #[test]
+    fn probe_restarts_equals_the_solves_then_the_comparison_and_stops_early() {
+        use crate::icp::{register_many, Method, Optimizer};
+        use crate::Kernel;
+        let target = room();
+        let tree = KdTree::build(&target, 2).unwrap();
+        let src = Source {
+            points: &target,
+            covariances: None,
+        };
+        let tgt = Target {
+            search: &tree,
+            normals: None,
+            covariances: None,
+        };
+        let settings = Settings {
+            method: Method::PointToPoint,
+            kernel: Kernel::None,
+            max_correspondence_distance: 1.0,
+            max_iterations: 6,
+            translation_tolerance: 1e-6,
+            rotation_tolerance: 1e-6,
+            optimizer: Optimizer::GaussNewton,
+            min_correspondences: 10,
+            step_projector: None,
+            extrapolate: true,
+        };
+        let result = se2(0.0, 0.0, 0.0);
+        let pi = std::f64::consts::PI;
+        let mut starts = Vec::new();
+        starts.extend(se2(0.3, 0.0, 0.0)); // comes back
+        starts.extend(se2(0.0, 0.0, pi)); // the half turn: far, explains nearly all of it
+        starts.extend(se2(0.0, 0.1, 0.01)); // comes back
+        let cov = [1e-4, 0.0, 0.0, 0.0, 1e-4, 0.0, 0.0, 0.0, 1e-4];
+        let (tight, chi2) = (0.1, 16.266);
+        let home = Home {
+            pose: result.to_vec(),
+            radius: 0.045,
+            cos_angle: 0.9f64.to_radians().cos(),
+        };
+        let stop_at = |stop_ratio: f64, implausible: Option<Implausible<'static>>| Stop {
+            here: 1.0,
+            stop_ratio,
+            near_move: 0.5,
+            near_turn: 10f64.to_radians(),
+            implausible,
+        };
+        let never = stop_at(f64::INFINITY, None);
+        let run = |stop: &Stop<'_>| {
+            probe_restarts(
+                &src,
+                &tgt,
+                &settings,
+                &result,
+                &starts,
+                None,
+                home.radius,
+                home.cos_angle,
+                tight,
+                Some(&cov),
+                chi2,
+                stop,
+            )
+            .unwrap()
+        };
+        // Without a stop: the same as the solves, then the comparison.
+        let all = run(&never);
+        let outs = register_many(&src, &tgt, &starts, &settings, Some(&home)).unwrap();
+        let poses: Vec<f64> = outs.iter().flat_map(|o| o.pose.clone()).collect();
+        let usable: Vec<bool> = outs
+            .iter()
+            .map(|o| {
+                matches!(
+                    o.stop_reason,
+                    StopReason::Converged | StopReason::MaxIterations
+                )
+            })
+            .collect();
+        let compared = compare_outcomes(
+            &tree,
+            &target,
+            &result,
+            &poses,
+            &usable,
+            tight,
+            Some(&cov),
+            chi2,
+        )
+        .unwrap();
+        assert_eq!(all.poses, poses);
+        assert_eq!(all.outcomes.kinds, compared.kinds);
+        assert_eq!(all.outcomes.offsets, compared.offsets);
+        for (a, b) in all.outcomes.fractions.iter().zip(&compared.fractions) {
+            assert!(a == b || (a.is_nan() && b.is_nan()));
+        }
+        assert_eq!(
+            all.outcomes.kinds,
+            vec![Kind::Back, Kind::Distinct, Kind::Back]
+        );
+        assert!(
+            all.outcomes.fractions[1] > 0.5,
+            "{:?}",
+            all.outcomes.fractions
+        );
+        // The half turn settles the verdict (it explains more than half the result's
+        // fraction): the restart after it never runs.
+        let stop = stop_at(0.5, None);
+        let early = run(&stop);
+        assert_eq!(early.outcomes.kinds, vec![Kind::Back, Kind::Distinct]);
+        assert_eq!(early.poses[..], all.poses[..18]);
+        // A stated start uncertainty that rules the half turn out: no stop.
+        static INFO: [f64; 9] = [1e4, 0.0, 0.0, 0.0, 1e4, 0.0, 0.0, 0.0, 1e4];
+        static START: [f64; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
+        let ruled_out = stop_at(
+            0.5,
+            Some(Implausible {
+                start: &START,
+                information: &INFO,
+                chi2,
+            }),
+        );
+        assert_eq!(run(&ruled_out).outcomes.kinds.len(), 3);
+        // Bad input is named.
+        let bad = probe_restarts(
+            &src,
+            &tgt,
+            &settings,
+            &result,
+            &starts[..5],
+            None,
+            0.0,
+            1.0,
+            tight,
+            None,
+            chi2,
+            &never,
+        );
+        assert!(bad.unwrap_err().to_string().contains("init_poses"));
+    }
+
     #[test]
     fn se3_log_matches_a_known_transform() {
         // A turn of 0.3 rad about z with ρ = (1, 0, 0): t = V(φ) ρ.
