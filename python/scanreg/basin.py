@@ -91,6 +91,8 @@ HOME_SHRINK = 0.9
 _DISTINCT = 3
 #: χ²(dof) at 99.9 %: an alternative inside this Mahalanobis distance is the same answer.
 CHI2_999 = {3: 16.266, 6: 22.458}
+#: A probe without restarts reports a zero offset and growth: read-only, shared.
+_ZEROS = {dof: (_frozen(np.zeros(dof)), _frozen(np.zeros((dof, dof)))) for dof in (3, 6)}
 
 #: The screen (:func:`basin_doubts`): the restarts run only when one of these cheap signals
 #: doubts the basin. Measured on the wrong-start benchmark's Intel and MbICP results that the
@@ -465,8 +467,6 @@ def probe_basin(
     else:
         tight, here = tight_overlap
     near_move = 0.5 * gate if math.isfinite(gate) else 5.0 * tight
-    cov = np.asarray(covariance, dtype=np.float64)
-    finite = bool(np.isfinite(cov).all())
     evidence: tuple[str, ...] = ()
     lookalike = (0.0, 0.0)
     if screen:
@@ -491,21 +491,27 @@ def probe_basin(
         evidence = doubts()
         if lookalike_signal and not evidence and isinstance(pose, SE2) and here > 0.0:
             # The dearest signal (a dozen neighbour passes) only where the others are silent.
-            lookalike = along_axis_lookalike(index, source, pose, cov, tight, gate)
+            lookalike = along_axis_lookalike(
+                index, source, pose, np.asarray(covariance, dtype=np.float64), tight, gate
+            )
             evidence = doubts(lookalike=lookalike)
         if not evidence:
+            # Nothing doubts the result (most calls): the shared read-only zeros.
+            zero_offset, zero_growth = _ZEROS[dof]
             return BasinProbe(
                 overlap=here,
                 gate=tight,
                 alternative=None,
                 alternative_overlap=0.0,
-                offset=np.zeros(dof),
+                offset=zero_offset,
                 restarts=0,
                 distinct=0,
                 covered=0,
-                growth=_frozen(np.zeros((dof, dof))),
+                growth=zero_growth,
                 seconds=time.perf_counter() - t0,
             )
+    cov = np.asarray(covariance, dtype=np.float64)
+    finite = bool(np.isfinite(cov).all())
     implausible = _beyond(start, stated_prior, dof) if start is not None else None
     cover = cov
     best: tuple[float, SE2 | SE3, FloatArray] | None = None
