@@ -86,7 +86,7 @@ COS_1DEG = math.cos(math.radians(1.0))
 #: A restart stops when it comes within this fraction of the "back" distances (half the tight
 #: gate, 1°) of the result.
 HOME_SHRINK = 0.9
-#: ``_core.compare_basin_outcomes``'s kind of a distinct outcome (0 failed, 1 back at the
+#: ``_core.probe_restarts``'s kind of a distinct outcome (0 failed, 1 back at the
 #: result, 2 inside its covariance).
 _DISTINCT = 3
 #: χ²(dof) at 99.9 %: an alternative inside this Mahalanobis distance is the same answer.

@@ -198,7 +198,8 @@ _DEFAULT_THRESHOLDS = VerdictThresholds()
 _PLANAR = ("point_to_plane", "point_to_line")
 
 #: The core solve's arguments from ``method`` to ``target_covariances``, in the binding's
-#: order (``_core.register_icp`` and ``_core.register_icp_starts`` share them).
+#: order (``_core.register_icp``, ``_core.register_icp_starts`` and ``_core.probe_restarts``
+#: share them).
 _SolverArgs = tuple[str, str, float, float, int, float, float, str, int, int | None, Any, Any, Any]
 
 
