@@ -466,6 +466,85 @@ def test_outcome_comparison_equals_a_numpy_reference() -> None:
         _core.compare_basin_outcomes(*bad[:3], np.zeros((2, 4, 4)), [True] * 2, tight, None, 1.0)
 
 
+def test_probe_restart_path_in_one_call_equals_its_stages() -> None:
+    """``_core.probe_restarts`` (the probe's correlative start, restarts and comparison in one
+    call) gives, on 1 and 2 threads, the poses of ``register_icp_starts`` from the correlative
+    search's pose and the restart starts, compared as ``compare_basin_outcomes`` compares them;
+    with a stop ratio it reads no outcome after the first far one that explains more; bad
+    input is named. ``count_within`` counts as ``overlap_statistics`` does."""
+    from scanreg import _core
+    from scanreg.basin import restart_offsets
+
+    src, target, truth = _room_pair()
+    args = ("point_to_line", "none", 1.0, 0.5, 6, 1e-4, 1e-4, "gauss_newton", 4)
+    result = SE2.from_matrix(
+        np.asarray(
+            _core.register_icp(
+                src, target.index, truth.as_matrix(), *args, 1, None, target.normals
+            ).pose
+        )
+    )
+    starts = np.stack([(result @ o).as_matrix() for o in restart_offsets(2, 0.5)])
+    res, step = 0.15, math.radians(4.0)
+    grid = _core.CorrelativeGrid(target.points, res, res, 6)
+    centre = result.as_vector()
+    match = grid.search(
+        np.ascontiguousarray(src[::2]), tuple(centre), 7, 7, 45, step, "branch_and_bound", 0
+    )
+    first = SE2.from_vector(np.asarray(match.pose)).as_matrix()
+    tight, cov = 0.05, np.diag([1e-4, 1e-4, 1e-5])
+    home = (0.9 * 0.5 * tight, math.cos(math.radians(0.9)))
+    for threads in (1, 2):
+        expected, reasons = _core.register_icp_starts(
+            src, target.index, np.concatenate([first[None], starts]), *args, threads, None,
+            target.normals, None, None, True, result.as_matrix(), *home,
+        )  # fmt: skip
+        usable = [r in ("converged", "max_iterations") for r in reasons]
+        kinds0, offsets0, fractions0 = _core.compare_basin_outcomes(
+            target.index, src, result.as_matrix(), expected, usable, tight, cov, CHI2_3_999
+        )
+
+        def probe(stop_ratio: float, threads: int = threads) -> Any:
+            return _core.probe_restarts(
+                src, target.index, starts, *args, threads, None, target.normals, None, None,
+                True, result.as_matrix(), *home, grid, 2, 7, 45, step, tight, cov, CHI2_3_999,
+                1.0, stop_ratio, 0.25, math.radians(10.0), None, None, CHI2_3_999,
+            )  # fmt: skip
+
+        kinds, offsets, fractions, poses = probe(math.inf)
+        assert np.array_equal(poses, expected)
+        assert list(kinds) == list(kinds0) and np.array_equal(offsets, offsets0)
+        assert np.array_equal(fractions, fractions0, equal_nan=True)
+        # The square room's quarter turns explain it about as well: a stop ratio (against a
+        # result's fraction of 1) below the first far outcome's fraction stops there.
+        far = [
+            i
+            for i, (k, e) in enumerate(zip(kinds, offsets, strict=True))
+            if k == 3 and (np.hypot(e[0], e[1]) > 0.25 or abs(e[2]) > math.radians(10.0))
+        ]
+        assert far, kinds
+        assert fractions[far[0]] > 0.0
+        kinds_s, _, _, poses_s = probe(0.5 * fractions[far[0]])
+        assert len(kinds_s) == far[0] + 1 and np.array_equal(poses_s, expected[: far[0] + 1])
+    with pytest.raises(ValueError, match="implausible_start, implausible_information"):
+        _core.probe_restarts(
+            src, target.index, starts, *args, 1, None, target.normals, None, None, True,
+            result.as_matrix(), *home, grid, 2, 7, 45, step, tight, cov, CHI2_3_999, 1.0,
+            math.inf, 0.25, 0.2, np.eye(3), None, CHI2_3_999,
+        )  # fmt: skip
+    with pytest.raises(ValueError, match="covariance: expected shape"):
+        _core.probe_restarts(
+            src, target.index, starts, *args, 1, None, target.normals, None, None, True,
+            result.as_matrix(), *home, None, 2, 7, 45, step, tight, np.eye(2), CHI2_3_999, 1.0,
+            math.inf, 0.25, 0.2, None, None, CHI2_3_999,
+        )  # fmt: skip
+    for gate in (0.01, 0.05, 0.3):
+        found = _core.overlap_statistics(target.index, src, result.as_matrix(), gate)[0]
+        assert _core.count_within(target.index, src, result.as_matrix(), gate) == found
+    with pytest.raises(ValueError, match="max_distance"):
+        _core.count_within(target.index, src, result.as_matrix(), -1.0)
+
+
 def _corridor_with_posts(spacing: list[float]) -> np.ndarray:
     """Two walls 3 m apart, 24 m long, sampled every 5 cm, with 0.4 m posts standing out of
     both walls at ``spacing`` (x positions), each face sampled every 2 cm."""

@@ -24,13 +24,14 @@ a Gaussian cannot cover two poses 90° apart.
 The restarts run only when cheap evidence doubts the basin (:func:`basin_doubts`: a low fit
 margin, a move beyond 1σ of the start's covariance, symmetric walls, and on request in 2D a
 look-alike pose along the least-determined translation): a result nothing doubts costs one
-nearest-neighbour pass and a histogram. The restarts themselves are one core call
-(``_core.register_icp_starts``), their solves in parallel, each stopping as soon as it comes
-back to the result, and their outcomes are compared with the result in one more
-(``_core.compare_basin_outcomes``: back, inside the covariance, or distinct with its offset and
-tight-gate overlap). In 3D the restarts are three yaw
-turns (90°, −90°, 180°) and the tight gate is at least the target's point spacing (voxelised
-clouds).
+nearest-neighbour pass and a histogram. The whole restart path is one core call
+(``_core.probe_restarts``): the correlative start, the solves (in waves of the pool's size,
+each stopping as soon as it comes back to the result), and the comparison of each outcome
+with the result as it ends — back, inside the covariance, or distinct with its offset and
+tight-gate overlap —, no restart running after the first outcome that settles the verdict
+(a far one explaining more than ``basin_wrong_ratio`` times the result). In 3D the restarts
+are three yaw turns (90°, −90°, 180°) and the tight gate is at least the target's point
+spacing (voxelised clouds).
 
 Measured (``benchmarks/wrong_start.py``, ``benchmarks/README.md``): on real Intel pairs from
 starts turned by up to ±70° and moved by 0.6 m, the restarts separate wrong from correct
@@ -85,11 +86,13 @@ COS_1DEG = math.cos(math.radians(1.0))
 #: A restart stops when it comes within this fraction of the "back" distances (half the tight
 #: gate, 1°) of the result.
 HOME_SHRINK = 0.9
-#: ``_core.compare_basin_outcomes``'s kind of a distinct outcome (0 failed, 1 back at the
+#: ``_core.probe_restarts``'s kind of a distinct outcome (0 failed, 1 back at the
 #: result, 2 inside its covariance).
 _DISTINCT = 3
 #: χ²(dof) at 99.9 %: an alternative inside this Mahalanobis distance is the same answer.
 CHI2_999 = {3: 16.266, 6: 22.458}
+#: A probe without restarts reports a zero offset and growth: read-only, shared.
+_ZEROS = {dof: (_frozen(np.zeros(dof)), _frozen(np.zeros((dof, dof)))) for dof in (3, 6)}
 
 #: The screen (:func:`basin_doubts`): the restarts run only when one of these cheap signals
 #: doubts the basin. Measured on the wrong-start benchmark's Intel and MbICP results that the
@@ -210,39 +213,6 @@ def _restart_offsets(dim: int, gate: float) -> tuple[SE2 | SE3, ...]:
             else SE3.from_vector([dx, dy, 0.0, 0.0, 0.0, a])
         )
     return tuple(out)
-
-
-def _correlative_start(
-    pose: SE2 | SE3,
-    source: FloatArray,
-    target_points: FloatArray,
-    gate: float,
-    grid_of: Callable[[float], Any] | None = None,
-) -> SE2:
-    """2D: the best pose of a coarse correlative search (the core's branch and bound) over
-    every heading and ±2 gates of translation around ``pose``: a start in the right basin
-    when the result is turned *and* moved (the turns and half-gate moves of the restarts
-    reach one or the other). Cells and blur of ``CORRELATIVE_CELL_FRACTION`` of the gate, steps
-    of ``CORRELATIVE_ANGLE_DEG``."""
-    res = CORRELATIVE_CELL_FRACTION * gate
-    # ``grid_of(res)``: the same grid kept by the target (PreparedTarget._probe_grid).
-    grid = _core.CorrelativeGrid(target_points, res, res, 6) if grid_of is None else grid_of(res)
-    centre = pose.as_vector()
-    n = math.ceil(CORRELATIVE_WINDOW_GATES * gate / res)
-    step = math.radians(CORRELATIVE_ANGLE_DEG)
-    # The search only has to land in the right basin: every k-th point is enough.
-    stride = max(1, len(source) // CORRELATIVE_MAX_POINTS)
-    match = grid.search(
-        np.ascontiguousarray(source[::stride]),
-        (float(centre[0]), float(centre[1]), float(centre[2])),
-        n,
-        n,
-        math.ceil(math.pi / step),
-        step,
-        "branch_and_bound",
-        0,
-    )
-    return SE2.from_vector(np.asarray(match.pose))
 
 
 def orientation_symmetry(points: FloatArray, normals: FloatArray) -> float:
@@ -367,18 +337,26 @@ def _beyond(
 ) -> Callable[[SE2 | SE3], bool] | None:
     """Whether a pose lies beyond χ² (99.9 %) of ``start`` under ``covariance`` (None when no
     usable covariance was stated)."""
-    if covariance is None:
+    info = _stated_information(covariance, dof)
+    if info is None:
         return None
-    cov = np.asarray(covariance, dtype=np.float64)
-    if cov.shape != (dof, dof) or not np.isfinite(cov).all():
-        return None
-    info = np.linalg.pinv(0.5 * (cov + cov.T), hermitian=True)
 
     def beyond(pose: SE2 | SE3) -> bool:
         e = _relative_log(start, pose)
         return bool(float(e @ info @ e) > CHI2_999[dof])
 
     return beyond
+
+
+def _stated_information(covariance: FloatArray | None, dof: int | None = None) -> FloatArray | None:
+    """The pseudo-inverse of a stated ``(dof, dof)`` covariance (None when it is not one)."""
+    if covariance is None:
+        return None
+    cov = np.asarray(covariance, dtype=np.float64)
+    if (dof is not None and cov.shape != (dof, dof)) or not np.isfinite(cov).all():
+        return None
+    info = np.asarray(np.linalg.pinv(0.5 * (cov + cov.T), hermitian=True), dtype=np.float64)
+    return info
 
 
 def _relative_log(a: SE2 | SE3, b: SE2 | SE3) -> FloatArray:
@@ -422,12 +400,13 @@ def tight_gate(
 
 
 def _fraction(index: Any, source: FloatArray, pose: SE2 | SE3, gate: float) -> float:
-    found = _core.overlap_statistics(index, source, pose.as_matrix(), gate)[0]
+    # Counted in the core, each query stopping at the first target point inside the gate.
+    found = _core.count_within(index, source, pose.as_matrix(), gate)
     return float(found) / float(source.shape[0])
 
 
 def probe_basin(
-    solve: Callable[..., tuple[FloatArray, list[str]]],
+    solve: Callable[..., Any],
     index: Any,
     source: FloatArray,
     pose: SE2 | SE3,
@@ -450,10 +429,10 @@ def probe_basin(
     symmetry: float | None = None,
 ) -> BasinProbe:
     """Restart ``solve`` around ``pose`` (see the module docstring): the registration's own
-    solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations, home=(pose,
-    radius, cos_angle)) -> (poses (K, D+1, D+1), stop reasons)`` (the core's
-    ``register_icp_starts``; a solve stops on arriving within ``radius`` and the angle of
-    ``home``).
+    solve from several starts at once, ``(starts (K, D+1, D+1), max_iterations, probe=(...))
+    -> (kinds, offsets, fractions, poses)``: the core's ``probe_restarts`` with the
+    registration's settings, ``probe`` holding its arguments after them (the correlative
+    start, the home a restart stops at, the comparison with the result and where to stop).
 
     ``index`` is the target's k-d tree or map, ``source`` the registered source points,
     ``covariance`` the result's ``(dof, dof)`` covariance (non-finite: only the fixed
@@ -488,8 +467,6 @@ def probe_basin(
     else:
         tight, here = tight_overlap
     near_move = 0.5 * gate if math.isfinite(gate) else 5.0 * tight
-    cov = np.asarray(covariance, dtype=np.float64)
-    finite = bool(np.isfinite(cov).all())
     evidence: tuple[str, ...] = ()
     lookalike = (0.0, 0.0)
     if screen:
@@ -514,27 +491,35 @@ def probe_basin(
         evidence = doubts()
         if lookalike_signal and not evidence and isinstance(pose, SE2) and here > 0.0:
             # The dearest signal (a dozen neighbour passes) only where the others are silent.
-            lookalike = along_axis_lookalike(index, source, pose, cov, tight, gate)
+            lookalike = along_axis_lookalike(
+                index, source, pose, np.asarray(covariance, dtype=np.float64), tight, gate
+            )
             evidence = doubts(lookalike=lookalike)
         if not evidence:
+            # Nothing doubts the result (most calls): the shared read-only zeros.
+            zero_offset, zero_growth = _ZEROS[dof]
             return BasinProbe(
                 overlap=here,
                 gate=tight,
                 alternative=None,
                 alternative_overlap=0.0,
-                offset=np.zeros(dof),
+                offset=zero_offset,
                 restarts=0,
                 distinct=0,
                 covered=0,
-                growth=_frozen(np.zeros((dof, dof))),
+                growth=zero_growth,
                 seconds=time.perf_counter() - t0,
             )
+    cov = np.asarray(covariance, dtype=np.float64)
+    finite = bool(np.isfinite(cov).all())
     implausible = _beyond(start, stated_prior, dof) if start is not None else None
     cover = cov
     best: tuple[float, SE2 | SE3, FloatArray] | None = None
     distinct = 0
     covered = 0
     first: list[FloatArray] = []
+    # The correlative start (2D) is searched in the core, first of the restarts.
+    grid = None
     if (
         CORRELATIVE_START
         and dim == 2
@@ -542,8 +527,12 @@ def probe_basin(
         and math.isfinite(gate)
         and len(target_points)
     ):
-        first.append(
-            _correlative_start(pose, source, target_points, gate, correlative_grid).as_matrix()
+        res = CORRELATIVE_CELL_FRACTION * gate
+        # ``grid_of(res)``: the same grid kept by the target (PreparedTarget._probe_grid).
+        grid = (
+            _core.CorrelativeGrid(target_points, res, res, 6)
+            if correlative_grid is None
+            else correlative_grid(res)
         )
     if lookalike[0] != 0.0 and any(e.startswith("look-alike") for e in evidence):
         # The look-alike itself first: the turns and half-gate moves may not reach it.
@@ -560,35 +549,43 @@ def probe_basin(
     starts[len(first) :, :dim, :dim] = np.matmul(pose.rotation, rot)
     starts[len(first) :, :dim, dim] = np.matmul(pose.rotation, trans)[..., 0] + pose.translation
     starts[:, dim, dim] = 1.0
-    # Every restart in one core call, in parallel; read in order below, so the early stop
-    # leaves the same outcome (and count) as restarting one by one.
-    # A restart that comes back to the result stops there (the core's ``home``): it has
-    # answered, and would only refine the same pose. A shade inside the comparison's "back"
-    # test below, so that the rounding of the two never tells them apart.
-    poses, reasons = solve(
+    near_turn = math.radians(NEAR_ROTATION_DEG)
+    # The whole restart path in one core call (``_core.probe_restarts``): the correlative
+    # start, then every restart, each compared with the result as it ends — back at it, inside
+    # its covariance, or distinct with its offset and tight-gate overlap — and no restart
+    # after the first far distinct outcome that settles the verdict (the loop below stops at
+    # the same one). A restart that comes back to the result stops there (``home``): it has
+    # answered, and would only refine the same pose; a shade inside the comparison's "back"
+    # test, so that the rounding of the two never tells them apart.
+    step = math.radians(CORRELATIVE_ANGLE_DEG)
+    res = CORRELATIVE_CELL_FRACTION * gate if grid is not None else 1.0
+    stated = None if implausible is None or stated_prior is None else start
+    kinds, tangents, fractions, poses = solve(
         starts,
         RESTART_ITERATIONS,
-        home=(
-            pose.as_matrix(),
-            HOME_SHRINK * 0.5 * tight,
-            math.cos(HOME_SHRINK * math.radians(1.0)),
+        probe=(
+            pose.as_matrix(),  # result
+            HOME_SHRINK * 0.5 * tight,  # home_radius
+            math.cos(HOME_SHRINK * math.radians(1.0)),  # home_cos_angle
+            grid,
+            max(1, len(source) // CORRELATIVE_MAX_POINTS),  # stride: every k-th point
+            math.ceil(CORRELATIVE_WINDOW_GATES * gate / res) if grid is not None else 0,
+            math.ceil(math.pi / step),  # ntheta
+            step,
+            tight,
+            cov if finite else None,
+            CHI2_999[dof],
+            here,
+            stop_ratio,
+            near_move,
+            near_turn,
+            None if stated is None else stated.as_matrix(),  # implausible_start
+            None if stated is None else _stated_information(stated_prior),
+            CHI2_999[dof],
         ),
-    )
-    # One core call compares them with the result: most come back to it or stay inside its
-    # covariance; the distinct ones come with their offset and their tight-gate overlap.
-    kinds, tangents, fractions = _core.compare_basin_outcomes(
-        index,
-        source,
-        pose.as_matrix(),
-        poses,
-        [r in ("converged", "max_iterations") for r in reasons],
-        tight,
-        cov if finite else None,
-        CHI2_999[dof],
     )
     ran = len(kinds)
     kind = SE2 if dim == 2 else SE3
-    near_turn = math.radians(NEAR_ROTATION_DEG)
     for i, k in enumerate(kinds):
         if k != _DISTINCT:
             continue

@@ -45,6 +45,13 @@ fn grid_array(
     Ok(data.into_pyarray(py).reshape([shape.1, shape.0])?.unbind())
 }
 
+impl CorrelativeGrid {
+    /// The core's grid (the wrong-basin probe's restart call searches it).
+    pub(crate) fn inner(&self) -> &LikelihoodGrid {
+        &self.inner
+    }
+}
+
 #[pymethods]
 impl CorrelativeGrid {
     #[new]

@@ -66,6 +66,32 @@ fn overlap_statistics(
     ))
 }
 
+/// How many `source` points, moved by `pose_matrix`, have a target point within `max_distance`
+/// (inclusive): `overlap_statistics`'s `num_found` without its statistics, each query stopping
+/// at the first point inside (the wrong-basin screen's tight-gate overlap).
+#[pyfunction]
+fn count_within(
+    py: Python<'_>,
+    target: &Bound<'_, PyAny>,
+    source: PyReadonlyArray2<'_, f64>,
+    pose_matrix: PyReadonlyArray2<'_, f64>,
+    max_distance: f64,
+) -> PyResult<usize> {
+    let held = target_search(target)?;
+    let search = held.search();
+    let dim = search.dim();
+    let src = points_dim(&source, "source", dim)?;
+    let pm = pose(&pose_matrix, "pose_matrix", dim)?;
+    let max_sq = check_max_distance("max_distance", max_distance).map_err(core_err)?;
+    let (r, t) = scanreg_core::points::split_pose("pose_matrix", pm, dim).map_err(core_err)?;
+    py.detach(|| {
+        in_pool_unless_small(src.len() / dim, None, || {
+            basin::within(search, src, &r, &t, max_sq)
+        })
+    })
+    .map_err(core_err)
+}
+
 /// `(mean, median)` halves of `sin²` between the tree's normals and their nearest neighbour's.
 #[pyfunction]
 fn target_normal_noise(
@@ -254,6 +280,7 @@ fn compare_basin_outcomes(
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(compare_basin_outcomes, m)?)?;
+    m.add_function(wrap_pyfunction!(count_within, m)?)?;
     m.add_function(wrap_pyfunction!(normal_agreement_systems, m)?)?;
     m.add_function(wrap_pyfunction!(overlap_statistics, m)?)?;
     m.add_function(wrap_pyfunction!(target_normal_noise, m)?)?;

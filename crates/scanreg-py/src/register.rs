@@ -11,6 +11,7 @@ use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray2, PyReado
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
+use scanreg_core::basin;
 use scanreg_core::icp::{self, Method, Optimizer, Settings, Source, Target};
 use scanreg_core::lie::nearest_rotation_2d;
 use scanreg_core::threads::in_pool;
@@ -434,9 +435,189 @@ fn register_icp_starts<'py>(
     Ok((arr.into_pyarray(py), reasons))
 }
 
+/// A `(D+1, D+1)` or `(dof, dof)` array's values, checked for its shape.
+fn square_of<'a>(
+    a: &'a Option<PyReadonlyArray2<'_, f64>>,
+    arg: &'static str,
+    n: usize,
+) -> PyResult<Option<&'a [f64]>> {
+    a.as_ref()
+        .map(|a| {
+            if a.shape() != [n, n] {
+                return Err(PyValueError::new_err(format!(
+                    "{arg}: expected shape ({n}, {n}), got {:?}",
+                    a.shape()
+                )));
+            }
+            c_slice(a, arg)
+        })
+        .transpose()
+}
+
+type Probed<'py> = (
+    Vec<u8>,
+    Bound<'py, PyArray2<f64>>,
+    Vec<f64>,
+    Bound<'py, PyArray3<f64>>,
+);
+
+#[pyfunction]
+// By position, as `register_icp_starts` up to `extrapolate`; then the probe's own.
+#[pyo3(signature = (
+    source, target, init_poses, method, kernel, kernel_scale, max_correspondence_distance,
+    max_iterations, translation_tolerance, rotation_tolerance, optimizer, min_correspondences,
+    num_threads, source_covariances, target_normals, target_covariances, step_projector,
+    extrapolate, result, home_radius, home_cos_angle, grid, stride, half_width, ntheta,
+    angular_step, tight, covariance, chi2, here, stop_ratio, near_move, near_turn,
+    implausible_start, implausible_information, implausible_chi2
+))]
+#[allow(clippy::too_many_arguments)]
+/// The wrong-basin probe's restart path in one call (`scanreg_core::basin::probe_restarts`):
+/// the correlative start on `grid` (2D, when given), the registration from it and from each of
+/// `init_poses` (`(K, D+1, D+1)`; a solve that comes back within `home_radius` and a rotation
+/// of cosine `home_cos_angle` of `result` stops there), each outcome compared with `result`
+/// as `compare_basin_outcomes` does, and no more restarts after the first far distinct one
+/// (beyond `near_move` / `near_turn`, not beyond `implausible_chi2` of `implausible_start`)
+/// explaining more than `stop_ratio × here`. Returns `(kinds, offsets (K', dof), fractions,
+/// poses (K', D+1, D+1))` for the `K'` outcomes read, the correlative start's first.
+fn probe_restarts<'py>(
+    py: Python<'py>,
+    source: PyReadonlyArray2<'_, f64>,
+    target: &Bound<'_, PyAny>,
+    init_poses: PyReadonlyArray3<'_, f64>,
+    method: &str,
+    kernel: &str,
+    kernel_scale: f64,
+    max_correspondence_distance: f64,
+    max_iterations: usize,
+    translation_tolerance: f64,
+    rotation_tolerance: f64,
+    optimizer: &str,
+    min_correspondences: usize,
+    num_threads: Option<usize>,
+    source_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    target_normals: Option<PyReadonlyArray2<'_, f64>>,
+    target_covariances: Option<PyReadonlyArray3<'_, f64>>,
+    step_projector: Option<PyReadonlyArray2<'_, f64>>,
+    extrapolate: bool,
+    result: PyReadonlyArray2<'_, f64>,
+    home_radius: f64,
+    home_cos_angle: f64,
+    grid: Option<PyRef<'_, crate::correlative::CorrelativeGrid>>,
+    stride: usize,
+    half_width: i64,
+    ntheta: i64,
+    angular_step: f64,
+    tight: f64,
+    covariance: Option<PyReadonlyArray2<'_, f64>>,
+    chi2: f64,
+    here: f64,
+    stop_ratio: f64,
+    near_move: f64,
+    near_turn: f64,
+    implausible_start: Option<PyReadonlyArray2<'_, f64>>,
+    implausible_information: Option<PyReadonlyArray2<'_, f64>>,
+    implausible_chi2: f64,
+) -> PyResult<Probed<'py>> {
+    let correlative = grid.as_ref().map(|g| basin::CorrelativeStart {
+        grid: g.inner(),
+        stride,
+        half_width,
+        ntheta,
+        angular_step,
+    });
+    let (dim, out) = with_inputs(
+        py,
+        &source,
+        |dim| {
+            let shape = init_poses.shape();
+            if shape[1] != dim + 1 || shape[2] != dim + 1 {
+                return Err(PyValueError::new_err(format!(
+                    "init_poses: expected shape (K, {0}, {0}), got {shape:?}",
+                    dim + 1
+                )));
+            }
+            let dof = if dim == 2 { 3 } else { 6 };
+            let res = pose(&result, "result", dim)?;
+            let cov = square_of(&covariance, "covariance", dof)?;
+            let implausible = match (
+                square_of(&implausible_start, "implausible_start", dim + 1)?,
+                square_of(&implausible_information, "implausible_information", dof)?,
+            ) {
+                (Some(start), Some(information)) => Some(basin::Implausible {
+                    start,
+                    information,
+                    chi2: implausible_chi2,
+                }),
+                (None, None) => None,
+                _ => {
+                    return Err(PyValueError::new_err(
+                        "implausible_start, implausible_information: give both or neither",
+                    ))
+                }
+            };
+            Ok((c_slice(&init_poses, "init_poses")?, res, cov, implausible))
+        },
+        true,
+        target,
+        method,
+        kernel,
+        kernel_scale,
+        max_correspondence_distance,
+        max_iterations,
+        translation_tolerance,
+        rotation_tolerance,
+        optimizer,
+        min_correspondences,
+        num_threads,
+        &source_covariances,
+        &target_normals,
+        &target_covariances,
+        &step_projector,
+        extrapolate,
+        |(inits, res, cov, implausible), src_in, tgt_in, settings| {
+            let stop = basin::Stop {
+                here,
+                stop_ratio,
+                near_move,
+                near_turn,
+                implausible,
+            };
+            basin::probe_restarts(
+                src_in,
+                tgt_in,
+                settings,
+                res,
+                inits,
+                correlative.as_ref(),
+                home_radius,
+                home_cos_angle,
+                tight,
+                cov,
+                chi2,
+                &stop,
+            )
+        },
+    )?;
+    let dof = if dim == 2 { 3 } else { 6 };
+    let m = dim + 1;
+    let k = out.outcomes.kinds.len();
+    let offsets = numpy::ndarray::Array2::from_shape_vec((k, dof), out.outcomes.offsets)
+        .map_err(|e| PyValueError::new_err(format!("internal: {e}")))?;
+    let poses = numpy::ndarray::Array3::from_shape_vec((k, m, m), out.poses)
+        .map_err(|e| PyValueError::new_err(format!("internal: {e}")))?;
+    Ok((
+        out.outcomes.kinds.into_iter().map(|v| v as u8).collect(),
+        offsets.into_pyarray(py),
+        out.outcomes.fractions,
+        poses.into_pyarray(py),
+    ))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<IcpOutcome>()?;
     m.add_function(wrap_pyfunction!(register_icp, m)?)?;
     m.add_function(wrap_pyfunction!(register_icp_starts, m)?)?;
+    m.add_function(wrap_pyfunction!(probe_restarts, m)?)?;
     Ok(())
 }

@@ -138,43 +138,78 @@ pub fn register_many(
     home: Option<&Home>,
 ) -> Result<Vec<Outcome>> {
     use rayon::prelude::*;
-    let dim = target.search.dim();
-    let m = (dim + 1) * (dim + 1);
+    let solver = Restarts::new(source, target, settings, home)?;
+    let m = solver.pose_len();
     if !inits.len().is_multiple_of(m) {
         return Err(Error::invalid(
             "init_poses",
             format!("expected a multiple of {m} values, got {}", inits.len()),
         ));
     }
-    let mut pr = problem(source, target, settings)?;
-    if home.is_some() {
-        pr.certify = false;
-    }
     for init in inits.chunks_exact(m) {
-        split_pose("init", init, dim)?;
+        split_pose("init", init, solver.dim)?;
     }
-    if let Some(h) = home {
-        split_pose("home", &h.pose, dim)?;
-        if !(h.radius.is_finite() && h.radius >= 0.0 && h.cos_angle.is_finite()) {
-            return Err(Error::invalid(
-                "home",
-                "radius must be finite and >= 0, cos_angle finite",
-            ));
-        }
-    }
-    let solve = |init: &[f64]| {
-        if dim == 2 {
-            centred::run_home::<Planar, 2, 3>(&pr, init, settings, home)
-        } else {
-            centred::run_home::<Spatial, 3, 6>(&pr, init, settings, home)
-        }
-    };
     // With one thread in the pool, handing the solves to it only adds a wake-up and its idle
     // spin: run them here, in the same order (each solve is independent).
     if rayon::current_num_threads() == 1 {
-        return Ok(inits.chunks_exact(m).map(solve).collect());
+        return Ok(inits.chunks_exact(m).map(|i| solver.solve(i)).collect());
     }
-    Ok(inits.par_chunks_exact(m).map(solve).collect())
+    Ok(inits.par_chunks_exact(m).map(|i| solver.solve(i)).collect())
+}
+
+/// The solves of [`register_many`] one start at a time, the problem (its checks of the
+/// inputs) built once: the wrong-basin probe ([`crate::basin::probe_restarts`]) solves its
+/// restarts in order and stops as soon as one settles the verdict.
+pub struct Restarts<'a> {
+    pr: Problem<'a>,
+    settings: &'a Settings,
+    home: Option<&'a Home>,
+    dim: usize,
+}
+
+impl<'a> Restarts<'a> {
+    /// Checks the inputs as [`register`] does, and `home` (see [`Home`]).
+    pub fn new(
+        source: &'a Source<'a>,
+        target: &'a Target<'a>,
+        settings: &'a Settings,
+        home: Option<&'a Home>,
+    ) -> Result<Self> {
+        let dim = target.search.dim();
+        let mut pr = problem(source, target, settings)?;
+        if let Some(h) = home {
+            // A restart is read for where it ends: certificates would only serve a final
+            // evaluation it skips, and never settle a search when the start moves this far.
+            pr.certify = false;
+            split_pose("home", &h.pose, dim)?;
+            if !(h.radius.is_finite() && h.radius >= 0.0 && h.cos_angle.is_finite()) {
+                return Err(Error::invalid(
+                    "home",
+                    "radius must be finite and >= 0, cos_angle finite",
+                ));
+            }
+        }
+        Ok(Restarts {
+            pr,
+            settings,
+            home,
+            dim,
+        })
+    }
+
+    /// Values in one row-major homogeneous pose.
+    pub fn pose_len(&self) -> usize {
+        (self.dim + 1) * (self.dim + 1)
+    }
+
+    /// The registration from `init` (checked by the caller: a valid homogeneous pose).
+    pub fn solve(&self, init: &[f64]) -> Outcome {
+        if self.dim == 2 {
+            centred::run_home::<Planar, 2, 3>(&self.pr, init, self.settings, self.home)
+        } else {
+            centred::run_home::<Spatial, 3, 6>(&self.pr, init, self.settings, self.home)
+        }
+    }
 }
 
 /// A pose [`register_many`]'s solves stop at on arrival: within `radius` (translation of

@@ -13,6 +13,11 @@ pub trait NeighborSearch: Sync {
     fn points(&self) -> &[f64];
     /// Nearest point within the squared gate `max_sq`, as `(id, squared distance)`.
     fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)>;
+    /// Whether any point lies within the squared gate `max_sq` (inclusive): the answer of
+    /// `nearest_within(q, max_sq).is_some()`, where the index can stop at the first one.
+    fn any_within(&self, q: &[f64], max_sq: f64) -> bool {
+        self.nearest_within(q, max_sq).is_some()
+    }
     /// [`Self::nearest_within`] with a likely answer `hint` when there is one (the previous
     /// iteration's correspondence); the same result, found faster where the index can use it.
     fn nearest_within_hinted(
@@ -65,6 +70,9 @@ impl NeighborSearch for KdTree {
     }
     fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
         KdTree::nearest_within(self, q, max_sq)
+    }
+    fn any_within(&self, q: &[f64], max_sq: f64) -> bool {
+        KdTree::any_within(self, q, max_sq)
     }
     fn nearest_within_hinted(
         &self,
