@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scanreg import SE2, SE3
 from scanreg import graph as G
@@ -96,6 +96,7 @@ def test_relative_covariance_of_an_edge_is_the_edge_covariance(dim: int) -> None
         np.testing.assert_allclose(back, ad @ cov @ ad.T, rtol=1e-5, atol=1e-10)
 
 
+@example(vec=[0.0] * 6, delta=[0.28125, 0.5, 1e-10, 0.0, 0.0, 0.0], seed=0)
 @settings(max_examples=40, deadline=None)
 @given(
     vec=st.lists(st.floats(-3, 3), min_size=6, max_size=6),
@@ -118,9 +119,14 @@ def test_conversion_round_trip_and_frame(vec: list[float], delta: list[float], s
         gp = g._to_gtsam(pose)
         ours = (pose @ type(pose).exp(d)).as_matrix()
         theirs = gp.retract(G._perm(dim) @ d).matrix()
-        # 1e-7: gtsam's Pose2 exponential loses ~2.5e-8 m to cancellation at |θ| ≈ 1e-9
-        # (hypothesis found δ = (0.5, 0.039, 1e-9)); ours is exact there.
-        np.testing.assert_allclose(theirs, ours, atol=1e-7)
+        # gtsam's Pose2 exponential forms its translation as (v⊥ − R v⊥)/θ, which loses about
+        # ε·|v|/|θ| to cancellation above its small-angle switch at |θ| = 1e-10 (hypothesis
+        # found δ = (0.5, 0.039, 1e-9): 2.5e-8 m, and (0.28, 0.5, 1e-10): 5.3e-7 m); ours is
+        # exact there.
+        tol = 1e-7
+        if dim == 2 and abs(d[2]) >= 1e-10:
+            tol += 4e-16 * float(np.linalg.norm(d[:2])) / abs(d[2])
+        np.testing.assert_allclose(theirs, ours, atol=tol)
         # A covariance goes through gtsam as a prior and comes back as the marginal.
         g.add_node(0, pose)
         g.add_prior(0, pose, G.information_from_covariance(cov))
