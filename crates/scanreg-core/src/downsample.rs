@@ -67,14 +67,28 @@ pub fn voxel_downsample(
     voxel_size: f64,
     method: VoxelMethod,
 ) -> Result<VoxelGrid> {
-    let n = check_points("points", points, dim)?;
-    let inv = check_voxel_size(voxel_size)?;
+    if (dim != 2 && dim != 3) || !points.len().is_multiple_of(dim) {
+        check_points("points", points, dim)?; // names the problem
+    }
+    let n = points.len() / dim;
+    // The finiteness scan of `check_points` is folded into the keys: a packed key exists only
+    // for finite coordinates, so the points are scanned for NaN/inf separately only where the
+    // keys do not settle it (and in the same order of errors as a scan first).
+    let inv = match check_voxel_size(voxel_size) {
+        Ok(inv) => inv,
+        Err(e) => {
+            check_points("points", points, dim)?;
+            return Err(e);
+        }
+    };
     if n > u32::MAX as usize {
+        check_points("points", points, dim)?;
         return Err(Error::invalid("points", "more than 2^32 - 1 points"));
     }
     if let Some(mut keys) = packed_keys(points, dim, inv) {
         return Ok(group_by_key(&mut keys, points, dim, method));
     }
+    check_points("points", points, dim)?;
     one_pass(points, dim, inv, method).ok_or_else(|| {
         Error::invalid(
             "voxel_size",

@@ -101,11 +101,10 @@ pub fn gicp<G: Group<D, N>, const D: usize, const N: usize>(
     wl: &SMatrix<f64, D, D>,
     e: &SVector<f64, D>,
 ) -> Factor<N> {
-    let a = G::point_jacobian(p);
     let el = rt * e;
-    let wa = wl * a;
+    let wa = G::mul_jacobian(wl, p);
     Factor {
-        curvature: Curvature::Full(a.transpose() * wa),
+        curvature: Curvature::Full(G::jacobian_t_mul(p, &wa)),
         gradient: wa.transpose() * el,
         residual: gicp_residual(wl, &el),
     }

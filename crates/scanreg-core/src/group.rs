@@ -21,6 +21,28 @@ pub trait Group<const D: usize, const N: usize> {
     /// point-to-point Hessian without a `N × N` product per point.
     fn moment_hessian(k: f64, kp: &SVector<f64, D>, rot: &SMatrix<f64, D, D>)
         -> SMatrix<f64, N, N>;
+
+    /// `A(p)ᵀ M`. Each entry is the sum nalgebra's product forms, in its order, with the terms
+    /// of `A`'s structural zeros and the products by its ones left out: `x·0` is a zero and
+    /// `x·1` is `x` exactly, so a nonzero entry comes out to the bit (an exact zero may change
+    /// its sign; inputs are finite). GICP's per-correspondence products in 3D, which were
+    /// most of a factor's arithmetic.
+    #[inline(always)]
+    fn jacobian_t_mul<const C: usize>(
+        p: &SVector<f64, D>,
+        m: &SMatrix<f64, D, C>,
+    ) -> SMatrix<f64, N, C> {
+        Self::point_jacobian(p).transpose() * m
+    }
+
+    /// `M A(p)`, as [`Self::jacobian_t_mul`].
+    #[inline(always)]
+    fn mul_jacobian<const R: usize>(
+        m: &SMatrix<f64, R, D>,
+        p: &SVector<f64, D>,
+    ) -> SMatrix<f64, R, N> {
+        m * Self::point_jacobian(p)
+    }
 }
 
 pub struct Planar;
@@ -94,6 +116,37 @@ impl Group<3, 6> for Spatial {
         b
     }
 
+    #[inline(always)]
+    fn jacobian_t_mul<const C: usize>(
+        p: &Vector3<f64>,
+        m: &SMatrix<f64, 3, C>,
+    ) -> SMatrix<f64, 6, C> {
+        // Aᵀ = [I; [p]×]: row k < 3 is m's row k; the rotation rows pair the two nonzero
+        // entries of A's column in nalgebra's order (row 0, 1, 2 of m).
+        let (x, y, z) = (p.x, p.y, p.z);
+        SMatrix::<f64, 6, C>::from_fn(|r, c| match r {
+            0..=2 => m[(r, c)],
+            3 => -z * m[(1, c)] + y * m[(2, c)],
+            4 => z * m[(0, c)] + -x * m[(2, c)],
+            _ => -y * m[(0, c)] + x * m[(1, c)],
+        })
+    }
+
+    #[inline(always)]
+    fn mul_jacobian<const R: usize>(
+        m: &SMatrix<f64, R, 3>,
+        p: &Vector3<f64>,
+    ) -> SMatrix<f64, R, 6> {
+        // A = [I, −[p]×], columns as in `jacobian_t_mul`.
+        let (x, y, z) = (p.x, p.y, p.z);
+        SMatrix::<f64, R, 6>::from_fn(|r, c| match c {
+            0..=2 => m[(r, c)],
+            3 => m[(r, 1)] * -z + m[(r, 2)] * y,
+            4 => m[(r, 0)] * z + m[(r, 2)] * -x,
+            _ => m[(r, 0)] * -y + m[(r, 1)] * x,
+        })
+    }
+
     fn moment_hessian(k: f64, kp: &Vector3<f64>, rot: &Matrix3<f64>) -> SMatrix<f64, 6, 6> {
         // A = [I, −[p]×]: AᵀA = [[I, −[p]×], [[p]×, [p]×ᵀ[p]×]].
         let mut h = SMatrix::<f64, 6, 6>::zeros();
@@ -104,5 +157,61 @@ impl Group<3, 6> for Spatial {
         h.fixed_view_mut::<3, 3>(3, 0).copy_from(&c);
         h.fixed_view_mut::<3, 3>(3, 3).copy_from(rot);
         h
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A deterministic stream of values in [-50, 50) (xorshift).
+    fn values(seed: u64, count: usize) -> Vec<f64> {
+        let mut s = seed;
+        (0..count)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                (s >> 11) as f64 / (1u64 << 53) as f64 * 100.0 - 50.0
+            })
+            .collect()
+    }
+
+    /// The structured products equal nalgebra's full products with `A(p)` to the bit (for
+    /// nonzero entries, which random data gives everywhere).
+    #[test]
+    fn structured_jacobian_products_equal_the_full_products() {
+        for seed in 1..400u64 {
+            let v = values(seed, 3 + 9 + 18);
+            let p = Vector3::new(v[0], v[1], v[2]);
+            let m = Matrix3::from_row_slice(&v[3..12]);
+            let m63 = SMatrix::<f64, 6, 3>::from_row_slice(&v[12..30]);
+            let a = Spatial::point_jacobian(&p);
+            let full = a.transpose() * m;
+            let fast = Spatial::jacobian_t_mul(&p, &m);
+            assert_eq!(
+                full.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                fast.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+            );
+            let full = m * a;
+            let fast = Spatial::mul_jacobian(&m, &p);
+            assert_eq!(
+                full.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                fast.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+            );
+            let full = m63 * a;
+            let fast = Spatial::mul_jacobian(&m63, &p);
+            assert_eq!(
+                full.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                fast.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+            );
+            let vec = Vector3::new(v[3], v[4], v[5]);
+            let full = a.transpose() * vec;
+            let fast = Spatial::jacobian_t_mul(&p, &vec);
+            assert_eq!(
+                full.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                fast.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+            );
+        }
     }
 }

@@ -24,6 +24,14 @@ pub fn floor_i64(x: f64) -> i64 {
     t - i64::from((t as f64) > x)
 }
 
+/// Whether every value is finite: a branch-free scan per block of 512 (vectorised; `any` or
+/// `position` exit early and are not), so a caller looks for the culprit only when one exists.
+#[inline]
+pub fn all_finite(data: &[f64]) -> bool {
+    data.chunks(512)
+        .all(|c| c.iter().fold(true, |ok, v| ok & v.is_finite()))
+}
+
 /// Check that `data` holds whole `dim`-vectors, all finite, and return their count.
 pub fn check_points(arg: &'static str, data: &[f64], dim: usize) -> Result<usize> {
     if dim != 2 && dim != 3 {
@@ -41,12 +49,7 @@ pub fn check_points(arg: &'static str, data: &[f64], dim: usize) -> Result<usize
             ),
         ));
     }
-    // A branch-free scan first (vectorised; `position` exits early and is not), the position
-    // only when something is wrong.
-    let finite = data
-        .chunks(512)
-        .all(|c| c.iter().fold(true, |ok, v| ok & v.is_finite()));
-    if let Some(i) = (!finite)
+    if let Some(i) = (!all_finite(data))
         .then(|| data.iter().position(|v| !v.is_finite()))
         .flatten()
     {

@@ -364,3 +364,43 @@ fn linear_targets_are_left_out_of_the_plane_information_only() {
     };
     assert!(analyse(&bad, &pose, 2, &opts).is_err());
 }
+
+/// The lower-triangle outer products, mirrored, equal nalgebra's full `x xᵀ` sums to the bit,
+/// and the counting sort gives the sorted pairs.
+#[test]
+fn lower_outer_products_and_pair_order_equal_the_full_forms() {
+    let mut s = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64 * 20.0 - 10.0
+    };
+    let mut full = SMatrix::<f64, 6, 6>::zeros();
+    let mut lower = SMatrix::<f64, 6, 6>::zeros();
+    for _ in 0..500 {
+        let x = SMatrix::<f64, 6, 3>::from_fn(|_, _| next());
+        full += x * x.transpose();
+        add_outer_lower(&mut lower, &x);
+    }
+    let bits = |m: &SMatrix<f64, 6, 6>| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&full), bits(&mirrored(lower)));
+    let corr: Vec<u32> = (0..1000)
+        .map(|_| {
+            let v = next();
+            if v < -8.0 {
+                NONE
+            } else {
+                ((v + 10.0) * 3.0) as u32
+            }
+        })
+        .collect();
+    let mut want: Vec<(u32, u32)> = corr
+        .iter()
+        .enumerate()
+        .filter(|(_, &j)| j != NONE)
+        .map(|(i, &j)| (j, i as u32))
+        .collect();
+    want.sort_unstable();
+    assert_eq!(pairs_by_target(&corr, 61), want);
+}

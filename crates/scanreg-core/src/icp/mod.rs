@@ -57,7 +57,7 @@ fn check_per_point(
             ),
         ));
     }
-    if !validated && data.iter().any(|v| !v.is_finite()) {
+    if !validated && !crate::points::all_finite(data) {
         return Err(Error::invalid(arg, "contains NaN or inf"));
     }
     Ok(())
