@@ -40,6 +40,7 @@
 //! the degeneracy analysis can judge a direction by the information noise does not explain.
 
 use crate::error::{Error, Result};
+use crate::factor;
 use crate::group::{Group, Planar, Spatial};
 use crate::icp::Method;
 use crate::kernel::Kernel;
@@ -256,7 +257,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
     let determined = !(normal.is_some() && input.target_linear.is_some_and(|l| l[j]));
     let plane = plane_normal.map(|n| {
         let m = rt * n;
-        let jrow = m.transpose() * a;
+        let jrow = G::jacobian_t_mul(&p, &m).transpose(); // mᵀA, the same sums
         let info = jrow.transpose() * jrow;
         let sin2 = if from_source || input.source_normals.is_none() {
             None
@@ -308,8 +309,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
         Method::Gicp => {
             let cq: SMatrix<f64, D, D> = mat_at(input.target_covariances?, j);
             let cp: SMatrix<f64, D, D> = mat_at(input.source_covariances?, i);
-            let w = G::inverse(&(cq + r * cp * rt))?;
-            let wl = rt * w * r;
+            let wl = factor::gicp_weight::<G, D, N>(r, &cq, &cp)?;
             let el = rt * e;
             let we = wl * el;
             // `Aᵀ W_l` once for the three products that start with it, and every product with
@@ -320,7 +320,7 @@ fn term<G: Geometry<D, N>, const D: usize, const N: usize>(
                 G::mul_jacobian(&awl, &p),
                 G::jacobian_t_mul(&p, &we),
                 awl + G::c(&we),
-                -(awl * rt),
+                -factor::mul(&awl, &rt),
                 el.dot(&we).max(0.0).sqrt(),
             )
         }

@@ -82,8 +82,25 @@ pub fn gicp_weight<G: Group<D, N>, const D: usize, const N: usize>(
     cp: &SMatrix<f64, D, D>,
 ) -> Option<SMatrix<f64, D, D>> {
     let rt = r.transpose();
-    let w = G::inverse(&(cq + r * cp * rt))?;
-    Some(rt * w * r)
+    let w = G::inverse(&(cq + mul(&mul(r, cp), &rt)))?;
+    Some(mul(&mul(&rt, &w), r))
+}
+
+/// `a b`, each entry summed over `k` in order from the first product, as nalgebra's product
+/// sums it (the same bits), but always inlined: the per-correspondence 3 × 3 products were
+/// calls into nalgebra's generic product.
+#[inline(always)]
+pub fn mul<const R: usize, const K: usize, const C: usize>(
+    a: &SMatrix<f64, R, K>,
+    b: &SMatrix<f64, K, C>,
+) -> SMatrix<f64, R, C> {
+    SMatrix::<f64, R, C>::from_fn(|i, j| {
+        let mut s = a[(i, 0)] * b[(0, j)];
+        for k in 1..K {
+            s += a[(i, k)] * b[(k, j)];
+        }
+        s
+    })
 }
 
 /// GICP's Mahalanobis residual `sqrt(eᵀWe)` from the source-frame weight `wl` and error

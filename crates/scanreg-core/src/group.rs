@@ -205,6 +205,12 @@ mod tests {
                 full.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
                 fast.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
             );
+            let full = m63 * m;
+            let fast = crate::factor::mul(&m63, &m);
+            assert_eq!(
+                full.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                fast.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+            );
             let vec = Vector3::new(v[3], v[4], v[5]);
             let full = a.transpose() * vec;
             let fast = Spatial::jacobian_t_mul(&p, &vec);
