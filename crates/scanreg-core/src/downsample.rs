@@ -408,6 +408,26 @@ mod tests {
         assert!(voxel_downsample(&pts, 2, f64::NAN, VoxelMethod::First).is_err());
     }
 
+    /// The finiteness scan folded into the packed keys still names the first bad point, before
+    /// a bad voxel size, on both paths (packed keys, and the wide keys of a tiny voxel).
+    #[test]
+    fn non_finite_points_are_refused_by_index_on_every_path() {
+        let msg = |r: Result<VoxelGrid>| match r {
+            Err(e) => e.to_string(),
+            Ok(_) => String::from("accepted"),
+        };
+        for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+            let pts = [0.0, 0.0, 1.0, 1.0, bad, 2.0, 3.0, 3.0];
+            for size in [1.0, 1e-12, 0.0, f64::NAN] {
+                let m = msg(voxel_downsample(&pts, 2, size, VoxelMethod::Centroid));
+                assert!(m.contains("point 2 has a non-finite"), "{bad} {size}: {m}");
+            }
+        }
+        let far = [0.0, 0.0, 1e300, 0.0];
+        let m = msg(voxel_downsample(&far, 2, 1.0, VoxelMethod::First));
+        assert!(m.contains("voxel_size"), "{m}");
+    }
+
     #[test]
     fn voxel_grid_matches_a_sorted_reference_packed_and_wide() {
         // Reference: group by key with a BTreeMap (first index, count, sum in input order).
