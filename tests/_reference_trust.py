@@ -46,6 +46,8 @@ class CorrespondenceAnalysis:
     agreement: tuple[Any, Any] | None
     valley: FloatArray | None = None
     sampling: tuple[FloatArray, FloatArray] | None = None
+    #: Analysed at the degeneracy-aware solve's held pose (the first solve's weak directions).
+    held: bool = False
 
 
 def censi_from_inverse(h_inv: FloatArray, meat: FloatArray) -> FloatArray:
@@ -449,12 +451,16 @@ def _covariance_estimates(
             raise np.linalg.LinAlgError("non-finite covariance")
     except np.linalg.LinAlgError:
         cov = np.full((dof, dof), np.inf)
+    ana = corr.censi
+    determined = _held_determined(corr, ctx.method, dof)
     estimates = _estimates(
         cov,
-        corr.censi,
+        ana,
         deg,
         prior(ctx),
-        corr.point_variance,
+        float(ana.determined_plane_sum_squares / (ana.num_determined_correspondences - dof)) / 2.0
+        if determined
+        else corr.point_variance,
         corr.normal_variance,
         block_size(ctx),
         dof,
@@ -463,10 +469,24 @@ def _covariance_estimates(
         corr.valley,
         beam_phase_variance(ctx),
         corr.sampling,
+        determined_blocks=determined,
     )
     if ctx.plane_solve is not None:
         estimates = _via_plane_reference(ctx, pose, corr, estimates, dof)
     return estimates
+
+
+def _held_determined(corr: CorrespondenceAnalysis, method: str, dof: int) -> bool:
+    """GICP at a held pose with a target that flags its linear neighbourhoods: the point
+    variance (along the normal) and the block scores over the determined pairs only."""
+    ana = corr.censi
+    return (
+        corr.held
+        and method == "gicp"
+        and bool(ana.linear_known)
+        and int(ana.num_determined_correspondences) > dof
+        and int(ana.num_determined_blocks) > 0
+    )
 
 
 def _via_plane_reference(
@@ -544,6 +564,8 @@ def _estimates(
     valley: FloatArray | None,
     sampling: float = 0.0,
     sampling_system: tuple[FloatArray, FloatArray] | None = None,
+    *,
+    determined_blocks: bool = False,
 ) -> CovarianceEstimates:
     bad = np.full((dof, dof), np.inf)
     h = np.array(ana.hessian)
@@ -552,7 +574,12 @@ def _estimates(
     try:
         h_inv = np.linalg.inv(h)
         censi = censi_from_inverse(h_inv, meat)
-        blk = block_from_inverse(h_inv, np.array(ana.block_meat), int(ana.num_blocks))
+        if determined_blocks:
+            blk = block_from_inverse(
+                h_inv, np.array(ana.determined_block_meat), int(ana.num_determined_blocks)
+            )
+        else:
+            blk = block_from_inverse(h_inv, np.array(ana.block_meat), int(ana.num_blocks))
         if not (np.isfinite(censi).all() and np.isfinite(blk).all()):
             raise np.linalg.LinAlgError("non-finite covariance")
         calibrated = covariance_upper_bound(censi, blk)

@@ -382,7 +382,13 @@ def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_inpu
 
 @pytest.mark.parametrize(
     ("scene", "method"),
-    [("corridor", "point_to_line"), ("corridor", "point_to_point"), ("tunnel", "point_to_plane")],
+    [
+        ("corridor", "point_to_line"),
+        ("corridor", "point_to_point"),
+        ("tunnel", "point_to_plane"),
+        # GICP held: the point variance and the block scores over the determined pairs
+        ("tunnel", "gicp"),
+    ],
     ids=str,
 )
 def test_degeneracy_aware_solve_equals_the_python_reference(
@@ -404,7 +410,7 @@ def test_degeneracy_aware_solve_equals_the_python_reference(
     dof = 3 if dim == 2 else 6
     res = scanreg.register(
         src,
-        scanreg.prepare(tgt),
+        scanreg.prepare(tgt, covariances=method == "gicp"),
         method=method,  # type: ignore[arg-type]
         max_correspondence_distance=1.0,
         degeneracy_aware=True,
@@ -416,7 +422,10 @@ def test_degeneracy_aware_solve_equals_the_python_reference(
     assert held is not None and valley is not None
     first = ref.correspondence_analysis(ctx, out1)
     second = dataclasses.replace(
-        ref.correspondence_analysis(ctx, out2), degeneracy=first.degeneracy, valley=valley
+        ref.correspondence_analysis(ctx, out2),
+        degeneracy=first.degeneracy,
+        valley=valley,
+        held=True,
     )
     pose = scanreg.trust.pose_from_core(out2, src.shape[1])
     sigma2 = ref.residual_variance(out2, ctx.components, ctx.settings.kernel, dof)

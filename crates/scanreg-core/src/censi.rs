@@ -112,10 +112,19 @@ pub struct Analysis {
     /// surface normal, for every method (the noise that matters, free of the along-surface
     /// sampling offsets in `|e|²`).
     pub plane_sum_squares: f64,
+    /// The same sum over the `num_determined_correspondences` whose normal is determined (all
+    /// of them unless `target_linear` left some out): a linear neighbourhood's normal is a
+    /// guess, and the residual along it carries along-surface offsets (the rings' misfit of a
+    /// held pose), not the points' noise.
+    pub determined_plane_sum_squares: f64,
     /// `Σ_b ψ_b ψ_bᵀ` over spatial blocks.
     pub block_meat: Vec<f64>,
     /// Blocks holding at least one correspondence.
     pub num_blocks: usize,
+    /// `block_meat` over the pairs whose target neighbourhood is not flagged linear (all of
+    /// them without `target_linear`), and the blocks holding at least one such pair.
+    pub determined_block_meat: Vec<f64>,
+    pub num_determined_blocks: usize,
     /// `Σ Jᵀ J` of the point-to-plane factor over correspondences whose target has a normal,
     /// a determined one when `target_linear` is given (zeros without normals).
     pub plane_information: Vec<f64>,
@@ -396,6 +405,23 @@ fn block_key<const D: usize>(p: &SVector<f64, D>, size: f64, i: usize) -> [i64; 
     key
 }
 
+/// One spatial block's scores (see [`Analysis::block_meat`]).
+struct Block<const N: usize> {
+    all: SVector<f64, N>,
+    determined: SVector<f64, N>,
+    num_determined: usize,
+}
+
+impl<const N: usize> Block<N> {
+    fn zero() -> Self {
+        Block {
+            all: SVector::zeros(),
+            determined: SVector::zeros(),
+            num_determined: 0,
+        }
+    }
+}
+
 /// The sums of one run of consecutive target groups (see [`run`]).
 struct Partial<const N: usize> {
     h: SMatrix<f64, N, N>,
@@ -409,12 +435,14 @@ struct Partial<const N: usize> {
     plane: SMatrix<f64, N, N>,
     plane_noise: SMatrix<f64, N, N>,
     plane_ss: f64,
+    plane_ss_det: f64,
     plane_count: usize,
     determined_count: usize,
     sin2: f64,
     sin2_count: usize,
     count: usize,
-    blocks: FxHashMap<[i64; 4], SVector<f64, N>>,
+    /// Per block: the score over every pair, over the determined ones, and their count.
+    blocks: FxHashMap<[i64; 4], Block<N>>,
 }
 
 impl<const N: usize> Partial<N> {
@@ -431,6 +459,7 @@ impl<const N: usize> Partial<N> {
             plane: SMatrix::zeros(),
             plane_noise: SMatrix::zeros(),
             plane_ss: 0.0,
+            plane_ss_det: 0.0,
             plane_count: 0,
             determined_count: 0,
             sin2: 0.0,
@@ -452,13 +481,17 @@ impl<const N: usize> Partial<N> {
         self.plane += other.plane;
         self.plane_noise += other.plane_noise;
         self.plane_ss += other.plane_ss;
+        self.plane_ss_det += other.plane_ss_det;
         self.plane_count += other.plane_count;
         self.determined_count += other.determined_count;
         self.sin2 += other.sin2;
         self.sin2_count += other.sin2_count;
         self.count += other.count;
-        for (key, score) in other.blocks {
-            *self.blocks.entry(key).or_insert_with(SVector::zeros) += score;
+        for (key, b) in other.blocks {
+            let e = self.blocks.entry(key).or_insert_with(Block::zero);
+            e.all += b.all;
+            e.determined += b.determined;
+            e.num_determined += b.num_determined;
         }
         self
     }
@@ -543,6 +576,7 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
                     acc.plane_ss += pl.d2;
                     acc.plane_count += 1;
                     if pl.determined {
+                        acc.plane_ss_det += pl.d2;
                         add_lower(&mut acc.plane, &pl.info);
                         if let Some(noise) = pl.noise {
                             acc.plane_noise += noise;
@@ -555,9 +589,16 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
                     }
                 }
                 let p: SVector<f64, D> = vec_at(input.source, i);
-                *acc.blocks
+                let linear = input.target_linear.is_some_and(|l| l[j as usize]);
+                let b = acc
+                    .blocks
                     .entry(block_key(&p, opts.block_size, i))
-                    .or_insert_with(SVector::zeros) += tm.score;
+                    .or_insert_with(Block::zero);
+                b.all += tm.score;
+                if !linear {
+                    b.determined += tm.score;
+                    b.num_determined += 1;
+                }
                 d += tm.dq;
                 if let Some((dgn, nv)) = tm.dn {
                     dn += dgn;
@@ -580,11 +621,17 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
     let acc = parts.into_iter().fold(Partial::<N>::new(), Partial::add);
     // The blocks in key order: the sum of their outer products does not depend on how the
     // hash map happened to lay them out.
-    let mut blocks: Vec<(&[i64; 4], &SVector<f64, N>)> = acc.blocks.iter().collect();
+    let mut blocks: Vec<(&[i64; 4], &Block<N>)> = acc.blocks.iter().collect();
     blocks.sort_unstable_by_key(|(key, _)| **key);
     let mut block_meat = SMatrix::<f64, N, N>::zeros();
-    for (_, s) in &blocks {
-        block_meat += *s * s.transpose();
+    let mut determined_block_meat = SMatrix::<f64, N, N>::zeros();
+    let mut num_determined_blocks = 0;
+    for (_, b) in &blocks {
+        block_meat += b.all * b.all.transpose();
+        if b.num_determined > 0 {
+            determined_block_meat += b.determined * b.determined.transpose();
+            num_determined_blocks += 1;
+        }
     }
     let (m_src, m_tgt) = (mirrored(acc.m_src), mirrored(acc.m_tgt));
     let meat = m_src * opts.source_variance
@@ -598,8 +645,11 @@ fn run<G: Geometry<D, N>, const D: usize, const N: usize>(
         target_meat: flat(m_tgt),
         normal_meat: flat(acc.m_nrm),
         plane_sum_squares: acc.plane_ss,
+        determined_plane_sum_squares: acc.plane_ss_det,
         block_meat: flat(block_meat),
         num_blocks: blocks.len(),
+        determined_block_meat: flat(determined_block_meat),
+        num_determined_blocks,
         plane_information: flat(mirrored(acc.plane)),
         num_plane_correspondences: acc.plane_count,
         num_determined_correspondences: acc.determined_count,

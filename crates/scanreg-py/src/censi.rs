@@ -26,15 +26,23 @@ pub struct CensiAnalysis {
     #[pyo3(get)]
     plane_sum_squares: f64,
     #[pyo3(get)]
+    determined_plane_sum_squares: f64,
+    #[pyo3(get)]
     block_meat: Py<PyArray2<f64>>,
     #[pyo3(get)]
     num_blocks: usize,
+    #[pyo3(get)]
+    determined_block_meat: Py<PyArray2<f64>>,
+    #[pyo3(get)]
+    num_determined_blocks: usize,
     #[pyo3(get)]
     plane_information: Py<PyArray2<f64>>,
     #[pyo3(get)]
     num_plane_correspondences: usize,
     #[pyo3(get)]
     num_determined_correspondences: usize,
+    #[pyo3(get)]
+    linear_known: bool,
     #[pyo3(get)]
     num_correspondences: usize,
     #[pyo3(get)]
@@ -144,11 +152,15 @@ fn censi_analysis(
         target_meat: square(py, out.target_meat.clone(), dof)?,
         normal_meat: square(py, out.normal_meat.clone(), dof)?,
         plane_sum_squares: out.plane_sum_squares,
+        determined_plane_sum_squares: out.determined_plane_sum_squares,
         block_meat: square(py, out.block_meat.clone(), dof)?,
         num_blocks: out.num_blocks,
+        determined_block_meat: square(py, out.determined_block_meat.clone(), dof)?,
+        num_determined_blocks: out.num_determined_blocks,
         plane_information: square(py, out.plane_information.clone(), dof)?,
         num_plane_correspondences: out.num_plane_correspondences,
         num_determined_correspondences: out.num_determined_correspondences,
+        linear_known: out.linear_known,
         num_correspondences: out.num_correspondences,
         plane_noise_information: square(py, out.plane_noise_information.clone(), dof)?,
         normal_disagreement: out.normal_disagreement,

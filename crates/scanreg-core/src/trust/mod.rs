@@ -146,12 +146,40 @@ fn point_variance(input: &Input<'_>, dof: usize) -> f64 {
     let a = input.analysis;
     let n_plane = a.num_plane_correspondences;
     let along_normal = matches!(input.method, Method::PointToPlane | Method::Gicp);
+    if held_determined(input, dof) {
+        let n_det = a.num_determined_correspondences;
+        return a.determined_plane_sum_squares / (n_det - dof) as f64 / 2.0;
+    }
     if along_normal && n_plane > dof {
         return a.plane_sum_squares / (n_plane - dof) as f64 / 2.0;
     }
     let n = input.num_correspondences;
     let denom = (input.dim * n).saturating_sub(dof).max(1) as f64;
     input.sum_squared_distances / denom / 2.0
+}
+
+/// GICP at a held pose (the degeneracy-aware solve's, held along a weak direction) with a
+/// target that flags its linear neighbourhoods: the point variance and the `block` scores
+/// over the determined pairs only.
+///
+/// A linear neighbourhood's normal (a ring, a pole) is a guess, so the residual along it
+/// carries the along-surface offsets of the sampling. Where the rings lock (the plain solve)
+/// those are as small as the noise (tunnel: point variance over the determined pairs
+/// 1.7–1.9·10⁻⁴ against 1.7–2.0·10⁻⁴ over all). Held 0.1 m off along the axis, the rings'
+/// misfit makes the linear pairs' 40× the lock's, and `censi` and `block` over-covered z,
+/// roll and yaw 3–6× (3D tunnel with a prior: 0.37 × dof). That misfit is the effect of the
+/// linear pairs on the held estimate, which GICP's `model_shift` (its step without them
+/// minus its step with them) already carries, and of holding, which the valley term
+/// carries. Point-to-plane keeps every pair: its shift is the normal-agreement one, and
+/// without the linear pairs' residuals it is over-confident in pitch (tunnel with a prior
+/// 2.1 × dof; `docs/calibration.md`, item 6).
+fn held_determined(input: &Input<'_>, dof: usize) -> bool {
+    let a = input.analysis;
+    input.held.is_some()
+        && input.method == Method::Gicp
+        && a.linear_known
+        && a.num_determined_correspondences > dof
+        && a.num_determined_blocks > 0
 }
 
 /// GICP's systems for [`shift::model_shift`]: its own normal equations at the final pose over
@@ -280,11 +308,15 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
     let (censi, block, mut calibrated) = match dense::inverse(&h) {
         Some(h_inv) => {
             let c = covariance::censi_from_inverse(&h_inv, &meat);
-            let b = covariance::block_from_inverse(
-                &h_inv,
-                &from_rows(dof, &a.block_meat),
-                a.num_blocks,
-            );
+            let b = if held_determined(input, dof) {
+                covariance::block_from_inverse(
+                    &h_inv,
+                    &from_rows(dof, &a.determined_block_meat),
+                    a.num_determined_blocks,
+                )
+            } else {
+                covariance::block_from_inverse(&h_inv, &from_rows(dof, &a.block_meat), a.num_blocks)
+            };
             if all_finite(&c) && all_finite(&b) {
                 let u = covariance::upper_bound(&c, &b);
                 (c, b, u)
