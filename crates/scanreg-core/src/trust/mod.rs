@@ -137,7 +137,8 @@ fn check_len(name: &'static str, got: usize, want: usize) -> Result<()> {
 /// Point-to-plane/line and GICP: along the normal, `Σ (nᵀe)² / (n − dof)` — the noise their
 /// residual feels (GICP's combined covariances weigh a residual along the surface ~1/(2ε)
 /// times less than one along the normal, so its gradient, and Censi's derivatives of it,
-/// move with the normal component). Point-to-point: `Σ |e|² / (D n − dof)`, the
+/// move with the normal component); GICP at a held pose over the determined pairs only
+/// ([`held_determined`]). Point-to-point: `Σ |e|² / (D n − dof)`, the
 /// along-surface sampling offsets included (its cost sees them). The Euclidean estimate made
 /// GICP 2–8× over-cautious on every axis its bias leaves alone (3D street, tunnel, KITTI
 /// halves; 2D corridor 0.16 × dof); what it covered by accident in 3D, a bias along the road
@@ -165,7 +166,7 @@ fn point_variance(input: &Input<'_>, dof: usize) -> f64 {
 /// A linear neighbourhood's normal (a ring, a pole) is a guess, so the residual along it
 /// carries the along-surface offsets of the sampling. Where the rings lock (the plain solve)
 /// those are as small as the noise (tunnel: point variance over the determined pairs
-/// 1.7–1.9·10⁻⁴ against 1.7–2.0·10⁻⁴ over all). Held 0.1 m off along the axis, the rings'
+/// 1.7–1.9·10⁻⁴ against 1.6–2.0·10⁻⁴ over all). Held 0.1 m off along the axis, the rings'
 /// misfit makes the linear pairs' 40× the lock's, and `censi` and `block` over-covered z,
 /// roll and yaw 3–6× (3D tunnel with a prior: 0.37 × dof). That misfit is the effect of the
 /// linear pairs on the held estimate, which GICP's `model_shift` (its step without them
