@@ -324,7 +324,8 @@ fn all_meats_match_finite_differences_2d_and_3d() {
 fn linear_targets_are_left_out_of_the_plane_information_only() {
     // The scene's target points 0, 4 and 8 flagged linear: the plane information (and the
     // count the degeneracy divides by) is that of the scene without their correspondences,
-    // while the point noise along the normals still reads every residual.
+    // while the point noise along the normals still reads every residual; the determined
+    // sums (`determined_plane_sum_squares`, `determined_block_meat`) are the scene's without.
     let (src, tgt, nrm, corr) = scene();
     let pose = planar_pose(0.141f64.atan2(0.99), 0.2, -0.1);
     let opts = unkernelled(Method::PointToPlane, [1.0, 1.0, 1.0]);
@@ -357,6 +358,20 @@ fn linear_targets_are_left_out_of_the_plane_information_only() {
     }
     assert_eq!(got.plane_sum_squares, all.plane_sum_squares);
     assert_eq!(got.hessian, all.hessian);
+    assert_eq!(got.block_meat, all.block_meat);
+    // The determined sums (a held GICP pose's noise terms) are the scene's without them.
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1e-300);
+    assert!(got.determined_plane_sum_squares < got.plane_sum_squares);
+    assert!(close(
+        got.determined_plane_sum_squares,
+        kept.plane_sum_squares
+    ));
+    assert_eq!(got.num_determined_blocks, kept.num_blocks);
+    for (a, b) in got.determined_block_meat.iter().zip(&kept.block_meat) {
+        assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+    }
+    assert_eq!(all.determined_plane_sum_squares, all.plane_sum_squares);
+    assert_eq!(all.determined_block_meat, all.block_meat);
     let short = [false; 2];
     let bad = Input {
         target_linear: Some(&short),
