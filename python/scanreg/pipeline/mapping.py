@@ -48,6 +48,7 @@ from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, match_loop
 from .loops3d import LoopMatch3D
 from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph_fields
 from .odometry2d import Odometry2D, OdometryConfig2D, _positive
+from .smoothing import StepNoise, identify_step_noise, smooth_scan_poses
 from .wheel import WheelNoise, WheelOdometry
 
 #: The pose type of a run (2D or 3D) and of its loop matches: one result shape for both.
@@ -119,6 +120,13 @@ class MappingConfig:
     #: (ACES before closure 0.0625 → 0.107 m) and reads the Intel excerpt of
     #: tests/test_mapping.py 0.023 against 0.017 m (benchmarks/README.md, "freiburg_mapping.py").
     motion_cost: WheelNoise | None = None
+    #: The final pass (:meth:`Mapper.finish`, after the batch pass): every scan re-solved
+    #: from its scan step and its wheel step, each weighted by step noise identified on the
+    #: run itself, with each node's scan held at its loop-closed pose
+    #: (:mod:`scanreg.pipeline.smoothing`); skipped without wheel odometry (fewer than 50
+    #: consecutive steps with a ``prior``). Freiburg benchmark: ACES 0.0390 → 0.0352 m,
+    #: Intel 0.0155 → 0.0150 m (benchmarks/README.md, "freiburg_mapping.py").
+    smooth_scans: bool = True
     #: How long before its timestamp a scan was taken (s), where :func:`run_mapping` reads
     #: the odometry from the log's ``ODOM`` stream (:func:`scan_odometry`); ``None``: measured
     #: on the log (:func:`estimate_laser_latency`).
@@ -134,6 +142,10 @@ class MappingConfig:
         _positive(self.max_range, "max_range")
         if self.laser_latency is not None:
             _positive(self.laser_latency, "laser_latency", allow_zero=True)
+        if not isinstance(self.smooth_scans, bool):
+            raise TypeError(
+                f"smooth_scans: expected a bool, got {type(self.smooth_scans).__name__}"
+            )
         if self.max_range <= self.min_range:
             raise ValueError(
                 f"max_range: must exceed min_range ({self.min_range}), got {self.max_range}"
@@ -295,6 +307,11 @@ class Mapper:
         )
         self._graph = Graph(2)
         self._odom_poses: list[SE2 | None] = []
+        # Each scan's wheel increment T_prev_curr (None where there was none) and whether its
+        # pose is its own registration's (not carried over a skipped scan): the final pass's
+        # material (scanreg.pipeline.smoothing).
+        self._scan_wheel: list[SE2 | None] = []
+        self._scanned: list[bool] = []
         self._stamps: list[float | None] = []
         self._scan_node: list[int] = []  # node each scan hangs from (-1 before the first)
         self._node_scans: list[int] = []
@@ -310,6 +327,7 @@ class Mapper:
         self._last_pose: SE2 | None = None
         self._timing = MappingTiming()
         self._finished = False
+        self._step_noise: StepNoise | None = None
 
     @property
     def graph(self) -> Graph:
@@ -366,6 +384,8 @@ class Mapper:
             self._skipped.append(index)
             pose = None if self._last_pose is None else self._last_pose @ self._pending
             self._odom_poses.append(pose)
+            self._scan_wheel.append(motion)  # type: ignore[arg-type]
+            self._scanned.append(False)
             self._scan_node.append(self.num_nodes - 1)
             self._timing.add("total", t_start)
             return MappingStep(index, pose, None, ())
@@ -394,6 +414,8 @@ class Mapper:
         assert isinstance(pose, SE2)
         self._last_pose = pose
         self._odom_poses.append(pose)
+        self._scan_wheel.append(motion)  # type: ignore[arg-type]
+        self._scanned.append(True)
         self._timing.add("odometry", t_start)
 
         node = self._maybe_add_node(index, pts, pose, frame.covariance)
@@ -547,7 +569,8 @@ class Mapper:
 
     # -- end of run ----------------------------------------------------------------------
     def finish(self) -> MappingResult[SE2]:
-        """Batch-optimize (unless ``config.batch`` is off) and return every scan's pose."""
+        """Batch-optimize (unless ``config.batch`` is off), re-solve the scans between the nodes
+        (``config.smooth_scans``) and return every scan's pose."""
         if self._finished:
             raise RuntimeError("Mapper: finish() was already called")
         if not self._node_scans:
@@ -573,6 +596,11 @@ class Mapper:
             pose = base @ rel  # type: ignore[operator]
             assert isinstance(pose, SE2)
             poses.append(pose)
+        if self.config.smooth_scans:
+            t0 = _clock()
+            poses = self._smoothed(poses, odometry)
+            self._timing.add("optimization", t0)
+            self._timing.add("total", t0)
         return MappingResult(
             poses=tuple(poses),
             odometry_poses=tuple(odometry),
@@ -585,6 +613,27 @@ class Mapper:
             timing=self._timing,
             num_scans=len(self._odom_poses),
         )
+
+    def _smoothed(self, poses: list[SE2], odometry: list[SE2]) -> list[SE2]:
+        """The final pass (:mod:`scanreg.pipeline.smoothing`): ``poses`` unchanged without
+        enough wheel steps to identify the step noise."""
+        scanned = self._scanned
+        steps: list[SE2 | None] = [None]
+        for k in range(1, len(odometry)):
+            both = scanned[k] and scanned[k - 1]
+            steps.append(odometry[k - 1].inverse() @ odometry[k] if both else None)
+        wheels: list[SE2 | None] = [None, *self._scan_wheel[1:]]
+        noise = identify_step_noise(steps, wheels)
+        if noise is None:
+            return poses
+        self._step_noise = noise
+        return smooth_scan_poses(poses, odometry, scanned, wheels, self._node_scans, noise)
+
+    @property
+    def step_noise(self) -> StepNoise | None:
+        """The step noise the final pass identified (``None`` before :meth:`finish`, or when
+        it was skipped)."""
+        return self._step_noise
 
     def node_points(self, node: int) -> FloatArray:
         """The kept (downsampled) scan of ``node``, in its own frame."""
