@@ -68,7 +68,10 @@ class StepNoise:
 
 
 def _scaled(wheel: SE2, scale: float) -> SE2:
-    return SE2.from_rt(wheel.rotation, scale * wheel.translation)
+    # Through the vector: from_rt would check the (already orthonormal) rotation, the pass's
+    # largest cost.
+    x, y = scale * wheel.translation
+    return SE2.from_vector([x, y, wheel.angle])
 
 
 def identify_step_noise(
@@ -167,13 +170,9 @@ def smooth_scan_poses(
         elif wheel is None:
             g.add_edge(k - 1, k, odometry[k - 1].inverse() @ odometry[k], loose)
     g.optimize()
-    solved = g.poses()
-    out = []
-    for k in range(n):
-        p = solved[k]
-        assert isinstance(p, SE2)
-        out.append(p)
-    return out
+    keys, rows = g.pose_vectors()
+    order = np.argsort(keys)
+    return [SE2.from_vector(rows[i]) for i in order]
 
 
 __all__ = ["StepNoise", "identify_step_noise", "smooth_scan_poses"]
