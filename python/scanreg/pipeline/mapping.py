@@ -22,7 +22,9 @@ One :meth:`Mapper.step` per scan, in five stages:
    re-solves.
 
 :meth:`Mapper.finish` runs a final batch Levenberg–Marquardt pass and lays every scan on its
-node: ``T_world_scan = T_world_node @ inv(T_odom_node) @ T_odom_scan``.
+node: ``T_world_scan = T_world_node @ inv(T_odom_node) @ T_odom_scan``; with wheel odometry the
+scans between nodes are then re-solved from their scan and wheel steps, each weighted by step
+noise identified on the run (``MappingConfig.smooth_scans``, :mod:`scanreg.pipeline.smoothing`).
 
 The shape is dimension-independent (nodes, edges, candidates, records, results); the 2D parts
 are the odometry front end and the loop matcher (:mod:`scanreg.pipeline.loops`).
@@ -125,7 +127,7 @@ class MappingConfig:
     #: run itself, with each node's scan held at its loop-closed pose
     #: (:mod:`scanreg.pipeline.smoothing`); skipped without wheel odometry (fewer than 50
     #: consecutive steps with a ``prior``). Freiburg benchmark: ACES 0.0390 → 0.0352 m,
-    #: Intel 0.0155 → 0.0150 m (benchmarks/README.md, "freiburg_mapping.py").
+    #: Intel 0.0155 → 0.0151 m, the same runs (benchmarks/README.md, "freiburg_mapping.py").
     smooth_scans: bool = True
     #: How long before its timestamp a scan was taken (s), where :func:`run_mapping` reads
     #: the odometry from the log's ``ODOM`` stream (:func:`scan_odometry`); ``None``: measured
