@@ -20,11 +20,13 @@ so. The run says so:
 
 :func:`smooth_scan_poses` then solves a pose graph over every scan — the scans' steps with
 covariance ``2 var(ε)``, the wheels' with ``var(w)`` — with each node's scan held where the
-loop-closed graph put it. No benchmark relation plays a part.
+loop-closed graph put it, as firmly as the graph knows a node against its neighbours. No
+benchmark relation plays a part.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -40,8 +42,6 @@ MIN_PAIRS = 50
 #: thousand steps; an estimate of zero (Intel's scans across and in heading) must not become
 #: an infinite weight.
 NOISE_FLOOR = np.array([1e-3, 1e-3, 5e-4])
-#: How firmly each node's scan is held at its loop-closed pose (σ, m and rad).
-NODE_SIGMA = (1e-3, 1e-4)
 #: Residuals beyond this percentile per axis are left out of the identification: a wheel
 #: slip or a scan in the wrong basin is not noise and would dominate a variance.
 TRIM_PERCENTILE = 99.5
@@ -141,6 +141,7 @@ def smooth_scan_poses(
     wheel_steps: Sequence[SE2 | None],
     nodes: Sequence[int],
     noise: StepNoise,
+    node_sigma: tuple[float, float],
 ) -> list[SE2]:
     """Every scan's pose re-solved (module docstring).
 
@@ -148,14 +149,18 @@ def smooth_scan_poses(
     poses held); ``odometry``: ``T_odom_scan``; ``scanned[k]``: whether scan ``k``'s pose came
     from its own registration (a skipped scan's was carried on the wheels: its step enters
     only through the wheels, or with a loose σ where there were none); ``wheel_steps[k]``:
-    the wheels' raw ``T_{k−1}_k`` (``None`` for none)."""
+    the wheels' raw ``T_{k−1}_k`` (``None`` for none); ``node_sigma``: σ (m, rad) with which
+    each node's scan is held at its pose in ``poses`` (the mapper's: its odometry edges' floor,
+    how well the graph knows a node against its neighbours)."""
     n = len(poses)
     if not (len(odometry) == len(scanned) == len(wheel_steps) == n):
         raise ValueError("odometry, scanned, wheel_steps: one entry per pose expected")
     g = Graph(2)
     for k, pose in enumerate(poses):
         g.add_node(k, pose)
-    held = np.diag([NODE_SIGMA[0] ** -2] * 2 + [NODE_SIGMA[1] ** -2])
+    if len(node_sigma) != 2 or not all(math.isfinite(v) and v > 0 for v in node_sigma):
+        raise ValueError(f"node_sigma: expected two positive numbers, got {node_sigma!r}")
+    held = np.diag([node_sigma[0] ** -2] * 2 + [node_sigma[1] ** -2])
     for k in sorted(set(nodes)):
         g.add_prior(k, poses[k], held)
     scan_info = np.diag(1.0 / (2.0 * noise.scan**2))
