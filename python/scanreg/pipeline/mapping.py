@@ -126,8 +126,8 @@ class MappingConfig:
     #: from its scan step and its wheel step, each weighted by step noise identified on the
     #: run itself, with each node's scan held at its loop-closed pose (σ: the drift floors)
     #: (:mod:`scanreg.pipeline.smoothing`); skipped without wheel odometry (fewer than 50
-    #: consecutive steps with a ``prior``). Freiburg benchmark: ACES 0.0390 → 0.0352 m,
-    #: Intel 0.0155 → 0.0151 m, the same runs (benchmarks/README.md, "freiburg_mapping.py").
+    #: consecutive steps with a ``prior``). Freiburg benchmark: ACES 0.0390 → 0.0348 m,
+    #: Intel 0.0155 → 0.0150 m, the same runs (benchmarks/README.md, "freiburg_mapping.py").
     smooth_scans: bool = True
     #: How long before its timestamp a scan was taken (s), where :func:`run_mapping` reads
     #: the odometry from the log's ``ODOM`` stream (:func:`scan_odometry`); ``None``: measured
