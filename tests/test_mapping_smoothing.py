@@ -60,6 +60,8 @@ def test_identification_needs_enough_steps_and_matching_lengths() -> None:
     assert identify_step_noise(_steps(odometry), wheels) is None
     with pytest.raises(ValueError, match="wheel_steps: expected 40 steps"):
         identify_step_noise(_steps(odometry), wheels[:-1])
+    with pytest.raises(TypeError, match=r"wheel_steps\[3\]: expected an SE2 or None, got str"):
+        identify_step_noise(_steps(odometry), [*wheels[:3], "x", *wheels[4:]])
     noise = StepNoise(scale=1.0, scan=np.full(3, 1e-3), wheel=np.full(3, 1e-3), pairs=0)
     with pytest.raises(ValueError, match="node_sigma: expected two positive numbers"):
         smooth_scan_poses(odometry, odometry, [True] * 40, wheels, [0], noise, (0.0, 1e-3))

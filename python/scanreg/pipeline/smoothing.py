@@ -86,6 +86,10 @@ def identify_step_noise(
             f"wheel_steps: expected {len(scan_steps)} steps (one per scan step), "
             f"got {len(wheel_steps)}"
         )
+    for name, steps in (("scan_steps", scan_steps), ("wheel_steps", wheel_steps)):
+        for k, step in enumerate(steps):
+            if step is not None and not isinstance(step, SE2):
+                raise TypeError(f"{name}[{k}]: expected an SE2 or None, got {type(step).__name__}")
     # The scale over stretches of SCALE_CHUNK steps: one step's noise (millimetres across a
     # step of centimetres) would bias a ratio of single steps' lengths by a percent; over a
     # stretch the scans' error does not accumulate and the wheels' grows only as its root.
