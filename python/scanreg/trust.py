@@ -630,8 +630,10 @@ def _trust(
     probing = th.probes_basin(dim) and ctx.solve is not None
     # The probe's tight overlap is counted in the verdict's overlap pass (one nearest-neighbour
     # search of the source instead of two: 3.7 ms of a 25k-point KITTI call) where that pass
-    # sees it: a k-d tree target (exact searches) and a tight gate inside the verdict's. (3D
-    # only so far: the 2D path is being reworked on its own; the same holds there.)
+    # sees it: a k-d tree target (exact searches) and a tight gate inside the verdict's. 3D
+    # only: a 2D outcome's verdict overlap rides on the analysis's core call (``corr.overlap``)
+    # and the screen counts its tight overlap alone (``basin._fraction``), which costs less
+    # than widening that call.
     overlap = corr.overlap
     tight: float | None = None
     if probing and dim == 3 and isinstance(ctx.target, PreparedTarget) and math.isfinite(gate):

@@ -35,7 +35,7 @@ fn overlap_statistics(
     hints: Option<PyReadonlyArray1<'_, i64>>,
     within: Option<f64>,
     outcome: Option<&Bound<'_, IcpOutcome>>,
-) -> PyResult<(usize, f64, f64, f64, f64, usize)> {
+) -> PyResult<OverlapTuple> {
     let hints = hints.as_ref().map(|h| c_slice(h, "hints")).transpose()?;
     let held = target_search(target)?;
     let search = held.search();
@@ -56,14 +56,22 @@ fn overlap_statistics(
         })
         .and_then(|r| r)
         .map_err(core_err)?;
-    Ok((
+    Ok(overlap_tuple(&o))
+}
+
+/// `(num_found, mean, median, rmse, trimmed_rmse, num_within)`: what `overlap_statistics`
+/// returns, and `trust_analysis` for the overlap pass it runs in the same call.
+pub(crate) type OverlapTuple = (usize, f64, f64, f64, f64, usize);
+
+pub(crate) fn overlap_tuple(o: &overlap::Overlap) -> OverlapTuple {
+    (
         o.num_found,
         o.mean,
         o.median,
         o.rmse,
         o.trimmed_rmse,
         o.num_within,
-    ))
+    )
 }
 
 /// How many `source` points, moved by `pose_matrix`, have a target point within `max_distance`

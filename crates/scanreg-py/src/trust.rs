@@ -6,6 +6,7 @@ use crate::convert::{
     c_slice, core_err, covariances, in_pool_unless_small, points, points_dim, pose, read_only,
 };
 use crate::knn::KdTree as PyKdTree;
+use crate::measure::{overlap_tuple, OverlapTuple};
 use crate::register::{rigid_parts, IcpOutcome};
 use numpy::ndarray::Array2;
 use numpy::{
@@ -107,9 +108,6 @@ pub struct TrustNumbers {
     #[pyo3(get)]
     scene: Option<Scene>,
 }
-
-/// `(num_found, mean, median, rmse, trimmed_rmse, num_within)`, as `overlap_statistics` gives.
-type OverlapTuple = (usize, f64, f64, f64, f64, usize);
 
 fn mat(py: Python<'_>, m: &Mat) -> PyResult<Py<PyArray2<f64>>> {
     let arr = Array2::from_shape_vec((m.nrows(), m.ncols()), flat(m))
@@ -684,18 +682,8 @@ fn trust_analysis(
             .as_ref()
             .map(|(tree, max_sq, pose, certificates)| {
                 let hints = Some(corr);
-                overlap::overlap(*tree, src, pose, *max_sq, *max_sq, hints, *certificates).map(
-                    |o| {
-                        (
-                            o.num_found,
-                            o.mean,
-                            o.median,
-                            o.rmse,
-                            o.trimmed_rmse,
-                            o.num_within,
-                        )
-                    },
-                )
+                overlap::overlap(*tree, src, pose, *max_sq, *max_sq, hints, *certificates)
+                    .map(|o| overlap_tuple(&o))
             })
             .transpose()?;
         Ok((
