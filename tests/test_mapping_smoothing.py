@@ -65,6 +65,16 @@ def test_identification_needs_enough_steps_and_matching_lengths() -> None:
     noise = StepNoise(scale=1.0, scan=np.full(3, 1e-3), wheel=np.full(3, 1e-3), pairs=0)
     with pytest.raises(ValueError, match="node_sigma: expected two positive numbers"):
         smooth_scan_poses(odometry, odometry, [True] * 40, wheels, [0], noise, (0.0, 1e-3))
+    with pytest.raises(ValueError, match=r"nodes: indices \[40\] outside the 40 poses"):
+        smooth_scan_poses(odometry, odometry, [True] * 40, wheels, [0, 40], noise, (1e-3, 1e-3))
+    with pytest.raises(ValueError, match="poses: no pose to smooth"):
+        smooth_scan_poses([], [], [], [], [], noise, (1e-3, 1e-3))
+    with pytest.raises(ValueError, match=r"scan: expected three finite σ > 0, got \[nan"):
+        StepNoise(scale=1.0, scan=np.array([np.nan, 1e-3, 1e-3]), wheel=np.full(3, 1e-3), pairs=0)
+    with pytest.raises(ValueError, match=r"wheel: expected shape \(3,\)"):
+        StepNoise(scale=1.0, scan=np.full(3, 1e-3), wheel=np.full(2, 1e-3), pairs=0)
+    with pytest.raises(ValueError, match="scale: must be > 0"):
+        StepNoise(scale=0.0, scan=np.full(3, 1e-3), wheel=np.full(3, 1e-3), pairs=0)
     with pytest.raises(TypeError, match="smooth_scans: expected a bool"):
         MappingConfig(smooth_scans="yes")  # type: ignore[arg-type]
 

@@ -66,6 +66,19 @@ class StepNoise:
     #: Consecutive residual pairs the variances came from.
     pairs: int
 
+    def __post_init__(self) -> None:
+        if not (isinstance(self.scale, (int, float)) and math.isfinite(self.scale)):
+            raise ValueError(f"scale: expected a finite number, got {self.scale!r}")
+        if not self.scale > 0:
+            raise ValueError(f"scale: must be > 0, got {self.scale!r}")
+        for name in ("scan", "wheel"):
+            sigma = np.asarray(getattr(self, name), dtype=np.float64)
+            if sigma.shape != (3,):
+                raise ValueError(f"{name}: expected shape (3,) (x, y, θ), got {sigma.shape}")
+            if not (np.all(np.isfinite(sigma)) and np.all(sigma > 0)):
+                raise ValueError(f"{name}: expected three finite σ > 0, got {sigma.tolist()}")
+            object.__setattr__(self, name, sigma)
+
 
 def _scaled(wheel: SE2, scale: float) -> SE2:
     # Through the vector: from_rt would check the (already orthonormal) rotation, the pass's
@@ -157,8 +170,13 @@ def smooth_scan_poses(
     each node's scan is held at its pose in ``poses`` (the mapper's: its odometry edges' floor,
     how well the graph knows a node against its neighbours)."""
     n = len(poses)
+    if n == 0:
+        raise ValueError("poses: no pose to smooth")
     if not (len(odometry) == len(scanned) == len(wheel_steps) == n):
         raise ValueError("odometry, scanned, wheel_steps: one entry per pose expected")
+    outside = [k for k in nodes if not 0 <= k < n]
+    if outside:
+        raise ValueError(f"nodes: indices {outside[:3]} outside the {n} poses")
     g = Graph(2)
     for k, pose in enumerate(poses):
         g.add_node(k, pose)
