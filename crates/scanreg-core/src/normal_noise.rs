@@ -270,26 +270,7 @@ fn swept_2d(
         }
         d
     };
-    let insert = |buf: &mut Vec<(u32, f64)>, j: u32, d: f64| {
-        if buf.len() == k {
-            let (wi, wd) = buf[k - 1];
-            if !(d < wd || (d == wd && j < wi)) {
-                return;
-            }
-            buf.pop();
-        }
-        buf.push((j, d));
-        let mut at = buf.len() - 1;
-        while at > 0 {
-            let prev = buf[at - 1];
-            if !(d < prev.1 || (d == prev.1 && j < prev.0)) {
-                break;
-            }
-            buf[at] = prev;
-            at -= 1;
-        }
-        buf[at] = (j, d);
-    };
+    let insert = |buf: &mut Vec<(u32, f64)>, j: u32, d: f64| crate::knn::offer_k(buf, 0, k, j, d);
     for (pos, &qi) in order.iter().enumerate() {
         let q = pt(qi as usize);
         // Seeded with the k points around this one in scan order (its neighbours along the

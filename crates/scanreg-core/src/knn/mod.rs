@@ -84,6 +84,34 @@ fn before(d: f64, i: u32, bd: f64, bi: u32) -> bool {
     d < bd || (d == bd && i < bi)
 }
 
+/// Offer `(id, d)` to `out[start..]`, the best (at most `k`, `k >= 1`) found so far, sorted by
+/// (squared distance, index): kept when fewer than `k` are held or it comes before the last,
+/// which it then displaces. Every exact k-NN search shares it (the tree's, the 2D sweep of
+/// `normal_noise`), so they hold the same set in the same order.
+#[inline(always)]
+pub(crate) fn offer_k(out: &mut Vec<(u32, f64)>, start: usize, k: usize, id: u32, d: f64) {
+    if out.len() - start == k {
+        let (wi, wd) = out[out.len() - 1];
+        if !before(d, id, wd, wi) {
+            return;
+        }
+        out.pop();
+    }
+    // Insertion into the sorted tail (element-wise shift: k is small).
+    out.push((id, d));
+    let buf = &mut out[start..];
+    let mut pos = buf.len() - 1;
+    while pos > 0 {
+        let prev = buf[pos - 1];
+        if !before(d, id, prev.1, prev.0) {
+            break;
+        }
+        buf[pos] = prev;
+        pos -= 1;
+    }
+    buf[pos] = (id, d);
+}
+
 /// Make `(p, id)` the best `(distance², index)` if it comes before it.
 #[inline(always)]
 fn consider<const D: usize>(p: &[f64; D], id: u32, q: &[f64; D], best: &mut (f64, u32)) {
@@ -579,9 +607,8 @@ impl<const D: usize> Inner<D> {
         let pts = &self.pts;
         let ids = &self.ids;
         let worst = std::cell::Cell::new(max_sq);
-        let mut full = false;
-        // The k-th neighbour once `full` (the bound for pruning).
-        let (mut wi, mut wd) = (u32::MAX, max_sq);
+        // The k-th neighbour's distance once k are held (the bound for pruning).
+        let mut wd = max_sq;
         self.traverse(
             q,
             || worst.get(),
@@ -591,28 +618,9 @@ impl<const D: usize> Inner<D> {
                     if d > wd {
                         continue; // beyond the gate, or (once full) behind the k-th
                     }
-                    if full {
-                        if !before(d, id, wd, wi) {
-                            continue;
-                        }
-                        out.pop();
-                    }
-                    // Insertion into the sorted tail (element-wise shift: k is small).
-                    out.push((id, d));
-                    let buf = &mut out[start..];
-                    let mut pos = buf.len() - 1;
-                    while pos > 0 {
-                        let prev = buf[pos - 1];
-                        if !before(d, id, prev.1, prev.0) {
-                            break;
-                        }
-                        buf[pos] = prev;
-                        pos -= 1;
-                    }
-                    buf[pos] = (id, d);
-                    if buf.len() == k {
-                        full = true;
-                        (wi, wd) = buf[k - 1];
+                    offer_k(out, start, k, id, d);
+                    if out.len() - start == k {
+                        wd = out[out.len() - 1].1;
                         worst.set(wd);
                     }
                 }
