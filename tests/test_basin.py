@@ -340,31 +340,9 @@ def test_orientation_symmetry_equals_a_numpy_reference() -> None:
     assert orientation_symmetry(wall[:7], np.tile([1.0, 0.0], (7, 1))) == 0.0
 
 
-def test_probe_restarts_in_one_call_equal_the_restarts_one_by_one() -> None:
-    """The probe's restarts run in one parallel core call: each pose and stop reason is the
-    one ``register_icp`` gives from that start alone, bit for bit."""
-    from scanreg import _core
-    from scanreg.basin import restart_offsets
-
-    room = sim.square_room(5.0)
-    a = SE2.from_vector([0.5, 0.3, 0.3])
-    truth = SE2.from_vector([0.3, 0.1, math.radians(2.0)])
-    src, tgt = _scan(room, a @ truth, 1), _scan(room, a, 0)
-    target = scanreg.prepare(tgt, normals=True)
-    starts = np.stack([(truth @ o).as_matrix() for o in restart_offsets(2, 0.5)])
-    args = ("point_to_line", "none", 1.0, 0.5, 6, 1e-4, 1e-4, "gauss_newton", 4)
-    for threads in (1, 2):
-        poses, reasons = _core.register_icp_starts(
-            src, target.index, starts, *args, threads, None, target.normals
-        )
-        assert poses.shape == (len(starts), 3, 3) and len(reasons) == len(starts)
-        for start, pose, reason in zip(starts, poses, reasons, strict=True):
-            one = _core.register_icp(src, target.index, start, *args, 1, None, target.normals)
-            assert np.array_equal(pose, one.pose) and reason == one.stop_reason
-    with pytest.raises(ValueError, match="init_poses: expected shape"):
-        _core.register_icp_starts(src, target.index, np.zeros((2, 4, 4)), *args)
-    with pytest.raises(ValueError, match="init_poses: expected shape"):
-        _core.register_icp_starts(src, target.index, np.zeros((0, 3, 3)), *args)
+_ARGS = ("point_to_line", "none", 1.0, 0.5, 6, 1e-4, 1e-4, "gauss_newton", 4)
+#: ``(home_radius, home_cos_angle)`` no restart arrives at (a rotation's cosine is ≤ 1).
+_NO_HOME = (0.0, 2.0)
 
 
 def _room_pair() -> tuple[np.ndarray, Any, SE2]:
@@ -375,115 +353,150 @@ def _room_pair() -> tuple[np.ndarray, Any, SE2]:
     return src, scanreg.prepare(tgt, normals=True), truth
 
 
-def test_restarts_stop_on_arriving_at_home() -> None:
-    """``home``: a restart whose iterate comes within the radius and angle of the result stops
-    there, converged, in fewer iterations; every other restart ends where it ends without it."""
+def _one(src: np.ndarray, target: Any, start: np.ndarray, args: tuple[Any, ...] = _ARGS) -> Any:
     from scanreg import _core
+
+    return _core.register_icp(src, target.index, start, *args, 1, None, target.normals)
+
+
+def _probe(
+    src: np.ndarray,
+    target: Any,
+    starts: np.ndarray,
+    result: SE2,
+    *,
+    threads: int = 1,
+    args: tuple[Any, ...] = _ARGS,
+    home: tuple[float, float] = _NO_HOME,
+    grid: Any = None,
+    step: float = math.radians(4.0),
+    tight: float = 0.05,
+    cov: np.ndarray | None = None,
+    stop_ratio: float = math.inf,
+) -> Any:
+    """``_core.probe_restarts`` (stride 2, ±7 cells, ±45 steps; near: 0.25 m, 10°)."""
+    from scanreg import _core
+
+    return _core.probe_restarts(
+        src, target.index, starts, *args, threads, None, target.normals, None, None, True,
+        result.as_matrix(), *home, grid, 2, 7, 45, step, tight, cov, CHI2_3_999, 1.0,
+        stop_ratio, 0.25, math.radians(10.0), None, None, CHI2_3_999,
+    )  # fmt: skip
+
+
+def _kinds_numpy(
+    src: np.ndarray,
+    target: Any,
+    result: SE2,
+    poses: np.ndarray,
+    usable: list[bool],
+    tight: float,
+    cov: np.ndarray | None,
+) -> tuple[list[int], list[np.ndarray], list[float]]:
+    """The probe's comparison in numpy: each outcome's kind (0 failed, 1 back at the result,
+    2 inside the covariance, 3 distinct), offset ``log(result⁻¹ · pose)`` and, when distinct,
+    the fraction of the source within the tight gate of a target point (NaN otherwise)."""
+    info = None if cov is None else np.linalg.pinv(cov, hermitian=True)
+    kinds, offsets, fractions = [], [], []
+    for m, ok in zip(poses, usable, strict=True):
+        # A failed outcome is not compared: no offset (zeros).
+        e = (result.inverse() @ SE2.from_matrix(m)).log() if ok else np.zeros(3)
+        offsets.append(e)
+        fractions.append(math.nan)
+        if not ok:
+            kinds.append(0)
+        elif np.hypot(e[0], e[1]) <= tight / 2 and abs(e[2]) <= math.radians(1.0):
+            kinds.append(1)
+        elif info is not None and e @ info @ e <= CHI2_3_999:
+            kinds.append(2)
+        else:
+            kinds.append(3)
+            found = target.nearest(SE2.from_matrix(m).apply(src), tight).indices
+            fractions[-1] = np.count_nonzero(found >= 0) / len(src)
+    return kinds, offsets, fractions
+
+
+def test_probe_restarts_equal_the_restarts_one_by_one_compared_as_in_numpy() -> None:
+    """The probe's restarts run in one core call: on 1 and 2 threads each pose is the one
+    ``register_icp`` gives from that start alone, bit for bit, and each outcome is compared
+    with the result as the numpy reference compares it. Two iterations leave the restarts
+    at every distance from the result: back, inside a covariance and distinct all occur."""
     from scanreg.basin import restart_offsets
 
     src, target, truth = _room_pair()
-    args = ("point_to_line", "none", 1.0, 0.5, 6, 1e-4, 1e-4, "gauss_newton", 4)
-    start = truth.as_matrix()
-    result = _core.register_icp(src, target.index, start, *args, 1, None, target.normals)
-    home = np.asarray(result.pose)
-    starts = np.stack([(SE2.from_matrix(home) @ o).as_matrix() for o in restart_offsets(2, 0.5)])
+    result = SE2.from_matrix(np.asarray(_one(src, target, truth.as_matrix()).pose))
+    starts = np.stack([(result @ o).as_matrix() for o in restart_offsets(2, 0.5)])
+    # The same start twice (one overlap pass for both), and one 20 m off: it fails.
+    far = [SE2.from_vector([0, 0, 1.6]).as_matrix(), SE2.from_vector([20, 0, 0]).as_matrix()]
+    starts = np.concatenate([starts, starts[2:3], far])
+    cov = np.diag([4e-4, 1e-4, 3e-5])
+    cov[0, 2] = cov[2, 0] = 2e-5
+    # Wide in heading: covers the restarts two iterations leave about 45° off.
+    wide = cov + np.diag([0.0, 0.0, 0.3])
+    short = (*_ARGS[:4], 2, *_ARGS[5:])
+    for args in (_ARGS, short):
+        ones = [_one(src, target, start, args) for start in starts]
+        usable = [o.stop_reason in ("converged", "max_iterations") for o in ones]
+        expected = np.stack([np.asarray(o.pose) for o in ones])
+        for covariance in (cov, wide, None):
+            kinds0, offsets0, fractions0 = _kinds_numpy(
+                src, target, result, expected, usable, 0.05, covariance
+            )
+            for threads in (1, 2):
+                kinds, offsets, fractions, poses = _probe(
+                    src, target, starts, result, threads=threads, args=args, cov=covariance
+                )
+                assert np.array_equal(poses, expected)
+                assert list(kinds) == kinds0
+                assert np.allclose(offsets, offsets0, rtol=0, atol=1e-12)
+                assert np.array_equal(fractions, fractions0, equal_nan=True)
+            if args is short and covariance is wide:
+                assert {0, 1, 2, 3} <= set(kinds), list(kinds)
+    with pytest.raises(ValueError, match="init_poses: expected shape"):
+        _probe(src, target, np.zeros((2, 4, 4)), result)
+    with pytest.raises(ValueError, match="tight: must be finite and > 0"):
+        _probe(src, target, starts, result, tight=0.0)
+
+
+def test_restarts_stop_on_arriving_at_home() -> None:
+    """``home``: a restart whose iterate comes within the radius and angle of the result stops
+    there, back at it, in fewer iterations; every other restart ends where it ends without."""
+    from scanreg.basin import restart_offsets
+
+    src, target, truth = _room_pair()
+    home = SE2.from_matrix(np.asarray(_one(src, target, truth.as_matrix()).pose))
+    starts = np.stack([(home @ o).as_matrix() for o in restart_offsets(2, 0.5)])
     radius, cos_angle = 0.02, math.cos(math.radians(0.9))
     for threads in (1, 2):
-        plain, plain_reasons = _core.register_icp_starts(
-            src, target.index, starts, *args, threads, None, target.normals
+        plain_kinds, _, _, plain = _probe(src, target, starts, home, threads=threads)
+        kinds, _, _, poses = _probe(
+            src, target, starts, home, threads=threads, home=(radius, cos_angle)
         )
-        poses, reasons = _core.register_icp_starts(
-            src, target.index, starts, *args, threads, None, target.normals,
-            None, None, True, home, radius, cos_angle,
-        )  # fmt: skip
         arrived = 0
-        for pose, reason, p0, r0 in zip(poses, reasons, plain, plain_reasons, strict=True):
-            rel = np.linalg.inv(home) @ pose
+        for pose, kind, p0, k0 in zip(poses, kinds, plain, plain_kinds, strict=True):
+            rel = np.linalg.inv(home.as_matrix()) @ pose
             at_home = np.hypot(*rel[:2, 2]) <= radius and rel[0, 0] >= cos_angle
             if at_home and not np.array_equal(pose, p0):
                 arrived += 1
-                assert reason == "converged"
+                assert kind == k0 == 1
             else:
-                assert np.array_equal(pose, p0) and reason == r0
+                assert np.array_equal(pose, p0) and kind == k0
         # The half-gate moves come back to the result in this room: stopped on arrival.
         assert arrived >= 2, arrived
-    with pytest.raises(ValueError, match="home: expected"):
-        _core.register_icp_starts(
-            src, target.index, starts, *args, 1, None, target.normals,
-            None, None, True, np.eye(2), radius, cos_angle,
-        )  # fmt: skip
-
-
-def test_outcome_comparison_equals_a_numpy_reference() -> None:
-    """``_core.compare_basin_outcomes`` against the same comparison in numpy: the kind of each
-    outcome (back, inside the covariance, distinct), its offset ``log(result⁻¹ · pose)`` and,
-    when distinct, the fraction of the source within the tight gate."""
-    from scanreg import _core
-
-    src, target, truth = _room_pair()
-    rng = np.random.default_rng(3)
-    tight = 0.05
-    cov = np.diag([4e-4, 1e-4, 3e-5])
-    cov[0, 2] = cov[2, 0] = 2e-5
-    steps = [[0.001, -0.001, 0.001], [0.03, 0.0, 0.0], [0.0, 0.0, math.pi / 2], [1.0, -0.5, 2.0]]
-    steps += list(rng.normal(0.0, [0.3, 0.3, 0.5], (8, 3)))
-    poses = np.stack([(truth @ SE2.exp(np.asarray(v))).as_matrix() for v in steps])
-    poses = np.concatenate([poses, poses[2:3]])  # the same distinct pose twice
-    usable = [True] * len(poses)
-    usable[5] = False
-    info = np.linalg.pinv(cov, hermitian=True)
-    for covariance in (cov, None):
-        kinds, offsets, fractions = _core.compare_basin_outcomes(
-            target.index, src, truth.as_matrix(), poses, usable, tight, covariance, CHI2_3_999
-        )
-        expected = []
-        for i, m in enumerate(poses):
-            if not usable[i]:
-                expected.append(0)
-                continue
-            e = (truth.inverse() @ SE2.from_matrix(m)).log()
-            assert offsets[i] == pytest.approx(e, abs=1e-12)
-            if np.hypot(e[0], e[1]) <= tight / 2 and abs(e[2]) <= math.radians(1.0):
-                expected.append(1)
-            elif covariance is not None and e @ info @ e <= CHI2_3_999:
-                expected.append(2)
-            else:
-                expected.append(3)
-                moved = SE2.from_matrix(m).apply(src)
-                found = target.nearest(moved, tight).indices
-                assert fractions[i] == np.count_nonzero(found >= 0) / len(src)
-        assert list(kinds) == expected
-        assert all(math.isnan(f) for f, k in zip(fractions, kinds, strict=True) if k != 3)
-        assert 1 in kinds and 3 in kinds and (covariance is None or 2 in kinds), kinds
-    bad = (target.index, src, truth.as_matrix(), poses)
-    with pytest.raises(ValueError, match="usable: expected one per pose"):
-        _core.compare_basin_outcomes(*bad, usable[:-1], tight, cov, CHI2_3_999)
-    with pytest.raises(ValueError, match="tight: must be finite and > 0"):
-        _core.compare_basin_outcomes(*bad, usable, 0.0, cov, CHI2_3_999)
-    with pytest.raises(ValueError, match="covariance: expected shape"):
-        _core.compare_basin_outcomes(*bad, usable, tight, np.eye(2), CHI2_3_999)
-    with pytest.raises(ValueError, match="poses: expected shape"):
-        _core.compare_basin_outcomes(*bad[:3], np.zeros((2, 4, 4)), [True] * 2, tight, None, 1.0)
+    with pytest.raises(ValueError, match="home"):
+        _probe(src, target, starts, home, home=(-1.0, cos_angle))
 
 
 def test_probe_restart_path_in_one_call_equals_its_stages() -> None:
-    """``_core.probe_restarts`` (the probe's correlative start, restarts and comparison in one
-    call) gives, on 1 and 2 threads, the poses of ``register_icp_starts`` from the correlative
-    search's pose and the restart starts, compared as ``compare_basin_outcomes`` compares them;
-    with a stop ratio it reads no outcome after the first far one that explains more; bad
-    input is named. ``count_within`` counts as ``overlap_statistics`` does."""
+    """``_core.probe_restarts`` with a correlative grid starts with the registration from the
+    grid search's pose, then the restarts, on 1 and 2 threads; with a stop ratio it reads no
+    outcome after the first far one that explains more; bad input is named. ``count_within``
+    counts as ``overlap_statistics`` does."""
     from scanreg import _core
     from scanreg.basin import restart_offsets
 
     src, target, truth = _room_pair()
-    args = ("point_to_line", "none", 1.0, 0.5, 6, 1e-4, 1e-4, "gauss_newton", 4)
-    result = SE2.from_matrix(
-        np.asarray(
-            _core.register_icp(
-                src, target.index, truth.as_matrix(), *args, 1, None, target.normals
-            ).pose
-        )
-    )
+    result = SE2.from_matrix(np.asarray(_one(src, target, truth.as_matrix()).pose))
     starts = np.stack([(result @ o).as_matrix() for o in restart_offsets(2, 0.5)])
     res, step = 0.15, math.radians(4.0)
     grid = _core.CorrelativeGrid(target.points, res, res, 6)
@@ -492,29 +505,18 @@ def test_probe_restart_path_in_one_call_equals_its_stages() -> None:
         np.ascontiguousarray(src[::2]), tuple(centre), 7, 7, 45, step, "branch_and_bound", 0
     )
     first = SE2.from_vector(np.asarray(match.pose)).as_matrix()
-    tight, cov = 0.05, np.diag([1e-4, 1e-4, 1e-5])
-    home = (0.9 * 0.5 * tight, math.cos(math.radians(0.9)))
+    cov = np.diag([1e-4, 1e-4, 1e-5])
+    _, _, _, expected = _probe(src, target, np.concatenate([first[None], starts]), result, cov=cov)
     for threads in (1, 2):
-        expected, reasons = _core.register_icp_starts(
-            src, target.index, np.concatenate([first[None], starts]), *args, threads, None,
-            target.normals, None, None, True, result.as_matrix(), *home,
-        )  # fmt: skip
-        usable = [r in ("converged", "max_iterations") for r in reasons]
-        kinds0, offsets0, fractions0 = _core.compare_basin_outcomes(
-            target.index, src, result.as_matrix(), expected, usable, tight, cov, CHI2_3_999
-        )
 
         def probe(stop_ratio: float, threads: int = threads) -> Any:
-            return _core.probe_restarts(
-                src, target.index, starts, *args, threads, None, target.normals, None, None,
-                True, result.as_matrix(), *home, grid, 2, 7, 45, step, tight, cov, CHI2_3_999,
-                1.0, stop_ratio, 0.25, math.radians(10.0), None, None, CHI2_3_999,
+            return _probe(
+                src, target, starts, result, threads=threads, grid=grid, step=step, cov=cov,
+                stop_ratio=stop_ratio,
             )  # fmt: skip
 
         kinds, offsets, fractions, poses = probe(math.inf)
         assert np.array_equal(poses, expected)
-        assert list(kinds) == list(kinds0) and np.array_equal(offsets, offsets0)
-        assert np.array_equal(fractions, fractions0, equal_nan=True)
         # The square room's quarter turns explain it about as well: a stop ratio (against a
         # result's fraction of 1) below the first far outcome's fraction stops there.
         far = [
@@ -528,14 +530,14 @@ def test_probe_restart_path_in_one_call_equals_its_stages() -> None:
         assert len(kinds_s) == far[0] + 1 and np.array_equal(poses_s, expected[: far[0] + 1])
     with pytest.raises(ValueError, match="implausible_start, implausible_information"):
         _core.probe_restarts(
-            src, target.index, starts, *args, 1, None, target.normals, None, None, True,
-            result.as_matrix(), *home, grid, 2, 7, 45, step, tight, cov, CHI2_3_999, 1.0,
+            src, target.index, starts, *_ARGS, 1, None, target.normals, None, None, True,
+            result.as_matrix(), *_NO_HOME, grid, 2, 7, 45, step, 0.05, cov, CHI2_3_999, 1.0,
             math.inf, 0.25, 0.2, np.eye(3), None, CHI2_3_999,
         )  # fmt: skip
     with pytest.raises(ValueError, match="covariance: expected shape"):
         _core.probe_restarts(
-            src, target.index, starts, *args, 1, None, target.normals, None, None, True,
-            result.as_matrix(), *home, None, 2, 7, 45, step, tight, np.eye(2), CHI2_3_999, 1.0,
+            src, target.index, starts, *_ARGS, 1, None, target.normals, None, None, True,
+            result.as_matrix(), *_NO_HOME, None, 2, 7, 45, step, 0.05, np.eye(2), CHI2_3_999, 1.0,
             math.inf, 0.25, 0.2, None, None, CHI2_3_999,
         )  # fmt: skip
     for gate in (0.01, 0.05, 0.3):

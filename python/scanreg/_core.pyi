@@ -292,29 +292,6 @@ def register_icp(
     step_projector: NDArray[np.float64] | None = None,
     extrapolate: bool = True,
 ) -> IcpOutcome: ...
-def register_icp_starts(
-    source: NDArray[np.float64],
-    target: KdTree | LocalMap,
-    init_poses: NDArray[np.float64],
-    method: str,
-    kernel: str,
-    kernel_scale: float,
-    max_correspondence_distance: float,
-    max_iterations: int,
-    translation_tolerance: float,
-    rotation_tolerance: float,
-    optimizer: str,
-    min_correspondences: int,
-    num_threads: int | None = None,
-    source_covariances: NDArray[np.float64] | None = None,
-    target_normals: NDArray[np.float64] | None = None,
-    target_covariances: NDArray[np.float64] | None = None,
-    step_projector: NDArray[np.float64] | None = None,
-    extrapolate: bool = True,
-    home: NDArray[np.float64] | None = None,
-    home_radius: float = 0.0,
-    home_cos_angle: float = 1.0,
-) -> tuple[NDArray[np.float64], list[str]]: ...
 
 # --- Censi covariance and block scores (crates/scanreg-py/src/censi.rs) ---
 
@@ -604,16 +581,6 @@ def probe_restarts(
     implausible_information: NDArray[np.float64] | None,
     implausible_chi2: float,
 ) -> tuple[list[int], NDArray[np.float64], list[float], NDArray[np.float64]]: ...
-def compare_basin_outcomes(
-    target: KdTree | LocalMap,
-    source: NDArray[np.float64],
-    result: NDArray[np.float64],
-    poses: NDArray[np.float64],
-    usable: list[bool],
-    tight: float,
-    covariance: NDArray[np.float64] | None,
-    chi2: float,
-) -> tuple[list[int], NDArray[np.float64], list[float]]: ...
 def orientation_symmetry(
     points_array: NDArray[np.float64], normals: NDArray[np.float64]
 ) -> float: ...

@@ -198,8 +198,7 @@ _DEFAULT_THRESHOLDS = VerdictThresholds()
 _PLANAR = ("point_to_plane", "point_to_line")
 
 #: The core solve's arguments from ``method`` to ``target_covariances``, in the binding's
-#: order (``_core.register_icp``, ``_core.register_icp_starts`` and ``_core.probe_restarts``
-#: share them).
+#: order (``_core.register_icp`` and ``_core.probe_restarts`` share them).
 _SolverArgs = tuple[str, str, float, float, int, float, float, str, int, int | None, Any, Any, Any]
 
 
@@ -680,34 +679,19 @@ def register(
         projector: FloatArray | None,
         starts: FloatArray,
         max_iterations: int,
-        home: tuple[FloatArray, float, float] | None = None,
-        probe: tuple[Any, ...] | None = None,
+        probe: tuple[Any, ...],
     ) -> Any:
-        # ``run`` from each of ``starts`` (K, D+1, D+1), the solves in parallel in the core;
-        # ``home``: (pose, radius, cos of the angle) where a solve stops on arrival.
-        if probe is not None:
-            # The wrong-basin probe's whole restart path in one core call: ``probe`` holds
-            # ``_core.probe_restarts``'s arguments after the solver's (scanreg.basin).
-            return _core.probe_restarts(
-                src,
-                index,
-                starts,  # init_poses
-                *solver_args(method_eff, max_iterations),
-                projector,  # step_projector
-                s.extrapolate,
-                *probe,
-            )
-        pose_h, radius, cos_angle = (None, 0.0, 1.0) if home is None else home
-        return _core.register_icp_starts(
+        # The wrong-basin probe's whole restart path in one core call: ``run`` from each of
+        # ``starts`` (K, D+1, D+1), compared with the result as they end; ``probe`` holds
+        # ``_core.probe_restarts``'s arguments after the solver's (scanreg.basin).
+        return _core.probe_restarts(
             src,
             index,
             starts,  # init_poses
             *solver_args(method_eff, max_iterations),
             projector,  # step_projector
             s.extrapolate,
-            pose_h,
-            radius,
-            cos_angle,
+            *probe,
         )
 
     th = _DEFAULT_THRESHOLDS if thresholds is None else thresholds
@@ -756,9 +740,7 @@ def register(
             if method_eff == "point_to_point" and has_normals(prepared)
             else None
         ),
-        "solve": lambda starts, iterations, home=None, probe=None: run_starts(
-            held, starts, iterations, home, probe
-        ),
+        "solve": lambda starts, iterations, probe: run_starts(held, starts, iterations, probe),
     }
     # Built here only when the solve needs it; a lazy analysis builds it on first use.
     ctx: TrustInputs | dict[str, Any] = ctx_fields

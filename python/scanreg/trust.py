@@ -9,7 +9,7 @@ call hands it — never the solver directly:
 * ``plane_solve(start)``: reading ``covariance`` after a point-to-point registration whose
   target has normals runs one point-to-plane/line registration from its pose (the
   ``calibrated`` covariance is that estimate's plus the offset between the two);
-* ``solve(starts, iterations)``: the 2D verdict's wrong-basin probe (:mod:`scanreg.basin`)
+* ``solve(starts, iterations, probe)``: the 2D verdict's wrong-basin probe (:mod:`scanreg.basin`)
   restarts the registration's own solve around the result, every start in one core call;
 * the degeneracy-aware solve (``degeneracy_aware=True``) measures its valley with two held
   solves per weak direction (:func:`valley_moment`, called by ``register`` itself).
@@ -157,9 +157,11 @@ class TrustInputs:
     #: registration from ``pose`` (held along the weak directions where the solve was), for
     #: ``calibrated`` (:func:`_via_plane_reference`); None otherwise.
     plane_solve: Any = None
-    #: ``solve(starts, max_iterations) -> (poses, stop_reasons)``: the registration's own solve
-    #: (held where it was) from each of ``starts`` (``(K, D+1, D+1)``), in one parallel core
-    #: call, for the verdict's wrong-basin probe (:mod:`scanreg.basin`).
+    #: ``solve(starts, max_iterations, probe) -> (kinds, offsets, fractions, poses)``: the
+    #: registration's own solve (held where it was) from each of ``starts`` (``(K, D+1, D+1)``)
+    #: and each outcome's comparison with the result, in one core call
+    #: (``_core.probe_restarts``; ``probe`` holds its arguments after the solver's), for the
+    #: verdict's wrong-basin probe (:mod:`scanreg.basin`).
     solve: Any = None
 
     @functools.cached_property

@@ -102,46 +102,11 @@ pub fn within(
 /// Below this many source points [`within`] runs on the calling thread (a 2D scan).
 const PARALLEL_MIN_POINTS: usize = 2048;
 
-/// Compare the restarts' `poses` (`K` row-major homogeneous matrices, flat) with `result`:
-/// see [`Kind`]. `usable[k]`: whether restart `k` ended converged or at its iteration cap.
+/// The comparison of the restarts' outcomes with the result (see [`Kind`]), one outcome at a
+/// time, in order: an outcome equal to an earlier distinct one reuses its overlap.
 /// `tight`: the probe's tight gate (finite, > 0); `covariance`: the result's (`dof × dof`,
-/// row-major), `None` when it is not finite (then only the fixed distances decide);
-/// `chi2`: the χ² bound of "inside the covariance". Identical distinct poses share one
-/// overlap pass.
-#[allow(clippy::too_many_arguments)]
-pub fn compare_outcomes(
-    search: &dyn NeighborSearch,
-    source: &[f64],
-    result: &[f64],
-    poses: &[f64],
-    usable: &[bool],
-    tight: f64,
-    covariance: Option<&[f64]>,
-    chi2: f64,
-) -> Result<Outcomes> {
-    let mut c = Classifier::new(search, source, result, tight, covariance, chi2)?;
-    let m = c.m;
-    if !poses.len().is_multiple_of(m) {
-        return Err(Error::invalid(
-            "poses",
-            format!("expected a multiple of {m} values, got {}", poses.len()),
-        ));
-    }
-    let count = poses.len() / m;
-    if usable.len() != count {
-        return Err(Error::invalid(
-            "usable",
-            format!("expected one per pose ({count}), got {}", usable.len()),
-        ));
-    }
-    for (pose, &ok) in poses.chunks_exact(m).zip(usable) {
-        c.push(pose, ok)?;
-    }
-    Ok(c.out)
-}
-
-/// The comparison of [`compare_outcomes`], one outcome at a time (in order: an outcome equal
-/// to an earlier distinct one reuses its overlap).
+/// row-major), `None` when it is not finite (then only the fixed distances decide); `chi2`:
+/// the χ² bound of "inside the covariance".
 struct Classifier<'a> {
     search: &'a dyn NeighborSearch,
     source: &'a [f64],
@@ -320,8 +285,7 @@ pub struct Implausible<'a> {
     pub chi2: f64,
 }
 
-/// [`probe_restarts`]'s answer: the outcomes compared with the result (as
-/// [`compare_outcomes`]), up to and including the one that stopped the probe, and their poses
+/// [`probe_restarts`]'s answer: the outcomes compared with the result (see [`Kind`]), up to and including the one that stopped the probe, and their poses
 /// (`K` row-major homogeneous matrices, the correlative start's outcome first).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Probe {
@@ -332,7 +296,7 @@ pub struct Probe {
 /// The whole restart path of the wrong-basin probe in one call: the correlative start (when
 /// given), the registration from it and from each of `starts` (`home` stops a solve that
 /// comes back to the result, see [`icp::Home`]), each outcome compared with the result as it
-/// arrives ([`compare_outcomes`]), and no more restarts once one settles the verdict
+/// arrives (see [`Kind`]), and no more restarts once one settles the verdict
 /// ([`Stop`]). The solves run in waves of the pool's size, read in order: the outcomes (and
 /// where the probe stops) are the same for any thread count.
 #[allow(clippy::too_many_arguments)]
@@ -485,6 +449,30 @@ mod tests {
         [c, -s, x, s, c, y, 0.0, 0.0, 1.0]
     }
 
+    /// The restarts' `poses` (flat, row-major) compared with `result` one by one, as the
+    /// probe compares each as it arrives (`usable[k]`: restart `k` converged or hit its cap).
+    #[allow(clippy::too_many_arguments)]
+    fn compare_outcomes(
+        search: &dyn NeighborSearch,
+        source: &[f64],
+        result: &[f64],
+        poses: &[f64],
+        usable: &[bool],
+        tight: f64,
+        covariance: Option<&[f64]>,
+        chi2: f64,
+    ) -> Result<Outcomes> {
+        let mut c = Classifier::new(search, source, result, tight, covariance, chi2)?;
+        let m = c.m;
+        if !poses.len().is_multiple_of(m) || usable.len() != poses.len() / m {
+            return Err(Error::invalid("usable", "expected one per pose"));
+        }
+        for (pose, &ok) in poses.chunks_exact(m).zip(usable) {
+            c.push(pose, ok)?;
+        }
+        Ok(c.out)
+    }
+
     #[test]
     fn outcomes_are_classified_and_measured() {
         // An L of points; the source is the target itself, the result the identity.
@@ -561,7 +549,7 @@ mod tests {
 
     #[test]
     fn probe_restarts_equals_the_solves_then_the_comparison_and_stops_early() {
-        use crate::icp::{register_many, Method, Optimizer};
+        use crate::icp::{Method, Optimizer, Restarts};
         use crate::Kernel;
         let target = room();
         let tree = KdTree::build(&target, 2).unwrap();
@@ -626,7 +614,8 @@ mod tests {
         };
         // Without a stop: the same as the solves, then the comparison.
         let all = run(&never);
-        let outs = register_many(&src, &tgt, &starts, &settings, Some(&home)).unwrap();
+        let solver = Restarts::new(&src, &tgt, &settings, Some(&home)).unwrap();
+        let outs: Vec<_> = starts.chunks_exact(9).map(|i| solver.solve(i)).collect();
         let poses: Vec<f64> = outs.iter().flat_map(|o| o.pose.clone()).collect();
         let usable: Vec<bool> = outs
             .iter()

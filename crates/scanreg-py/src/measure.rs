@@ -6,10 +6,7 @@ use crate::convert::{
 };
 use crate::knn::KdTree;
 use crate::register::IcpOutcome;
-use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
-    PyReadonlyArray3, PyUntypedArrayMethods,
-};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use scanreg_core::kernel::Kernel;
@@ -226,68 +223,7 @@ type Systems<'py> = (
     usize,
 );
 
-type Compared = (Vec<u8>, Py<PyArray2<f64>>, Vec<f64>);
-
-/// The wrong-basin probe's comparison of its restarts' `poses` (`(K, D+1, D+1)`) with the
-/// `result` pose (`scanreg_core::basin::compare_outcomes`): per outcome its kind (0 failed, 1
-/// back at the result, 2 inside `covariance`'s χ² ≤ `chi2`, 3 distinct), its offset
-/// `log(result⁻¹ · pose)` `(K, dof)` and, when distinct, the fraction of `source` within
-/// `tight` of a target point (NaN otherwise).
-#[pyfunction]
-#[pyo3(signature = (target, source, result, poses, usable, tight, covariance, chi2))]
-#[allow(clippy::too_many_arguments)]
-fn compare_basin_outcomes(
-    py: Python<'_>,
-    target: &Bound<'_, PyAny>,
-    source: PyReadonlyArray2<'_, f64>,
-    result: PyReadonlyArray2<'_, f64>,
-    poses: PyReadonlyArray3<'_, f64>,
-    usable: Vec<bool>,
-    tight: f64,
-    covariance: Option<PyReadonlyArray2<'_, f64>>,
-    chi2: f64,
-) -> PyResult<Compared> {
-    let held = target_search(target)?;
-    let search = held.search();
-    let dim = search.dim();
-    let dof = if dim == 2 { 3 } else { 6 };
-    let src = points_dim(&source, "source", dim)?;
-    let res = pose(&result, "result", dim)?;
-    let shape = poses.shape();
-    if shape[1] != dim + 1 || shape[2] != dim + 1 {
-        return Err(PyValueError::new_err(format!(
-            "poses: expected shape (K, {0}, {0}), got {shape:?}",
-            dim + 1
-        )));
-    }
-    let all = c_slice(&poses, "poses")?;
-    let cov = match &covariance {
-        Some(c) => {
-            if c.shape() != [dof, dof] {
-                return Err(PyValueError::new_err(format!(
-                    "covariance: expected shape ({dof}, {dof}), got {:?}",
-                    c.shape()
-                )));
-            }
-            Some(c_slice(c, "covariance")?)
-        }
-        None => None,
-    };
-    let out = py
-        .detach(|| basin::compare_outcomes(search, src, res, all, &usable, tight, cov, chi2))
-        .map_err(core_err)?;
-    let k = out.kinds.len();
-    let offsets = numpy::ndarray::Array2::from_shape_vec((k, dof), out.offsets)
-        .map_err(|e| PyValueError::new_err(format!("internal: {e}")))?;
-    Ok((
-        out.kinds.into_iter().map(|v| v as u8).collect(),
-        offsets.into_pyarray(py).unbind(),
-        out.fractions,
-    ))
-}
-
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
-    m.add_function(wrap_pyfunction!(compare_basin_outcomes, m)?)?;
     m.add_function(wrap_pyfunction!(count_within, m)?)?;
     m.add_function(wrap_pyfunction!(normal_agreement_systems, m)?)?;
     m.add_function(wrap_pyfunction!(overlap_statistics, m)?)?;

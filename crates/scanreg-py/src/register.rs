@@ -334,107 +334,6 @@ fn register_icp(
     })
 }
 
-#[pyfunction]
-// By position, as `register_icp` (whose arguments these are, `init_pose` replaced by
-// `init_poses` and no `iterate`).
-#[pyo3(signature = (
-    source, target, init_poses, method, kernel, kernel_scale, max_correspondence_distance,
-    max_iterations, translation_tolerance, rotation_tolerance, optimizer, min_correspondences,
-    num_threads=None, source_covariances=None, target_normals=None, target_covariances=None,
-    step_projector=None, extrapolate=true, home=None, home_radius=0.0, home_cos_angle=1.0
-))]
-#[allow(clippy::too_many_arguments)]
-/// The registration from each of `init_poses` (`(K, D+1, D+1)`), the solves in parallel (the
-/// wrong-basin probe's restarts): `(poses (K, D+1, D+1), stop reasons)`, each pose the one
-/// `register_icp` returns from that start. `home` (`(D+1, D+1)`): a solve whose iterate comes
-/// within `home_radius` and a rotation of cosine `home_cos_angle` of it stops there,
-/// `"converged"` (`scanreg_core::icp::Home`).
-fn register_icp_starts<'py>(
-    py: Python<'py>,
-    source: PyReadonlyArray2<'_, f64>,
-    target: &Bound<'_, PyAny>,
-    init_poses: PyReadonlyArray3<'_, f64>,
-    method: &str,
-    kernel: &str,
-    kernel_scale: f64,
-    max_correspondence_distance: f64,
-    max_iterations: usize,
-    translation_tolerance: f64,
-    rotation_tolerance: f64,
-    optimizer: &str,
-    min_correspondences: usize,
-    num_threads: Option<usize>,
-    source_covariances: Option<PyReadonlyArray3<'_, f64>>,
-    target_normals: Option<PyReadonlyArray2<'_, f64>>,
-    target_covariances: Option<PyReadonlyArray3<'_, f64>>,
-    step_projector: Option<PyReadonlyArray2<'_, f64>>,
-    extrapolate: bool,
-    home: Option<PyReadonlyArray2<'_, f64>>,
-    home_radius: f64,
-    home_cos_angle: f64,
-) -> PyResult<(Bound<'py, PyArray3<f64>>, Vec<&'static str>)> {
-    let home = home
-        .as_ref()
-        .map(|h| -> PyResult<icp::Home> {
-            let shape = h.shape();
-            if shape[0] != shape[1] || !(3..=4).contains(&shape[0]) {
-                return Err(PyValueError::new_err(format!(
-                    "home: expected a (3, 3) or (4, 4) homogeneous matrix, got {shape:?}"
-                )));
-            }
-            Ok(icp::Home {
-                pose: c_slice(h, "home")?.to_vec(),
-                radius: home_radius,
-                cos_angle: home_cos_angle,
-            })
-        })
-        .transpose()?;
-    let (dim, outs) = with_inputs(
-        py,
-        &source,
-        |dim| {
-            let shape = init_poses.shape();
-            if shape[0] == 0 || shape[1] != dim + 1 || shape[2] != dim + 1 {
-                return Err(PyValueError::new_err(format!(
-                    "init_poses: expected shape (K, {0}, {0}) with K >= 1, got {shape:?}",
-                    dim + 1
-                )));
-            }
-            c_slice(&init_poses, "init_poses")
-        },
-        true,
-        target,
-        method,
-        kernel,
-        kernel_scale,
-        max_correspondence_distance,
-        max_iterations,
-        translation_tolerance,
-        rotation_tolerance,
-        optimizer,
-        min_correspondences,
-        num_threads,
-        &source_covariances,
-        &target_normals,
-        &target_covariances,
-        &step_projector,
-        extrapolate,
-        |inits, src_in, tgt_in, settings| {
-            icp::register_many(src_in, tgt_in, inits, settings, home.as_ref())
-        },
-    )?;
-    let m = dim + 1;
-    let mut poses = Vec::with_capacity(outs.len() * m * m);
-    let mut reasons = Vec::with_capacity(outs.len());
-    for out in &outs {
-        poses.extend_from_slice(&out.pose);
-        reasons.push(out.stop_reason.name());
-    }
-    let arr = numpy::ndarray::Array3::from_shape_vec((outs.len(), m, m), poses)
-        .map_err(|e| PyValueError::new_err(format!("internal: {e}")))?;
-    Ok((arr.into_pyarray(py), reasons))
-}
-
 /// A `(D+1, D+1)` or `(dof, dof)` array's values, checked for its shape.
 fn square_of<'a>(
     a: &'a Option<PyReadonlyArray2<'_, f64>>,
@@ -462,7 +361,8 @@ type Probed<'py> = (
 );
 
 #[pyfunction]
-// By position, as `register_icp_starts` up to `extrapolate`; then the probe's own.
+// By position, as `register_icp` up to `extrapolate` (`init_pose` replaced by the restarts'
+// `init_poses`, no `iterate`); then the probe's own.
 #[pyo3(signature = (
     source, target, init_poses, method, kernel, kernel_scale, max_correspondence_distance,
     max_iterations, translation_tolerance, rotation_tolerance, optimizer, min_correspondences,
@@ -617,7 +517,6 @@ fn probe_restarts<'py>(
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<IcpOutcome>()?;
     m.add_function(wrap_pyfunction!(register_icp, m)?)?;
-    m.add_function(wrap_pyfunction!(register_icp_starts, m)?)?;
     m.add_function(wrap_pyfunction!(probe_restarts, m)?)?;
     Ok(())
 }

@@ -122,44 +122,14 @@ pub fn register(
     })
 }
 
-/// [`register`] from each of several starts (`inits`: row-major homogeneous poses, one after
-/// another), the solves in parallel: the wrong-basin probe's restarts in one call. Each
-/// outcome is the one [`register`] gives from that start alone (the solves share nothing but
-/// the read-only inputs; each one's reductions are deterministic).
+/// [`register`] from one start after another, the problem (its checks of the inputs) built
+/// once: the wrong-basin probe ([`crate::basin::probe_restarts`]) solves its restarts in
+/// order and stops as soon as one settles the verdict. Each outcome is the one [`register`]
+/// gives from that start alone (the solves share nothing but the read-only inputs).
 ///
 /// `home`: a pose where a solve stops on arrival (see [`Home`]): the probe's result, which a
 /// restart that comes back to it has answered — it returns that iterate, `Converged`, without
 /// the final evaluation (its `evaluation` empty), instead of iterating on to the same pose.
-pub fn register_many(
-    source: &Source<'_>,
-    target: &Target<'_>,
-    inits: &[f64],
-    settings: &Settings,
-    home: Option<&Home>,
-) -> Result<Vec<Outcome>> {
-    use rayon::prelude::*;
-    let solver = Restarts::new(source, target, settings, home)?;
-    let m = solver.pose_len();
-    if !inits.len().is_multiple_of(m) {
-        return Err(Error::invalid(
-            "init_poses",
-            format!("expected a multiple of {m} values, got {}", inits.len()),
-        ));
-    }
-    for init in inits.chunks_exact(m) {
-        split_pose("init", init, solver.dim)?;
-    }
-    // With one thread in the pool, handing the solves to it only adds a wake-up and its idle
-    // spin: run them here, in the same order (each solve is independent).
-    if rayon::current_num_threads() == 1 {
-        return Ok(inits.chunks_exact(m).map(|i| solver.solve(i)).collect());
-    }
-    Ok(inits.par_chunks_exact(m).map(|i| solver.solve(i)).collect())
-}
-
-/// The solves of [`register_many`] one start at a time, the problem (its checks of the
-/// inputs) built once: the wrong-basin probe ([`crate::basin::probe_restarts`]) solves its
-/// restarts in order and stops as soon as one settles the verdict.
 pub struct Restarts<'a> {
     pr: Problem<'a>,
     settings: &'a Settings,
@@ -197,11 +167,6 @@ impl<'a> Restarts<'a> {
         })
     }
 
-    /// Values in one row-major homogeneous pose.
-    pub fn pose_len(&self) -> usize {
-        (self.dim + 1) * (self.dim + 1)
-    }
-
     /// The registration from `init` (checked by the caller: a valid homogeneous pose).
     pub fn solve(&self, init: &[f64]) -> Outcome {
         if self.dim == 2 {
@@ -212,7 +177,7 @@ impl<'a> Restarts<'a> {
     }
 }
 
-/// A pose [`register_many`]'s solves stop at on arrival: within `radius` (translation of
+/// A pose [`Restarts`]' solves stop at on arrival: within `radius` (translation of
 /// `home⁻¹ · T`, in the points' units) and at a rotation whose cosine is at least `cos_angle`
 /// (the angle's cosine in 2D; `(trace(R) − 1) / 2` in 3D).
 #[derive(Debug, Clone, PartialEq)]

@@ -277,6 +277,43 @@ fn identical_for_one_and_two_threads() {
     assert_eq!(a.iterations, b.iterations);
 }
 
+/// Without a home, a restart is [`register`] from its start, bit for bit; a home reached
+/// on the way stops it there, converged, in fewer iterations.
+#[test]
+fn restarts_are_the_registration_from_each_start() {
+    for dim in [2, 3] {
+        let (tgt, truth) = if dim == 3 {
+            (room_3d(), truth_3d().to_flat())
+        } else {
+            (room_2d(), truth_2d().to_flat())
+        };
+        let src = if dim == 3 {
+            source_of(&tgt, &truth_3d())
+        } else {
+            source_of(&tgt, &truth_2d())
+        };
+        let (tree, g, sg) = geometry(&tgt, &src, dim);
+        let (target, source) = with_geometry(&tree, &g, &src, &sg);
+        let s = settings(Method::Gicp, Kernel::None, Optimizer::GaussNewton);
+        let start = identity(dim);
+        let alone = register(&source, &target, &start, &s).unwrap();
+        let plain = Restarts::new(&source, &target, &s, None).unwrap();
+        let again = plain.solve(&start);
+        assert_eq!(again.pose, alone.pose);
+        assert_eq!(again.iterations, alone.iterations);
+        let home = Home {
+            pose: truth.clone(),
+            radius: 0.05,
+            cos_angle: 2f64.to_radians().cos(),
+        };
+        let homing = Restarts::new(&source, &target, &s, Some(&home)).unwrap();
+        let stopped = homing.solve(&start);
+        assert_eq!(stopped.stop_reason, StopReason::Converged);
+        assert!(stopped.iterations < alone.iterations);
+        assert!(max_abs_diff(&stopped.pose, &truth) < 0.1);
+    }
+}
+
 #[test]
 fn stop_reasons() {
     let tgt = room_3d();
