@@ -305,14 +305,62 @@ fn dt1d(f: &mut [f64], v: &mut [usize], z: &mut [f64], out: &mut [f64]) {
 }
 
 fn transform_lines(data: &mut [f64], len: usize, sequential: bool) {
+    // One scratch per worker, not three allocations per line (`dt1d` writes every entry it
+    // reads): a 180-point scan's grid has a few hundred lines, each a few hundred cells.
     data.par_chunks_mut(len)
         .with_min_len(min_len(sequential))
-        .for_each(|line| {
-            let mut v = vec![0usize; len];
-            let mut z = vec![0.0; len + 1];
-            let mut out = vec![0.0; len];
-            dt1d(line, &mut v, &mut z, &mut out);
-        });
+        .for_each_init(
+            || (vec![0usize; len], vec![0.0; len + 1], vec![0.0; len]),
+            |(v, z, out), line| {
+                // A line without an occupied cell stays infinite (what `dt1d` writes back).
+                if line.iter().any(|f| f.is_finite()) {
+                    dt1d(line, v, z, out);
+                }
+            },
+        );
+}
+
+/// Entries of [`Gaussian`]'s table at most (the probe's grids need about 220).
+const GAUSSIAN_TABLE_MAX: usize = 1 << 16;
+
+/// `exp(−d / 2s²) as f32` of a squared distance `d` in cells², by table where `d` is a whole
+/// number (the distance transform's every finite value: sums of squared whole offsets, exact
+/// in `f64`), so a grid's tens of thousands of cells cost a few hundred `exp`s. The table holds
+/// the same expression's value at the same `d`: the same bits as computing each cell. Past
+/// `−d / 2s² < −110` the value is `+0.0` in `f32` (`e^−110 ≈ 1.7e−48`, far below half the least
+/// subnormal, `7e−46`, whatever the last bit of `exp`), where the table ends.
+struct Gaussian {
+    s2: f64,
+    table: Vec<f32>,
+}
+
+impl Gaussian {
+    fn new(s2: f64, cells: usize) -> Self {
+        let last = (220.0 * s2).ceil();
+        let cap = GAUSSIAN_TABLE_MAX.min(cells);
+        let len = if last.is_finite() && last >= 0.0 {
+            (last as usize).saturating_add(1).min(cap)
+        } else {
+            0
+        };
+        let table = (0..len)
+            .map(|i| (-0.5 * i as f64 / s2).exp() as f32)
+            .collect();
+        Gaussian { s2, table }
+    }
+
+    fn at(&self, d: f64) -> f32 {
+        let i = d as usize; // saturating: NaN and negatives to 0, caught by the equality
+        if i < self.table.len() && i as f64 == d {
+            return self.table[i];
+        }
+        let x = -0.5 * d / self.s2;
+        if x < -110.0 {
+            0.0
+        } else {
+            x.exp() as f32
+        }
+    }
 }
 
 fn transpose(data: &[f64], width: usize, height: usize, sequential: bool) -> Vec<f64> {
@@ -467,18 +515,23 @@ impl LikelihoodGrid {
         transform_lines(&mut d2, width, seq); // along x (rows)
         let mut cols = transpose(&d2, width, height, seq);
         transform_lines(&mut cols, height, seq); // along y (columns)
-        let d2 = transpose(&cols, height, width, seq);
         let s2 = (sigma / resolution).powi(2);
-        let likelihood: Vec<f32> = d2
-            .par_iter()
+        let gauss = Gaussian::new(s2, width * height);
+        // Both grids row-major straight from the columns (no transpose back).
+        let mut likelihood = vec![0.0f32; width * height];
+        let mut dist2 = vec![0.0f32; width * height];
+        likelihood
+            .par_chunks_mut(width)
+            .zip(dist2.par_chunks_mut(width))
             .with_min_len(min_len(seq))
-            .map(|&d| (-0.5 * d / s2).exp() as f32)
-            .collect();
-        let dist2: Vec<f32> = d2
-            .par_iter()
-            .with_min_len(min_len(seq))
-            .map(|&d| d.min(1e30) as f32)
-            .collect();
+            .enumerate()
+            .for_each(|(y, (like, dist))| {
+                for (x, (l, e)) in like.iter_mut().zip(dist.iter_mut()).enumerate() {
+                    let d = cols[x * height + y];
+                    *l = gauss.at(d);
+                    *e = d.min(1e30) as f32;
+                }
+            });
         let base = Level {
             shift: 0,
             width: width as i64,
