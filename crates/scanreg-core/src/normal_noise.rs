@@ -253,13 +253,17 @@ fn swept_2d(
     let mut nearest = vec![f64::NAN; n];
     let mut buf: Vec<(u32, f64)> = Vec::with_capacity(k + 1);
     let other = 1 - axis;
-    let xs: Vec<f64> = order
+    // One record per point in sweep order — its coordinate along the axis, across it, and its
+    // index — read together by the inner loops below.
+    let sorted: Vec<(f64, f64, u32)> = order
         .iter()
-        .map(|&i| points[2 * i as usize + axis])
-        .collect();
-    let ys: Vec<f64> = order
-        .iter()
-        .map(|&i| points[2 * i as usize + other])
+        .map(|&i| {
+            (
+                points[2 * i as usize + axis],
+                points[2 * i as usize + other],
+                i,
+            )
+        })
         .collect();
     let sq = |p: [f64; 2], q: [f64; 2]| {
         // The tree's sq_dist(p, q), term by term.
@@ -271,7 +275,7 @@ fn swept_2d(
         d
     };
     let insert = |buf: &mut Vec<(u32, f64)>, j: u32, d: f64| crate::knn::offer_k(buf, 0, k, j, d);
-    for (pos, &qi) in order.iter().enumerate() {
+    for (pos, &(qa, qb, qi)) in sorted.iter().enumerate() {
         let q = pt(qi as usize);
         // Seeded with the k points around this one in scan order (its neighbours along the
         // surface, mostly the k nearest themselves), the k-th distance is tight from the start;
@@ -281,33 +285,40 @@ fn swept_2d(
         for j in first..first + k {
             insert(&mut buf, j as u32, sq(pt(j), q));
         }
-        let seeded = |j: u32| (first..first + k).contains(&(j as usize));
-        let (qa, qb) = (q[axis], q[other]);
-        let visit = |h: usize, buf: &mut Vec<(u32, f64)>| -> bool {
-            let ea = xs[h] - qa;
-            let worst = buf[k - 1].1;
+        let seeds = first as u32..(first + k) as u32;
+        // Outward along the axis each way from the query, until the gap along it alone is
+        // beyond the k-th distance (plain loops: the closure they replaced was called, not
+        // inlined, at every step).
+        let mut worst = buf[k - 1].1;
+        for &(a, b, j) in &sorted[pos + 1..] {
+            let ea = a - qa;
             if ea * ea > worst {
-                return false;
+                break;
             }
-            let j = order[h];
-            if !seeded(j) {
-                let eb = ys[h] - qb;
+            if !seeds.contains(&j) {
+                let eb = b - qb;
                 // The tree's sq_dist: two squares summed (its leading `0.0 +` adds nothing to
                 // a square, and a sum of two terms is the same in either order).
                 let d = ea * ea + eb * eb;
                 if d <= worst {
-                    insert(buf, j, d);
+                    insert(&mut buf, j, d);
+                    worst = buf[k - 1].1;
                 }
             }
-            true
-        };
-        let mut h = pos + 1;
-        while h < n && visit(h, &mut buf) {
-            h += 1;
         }
-        let mut h = pos;
-        while h > 0 && visit(h - 1, &mut buf) {
-            h -= 1;
+        for &(a, b, j) in sorted[..pos].iter().rev() {
+            let ea = a - qa;
+            if ea * ea > worst {
+                break;
+            }
+            if !seeds.contains(&j) {
+                let eb = b - qb;
+                let d = ea * ea + eb * eb;
+                if d <= worst {
+                    insert(&mut buf, j, d);
+                    worst = buf[k - 1].1;
+                }
+            }
         }
         let v = pca_in(|j| &points[2 * j..2 * j + 2], 2, &buf);
         let i = qi as usize;
