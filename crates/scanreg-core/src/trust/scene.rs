@@ -213,13 +213,22 @@ pub fn sampling_system(
     if dim != 2 || n < 3 || correspondences.len() != n || rotation.len() < 4 {
         return None;
     }
+    // Each bearing once (the comparator computed two per comparison).
+    let bearing: Vec<f64> = (0..n)
+        .map(|i| source[2 * i + 1].atan2(source[2 * i]))
+        .collect();
     let mut order: Vec<usize> = (0..n).collect();
     // Stable: points at the same bearing keep their input order (the reference's argsort).
-    order.sort_by(|&i, &j| {
-        let ai = source[2 * i + 1].atan2(source[2 * i]);
-        let aj = source[2 * j + 1].atan2(source[2 * j]);
-        ai.total_cmp(&aj)
-    });
+    order.sort_by(|&i, &j| bearing[i].total_cmp(&bearing[j]));
+    // `step[k]`: from the k-th point in bearing order to the next; a point's step back is its
+    // predecessor's step ahead (the same differences, so the same `hypot`), each taken once.
+    let step: Vec<f64> = order
+        .windows(2)
+        .map(|w| {
+            let (a, b) = (w[0], w[1]);
+            (source[2 * b] - source[2 * a]).hypot(source[2 * b + 1] - source[2 * a + 1])
+        })
+        .collect();
     let mut h = [0.0; 9];
     let mut m = [0.0; 9];
     let mut count = 0usize;
@@ -240,10 +249,7 @@ pub fn sampling_system(
         let (prev, next) = (order[k - 1], order[k + 1]);
         let sx = 0.5 * (source[2 * next] - source[2 * prev]);
         let sy = 0.5 * (source[2 * next + 1] - source[2 * prev + 1]);
-        let back =
-            (source[2 * i] - source[2 * prev]).hypot(source[2 * i + 1] - source[2 * prev + 1]);
-        let ahead =
-            (source[2 * next] - source[2 * i]).hypot(source[2 * next + 1] - source[2 * i + 1]);
+        let (back, ahead) = (step[k - 1], step[k]);
         if back.min(ahead) > max_step {
             continue;
         }
