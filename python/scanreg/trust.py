@@ -45,7 +45,7 @@ from ._validate import FloatArray, build_lazy
 from ._validate import build as _build
 from ._validate import frozen as _frozen
 from ._validate import readonly as _readonly
-from .basin import probe_basin, tight_gate
+from .basin import BasinProbe, probe_basin, tight_gate
 from .degeneracy import (
     Degeneracy,
     sampled_normals,
@@ -703,10 +703,10 @@ def _trust(
             if isinstance(ctx.target, PreparedTarget) and ctx.target.normals is not None
             else None,
         )
-        report = dataclasses.replace(checked.report, basin=probe)
+        report = _with_basin(checked.report, probe)
         # Only an alternative can add a reason: without one the verdict stands as judged.
         verdict = judge(report, th) if probe.alternative is not None else checked.verdict
-        checked = Assessment(report=report, verdict=verdict)
+        checked = _build(Assessment, {"report": report, "verdict": verdict})
         if probe.covered:
             # Part of the calibrated covariance: alternatives in the same basin it must cover.
             chosen = _readonly(_psd(chosen + probe.growth))
@@ -726,6 +726,17 @@ def _trust(
             "seconds": time.perf_counter() - t0,
         },
     )
+
+
+def _with_basin(report: QualityReport, probe: BasinProbe) -> QualityReport:
+    """``dataclasses.replace(report, basin=probe)`` without ``__init__``: the report's fields
+    as they are (checked when it was built; the lazy ones still lazy, computed from the same
+    inputs when read) and ``basin``. ``replace`` read every field, computing the lazy ones, and
+    set each through ``object.__setattr__``: 5 of the probe's screen's µs on a 2D scan."""
+    new = object.__new__(type(report))
+    new.__dict__.update(report.__dict__)
+    new.__dict__["basin"] = probe
+    return new
 
 
 def residual_variance(out: Any, components: int, kernel: str, dof: int) -> float:
