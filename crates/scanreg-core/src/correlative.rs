@@ -394,6 +394,18 @@ fn max_with_shifted(a: &[f32], half: usize, out: &mut [f32]) {
     }
 }
 
+/// [`max_with_shifted`] appended to `out` (its `a.len() + half` values, in order).
+fn push_max_with_shifted(a: &[f32], half: usize, out: &mut Vec<f32>) {
+    let n = a.len();
+    let lead = half.min(n);
+    out.extend_from_slice(&a[..lead]);
+    out.extend(a[lead..].iter().zip(&a[..n - lead]).map(|(x, y)| x.max(*y)));
+    if half > n {
+        out.resize(out.len() + (half - n), 0.0); // only when the level is narrower than the stride
+    }
+    out.extend_from_slice(&a[n.max(half) - half..n]);
+}
+
 /// Level `h` from level `h − 1` (`prev`, stride `half = 2^(h−1)`): each cell the maximum of the
 /// 2 × 2 cells `half` apart, i.e. of a `2^h × 2^h` window of the likelihood. Separable: rows
 /// first, then pairs of rows, without per-cell bounds checks.
@@ -406,6 +418,33 @@ fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64, sequential: bool) -> 
     debug_assert_eq!(width as usize, wp + h);
     debug_assert_eq!(height as usize, hp + h);
     let wu = width as usize;
+    if sequential {
+        // Each output written once, in order, into buffers that start empty (no zeroed buffers
+        // filled again). The same maxima of the same cells: a maximum is exact.
+        let mut rows = Vec::with_capacity(hp * wu);
+        for a in prev.data.chunks_exact(wp) {
+            push_max_with_shifted(a, h, &mut rows);
+        }
+        let mut data = Vec::with_capacity(wu * height as usize);
+        for r in 0..height as usize {
+            let upper = r
+                .checked_sub(h)
+                .filter(|&j| j < hp)
+                .map(|j| &rows[j * wu..(j + 1) * wu]);
+            let lower = (r < hp).then(|| &rows[r * wu..(r + 1) * wu]);
+            match (upper, lower) {
+                (Some(a), Some(b)) => data.extend(a.iter().zip(b).map(|(x, y)| x.max(*y))),
+                (Some(a), None) | (None, Some(a)) => data.extend_from_slice(a),
+                (None, None) => data.resize(data.len() + wu, 0.0),
+            }
+        }
+        return Level {
+            shift,
+            width,
+            height,
+            data,
+        };
+    }
     let mut rows = vec![0.0f32; hp * wu];
     rows.par_chunks_mut(wu)
         .zip(prev.data.par_chunks(wp))
@@ -1120,6 +1159,32 @@ mod tests {
                     }
                     assert_eq!(lvl.at(x, y), m, "level {h} at {x},{y}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn pooling_on_the_calling_thread_equals_the_parallel_pooling() {
+        // The room's grid and a two-point one (levels narrower than their stride).
+        for (points, res) in [(room(), 0.1), (vec![0.0, 0.0, 0.15, 0.05], 0.1)] {
+            let g = LikelihoodGrid::build(&points, res, res, 0).unwrap();
+            let (w, h) = (g.width as i64, g.height as i64);
+            let mut prev = Level {
+                shift: 0,
+                width: w,
+                height: h,
+                data: g.base.data.clone(),
+            };
+            for level in 1..=6 {
+                let half = 1i64 << (level - 1);
+                let seq = pool(&prev, half, w, h, true);
+                let par = pool(&prev, half, w, h, false);
+                assert_eq!(
+                    (seq.shift, seq.width, seq.height),
+                    (par.shift, par.width, par.height)
+                );
+                assert_eq!(seq.data, par.data, "level {level}");
+                prev = seq;
             }
         }
     }
