@@ -98,6 +98,30 @@ fn kernel_vector(b: &[f64; 6], mu: f64) -> [f64; 3] {
     }
 }
 
+/// `2^-⌈log2 x⌉` for a finite `x > 0`, from the bits of a normal `x` (`log2`, `ceil` and
+/// `powi` were a tenth of the k-NN covariances' eigen time); a subnormal `x` takes the libm
+/// route. The same power wherever `log2` rounds as it should; where it cannot (`x` a few ulps
+/// above a power of two, `log2 x` rounded down onto the integer) the two differ by one
+/// binade, and an exact power-of-two scaling changes none of [`sym3`]'s roundings.
+#[inline(always)]
+fn inverse_power_ceiling(x: f64) -> f64 {
+    const MANTISSA: u64 = (1 << 52) - 1;
+    let bits = x.to_bits();
+    let biased = (bits >> 52) as i32; // sign bit clear: x > 0
+    if biased == 0 {
+        return 2f64.powi(-(x.log2().ceil() as i32));
+    }
+    // x = 1.m × 2^e: ⌈log2 x⌉ is e for m = 0, else e + 1.
+    let e = biased - 1023 + i32::from(bits & MANTISSA != 0);
+    // 2^-e for -e in the normal range (|e| <= 1023 here: x is at most f64::MAX < 2^1024).
+    let m = -e;
+    if m >= -1022 {
+        f64::from_bits(((m + 1023) as u64) << 52)
+    } else {
+        2f64.powi(m)
+    }
+}
+
 /// Row-major symmetric 3x3 `m` (only the upper triangle is read): eigenvalues ascending and
 /// unit eigenvectors forming a right-handed orthonormal basis.
 pub fn sym3(m: &[f64; 9]) -> ([f64; 3], [[f64; 3]; 3]) {
@@ -112,7 +136,7 @@ pub fn sym3(m: &[f64; 9]) -> ([f64; 3], [[f64; 3]; 3]) {
     }
     // Scale by a power of two (exact) so that the largest entry is in [0.5, 1]: no overflow or
     // underflow in the cubic's coefficients.
-    let scale = 2f64.powi(-(amax.log2().ceil() as i32));
+    let scale = inverse_power_ceiling(amax);
     let a = upper.map(|v| v * scale);
     // Shift by the mean eigenvalue: B = A − qI, p² = tr(B²)/6.
     let q = (a[0] + a[3] + a[5]) / 3.0;
@@ -382,6 +406,43 @@ mod tests {
                     .abs()
                     < 1e-14
             );
+        }
+    }
+
+    #[test]
+    fn inverse_power_ceiling_is_the_libm_power() {
+        // Powers of two, their neighbours, subnormals and the extremes: 2^-⌈log2 x⌉ exactly
+        // (the libm route, where log2 rounds onto the integer only for powers of two here).
+        let mut xs = vec![
+            f64::MIN_POSITIVE,
+            f64::MAX,
+            5e-324,
+            1e-310,
+            0.1,
+            0.3,
+            1.0,
+            3.0,
+        ];
+        for e in -1074..1024 {
+            let x = 2f64.powi(e);
+            xs.extend([
+                x,
+                x * 1.5,
+                x * (1.0 + 2f64.powi(-20)),
+                x * (2.0 - 2f64.powi(-20)),
+            ]);
+        }
+        let mut g = Lcg(7);
+        xs.extend((0..10_000).map(|_| 2f64.powf(80.0 * g.unit() - 40.0)));
+        for x in xs.into_iter().filter(|x| *x > 0.0 && x.is_finite()) {
+            let libm = 2f64.powi(-(x.log2().ceil() as i32));
+            let y = inverse_power_ceiling(x);
+            assert_eq!(y.to_bits(), libm.to_bits(), "x = {x:e}");
+            // The scaled value is in (0.5, 1] as the solver wants (where the power itself is
+            // a finite non-zero double: all but the extreme binades).
+            if y.is_finite() && y > 0.0 {
+                assert!(x * y <= 1.0 && x * y > 0.5, "x = {x:e}");
+            }
         }
     }
 }
