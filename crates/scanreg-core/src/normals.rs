@@ -181,11 +181,21 @@ pub(crate) fn eigen(c: &[f64; 9], dim: usize) -> ([f64; 3], [[f64; 3]; 3]) {
 /// Centred second moment `(1/m) Σ (q − q̄)(q − q̄)ᵀ` of the neighbours `buf` (row-major
 /// `dim x dim` in a 3x3 array). Two passes: mean, then centred sum (no cancellation far from 0).
 pub(crate) fn scatter(tree: &KdTree, buf: &[(u32, f64)]) -> [f64; 9] {
-    let dim = tree.dim();
+    if tree.dim() == 3 {
+        scatter_of::<3>(tree.points(), buf)
+    } else {
+        scatter_of::<2>(tree.points(), buf)
+    }
+}
+
+/// [`scatter`] for a fixed dimension: the loops unrolled, the same sums in the same order.
+#[inline(always)]
+fn scatter_of<const D: usize>(points: &[f64], buf: &[(u32, f64)]) -> [f64; 9] {
+    let point = |j: u32| -> &[f64] { &points[j as usize * D..j as usize * D + D] };
     let mut mean = [0.0; 3];
     for &(j, _) in buf.iter() {
-        let q = tree.point(j as usize);
-        for c in 0..dim {
+        let q = point(j);
+        for c in 0..D {
             mean[c] += q[c];
         }
     }
@@ -195,24 +205,38 @@ pub(crate) fn scatter(tree: &KdTree, buf: &[(u32, f64)]) -> [f64; 9] {
     }
     let mut cov = [0.0; 9];
     for &(j, _) in buf.iter() {
-        let q = tree.point(j as usize);
+        let q = point(j);
         let mut d = [0.0; 3];
-        for c in 0..dim {
+        for c in 0..D {
             d[c] = q[c] - mean[c];
         }
-        for r in 0..dim {
-            for c in r..dim {
-                cov[r * dim + c] += d[r] * d[c];
+        for r in 0..D {
+            for c in r..D {
+                cov[r * D + c] += d[r] * d[c];
             }
         }
     }
-    for r in 0..dim {
-        for c in r..dim {
-            cov[r * dim + c] /= m;
-            cov[c * dim + r] = cov[r * dim + c];
+    for r in 0..D {
+        for c in r..D {
+            cov[r * D + c] /= m;
+            cov[c * D + r] = cov[r * D + c];
         }
     }
     cov
+}
+
+/// `Σ_j λ_j v_j v_jᵀ` (row-major `D x D` in a 3x3 array), summed over `j` in order.
+#[inline(always)]
+fn from_eigen<const D: usize>(lam: &[f64; 3], vecs: &[[f64; 3]; 3]) -> [f64; 9] {
+    let mut out = [0.0; 9];
+    for (j, v) in vecs.iter().enumerate().take(D) {
+        for r in 0..D {
+            for c in 0..D {
+                out[r * D + c] += lam[j] * v[r] * v[c];
+            }
+        }
+    }
+    out
 }
 
 /// Whether a neighbourhood with ascending eigenvalues `vals` spans a line (2D) or a plane
@@ -383,13 +407,11 @@ pub fn local_geometry_with(
                     out = cov;
                 } else {
                     // C = Σ_j λ_j v_j v_jᵀ
-                    for (j, v) in vecs.iter().enumerate().take(dim) {
-                        for r in 0..dim {
-                            for c in 0..dim {
-                                out[r * dim + c] += lam[j] * v[r] * v[c];
-                            }
-                        }
-                    }
+                    out = if dim == 3 {
+                        from_eigen::<3>(&lam, &vecs)
+                    } else {
+                        from_eigen::<2>(&lam, &vecs)
+                    };
                 }
             }
         }
