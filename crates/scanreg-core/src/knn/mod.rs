@@ -164,10 +164,18 @@ fn scan_outward<'a, const D: usize>(
 fn bounds<const D: usize>(items: &[([f64; D], u32)]) -> ([f64; D], [f64; D]) {
     let mut lo = [f64::INFINITY; D];
     let mut hi = [f64::NEG_INFINITY; D];
+    // Plain comparisons rather than f64::min/max, whose NaN handling did not vectorise (the
+    // build took 18-23 % longer on a 25k-point cloud). The same box: a NaN is skipped either
+    // way (and refused before a build), and only a zero's sign can differ, which no width
+    // sees.
     for (p, _) in items {
         for c in 0..D {
-            lo[c] = lo[c].min(p[c]);
-            hi[c] = hi[c].max(p[c]);
+            if p[c] < lo[c] {
+                lo[c] = p[c];
+            }
+            if p[c] > hi[c] {
+                hi[c] = p[c];
+            }
         }
     }
     (lo, hi)
