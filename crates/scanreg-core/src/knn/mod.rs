@@ -112,6 +112,18 @@ pub(crate) fn offer_k(out: &mut Vec<(u32, f64)>, start: usize, k: usize, id: u32
     buf[pos] = (id, d);
 }
 
+/// `a.min(b)` for a running minimum `a` (never NaN) and a squared distance `b` (never −0):
+/// the same value, by one comparison instead of `f64::min`'s NaN handling, on a per-point
+/// path of the nearest-neighbour search.
+#[inline(always)]
+fn min_of(a: f64, b: f64) -> f64 {
+    if b < a {
+        b
+    } else {
+        a
+    }
+}
+
 /// Make `(p, id)` the best `(distance², index)` if it comes before it.
 #[inline(always)]
 fn consider<const D: usize>(p: &[f64; D], id: u32, q: &[f64; D], best: &mut (f64, u32)) {
@@ -134,11 +146,11 @@ fn consider_second<const D: usize>(
     let d = sq_dist(p, q);
     if d <= best.0 && before(d, id, best.0, best.1) {
         if best.1 != u32::MAX {
-            *second = second.min(best.0);
+            *second = min_of(*second, best.0);
         }
         *best = (d, id);
     } else if id != best.1 {
-        *second = second.min(d);
+        *second = min_of(*second, d);
     }
 }
 
@@ -420,7 +432,8 @@ impl<const D: usize> Inner<D> {
                 } else {
                     (nd.right, node + 1)
                 };
-                let far_lb = lb.max(diff * diff);
+                let dd = diff * diff;
+                let far_lb = if dd > lb { dd } else { lb };
                 if far_lb <= bound() {
                     stack_node[top] = far;
                     stack_lb[top] = far_lb;
