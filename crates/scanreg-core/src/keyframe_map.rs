@@ -9,12 +9,16 @@
 //! it (no running subtraction: the same bits whatever the history).
 //!
 //! Normals (k-NN PCA, [`crate::normals`]) are recomputed only where they can have changed: for
-//! the voxels that are new or whose centroid moved, and for those with a changed point (an old
-//! or a new centroid) within the radius of the `k` neighbours their normal was computed from.
-//! Any other voxel has the same `k` neighbours at the same places, so the map's normals are
-//! those of a full recomputation (up to ties in the neighbour order). Keeping a normal whose
+//! the voxels that are new or whose centroid moved, for those one of whose `k` neighbours moved
+//! or left (each voxel keeps the ids of the neighbours its normal was computed from), and for
+//! those with a new centroid within the radius of those `k` neighbours. Any other voxel has the
+//! same `k` neighbours at the same places, so the map's normals are those of a full
+//! recomputation (up to ties in the neighbour order). Keeping a normal whose
 //! neighbourhood changed is not safe: a distant wall seen first by one sparse scan gets its
 //! normal from points spread across a corner, and later keyframes fill it in.
+//! Voxels live at stable ids and the map's rows are a list of ids: a keyframe moves only the
+//! rows of the voxels it and the evicted keyframe touch, merged into the rest by their first
+//! point, instead of sorting and moving every voxel and rehashing their keys.
 //! Each voxel also keeps the distance to its nearest other point (the second of its `k`
 //! neighbours), so the map's median spacing comes without a search of its own.
 //! The k-d tree is rebuilt over the map on every insert: a few thousand 2D points build in tens
@@ -41,6 +45,9 @@ struct Part {
     points: Vec<f64>,
 }
 
+/// No voxel (an empty neighbour slot, no nearest point).
+const NONE: u32 = u32::MAX;
+
 /// One occupied voxel: its parts (oldest keyframe first), centroid and normal.
 #[derive(Debug, Clone)]
 struct Cell {
@@ -52,10 +59,19 @@ struct Cell {
     /// Squared distance to the farthest of the `k` neighbours the normal was computed from
     /// (`inf` while the map held fewer than `k` points).
     radius_sq: f64,
-    /// The voxel of the nearest other map point (the second of the `k` neighbours).
-    nearest: Option<[i64; 3]>,
+    /// The voxel (its id) of the nearest other map point (the second of the `k` neighbours).
+    nearest: u32,
     /// Its squared distance (NaN while the map holds one point).
     nearest_sq: f64,
+}
+
+impl Cell {
+    /// Where the voxel's row goes: the keyframe and index of its first point in the window.
+    fn rank(&self) -> (u64, usize) {
+        self.parts
+            .first()
+            .map_or((u64::MAX, usize::MAX), |p| (p.keyframe, p.first))
+    }
 }
 
 /// The map after an insert: points, their normals and the tree over them (row `i` of each is
@@ -88,8 +104,19 @@ pub struct KeyframeMap {
     k: usize,
     max_keyframes: usize,
     viewpoint: [f64; 3],
+    /// Every voxel by a stable id (its place here), live or free: a voxel keeps its id while
+    /// it is in the map, so ids held across inserts (neighbours, nearest) need no rewrite
+    /// when rows move.
     cells: Vec<Cell>,
-    slot: FxHashMap<[i64; 3], usize>,
+    /// Ids of emptied voxels, for reuse.
+    free: Vec<u32>,
+    slot: FxHashMap<[i64; 3], u32>,
+    /// The map's rows: the live voxel ids in the order of each voxel's first point in the
+    /// window's keyframes, oldest first (the order of downsampling their concatenation).
+    order: Vec<u32>,
+    /// The ids of the `k` neighbours each voxel's normal was computed from (`k` per id,
+    /// `NONE`-padded).
+    neighbours: Vec<u32>,
     /// The keys each keyframe in the window touched, oldest first.
     keyframes: VecDeque<(u64, Vec<[i64; 3]>)>,
     next_id: u64,
@@ -142,7 +169,10 @@ impl KeyframeMap {
             max_keyframes,
             viewpoint: vp,
             cells: Vec::new(),
+            free: Vec::new(),
             slot: FxHashMap::default(),
+            order: Vec::new(),
+            neighbours: Vec::new(),
             keyframes: VecDeque::new(),
             next_id: 0,
         })
@@ -154,11 +184,11 @@ impl KeyframeMap {
 
     /// Map points.
     pub fn len(&self) -> usize {
-        self.cells.len()
+        self.order.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.cells.is_empty()
+        self.order.is_empty()
     }
 
     /// Keyframes in the window.
@@ -181,6 +211,18 @@ impl KeyframeMap {
                 })
             })
             .collect()
+    }
+
+    /// A new voxel's id (a free one when there is one).
+    fn allocate(&mut self, cell: Cell) -> u32 {
+        if let Some(id) = self.free.pop() {
+            self.cells[id as usize] = cell;
+            id
+        } else {
+            self.cells.push(cell);
+            self.neighbours.extend(std::iter::repeat_n(NONE, self.k));
+            (self.cells.len() - 1) as u32
+        }
     }
 
     /// Add a keyframe's `N * dim` world-frame points (`N >= 1`, finite), dropping the oldest
@@ -212,14 +254,20 @@ impl KeyframeMap {
         }
         self.next_id += 1;
 
-        let existing = self.cells.len();
-        let mut touched = vec![false; existing];
+        // Voxels (by id) this insert changes: the evicted keyframe's (which move to a later
+        // row or leave) and this keyframe's.
+        let mut touched = vec![false; self.cells.len() + parts.len()];
+        // Voxels whose first point changes (the evicted keyframe was their first) or that are
+        // new: their rows move; every other voxel keeps its place relative to the rest.
+        let mut moved: Vec<u32> = Vec::new();
         if self.keyframes.len() == self.max_keyframes {
             if let Some((old, old_keys)) = self.keyframes.pop_front() {
                 for key in old_keys {
                     if let Some(&s) = self.slot.get(&key) {
-                        self.cells[s].parts.retain(|p| p.keyframe != old);
-                        touched[s] = true;
+                        // The oldest keyframe: its part is the voxel's first.
+                        self.cells[s as usize].parts.retain(|p| p.keyframe != old);
+                        touched[s as usize] = true;
+                        moved.push(s);
                     }
                 }
             }
@@ -229,132 +277,144 @@ impl KeyframeMap {
             my_keys.push(key);
             match self.slot.get(&key) {
                 Some(&s) => {
-                    self.cells[s].parts.push(part);
-                    touched[s] = true;
+                    self.cells[s as usize].parts.push(part);
+                    touched[s as usize] = true;
                 }
                 None => {
-                    self.slot.insert(key, self.cells.len());
-                    self.cells.push(Cell {
+                    let s = self.allocate(Cell {
                         key,
                         parts: vec![part],
                         point: [0.0; 3],
                         normal: [0.0; 3],
                         valid: false,
                         radius_sq: f64::INFINITY,
-                        nearest: None,
+                        nearest: NONE,
                         nearest_sq: f64::NAN,
                     });
-                    touched.push(true);
+                    self.slot.insert(key, s);
+                    touched[s as usize] = true;
+                    moved.push(s);
                 }
             }
         }
         self.keyframes.push_back((id, my_keys));
 
-        // Where the map changed: the old centroid of every touched voxel that existed (moved or
-        // removed) and, below, the new centroid of every touched voxel that remains.
+        // The rows: the voxels that kept their first point stay in their order; the moved
+        // ones that remain are merged in by their new first point; emptied voxels leave (their
+        // ids freed, for the next insert: no voxel that remains refers to them once this one
+        // has recomputed every neighbourhood that held them). The same order as sorting every
+        // voxel by its first point, without the sort.
+        let mut is_moved = vec![false; self.cells.len()];
+        for &s in &moved {
+            is_moved[s as usize] = true;
+        }
+        let cells = &self.cells;
+        let mut arriving: Vec<((u64, usize), u32)> = Vec::with_capacity(moved.len());
+        for &s in &moved {
+            let cell = &cells[s as usize];
+            if cell.parts.is_empty() {
+                self.slot.remove(&cell.key);
+                self.free.push(s);
+            } else {
+                arriving.push((cell.rank(), s));
+            }
+        }
+        arriving.sort_unstable();
+        let mut order = Vec::with_capacity(self.order.len() + arriving.len());
+        let mut next = arriving.iter().peekable();
+        for &s in self.order.iter().filter(|&&s| !is_moved[s as usize]) {
+            let rank = cells[s as usize].rank();
+            while let Some(&&(r, a)) = next.peek() {
+                if r >= rank {
+                    break;
+                }
+                order.push(a);
+                next.next();
+            }
+            order.push(s);
+        }
+        order.extend(next.map(|&(_, a)| a));
+        self.order = order;
+
+        // Where the map changed: the new centroid of every touched voxel that remains (the
+        // old ones are found through the neighbours that held them, below).
         let mut changed: Vec<f64> = Vec::new();
-        for (cell, _) in self.cells[..existing]
-            .iter()
-            .zip(&touched)
-            .filter(|(_, &t)| t)
-        {
+        for &s in &self.order {
+            if !touched[s as usize] {
+                continue;
+            }
+            let cell = &mut self.cells[s as usize];
+            // As `voxel_downsample` sums a voxel: its first point, plus the others in
+            // order, divided by the count when there is more than one.
+            let mut all = cell.parts.iter().flat_map(|p| p.points.chunks_exact(dim));
+            let mut sum = [0.0; 3];
+            let mut count = 0usize;
+            if let Some(first) = all.next() {
+                sum[..dim].copy_from_slice(first);
+                count = 1;
+            }
+            for q in all {
+                for c in 0..dim {
+                    sum[c] += q[c];
+                }
+                count += 1;
+            }
+            if count > 1 {
+                sum.iter_mut().for_each(|v| *v /= count as f64);
+            }
+            cell.point = sum;
             changed.extend_from_slice(&cell.point[..dim]);
         }
-        // Drop emptied voxels and put the rest in the order of each voxel's first point in the
-        // window's keyframes, oldest first: the order of downsampling their concatenation, so
-        // the tree, the normals' neighbour order and every sum over the map are those of a full
-        // rebuild, to the bit. The keys are unique (a point lies in one voxel): one sort of the
-        // row indices, one move of the cells and one rebuild of the slots at most.
-        // The keys are read once into one array: comparing through the cells would chase each
-        // voxel's parts on every comparison.
-        let mut rows: Vec<(u64, usize, u32)> = self
-            .cells
-            .iter()
-            .enumerate()
-            .filter_map(|(i, c)| c.parts.first().map(|p| (p.keyframe, p.first, i as u32)))
-            .collect();
-        let in_order = rows.len() == self.cells.len()
-            && rows.windows(2).all(|w| (w[0].0, w[0].1) < (w[1].0, w[1].1));
-        if !in_order {
-            rows.sort_unstable();
-            let mut old: Vec<Option<Cell>> = std::mem::take(&mut self.cells)
-                .into_iter()
-                .map(Some)
-                .collect();
-            let old_touched = std::mem::take(&mut touched);
-            self.cells = Vec::with_capacity(rows.len());
-            touched = Vec::with_capacity(rows.len());
-            for &(_, _, i) in &rows {
-                let i = i as usize;
-                if let Some(cell) = old[i].take() {
-                    self.cells.push(cell);
-                    touched.push(old_touched[i]);
-                }
-            }
-            self.slot.clear();
-            for (s, cell) in self.cells.iter().enumerate() {
-                self.slot.insert(cell.key, s);
-            }
-        }
-        for (cell, &t) in self.cells.iter_mut().zip(&touched) {
-            if t {
-                // As `voxel_downsample` sums a voxel: its first point, plus the others in
-                // order, divided by the count when there is more than one.
-                let mut all = cell.parts.iter().flat_map(|p| p.points.chunks_exact(dim));
-                let mut sum = [0.0; 3];
-                let mut count = 0usize;
-                if let Some(first) = all.next() {
-                    sum[..dim].copy_from_slice(first);
-                    count = 1;
-                }
-                for q in all {
-                    for c in 0..dim {
-                        sum[c] += q[c];
-                    }
-                    count += 1;
-                }
-                if count > 1 {
-                    sum.iter_mut().for_each(|v| *v /= count as f64);
-                }
-                cell.point = sum;
-                changed.extend_from_slice(&cell.point[..dim]);
-            }
-        }
 
-        let mut flat = Vec::with_capacity(self.cells.len() * dim);
-        for cell in &self.cells {
-            flat.extend_from_slice(&cell.point[..dim]);
+        let mut flat = Vec::with_capacity(self.order.len() * dim);
+        for &s in &self.order {
+            flat.extend_from_slice(&self.cells[s as usize].point[..dim]);
         }
         let tree = KdTree::build(&flat, dim)?;
-        // A voxel's k neighbours can only have changed if a changed point (an old or a new
-        // centroid) lies within its neighbourhood radius: those get their normal again, the
-        // rest keep theirs — the same normals as a full recomputation, for a fraction of it.
-        let moved = if changed.is_empty() {
+        // A voxel's k neighbours can only have changed if one of them moved or left, or a
+        // changed point (a new centroid) lies within its neighbourhood radius: those get their
+        // normal again, the rest keep theirs — the same normals as a full recomputation, for a
+        // fraction of it. (A point that was not a neighbour leaving changes nothing.)
+        let arrived = if changed.is_empty() {
             None
         } else {
             Some(KdTree::build(&changed, dim)?)
         };
-        for (cell, t) in self.cells.iter().zip(touched.iter_mut()) {
-            if !*t {
-                *t = moved
-                    .as_ref()
-                    .is_some_and(|m| m.any_within(&cell.point[..dim], cell.radius_sq));
-            }
-        }
-        let keys_now: Vec<[i64; 3]> = self.cells.iter().map(|c| c.key).collect();
-        let k = self.k.min(self.cells.len());
+        let kk = self.k;
+        let stale: Vec<bool> = self
+            .order
+            .iter()
+            .map(|&s| {
+                let s = s as usize;
+                touched[s]
+                    || self.neighbours[s * kk..(s + 1) * kk]
+                        .iter()
+                        .any(|&j| j != NONE && touched[j as usize])
+                    || arrived.as_ref().is_some_and(|m| {
+                        let cell = &self.cells[s];
+                        m.any_within(&cell.point[..dim], cell.radius_sq)
+                    })
+            })
+            .collect();
+        let k = self.k.min(self.order.len());
         // In the tree's leaf order, each query bounded by the previous one (as a full
         // recomputation does): consecutive points share most of their traversal.
         let mut scratch = Scratch::new(k);
         let mut num_updated = 0;
         for &i in tree.leaf_order() {
             let i = i as usize;
-            if !touched[i] {
+            if !stale[i] {
                 continue;
             }
             num_updated += 1;
             let buf = scratch.neighbours(&tree, i, k);
-            let cell = &mut self.cells[i];
+            let s = self.order[i] as usize;
+            let held = &mut self.neighbours[s * kk..(s + 1) * kk];
+            held.fill(NONE);
+            for (h, &(j, _)) in held.iter_mut().zip(buf) {
+                *h = self.order[j as usize];
+            }
+            let cell = &mut self.cells[s];
             cell.radius_sq = if k < self.k {
                 f64::INFINITY
             } else {
@@ -362,11 +422,10 @@ impl KeyframeMap {
             };
             // The k neighbours are sorted by (distance, index): the second is the nearest
             // other point, as the 2-NN query of the noise statistic finds it.
-            let nearest = buf.get(1).map(|&(j, _)| j as usize);
+            cell.nearest = buf.get(1).map_or(NONE, |&(j, _)| self.order[j as usize]);
             cell.nearest_sq = buf.get(1).map_or(f64::NAN, |&(_, d)| d);
             let (vals, vecs) = eigen(&scatter(&tree, buf), dim);
             cell.valid = k >= dim && spans(&vals, dim);
-            cell.nearest = nearest.map(|j| keys_now[j]);
             cell.normal = if cell.valid {
                 facing(&vecs[0], tree.point(i), &self.viewpoint[..dim], dim)
             } else {
@@ -374,24 +433,34 @@ impl KeyframeMap {
             };
         }
         let mut normals = Vec::with_capacity(flat.len());
-        for cell in &self.cells {
-            normals.extend_from_slice(&cell.normal[..dim]);
+        let mut row_of = vec![NONE; self.cells.len()];
+        for (r, &s) in self.order.iter().enumerate() {
+            normals.extend_from_slice(&self.cells[s as usize].normal[..dim]);
+            row_of[s as usize] = r as u32;
         }
-        // A voxel whose neighbours did not change kept its nearest one too.
-        let slot = &self.slot;
+        // A voxel whose neighbours did not change kept its nearest one too (which is live:
+        // a voxel whose neighbour left was recomputed).
         let cells = &self.cells;
-        let normal_noise = noise_with_neighbour(&normals, dim, |i| {
-            cells[i].nearest.and_then(|key| slot.get(&key).copied())
+        let order = &self.order;
+        let normal_noise = noise_with_neighbour(&normals, dim, |r| {
+            let j = cells[order[r] as usize].nearest;
+            let row = row_of.get(j as usize).copied().unwrap_or(NONE);
+            (row != NONE).then_some(row as usize)
         });
         // Kept like the nearest voxel: an unchanged neighbourhood has its nearest point at the
         // same place, so the map's spacing needs no search of its own.
-        let spacing = median_of_squared(self.cells.iter().map(|c| c.nearest_sq).collect());
+        let spacing = median_of_squared(
+            order
+                .iter()
+                .map(|&s| cells[s as usize].nearest_sq)
+                .collect(),
+        );
         Ok(MapState {
             normal_noise,
             spacing,
             points: flat,
             normals,
-            valid: self.cells.iter().map(|c| c.valid).collect(),
+            valid: order.iter().map(|&s| cells[s as usize].valid).collect(),
             tree,
             num_updated,
         })
@@ -446,8 +515,11 @@ mod tests {
     #[test]
     fn normals_equal_a_full_recomputation() {
         let mut map = KeyframeMap::new(2, 0.05, 10, 2, &[0.0, 0.0]).unwrap();
-        for j in 0..4 {
-            let state = map.insert(&room(0.3 * j as f64, j)).unwrap();
+        // Out and back: voxels emptied by an evicted keyframe are filled again later (their
+        // ids reused), and rows move as their first keyframe leaves.
+        for j in 0..10u64 {
+            let x = 0.3 * (4 - (j as i64 - 4).abs()) as f64;
+            let state = map.insert(&room(x, j)).unwrap();
             let full = local_geometry(&state.tree, 10, &[0.0, 0.0], true, None).unwrap();
             let full_normals = full.normals.unwrap();
             let mut same = 0;
@@ -471,6 +543,43 @@ mod tests {
             assert_eq!(state.spacing, want.sqrt());
             if j == 0 {
                 assert_eq!(state.num_updated, state.valid.len());
+            }
+        }
+    }
+
+    #[test]
+    fn a_neighbour_leaving_is_recomputed_alone() {
+        // A diagonal wall meeting a straight one at (1, 1), then a keyframe far away: when the
+        // diagonal's keyframe leaves, the straight wall's voxels by the corner are neither
+        // touched nor near a new point, but their neighbours left (and their nearest one with
+        // them): their normals and spacing must be those of the straight wall alone.
+        let line = |a: [f64; 2], b: [f64; 2], n: usize| -> Vec<f64> {
+            (0..n)
+                .flat_map(|i| {
+                    let t = i as f64 / n as f64;
+                    [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]
+                })
+                .collect()
+        };
+        let frames = [
+            line([0.0, 0.0], [1.0, 1.0], 70),
+            line([1.0, 1.0], [2.0, 1.0], 50),
+            line([8.0, -3.0], [8.0, -1.0], 100),
+        ];
+        let mut map = KeyframeMap::new(2, 0.05, 10, 2, &[0.0, -2.0]).unwrap();
+        for (j, f) in frames.iter().enumerate() {
+            let state = map.insert(f).unwrap();
+            let full = local_geometry(&state.tree, 10, &[0.0, -2.0], true, None).unwrap();
+            assert_eq!(state.normals, full.normals.unwrap(), "keyframe {j}");
+            let (_, d2) = state.tree.knn_batch(&state.points, 2).unwrap();
+            let second: Vec<f64> = d2.chunks_exact(2).map(|d| d[1]).collect();
+            assert_eq!(state.spacing, median_of_squared(second), "keyframe {j}");
+            let want = target_normal_noise(&state.tree, &state.normals).unwrap();
+            assert_eq!(state.normal_noise, want, "keyframe {j}");
+            if j == 2 {
+                // Only the far keyframe's voxels and the corner's: not the whole map.
+                assert!(state.num_updated < state.valid.len());
+                assert!(state.num_updated > 40);
             }
         }
     }
