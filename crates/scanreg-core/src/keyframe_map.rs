@@ -3,10 +3,11 @@
 //! The map is the voxel-centroid downsampling of the union of the last `max_keyframes`
 //! keyframes' points (world frame): one point per occupied voxel, the mean of every point of
 //! those keyframes that fell into it — the same points, in the same order and to the bit, as
-//! voxel-downsampling the concatenated keyframes. Each voxel keeps its points per keyframe that
-//! saw it, so adding a keyframe and dropping the oldest touch only the voxels those two
-//! keyframes saw, and a touched centroid is summed again in the order a full downsampling sums
-//! it (no running subtraction: the same bits whatever the history).
+//! voxel-downsampling the concatenated keyframes. Each keyframe keeps its points grouped by
+//! voxel, and each voxel where its points of every keyframe that saw it lie, so adding a
+//! keyframe and dropping the oldest touch only the voxels those two keyframes saw, and a
+//! touched centroid is summed again in the order a full downsampling sums it (no running
+//! subtraction: the same bits whatever the history).
 //!
 //! Normals (k-NN PCA, [`crate::normals`]) are recomputed only where they can have changed: for
 //! the voxels that are new or whose centroid moved, for those one of whose `k` neighbours moved
@@ -41,7 +42,19 @@ struct Part {
     keyframe: u64,
     /// The keyframe's index of its first point in the voxel.
     first: usize,
-    /// Its points in the voxel, `count * dim`, in input order.
+    /// Its points in the voxel: `count` rows of the keyframe's `points` from `start`.
+    start: u32,
+    count: u32,
+}
+
+/// One keyframe in the window.
+#[derive(Debug, Clone)]
+struct Keyframe {
+    id: u64,
+    /// The voxels it touched, in the order of their first point.
+    keys: Vec<[i64; 3]>,
+    /// Its points grouped by voxel (in that order), each voxel's in input order: one
+    /// allocation per keyframe rather than one per voxel.
     points: Vec<f64>,
 }
 
@@ -117,8 +130,10 @@ pub struct KeyframeMap {
     /// The ids of the `k` neighbours each voxel's normal was computed from (`k` per id,
     /// `NONE`-padded).
     neighbours: Vec<u32>,
-    /// The keys each keyframe in the window touched, oldest first.
-    keyframes: VecDeque<(u64, Vec<[i64; 3]>)>,
+    /// The window's keyframes, oldest first (consecutive ids).
+    keyframes: VecDeque<Keyframe>,
+    /// A keyframe's voxel key -> its part (kept to reuse the table's memory).
+    parts_of: FxHashMap<[i64; 3], u32>,
     next_id: u64,
 }
 
@@ -174,6 +189,7 @@ impl KeyframeMap {
             order: Vec::new(),
             neighbours: Vec::new(),
             keyframes: VecDeque::new(),
+            parts_of: FxHashMap::default(),
             next_id: 0,
         })
     }
@@ -233,48 +249,70 @@ impl KeyframeMap {
         if n == 0 {
             return Err(Error::invalid("points", "is empty"));
         }
+        if n >= u32::MAX as usize {
+            return Err(Error::invalid("points", "more than 2^32 - 2 points"));
+        }
         let id = self.next_id;
         let keys = self.keys(points, id)?;
         // This keyframe's parts, one per voxel, in the order of the voxel's first point.
-        let mut mine: FxHashMap<[i64; 3], usize> = FxHashMap::default();
-        let mut parts: Vec<([i64; 3], Part)> = Vec::new();
-        for (i, (p, key)) in points.chunks_exact(dim).zip(&keys).enumerate() {
+        let mine = &mut self.parts_of;
+        mine.clear();
+        let mut my_keys: Vec<[i64; 3]> = Vec::new();
+        let mut firsts: Vec<usize> = Vec::new();
+        let mut counts: Vec<u32> = Vec::new();
+        let mut part_of: Vec<u32> = Vec::with_capacity(n);
+        for (i, key) in keys.iter().enumerate() {
             let at = *mine.entry(*key).or_insert_with(|| {
-                parts.push((
-                    *key,
-                    Part {
-                        keyframe: id,
-                        first: i,
-                        points: Vec::with_capacity(dim),
-                    },
-                ));
-                parts.len() - 1
+                my_keys.push(*key);
+                firsts.push(i);
+                counts.push(0);
+                (my_keys.len() - 1) as u32
             });
-            parts[at].1.points.extend_from_slice(p);
+            counts[at as usize] += 1;
+            part_of.push(at);
+        }
+        let mut starts = Vec::with_capacity(counts.len());
+        let mut total = 0u32;
+        for &c in &counts {
+            starts.push(total);
+            total += c;
+        }
+        let mut fill = starts.clone();
+        let mut grouped = vec![0.0; n * dim];
+        for (p, &at) in points.chunks_exact(dim).zip(&part_of) {
+            let row = fill[at as usize] as usize;
+            grouped[row * dim..(row + 1) * dim].copy_from_slice(p);
+            fill[at as usize] += 1;
         }
         self.next_id += 1;
 
         // Voxels (by id) this insert changes: the evicted keyframe's (which move to a later
         // row or leave) and this keyframe's.
-        let mut touched = vec![false; self.cells.len() + parts.len()];
+        let mut touched = vec![false; self.cells.len() + my_keys.len()];
         // Voxels whose first point changes (the evicted keyframe was their first) or that are
         // new: their rows move; every other voxel keeps its place relative to the rest.
         let mut moved: Vec<u32> = Vec::new();
         if self.keyframes.len() == self.max_keyframes {
-            if let Some((old, old_keys)) = self.keyframes.pop_front() {
-                for key in old_keys {
-                    if let Some(&s) = self.slot.get(&key) {
+            if let Some(old) = self.keyframes.pop_front() {
+                for key in &old.keys {
+                    if let Some(&s) = self.slot.get(key) {
                         // The oldest keyframe: its part is the voxel's first.
-                        self.cells[s as usize].parts.retain(|p| p.keyframe != old);
+                        self.cells[s as usize]
+                            .parts
+                            .retain(|p| p.keyframe != old.id);
                         touched[s as usize] = true;
                         moved.push(s);
                     }
                 }
             }
         }
-        let mut my_keys = Vec::with_capacity(parts.len());
-        for (key, part) in parts {
-            my_keys.push(key);
+        for (j, &key) in my_keys.iter().enumerate() {
+            let part = Part {
+                keyframe: id,
+                first: firsts[j],
+                start: starts[j],
+                count: counts[j],
+            };
             match self.slot.get(&key) {
                 Some(&s) => {
                     self.cells[s as usize].parts.push(part);
@@ -297,7 +335,11 @@ impl KeyframeMap {
                 }
             }
         }
-        self.keyframes.push_back((id, my_keys));
+        self.keyframes.push_back(Keyframe {
+            id,
+            keys: my_keys,
+            points: grouped,
+        });
 
         // The rows: the voxels that kept their first point stay in their order; the moved
         // ones that remain are merged in by their new first point; emptied voxels leave (their
@@ -346,7 +388,13 @@ impl KeyframeMap {
             let cell = &mut self.cells[s as usize];
             // As `voxel_downsample` sums a voxel: its first point, plus the others in
             // order, divided by the count when there is more than one.
-            let mut all = cell.parts.iter().flat_map(|p| p.points.chunks_exact(dim));
+            let kfs = &self.keyframes;
+            let base = kfs.front().map_or(0, |kf| kf.id);
+            let mut all = cell.parts.iter().flat_map(|p| {
+                let rows = p.start as usize..(p.start + p.count) as usize;
+                kfs[(p.keyframe - base) as usize].points[rows.start * dim..rows.end * dim]
+                    .chunks_exact(dim)
+            });
             let mut sum = [0.0; 3];
             let mut count = 0usize;
             if let Some(first) = all.next() {
