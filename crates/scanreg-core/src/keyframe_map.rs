@@ -61,21 +61,11 @@ struct Keyframe {
 /// No voxel (an empty neighbour slot, no nearest point).
 const NONE: u32 = u32::MAX;
 
-/// One occupied voxel: its parts (oldest keyframe first), centroid and normal.
+/// One occupied voxel: its key and parts (oldest keyframe first).
 #[derive(Debug, Clone)]
 struct Cell {
     key: [i64; 3],
     parts: Vec<Part>,
-    point: [f64; 3],
-    normal: [f64; 3],
-    valid: bool,
-    /// Squared distance to the farthest of the `k` neighbours the normal was computed from
-    /// (`inf` while the map held fewer than `k` points).
-    radius_sq: f64,
-    /// The voxel (its id) of the nearest other map point (the second of the `k` neighbours).
-    nearest: u32,
-    /// Its squared distance (NaN while the map holds one point).
-    nearest_sq: f64,
 }
 
 impl Cell {
@@ -84,6 +74,48 @@ impl Cell {
         self.parts
             .first()
             .map_or((u64::MAX, usize::MAX), |p| (p.keyframe, p.first))
+    }
+}
+
+/// What each voxel (by id) has once computed, one array per quantity: the passes over the
+/// whole map each read one or two of them, not every voxel's record.
+#[derive(Debug, Clone, Default)]
+struct Geometry {
+    /// Centroid.
+    point: Vec<[f64; 3]>,
+    normal: Vec<[f64; 3]>,
+    valid: Vec<bool>,
+    /// Squared distance to the farthest of the `k` neighbours the normal was computed from
+    /// (`inf` while the map held fewer than `k` points).
+    radius_sq: Vec<f64>,
+    /// The voxel (its id) of the nearest other map point (the second of the `k` neighbours).
+    nearest: Vec<u32>,
+    /// Its squared distance (NaN while the map holds one point).
+    nearest_sq: Vec<f64>,
+    /// [`Cell::rank`], kept.
+    rank: Vec<(u64, usize)>,
+}
+
+impl Geometry {
+    /// Voxel `id` as new (nothing computed), `id <= len`.
+    fn reset(&mut self, id: usize) {
+        if id == self.point.len() {
+            self.point.push([0.0; 3]);
+            self.normal.push([0.0; 3]);
+            self.valid.push(false);
+            self.radius_sq.push(f64::INFINITY);
+            self.nearest.push(NONE);
+            self.nearest_sq.push(f64::NAN);
+            self.rank.push((u64::MAX, usize::MAX));
+        } else {
+            self.point[id] = [0.0; 3];
+            self.normal[id] = [0.0; 3];
+            self.valid[id] = false;
+            self.radius_sq[id] = f64::INFINITY;
+            self.nearest[id] = NONE;
+            self.nearest_sq[id] = f64::NAN;
+            self.rank[id] = (u64::MAX, usize::MAX);
+        }
     }
 }
 
@@ -121,6 +153,7 @@ pub struct KeyframeMap {
     /// it is in the map, so ids held across inserts (neighbours, nearest) need no rewrite
     /// when rows move.
     cells: Vec<Cell>,
+    geo: Geometry,
     /// Ids of emptied voxels, for reuse.
     free: Vec<u32>,
     slot: FxHashMap<[i64; 3], u32>,
@@ -184,6 +217,7 @@ impl KeyframeMap {
             max_keyframes,
             viewpoint: vp,
             cells: Vec::new(),
+            geo: Geometry::default(),
             free: Vec::new(),
             slot: FxHashMap::default(),
             order: Vec::new(),
@@ -231,14 +265,16 @@ impl KeyframeMap {
 
     /// A new voxel's id (a free one when there is one).
     fn allocate(&mut self, cell: Cell) -> u32 {
-        if let Some(id) = self.free.pop() {
+        let id = if let Some(id) = self.free.pop() {
             self.cells[id as usize] = cell;
             id
         } else {
             self.cells.push(cell);
             self.neighbours.extend(std::iter::repeat_n(NONE, self.k));
             (self.cells.len() - 1) as u32
-        }
+        };
+        self.geo.reset(id as usize);
+        id
     }
 
     /// Add a keyframe's `N * dim` world-frame points (`N >= 1`, finite), dropping the oldest
@@ -322,12 +358,6 @@ impl KeyframeMap {
                     let s = self.allocate(Cell {
                         key,
                         parts: vec![part],
-                        point: [0.0; 3],
-                        normal: [0.0; 3],
-                        valid: false,
-                        radius_sq: f64::INFINITY,
-                        nearest: NONE,
-                        nearest_sq: f64::NAN,
                     });
                     self.slot.insert(key, s);
                     touched[s as usize] = true;
@@ -358,16 +388,18 @@ impl KeyframeMap {
                 self.slot.remove(&cell.key);
                 self.free.push(s);
             } else {
+                self.geo.rank[s as usize] = cell.rank();
                 arriving.push((cell.rank(), s));
             }
         }
         arriving.sort_unstable();
+        let rank = &self.geo.rank;
         let mut order = Vec::with_capacity(self.order.len() + arriving.len());
         let mut next = arriving.iter().peekable();
         for &s in self.order.iter().filter(|&&s| !is_moved[s as usize]) {
-            let rank = cells[s as usize].rank();
+            let here = rank[s as usize];
             while let Some(&&(r, a)) = next.peek() {
-                if r >= rank {
+                if r >= here {
                     break;
                 }
                 order.push(a);
@@ -385,7 +417,7 @@ impl KeyframeMap {
             if !touched[s as usize] {
                 continue;
             }
-            let cell = &mut self.cells[s as usize];
+            let cell = &self.cells[s as usize];
             // As `voxel_downsample` sums a voxel: its first point, plus the others in
             // order, divided by the count when there is more than one.
             let kfs = &self.keyframes;
@@ -410,13 +442,13 @@ impl KeyframeMap {
             if count > 1 {
                 sum.iter_mut().for_each(|v| *v /= count as f64);
             }
-            cell.point = sum;
-            changed.extend_from_slice(&cell.point[..dim]);
+            self.geo.point[s as usize] = sum;
+            changed.extend_from_slice(&sum[..dim]);
         }
 
         let mut flat = Vec::with_capacity(self.order.len() * dim);
         for &s in &self.order {
-            flat.extend_from_slice(&self.cells[s as usize].point[..dim]);
+            flat.extend_from_slice(&self.geo.point[s as usize][..dim]);
         }
         let tree = KdTree::build(&flat, dim)?;
         // A voxel's k neighbours can only have changed if one of them moved or left, or a
@@ -439,8 +471,7 @@ impl KeyframeMap {
                         .iter()
                         .any(|&j| j != NONE && touched[j as usize])
                     || arrived.as_ref().is_some_and(|m| {
-                        let cell = &self.cells[s];
-                        m.any_within(&cell.point[..dim], cell.radius_sq)
+                        m.any_within(&self.geo.point[s][..dim], self.geo.radius_sq[s])
                     })
             })
             .collect();
@@ -462,19 +493,20 @@ impl KeyframeMap {
             for (h, &(j, _)) in held.iter_mut().zip(buf) {
                 *h = self.order[j as usize];
             }
-            let cell = &mut self.cells[s];
-            cell.radius_sq = if k < self.k {
+            let geo = &mut self.geo;
+            geo.radius_sq[s] = if k < self.k {
                 f64::INFINITY
             } else {
                 buf.last().map_or(f64::INFINITY, |&(_, d)| d)
             };
             // The k neighbours are sorted by (distance, index): the second is the nearest
             // other point, as the 2-NN query of the noise statistic finds it.
-            cell.nearest = buf.get(1).map_or(NONE, |&(j, _)| self.order[j as usize]);
-            cell.nearest_sq = buf.get(1).map_or(f64::NAN, |&(_, d)| d);
+            geo.nearest[s] = buf.get(1).map_or(NONE, |&(j, _)| self.order[j as usize]);
+            geo.nearest_sq[s] = buf.get(1).map_or(f64::NAN, |&(_, d)| d);
             let (vals, vecs) = eigen(&scatter(&tree, buf), dim);
-            cell.valid = k >= dim && spans(&vals, dim);
-            cell.normal = if cell.valid {
+            let valid = k >= dim && spans(&vals, dim);
+            geo.valid[s] = valid;
+            geo.normal[s] = if valid {
                 facing(&vecs[0], tree.point(i), &self.viewpoint[..dim], dim)
             } else {
                 [0.0; 3]
@@ -482,33 +514,29 @@ impl KeyframeMap {
         }
         let mut normals = Vec::with_capacity(flat.len());
         let mut row_of = vec![NONE; self.cells.len()];
+        let geo = &self.geo;
         for (r, &s) in self.order.iter().enumerate() {
-            normals.extend_from_slice(&self.cells[s as usize].normal[..dim]);
+            normals.extend_from_slice(&geo.normal[s as usize][..dim]);
             row_of[s as usize] = r as u32;
         }
         // A voxel whose neighbours did not change kept its nearest one too (which is live:
         // a voxel whose neighbour left was recomputed).
-        let cells = &self.cells;
         let order = &self.order;
         let normal_noise = noise_with_neighbour(&normals, dim, |r| {
-            let j = cells[order[r] as usize].nearest;
+            let j = geo.nearest[order[r] as usize];
             let row = row_of.get(j as usize).copied().unwrap_or(NONE);
             (row != NONE).then_some(row as usize)
         });
         // Kept like the nearest voxel: an unchanged neighbourhood has its nearest point at the
         // same place, so the map's spacing needs no search of its own.
-        let spacing = median_of_squared(
-            order
-                .iter()
-                .map(|&s| cells[s as usize].nearest_sq)
-                .collect(),
-        );
+        let spacing =
+            median_of_squared(order.iter().map(|&s| geo.nearest_sq[s as usize]).collect());
         Ok(MapState {
             normal_noise,
             spacing,
             points: flat,
             normals,
-            valid: order.iter().map(|&s| cells[s as usize].valid).collect(),
+            valid: order.iter().map(|&s| geo.valid[s as usize]).collect(),
             tree,
             num_updated,
         })
