@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 import scanreg
 from conftest import data_dir
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scanreg import SE2
 from scanreg import simulate as sim
 from scanreg.pipeline import Frame2D, Odometry2D, OdometryConfig2D
@@ -243,6 +245,51 @@ def test_incremental_map_equals_a_full_rebuild() -> None:
         checked += 1
     assert checked > 8 and len(keyframes) > 4
     assert odo.map_points is not None and not odo.map_points.flags.writeable
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_keyframe_map_equals_a_rebuild_for_any_keyframe_sequence(seed: int) -> None:
+    """The incremental map (voxels at stable ids, a normal recomputed only when one of its
+    neighbours moved or left or a new centroid came within its radius) equals voxel-downsampling
+    the window and preparing it from scratch, to the bit, for random keyframes: walls, blobs,
+    grid-aligned points (tied distances), exact revisits of an earlier keyframe, windows of 1-5
+    keyframes (evictions), three voxel sizes."""
+    from scanreg import _core
+    from scanreg.target import prepared_from_normals
+
+    k = 20
+    rng = np.random.default_rng(seed)
+    window, voxel = int(rng.integers(1, 6)), float(rng.choice([0.05, 0.1, 0.3]))
+    kmap = _core.KeyframeMap(2, voxel, k, window, np.zeros(2))
+    centres = rng.uniform(-3, 3, (4, 2))
+    keyframes: list[np.ndarray] = []
+    for _ in range(int(rng.integers(3, 12))):
+        kind, n = int(rng.integers(0, 4)), int(rng.integers(1, 300))
+        c = centres[rng.integers(0, 4)] + rng.normal(0, 0.3, 2)
+        if kind == 0:  # a wall
+            d = rng.normal(size=2)
+            d /= np.linalg.norm(d)
+            pts = c + rng.uniform(-2, 2, n)[:, None] * d + rng.normal(0, 0.01, (n, 2))
+        elif kind == 1 or not keyframes:  # a blob
+            pts = c + rng.normal(0, 0.5, (n, 2))
+        elif kind == 2:  # an earlier keyframe again
+            pts = keyframes[int(rng.integers(0, len(keyframes)))].copy()
+        else:  # on a 10 cm lattice: tied distances
+            pts = np.round(c + rng.uniform(-1, 1, (n, 2)), 1)
+        keyframes.append(pts)
+        index, normals, valid, noise, spacing, _ = kmap.insert(pts)
+        mine = prepared_from_normals(index, normals, valid, k, noise, spacing)
+        rebuilt = voxel_downsample(np.concatenate(keyframes[-window:]), voxel).points
+        if len(rebuilt) <= k:  # too few for prepare's k-NN normals
+            continue
+        full = scanreg.prepare(rebuilt, num_neighbors=k)
+        np.testing.assert_array_equal(mine.points, full.points)
+        np.testing.assert_array_equal(mine.normals, full.normals)
+        assert mine.normal_noise == full.normal_noise or (
+            math.isnan(mine.normal_noise) and math.isnan(full.normal_noise)
+        )
+        assert mine.spacing == full.spacing
 
 
 def test_keyframe_map_refuses_bad_input() -> None:
