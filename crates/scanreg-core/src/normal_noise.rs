@@ -287,39 +287,18 @@ fn swept_2d(
         }
         let seeds = first as u32..(first + k) as u32;
         // Outward along the axis each way from the query, until the gap along it alone is
-        // beyond the k-th distance (plain loops: the closure they replaced was called, not
-        // inlined, at every step).
+        // beyond the k-th distance.
         let mut worst = buf[k - 1].1;
-        for &(a, b, j) in &sorted[pos + 1..] {
-            let ea = a - qa;
-            if ea * ea > worst {
-                break;
-            }
-            if !seeds.contains(&j) {
-                let eb = b - qb;
-                // The tree's sq_dist: two squares summed (its leading `0.0 +` adds nothing to
-                // a square, and a sum of two terms is the same in either order).
-                let d = ea * ea + eb * eb;
-                if d <= worst {
-                    insert(&mut buf, j, d);
-                    worst = buf[k - 1].1;
-                }
-            }
-        }
-        for &(a, b, j) in sorted[..pos].iter().rev() {
-            let ea = a - qa;
-            if ea * ea > worst {
-                break;
-            }
-            if !seeds.contains(&j) {
-                let eb = b - qb;
-                let d = ea * ea + eb * eb;
-                if d <= worst {
-                    insert(&mut buf, j, d);
-                    worst = buf[k - 1].1;
-                }
-            }
-        }
+        let (ahead, behind) = (&sorted[pos + 1..], &sorted[..pos]);
+        sweep_side(ahead.iter(), (qa, qb), &seeds, k, &mut buf, &mut worst);
+        sweep_side(
+            behind.iter().rev(),
+            (qa, qb),
+            &seeds,
+            k,
+            &mut buf,
+            &mut worst,
+        );
         let v = pca_in(|j| &points[2 * j..2 * j + 2], 2, &buf);
         let i = qi as usize;
         normals[2 * i] = v[0];
@@ -437,6 +416,37 @@ pub fn correspondence_normal_noise(
     sin2.sort_by(f64::total_cmp);
     let kept = ((0.9 * sin2.len() as f64) as usize).max(1);
     Ok(mean(&sin2[..kept]) / (2.0 * (dim as f64 - 1.0)))
+}
+
+/// One side of the 2D sweep: offer each point of `side` (`(along, across, index)`, moving
+/// away from the query `q` along the axis) to the k best in `buf`, skipping the `seeds` already
+/// offered, until the gap along the axis alone exceeds the k-th distance `worst`. Inlined
+/// (a closure here was called, not inlined, at every step).
+#[inline(always)]
+fn sweep_side<'a>(
+    side: impl Iterator<Item = &'a (f64, f64, u32)>,
+    q: (f64, f64),
+    seeds: &std::ops::Range<u32>,
+    k: usize,
+    buf: &mut Vec<(u32, f64)>,
+    worst: &mut f64,
+) {
+    for &(a, b, j) in side {
+        let ea = a - q.0;
+        if ea * ea > *worst {
+            break;
+        }
+        if !seeds.contains(&j) {
+            let eb = b - q.1;
+            // The tree's sq_dist: two squares summed (its leading `0.0 +` adds nothing to a
+            // square, and a sum of two terms is the same in either order).
+            let d = ea * ea + eb * eb;
+            if d <= *worst {
+                crate::knn::offer_k(buf, 0, k, j, d);
+                *worst = buf[k - 1].1;
+            }
+        }
+    }
 }
 
 #[cfg(test)]
