@@ -406,6 +406,23 @@ fn push_max_with_shifted(a: &[f32], half: usize, out: &mut Vec<f32>) {
     out.extend_from_slice(&a[n.max(half) - half..n]);
 }
 
+/// The two pooled rows output row `r` takes the maximum of: row `r − half` and row `r` of
+/// `rows` (`hp` rows of `wu` values), each where it exists.
+fn row_pair(
+    rows: &[f32],
+    r: usize,
+    half: usize,
+    hp: usize,
+    wu: usize,
+) -> (Option<&[f32]>, Option<&[f32]>) {
+    let upper = r
+        .checked_sub(half)
+        .filter(|&j| j < hp)
+        .map(|j| &rows[j * wu..(j + 1) * wu]);
+    let lower = (r < hp).then(|| &rows[r * wu..(r + 1) * wu]);
+    (upper, lower)
+}
+
 /// Level `h` from level `h − 1` (`prev`, stride `half = 2^(h−1)`): each cell the maximum of the
 /// 2 × 2 cells `half` apart, i.e. of a `2^h × 2^h` window of the likelihood. Separable: rows
 /// first, then pairs of rows, without per-cell bounds checks.
@@ -427,12 +444,7 @@ fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64, sequential: bool) -> 
         }
         let mut data = Vec::with_capacity(wu * height as usize);
         for r in 0..height as usize {
-            let upper = r
-                .checked_sub(h)
-                .filter(|&j| j < hp)
-                .map(|j| &rows[j * wu..(j + 1) * wu]);
-            let lower = (r < hp).then(|| &rows[r * wu..(r + 1) * wu]);
-            match (upper, lower) {
+            match row_pair(&rows, r, h, hp, wu) {
                 (Some(a), Some(b)) => data.extend(a.iter().zip(b).map(|(x, y)| x.max(*y))),
                 (Some(a), None) | (None, Some(a)) => data.extend_from_slice(a),
                 (None, None) => data.resize(data.len() + wu, 0.0),
@@ -454,21 +466,14 @@ fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64, sequential: bool) -> 
     data.par_chunks_mut(wu)
         .with_min_len(min_len(sequential))
         .enumerate()
-        .for_each(|(r, out)| {
-            let upper = r
-                .checked_sub(h)
-                .filter(|&j| j < hp)
-                .map(|j| &rows[j * wu..(j + 1) * wu]);
-            let lower = (r < hp).then(|| &rows[r * wu..(r + 1) * wu]);
-            match (upper, lower) {
-                (Some(a), Some(b)) => {
-                    for ((o, x), y) in out.iter_mut().zip(a).zip(b) {
-                        *o = x.max(*y);
-                    }
+        .for_each(|(r, out)| match row_pair(&rows, r, h, hp, wu) {
+            (Some(a), Some(b)) => {
+                for ((o, x), y) in out.iter_mut().zip(a).zip(b) {
+                    *o = x.max(*y);
                 }
-                (Some(a), None) | (None, Some(a)) => out.copy_from_slice(a),
-                (None, None) => {}
             }
+            (Some(a), None) | (None, Some(a)) => out.copy_from_slice(a),
+            (None, None) => {}
         });
     Level {
         shift,
