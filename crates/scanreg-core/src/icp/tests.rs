@@ -176,22 +176,26 @@ fn with_geometry<'a>(
     (target, source)
 }
 
+/// The room of `dim` (target), the true pose (flat) and the source it gives.
+fn room_case(dim: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    if dim == 3 {
+        let tgt = room_3d();
+        let src = source_of(&tgt, &truth_3d());
+        (tgt, truth_3d().to_flat(), src)
+    } else {
+        let tgt = room_2d();
+        let src = source_of(&tgt, &truth_2d());
+        (tgt, truth_2d().to_flat(), src)
+    }
+}
+
 fn run_case(
     dim: usize,
     method: Method,
     kernel: Kernel,
     optimizer: Optimizer,
 ) -> (Outcome, Vec<f64>) {
-    let (tgt, truth) = if dim == 3 {
-        (room_3d(), pose_flat(&truth_3d()))
-    } else {
-        (room_2d(), pose_flat(&truth_2d()))
-    };
-    let src = if dim == 3 {
-        source_of(&tgt, &truth_3d())
-    } else {
-        source_of(&tgt, &truth_2d())
-    };
+    let (tgt, truth, src) = room_case(dim);
     let (tree, g, sg) = geometry(&tgt, &src, dim);
     let (target, source) = with_geometry(&tree, &g, &src, &sg);
     let out = register(
@@ -282,16 +286,7 @@ fn identical_for_one_and_two_threads() {
 #[test]
 fn restarts_are_the_registration_from_each_start() {
     for dim in [2, 3] {
-        let (tgt, truth) = if dim == 3 {
-            (room_3d(), truth_3d().to_flat())
-        } else {
-            (room_2d(), truth_2d().to_flat())
-        };
-        let src = if dim == 3 {
-            source_of(&tgt, &truth_3d())
-        } else {
-            source_of(&tgt, &truth_2d())
-        };
+        let (tgt, truth, src) = room_case(dim);
         let (tree, g, sg) = geometry(&tgt, &src, dim);
         let (target, source) = with_geometry(&tree, &g, &src, &sg);
         let s = settings(Method::Gicp, Kernel::None, Optimizer::GaussNewton);
@@ -514,16 +509,7 @@ fn extrapolation_recovers_the_pose_in_fewer_iterations() {
 #[test]
 fn certified_searches_change_nothing() {
     for dim in [2, 3] {
-        let (tgt, truth) = if dim == 3 {
-            (room_3d(), truth_3d().to_flat())
-        } else {
-            (room_2d(), truth_2d().to_flat())
-        };
-        let exact = if dim == 3 {
-            source_of(&tgt, &truth_3d())
-        } else {
-            source_of(&tgt, &truth_2d())
-        };
+        let (tgt, truth, exact) = room_case(dim);
         // Two points in three, jittered by up to ±1 cm, and a far ring of outliers.
         let mut s: u64 = 99;
         let mut rnd = || {
