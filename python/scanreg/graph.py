@@ -82,22 +82,6 @@ def from_gtsam_order(matrix: Any, dim: int) -> FloatArray:
     return out
 
 
-def information_from_covariance(covariance: Any) -> FloatArray:
-    """``Σ⁻¹`` of a 3×3 or 6×6 covariance, symmetrised; refuses a singular one."""
-    cov = np.asarray(covariance, dtype=np.float64)
-    if cov.shape not in ((3, 3), (6, 6)):
-        raise ValueError(f"covariance: expected shape (3, 3) or (6, 6), got {cov.shape}")
-    cov = as_matrix(cov, "covariance", cov.shape)
-    vals = np.linalg.eigvalsh(0.5 * (cov + cov.T))
-    if not vals[0] > 0:
-        raise ValueError(
-            f"covariance: must be positive definite, smallest eigenvalue {vals[0]:.3g}"
-        )
-    info = np.linalg.inv(cov)
-    out: FloatArray = 0.5 * (info + info.T)
-    return out
-
-
 def project_information(information: Any, weak_projector: Any) -> FloatArray:
     """The information with nothing left along the weak subspace.
 
