@@ -179,11 +179,13 @@ def normal_noise(
     return _core.target_normal_noise(index, normals)
 
 
-def sampled_normals(points: FloatArray, k: int, max_points: int = 1500) -> tuple[Any, FloatArray]:
-    """Unit normals (PCA of the ``k`` nearest neighbours) of at most ``max_points`` evenly
-    spaced points of ``points``: ``(indices, normals)``. Enough to *measure* normal noise at a
-    fraction of the cost of normals for every point."""
-    return _core.sampled_normals(points, k, max_points)
+def sampled_normals(
+    points: FloatArray, num_neighbors: int, max_points: int = 1500
+) -> tuple[Any, FloatArray]:
+    """Unit normals (PCA of the ``num_neighbors`` nearest neighbours) of at most ``max_points``
+    evenly spaced points of ``points``: ``(indices, normals)``. Enough to *measure* normal noise
+    at a fraction of the cost of normals for every point."""
+    return _core.sampled_normals(points, num_neighbors, max_points)
 
 
 def correspondence_normal_noise(
