@@ -43,6 +43,17 @@ def test_block_loop_closes_every_lap_and_has_the_stated_length() -> None:
     np.testing.assert_allclose(np.hypot(*np.diff(xyz[:, :2], axis=0).T), 1.0, atol=1e-3)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_the_smallest_block_still_has_its_pedestrians(seed: int) -> None:
+    """A 120 m lap leaves straights of ~7.6 m, shorter than a pedestrian's 15 m walk (this
+    raised numpy's "high - low < 0" before): they walk the whole straight instead."""
+    course = sim.block_loop(seed=seed, lap_length=120.0, num_pedestrians=6)
+    assert course.scene.labels.count("person") == 6
+    end = course.trajectory.pose_at(course.trajectory.end_time)
+    err = (course.trajectory.pose_at(0.0).inverse() @ end).as_vector()
+    assert np.abs(err).max() < 1e-9
+
+
 def test_block_loop_yaw_rate_ramps_into_corners() -> None:
     course = sim.block_loop(seed=0, transition=0.5)
     rates = course.trajectory.twists[:, 5]

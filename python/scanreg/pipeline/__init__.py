@@ -2,13 +2,15 @@
 in a prior map (:class:`Localizer`, 3D; :class:`Localizer2D`, 2D, with global relocalization),
 2D scan-to-map odometry (:class:`Odometry2D`), mapping with loop closure on a pose graph
 (:class:`Mapper` 2D, :class:`Mapper3D` 3D; needs ``scanreg[mapping]``) and 3D localization in a
-saved map with global relocalization (:class:`MapLocalizer`)."""
+saved map with global relocalization (:class:`MapLocalizer`); :func:`write_outputs` writes a
+mapping run's folder (what ``scanreg map`` writes)."""
 
 from .localizer import Localizer, Relocalization
 from .localizer2d import GlobalFix, LocalizationConfig2D, Localizer2D
 from .map_localizer import GlobalFix3D, MapLocalizer
 from .mapping import LoopRecord, Mapper, MappingConfig, MappingResult, run_mapping
 from .mapping3d import Mapper3D, MappingConfig3D, run_mapping_3d
+from .mapping_output import write_outputs
 from .odometry import AdaptiveGate, FrameResult, FrameTiming, Odometry, OdometryConfig
 from .odometry2d import Frame2D, FrameTiming2D, Odometry2D, OdometryConfig2D
 
@@ -37,4 +39,5 @@ __all__ = [
     "Relocalization",
     "run_mapping",
     "run_mapping_3d",
+    "write_outputs",
 ]

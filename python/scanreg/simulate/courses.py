@@ -289,9 +289,11 @@ def block_loop(
     for _ in range(int(num_pedestrians)):
         k = int(rng.integers(0, 4))
         side = float(rng.choice([-1.0, 1.0]))
-        u0 = rng.uniform(-sides[k] / 2, sides[k] / 2 - 15.0)
+        # A 15 m walk, or the whole straight where the block is smaller than that.
+        walk = min(15.0, sides[k])
+        u0 = rng.uniform(-sides[k] / 2, sides[k] / 2 - walk)
         x, y = frames[k].apply(np.array([[u0, side * (road + 2.4)]]))[0]
-        dx, dy = frames[k].rotation @ np.array([15.0, 0.0])
+        dx, dy = frames[k].rotation @ np.array([walk, 0.0])
         builder.person(x, y, (dx, dy), speed=rng.uniform(0.8, 1.5), phase=rng.uniform(0, 15))
     for _ in range(int(num_moving_cars)):
         k = int(rng.integers(0, 4))
