@@ -100,6 +100,40 @@ pub struct VoxelMap {
     /// map), so the ±2^20-voxel range is around the map, not around the world origin: a map
     /// in UTM coordinates (10⁶-10⁷ m) works like one at the origin.
     base: [i64; 3],
+    /// The occupied voxels by block, for wide gates (see [`Blocks`]); built by the first
+    /// search that needs it after a change, dropped by every change.
+    blocks: OnceLock<Blocks>,
+}
+
+/// Voxels per block edge in [`Blocks`].
+const BLOCK: i64 = 4;
+/// From this reach (voxels from the query's voxel to the gate box's edge) a search that the
+/// 3^dim neighbours did not settle walks [`Blocks`] instead of shells: a shell walk costs a
+/// hash lookup per voxel *volume* in the gate, `(2r + 1)^dim`, found or not.
+const BLOCK_REACH: i64 = 4;
+
+/// Occupied voxels grouped by block of `BLOCK^dim` voxels, with each voxel's table entry and
+/// integer coordinates (relative to `base`). A wide gate (the odometry's adaptive gate reaches
+/// 10-15 m at 1 m voxels when a fast turn defeats the constant-velocity prediction) then costs
+/// a lookup per *block* in the gate plus the occupied voxels near the query, instead of one per
+/// voxel volume — or, past the occupied-voxel count, every point in the map.
+struct Blocks {
+    voxels: FxHashMap<u64, Vec<BlockVoxel>>,
+}
+
+/// An occupied voxel of a block: its table entry and its indices (relative to `base`).
+type BlockVoxel = (Entry, [i64; 3]);
+
+/// The inverse of [`pack`].
+#[inline]
+fn unpack(key: u64) -> [i64; 3] {
+    const OFF: i64 = 1 << 20;
+    const MASK: u64 = (1 << 21) - 1;
+    [
+        ((key >> 42) & MASK) as i64 - OFF,
+        ((key >> 21) & MASK) as i64 - OFF,
+        (key & MASK) as i64 - OFF,
+    ]
 }
 
 /// Voxel indices packed 21 bits per axis (offset by 2^20): one u64 hashes and compares in one
@@ -199,6 +233,7 @@ impl VoxelMap {
             free: Vec::new(),
             len: 0,
             base: [0; 3],
+            blocks: OnceLock::new(),
         })
     }
 
@@ -319,6 +354,7 @@ impl VoxelMap {
     ) -> Result<usize> {
         let dim = self.dim;
         let n = check_points("points", points, dim)?;
+        self.blocks = OnceLock::new();
         if self.slots.is_empty() && n > 0 {
             // No key is stored: re-anchor at the first point (see `base`).
             if let Some(v) = voxel_of(&points[..dim], self.inv) {
@@ -455,6 +491,7 @@ impl VoxelMap {
             ));
         }
         let max_sq = positive("max_distance", max_distance)?.powi(2);
+        self.blocks = OnceLock::new();
         let (dim, cap) = (self.dim, self.max_per_voxel);
         let mut removed = 0;
         let mut freed = Vec::new();
@@ -536,6 +573,97 @@ impl VoxelMap {
         Ok(found.into_iter().unzip())
     }
 
+    fn group_blocks(&self) -> Blocks {
+        let mut voxels: FxHashMap<u64, Vec<BlockVoxel>> = FxHashMap::default();
+        for (&key, &e) in &self.slots {
+            let v = unpack(key);
+            let [bx, by, bz] = v.map(|i| i.div_euclid(BLOCK));
+            let block = pack(bx, by, bz).expect("a block index is within the voxel index range");
+            voxels.entry(block).or_default().push((e, v));
+        }
+        Blocks { voxels }
+    }
+
+    /// Squared distance from `q` to the box of `size` voxels per edge whose lowest voxel is
+    /// `corner` (relative to `base`), shrunk per side by a millionth of a voxel (plus a
+    /// rounding error of `q`): a point's voxel comes from rounding `p / v`, so the point can
+    /// lie that far outside its voxel's box, and a skip must never miss it.
+    fn box_sq(&self, q: &[f64], corner: [i64; 3], size: i64) -> f64 {
+        let mut sum = 0.0;
+        for c in 0..self.dim {
+            let a = (corner[c] + self.base[c]) as f64 * self.voxel_size;
+            let b = a + size as f64 * self.voxel_size;
+            let gap = if q[c] < a {
+                a - q[c]
+            } else if q[c] > b {
+                q[c] - b
+            } else {
+                0.0
+            };
+            let gap = (gap - 1e-6 * self.voxel_size - 1e-12 * q[c].abs()).max(0.0);
+            sum += gap * gap;
+        }
+        sum
+    }
+
+    /// The rest of a wide search (gate box `lo..=hi`, absolute voxel indices): the blocks the
+    /// box overlaps, nearest first, the walk ending at the first block farther than the best
+    /// point so far; in each block, the voxels not farther than it. Exact, and equal to the
+    /// shell walk: a voxel the neighbour pass already scanned is scanned again, which changes
+    /// nothing (the best is the least `(distance, id)` in any order).
+    fn search_blocks(
+        &self,
+        q: &[f64],
+        max_sq: f64,
+        lo: &[i64; 3],
+        hi: &[i64; 3],
+        best: &mut Option<(usize, f64)>,
+    ) {
+        let blocks = self.blocks.get_or_init(|| self.group_blocks());
+        let mut blo = [0i64; 3];
+        let mut bhi = [0i64; 3];
+        let mut in_box = 1.0;
+        for c in 0..self.dim {
+            blo[c] = (lo[c] - self.base[c]).div_euclid(BLOCK);
+            bhi[c] = (hi[c] - self.base[c]).div_euclid(BLOCK);
+            in_box *= (bhi[c] - blo[c] + 1) as f64;
+        }
+        let block_sq = |b: [i64; 3]| self.box_sq(q, b.map(|i| i * BLOCK), BLOCK);
+        let mut near: Vec<(f64, &[BlockVoxel])> = Vec::new();
+        if in_box <= blocks.voxels.len() as f64 {
+            for x in blo[0]..=bhi[0] {
+                for y in blo[1]..=bhi[1] {
+                    for z in blo[2]..=bhi[2] {
+                        if let Some(v) = pack(x, y, z).and_then(|k| blocks.voxels.get(&k)) {
+                            near.push((block_sq([x, y, z]), v));
+                        }
+                    }
+                }
+            }
+        } else {
+            for (&key, v) in &blocks.voxels {
+                let b = unpack(key);
+                if (0..self.dim).all(|c| (blo[c]..=bhi[c]).contains(&b[c])) {
+                    near.push((block_sq(b), v));
+                }
+            }
+        }
+        near.retain(|&(d, _)| d <= max_sq);
+        near.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        for (d, voxels) in near {
+            // `>`, not `>=`: a point at exactly the best distance with a lower id still wins.
+            if best.is_some_and(|(_, bd)| d > bd) {
+                break;
+            }
+            for (e, v) in voxels {
+                let vd = self.box_sq(q, *v, 1);
+                if vd <= max_sq && !best.is_some_and(|(_, bd)| vd > bd) {
+                    self.scan_nearest(q, max_sq, e, best);
+                }
+            }
+        }
+    }
+
     fn scan_nearest(&self, q: &[f64], max_sq: f64, e: &Entry, best: &mut Option<(usize, f64)>) {
         let (dim, cap) = (self.dim, self.max_per_voxel);
         for k in 0..e.count as usize {
@@ -571,7 +699,8 @@ impl NeighborSearch for VoxelMap {
     }
 
     /// Exact: visits the voxels the gate's bounding box overlaps (per axis
-    /// `floor((q - g) / v) ..= floor((q + g) / v)`), or every occupied voxel when that is fewer.
+    /// `floor((q - g) / v) ..= floor((q + g) / v)`), nearest first, or every occupied voxel
+    /// when that is fewer; past `BLOCK_REACH` voxels, the occupied ones by block.
     fn nearest_within(&self, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
         let g = max_sq.sqrt();
         let mut lo = [0i64; 3];
@@ -589,7 +718,8 @@ impl NeighborSearch for VoxelMap {
             hi[c] = b as i64;
         }
         let mut best = None;
-        if visits > self.slots.len() as f64 {
+        let wide = (0..self.dim).any(|c| hi[c] - lo[c] > 2 * BLOCK_REACH);
+        if visits.is_infinite() || (visits > self.slots.len() as f64 && !wide) {
             for e in self.slots.values() {
                 self.scan_nearest(q, max_sq, e, &mut best);
             }
@@ -639,6 +769,10 @@ impl NeighborSearch for VoxelMap {
         }
         let shell = self.voxel_size + margin;
         if reach <= 1 || best.is_some_and(|(_, d)| d <= shell * shell) {
+            return best;
+        }
+        if reach >= BLOCK_REACH {
+            self.search_blocks(q, max_sq, &lo, &hi, &mut best);
             return best;
         }
         for r in 2..=reach {

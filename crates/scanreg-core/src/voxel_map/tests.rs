@@ -51,6 +51,75 @@ fn nearest_is_exact_for_every_gate() {
     }
 }
 
+/// The least `(distance, id)` over the map's stored points: the id a search must return.
+fn brute_id(map: &VoxelMap, q: &[f64], max_sq: f64) -> Option<(usize, f64)> {
+    let (dim, cap) = (map.dim, map.max_per_voxel);
+    let mut best: Option<(usize, f64)> = None;
+    for (s, &count) in map.counts.iter().enumerate() {
+        for j in s * cap..s * cap + count as usize {
+            let p = &map.points[j * dim..(j + 1) * dim];
+            let d: f64 = p.iter().zip(q).map(|(a, b)| (a - b) * (a - b)).sum();
+            if d <= max_sq && best.is_none_or(|(bi, bd)| d < bd || (d == bd && j < bi)) {
+                best = Some((j, d));
+            }
+        }
+    }
+    best
+}
+
+#[test]
+fn wide_gates_walk_blocks_and_stay_exact() {
+    // Clusters on a lattice (tied distances: the id decides) far apart, queries in the gaps
+    // and beyond the map, gates from a few voxels to the whole map, near the origin and in
+    // UTM coordinates; the block index must follow every insertion and eviction.
+    for dim in [2, 3] {
+        for offset in [0.0, 4.3e6] {
+            let mut map = VoxelMap::new(dim, 0.5, 16, 0.0, Attributes::None).unwrap();
+            let mut batch = Vec::new();
+            for (i, v) in cloud(40, dim, 3).chunks_exact(dim).enumerate() {
+                for k in 0..6 {
+                    for (c, x) in v.iter().enumerate() {
+                        let step = if c == k % dim {
+                            0.25 * (k / dim) as f64
+                        } else {
+                            0.0
+                        };
+                        batch.push(offset + 3.0 * x.round() + step + 0.5 * (i % 2) as f64);
+                    }
+                }
+            }
+            map.insert(&batch, None, None).unwrap();
+            let queries: Vec<f64> = cloud(200, dim, 11)
+                .iter()
+                .map(|x| offset + 2.5 * x)
+                .collect();
+            for round in 0..3 {
+                for gate in [2.6, 6.0, 40.0, 1e4] {
+                    for q in queries.chunks_exact(dim) {
+                        let want = brute_id(&map, q, gate * gate);
+                        assert_eq!(
+                            map.nearest_within(q, gate * gate),
+                            want,
+                            "dim {dim} gate {gate}"
+                        );
+                    }
+                }
+                // Change the map: the next round must see the change.
+                let center = vec![offset; dim];
+                if round == 0 {
+                    map.remove_far(&center, 15.0).unwrap();
+                } else {
+                    let more: Vec<f64> = cloud(50, dim, 20 + round)
+                        .iter()
+                        .map(|x| offset + x)
+                        .collect();
+                    map.insert(&more, None, None).unwrap();
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn capacity_spacing_and_eviction() {
     let mut map = VoxelMap::new(3, 1.0, 3, 0.1, Attributes::None).unwrap();
