@@ -5,6 +5,7 @@ workers inherit sys.path; Ray's get it pickled by value)."""
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +39,15 @@ def _note_ray_node(job: Job, folder: Path) -> None:
         nodes = folder.parent.parent / "nodes"
         nodes.mkdir(exist_ok=True)
         (nodes / job.id).write_text(ray.get_runtime_context().get_node_id())
+
+
+def ray_node_after(seconds: float) -> str:
+    """The Ray node this runs on, after holding its CPU for ``seconds``: two at once on a
+    cluster of two 1-CPU nodes must run on both."""
+    import ray
+
+    time.sleep(seconds)
+    return str(ray.get_runtime_context().get_node_id())
 
 
 def thread_census(job: Job, folder: Path) -> dict[str, Any]:

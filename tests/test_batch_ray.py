@@ -192,6 +192,11 @@ def test_two_node_cluster(
     while sum(n["Alive"] for n in ray.nodes()) < 2:
         assert time.monotonic() < deadline, "the second node did not join"
         time.sleep(0.2)
+    # ...and until it takes work: alive is not yet schedulable (under load, tiny jobs could all
+    # finish on the head before the head's scheduler sees the second node's CPU)
+    probe = ray.remote(num_cpus=1)(batch_jobs.ray_node_after)
+    while len(set(ray.get([probe.remote(0.5), probe.remote(0.5)]))) < 2:
+        assert time.monotonic() < deadline, "the second node took no work"
     ray.shutdown()
     report = run_batch(
         "odometry",
