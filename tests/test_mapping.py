@@ -179,6 +179,28 @@ def test_intel_excerpt_relations_after_closure() -> None:
     assert after.rotation_deg.mean < 0.4
 
 
+@pytest.mark.parametrize(
+    ("folder", "result", "options", "error", "match"),
+    [
+        (None, "run", {}, TypeError, "folder: expected a str or os.PathLike"),
+        ("out", None, {}, TypeError, "result: expected a MappingResult"),
+        ("out", np.zeros((3, 2)), {}, TypeError, "result: expected a MappingResult"),
+        ("out", "run", {"resolution": float("nan")}, ValueError, "resolution: must be finite"),
+        ("out", "run", {"voxel_size": 0.0}, ValueError, "voxel_size: must be finite and > 0"),
+        ("out", "run", {"plot": 1}, TypeError, "plot: expected a bool"),
+    ],
+)
+def test_write_outputs_refuses_bad_arguments_before_writing(
+    tmp_path: Any, folder: Any, result: Any, options: dict[str, Any], error: type, match: str
+) -> None:
+    from scanreg.pipeline import write_outputs
+
+    target = None if folder is None else tmp_path / folder
+    with pytest.raises(error, match=match):
+        write_outputs(target, _ring_run()[1] if isinstance(result, str) else result, **options)
+    assert not (tmp_path / "out").exists()
+
+
 def test_outputs_are_written(tmp_path: Any) -> None:
     pytest.importorskip("matplotlib")
     from scanreg.io.g2o import read_g2o

@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .._validate import FloatArray
+from .._validate import FloatArray, check_flag, positive
 from ..io import PointCloud, write_points
 from ..io.g2o import PoseGraph, PoseGraphEdge, write_g2o
 from ..io.occupancy import occupancy_grid, write_map
@@ -99,7 +100,7 @@ def write_places(path: Path, result: MappingResult[Any]) -> Path:
 
 
 def write_outputs(
-    folder: Path,
+    folder: str | os.PathLike[str],
     result: MappingResult[Any],
     *,
     resolution: float = 0.05,
@@ -109,6 +110,16 @@ def write_outputs(
     """Write every file of the table above into ``folder`` (created); returns their paths.
     ``resolution``: the 2D occupancy grid's cell (m); ``voxel_size``: the 3D map's voxel (m).
     ``plot=False`` skips ``trajectory.png`` (the only file that needs matplotlib)."""
+    if not isinstance(folder, (str, os.PathLike)):
+        raise TypeError(f"folder: expected a str or os.PathLike, got {type(folder).__name__}")
+    if not isinstance(result, MappingResult):
+        raise TypeError(
+            f"result: expected a MappingResult (run_mapping, run_mapping_3d), "
+            f"got {type(result).__name__}"
+        )
+    positive(resolution, "resolution")
+    positive(voxel_size, "voxel_size")
+    check_flag(plot, "plot")
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     stamps = _stamps(result)
