@@ -24,19 +24,29 @@ alternating with small_gicp's bare ICP; medians of the per-round values and rati
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import statistics
-import sys
 import time
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 import scanreg
 import scanreg.register
 from scanreg import _core
-from trust_speed import NO_PROBE, PROBE, intel, intel_pairs, mat4, ours2d, pad, small_gicp_icp
+from trust_speed import (
+    NO_PROBE,
+    PROBE,
+    import_small_gicp,
+    intel,
+    intel_pairs,
+    mat4,
+    ours2d,
+    pad,
+    small_gicp_icp,
+)
 
 REAL_PREPARE = scanreg.prepare
 
@@ -44,6 +54,21 @@ REAL_PREPARE = scanreg.prepare
 def set_prepare(fn: Callable[..., Any]) -> None:
     scanreg.prepare = fn  # what the loop calls
     scanreg.register.prepare = fn  # (register's own, for raw targets)
+
+
+@contextlib.contextmanager
+def patched(core: dict[str, Callable[..., Any]], prepare: Callable[..., Any]) -> Iterator[None]:
+    """``_core``'s functions ``core`` and ``prepare`` replaced for the block, then restored."""
+    real = {name: getattr(_core, name) for name in core}
+    for name, fn in core.items():
+        setattr(_core, name, fn)
+    set_prepare(prepare)
+    try:
+        yield
+    finally:
+        for name, fn in real.items():
+            setattr(_core, name, fn)
+        set_prepare(REAL_PREPARE)
 
 
 def replaying(pairs: list[Any], thresholds: Any, calls: list[str]) -> Callable[[], None]:
@@ -59,15 +84,10 @@ def replaying(pairs: list[Any], thresholds: Any, calls: list[str]) -> Callable[[
 
         return call
 
-    for name in calls:
-        setattr(_core, name, recorder(name, real[name]))
-    set_prepare(recorder("prepare", REAL_PREPARE))
-    try:
+    with patched(
+        {name: recorder(name, real[name]) for name in calls}, recorder("prepare", REAL_PREPARE)
+    ):
         ours2d(pairs, True, thresholds)
-    finally:
-        for name in calls:
-            setattr(_core, name, real[name])
-        set_prepare(REAL_PREPARE)
 
     def run() -> None:
         outs = {name: iter(values) for name, values in recorded.items()}
@@ -75,15 +95,9 @@ def replaying(pairs: list[Any], thresholds: Any, calls: list[str]) -> Callable[[
             # What a target keeps for the probe (its grid, its symmetry) is built afresh.
             target.__dict__.pop("_grids", None)
             target.__dict__.pop("_symmetry", None)
-        for name in calls:
-            setattr(_core, name, lambda *a, _n=name, **k: next(outs[_n]))
-        set_prepare(lambda *a, **k: next(outs["prepare"]))
-        try:
+        replays = {name: (lambda *a, _n=name, **k: next(outs[_n])) for name in calls}
+        with patched(replays, lambda *a, **k: next(outs["prepare"])):
             ours2d(pairs, True, thresholds)
-        finally:
-            for name in calls:
-                setattr(_core, name, real[name])
-            set_prepare(REAL_PREPARE)
 
     return run
 
@@ -96,12 +110,7 @@ def main() -> None:
         "--probe", action="store_true", help="with the wrong-basin probe (the 2D default)"
     )
     args = ap.parse_args()
-    if args.peers_site:
-        sys.path.append(args.peers_site)
-    try:
-        import small_gicp as sg
-    except ImportError:
-        sg = None
+    sg = import_small_gicp(args.peers_site)
     pairs = intel_pairs(intel())
     n = len(pairs)
     thresholds = PROBE if args.probe else NO_PROBE

@@ -254,6 +254,18 @@ def section_odometry(count: int) -> None:
         print(f"| {name} | {1e3 / statistics.median(ts):.0f} | {ratio:.2f} |")
 
 
+def import_small_gicp(site: str | None) -> Any:
+    """small_gicp from ``site`` (a peers venv's site-packages) or this environment; None when
+    it is not installed (its columns are then empty)."""
+    if site:
+        sys.path.append(site)
+    try:
+        import small_gicp
+    except ImportError:
+        return None
+    return small_gicp
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--peers-site", default=None, help="site-packages holding small_gicp")
@@ -269,12 +281,7 @@ def main() -> None:
         "--sections", nargs="+", choices=["2d", "3d", "odometry"], default=["2d", "3d", "odometry"]
     )
     args = ap.parse_args()
-    if args.peers_site:
-        sys.path.append(args.peers_site)
-    try:
-        import small_gicp as sg
-    except ImportError:
-        sg = None
+    sg = import_small_gicp(args.peers_site)
     if "2d" in args.sections:
         section_2d(sg, args.rounds)
     if "3d" in args.sections:
