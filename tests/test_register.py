@@ -20,6 +20,7 @@ from conftest import data_dir
 from scanreg import SE2, SE3, RegistrationSettings, prepare, register
 from scanreg import preprocess as pp
 from scanreg import simulate as sim
+from scanreg._validate import replaced
 from scanreg.io import read_points
 from scanreg.robust import KERNELS
 
@@ -466,6 +467,17 @@ def test_results_built_without_init_hold_exactly_their_fields() -> None:
     assert "_lazy" not in vars(copy)
     for name in ("translation_from_init", "rotation_from_init", "overlap", "residual_rmse"):
         assert getattr(copy, name) == getattr(fresh.quality, name)
+    # _validate.replaced (how the probe puts its finding into a report): replace() without
+    # __init__, the lazy fields left lazy, the same report as dataclasses.replace.
+    lazy = register(
+        source,
+        prepared,
+        method="point_to_line",
+        thresholds=scanreg.VerdictThresholds(basin_probe=False),
+    ).quality
+    swapped = replaced(lazy, basin=None, overlap=0.5)
+    assert "_lazy" in vars(swapped) and "translation_from_init" not in vars(swapped)
+    assert swapped == dataclasses.replace(lazy, basin=None, overlap=0.5)
     deg = unprobed.degeneracy
     assert deg.weak_directions == tuple(
         d for d, lam in zip(deg.directions, deg.eigenvalues, strict=True) if lam < deg.threshold

@@ -212,3 +212,14 @@ def build(cls: type[T], fields: dict[str, Any]) -> T:
     obj = object.__new__(cls)
     obj.__dict__.update(fields)
     return obj
+
+
+def replaced(obj: T, **changes: Any) -> T:
+    """``dataclasses.replace(obj, **changes)`` for an object :func:`build` or
+    :func:`build_lazy` made, without ``__init__``: the other fields as they are (checked when
+    it was built; lazy ones still lazy, computed from the same inputs when read). ``replace``
+    reads every field, computing the lazy ones, and sets each through ``object.__setattr__``."""
+    new = object.__new__(type(obj))
+    new.__dict__.update(obj.__dict__)
+    new.__dict__.update(changes)
+    return new

@@ -45,7 +45,8 @@ from ._validate import FloatArray, build_lazy
 from ._validate import build as _build
 from ._validate import frozen as _frozen
 from ._validate import readonly as _readonly
-from .basin import BasinProbe, probe_basin, tight_gate
+from ._validate import replaced as _replaced
+from .basin import probe_basin, tight_gate
 from .degeneracy import (
     Degeneracy,
     sampled_normals,
@@ -703,7 +704,8 @@ def _trust(
             if isinstance(ctx.target, PreparedTarget) and ctx.target.normals is not None
             else None,
         )
-        report = _with_basin(checked.report, probe)
+        # (5 of the probe screen's µs on a 2D scan went to dataclasses.replace)
+        report = _replaced(checked.report, basin=probe)
         # Only an alternative can add a reason: without one the verdict stands as judged.
         verdict = judge(report, th) if probe.alternative is not None else checked.verdict
         checked = _build(Assessment, {"report": report, "verdict": verdict})
@@ -726,17 +728,6 @@ def _trust(
             "seconds": time.perf_counter() - t0,
         },
     )
-
-
-def _with_basin(report: QualityReport, probe: BasinProbe) -> QualityReport:
-    """``dataclasses.replace(report, basin=probe)`` without ``__init__``: the report's fields
-    as they are (checked when it was built; the lazy ones still lazy, computed from the same
-    inputs when read) and ``basin``. ``replace`` read every field, computing the lazy ones, and
-    set each through ``object.__setattr__``: 5 of the probe's screen's µs on a 2D scan."""
-    new = object.__new__(type(report))
-    new.__dict__.update(report.__dict__)
-    new.__dict__["basin"] = probe
-    return new
 
 
 def residual_variance(out: Any, components: int, kernel: str, dof: int) -> float:
