@@ -285,8 +285,9 @@ pub struct Implausible<'a> {
     pub chi2: f64,
 }
 
-/// [`probe_restarts`]'s answer: the outcomes compared with the result (see [`Kind`]), up to and including the one that stopped the probe, and their poses
-/// (`K` row-major homogeneous matrices, the correlative start's outcome first).
+/// [`probe_restarts`]'s answer: the outcomes compared with the result (see [`Kind`]), up to
+/// and including the one that stopped the probe, and their poses (`K` row-major homogeneous
+/// matrices, the correlative start's outcome first).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Probe {
     pub outcomes: Outcomes,
@@ -296,9 +297,9 @@ pub struct Probe {
 /// The whole restart path of the wrong-basin probe in one call: the correlative start (when
 /// given), the registration from it and from each of `starts` (`home` stops a solve that
 /// comes back to the result, see [`icp::Home`]), each outcome compared with the result as it
-/// arrives (see [`Kind`]), and no more restarts once one settles the verdict
-/// ([`Stop`]). The solves run in waves of the pool's size, read in order: the outcomes (and
-/// where the probe stops) are the same for any thread count.
+/// arrives (see [`Kind`]), and no more restarts once one settles the verdict ([`Stop`]). The
+/// solves run in waves of the pool's size, read in order: the outcomes (and where the probe
+/// stops) are the same for any thread count.
 #[allow(clippy::too_many_arguments)]
 pub fn probe_restarts(
     source: &Source<'_>,
