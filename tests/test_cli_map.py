@@ -116,3 +116,64 @@ def test_odometry_reads_carmen_logs(
     code = main(["odometry", str(excerpt), "--preset", "velodyne-hdl64", "-o", str(out)])
     assert code == EXIT_BAD_INPUT
     assert "--preset: not available for a 2D CARMEN log" in capsys.readouterr().err
+
+
+def test_interrupted_map_writes_what_was_mapped(
+    excerpt: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Ctrl-C at the 150th scan: the run stops, says so, and leaves a readable folder of what
+    # it had mapped (poses, graph, map), never nothing.
+    from scanreg.cli import EXIT_INTERRUPTED
+    from scanreg.pipeline import mapping
+
+    integrate = mapping.Mapper.integrate
+
+    def interrupt_at_150(self: mapping.Mapper, tracked: mapping.Tracked) -> mapping.MappingStep:
+        if tracked.index == 150:
+            raise KeyboardInterrupt
+        return integrate(self, tracked)
+
+    monkeypatch.setattr(mapping.Mapper, "integrate", interrupt_at_150)
+    out = tmp_path / "out"
+    code = main(["map", str(excerpt), "-o", str(out), "--quiet", "--no-plots"])
+    assert code == EXIT_INTERRUPTED
+    err = capsys.readouterr().err
+    assert "stopped at scan 150 of" in err and "interrupted" in err
+    assert f"what was mapped so far is written to {out}/ (150 scans" in err
+    tum = np.loadtxt(out / "poses_tum.txt")
+    assert tum.shape == (150, 8)
+    assert (out / "graph.g2o").read_text().startswith("VERTEX_SE2")
+    assert (out / "map.pgm").is_file() and (out / "map.yaml").is_file()
+
+
+def test_checkpoint_writes_partial_outputs(
+    excerpt: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from scanreg.pipeline import mapping
+
+    seen: list[int] = []
+    original = mapping.Mapper.snapshot
+
+    def spy(self: mapping.Mapper, reason: str) -> mapping.MappingResult[mapping.SE2]:
+        partial = original(self, reason)
+        seen.append(partial.num_scans)
+        return partial
+
+    monkeypatch.setattr(mapping.Mapper, "snapshot", spy)
+    out = tmp_path / "out"
+    code = main(
+        ["map", str(excerpt), "-o", str(out), "--quiet", "--no-plots", "--max-scans", "250"]
+        + ["--checkpoint", "100", "--json"]
+    )
+    assert code == EXIT_OK
+    assert seen == [100, 200]
+    assert json.loads(capsys.readouterr().out)["partial"] is None
+    assert np.loadtxt(out / "poses_tum.txt").shape == (250, 8)  # the final run overwrote it
+    assert main(["map", str(excerpt), "-o", str(out), "--checkpoint", "0"]) == EXIT_BAD_INPUT
+    assert "--checkpoint must be >= 1" in capsys.readouterr().err

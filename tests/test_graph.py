@@ -230,3 +230,78 @@ def test_missing_gtsam_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(G.importlib, "import_module", fake)
     with pytest.raises(ImportError, match=r"scanreg\[mapping\]"):
         G.Graph(2)
+
+
+def test_an_unanchored_group_is_anchored_not_indeterminate() -> None:
+    # Nodes 1 and 2 are tied to each other but to nothing that fixes them in the world: the
+    # linear system is indeterminate (gtsam's IndeterminateLinearSystemException from a raw
+    # iSAM2 update). The graph anchors the group at its first node and says so.
+    g = G.Graph(2)
+    g.add_node(0, SE2.identity())
+    g.add_prior(0, SE2.identity(), np.eye(3) * 1e4)
+    g.add_node(1, SE2.from_vector([5.0, 0.0, 0.3]))
+    g.add_node(2, SE2.from_vector([6.0, 0.0, 0.3]))  # 0.3 m off what the edge says
+    g.add_edge(1, 2, SE2.from_vector([1.0, 0.0, 0.0]), np.eye(3) * 100)
+    g.update()
+    assert g.anchored == [1]
+    # The anchor only fixes the gauge: the edge holds exactly, and the group has moved no
+    # farther than the disagreement of its initial guesses.
+    assert np.linalg.norm(g.pose(1).translation - [5.0, 0.0]) < 0.3
+    rel = g.pose(1).inverse() @ g.pose(2)
+    assert np.allclose(rel.as_vector(), [1.0, 0.0, 0.0], atol=1e-6)
+    # Joining the group to the anchored one later leaves the weak anchor negligible.
+    g.add_edge(0, 1, SE2.from_vector([1.0, 0.0, 0.0]), np.eye(3) * 100)
+    g.update(extra_iterations=2)
+    assert np.allclose(g.pose(2).as_vector(), [2.0, 0.0, 0.0], atol=1e-4)
+
+
+def test_a_failed_incremental_update_is_solved_in_batch(monkeypatch: pytest.MonkeyPatch) -> None:
+    g = G.Graph(2)
+    g.add_node(0, SE2.identity())
+    g.add_prior(0, SE2.identity(), np.eye(3) * 1e4)
+    g.update()
+    g.add_node(1, SE2.from_vector([0.9, 0.1, 0.0]))
+    g.add_edge(0, 1, SE2.from_vector([1.0, 0.0, 0.0]), np.eye(3) * 100)
+
+    class Failing:
+        def update(self, *args: Any) -> None:
+            raise RuntimeError("\nIndeterminate linear system detected near variable 1")
+
+    monkeypatch.setattr(g, "_isam", Failing())
+    g.update()  # no exception: Levenberg–Marquardt solved it instead
+    assert g.recoveries == ["Indeterminate linear system detected near variable 1"]
+    assert np.allclose(g.pose(1).as_vector(), [1.0, 0.0, 0.0], atol=1e-6)
+    # iSAM2 restarts from the batch solution at the next update.
+    g.add_node(2, SE2.from_vector([2.1, 0.0, 0.0]))
+    g.add_edge(1, 2, SE2.from_vector([1.0, 0.0, 0.0]), np.eye(3) * 100)
+    g.update()
+    assert np.allclose(g.pose(2).as_vector(), [2.0, 0.0, 0.0], atol=1e-6)
+
+
+def test_unsolvable_update_names_gtsam_and_edges_can_be_dropped(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    g = G.Graph(2)
+    g.add_node(0, SE2.identity())
+    g.add_prior(0, SE2.identity(), np.eye(3) * 1e4)
+    g.add_node(1, SE2.from_vector([1.0, 0.0, 0.0]))
+    g.add_edge(0, 1, SE2.from_vector([1.0, 0.0, 0.0]), np.eye(3) * 100)
+    g.update()
+    g.add_edge(0, 1, SE2.from_vector([3.0, 0.0, 0.0]), np.eye(3) * 100, kind="loop")
+
+    def broken(*args: Any, **kwargs: Any) -> int:
+        raise RuntimeError("Indeterminate linear system detected near variable 1")
+
+    monkeypatch.setattr(g, "_rebuild_isam", broken)
+    monkeypatch.setattr(g, "_isam_current", False)
+    monkeypatch.setattr(g, "optimize", broken)
+    with pytest.raises(G.GraphSolveError, match=r"nor in batch \(Indeterminate linear system"):
+        g.update()
+    monkeypatch.undo()
+    assert np.allclose(g.pose(1).as_vector(), [1.0, 0.0, 0.0])  # the estimate before it
+    g.remove_last_edges(1)
+    assert [e.kind for e in g.edges] == ["prior", "odometry"]
+    g.update()
+    assert np.allclose(g.pose(1).as_vector(), [1.0, 0.0, 0.0], atol=1e-9)
+    with pytest.raises(ValueError, match="count: the last 2 edges are not all relative-pose"):
+        g.remove_last_edges(2)

@@ -19,6 +19,13 @@ import numpy as np
 from ._progress import Progress
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_USAGE, EXIT_BAD_INPUT = 0, 1, 2, 3
+#: Ctrl-C (the shell's 128 + SIGINT).
+EXIT_INTERRUPTED = 130
+
+
+class MappingStopped(Exception):
+    """A mapping run stopped early; its partial outputs were written (the message says where)."""
+
 
 EXAMPLES = """examples:
   scanreg demo --seed 3
@@ -297,6 +304,14 @@ def build_parser() -> argparse.ArgumentParser:
         mp, "the graph nodes' poses and scans, the occupancy grid, loop closures", sensor="laser"
     )
     mp.add_argument("--report", action="store_true", help="also write report.html")
+    mp.add_argument(
+        "--checkpoint",
+        type=int,
+        default=None,
+        metavar="N",
+        help="2D: write the outputs so far every N scans (a partial map; the final run "
+        "overwrites it)",
+    )
     mp.add_argument("--json", action="store_true", help="print JSON instead of text")
     mp.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     lz = sub.add_parser(
@@ -1061,7 +1076,7 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
     from .io import read_scans
 
     require_gtsam()  # fail before reading a large log
-    from .pipeline.mapping import MappingConfig, run_mapping
+    from .pipeline.mapping import MappingConfig, MappingInterrupted, run_mapping
     from .pipeline.mapping_output import summary, write_outputs
 
     if args.max_scans is not None and args.max_scans < 1:
@@ -1074,14 +1089,30 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
     if args.bag is not None:
         args.output.mkdir(parents=True, exist_ok=True)  # a --bag inside it can be checked now
     frames = _bag_settings(args)  # a bad bag path fails now, not after the run
+    if args.checkpoint is not None and args.checkpoint < 1:
+        raise ValueError(f"--checkpoint must be >= 1 scans, got {args.checkpoint}")
     log = read_scans(args.path)
-    res = run_mapping(
-        log,
-        config,
-        kind=args.kind,
-        max_scans=args.max_scans,
-        progress=not (args.quiet or args.json),
-    )
+
+    def checkpoint(partial: Any) -> None:
+        write_outputs(args.output, partial, resolution=args.resolution, plot=False)
+
+    try:
+        res = run_mapping(
+            log,
+            config,
+            kind=args.kind,
+            max_scans=args.max_scans,
+            progress=not (args.quiet or args.json),
+            checkpoint=None if args.checkpoint is None else checkpoint,
+            checkpoint_every=args.checkpoint or 1000,
+        )
+    except MappingInterrupted as exc:
+        # Never lose work: what was mapped before the stop is written, and the run fails.
+        write_outputs(args.output, exc.partial, resolution=args.resolution, plot=False)
+        raise MappingStopped(
+            f"{exc}; what was mapped so far is written to {args.output}/ "
+            f"({len(exc.partial.poses)} scans, {len(exc.partial.node_scans)} nodes)"
+        ) from exc
     paths = write_outputs(args.output, res, resolution=args.resolution, plot=not args.no_plots)
     paths["config"] = write_config(args.output / "config.toml", config)
     if args.bag is not None:
@@ -1347,6 +1378,9 @@ def main(argv: list[str] | None = None) -> int:
     }
     try:
         result = handlers[args.command](args)
+    except MappingStopped as exc:
+        print(f"scanreg {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_INTERRUPTED if "interrupted" in str(exc) else EXIT_CHECK_FAILED
     except (ValueError, OSError, ImportError) as exc:  # FileFormatError is a ValueError
         print(f"scanreg {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -23,6 +23,14 @@ A small adapter. scanreg's conventions go in and come out; gtsam's stay inside:
 Solvers: iSAM2 (Kaess et al. 2012) for incremental updates as nodes and edges arrive
 (:meth:`Graph.update`), batch Levenberg–Marquardt over everything (:meth:`Graph.optimize`);
 marginal covariances from whichever ran last.
+
+A solve never fails on a graph that is merely underdetermined: a connected group of nodes
+that nothing anchors to the world gets a weak prior (``ANCHOR_INFORMATION``) at its first
+node (:attr:`Graph.anchored`), and when iSAM2's incremental factorisation still finds the
+system indeterminate, the whole graph is solved in batch (Levenberg–Marquardt's damping keeps
+it well posed) and iSAM2 restarts from there. What cannot be solved even so raises
+:class:`GraphSolveError` with the graph as it was before the update, so that the caller can
+drop the edges it just added (:meth:`Graph.remove_last_edges`).
 """
 
 from __future__ import annotations
@@ -38,6 +46,14 @@ from .transform import SE2, SE3
 
 #: Added to every eigenvalue of an edge's information before gtsam sees it (1/m², 1/rad²).
 INFORMATION_FLOOR = 1e-6
+#: The prior that anchors a group of nodes nothing else anchors (σ = 1 km, 1000 rad): it
+#: fixes the group's gauge and nothing else.
+ANCHOR_INFORMATION = 1e-6
+
+
+class GraphSolveError(RuntimeError):
+    """gtsam could not solve the graph, not even in batch; the graph is as before the update."""
+
 
 KernelName = Literal["none", "cauchy", "huber", "dcs"]
 KERNELS: tuple[str, ...] = ("none", "cauchy", "huber", "dcs")
@@ -181,6 +197,13 @@ class Graph:
         self._edges: list[Edge] = []
         self._marginals: Any = None  # gtsam.Marginals after a batch solve
         self._isam_current = True  # iSAM2 holds every factor (False after a batch solve)
+        # Connected groups of nodes (union-find) and whether a prior anchors each.
+        self._parent: dict[int, int] = {}
+        self._has_prior: set[int] = set()
+        #: Nodes that got an anchoring prior because nothing else fixed their group.
+        self.anchored: list[int] = []
+        #: Each recovery from a failed incremental update: gtsam's message, first line.
+        self.recoveries: list[str] = []
 
     # -- conversion ---------------------------------------------------------------------
     def _to_gtsam(self, pose: SE2 | SE3) -> Any:
@@ -232,6 +255,30 @@ class Graph:
             raise ValueError(f"key: node {k} already exists")
         self._initial[k] = pose
         self._new_values.insert(k, self._to_gtsam(pose))
+        self._parent[k] = k
+
+    def _root(self, k: int) -> int:
+        parent = self._parent
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    def _join(self, a: int, b: int) -> None:
+        ra, rb = self._root(a), self._root(b)
+        if ra != rb:
+            self._parent[max(ra, rb)] = min(ra, rb)
+            if max(ra, rb) in self._has_prior:
+                self._has_prior.add(min(ra, rb))
+
+    def _anchor_free_groups(self) -> None:
+        """A weak prior on the first node of every group of nodes nothing anchors (an
+        unanchored group leaves the linear system indeterminate)."""
+        free = {self._root(k) for k in self._new_values.keys()}  # noqa: SIM118 (gtsam.Values)
+        for root in sorted(free - self._has_prior):
+            info = ANCHOR_INFORMATION * np.eye(self.dof)
+            self.add_prior(root, self._initial[root], info)
+            self.anchored.append(root)
 
     def add_prior(self, key: int, pose: SE2 | SE3, information: Any) -> None:
         """Anchor ``T_world_key`` at ``pose`` with ``information`` (scanreg ordering)."""
@@ -241,6 +288,7 @@ class Graph:
         factor_cls = self._g.PriorFactorPose2 if self.dim == 2 else self._g.PriorFactorPose3
         self._push(factor_cls(k, self._to_gtsam(p), self._noise(info, None)))
         self._edges.append(Edge("prior", k, k, p, info))
+        self._has_prior.add(self._root(k))
 
     def add_edge(
         self,
@@ -267,6 +315,24 @@ class Graph:
         factor_cls = self._g.BetweenFactorPose2 if self.dim == 2 else self._g.BetweenFactorPose3
         self._push(factor_cls(a, b, self._to_gtsam(m), self._noise(info, kernel)))
         self._edges.append(Edge(kind, a, b, m, info, kernel))
+        self._join(a, b)
+
+    def remove_last_edges(self, count: int) -> None:
+        """Drop the ``count`` edges added last (not priors), e.g. loop edges with which
+        :meth:`update` raised :class:`GraphSolveError`. The next solve starts from the
+        current estimate without them."""
+        if count <= 0:
+            return
+        if count > len(self._edges) or any(e.kind == "prior" for e in self._edges[-count:]):
+            raise ValueError(f"count: the last {count} edges are not all relative-pose edges")
+        del self._edges[-count:]
+        factors = self._g.NonlinearFactorGraph()
+        for k in range(int(self._all_factors.size()) - count):
+            factors.push_back(self._all_factors.at(k))
+        self._all_factors = factors
+        self._new_factors = self._g.NonlinearFactorGraph()
+        self._isam_current = False
+        self._marginals = None
 
     def _require(self, key: Any, name: str) -> int:
         k = self._key(key, name)
@@ -282,15 +348,40 @@ class Graph:
     def update(self, extra_iterations: int = 0) -> None:
         """One iSAM2 update with the nodes and edges added since the last one (plus
         ``extra_iterations`` more relinearisation steps, e.g. after a loop closure)."""
-        if not self._isam_current:
-            self._rebuild_isam()
-        self._isam.update(self._new_factors, self._new_values)
-        for _ in range(int(extra_iterations)):
-            self._isam.update()
+        self._anchor_free_groups()
+        try:
+            if not self._isam_current:
+                self._rebuild_isam()
+            self._isam.update(self._new_factors, self._new_values)
+            for _ in range(int(extra_iterations)):
+                self._isam.update()
+        except RuntimeError as exc:
+            # iSAM2 factorises without damping: a nearly indeterminate system (a long chain
+            # of weak edges, a loop along a degenerate direction) can stop it where a damped
+            # batch solve goes through.
+            self.recoveries.append(str(exc).strip().splitlines()[0])
+            self._solve_in_batch(exc)
+            return
         self._new_factors = self._g.NonlinearFactorGraph()
         self._new_values = self._g.Values()
         self._estimate = self._isam.calculateEstimate()
         self._marginals = None
+
+    def _solve_in_batch(self, cause: Exception) -> None:
+        """Levenberg–Marquardt over everything from the last good estimate; iSAM2 restarts
+        from its result at the next update. Raises :class:`GraphSolveError` (the estimate
+        untouched) when even that fails."""
+        before = self._g.Values(self._estimate)
+        try:
+            self.optimize()
+        except RuntimeError as exc:
+            self._estimate = before
+            self._isam_current = False
+            message = str(exc).strip().splitlines()[0]
+            raise GraphSolveError(
+                f"graph: gtsam could not solve it, incrementally ({str(cause).strip()}) "
+                f"nor in batch ({message})"
+            ) from exc
 
     def _rebuild_isam(self) -> None:
         # After a batch solve the incremental solver restarts from the batch estimate, with
@@ -306,6 +397,7 @@ class Graph:
     def optimize(self, *, max_iterations: int = 100, relative_tolerance: float = 1e-6) -> int:
         """Batch Levenberg–Marquardt over every node and edge, from the current estimate
         (initial guesses for nodes not yet estimated). Returns the iterations run."""
+        self._anchor_free_groups()
         values = self._g.Values(self._estimate)
         values.insert(self._new_values)
         if values.size() == 0:

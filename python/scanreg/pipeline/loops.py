@@ -20,6 +20,7 @@ nothing along a direction the match names degenerate (:func:`scanreg.graph.proje
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -31,7 +32,7 @@ from ..graph import project_information
 from ..preprocess import voxel_downsample
 from ..register import register
 from ..target import PreparedTarget, prepare
-from ..transform import SE2
+from ..transform import SE2, SE3
 from ..verdict import VerdictThresholds, assess
 
 
@@ -123,6 +124,51 @@ class LoopSettings:
     thresholds: VerdictThresholds = field(
         default_factory=lambda: VerdictThresholds(min_overlap=0.6, reject_degenerate=False)
     )
+    #: The drift-independent search (dx = dy, dθ): a fixed window around the graph's
+    #: prediction, whatever the graph believes its uncertainty to be (Cartographer searches
+    #: ±7 m / ±30°). Run when the window above found nothing (:class:`~scanreg.pipeline.Mapper`).
+    wide_window: tuple[float, float] = (4.0, math.radians(30.0))
+    #: ... at most once per this much path (m), and only after this much path without a
+    #: closed loop: the bound on its cost.
+    wide_spacing: float = 2.0
+    #: A match that fails only the χ² test (its own evidence is good) is a *hypothesis*: the
+    #: graph may be the one that is wrong. It needs at least this correlative score ...
+    hypothesis_min_score: float = 0.6
+    #: ... and becomes a loop once this many hypotheses from different nodes agree with each
+    #: other (:func:`loops_agree`).
+    min_agreeing: int = 2
+    #: Hypotheses agree when the cycle through both closes within this (m, rad) plus
+    #: ``agreement_per_metre`` × the path the cycle spans (the graph's own segments drift).
+    agreement: tuple[float, float] = (0.15, math.radians(1.5))
+    agreement_per_metre: tuple[float, float] = (0.02, math.radians(0.15))
+    #: A hypothesis waits for agreement over at most this much path (m).
+    hypothesis_horizon: float = 20.0
+
+    def __post_init__(self) -> None:
+        for name in ("wide_window", "agreement", "agreement_per_metre"):
+            pair = getattr(self, name)
+            if not (
+                isinstance(pair, tuple)
+                and len(pair) == 2
+                and all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0 for v in pair)
+            ):
+                raise ValueError(f"{name}: expected two finite numbers >= 0, got {pair!r}")
+        if not self.wide_window[0] > 0 or not 0 < self.wide_window[1] <= math.pi:
+            raise ValueError(
+                f"wide_window: must be > 0 m and in (0, π] rad, got {self.wide_window}"
+            )
+        for name in ("wide_spacing", "hypothesis_horizon"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: must be finite and >= 0, got {value!r}")
+        if not 0.0 <= self.hypothesis_min_score <= 1.0:
+            raise ValueError(
+                f"hypothesis_min_score: must be in [0, 1], got {self.hypothesis_min_score!r}"
+            )
+        if isinstance(self.min_agreeing, bool) or not (
+            isinstance(self.min_agreeing, int) and self.min_agreeing >= 2
+        ):
+            raise ValueError(f"min_agreeing: must be an int >= 2, got {self.min_agreeing!r}")
 
 
 #: A loop is what the map bets on: every match the verdict accepts is probed for other basins.
@@ -157,6 +203,13 @@ class LoopMatch:
     weak_vectors: FloatArray
     accepted: bool
     reasons: tuple[str, ...]
+    #: Why it was accepted: ``"graph"`` (it agrees with the graph's prediction, χ²),
+    #: ``"loops"`` (it disagreed with the graph but agreed with other loops: the graph had
+    #: drifted more than it knew), ``""`` while not accepted.
+    evidence: str = ""
+    #: Its own evidence is good and only the χ² test failed: held as a hypothesis until other
+    #: loops agree with it (:func:`loops_agree`).
+    hypothesis: bool = False
 
 
 def search_window(relative_covariance: FloatArray, settings: LoopSettings) -> tuple[float, float]:
@@ -204,17 +257,23 @@ def match_loop(
     predicted: SE2,
     relative_covariance: FloatArray,
     settings: LoopSettings,
+    *,
+    window: tuple[float, float] | None = None,
 ) -> LoopMatch:
     """Match ``points`` (keyframe ``node``'s scan, own frame) against ``submap`` from the
-    graph's ``predicted`` ``T_submap_node`` with its ``relative_covariance``."""
+    graph's ``predicted`` ``T_submap_node`` with its ``relative_covariance``.
+
+    ``window``: the search's half-widths ``(dx = dy, dθ)``; default :func:`search_window`
+    (sized by ``relative_covariance``). The χ² test against ``relative_covariance`` never
+    stops a match whose own evidence is good: it is then returned as a ``hypothesis``."""
     s = settings
-    dt, dr = search_window(relative_covariance, s)
+    dt, dr = search_window(relative_covariance, s) if window is None else window
     coarse = match_correlative(
         points,
         submap.grid,
         init=predicted,
         window=(dt, dt, dr),
-        angular_resolution=s.angular_resolution,
+        angular_resolution=_angular_step(points, s),
         search="branch_and_bound",
     )
     res = register(
@@ -257,6 +316,7 @@ def match_loop(
     ad = pose.inverse().adjoint()
     cov = np.array(res.covariance, dtype=np.float64) + ad @ submap.covariance @ ad.T
     combined = relative_covariance + cov
+    hypothesis = False
     if _well_posed(cov) and _well_posed(combined):
         info, weak, vectors = _information(cov, res)
         if len(weak) >= 3:
@@ -264,6 +324,9 @@ def match_loop(
         e = (predicted.inverse() @ pose).log()
         chi2 = float(e @ np.linalg.solve(combined, e))
         if not chi2 <= s.chi2_threshold:
+            # The graph's prediction may be what is wrong (more drift than it knows): a
+            # match that is sound on its own evidence waits for other loops to agree.
+            hypothesis = not reasons and coarse.score >= s.hypothesis_min_score
             reasons.append(f"inconsistent with the graph: χ² {chi2:.1f} > {s.chi2_threshold:.1f}")
     else:
         info, weak, vectors, chi2 = np.zeros((3, 3)), (), np.zeros((3, 0)), math.nan
@@ -283,4 +346,48 @@ def match_loop(
         weak_vectors=vectors,
         accepted=not reasons,
         reasons=tuple(reasons),
+        evidence="" if reasons else "graph",
+        hypothesis=hypothesis,
+    )
+
+
+def _angular_step(points: FloatArray, settings: LoopSettings) -> float | None:
+    """The search's rotation step: the setting, else one cell at the 90th-percentile range
+    (not the farthest return: an 80 m laser's one-cell step at 40 m is 0.07°, and a ±30°
+    window then holds 860 angles; the refinement takes the remaining fraction of a step)."""
+    if settings.angular_resolution is not None:
+        return settings.angular_resolution
+    if len(points) == 0:
+        return None
+    reach = max(float(np.percentile(np.hypot(points[:, 0], points[:, 1]), 90.0)), 1.0)
+    return math.acos(1.0 - settings.resolution**2 / (2.0 * reach**2))
+
+
+def loops_agree(
+    first: LoopMatch,
+    second: LoopMatch,
+    poses: Mapping[int, SE2 | SE3],
+    settings: LoopSettings,
+) -> bool:
+    """Whether two loop matches tell the same story: the cycle ``submap₁ → node₁ → node₂ →
+    submap₂ → submap₁`` closes, with the graph's ``poses`` for the two short legs between the
+    nodes and between the submaps. Each leg is locally consistent even when the graph as a
+    whole has drifted, so two true loops agree whatever the drift, and two false ones rarely
+    do (pairwise consistency, as in Olson's single-cluster graph partitioning and Mangelson's
+    PCM)."""
+
+    def leg(i: int, j: int) -> SE2:
+        start, end = poses[i], poses[j]
+        assert isinstance(start, SE2) and isinstance(end, SE2)
+        return start.inverse() @ end
+
+    t_a = leg(first.submap_node, second.submap_node)
+    t_n = leg(first.node, second.node)
+    cycle = first.measured.inverse() @ t_a @ second.measured @ t_n.inverse()
+    assert isinstance(cycle, SE2)
+    span = float(np.linalg.norm(t_a.translation) + np.linalg.norm(t_n.translation))
+    (tol_t, tol_r), (per_t, per_r) = settings.agreement, settings.agreement_per_metre
+    return bool(
+        np.linalg.norm(cycle.translation) <= tol_t + per_t * span
+        and abs(cycle.angle) <= tol_r + per_r * span
     )

@@ -35,18 +35,20 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
 import numpy as np
 
 from .._validate import FloatArray, as_points
-from ..graph import Graph, Kernel
+from ..graph import Graph, GraphSolveError, Kernel
 from ..io.carmen import CarmenLog
 from ..preprocess import voxel_downsample
 from ..transform import SE2, SE3, as_pose
-from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, match_loop
+from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, loops_agree, match_loop
 from .loops3d import LoopMatch3D
 from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph_fields
 from .odometry2d import Odometry2D, OdometryConfig2D, _positive
@@ -249,6 +251,19 @@ class MappingStep:
 
 
 @dataclass(frozen=True)
+class Tracked:
+    """One scan after the odometry (:meth:`Mapper.track`), before the graph
+    (:meth:`Mapper.integrate`)."""
+
+    index: int
+    points: FloatArray
+    #: ``T_odom_scan`` (``None``: skipped before any scan was aligned).
+    pose: SE2 | None
+    #: The odometry's covariance of the scan (``None``: too few points, skipped).
+    covariance: FloatArray | None
+
+
+@dataclass(frozen=True)
 class MappingResult(Generic[PoseT]):
     """Everything :meth:`Mapper.finish` (``MappingResult[SE2]``) and
     :meth:`~scanreg.pipeline.Mapper3D.finish` (``MappingResult[SE3]``) return (scan indices
@@ -271,6 +286,9 @@ class MappingResult(Generic[PoseT]):
     graph: Graph
     timing: MappingTiming
     num_scans: int
+    #: ``None`` for a finished run; otherwise why this is a partial result (an interrupted
+    #: run, a checkpoint): the poses are the graph's at that moment, with no final pass.
+    partial: str | None = None
 
     @property
     def accepted_loops(self) -> tuple[LoopRecord[Any], ...]:
@@ -324,6 +342,11 @@ class Mapper:
         self._node_travel: list[float] = []  # path length at each node
         self._submaps: dict[int, Submap2D] = {}
         self._loops: list[LoopRecord[LoopMatch]] = []
+        # Loops held as hypotheses (good on their own evidence, at odds with the graph).
+        self._held: list[LoopRecord[LoopMatch]] = []
+        # Path length (m) at the last node that closed a loop, and at the last wide search.
+        self._last_closed = -math.inf
+        self._last_wide = -math.inf
         self._skipped: list[int] = []
         self._pending = SE2.identity()  # motion prior accumulated over skipped scans
         self._last_pose: SE2 | None = None
@@ -363,7 +386,24 @@ class Mapper:
         ``points``: ``(N, 2)`` in the scan's own frame. ``timestamps``: per-point times; a 2D
         scan is taken as instantaneous, so only ``None`` is accepted (deskew a rotating sweep
         first with :func:`scanreg.deskew`). ``prior``: ``T_prev_curr`` from wheel odometry (or
-        ``None``). ``stamp``: the scan's time (may step backwards: it is only recorded)."""
+        ``None``). ``stamp``: the scan's time (may step backwards: it is only recorded).
+
+        The same as ``integrate(track(points, timestamps, prior, stamp=stamp))``."""
+        return self.integrate(self.track(points, timestamps, prior, stamp=stamp))
+
+    def track(
+        self,
+        points: Any,
+        timestamps: Any = None,
+        prior: Any = None,
+        *,
+        stamp: float | None = None,
+    ) -> Tracked:
+        """The front end of :meth:`step`: the scan's odometry (arguments as there).
+
+        :meth:`track` touches only the odometry and :meth:`integrate` only the graph, so the
+        two may run on two threads, the odometry of the next scans going on while the graph
+        takes this one (:func:`run_mapping` does); each must be called in scan order."""
         if self._finished:
             raise RuntimeError("Mapper: finish() was called; start a new Mapper")
         t_start = _clock()
@@ -388,9 +428,9 @@ class Mapper:
             self._odom_poses.append(pose)
             self._scan_wheel.append(motion)  # type: ignore[arg-type]
             self._scanned.append(False)
-            self._scan_node.append(self.num_nodes - 1)
+            self._timing.add("odometry", t_start)
             self._timing.add("total", t_start)
-            return MappingStep(index, pose, None, ())
+            return Tracked(index, pts, pose, None)
 
         first = self._last_pose is None
         wheel = None if first or prior is None else self._pending
@@ -419,14 +459,31 @@ class Mapper:
         self._scan_wheel.append(motion)  # type: ignore[arg-type]
         self._scanned.append(True)
         self._timing.add("odometry", t_start)
+        self._timing.add("total", t_start)
+        return Tracked(index, pts, pose, frame.covariance)
 
-        node = self._maybe_add_node(index, pts, pose, frame.covariance)
+    def integrate(self, tracked: Tracked) -> MappingStep:
+        """The back end of :meth:`step`: ``tracked`` (from :meth:`track`) becomes a node when
+        it has moved far enough, and a node looks for loops."""
+        if not isinstance(tracked, Tracked):
+            raise TypeError(f"tracked: expected Tracked (Mapper.track), got {type(tracked)}")
+        if tracked.index != len(self._scan_node):
+            raise ValueError(
+                f"tracked: scan {tracked.index} out of order (expected {len(self._scan_node)})"
+            )
+        t_start = _clock()
+        if tracked.covariance is None:
+            self._scan_node.append(self.num_nodes - 1)
+            self._timing.add("total", t_start)
+            return MappingStep(tracked.index, tracked.pose, None, ())
+        assert tracked.pose is not None
+        node = self._maybe_add_node(tracked.index, tracked.points, tracked.pose, tracked.covariance)
         self._scan_node.append(self.num_nodes - 1)
         records: tuple[LoopRecord[LoopMatch], ...] = ()
         if node is not None:
             records = self._close_loops(node)
         self._timing.add("total", t_start)
-        return MappingStep(index, pose, node, records)
+        return MappingStep(tracked.index, tracked.pose, node, records)
 
     def _maybe_add_node(
         self, index: int, pts: FloatArray, pose: SE2, covariance: FloatArray
@@ -483,7 +540,15 @@ class Mapper:
                 self._submaps[anchor] = sub
         return sub
 
-    def _candidates(self, node: int) -> list[tuple[float, int]]:
+    def _candidates(
+        self, node: int, *, reach: float | None = None, limit: int | None = None
+    ) -> list[tuple[float, int]]:
+        """Earlier nodes to match ``node`` against, nearest (by the graph) first.
+
+        Default: within ``loop_max_range``, or beyond it within ``loop_gate_sigmas`` σ of
+        the graph's uncertainty, at most ``max_candidates``. With ``reach``: every old node
+        predicted within ``reach`` m, whatever the graph's uncertainty (the wide search),
+        at most ``limit``."""
         cfg = self.config
         g = self._graph
         travel = np.asarray(self._node_travel)
@@ -495,11 +560,14 @@ class Mapper:
         old, here = rows[:num_old], rows[node]
         # T_n_c translation = R_nᵀ (t_c − t_n): only its length is needed here.
         d = np.linalg.norm(here[:2] - old[:, :2], axis=1)
-        # A cheap, generous first gate: the new node's own marginal spread (the first node
-        # is anchored) bounds the relative one up to their correlation.
-        cov_here = g.marginal_covariance(node)
-        spread = math.sqrt(max(float(np.linalg.eigvalsh(cov_here[:2, :2])[-1]), 0.0))
-        reach = cfg.loop_max_range + cfg.loop_gate_sigmas * spread
+        fixed = reach is not None
+        if reach is None:
+            # A cheap, generous first gate: the new node's own marginal spread (the first
+            # node is anchored) bounds the relative one up to their correlation.
+            cov_here = g.marginal_covariance(node)
+            spread = math.sqrt(max(float(np.linalg.eigvalsh(cov_here[:2, :2])[-1]), 0.0))
+            reach = cfg.loop_max_range + cfg.loop_gate_sigmas * spread
+        limit = cfg.max_candidates if limit is None else limit
         near = np.flatnonzero(d <= reach)
         order = near[np.argsort(d[near], kind="stable")]
         # Nearest first, but a node that could not have seen most of this scan from where the
@@ -509,10 +577,10 @@ class Mapper:
         order = np.concatenate([order[seen >= 0.5], order[seen < 0.5]])
         gated: list[tuple[float, int]] = []
         for n in order:
-            if len(gated) >= cfg.max_candidates:
+            if len(gated) >= limit:
                 break
             dist = float(d[n])
-            if dist <= cfg.loop_max_range:
+            if fixed or dist <= cfg.loop_max_range:
                 gated.append((dist, int(n)))
                 continue
             # Beyond the range: a Mahalanobis test on the relative pose's joint marginal.
@@ -542,32 +610,140 @@ class Mapper:
         cfg = self.config
         if cfg.max_candidates == 0 or node % cfg.loop_every:
             return ()
-        g = self._graph
         t0 = _clock()
         candidates = self._candidates(node)
         self._timing.add("candidates", t0)
-        records = []
+        records: list[LoopRecord[LoopMatch]] = []
+        searched = (0.0, 0.0)
         for _, n in candidates:
-            t_m = _clock()
-            predicted = g.pose(n).inverse() @ g.pose(node)  # type: ignore[operator]
-            assert isinstance(predicted, SE2)
-            rel_cov = g.relative_covariance(n, node)
-            match = match_loop(
-                self._node_points[node], node, self._submap(n), predicted, rel_cov, cfg.loops
-            )
-            self._timing.add("matching", t_m)
-            record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
+            record, window = self._match(n, node, None)
+            searched = (max(searched[0], window[0]), max(searched[1], window[1]))
             records.append(record)
-            if match.accepted:
-                t_o = _clock()
-                g.add_edge(
-                    n, node, match.measured, match.information, kind="loop", kernel=cfg.loop_kernel
-                )
-                # A loop moves many nodes at once: relinearise a little more than usual.
-                g.update(extra_iterations=2)
-                self._timing.add("optimization", t_o)
+        travel = self._node_travel[node]
+        if any(r.accepted for r in records):
+            self._last_closed = travel
+        # The drift-independent search: when the windows the graph's uncertainty sized have
+        # found nothing for a while, the nearest candidate the scan could have seen is
+        # searched over a fixed wide window (the graph may have drifted more than it knows).
+        # Its cost is bounded: one search per ``wide_spacing`` metres of path at most.
+        wide = cfg.loops.wide_window
+        spacing = cfg.loops.wide_spacing
+        if (
+            travel - self._last_closed >= spacing
+            and travel - self._last_wide >= spacing
+            and (searched[0] < wide[0] or searched[1] < wide[1])
+        ):
+            far = self._candidates(node, reach=cfg.loop_max_range + wide[0], limit=1)
+            for _, n in far:
+                self._last_wide = travel
+                record, _ = self._match(n, node, wide)
+                records.append(record)
+                if record.accepted:
+                    self._last_closed = travel
         self._loops.extend(records)
         return tuple(records)
+
+    def _match(
+        self, n: int, node: int, window: tuple[float, float] | None
+    ) -> tuple[LoopRecord[LoopMatch], tuple[float, float]]:
+        """Match ``node``'s scan against submap ``n``; close the loop, or hold it as a
+        hypothesis (see :meth:`_hypothesize`)."""
+        g = self._graph
+        cfg = self.config
+        t_m = _clock()
+        predicted = g.pose(n).inverse() @ g.pose(node)  # type: ignore[operator]
+        assert isinstance(predicted, SE2)
+        rel_cov = g.relative_covariance(n, node)
+        match = match_loop(
+            self._node_points[node],
+            node,
+            self._submap(n),
+            predicted,
+            rel_cov,
+            cfg.loops,
+            window=window,
+        )
+        self._timing.add("matching", t_m)
+        record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
+        if match.accepted:
+            (record,) = self._add_loops([record], kernel=cfg.loop_kernel)
+        elif match.hypothesis:
+            record = self._hypothesize(record)
+        return record, match.window
+
+    def _hypothesize(self, record: LoopRecord[LoopMatch]) -> LoopRecord[LoopMatch]:
+        """Hold a loop the graph disagrees with; once ``loops.min_agreeing`` held loops from
+        different nodes agree with each other (:func:`loops_agree`), close them all: the
+        graph, not the loops, was wrong. Returns ``record``, accepted if it completed a
+        group."""
+        cfg = self.config
+        travel = self._node_travel
+        here = record.match.node
+        # Only recent hypotheses: the leg between two nodes must be short to be trusted.
+        horizon = cfg.loops.hypothesis_horizon
+        self._held = [h for h in self._held if travel[here] - travel[h.match.node] <= horizon]
+        needed = {k for h in (*self._held, record) for k in (h.match.node, h.match.submap_node)}
+        poses = {k: self._graph.pose(k) for k in needed}
+        group = [record] + [
+            h
+            for h in self._held
+            if h.match.node != here and loops_agree(h.match, record.match, poses, cfg.loops)
+        ]
+        if len({h.match.node for h in group}) < cfg.loops.min_agreeing:
+            self._held.append(record)
+            return record
+        confirmed = [
+            dataclasses.replace(
+                h,
+                match=dataclasses.replace(h.match, accepted=True, reasons=(), evidence="loops"),
+            )
+            for h in group
+        ]
+        held = {id(h) for h in group}
+        self._held = [h for h in self._held if id(h) not in held]
+        # No robust kernel: the graph disagrees with these loops by far more than their
+        # covariance (that is why they were held), and a kernel would weigh them to nothing.
+        # They have passed a stronger test than χ²: each other.
+        confirmed = self._add_loops(confirmed, kernel=None)
+        if confirmed[0].accepted:
+            # A correction of many σ: iSAM2's few relinearisations may not carry it through.
+            self._graph.optimize()
+        # The held ones were recorded as rejected when they were matched: now as decided.
+        index = {id(h): k for k, h in enumerate(self._loops)}
+        for old, new in zip(group[1:], confirmed[1:], strict=True):
+            k = index.get(id(old))
+            if k is not None:
+                self._loops[k] = new
+        return confirmed[0]
+
+    def _add_loops(
+        self, records: list[LoopRecord[LoopMatch]], *, kernel: Kernel | None
+    ) -> list[LoopRecord[LoopMatch]]:
+        """Add the loops' edges and re-solve; returns the records, rejected with the back
+        end's reason when the graph could not be solved with them (their edges dropped)."""
+        g = self._graph
+        t_o = _clock()
+        for r in records:
+            m = r.match
+            g.add_edge(m.submap_node, m.node, m.measured, m.information, kind="loop", kernel=kernel)
+        try:
+            # A loop moves many nodes at once: relinearise a little more than usual.
+            g.update(extra_iterations=2)
+        except GraphSolveError as exc:
+            g.remove_last_edges(len(records))
+            g.optimize()
+            reason = f"back end could not solve with it (edge dropped): {exc}"
+            records = [
+                dataclasses.replace(
+                    r,
+                    match=dataclasses.replace(
+                        r.match, accepted=False, evidence="", reasons=(*r.match.reasons, reason)
+                    ),
+                )
+                for r in records
+            ]
+        self._timing.add("optimization", t_o)
+        return records
 
     # -- end of run ----------------------------------------------------------------------
     def finish(self) -> MappingResult[SE2]:
@@ -577,6 +753,11 @@ class Mapper:
             raise RuntimeError("Mapper: finish() was already called")
         if not self._node_scans:
             raise ValueError("scans: no scan had at least 3 points; nothing was mapped")
+        if len(self._scan_node) != len(self._odom_poses):
+            raise RuntimeError(
+                f"Mapper: {len(self._odom_poses) - len(self._scan_node)} tracked scans were "
+                "never integrated"
+            )
         self._finished = True
         g = self._graph
         if self.config.batch:
@@ -584,11 +765,25 @@ class Mapper:
             g.optimize()
             self._timing.add("optimization", t0)
             self._timing.add("total", t0)
+        return self._result(smooth=self.config.smooth_scans)
+
+    def snapshot(self, reason: str) -> MappingResult[SE2]:
+        """What is mapped so far, as the graph has it now (no batch pass, no final pass over
+        the scans): a checkpoint, or what an interrupted run leaves. The mapper goes on
+        unchanged. ``reason`` becomes :attr:`MappingResult.partial`."""
+        if not self._node_scans:
+            raise ValueError("scans: no scan had at least 3 points; nothing was mapped")
+        return dataclasses.replace(self._result(smooth=False), partial=str(reason))
+
+    def _result(self, *, smooth: bool) -> MappingResult[SE2]:
+        g = self._graph
         node_poses = g.poses()
         poses: list[SE2] = []
         odometry: list[SE2] = []
         first_pose = self._node_odom[0]
-        for k, odo in enumerate(self._odom_poses):
+        # The scans the graph has taken (the odometry may have run ahead of it).
+        num_scans = len(self._scan_node)
+        for k, odo in enumerate(self._odom_poses[:num_scans]):
             n = max(self._scan_node[k], 0)
             base = node_poses[n]
             if odo is None:  # skipped before any aligned scan: at the first node
@@ -598,7 +793,7 @@ class Mapper:
             pose = base @ rel  # type: ignore[operator]
             assert isinstance(pose, SE2)
             poses.append(pose)
-        if self.config.smooth_scans:
+        if smooth:
             t0 = _clock()
             poses = self._smoothed(poses, odometry)
             self._timing.add("optimization", t0)
@@ -606,14 +801,14 @@ class Mapper:
         return MappingResult(
             poses=tuple(poses),
             odometry_poses=tuple(odometry),
-            stamps=tuple(self._stamps),
+            stamps=tuple(self._stamps[:num_scans]),
             node_scans=tuple(self._node_scans),
             loops=tuple(self._loops),
-            skipped=tuple(self._skipped),
+            skipped=tuple(k for k in self._skipped if k < num_scans),
             node_points=tuple(self._node_points[n] for n in range(self.num_nodes)),
             graph=g,
-            timing=self._timing,
-            num_scans=len(self._odom_poses),
+            timing=dataclasses.replace(self._timing),
+            num_scans=num_scans,
         )
 
     def _smoothed(self, poses: list[SE2], odometry: list[SE2]) -> list[SE2]:
@@ -800,6 +995,46 @@ def estimate_laser_latency(
     return float(shifts[int(np.argmin(cost))])
 
 
+#: How many scans the odometry thread may run ahead of the graph.
+_TRACK_AHEAD = 4
+
+
+class MappingInterrupted(Exception):
+    """A run stopped before its last scan, by Ctrl-C or an error, after mapping something:
+    :attr:`partial` holds what was mapped so far (:meth:`Mapper.snapshot`), ``__cause__`` the
+    ``KeyboardInterrupt`` or the error."""
+
+    def __init__(self, message: str, partial: MappingResult[Any]) -> None:
+        super().__init__(message)
+        self.partial = partial
+
+
+Checkpoint = Callable[[MappingResult[Any]], None]
+
+
+def laser_mounting(log: CarmenLog, indices: Sequence[int]) -> SE2:
+    """``T_robot_laser`` of a CARMEN log: the laser's pose in the robot's frame, from the
+    laser and odometry poses each message carries (``ROBOTLASER1``: both; ``FLASER``: the same
+    pose twice in the raw Freiburg logs, so the identity). The median over the scans that
+    carry both; the identity when none does, or when the two poses do not differ by one fixed
+    offset (a "corrected" log's laser pose is the corrected trajectory, not a mounting)."""
+    rel = [
+        SE2.from_vector(s.odometry_pose).inverse() @ SE2.from_vector(s.laser_pose)
+        for s in (log.scans[i] for i in indices)
+        if s.laser_pose is not None and s.odometry_pose is not None
+    ]
+    if not rel:
+        return SE2.identity()
+    vectors = np.array([r.as_vector() for r in rel])
+    x, y = np.median(vectors[:, 0]), np.median(vectors[:, 1])
+    angle = math.atan2(np.median(np.sin(vectors[:, 2])), np.median(np.cos(vectors[:, 2])))
+    spread = np.abs(vectors - [x, y, angle])
+    spread[:, 2] = np.abs(np.angle(np.exp(1j * spread[:, 2])))
+    if np.percentile(spread, 95, axis=0).max() > 0.01:  # 1 cm or 0.6°: not one mounting
+        return SE2.identity()
+    return SE2.from_vector([float(x), float(y), angle])
+
+
 def run_mapping(
     log: CarmenLog,
     config: MappingConfig | None = None,
@@ -807,6 +1042,8 @@ def run_mapping(
     kind: str | None = None,
     max_scans: int | None = None,
     progress: bool = False,
+    checkpoint: Checkpoint | None = None,
+    checkpoint_every: int = 1000,
 ) -> MappingResult[SE2]:
     """Map a CARMEN log in file order (its timestamps may step backwards; they are kept as
     written), with each scan's wheel-odometry motion as the prior (the odometry at each scan's
@@ -814,7 +1051,14 @@ def run_mapping(
 
     ``kind``: the laser message kind to use (default: ``FLASER`` if present, else the first
     kind in the log). ``progress``: a progress line on stderr (scans/s, loops accepted and
-    rejected).
+    rejected). ``checkpoint``: called with :meth:`Mapper.snapshot` every
+    ``checkpoint_every`` scans (e.g. to write the outputs so far).
+
+    Raises
+    ------
+    MappingInterrupted
+        When Ctrl-C or an error stops the run before its last scan; it carries what was
+        mapped so far (``None`` if nothing was) and chains the cause.
     """
     from .._progress import Progress
 
@@ -835,19 +1079,62 @@ def run_mapping(
     wheel = scan_odometry(
         log, indices, latency=cfg.laser_latency, min_range=cfg.min_range, max_range=cfg.max_range
     )
-    with bar:
-        for k, i in enumerate(indices):
-            scan = log.scans[i]
-            before, here = (None, None) if k == 0 else (wheel[k - 1], wheel[k])
-            prior = None if before is None or here is None else before.inverse() @ here
-            step = mapper.step(
-                scan.to_points(cfg.min_range, cfg.max_range), prior=prior, stamp=scan.timestamp
-            )
-            if step.loops or step.index % 25 == 0:
-                bar.set_counters(
-                    nodes=mapper.num_nodes,
-                    loops=sum(r.accepted for r in mapper.loops),
-                    rejected=sum(not r.accepted for r in mapper.loops),
-                )
-            bar.update()
-    return mapper.finish()
+    if isinstance(checkpoint_every, bool) or not (
+        isinstance(checkpoint_every, int) and checkpoint_every >= 1
+    ):
+        raise ValueError(f"checkpoint_every: must be an int >= 1, got {checkpoint_every!r}")
+
+    mounting = laser_mounting(log, indices)
+
+    def track(k: int) -> Tracked:
+        scan = log.scans[indices[k]]
+        before, here = (None, None) if k == 0 else (wheel[k - 1], wheel[k])
+        prior = None if before is None or here is None else before.inverse() @ here
+        # In the robot's frame, as the wheel prior and the poses are (and the relations of
+        # a benchmark: the hospital's laser sits 0.22 m ahead of the robot's centre).
+        points = mounting.apply(scan.to_points(cfg.min_range, cfg.max_range))
+        return mapper.track(points, prior=prior, stamp=scan.timestamp)
+
+    # The odometry of the next scans runs on a second thread while this one closes loops:
+    # the two share nothing (Mapper.track / Mapper.integrate), and both spend most of their
+    # time in the Rust core with the GIL released.
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="scanreg-odometry")
+    ahead: deque[Future[Tracked]] = deque()
+    k = 0
+    try:
+        with bar:
+            for k in range(len(indices)):
+                while len(ahead) < _TRACK_AHEAD and k + len(ahead) < len(indices):
+                    ahead.append(pool.submit(track, k + len(ahead)))
+                step = mapper.integrate(ahead.popleft().result())
+                if step.loops or step.index % 25 == 0:
+                    bar.set_counters(
+                        nodes=mapper.num_nodes,
+                        loops=sum(r.accepted for r in mapper.loops),
+                        rejected=sum(not r.accepted for r in mapper.loops),
+                    )
+                bar.update()
+                if checkpoint is not None and (k + 1) % checkpoint_every == 0:
+                    checkpoint(mapper.snapshot(f"checkpoint after {k + 1} of {len(indices)} scans"))
+        pool.shutdown()
+        return mapper.finish()
+    except (KeyboardInterrupt, Exception) as exc:
+        pool.shutdown(wait=True, cancel_futures=True)
+        stopped = _interrupted(mapper, exc, k, len(indices))
+        if stopped is None:
+            raise
+        raise stopped from exc
+
+
+def _interrupted(mapper: Any, exc: BaseException, k: int, total: int) -> MappingInterrupted | None:
+    """The exception that carries what ``mapper`` mapped before ``exc`` stopped it at scan
+    ``k`` of ``total``; ``None`` when nothing was mapped (the cause is then raised as is)."""
+    if isinstance(exc, MappingInterrupted) or not mapper.num_nodes:
+        return None
+    why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"
+    reason = f"stopped at scan {k} of {total} ({why})"
+    try:
+        partial = mapper.snapshot(reason)
+    except Exception:  # the state itself is broken: nothing to save
+        return None
+    return MappingInterrupted(reason, partial)

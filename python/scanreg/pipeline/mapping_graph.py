@@ -23,6 +23,9 @@ _NON_NEGATIVE = (
     "loop_min_travel",
     "loop_max_range",
 )
+#: The loosest an odometry edge may be along any direction (σ, metres or radians).
+MAX_EDGE_SIGMA = 1.0
+
 #: Positive fields of both.
 _POSITIVE = ("drift_floor_translation", "drift_floor_rotation", "loop_gate_sigmas")
 
@@ -60,4 +63,11 @@ def odometry_edge_covariance(distance: float, covariance: Any, config: Any, dim:
     dof = dim + rot
     if measured.shape == (dof, dof) and np.isfinite(measured).all():
         cov = cov + 0.5 * (measured + measured.T)
-    return cov
+    # Conditioned: no direction looser than σ = MAX_EDGE_SIGMA (m or rad). A scan that says
+    # nothing along a corridor's axis reports a variance of 10⁶ or more there; a chain of
+    # such edges leaves the graph's linear system indeterminate for the solver (gtsam's
+    # IndeterminateLinearSystemException on the Freiburg hospital log), and an edge between
+    # nodes half a metre apart is not off by more than a metre anyway.
+    vals, vecs = np.linalg.eigh(cov)
+    capped: FloatArray = (vecs * np.minimum(vals, MAX_EDGE_SIGMA**2)) @ vecs.T
+    return 0.5 * (capped + capped.T)

@@ -201,6 +201,13 @@ def summary(result: MappingResult[Any]) -> dict[str, Any]:
         "skipped_scans": len(result.skipped),
         "loops_accepted": len(result.accepted_loops),
         "loops_rejected": len(result.rejected_loops),
+        "loops_by_evidence": {
+            kind: sum(getattr(r.match, "evidence", "graph") == kind for r in result.accepted_loops)
+            for kind in ("graph", "loops")
+        },
+        "back_end_recoveries": list(result.graph.recoveries),
+        "anchored_nodes": list(result.graph.anchored),
+        "partial": result.partial,
         "final_pose": [float(v) for v in last.as_vector()],
         "timing": {
             "odometry": t.odometry,
