@@ -400,3 +400,36 @@ def test_motion_cost_bad_input_is_named() -> None:
             scanreg.match_correlative(ref, ref, init_covariance=bad)
     with pytest.raises(TypeError, match="init_covariance"):
         scanreg.match_correlative(ref, ref, init_covariance=object())
+
+
+def test_find_with_a_score_floor_is_the_full_answer_or_none() -> None:
+    # find_correlative prunes below min_score: where the best candidate reaches it, the
+    # answer is match_correlative's to the bit, with less work; where it does not, None.
+    from scanreg.correlative import find_correlative, match_correlative
+
+    scene = sim.floor_plan(seed=3, num_people=0)
+    rng = np.random.default_rng(11)
+    found = missing = 0
+    for case in range(20):
+        a = SE2.from_vector([rng.uniform(1, 20), rng.uniform(-0.8, 0.8), rng.uniform(-3, 3)])
+        step = SE2.from_vector(rng.uniform(-0.5, 0.5, 3))
+        ref = sim.simulate_scan(scene, SICK, a, seed=case).points
+        src = sim.simulate_scan(scene, SICK, a @ step, seed=case, scan_index=1).points
+        grid = scanreg.prepare_correlative(_c(ref), resolution=0.05)
+        init = SE2.from_vector(rng.normal(0, 0.3, 3))
+        kw: dict[str, Any] = dict(init=init, window=(0.6, 0.6, 0.5))
+        full = match_correlative(_c(src), grid, **kw)
+        floor = float(rng.uniform(0.3, 0.9))
+        above = find_correlative(_c(src), grid, min_score=floor, **kw)
+        if full.score >= floor:
+            found += 1
+            assert above is not None
+            assert above.pose == full.pose and above.score == full.score
+            assert np.array_equal(above.covariance, full.covariance)
+            assert above.num_evaluated + above.num_bounds <= full.num_evaluated + full.num_bounds
+        else:
+            missing += 1
+            assert above is None, (case, full.score, floor)
+    assert found >= 5 and missing >= 5  # both outcomes were tested
+    with pytest.raises(ValueError, match=r"min_score: must be in \[0, 1\], got 1.5"):
+        find_correlative(_c(src), grid, min_score=1.5)

@@ -664,7 +664,8 @@ class CorrelativeGrid:
         method: str,
         covariance_radius: int,
         penalty: tuple[float, ...] | None = None,
-    ) -> CorrelativeMatch: ...
+        min_score: float | None = None,
+    ) -> CorrelativeMatch | None: ...
 
 # --- motion compensation (crates/scanreg-py/src/deskew.rs) ---
 

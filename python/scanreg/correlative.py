@@ -316,6 +316,80 @@ def match_correlative(
         Naming the argument: bad shapes, non-finite points, unknown search, a window or step
         that is not positive, an ``init`` that is not a rigid transform.
     """
+    found = _search(
+        source,
+        target,
+        init=init,
+        window=window,
+        resolution=resolution,
+        angular_resolution=angular_resolution,
+        search=search,
+        sigma=sigma,
+        levels=levels,
+        covariance_radius=covariance_radius,
+        init_covariance=init_covariance,
+        min_score=None,
+    )
+    assert found is not None  # without a floor there is always a best candidate
+    return found
+
+
+def find_correlative(
+    source: Any,
+    target: Any,
+    *,
+    min_score: float,
+    init: Any = None,
+    window: Any = DEFAULT_WINDOW,
+    resolution: float | None = None,
+    angular_resolution: float | None = None,
+    sigma: float | None = None,
+    levels: int = DEFAULT_LEVELS,
+    covariance_radius: int = 4,
+) -> CorrelativeResult | None:
+    """:func:`match_correlative`'s branch-and-bound answer if its ``score`` is at least
+    ``min_score`` (in ``[0, 1]``), else ``None``.
+
+    Every branch whose bound is below ``min_score`` is pruned from the start, so a window
+    that does not hold the place costs a fraction of a full search: what a loop-closure
+    search over many candidates, most of them not the place, needs (Cartographer's
+    constraint search prunes the same way). When there is an answer it is
+    :func:`match_correlative`'s, to the bit. Arguments as there.
+    """
+    score = float(min_score)
+    if not 0.0 <= score <= 1.0:
+        raise ValueError(f"min_score: must be in [0, 1], got {min_score!r}")
+    return _search(
+        source,
+        target,
+        init=init,
+        window=window,
+        resolution=resolution,
+        angular_resolution=angular_resolution,
+        search="branch_and_bound",
+        sigma=sigma,
+        levels=levels,
+        covariance_radius=covariance_radius,
+        init_covariance=None,
+        min_score=score,
+    )
+
+
+def _search(
+    source: Any,
+    target: Any,
+    *,
+    init: Any,
+    window: Any,
+    resolution: float | None,
+    angular_resolution: float | None,
+    search: Search,
+    sigma: float | None,
+    levels: int,
+    covariance_radius: int,
+    init_covariance: Any,
+    min_score: float | None,
+) -> CorrelativeResult | None:
     src = as_points(source, "source", dim=2)
     if search not in SEARCHES:
         raise ValueError(f"search: unknown {search!r}; expected one of {', '.join(SEARCHES)}")
@@ -359,8 +433,11 @@ def match_correlative(
         search,
         int(covariance_radius),
         penalty,
+        min_score,
     )
     search_seconds = time.perf_counter() - t0
+    if m is None:
+        return None
     pose = SE2.from_vector(m.pose)
     k, i, j = m.index
     window_cov = np.array(m.covariance) + np.diag([r * r, r * r, dth * dth]) / 12.0
@@ -408,6 +485,7 @@ __all__ = [
     "CorrelativeResult",
     "CorrelativeTiming",
     "default_angular_resolution",
+    "find_correlative",
     "match_correlative",
     "prepare_correlative",
 ]

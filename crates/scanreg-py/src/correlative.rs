@@ -105,7 +105,8 @@ impl CorrelativeGrid {
 
     /// Search `(2nx+1)(2ny+1)(2ntheta+1)` candidates around `center` = `[x, y, θ]`;
     /// `penalty`: the motion cost's information matrix over `[x, y, θ]` offsets (row-major 9).
-    #[pyo3(signature = (source, center, nx, ny, ntheta, angular_step, method, covariance_radius, penalty=None))]
+    /// `min_score` (branch and bound only): `None` when no candidate scores that much.
+    #[pyo3(signature = (source, center, nx, ny, ntheta, angular_step, method, covariance_radius, penalty=None, min_score=None))]
     #[allow(clippy::too_many_arguments)]
     fn search(
         &self,
@@ -119,7 +120,8 @@ impl CorrelativeGrid {
         method: &str,
         covariance_radius: i64,
         penalty: Option<[f64; 9]>,
-    ) -> PyResult<CorrelativeMatch> {
+        min_score: Option<f64>,
+    ) -> PyResult<Option<CorrelativeMatch>> {
         let data = points_dim(&source, "source", 2)?;
         let window = Window {
             center: [center.0, center.1, center.2],
@@ -129,19 +131,39 @@ impl CorrelativeGrid {
             angular_step,
             penalty,
         };
-        let m = match method {
-            "exhaustive" => py.detach(|| correlative::match_exhaustive(&self.inner, data, &window)),
-            "branch_and_bound" => py.detach(|| {
+        let found = match (method, min_score) {
+            ("exhaustive", None) => {
+                py.detach(|| correlative::match_exhaustive(&self.inner, data, &window).map(Some))
+            }
+            ("exhaustive", Some(_)) => {
+                return Err(PyValueError::new_err(
+                    "min_score: only the branch_and_bound search prunes with it",
+                ))
+            }
+            ("branch_and_bound", None) => py.detach(|| {
                 correlative::match_branch_and_bound(&self.inner, data, &window, covariance_radius)
+                    .map(Some)
             }),
-            other => {
+            ("branch_and_bound", Some(floor)) => py.detach(|| {
+                correlative::match_branch_and_bound_above(
+                    &self.inner,
+                    data,
+                    &window,
+                    covariance_radius,
+                    floor,
+                )
+            }),
+            (other, _) => {
                 return Err(PyValueError::new_err(format!(
                     "method: unknown {other:?}; expected 'exhaustive' or 'branch_and_bound'"
                 )))
             }
         }
         .map_err(core_err)?;
-        Ok(CorrelativeMatch {
+        let Some(m) = found else {
+            return Ok(None);
+        };
+        Ok(Some(CorrelativeMatch {
             pose: m.pose.to_vec().into_pyarray(py).unbind(),
             index: (m.index[0], m.index[1], m.index[2]),
             sum: m.sum,
@@ -157,7 +179,7 @@ impl CorrelativeGrid {
             evaluated: m.evaluated,
             bounds: m.bounds,
             covariance_candidates: m.covariance_candidates,
-        })
+        }))
     }
 }
 

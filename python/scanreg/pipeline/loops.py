@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from .._validate import FloatArray
-from ..correlative import CorrelativeGrid, match_correlative, prepare_correlative
+from ..correlative import CorrelativeGrid, find_correlative, prepare_correlative
 from ..graph import project_information
 from ..preprocess import voxel_downsample
 from ..register import register
@@ -268,14 +268,18 @@ def match_loop(
     stops a match whose own evidence is good: it is then returned as a ``hypothesis``."""
     s = settings
     dt, dr = search_window(relative_covariance, s) if window is None else window
-    coarse = match_correlative(
+    # Branch and bound with the score floor: a window that does not hold the place (most
+    # candidates) is given up early instead of searched to its best non-match.
+    coarse = find_correlative(
         points,
         submap.grid,
+        min_score=s.min_score,
         init=predicted,
         window=(dt, dt, dr),
-        angular_resolution=_angular_step(points, s),
-        search="branch_and_bound",
+        angular_resolution=s.angular_resolution,
     )
+    if coarse is None:
+        return _not_found(node, submap, predicted, (dt, dr), s)
     res = register(
         points,
         submap.target,
@@ -351,16 +355,30 @@ def match_loop(
     )
 
 
-def _angular_step(points: FloatArray, settings: LoopSettings) -> float | None:
-    """The search's rotation step: the setting, else one cell at the 90th-percentile range
-    (not the farthest return: an 80 m laser's one-cell step at 40 m is 0.07°, and a ±30°
-    window then holds 860 angles; the refinement takes the remaining fraction of a step)."""
-    if settings.angular_resolution is not None:
-        return settings.angular_resolution
-    if len(points) == 0:
-        return None
-    reach = max(float(np.percentile(np.hypot(points[:, 0], points[:, 1]), 90.0)), 1.0)
-    return math.acos(1.0 - settings.resolution**2 / (2.0 * reach**2))
+def _not_found(
+    node: int,
+    submap: Submap2D,
+    predicted: SE2,
+    window: tuple[float, float],
+    settings: LoopSettings,
+) -> LoopMatch:
+    """The record of a search in which no candidate reached ``min_score``."""
+    return LoopMatch(
+        submap_node=submap.anchor,
+        node=node,
+        predicted=predicted,
+        measured=predicted,
+        window=window,
+        score=math.nan,
+        overlap=math.nan,
+        chi2=math.nan,
+        covariance=np.full((3, 3), np.nan),
+        information=np.zeros((3, 3)),
+        degenerate_directions=(),
+        weak_vectors=np.zeros((3, 0)),
+        accepted=False,
+        reasons=(f"correlative score < {settings.min_score:.2f} everywhere in the window",),
+    )
 
 
 def loops_agree(

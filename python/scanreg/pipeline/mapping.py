@@ -576,6 +576,9 @@ class Mapper:
         seen = np.array([self._visible(node, here, old[n], int(n)) for n in order])
         order = np.concatenate([order[seen >= 0.5], order[seen < 0.5]])
         gated: list[tuple[float, int]] = []
+        # Each test beyond the range costs a joint marginal (milliseconds on a large graph):
+        # a few per node, nearest first (a drifting graph's marginals let hundreds in).
+        tests = 2 * limit
         for n in order:
             if len(gated) >= limit:
                 break
@@ -583,6 +586,9 @@ class Mapper:
             if fixed or dist <= cfg.loop_max_range:
                 gated.append((dist, int(n)))
                 continue
+            if tests == 0:
+                continue
+            tests -= 1
             # Beyond the range: a Mahalanobis test on the relative pose's joint marginal.
             cov = g.relative_covariance(int(n), node)
             c, s = math.cos(old[n, 2]), math.sin(old[n, 2])
@@ -1031,6 +1037,10 @@ def laser_mounting(log: CarmenLog, indices: Sequence[int]) -> SE2:
     spread = np.abs(vectors - [x, y, angle])
     spread[:, 2] = np.abs(np.angle(np.exp(1j * spread[:, 2])))
     if np.percentile(spread, 95, axis=0).max() > 0.01:  # 1 cm or 0.6°: not one mounting
+        return SE2.identity()
+    if max(abs(x), abs(y), abs(angle)) < 1e-9:
+        # Exactly the identity (a log's 1e-19 rad of rounding would move every point by as
+        # much, and a correlative search's ties with it).
         return SE2.identity()
     return SE2.from_vector([float(x), float(y), angle])
 
