@@ -167,10 +167,8 @@ def test_checkpoint_writes_partial_outputs(
 
     monkeypatch.setattr(mapping.Mapper, "snapshot", spy)
     out = tmp_path / "out"
-    code = main(
-        ["map", str(excerpt), "-o", str(out), "--quiet", "--no-plots", "--max-scans", "250"]
-        + ["--checkpoint", "100", "--json"]
-    )
+    args = ["map", str(excerpt), "-o", str(out), "--quiet", "--no-plots", "--max-scans", "250"]
+    code = main([*args, "--checkpoint", "100", "--json"])
     assert code == EXIT_OK
     assert seen == [100, 200]
     assert json.loads(capsys.readouterr().out)["partial"] is None
