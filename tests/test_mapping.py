@@ -613,3 +613,30 @@ def test_loop_closes_when_the_drift_exceeds_what_the_graph_believes() -> None:
         rel = truth[record.submap_scan].inverse() @ truth[record.scan]
         err = rel.inverse() @ record.match.measured
         assert np.linalg.norm(err.translation) < 0.1, record.as_dict()
+
+
+def test_odometry_edge_covariance_is_conditioned() -> None:
+    # A scan that says nothing along a corridor's axis reports 10¹² m² there; rotated off the
+    # axes, its small eigenvalues carry rounding errors larger than themselves. The edge must
+    # come out positive definite, no looser than σ = 1 m, no tighter than the drift floor
+    # (on the hospital log the raw inverse had an eigenvalue of -94.9: gtsam refused it).
+    from scanreg.pipeline.mapping_graph import MAX_EDGE_SIGMA, odometry_edge_covariance
+
+    cfg = MappingConfig()
+    angle = 0.7
+    rot = np.array([[math.cos(angle), -math.sin(angle), 0], [math.sin(angle), math.cos(angle), 0]])
+    rot = np.vstack([rot, [0, 0, 1]])
+    measured = rot @ np.diag([1e12, 1e-7, 1e-8]) @ rot.T
+    cov = odometry_edge_covariance(0.5, measured, cfg, 2)
+    vals = np.linalg.eigvalsh(cov)
+    assert vals[-1] <= MAX_EDGE_SIGMA**2 * (1 + 1e-9)
+    assert vals[0] >= 0.99 * min(cfg.drift_floor_translation, cfg.drift_floor_rotation) ** 2
+    info = np.linalg.inv(cov)
+    assert np.linalg.eigvalsh(0.5 * (info + info.T))[0] > 0
+    # A well-posed covariance is left as the drift term plus the measurement.
+    small = np.diag([1e-4, 2e-4, 1e-5])
+    st = cfg.drift_floor_translation + cfg.drift_translation * 0.5
+    sr = cfg.drift_floor_rotation + cfg.drift_rotation * 0.5
+    np.testing.assert_allclose(
+        odometry_edge_covariance(0.5, small, cfg, 2), np.diag([st**2, st**2, sr**2]) + small
+    )

@@ -229,6 +229,10 @@ class MappingTiming:
     matching_cpu: float = 0.0
     optimization_cpu: float = 0.0
     total_cpu: float = 0.0
+    #: The most wall time one node's loop search (candidates and matching) took (s): what
+    #: the loop search's per-node budget (``max_candidates`` windows sized by the graph, at
+    #: most one wide window per ``LoopSettings.wide_spacing`` metres) comes to.
+    loop_search_max: float = 0.0
 
     def add(self, stage: str, since: tuple[float, float]) -> None:
         """Add the wall and CPU time elapsed since ``since`` (:func:`_clock`) to ``stage``."""
@@ -619,6 +623,16 @@ class Mapper:
         t0 = _clock()
         candidates = self._candidates(node)
         self._timing.add("candidates", t0)
+        try:
+            return self._search_loops(node, candidates)
+        finally:
+            spent = _clock()[0] - t0[0]
+            self._timing.loop_search_max = max(self._timing.loop_search_max, spent)
+
+    def _search_loops(
+        self, node: int, candidates: list[tuple[float, int]]
+    ) -> tuple[LoopRecord[LoopMatch], ...]:
+        cfg = self.config
         records: list[LoopRecord[LoopMatch]] = []
         searched = (0.0, 0.0)
         for _, n in candidates:

@@ -68,6 +68,9 @@ def odometry_edge_covariance(distance: float, covariance: Any, config: Any, dim:
     # such edges leaves the graph's linear system indeterminate for the solver (gtsam's
     # IndeterminateLinearSystemException on the Freiburg hospital log), and an edge between
     # nodes half a metre apart is not off by more than a metre anyway.
+    # The eigenvalues of a matrix holding 10⁶ carry rounding errors of 10⁻¹⁰ · 10⁶: floored
+    # at the drift floor's variance, which the sum above cannot go below.
     vals, vecs = np.linalg.eigh(cov)
-    capped: FloatArray = (vecs * np.minimum(vals, MAX_EDGE_SIGMA**2)) @ vecs.T
+    floor = min(config.drift_floor_translation, config.drift_floor_rotation) ** 2
+    capped: FloatArray = (vecs * np.clip(vals, floor, MAX_EDGE_SIGMA**2)) @ vecs.T
     return 0.5 * (capped + capped.T)

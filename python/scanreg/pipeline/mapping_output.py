@@ -215,6 +215,7 @@ def summary(result: MappingResult[Any]) -> dict[str, Any]:
             "matching": t.matching,
             "optimization": t.optimization,
             "total": t.total,
+            "loop_search_max": t.loop_search_max,
         },
         "timing_cpu": {
             "odometry": t.odometry_cpu,
