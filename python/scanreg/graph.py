@@ -52,7 +52,14 @@ ANCHOR_INFORMATION = 1e-6
 
 
 class GraphSolveError(RuntimeError):
-    """gtsam could not solve the graph, not even in batch; the graph is as before the update."""
+    """gtsam could not solve the graph, not even in batch; the graph is as before the update.
+    Also raised when a marginal covariance cannot be computed (an undamped factorisation of
+    a nearly indeterminate system)."""
+
+
+def _marginal_error(exc: Exception) -> GraphSolveError:
+    message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return GraphSolveError(f"graph: gtsam could not compute a marginal covariance ({message})")
 
 
 KernelName = Literal["none", "cauchy", "huber", "dcs"]
@@ -462,10 +469,13 @@ class Graph:
     def marginal_covariance(self, key: int) -> FloatArray:
         """Marginal covariance of ``T_world_key`` (scanreg ordering, right perturbation)."""
         k = self._solved(key)
-        if self._isam_current:
-            cov = self._isam.marginalCovariance(k)
-        else:
-            cov = self._batch_marginals().marginalCovariance(k)
+        try:
+            if self._isam_current:
+                cov = self._isam.marginalCovariance(k)
+            else:
+                cov = self._batch_marginals().marginalCovariance(k)
+        except RuntimeError as exc:
+            raise _marginal_error(exc) from exc
         return from_gtsam_order(np.asarray(cov), self.dim)
 
     def _batch_marginals(self) -> Any:
@@ -482,10 +492,14 @@ class Graph:
         """
         a, b = self._solved(i), self._solved(j)
         keys = self._g.KeyVector([a, b])
-        if self._isam_current:
-            joint = np.asarray(self._isam.jointMarginalCovariance(keys).fullMatrix())
-        else:
-            joint = np.asarray(self._batch_marginals().jointMarginalCovariance(keys).fullMatrix())
+        try:
+            if self._isam_current:
+                joint = np.asarray(self._isam.jointMarginalCovariance(keys).fullMatrix())
+            else:
+                marginals = self._batch_marginals()
+                joint = np.asarray(marginals.jointMarginalCovariance(keys).fullMatrix())
+        except RuntimeError as exc:
+            raise _marginal_error(exc) from exc
         d = self.dof
         p = _perm(self.dim)
         big_p = np.zeros((2 * d, 2 * d))

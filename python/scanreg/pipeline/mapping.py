@@ -582,7 +582,7 @@ class Mapper:
         gated: list[tuple[float, int]] = []
         # Each test beyond the range costs a joint marginal (milliseconds on a large graph):
         # a few per node, nearest first (a drifting graph's marginals let hundreds in).
-        tests = 2 * limit
+        tests = _GATE_TESTS_PER_CANDIDATE * limit
         for n in order:
             if len(gated) >= limit:
                 break
@@ -621,10 +621,15 @@ class Mapper:
         if cfg.max_candidates == 0 or node % cfg.loop_every:
             return ()
         t0 = _clock()
-        candidates = self._candidates(node)
-        self._timing.add("candidates", t0)
         try:
+            candidates = self._candidates(node)
+            self._timing.add("candidates", t0)
             return self._search_loops(node, candidates)
+        except GraphSolveError as exc:
+            # The graph's marginals could not be computed at this node: no loop search here
+            # (the run goes on; the summary lists it among the back end's recoveries).
+            self._graph.recoveries.append(f"node {node}: loop search skipped: {exc}")
+            return ()
         finally:
             spent = _clock()[0] - t0[0]
             self._timing.loop_search_max = max(self._timing.loop_search_max, spent)
@@ -632,8 +637,18 @@ class Mapper:
     def _search_loops(
         self, node: int, candidates: list[tuple[float, int]]
     ) -> tuple[LoopRecord[LoopMatch], ...]:
-        cfg = self.config
         records: list[LoopRecord[LoopMatch]] = []
+        try:
+            self._search_into(records, node, candidates)
+        finally:
+            # Whatever was matched is recorded, even if the back end stopped the search.
+            self._loops.extend(records)
+        return tuple(records)
+
+    def _search_into(
+        self, records: list[LoopRecord[LoopMatch]], node: int, candidates: list[tuple[float, int]]
+    ) -> None:
+        cfg = self.config
         searched = (0.0, 0.0)
         for _, n in candidates:
             record, window = self._match(n, node, None)
@@ -660,8 +675,6 @@ class Mapper:
                 records.append(record)
                 if record.accepted:
                     self._last_closed = travel
-        self._loops.extend(records)
-        return tuple(records)
 
     def _match(
         self, n: int, node: int, window: tuple[float, float] | None
@@ -1014,6 +1027,9 @@ def estimate_laser_latency(
     cost = [float(np.median(np.abs(odom_turn(d)[used] - m))) for d in shifts]
     return float(shifts[int(np.argmin(cost))])
 
+
+#: Joint-marginal tests of candidates beyond ``loop_max_range``, per candidate wanted.
+_GATE_TESTS_PER_CANDIDATE = 2
 
 #: How many scans the odometry thread may run ahead of the graph.
 _TRACK_AHEAD = 4
