@@ -525,3 +525,118 @@ def test_a_huge_entry_in_a_kitti_calibration_is_refused_without_a_warning(tmp_pa
             sio.read_kitti_calib(path)
         with pytest.raises(ValueError, match="rotation: not orthonormal"):
             SE3.from_matrix(np.diag([1e200, 1.0, 1.0, 1.0]))
+
+
+# --- ROS map_server maps (what `scanreg localize --map` reads) ------------------------------
+
+_MAP_YAML = "image: map.pgm\nresolution: 0.05\norigin: [1.0, -2.0, 0.0]\nnegate: 0\n"
+
+
+def _map(folder: Path, yaml: str = _MAP_YAML, pgm: bytes | None = None) -> Path:
+    img = np.full((6, 8), 254, dtype=np.uint8)
+    img[2, 1:7] = 0
+    (folder / "map.pgm").write_bytes(b"P5\n8 6\n255\n" + img.tobytes() if pgm is None else pgm)
+    (folder / "map.yaml").write_text(yaml)
+    return folder / "map.yaml"
+
+
+@pytest.mark.parametrize(
+    ("yaml", "pgm", "message"),
+    [
+        (None, b"P5\n999999999 999999999\n255\n\0\0", r"map\.pgm: truncated: width 999999999"),
+        (None, b"P5\n8 6\n255\n" + b"\0" * 47, r"map\.pgm: truncated: width 8 x height 6"),
+        (None, b"P5\n8 6\n65535\n" + b"\0" * 96, r"map\.pgm: maxval 65535"),
+        (None, b"P5\n0 6\n255\n", r"map\.pgm: empty image"),
+        (None, b"P2\n8 6\n255\n", r"map\.pgm: not a binary PGM"),
+        (_MAP_YAML.replace("map.pgm", "/dev/zero"), None, r"map\.yaml: image: /dev/zero is not"),
+        (_MAP_YAML.replace("map.pgm", "."), None, r"map\.yaml: image: .* is not a readable file"),
+        (_MAP_YAML.replace("0.05", "nan"), None, r"map\.yaml: resolution: expected a finite"),
+        (_MAP_YAML.replace("0.05", "-1"), None, r"map\.yaml: resolution: must be > 0"),
+        (_MAP_YAML.replace("0.05", "1e308"), None, r"map\.yaml: resolution: 1e\+308 m over"),
+        (_MAP_YAML.replace(", 0.0]", "]"), None, r"map\.yaml: origin: expected \[x, y, yaw\]"),
+        (_MAP_YAML.replace("[1.0", "[inf"), None, r"map\.yaml: origin: expected a finite"),
+        (_MAP_YAML.replace("negate: 0", "negate: 2"), None, r"map\.yaml: negate: expected 0"),
+        (_MAP_YAML + "occupied_thresh: 7\n", None, r"map\.yaml: occupied_thresh 7\.0"),
+        ("image: map.pgm\n", None, r"map\.yaml: lacks resolution, origin"),
+    ],
+)
+def test_a_damaged_map_server_map_is_refused_by_field(
+    tmp_path: Path, yaml: str | None, pgm: bytes | None, message: str
+) -> None:
+    """PGM dimensions are checked against the bytes before anything is allocated, the image
+    a YAML names must be a regular file (``/dev/zero`` was read until memory ran out), and
+    each YAML field is range-checked: FileFormatError naming the file and the field."""
+    from scanreg.io.occupancy import read_map_server
+
+    path = _map(tmp_path, _MAP_YAML if yaml is None else yaml, pgm)
+    with pytest.raises(FileFormatError, match=message):
+        read_map_server(path)
+
+
+def test_a_sound_map_server_map_reads_and_the_yaml_is_bounded(tmp_path: Path) -> None:
+    from scanreg.io.occupancy import MAX_YAML_BYTES, read_map_server
+
+    points, resolution = read_map_server(_map(tmp_path))
+    assert resolution == 0.05 and len(points) == 6  # the wall on image row 2
+    np.testing.assert_allclose(points[:, 1], -2.0 + (6 - 1 - 2 + 0.5) * 0.05)
+    (tmp_path / "big.yaml").write_bytes(b"#" * (MAX_YAML_BYTES + 1))
+    with pytest.raises(FileFormatError, match=r"big\.yaml: larger than"):
+        read_map_server(tmp_path / "big.yaml")
+    (tmp_path / "bin.yaml").write_bytes(b"image: \xff\n")
+    with pytest.raises(FileFormatError, match=r"bin\.yaml: not a text file"):
+        read_map_server(tmp_path / "bin.yaml")
+
+
+# --- batch manifests and TOML configs --------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("cell", "message"),
+    [
+        ("~no-such-user-scanreg/x.toml", "no home directory for user 'no-such-user-scanreg'"),
+        ("a\0b.toml", "a path cannot hold a NUL byte"),
+        ("x" * 5000, "no such file or directory"),
+    ],
+)
+def test_a_manifest_cell_that_is_no_usable_path_is_a_manifest_error(
+    tmp_path: Path, cell: str, message: str
+) -> None:
+    """Issue 40: ``~someone/...`` of an unknown user raised a bare ``RuntimeError: Could not
+    determine home directory`` from ``expanduser``; a NUL byte or a name too long for the file
+    system are the same kind of cell. Each is a ManifestError (a ValueError) naming the
+    manifest, the row and the column."""
+    from scanreg.batch import ManifestError, read_manifest
+
+    manifest = tmp_path / "jobs.csv"
+    manifest.write_text(f'id,input,config\na,sim:street,"{cell}"\n')
+    with pytest.raises(ManifestError, match=rf"jobs\.csv: row 1 \(id 'a'\): config .*{message}"):
+        read_manifest(manifest, "odometry")
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("voxel_size = " + "9" * 400 + "\n", r"voxel_size: expected float, .*too large"),
+        ("max_iterations = " + "9" * 30 + "\n", r"max_iterations: .*beyond the 64-bit"),
+        ("voxel_size = " + "[" * 5000 + "]" * 5000 + "\n", r"nested too deeply"),
+    ],
+)
+def test_a_config_past_what_toml_holds_is_a_config_error(
+    tmp_path: Path, text: str, message: str
+) -> None:
+    """Found writing the config targets of the campaign: Python's TOML parser reads integers
+    of any size (TOML's are 64-bit) and recurses per nested array — an OverflowError and a
+    RecursionError escaped ``load_config``. ``/dev/zero`` as a config was read forever."""
+    from scanreg.batch.jobs import register_options
+    from scanreg.config import MAX_CONFIG_BYTES, ConfigError, load_config
+    from scanreg.pipeline import OdometryConfig
+
+    path = tmp_path / "c.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=rf"c\.toml: .*{message}"):
+        load_config(OdometryConfig, path)
+    if "voxel_size = 9" in text:  # batch register's config: the same integer, named
+        with pytest.raises(ValueError, match=r"c\.toml: voxel_size is too large"):
+            register_options(str(path))
+    with pytest.raises(ConfigError, match=rf"larger than {MAX_CONFIG_BYTES} bytes"):
+        load_config(OdometryConfig, "/dev/zero")

@@ -92,6 +92,19 @@ def _text(value: Any) -> str | None:
     return text or None
 
 
+def _local_path(value: str, where: str) -> Path:
+    """A cell as a path, ``~`` and ``~user`` expanded; a user this machine does not know,
+    or a NUL byte, is a manifest error (``expanduser`` raised a bare RuntimeError)."""
+    if "\0" in value:
+        raise ManifestError(f"{where}: a path cannot hold a NUL byte")
+    try:
+        return Path(value).expanduser()
+    except RuntimeError:
+        user = value[1:].split("/", 1)[0].split("\\", 1)[0]
+        who = f"user {user!r}" if user else "the current user"
+        raise ManifestError(f"{where}: no home directory for {who} on this machine") from None
+
+
 def read_manifest(
     path: str | Path,
     kind: str,
@@ -174,9 +187,13 @@ def read_manifest(
             if value.startswith("sim:") and column in spec.sim_columns:
                 params[column] = value
                 continue
-            file = Path(value).expanduser()
+            file = _local_path(value, f"{where}: {column} {value!r}")
             file = file if file.is_absolute() else base / file
-            if not file.exists():
+            try:
+                exists = file.exists()
+            except (OSError, ValueError):  # a name too long for the file system
+                exists = False
+            if not exists:
                 raise ManifestError(f"{where}: {column} {value!r}: no such file or directory")
             params[column] = str(file)
         job = Job(id=job_id, kind=kind, params=params, row=k)
