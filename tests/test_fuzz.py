@@ -215,3 +215,43 @@ def test_the_campaign_keeps_unnamed_exceptions_and_goes_on(tmp_path: Path) -> No
     assert "KeyError: 'bad1'" in (findings / kept[1]).read_text()
     with pytest.raises(KeyError):
         Runner(target, tmp_path)(b"bad3")
+
+
+def test_a_las_scale_that_overflows_the_coordinates_is_refused(tmp_path: Path) -> None:
+    """Found by the las target: a header scale of -1.8e305 made laspy's ``X·scale + offset``
+    overflow (numpy's "overflow encountered in multiply", the file then read as inf)."""
+    from scanreg.io import read_las, write_las
+
+    path = tmp_path / "s.las"
+    write_las(path, PointCloud(points=np.ones((4, 3))), point_format=1)
+    raw = bytearray(path.read_bytes())
+    raw[131:139] = np.float64(-1.8e305).tobytes()  # the x scale factor
+    path.write_bytes(bytes(raw))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(FileFormatError, match=r"s\.las: corrupt header: x scale factor"):
+            read_las(path)
+
+
+def test_a_signalling_nan_gps_time_in_a_las_file_reads_as_nan_without_a_warning(
+    tmp_path: Path,
+) -> None:
+    """Found by the las target: a float64 signalling NaN in GPS time warned "invalid value
+    encountered in reduce" where the reader checks whether any time is set."""
+    from scanreg.io import read_las, write_las
+
+    path = tmp_path / "t.las"
+    cloud = PointCloud(points=np.ones((3, 3)), time=np.array([0.0, 0.05, 0.1]))
+    write_las(path, cloud, point_format=1)
+    raw = bytearray(path.read_bytes())
+    offset = int.from_bytes(raw[96:100], "little")
+    record = int.from_bytes(raw[105:107], "little")
+    # format 1: GPS time is the float64 at byte 20 of each record
+    raw[offset + 20 : offset + 28] = np.uint64(0x7FF4000000000000).tobytes()
+    path.write_bytes(bytes(raw))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        read = read_las(path)
+    assert read.time is not None and np.isnan(read.time[0])
+    np.testing.assert_allclose(read.time[1:], [0.05, 0.1])
+    assert record >= 28

@@ -10,6 +10,7 @@ bounded here by the bytes that could hold it; a file that fails raises
 
 from __future__ import annotations
 
+import math
 import struct
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -77,6 +78,7 @@ def check_las_file(path: Path) -> None:
             )
         if las14:
             _check_evlrs(path, head, size)
+        _check_scale_offset(path, head)
         data = size - offset
         if not fmt_byte & COMPRESSION_BITS:
             if count * record_length > data:
@@ -92,6 +94,21 @@ def check_las_file(path: Path) -> None:
             )
         vlr = _laszip_vlr(path, fh, header_size, n_vlrs, record_length)
         _check_chunk_table(path, fh, vlr, size, offset, count, record_length)
+
+
+def _check_scale_offset(path: Path, head: bytes) -> None:
+    """``x = X·scale + offset`` for any int32 ``X`` must be a finite float: laspy computes it
+    for every point (a scale of -1.8e305 overflowed, numpy's "overflow encountered")."""
+    scales = struct.unpack_from("<3d", head, 131)
+    offsets = struct.unpack_from("<3d", head, 155)
+    for axis, scale, offset in zip("xyz", scales, offsets, strict=True):
+        reach = abs(scale) * 2.0**31 + abs(offset)
+        if scale == 0 or not math.isfinite(reach):
+            raise FileFormatError(
+                path,
+                f"corrupt header: {axis} scale factor {scale!r} and offset {offset!r} do not "
+                "make finite coordinates",
+            )
 
 
 def _check_evlrs(path: Path, head: bytes, size: int) -> None:

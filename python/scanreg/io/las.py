@@ -179,6 +179,18 @@ def read_las(path: PathLike) -> PointCloud:
         raise _open_error(p, exc) from None
     except BaseException as exc:
         raise _panic_error(p, exc) from None
+    # A float field of a damaged file may hold signalling NaNs: NaN either way, read as NaN
+    # (numpy warns "invalid value" on their casts and reductions; found by fuzz/).
+    try:
+        with np.errstate(invalid="ignore"):
+            return _cloud_of(p, las)
+    except FileFormatError:
+        raise
+    except (ValueError, KeyError, IndexError) as exc:  # laspy's, on a damaged extra-bytes VLR
+        raise FileFormatError(p, f"cannot read as LAS/LAZ: {type(exc).__name__}: {exc}") from None
+
+
+def _cloud_of(p: Path, las: Any) -> PointCloud:
     dims = set(las.point_format.dimension_names)
     extra = list(las.point_format.extra_dimension_names)
     points = np.column_stack(
