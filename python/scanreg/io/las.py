@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validate import FloatArray
-from ._common import FileFormatError, PathLike, PointCloud, check_writable_cloud
+from ._common import CloudLike, FileFormatError, PathLike, PointCloud, check_writable_cloud
 from ._las_checks import COMPRESSION_BITS, POINT_FORMAT_BYTE, check_las_file
 
 #: Standard integer fields taken from ``PointCloud.fields`` → (their LAS range).
@@ -238,7 +238,7 @@ def _integers(values: Any, name: str, lo: int, hi: int) -> Any:
 
 def write_las(
     path: PathLike,
-    cloud: PointCloud,
+    cloud: CloudLike,
     *,
     scale: float | Sequence[float] = DEFAULT_SCALE,
     offset: Sequence[float] | None = None,
@@ -372,7 +372,7 @@ def _atomic_write(path: Path, write: Any) -> None:
         raise
 
 
-def write_laz(path: PathLike, cloud: PointCloud, **options: Any) -> None:
+def write_laz(path: PathLike, cloud: CloudLike, **options: Any) -> None:
     """:func:`write_las` with LAZ compression (the registry's ``.laz`` writer)."""
     write_las(path, cloud, **{"compress": True, **options})
 
