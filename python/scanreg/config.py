@@ -31,6 +31,7 @@ import difflib
 import functools
 import json
 import math
+import os
 import sys
 import types
 from collections.abc import Mapping, Sequence
@@ -95,7 +96,7 @@ MAX_CONFIG_BYTES = 1 << 24
 _INT64 = (-(2**63), 2**63 - 1)
 
 
-def read_config_file(path: str | Path) -> dict[str, Any]:
+def read_config_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The tables of a TOML file as a dict (errors name the file and the line)."""
     p = Path(path)
     with p.open("rb") as fh:
@@ -313,7 +314,7 @@ def config_from_dict(cls: type[T], data: Mapping[str, Any], *, where: str = "con
 
 def load_config(
     cls: type[T],
-    source: str | Path | Mapping[str, Any] | None = None,
+    source: str | os.PathLike[str] | Mapping[str, Any] | None = None,
     *,
     presets: Sequence[str] = (),
     overrides: Mapping[str, Any] | None = None,
@@ -342,8 +343,8 @@ def load_config(
     for name in presets:
         merged = merge_config(merged, preset(name, preset_table))
     where = "config"
-    if isinstance(source, (str, Path)):
-        where = str(source)
+    if isinstance(source, (str, os.PathLike)):
+        where = os.fspath(source)
         table = read_config_file(source)  # a fresh dict: no copy needed without presets
         merged = merge_config(merged, table) if merged else table
     elif isinstance(source, Mapping):

@@ -120,9 +120,16 @@ class PointCloud:
     fields: Mapping[str, FloatArray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        pts = self.points
+        pts: Any = self.points
         if not isinstance(pts, np.ndarray):
-            raise TypeError(f"points: expected a numpy.ndarray, got {type(pts).__name__}")
+            if pts is None or isinstance(pts, (str, bytes, Mapping)):
+                raise TypeError(f"points: expected an (N, 3) array, got {type(pts).__name__}")
+            try:  # nested lists, array-likes
+                pts = np.asarray(pts)
+            except (TypeError, ValueError):
+                raise TypeError(
+                    f"points: expected an (N, 3) array, got {type(self.points).__name__}"
+                ) from None
         if pts.ndim != 2 or pts.shape[1] not in (2, 3):
             raise ValueError(f"points: expected shape (N, 3) or (N, 2), got {pts.shape}")
         if pts.dtype.kind not in "fiu":

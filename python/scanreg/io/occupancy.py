@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validate import FloatArray, as_points
-from ..transform import SE2
+from ..transform import SE2, as_pose
 from ._common import FileFormatError, PathLike
 
 #: Pixel values (ROS map_server, trinary, ``negate: 0``): p = (255 − v) / 255.
@@ -55,7 +55,7 @@ class OccupancyGrid:
 
 
 def occupancy_grid(
-    poses: Sequence[SE2],
+    poses: Sequence[SE2] | Sequence[FloatArray],
     scans: Sequence[FloatArray],
     *,
     resolution: float = 0.05,
@@ -70,9 +70,10 @@ def occupancy_grid(
         raise ValueError("scans: no scan to build a map from")
     if not resolution > 0:
         raise ValueError(f"resolution: must be > 0, got {resolution!r}")
+    se2 = [as_pose(p, f"poses[{i}]", 2) for i, p in enumerate(poses)]  # SE2 or 3x3 matrices
     world = [p.apply(as_points(s, f"scans[{i}]", dim=2, min_points=0)) for i, (p, s) in
-             enumerate(zip(poses, scans, strict=True))]  # fmt: skip
-    origins = np.array([p.translation for p in poses])
+             enumerate(zip(se2, scans, strict=True))]  # fmt: skip
+    origins = np.array([p.translation for p in se2])
     every = np.vstack([origins, *world])
     lo = every.min(axis=0) - padding
     hi = every.max(axis=0) + padding
