@@ -303,3 +303,24 @@ def test_a_damaged_laz_chunk_table_is_a_named_error_in_a_process_that_survives(
     assert re.search(rf"FileFormatError: .*bad\.laz: {expected}", done.stdout), done.stdout
     if damage == "chunk count":  # the checks pass a sound file
         assert _read_in_a_child(good).stdout.strip() == "read"
+
+
+def test_a_laz_layer_larger_than_its_chunk_is_refused_at_once(tmp_path: Path) -> None:
+    """Found by the laz target (a 1.5 kB file, 6-15 s per read): a layered chunk (point
+    formats 6-10) lists one byte count per layer after its raw first point, and lazrs
+    zero-fills a buffer of each count before reading it — 27 GB claimed, seconds of memset,
+    and an abort once the memory is not there. Each layer must fit in its chunk."""
+    import time
+
+    path = tmp_path / "l.laz"
+    write_points(path, PointCloud(points=np.random.default_rng(5).normal(size=(500, 3))))
+    raw = bytearray(path.read_bytes())
+    first_chunk = int.from_bytes(raw[96:100], "little") + 8
+    record = int.from_bytes(raw[105:107], "little")
+    sizes = first_chunk + record + 4  # after the raw first point and the chunk's point count
+    raw[sizes + 4 : sizes + 8] = (2**32 - 1).to_bytes(4, "little")  # the z layer: 4 GB
+    path.write_bytes(bytes(raw))
+    start = time.perf_counter()
+    with pytest.raises(FileFormatError, match=r"l\.laz: corrupt LAZ chunk 0: its layers claim"):
+        read_points(path)
+    assert time.perf_counter() - start < 1.0

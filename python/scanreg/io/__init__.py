@@ -193,7 +193,6 @@ __all__ = [
     "BagTopic",
     "BagTopics",
     "CarmenLog",
-    "CloudLike",
     "FileFormatError",
     "FolderSequence",
     "KittiCalibration",

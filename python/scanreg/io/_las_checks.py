@@ -92,8 +92,9 @@ def check_las_file(path: Path) -> None:
             raise FileFormatError(
                 path, f"corrupt header: point count {count} cannot be in {data} compressed bytes"
             )
-        vlr = _laszip_vlr(path, fh, header_size, n_vlrs, record_length)
-        _check_chunk_table(path, fh, vlr, size, offset, count, record_length)
+        vlr, body = _laszip_vlr(path, fh, header_size, n_vlrs, record_length)
+        entries = _check_chunk_table(path, fh, vlr, size, offset, count, record_length)
+        _check_layered_chunks(path, fh, body, entries, offset + 8, record_length)
 
 
 def _check_scale_offset(path: Path, head: bytes) -> None:
@@ -119,8 +120,11 @@ def _check_evlrs(path: Path, head: bytes, size: int) -> None:
         )
 
 
-def _laszip_vlr(path: Path, fh: BinaryIO, at: int, n_vlrs: int, record_length: int) -> Any:
-    """The laszip VLR as lazrs reads it (its item sizes must make up the point record)."""
+def _laszip_vlr(
+    path: Path, fh: BinaryIO, at: int, n_vlrs: int, record_length: int
+) -> tuple[Any, bytes]:
+    """The laszip VLR as lazrs reads it, and its bytes (its item sizes must make up the
+    point record)."""
     import lazrs
 
     fh.seek(at)
@@ -144,15 +148,16 @@ def _laszip_vlr(path: Path, fh: BinaryIO, at: int, n_vlrs: int, record_length: i
                 f"laszip VLR items make {item_size}-byte points, the header's point data "
                 f"record length is {record_length}",
             )
-        return vlr
+        return vlr, body
     raise FileFormatError(path, "compressed point data (LAZ) without a laszip VLR")
 
 
 def _check_chunk_table(
     path: Path, fh: BinaryIO, vlr: Any, size: int, offset: int, count: int, record_length: int
-) -> None:
+) -> list[tuple[int, int]]:
     """The chunk table's entry count, point counts and byte counts against the file: lazrs
-    reserves memory for each before reading a point."""
+    reserves memory for each before reading a point. Returns its ``(points, bytes)``
+    entries."""
     import lazrs
 
     chunk_size = int(vlr.chunk_size())
@@ -212,3 +217,46 @@ def _check_chunk_table(
             f"corrupt LAZ chunk table: {len(entries)} chunks of {chunk_size} points cannot hold "
             f"the header's {count} points",
         )
+    return [(int(p), int(b)) for p, b in entries]
+
+
+#: laszip's compressor id of the layered chunks of point formats 6-10, and how many layers
+#: (one byte count each) each of its item types has: POINT14 9 (xy, z, classification,
+#: flags, intensity, scan angle, user data, point source, GPS time), RGB14 1, RGBNIR14 2,
+#: WAVEPACKET14 1, BYTE14 one per byte.
+LAYERED_COMPRESSOR = 3
+LAYERS = {10: 9, 11: 1, 12: 2, 13: 1}
+BYTE14 = 14
+
+
+def _check_layered_chunks(
+    path: Path, fh: BinaryIO, body: bytes, entries: list[tuple[int, int]], start: int,
+    record_length: int,
+) -> None:  # fmt: skip
+    """Each chunk of a layered LAZ (point formats 6-10) starts with one raw point, its point
+    count and one byte count per layer; lazrs zero-fills a buffer of each layer's count before
+    reading it (a 1.5 kB file claimed 4 GB layers: seconds of memset and gigabytes, and
+    enough of them abort). Every layer's count must fit in its chunk."""
+    (compressor,) = struct.unpack_from("<H", body, 0)
+    (n_items,) = struct.unpack_from("<H", body, 32)
+    if compressor != LAYERED_COMPRESSOR:
+        return
+    layers = 0
+    for k in range(n_items):
+        kind, size, _ = struct.unpack_from("<HHH", body, 34 + 6 * k)
+        layers += size if kind == BYTE14 else LAYERS.get(kind, 0)
+    head = record_length + 4 + 4 * layers
+    at = start
+    for index, (_, chunk_bytes) in enumerate(entries):
+        fh.seek(at + record_length + 4)
+        raw = fh.read(4 * layers)
+        if len(raw) < 4 * layers or head > chunk_bytes:
+            raise FileFormatError(path, f"corrupt LAZ chunk {index}: truncated layer sizes")
+        total = sum(struct.unpack(f"<{layers}I", raw))
+        if total > chunk_bytes - head:
+            raise FileFormatError(
+                path,
+                f"corrupt LAZ chunk {index}: its layers claim {total} bytes, the chunk holds "
+                f"{chunk_bytes - head}",
+            )
+        at += chunk_bytes
