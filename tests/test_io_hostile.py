@@ -640,3 +640,21 @@ def test_a_config_past_what_toml_holds_is_a_config_error(
             register_options(str(path))
     with pytest.raises(ConfigError, match=rf"larger than {MAX_CONFIG_BYTES} bytes"):
         load_config(OdometryConfig, "/dev/zero")
+
+
+def test_a_pgm_header_of_many_blank_lines_is_refused_at_once(tmp_path: Path) -> None:
+    """Found by the map_server target: a PGM header whose comment was followed by a run of
+    newlines and no number made the header pattern backtrack exponentially (seconds for a
+    261-byte file, a libFuzzer timeout)."""
+    import time
+
+    from scanreg.io.occupancy import read_pgm
+
+    path = tmp_path / "m.pgm"
+    path.write_bytes(b"P5\n# CREATOR\n" + b"\n" * 25 + b"x")  # the old pattern: ~4 s
+    start = time.perf_counter()
+    with pytest.raises(FileFormatError, match=r"m\.pgm: not a binary PGM"):
+        read_pgm(path)
+    assert time.perf_counter() - start < 0.5
+    path.write_bytes(b"P5\n# CREATOR\n\n\n 2\n\n# c\n1 255\n\x00\xfe")  # comments, blank lines
+    assert read_pgm(path).tolist() == [[0, 254]]
