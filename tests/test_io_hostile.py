@@ -658,3 +658,20 @@ def test_a_pgm_header_of_many_blank_lines_is_refused_at_once(tmp_path: Path) -> 
     assert time.perf_counter() - start < 0.5
     path.write_bytes(b"P5\n# CREATOR\n\n\n 2\n\n# c\n1 255\n\x00\xfe")  # comments, blank lines
     assert read_pgm(path).tolist() == [[0, 254]]
+
+
+def test_a_map_yaml_value_with_a_long_run_of_blanks_is_read_at_once(tmp_path: Path) -> None:
+    """Found reading the map_server reader after the fuzz finding above: the YAML line
+    pattern's lazy value ``(.+?)[ \\t]*$`` went quadratic on blanks inside a value (3.5 s for
+    16 000 spaces; the 1 MB cap would have allowed hours)."""
+    import time
+
+    from scanreg.io.occupancy import read_map_server
+
+    path = _map(tmp_path, _MAP_YAML.replace("image: map.pgm", "image: map" + " " * 30_000 + "x"))
+    start = time.perf_counter()
+    with pytest.raises(FileFormatError, match=r"map\.yaml: image: .* is not a readable file"):
+        read_map_server(path)
+    assert time.perf_counter() - start < 0.5
+    path.write_text(_MAP_YAML.replace("negate: 0", "negate:   \t  0   \t"))
+    assert len(read_map_server(path)[0]) == 6  # blanks around a value are not part of it

@@ -220,10 +220,13 @@ def _yaml_fields(path: Path) -> dict[str, str]:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise FileFormatError(path, "not a text file (invalid UTF-8)") from None
-    return {
+    # The value is stripped here, not by the pattern: a lazy ``(.+?)[ \t]*$`` went quadratic
+    # on a long run of blanks inside a value (3.5 s for 16 000 spaces, hours for 1 MB).
+    fields = {
         m.group(1): m.group(2).strip()
-        for m in re.finditer(r"^[ \t]*(\w+)[ \t]*:[ \t]*(.+?)[ \t]*$", text, flags=re.MULTILINE)
+        for m in re.finditer(r"^[ \t]*(\w+)[ \t]*:(.*)$", text, flags=re.MULTILINE)
     }
+    return {key: value for key, value in fields.items() if value}
 
 
 def _finite(path: Path, field: str, text: str) -> float:
