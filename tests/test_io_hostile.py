@@ -675,3 +675,33 @@ def test_a_map_yaml_value_with_a_long_run_of_blanks_is_read_at_once(tmp_path: Pa
     assert time.perf_counter() - start < 0.5
     path.write_text(_MAP_YAML.replace("negate: 0", "negate:   \t  0   \t"))
     assert len(read_map_server(path)[0]) == 6  # blanks around a value are not part of it
+
+
+def test_a_parquet_manifest_whose_footer_claims_more_rows_than_values_is_refused(
+    tmp_path: Path,
+) -> None:
+    """Found by the manifest_parquet target: a 1 kB manifest whose row group claimed
+    82 797 590 141 rows made pyarrow reserve 275 GB by that count (a timeout under libFuzzer;
+    outside it the kernel killed the process). The footer's counts are checked first: a row
+    group's rows must be its columns' values, and a manifest at most a million rows."""
+    pa = pytest.importorskip("pyarrow")
+    pq = pytest.importorskip("pyarrow.parquet")
+    from scanreg.batch import ManifestError, read_manifest
+    from scanreg.batch.manifest import MAX_PARQUET_ROWS
+
+    good = tmp_path / "good.parquet"
+    table = pa.table({"id": ["a", "b", "c"], "input": ["sim:street"] * 3, "config": [None] * 3})
+    pq.write_table(table, good)
+    assert [job.id for job in read_manifest(good, "odometry")] == ["a", "b", "c"]  # nulls too
+    raw = good.read_bytes()
+    footer = len(raw) - 8 - int.from_bytes(raw[-8:-4], "little")
+    at = raw.rindex(b"\x16\x06", footer)  # the row group's num_rows (i64 3, zigzag varint 6)
+    bad = tmp_path / "bad.parquet"
+    bad.write_bytes(raw[: at + 1] + b"\x7e" + raw[at + 2 :])  # 63 rows, same length
+    with pytest.raises(ManifestError, match=r"bad\.parquet: corrupt Parquet footer: row group 0"):
+        read_manifest(bad, "odometry")
+    many = tmp_path / "many.parquet"
+    ids = [f"j{k}" for k in range(MAX_PARQUET_ROWS + 1)]
+    pq.write_table(pa.table({"id": ids, "input": ["sim:street"] * len(ids)}), many)
+    with pytest.raises(ManifestError, match=r"many\.parquet: 1000001 rows: more than"):
+        read_manifest(many, "odometry")
