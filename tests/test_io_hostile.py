@@ -677,13 +677,65 @@ def test_a_map_yaml_value_with_a_long_run_of_blanks_is_read_at_once(tmp_path: Pa
     assert len(read_map_server(path)[0]) == 6  # blanks around a value are not part of it
 
 
-def test_a_parquet_manifest_whose_footer_claims_more_rows_than_values_is_refused(
+#: A finding of the manifest_parquet target (an odometry manifest of our writer with 12
+#: bytes changed; zlib + base64): a damaged size-statistics histogram in the footer. pyarrow's
+#: ``RowGroupMetaData.column(i)`` throws a C++ exception there that it does not convert:
+#: ``std::terminate``, SIGABRT.
+_PARQUET_HISTOGRAM_FINDING = """
+eNqNk89u0zAcxx03WGUqUjZwlEwRyiGLEOratdBplFbIqWBMFNFWGhMcJlVt1lU0SUnSdeKwp9iBA0+xE0eegBMn
+noDH4Gd7bTe1SPzk2M7vz+f7i5O0WKdEVbpHq01KKNpAyHIIQihJY99PlbWn6SQM/ZEKrtMo8CmiD6iRh1QNLmLt
+okdEZhgqj6+vQ+Kag2EmCs44CNhnNJ6xn59vcvYwqEp+/iR+gaT5fr9eun/vYUviININ/KT+hKMuiit08UXR2LyF
+EgWVfCJQqzqxqdOEhXei1bIQifoRTMGINwASG1S/JZGFeCGFuIEE7q4tcUqGUNVsVpBBkt6pH3QpQTTnYAMP+1uo
+aXFabgsbd4bheJLe9JBeFJ4MB9cunZiWWXORRXNmBRHN5ACKdaJfKfp3xT12s6tO2Mzzh6CYt6zBUtNtk5gu4u/t
+JkzKC94lhuH+xO4P5f/OblnjeKXG9QNJEUX/priXqvsrs3x6y0BtDtR/qzpxs/ofFZmWkWOdzrujqjxZ4ysuctsb
+MLA2k/aGsSnzBuwVYwPWECHmeYy95ZsGYwfCsViZDHnJbCdRjSlHi9qOcH5Y5AvbF87ys8nHYBRC/ieeX27BNOWI
+w/Y8ad4a1PPt/mjSe/1+h99/4fnnjDd7wCW8qWzh5aLoX/oNPnWP2oLviZKZ1evIsMfd+PPET7d74/F2N46jx/aZ
+HyfDKLTLu4WdQsmswWcmB7qCb7cFf/tfpkfNOw==
+"""
+
+
+def _manifest_in_a_child(path: Path) -> tuple[int, str]:
+    """``read_manifest(path, "odometry")`` in a child interpreter capped at 3 GB of address
+    space (an allocation bug fails there instead of swelling on a shared machine): its exit
+    code and what it printed (the job ids, or the refusal)."""
+    import os
+    import resource
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from scanreg.batch import ManifestError, read_manifest\n"
+        "try:\n"
+        "    print([job.id for job in read_manifest(sys.argv[1], 'odometry')])\n"
+        "except ManifestError as exc:\n"
+        "    print('ManifestError:', exc)\n"
+    )
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+
+    python = str(Path(__file__).resolve().parent.parent / "python")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([python, *sys.path])}
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120,
+        env=env, preexec_fn=cap, check=False,
+    )  # fmt: skip
+    return done.returncode, done.stdout + done.stderr[-2000:]
+
+
+def test_a_damaged_parquet_manifest_is_refused_by_name_in_a_process_that_survives(
     tmp_path: Path,
 ) -> None:
-    """Found by the manifest_parquet target: a 1 kB manifest whose row group claimed
-    82 797 590 141 rows made pyarrow reserve 275 GB by that count (a timeout under libFuzzer;
-    outside it the kernel killed the process). The footer's counts are checked first: a row
-    group's rows must be its columns' values, and a manifest at most a million rows."""
+    """Found by the manifest_parquet target: (1) a 1 kB manifest whose row group claimed
+    82 797 590 141 rows made ``read_table`` reserve 275 GB by that count (a timeout under
+    libFuzzer; read outside it, the kernel killed the process); (2) a damaged size-statistics
+    histogram aborted the interpreter through pyarrow's footer metadata accessor (a first
+    version of the fix read the counts there). The manifest is now read batch by batch: the
+    claim costs nothing, the histogram is an OSError named as a ManifestError."""
+    import base64
+    import zlib
+
     pa = pytest.importorskip("pyarrow")
     pq = pytest.importorskip("pyarrow.parquet")
     from scanreg.batch import ManifestError, read_manifest
@@ -693,15 +745,33 @@ def test_a_parquet_manifest_whose_footer_claims_more_rows_than_values_is_refused
     table = pa.table({"id": ["a", "b", "c"], "input": ["sim:street"] * 3, "config": [None] * 3})
     pq.write_table(table, good)
     assert [job.id for job in read_manifest(good, "odometry")] == ["a", "b", "c"]  # nulls too
+    # (1) the row group's num_rows (the last i64 field holding 3 in the footer, zigzag varint
+    # 0x06) re-encoded as 82 797 590 141, the footer's length adjusted
     raw = good.read_bytes()
-    footer = len(raw) - 8 - int.from_bytes(raw[-8:-4], "little")
-    at = raw.rindex(b"\x16\x06", footer)  # the row group's num_rows (i64 3, zigzag varint 6)
-    bad = tmp_path / "bad.parquet"
-    bad.write_bytes(raw[: at + 1] + b"\x7e" + raw[at + 2 :])  # 63 rows, same length
-    with pytest.raises(ManifestError, match=r"bad\.parquet: corrupt Parquet footer: row group 0"):
-        read_manifest(bad, "odometry")
+    length = int.from_bytes(raw[-8:-4], "little")
+    at = raw.rindex(b"\x16\x06", len(raw) - 8 - length)
+    rows, varint = 82_797_590_141 * 2, bytearray()  # zigzag of a positive count
+    while rows >= 0x80:
+        varint.append(rows & 0x7F | 0x80)
+        rows >>= 7
+    varint.append(rows)
+    claim = raw[: at + 1] + bytes(varint) + raw[at + 2 : -8]
+    claim += (length + len(varint) - 1).to_bytes(4, "little") + b"PAR1"
+    (tmp_path / "claim.parquet").write_bytes(claim)
+    assert pq.ParquetFile(tmp_path / "claim.parquet").metadata.row_group(0).num_rows == (
+        82_797_590_141
+    )
+    status, out = _manifest_in_a_child(tmp_path / "claim.parquet")
+    assert (status, out.strip()) == (0, "['a', 'b', 'c']"), out
+    # (2) the histogram finding
+    finding = tmp_path / "histogram.parquet"
+    finding.write_bytes(zlib.decompress(base64.b64decode(_PARQUET_HISTOGRAM_FINDING)))
+    status, out = _manifest_in_a_child(finding)
+    assert status == 0, f"the reading process died (exit {status}): {out}"
+    assert "ManifestError:" in out and "histogram.parquet: cannot read the manifest:" in out
+    # and a manifest of more rows than any batch runs
     many = tmp_path / "many.parquet"
     ids = [f"j{k}" for k in range(MAX_PARQUET_ROWS + 1)]
     pq.write_table(pa.table({"id": ids, "input": ["sim:street"] * len(ids)}), many)
-    with pytest.raises(ManifestError, match=r"many\.parquet: 1000001 rows: more than"):
+    with pytest.raises(ManifestError, match=r"many\.parquet: more than 1000000 rows"):
         read_manifest(many, "odometry")
