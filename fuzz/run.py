@@ -30,7 +30,8 @@ sys.path.insert(0, str(HERE))
 
 NAMES = (
     "pcd ply kitti_bin kitti_calib kitti_poses tum carmen carmen_gz carmen_bz2 g2o ros1 "
-    "ros2_mcap ros2_sqlite ros_msg config"
+    "ros2_mcap ros2_sqlite ros_msg config las laz map_server manifest_csv manifest_tsv "
+    "manifest_parquet command_configs"
 )
 
 if len(sys.argv) < 2 or sys.argv[1] == "--list":
@@ -38,8 +39,10 @@ if len(sys.argv) < 2 or sys.argv[1] == "--list":
     raise SystemExit(0)
 
 with atheris.instrument_imports(include=["scanreg"]):
+    import scanreg.batch
     import scanreg.config
-    import scanreg.io  # noqa: F401
+    import scanreg.io
+    import scanreg.io.occupancy  # noqa: F401
 
 from targets import TARGETS, Runner, scratch_dir  # noqa: E402
 

@@ -382,6 +382,188 @@ def _read_config(p: Path) -> object:
     return load_config(OdometryConfig, p)
 
 
+def _las_seeds(compress: bool) -> Callable[[], list[bytes]]:
+    """Our writer's LAS/LAZ in the point formats people meet: 6 (LAS 1.4, GPS time, a float
+    intensity as an extra-bytes field, a ring, a WKT CRS), 1 (LAS 1.2 with time), 0."""
+
+    def seeds() -> list[bytes]:
+        from scanreg.io import PointCloud, write_las
+
+        cloud = _cloud()
+        assert isinstance(cloud, PointCloud)
+        timed = PointCloud(points=cloud.points, time=np.linspace(0.0, 0.1, len(cloud)))
+        wkt = 'PROJCS["WGS 84 / UTM zone 32N",GEOGCS["WGS 84"],UNIT["metre",1]]'
+        out = []
+        for c, options in (
+            (cloud, {"crs_wkt": wkt}),
+            (timed, {"point_format": 1}),
+            (PointCloud(points=cloud.points), {"point_format": 0}),
+        ):
+            with tempfile.TemporaryDirectory() as d:
+                p = Path(d) / "seed.las"
+                write_las(p, c, compress=compress, **options)
+                out.append(p.read_bytes())
+        return out
+
+    return seeds
+
+
+def _read_las(p: Path) -> object:
+    from scanreg.io import read_las
+
+    return read_las(p)
+
+
+#: ``map_server``: one input holds both files, the YAML text, a NUL byte, then the PGM
+#: bytes (a YAML cannot hold a NUL); the PGM is written as ``map.pgm`` beside the YAML.
+MAP_SEPARATOR = b"\0"
+
+
+def _map_server_seeds() -> list[bytes]:
+    from scanreg import SE2
+    from scanreg.io.occupancy import occupancy_grid, write_map
+
+    angles = np.linspace(-np.pi, np.pi, 90, endpoint=False)
+    scan = np.c_[np.cos(angles), np.sin(angles)] * 1.5
+    grid = occupancy_grid([SE2.identity()], [scan], resolution=0.1, padding=0.3)
+    out = []
+    with tempfile.TemporaryDirectory() as d:
+        paths = write_map(d, grid)
+        yaml, pgm = paths["yaml"].read_bytes(), paths["pgm"].read_bytes()
+        out.append(yaml + MAP_SEPARATOR + pgm)
+        commented = pgm.replace(b"P5\n", b"P5\n# CREATOR: map_saver.cpp 0.050 m/pix\n", 1)
+        negated = yaml.replace(b"negate: 0", b"negate: 1").replace(b"map.pgm", b"'map.pgm'")
+        out.append(negated + MAP_SEPARATOR + commented)
+    return out
+
+
+def _read_map_server(p: Path) -> object:
+    from scanreg.io.occupancy import read_map_server
+
+    data = p.read_bytes()
+    yaml, _, pgm = data.partition(MAP_SEPARATOR)
+    p.write_bytes(yaml)
+    (p.parent / "map.pgm").write_bytes(pgm)
+    return read_map_server(p)
+
+
+#: Files a manifest row may name, made once beside the target's input (its folder is the
+#: rows' base): two point clouds, a register config, an odometry config, an initial pose.
+MANIFEST_FILES = {
+    "a.pcd": b"",
+    "b.pcd": b"",
+    "reg.toml": b'method = "point_to_plane"\nmax_iterations = 20\nvoxel_size = 0.2\n',
+    "odo.toml": b"voxel_size = 0.5\nmax_range = 60.0\n",
+    "init.txt": b"1 0 0 0.1\n0 1 0 0\n0 0 1 0\n0 0 0 1\n",
+}
+MANIFEST_ROWS = {
+    "odometry": [
+        ["id", "input", "config"],
+        ["street", "sim:street,frames=5,seed=1", "odo.toml"],
+        ["tunnel", "sim:tunnel,frames=3", ""],
+        ["home", "~/", ""],
+    ],
+    "register": [
+        ["id", "source", "target", "config", "init"],
+        ["p1", "a.pcd", "b.pcd", "reg.toml", "init.txt"],
+        ["p2", "b.pcd", "a.pcd", "", ""],
+    ],
+}
+
+
+def _manifest_text(rows: list[list[str]], delimiter: str) -> bytes:
+    import csv
+    import io
+
+    buf = io.StringIO()
+    csv.writer(buf, delimiter=delimiter, lineterminator="\n").writerows(rows)
+    return buf.getvalue().encode()
+
+
+def _manifest_seeds(suffix: str) -> Callable[[], list[bytes]]:
+    def seeds() -> list[bytes]:
+        out = []
+        for rows in MANIFEST_ROWS.values():
+            if suffix == ".parquet":
+                import pyarrow as pa
+                import pyarrow.parquet as pq
+
+                table = pa.table({c: [r[i] for r in rows[1:]] for i, c in enumerate(rows[0])})
+                with tempfile.TemporaryDirectory() as d:
+                    pq.write_table(table, Path(d) / "m.parquet")
+                    out.append((Path(d) / "m.parquet").read_bytes())
+            else:
+                out.append(_manifest_text(rows, "\t" if suffix == ".tsv" else ","))
+        return out
+
+    return seeds
+
+
+def _read_manifest(p: Path) -> object:
+    """The manifest as ``scanreg batch`` checks it before running anything (files present,
+    ``sim:`` URIs and configs valid): a register manifest when it names a ``source``
+    column, else an odometry one."""
+    from scanreg.batch import read_manifest
+
+    for name, content in MANIFEST_FILES.items():
+        support = p.parent / name
+        if not support.exists():
+            support.write_bytes(content)
+    kind = "register" if b"source" in p.read_bytes() else "odometry"
+    return read_manifest(p, kind)
+
+
+def _command_configs() -> list[tuple[str, Callable[[Path], object]]]:
+    """``(name, load)`` of the TOML config of every command but ``scanreg odometry`` on a
+    3D sequence (the ``config`` target): 2D odometry (over the mapping preset, as the CLI
+    loads it), ``map``, ``map`` in 3D, and ``batch register``'s options."""
+    from scanreg.batch.jobs import register_options
+    from scanreg.config import load_config
+    from scanreg.pipeline.mapping import MappingConfig
+    from scanreg.pipeline.mapping3d import MappingConfig3D
+    from scanreg.pipeline.odometry2d import OdometryConfig2D
+
+    mapping = MappingConfig().odometry
+    preset = {f: getattr(mapping, f) for f in ("front_end", "kernel", "max_keyframes")}
+
+    def odometry_2d(p: Path) -> object:
+        return load_config(
+            OdometryConfig2D, p, presets=["mapping"], preset_table={"mapping": preset}
+        )
+
+    return [
+        ("odometry 2D", odometry_2d),
+        ("map", lambda p: load_config(MappingConfig, p)),
+        ("map 3D", lambda p: load_config(MappingConfig3D, p)),
+        ("batch register", lambda p: register_options(str(p))),
+    ]
+
+
+def _command_config_seeds() -> list[bytes]:
+    from scanreg.config import dump_config
+    from scanreg.pipeline.mapping import MappingConfig
+    from scanreg.pipeline.mapping3d import MappingConfig3D
+    from scanreg.pipeline.odometry2d import OdometryConfig2D
+
+    out = [dump_config(c()).encode() for c in (OdometryConfig2D, MappingConfig, MappingConfig3D)]
+    out.append(MANIFEST_FILES["reg.toml"])
+    return out
+
+
+def _read_command_configs(p: Path) -> object:
+    """The file as each command's config; every loader may refuse it by name, and a seed
+    must load with at least one (as ``_bag_read`` does for the bag readers)."""
+    out, refusals = [], []
+    for _, load in _command_configs():
+        try:
+            out.append(load(p))
+        except NAMED as exc:
+            refusals.append(exc)
+    if not out:
+        raise refusals[0]
+    return out
+
+
 def _io(name: str) -> Callable[[Path], object]:
     def read(p: Path) -> object:
         import scanreg.io as sio
@@ -409,6 +591,13 @@ TARGETS: dict[str, Target] = {
         Target("ros2_sqlite", ".db3", _bag_read, _ros2_seeds(".db3")),
         Target("ros_msg", ".msg", _read_message, _message_seeds),
         Target("config", ".toml", _read_config, _config_seeds),
+        Target("las", ".las", _read_las, _las_seeds(compress=False)),
+        Target("laz", ".laz", _read_las, _las_seeds(compress=True)),
+        Target("map_server", ".yaml", _read_map_server, _map_server_seeds),
+        Target("manifest_csv", ".csv", _read_manifest, _manifest_seeds(".csv")),
+        Target("manifest_tsv", ".tsv", _read_manifest, _manifest_seeds(".tsv")),
+        Target("manifest_parquet", ".parquet", _read_manifest, _manifest_seeds(".parquet")),
+        Target("command_configs", ".toml", _read_command_configs, _command_config_seeds),
     )
 }
 
@@ -474,6 +663,24 @@ class Runner:
             Path(f"{stem}.txt").write_text(report)
 
 
+def smoke_pass(name: str, workdir: Path, per_seed: int, seed: int) -> int:
+    """The CI smoke pass of target ``name``: each seed, then ``per_seed`` structured
+    mutations of it (:func:`mutations`); an unnamed exception propagates. Returns the number
+    of inputs run. ``tests/test_fuzz.py`` runs it in a child process, so that an input that
+    aborts the interpreter fails the test with its signal instead of ending the test run."""
+    target = TARGETS[name]
+    run = Runner(target, workdir)
+    rng = np.random.default_rng(seed)
+    seeds = target.seeds()
+    if not seeds:
+        raise AssertionError(f"{name}: no seeds")
+    for data in seeds:
+        run(data)  # the seed itself reads without an error
+        for mutated in mutations(data, per_seed, rng):
+            run(mutated)  # only a named refusal may come out (Runner lets nothing else through)
+    return run.executions
+
+
 def mutations(seed: bytes, count: int, rng: np.random.Generator) -> list[bytes]:
     """Cheap structured mutations for the CI smoke pass (the campaign uses libFuzzer's)."""
     out = []
@@ -508,4 +715,4 @@ def mutations(seed: bytes, count: int, rng: np.random.Generator) -> list[bytes]:
     return out
 
 
-__all__ = ["TARGETS", "Runner", "Target", "mutations", "scratch_dir"]
+__all__ = ["TARGETS", "Runner", "Target", "mutations", "scratch_dir", "smoke_pass"]

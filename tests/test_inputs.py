@@ -188,3 +188,55 @@ def test_covariance_arguments_share_one_check() -> None:
         ValueError, match=r"prior_covariance: expected shape \(3, 3\), got \(2, 2\)"
     ):
         odo.step(pts, prior=SE2.identity(), prior_covariance=np.eye(2))
+
+
+def test_io_takes_points_poses_and_paths_as_users_have_them(tmp_path: Any) -> None:
+    """Issue 40's audit: the points of a PointCloud as nested lists, a trajectory as a list of
+    SE3, KITTI poses written from the matrices alone, an occupancy grid from 3x3 pose
+    matrices, a config from any os.PathLike — each the same as the canonical form; what
+    cannot be converted is refused by name."""
+    import os
+    from pathlib import Path
+
+    from scanreg.config import load_config, write_config
+    from scanreg.io import PointCloud, Trajectory, read_kitti_poses, write_kitti_poses
+    from scanreg.io.occupancy import occupancy_grid
+    from scanreg.pipeline import OdometryConfig
+
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(20, 3))
+    np.testing.assert_array_equal(PointCloud(points=pts.tolist()).points, pts)
+    with pytest.raises(TypeError, match=r"points: expected an \(N, 3\) array, got list"):
+        PointCloud(points=[[0.0, 1.0, 2.0], [1.0]])
+    with pytest.raises(TypeError, match="points: expected an"):
+        PointCloud(points=None)  # type: ignore[arg-type]
+
+    poses = [SE3.exp(rng.normal(size=6) * 0.1) for _ in range(4)]
+    matrices = np.stack([p.as_matrix() for p in poses])
+    np.testing.assert_array_equal(Trajectory(poses).poses, matrices)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="poses: a trajectory holds 3D poses"):
+        Trajectory([SE2.identity()])  # type: ignore[arg-type]
+    write_kitti_poses(tmp_path / "a.txt", Trajectory(matrices))
+    write_kitti_poses(tmp_path / "b.txt", matrices)
+    write_kitti_poses(str(tmp_path / "c.txt"), poses)
+    text = (tmp_path / "a.txt").read_text()
+    assert (tmp_path / "b.txt").read_text() == (tmp_path / "c.txt").read_text() == text
+    np.testing.assert_allclose(read_kitti_poses(tmp_path / "b.txt").poses, matrices, atol=1e-12)
+
+    scan = rng.normal(size=(40, 2)) * 2
+    pose = SE2.from_vector([0.5, -0.2, 0.3])
+    a = occupancy_grid([pose], [scan], resolution=0.1)
+    b = occupancy_grid([pose.as_matrix()], [scan.tolist()], resolution=0.1)
+    np.testing.assert_array_equal(a.probability, b.probability)
+    assert a.origin == b.origin
+
+    class Where(os.PathLike[str]):
+        def __init__(self, path: Path) -> None:
+            self.path = path
+
+        def __fspath__(self) -> str:
+            return str(self.path)
+
+    config = OdometryConfig(voxel_size=0.7)
+    write_config(tmp_path / "c.toml", config)
+    assert load_config(OdometryConfig, Where(tmp_path / "c.toml")) == config

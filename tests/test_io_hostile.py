@@ -525,3 +525,253 @@ def test_a_huge_entry_in_a_kitti_calibration_is_refused_without_a_warning(tmp_pa
             sio.read_kitti_calib(path)
         with pytest.raises(ValueError, match="rotation: not orthonormal"):
             SE3.from_matrix(np.diag([1e200, 1.0, 1.0, 1.0]))
+
+
+# --- ROS map_server maps (what `scanreg localize --map` reads) ------------------------------
+
+_MAP_YAML = "image: map.pgm\nresolution: 0.05\norigin: [1.0, -2.0, 0.0]\nnegate: 0\n"
+
+
+def _map(folder: Path, yaml: str = _MAP_YAML, pgm: bytes | None = None) -> Path:
+    img = np.full((6, 8), 254, dtype=np.uint8)
+    img[2, 1:7] = 0
+    (folder / "map.pgm").write_bytes(b"P5\n8 6\n255\n" + img.tobytes() if pgm is None else pgm)
+    (folder / "map.yaml").write_text(yaml)
+    return folder / "map.yaml"
+
+
+@pytest.mark.parametrize(
+    ("yaml", "pgm", "message"),
+    [
+        (None, b"P5\n999999999 999999999\n255\n\0\0", r"map\.pgm: truncated: width 999999999"),
+        (None, b"P5\n8 6\n255\n" + b"\0" * 47, r"map\.pgm: truncated: width 8 x height 6"),
+        (None, b"P5\n8 6\n65535\n" + b"\0" * 96, r"map\.pgm: maxval 65535"),
+        (None, b"P5\n0 6\n255\n", r"map\.pgm: empty image"),
+        (None, b"P2\n8 6\n255\n", r"map\.pgm: not a binary PGM"),
+        (_MAP_YAML.replace("map.pgm", "/dev/zero"), None, r"map\.yaml: image: /dev/zero is not"),
+        (_MAP_YAML.replace("map.pgm", "."), None, r"map\.yaml: image: .* is not a readable file"),
+        (_MAP_YAML.replace("0.05", "nan"), None, r"map\.yaml: resolution: expected a finite"),
+        (_MAP_YAML.replace("0.05", "-1"), None, r"map\.yaml: resolution: must be > 0"),
+        (_MAP_YAML.replace("0.05", "1e308"), None, r"map\.yaml: resolution: 1e\+308 m over"),
+        (_MAP_YAML.replace(", 0.0]", "]"), None, r"map\.yaml: origin: expected \[x, y, yaw\]"),
+        (_MAP_YAML.replace("[1.0", "[inf"), None, r"map\.yaml: origin: expected a finite"),
+        (_MAP_YAML.replace("negate: 0", "negate: 2"), None, r"map\.yaml: negate: expected 0"),
+        (_MAP_YAML + "occupied_thresh: 7\n", None, r"map\.yaml: occupied_thresh 7\.0"),
+        ("image: map.pgm\n", None, r"map\.yaml: lacks resolution, origin"),
+    ],
+)
+def test_a_damaged_map_server_map_is_refused_by_field(
+    tmp_path: Path, yaml: str | None, pgm: bytes | None, message: str
+) -> None:
+    """PGM dimensions are checked against the bytes before anything is allocated, the image
+    a YAML names must be a regular file (``/dev/zero`` was read until memory ran out), and
+    each YAML field is range-checked: FileFormatError naming the file and the field."""
+    from scanreg.io.occupancy import read_map_server
+
+    path = _map(tmp_path, _MAP_YAML if yaml is None else yaml, pgm)
+    with pytest.raises(FileFormatError, match=message):
+        read_map_server(path)
+
+
+def test_a_sound_map_server_map_reads_and_the_yaml_is_bounded(tmp_path: Path) -> None:
+    from scanreg.io.occupancy import MAX_YAML_BYTES, read_map_server
+
+    points, resolution = read_map_server(_map(tmp_path))
+    assert resolution == 0.05 and len(points) == 6  # the wall on image row 2
+    np.testing.assert_allclose(points[:, 1], -2.0 + (6 - 1 - 2 + 0.5) * 0.05)
+    (tmp_path / "big.yaml").write_bytes(b"#" * (MAX_YAML_BYTES + 1))
+    with pytest.raises(FileFormatError, match=r"big\.yaml: larger than"):
+        read_map_server(tmp_path / "big.yaml")
+    (tmp_path / "bin.yaml").write_bytes(b"image: \xff\n")
+    with pytest.raises(FileFormatError, match=r"bin\.yaml: not a text file"):
+        read_map_server(tmp_path / "bin.yaml")
+
+
+# --- batch manifests and TOML configs --------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("cell", "message"),
+    [
+        ("~no-such-user-scanreg/x.toml", "no home directory for user 'no-such-user-scanreg'"),
+        ("a\0b.toml", "a path cannot hold a NUL byte"),
+        ("x" * 5000, "no such file or directory"),
+    ],
+)
+def test_a_manifest_cell_that_is_no_usable_path_is_a_manifest_error(
+    tmp_path: Path, cell: str, message: str
+) -> None:
+    """Issue 40: ``~someone/...`` of an unknown user raised a bare ``RuntimeError: Could not
+    determine home directory`` from ``expanduser``; a NUL byte or a name too long for the file
+    system are the same kind of cell. Each is a ManifestError (a ValueError) naming the
+    manifest, the row and the column."""
+    from scanreg.batch import ManifestError, read_manifest
+
+    manifest = tmp_path / "jobs.csv"
+    manifest.write_text(f'id,input,config\na,sim:street,"{cell}"\n')
+    with pytest.raises(ManifestError, match=rf"jobs\.csv: row 1 \(id 'a'\): config .*{message}"):
+        read_manifest(manifest, "odometry")
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("voxel_size = " + "9" * 400 + "\n", r"voxel_size: expected float, .*too large"),
+        ("max_iterations = " + "9" * 30 + "\n", r"max_iterations: .*beyond the 64-bit"),
+        ("voxel_size = " + "[" * 5000 + "]" * 5000 + "\n", r"nested too deeply"),
+    ],
+)
+def test_a_config_past_what_toml_holds_is_a_config_error(
+    tmp_path: Path, text: str, message: str
+) -> None:
+    """Found writing the config targets of the campaign: Python's TOML parser reads integers
+    of any size (TOML's are 64-bit) and recurses per nested array — an OverflowError and a
+    RecursionError escaped ``load_config``. ``/dev/zero`` as a config was read forever."""
+    from scanreg.batch.jobs import register_options
+    from scanreg.config import MAX_CONFIG_BYTES, ConfigError, load_config
+    from scanreg.pipeline import OdometryConfig
+
+    path = tmp_path / "c.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=rf"c\.toml: .*{message}"):
+        load_config(OdometryConfig, path)
+    if "voxel_size = 9" in text:  # batch register's config: the same integer, named
+        with pytest.raises(ValueError, match=r"c\.toml: voxel_size is too large"):
+            register_options(str(path))
+    with pytest.raises(ConfigError, match=rf"larger than {MAX_CONFIG_BYTES} bytes"):
+        load_config(OdometryConfig, "/dev/zero")
+
+
+def test_a_pgm_header_of_many_blank_lines_is_refused_at_once(tmp_path: Path) -> None:
+    """Found by the map_server target: a PGM header whose comment was followed by a run of
+    newlines and no number made the header pattern backtrack exponentially (seconds for a
+    261-byte file, a libFuzzer timeout)."""
+    import time
+
+    from scanreg.io.occupancy import read_pgm
+
+    path = tmp_path / "m.pgm"
+    path.write_bytes(b"P5\n# CREATOR\n" + b"\n" * 25 + b"x")  # the old pattern: ~4 s
+    start = time.perf_counter()
+    with pytest.raises(FileFormatError, match=r"m\.pgm: not a binary PGM"):
+        read_pgm(path)
+    assert time.perf_counter() - start < 0.5
+    path.write_bytes(b"P5\n# CREATOR\n\n\n 2\n\n# c\n1 255\n\x00\xfe")  # comments, blank lines
+    assert read_pgm(path).tolist() == [[0, 254]]
+
+
+def test_a_map_yaml_value_with_a_long_run_of_blanks_is_read_at_once(tmp_path: Path) -> None:
+    """Found reading the map_server reader after the fuzz finding above: the YAML line
+    pattern's lazy value ``(.+?)[ \\t]*$`` went quadratic on blanks inside a value (3.5 s for
+    16 000 spaces; the 1 MB cap would have allowed hours)."""
+    import time
+
+    from scanreg.io.occupancy import read_map_server
+
+    path = _map(tmp_path, _MAP_YAML.replace("image: map.pgm", "image: map" + " " * 30_000 + "x"))
+    start = time.perf_counter()
+    with pytest.raises(FileFormatError, match=r"map\.yaml: image: .* is not a readable file"):
+        read_map_server(path)
+    assert time.perf_counter() - start < 0.5
+    path.write_text(_MAP_YAML.replace("negate: 0", "negate:   \t  0   \t"))
+    assert len(read_map_server(path)[0]) == 6  # blanks around a value are not part of it
+
+
+#: A finding of the manifest_parquet target (an odometry manifest of our writer with 12
+#: bytes changed; zlib + base64): a damaged size-statistics histogram in the footer. pyarrow's
+#: ``RowGroupMetaData.column(i)`` throws a C++ exception there that it does not convert:
+#: ``std::terminate``, SIGABRT.
+_PARQUET_HISTOGRAM_FINDING = """
+eNqNk89u0zAcxx03WGUqUjZwlEwRyiGLEOratdBplFbIqWBMFNFWGhMcJlVt1lU0SUnSdeKwp9iBA0+xE0eegBMn
+noDH4Gd7bTe1SPzk2M7vz+f7i5O0WKdEVbpHq01KKNpAyHIIQihJY99PlbWn6SQM/ZEKrtMo8CmiD6iRh1QNLmLt
+okdEZhgqj6+vQ+Kag2EmCs44CNhnNJ6xn59vcvYwqEp+/iR+gaT5fr9eun/vYUviININ/KT+hKMuiit08UXR2LyF
+EgWVfCJQqzqxqdOEhXei1bIQifoRTMGINwASG1S/JZGFeCGFuIEE7q4tcUqGUNVsVpBBkt6pH3QpQTTnYAMP+1uo
+aXFabgsbd4bheJLe9JBeFJ4MB9cunZiWWXORRXNmBRHN5ACKdaJfKfp3xT12s6tO2Mzzh6CYt6zBUtNtk5gu4u/t
+JkzKC94lhuH+xO4P5f/OblnjeKXG9QNJEUX/priXqvsrs3x6y0BtDtR/qzpxs/ofFZmWkWOdzrujqjxZ4ysuctsb
+MLA2k/aGsSnzBuwVYwPWECHmeYy95ZsGYwfCsViZDHnJbCdRjSlHi9qOcH5Y5AvbF87ys8nHYBRC/ieeX27BNOWI
+w/Y8ad4a1PPt/mjSe/1+h99/4fnnjDd7wCW8qWzh5aLoX/oNPnWP2oLviZKZ1evIsMfd+PPET7d74/F2N46jx/aZ
+HyfDKLTLu4WdQsmswWcmB7qCb7cFf/tfpkfNOw==
+"""
+
+
+def _manifest_in_a_child(path: Path) -> tuple[int, str]:
+    """``read_manifest(path, "odometry")`` in a child interpreter capped at 3 GB of address
+    space (an allocation bug fails there instead of swelling on a shared machine): its exit
+    code and what it printed (the job ids, or the refusal)."""
+    import os
+    import resource
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from scanreg.batch import ManifestError, read_manifest\n"
+        "try:\n"
+        "    print([job.id for job in read_manifest(sys.argv[1], 'odometry')])\n"
+        "except ManifestError as exc:\n"
+        "    print('ManifestError:', exc)\n"
+    )
+
+    def cap() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30))
+
+    python = str(Path(__file__).resolve().parent.parent / "python")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([python, *sys.path])}
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120,
+        env=env, preexec_fn=cap, check=False,
+    )  # fmt: skip
+    return done.returncode, done.stdout + done.stderr[-2000:]
+
+
+def test_a_damaged_parquet_manifest_is_refused_by_name_in_a_process_that_survives(
+    tmp_path: Path,
+) -> None:
+    """Found by the manifest_parquet target: (1) a 1 kB manifest whose row group claimed
+    82 797 590 141 rows made ``read_table`` reserve 275 GB by that count (a timeout under
+    libFuzzer; read outside it, the kernel killed the process); (2) a damaged size-statistics
+    histogram aborted the interpreter through pyarrow's footer metadata accessor (a first
+    version of the fix read the counts there). The manifest is now read batch by batch: the
+    claim costs nothing, the histogram is an OSError named as a ManifestError."""
+    import base64
+    import zlib
+
+    pa = pytest.importorskip("pyarrow")
+    pq = pytest.importorskip("pyarrow.parquet")
+    from scanreg.batch import ManifestError, read_manifest
+    from scanreg.batch.manifest import MAX_PARQUET_ROWS
+
+    good = tmp_path / "good.parquet"
+    table = pa.table({"id": ["a", "b", "c"], "input": ["sim:street"] * 3, "config": [None] * 3})
+    pq.write_table(table, good)
+    assert [job.id for job in read_manifest(good, "odometry")] == ["a", "b", "c"]  # nulls too
+    # (1) the row group's num_rows (the last i64 field holding 3 in the footer, zigzag varint
+    # 0x06) re-encoded as 82 797 590 141, the footer's length adjusted
+    raw = good.read_bytes()
+    length = int.from_bytes(raw[-8:-4], "little")
+    at = raw.rindex(b"\x16\x06", len(raw) - 8 - length)
+    rows, varint = 82_797_590_141 * 2, bytearray()  # zigzag of a positive count
+    while rows >= 0x80:
+        varint.append(rows & 0x7F | 0x80)
+        rows >>= 7
+    varint.append(rows)
+    claim = raw[: at + 1] + bytes(varint) + raw[at + 2 : -8]
+    claim += (length + len(varint) - 1).to_bytes(4, "little") + b"PAR1"
+    (tmp_path / "claim.parquet").write_bytes(claim)
+    assert pq.ParquetFile(tmp_path / "claim.parquet").metadata.row_group(0).num_rows == (
+        82_797_590_141
+    )
+    status, out = _manifest_in_a_child(tmp_path / "claim.parquet")
+    assert (status, out.strip()) == (0, "['a', 'b', 'c']"), out
+    # (2) the histogram finding
+    finding = tmp_path / "histogram.parquet"
+    finding.write_bytes(zlib.decompress(base64.b64decode(_PARQUET_HISTOGRAM_FINDING)))
+    status, out = _manifest_in_a_child(finding)
+    assert status == 0, f"the reading process died (exit {status}): {out}"
+    assert "ManifestError:" in out and "histogram.parquet: cannot read the manifest:" in out
+    # and a manifest of more rows than any batch runs
+    many = tmp_path / "many.parquet"
+    ids = [f"j{k}" for k in range(MAX_PARQUET_ROWS + 1)]
+    pq.write_table(pa.table({"id": ids, "input": ["sim:street"] * len(ids)}), many)
+    with pytest.raises(ManifestError, match=r"many\.parquet: more than 1000000 rows"):
+        read_manifest(many, "odometry")

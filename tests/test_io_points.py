@@ -223,3 +223,54 @@ def test_real_pcd_survives_binary_compressed(tmp_path: Path) -> None:
     sio.write_pcd(tmp_path / "c.pcd", cloud, data="binary_compressed")
     assert (tmp_path / "c.pcd").stat().st_size < 0.9 * 124668 * 32
     _assert_same(cloud, sio.read_points(tmp_path / "c.pcd"), exact=True)
+
+
+@pytest.mark.parametrize("name", ["a.pcd", "a.ply", "a.las"])
+@pytest.mark.parametrize("kind", ["float64", "float32", "list", "int32"])
+def test_write_points_takes_an_n_by_3_array(tmp_path: Path, name: str, kind: str) -> None:
+    """Issue 40: ``write_points(path, array)`` raised TypeError; the points alone now round-trip
+    through PCD, PLY and LAS as a cloud of them would (values on LAS's millimetre grid, and
+    exact in float32 for PCD/PLY's default precision)."""
+    if name.endswith(".las"):
+        pytest.importorskip("laspy")
+    rng = np.random.default_rng(4)
+    grid = np.round(rng.uniform(-50, 50, (200, 3)), 3).astype(np.float32).astype(np.float64)
+    given: object = {
+        "float64": grid,
+        "float32": grid.astype(np.float32),
+        "list": grid.tolist(),
+        "int32": np.rint(grid).astype(np.int32),
+    }[kind]
+    expected = np.rint(grid) if kind == "int32" else grid
+    sio.write_points(tmp_path / name, given)
+    back = sio.read_points(tmp_path / name)
+    assert back.ring is None and back.time is None
+    if name.endswith(".las"):  # LAS always has an intensity field: zero when not given
+        assert back.intensity is not None and not back.intensity.any()
+        np.testing.assert_allclose(back.points, expected, atol=5e-4, rtol=0)
+    else:
+        np.testing.assert_array_equal(back.points, expected)
+    # the same file as from a PointCloud of those points
+    sio.write_points(tmp_path / f"b{name[1:]}", PointCloud(points=np.asarray(given)))
+    assert (tmp_path / name).read_bytes() == (tmp_path / f"b{name[1:]}").read_bytes()
+
+
+def test_write_points_takes_2d_points_where_the_format_holds_them(tmp_path: Path) -> None:
+    xy = np.array([[0.5, 1.0], [2.0, -3.25]])
+    for name in ("a.csv", "a.xyz", "a.npy", "a.npz"):
+        sio.write_points(tmp_path / name, xy)
+        np.testing.assert_array_equal(sio.read_points(tmp_path / name).points, xy)
+    for name, fmt in (("a.pcd", "PCD"), ("a.ply", "PLY"), ("a.bin", "KITTI .bin")):
+        with pytest.raises(ValueError, match=rf"cloud: {fmt} stores 3D points, got shape \(2, 2\)"):
+            sio.write_points(tmp_path / name, xy)
+        assert not (tmp_path / name).exists()
+    bad: list[tuple[object, type[Exception], str]] = [
+        (np.zeros((4, 4)), ValueError, r"cloud: expected shape \(N, 2\) or \(N, 3\), got \(4, 4\)"),
+        (np.zeros(3), ValueError, r"cloud: expected shape"),
+        ("points.txt", TypeError, r"cloud: expected a scanreg.io.PointCloud or an \(N, 3\) array"),
+        (None, TypeError, r"cloud: expected a scanreg.io.PointCloud"),
+        ([["a", "b", "c"]], TypeError, r"cloud"),
+    ]
+    for value, error, message in bad:
+        with pytest.raises(error, match=message):
+            sio.write_points(tmp_path / "c.pcd", value)

@@ -6,6 +6,10 @@ from __future__ import annotations
 
 import json
 import os
+import re
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +30,8 @@ pytest.importorskip("laspy", reason="laspy is not installed (pip install 'scanre
 pytest.importorskip("lazrs", reason="lazrs is not installed (pip install 'scanreg[las]')")
 
 UTM = np.array([500_000.0, 5_000_000.0, 250.0])
+#: The package this test file belongs to (for a child interpreter).
+_PYTHON = Path(__file__).resolve().parent.parent / "python"
 WKT = 'PROJCS["WGS 84 / UTM zone 32N",GEOGCS["WGS 84"],UNIT["metre",1]]'
 
 
@@ -229,3 +235,92 @@ def test_corrupted_files_fail_cleanly_and_fast(tmp_path: Path, suffix: str) -> N
             assert str(exc).startswith(str(bad))
             outcomes["refused"] += 1
     assert outcomes["refused"] > 20 and outcomes["read"] + outcomes["refused"] == 90
+
+
+def _chunk_table_at(raw: bytes) -> int:
+    """Where a LAZ file's chunk table starts (the int64 after the offset to point data)."""
+    offset = int.from_bytes(raw[96:100], "little")
+    return int.from_bytes(raw[offset : offset + 8], "little", signed=True)
+
+
+def _read_in_a_child(path: Path) -> subprocess.CompletedProcess[str]:
+    """``read_points(path)`` in a fresh interpreter that prints what it raised: an abort
+    inside lazrs (SIGABRT) kills only the child, and the test sees the signal."""
+    code = (
+        "import sys\n"
+        "from scanreg.io import FileFormatError, read_points\n"
+        "try:\n"
+        "    read_points(sys.argv[1])\n"
+        "    print('read')\n"
+        "except FileFormatError as exc:\n"
+        "    print('FileFormatError:', exc)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(_PYTHON), *sys.path])}
+    return subprocess.run(
+        [sys.executable, "-c", code, str(path)],
+        capture_output=True, text=True, timeout=120, env=env, check=False,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "damage",
+    ["chunk count", "chunk table offset", "truncated", "chunk bytes"],
+)
+def test_a_damaged_laz_chunk_table_is_a_named_error_in_a_process_that_survives(
+    tmp_path: Path, damage: str
+) -> None:
+    """Issue 40: a chunk table claiming 2³¹ chunks made lazrs abort the interpreter
+    ("memory allocation of 34359738352 bytes failed", SIGABRT inside lazrs: no exception,
+    every thread of a batch worker gone). The chunk table is now checked against the file
+    first; the child process exits normally with a FileFormatError naming the field."""
+    rng = np.random.default_rng(3)
+    good = tmp_path / "good.laz"
+    write_points(good, PointCloud(points=rng.normal(size=(60_000, 3)) * 10))
+    raw = bytearray(good.read_bytes())
+    table = _chunk_table_at(bytes(raw))
+    assert 0 < table < len(raw) - 8
+    if damage == "chunk count":
+        raw[table + 4 : table + 8] = (2**31 - 1).to_bytes(4, "little")
+        expected = r"corrupt LAZ chunk table: number of chunks 2147483647"
+    elif damage == "chunk table offset":
+        offset = int.from_bytes(raw[96:100], "little")
+        raw[offset : offset + 8] = (len(raw) + 10**9).to_bytes(8, "little")
+        expected = r"LAZ chunk table offset \d+ is past the end of the file"
+    elif damage == "truncated":
+        raw = raw[: len(raw) // 2]
+        expected = r"LAZ chunk table offset \d+ is past the end of the file"
+    else:  # the table's compressed entries overwritten: byte counts beyond the points
+        raw[table + 8 :] = b"\xff" * (len(raw) - table - 8)
+        expected = r"corrupt LAZ chunk table"
+    bad = tmp_path / "bad.laz"
+    bad.write_bytes(bytes(raw))
+    done = _read_in_a_child(bad)
+    assert done.returncode == 0, (
+        f"the reading process died (exit {done.returncode}"
+        f"{', ' + signal.Signals(-done.returncode).name if done.returncode < 0 else ''}): "
+        f"{done.stderr[-2000:]}"
+    )
+    assert re.search(rf"FileFormatError: .*bad\.laz: {expected}", done.stdout), done.stdout
+    if damage == "chunk count":  # the checks pass a sound file
+        assert _read_in_a_child(good).stdout.strip() == "read"
+
+
+def test_a_laz_layer_larger_than_its_chunk_is_refused_at_once(tmp_path: Path) -> None:
+    """Found by the laz target (a 1.5 kB file, 6-15 s per read): a layered chunk (point
+    formats 6-10) lists one byte count per layer after its raw first point, and lazrs
+    zero-fills a buffer of each count before reading it — 27 GB claimed, seconds of memset,
+    and an abort once the memory is not there. Each layer must fit in its chunk."""
+    import time
+
+    path = tmp_path / "l.laz"
+    write_points(path, PointCloud(points=np.random.default_rng(5).normal(size=(500, 3))))
+    raw = bytearray(path.read_bytes())
+    first_chunk = int.from_bytes(raw[96:100], "little") + 8
+    record = int.from_bytes(raw[105:107], "little")
+    sizes = first_chunk + record + 4  # after the raw first point and the chunk's point count
+    raw[sizes + 4 : sizes + 8] = (2**32 - 1).to_bytes(4, "little")  # the z layer: 4 GB
+    path.write_bytes(bytes(raw))
+    start = time.perf_counter()
+    with pytest.raises(FileFormatError, match=r"l\.laz: corrupt LAZ chunk 0: its layers claim"):
+        read_points(path)
+    assert time.perf_counter() - start < 1.0

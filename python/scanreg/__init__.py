@@ -9,7 +9,7 @@ from types import ModuleType
 from typing import TYPE_CHECKING
 
 from . import preprocess, simulate
-from ._core import __version__
+from ._version import __version__
 from .budget import MemoryBudgetExceeded, memory_budget, set_memory_budget
 from .correlative import (
     CorrelativeGrid,

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ._progress import Progress
+from ._version import __version__
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_USAGE, EXIT_BAD_INPUT = 0, 1, 2, 3
 #: Ctrl-C (the shell's 128 + SIGINT).
@@ -108,6 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"scanreg {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="run the built-in demo on generated data")

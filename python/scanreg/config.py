@@ -31,6 +31,7 @@ import difflib
 import functools
 import json
 import math
+import os
 import sys
 import types
 from collections.abc import Mapping, Sequence
@@ -89,17 +90,29 @@ def merge_config(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str
     return out
 
 
-def read_config_file(path: str | Path) -> dict[str, Any]:
+#: Largest config file read: a config is a few kB; ``/dev/zero`` would be read forever.
+MAX_CONFIG_BYTES = 1 << 24
+#: TOML integers are 64-bit (the TOML spec); Python's parser reads any size.
+_INT64 = (-(2**63), 2**63 - 1)
+
+
+def read_config_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The tables of a TOML file as a dict (errors name the file and the line)."""
     p = Path(path)
+    with p.open("rb") as fh:
+        raw = fh.read(MAX_CONFIG_BYTES + 1)
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{p}: larger than {MAX_CONFIG_BYTES} bytes: not a config file")
     try:
-        text = p.read_text(encoding="utf-8")
+        text = raw.decode("utf-8")
     except UnicodeDecodeError:
         raise ConfigError(f"{p}: not a text file (invalid UTF-8)") from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    except RecursionError:  # tomllib recurses per nested array or inline table
+        raise ConfigError(f"{p}: arrays or tables nested too deeply") from None
 
 
 def _config_fields(cls: type) -> Mapping[str, Any]:
@@ -169,7 +182,8 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
     """``value`` checked against annotation ``tp`` (ints widened to float, lists to tuples)."""
 
     def fail(extra: str = "") -> ConfigError:
-        got = f"{type(value).__name__} {value!r}"
+        shown = repr(value) if not isinstance(value, int) or abs(value) < 10**30 else "<huge>"
+        got = f"{type(value).__name__} {shown}"
         return ConfigError(f"{where}: {key}: expected {_type_name(tp)}, got {got}{extra}")
 
     kind, *details = _shape(tp)
@@ -224,11 +238,16 @@ def _coerce(value: Any, tp: Any, key: str, where: str) -> Any:
         raise fail()
     if kind == "int":
         if isinstance(value, int) and not isinstance(value, bool):
+            if not _INT64[0] <= value <= _INT64[1]:
+                raise fail(" (beyond the 64-bit integers TOML has)")
             return value
         raise fail()
     if kind == "float":
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
+            try:
+                return float(value)
+            except OverflowError:  # an integer of 309+ digits
+                raise fail(" (too large for a float)") from None
         raise fail()
     if kind == "str":
         if isinstance(value, str):
@@ -295,7 +314,7 @@ def config_from_dict(cls: type[T], data: Mapping[str, Any], *, where: str = "con
 
 def load_config(
     cls: type[T],
-    source: str | Path | Mapping[str, Any] | None = None,
+    source: str | os.PathLike[str] | Mapping[str, Any] | None = None,
     *,
     presets: Sequence[str] = (),
     overrides: Mapping[str, Any] | None = None,
@@ -324,8 +343,8 @@ def load_config(
     for name in presets:
         merged = merge_config(merged, preset(name, preset_table))
     where = "config"
-    if isinstance(source, (str, Path)):
-        where = str(source)
+    if isinstance(source, (str, os.PathLike)):
+        where = os.fspath(source)
         table = read_config_file(source)  # a fresh dict: no copy needed without presets
         merged = merge_config(merged, table) if merged else table
     elif isinstance(source, Mapping):

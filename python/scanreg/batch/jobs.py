@@ -118,7 +118,10 @@ def register_options(config: str | None) -> dict[str, Any]:
         kind = REGISTER_OPTIONS[key]
         if isinstance(value, bool) or not isinstance(value, (kind, int) if kind is float else kind):
             raise ValueError(f"config {config}: {key} must be {kind.__name__}, got {value!r}")
-        out[key] = kind(value)
+        try:
+            out[key] = kind(value)
+        except OverflowError:  # an integer of 309+ digits for a float option
+            raise ValueError(f"config {config}: {key} is too large, got {value!r}") from None
     return out
 
 

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ._common import FileFormatError, PathLike, PointCloud
+from ._common import CloudLike, FileFormatError, PathLike, PointCloud, as_cloud
 from .arrays import (
     read_kitti_bin,
     read_npy,
@@ -146,8 +146,13 @@ def read_points(path: PathLike) -> PointCloud:
     return cloud
 
 
-def write_points(path: PathLike, cloud: PointCloud, **options: Any) -> None:
-    """Write a point cloud, choosing the writer from the extension (see :data:`WRITERS`)."""
+def write_points(path: PathLike, cloud: CloudLike, **options: Any) -> None:
+    """Write a point cloud, choosing the writer from the extension (see :data:`WRITERS`).
+
+    ``cloud`` is a :class:`PointCloud` or the points alone: an ``(N, 3)`` array-like (any
+    real dtype, nested lists). ``(N, 2)`` points go to the formats that hold 2D (``.csv``,
+    ``.xyz``, ``.txt``, ``.npy``, ``.npz``); the 3D formats refuse them by name.
+    """
     writer = _lookup(WRITERS, Path(path).suffix.lower(), "point-cloud writer", path)
     writer(path, cloud, **options)
 
@@ -205,6 +210,7 @@ __all__ = [
     "SequenceFrame",
     "SimulatedSequence",
     "Trajectory",
+    "as_cloud",
     "describe_sequence",
     "g2o_information",
     "lidar_to_camera_poses",

@@ -10,9 +10,9 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from .._validate import FloatArray
+from .._validate import FloatArray, as_points
 
 PathLike = str | os.PathLike[str]
 
@@ -120,9 +120,16 @@ class PointCloud:
     fields: Mapping[str, FloatArray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        pts = self.points
+        pts: Any = self.points
         if not isinstance(pts, np.ndarray):
-            raise TypeError(f"points: expected a numpy.ndarray, got {type(pts).__name__}")
+            if pts is None or isinstance(pts, (str, bytes, Mapping)):
+                raise TypeError(f"points: expected an (N, 3) array, got {type(pts).__name__}")
+            try:  # nested lists, array-likes
+                pts = np.asarray(pts)
+            except (TypeError, ValueError):
+                raise TypeError(
+                    f"points: expected an (N, 3) array, got {type(self.points).__name__}"
+                ) from None
         if pts.ndim != 2 or pts.shape[1] not in (2, 3):
             raise ValueError(f"points: expected shape (N, 3) or (N, 2), got {pts.shape}")
         if pts.dtype.kind not in "fiu":
@@ -231,9 +238,31 @@ def cloud_from_columns(
     )
 
 
+#: What a writer takes: a :class:`PointCloud`, or the points alone as an ``(N, 3)`` or
+#: ``(N, 2)`` array-like (numpy array of any real dtype, nested lists).
+CloudLike = PointCloud | ArrayLike
+
+
+def as_cloud(cloud: Any, name: str = "cloud") -> PointCloud:
+    """``cloud`` as a :class:`PointCloud`: itself, or one made of an ``(N, 3)`` / ``(N, 2)``
+    array-like of points (NaN kept: a writer that cannot store it says so)."""
+    if isinstance(cloud, PointCloud):
+        return cloud
+    if cloud is None or isinstance(cloud, (str, bytes, os.PathLike, Mapping)):
+        raise TypeError(
+            f"{name}: expected a scanreg.io.PointCloud or an (N, 3) array of points, "
+            f"got {type(cloud).__name__}"
+        )
+    return PointCloud(points=as_points(cloud, name, min_points=0, finite=False))
+
+
 def check_writable_cloud(cloud: Any, fmt: str, *, dim3: bool = True) -> PointCloud:
-    if not isinstance(cloud, PointCloud):
-        raise TypeError(f"cloud: expected a scanreg.io.PointCloud, got {type(cloud).__name__}")
-    if dim3 and cloud.dim != 3:
-        raise ValueError(f"cloud: {fmt} stores 3D points, got shape {cloud.points.shape}")
-    return cloud
+    """The cloud a writer of ``fmt`` was given (:func:`as_cloud`), 3D unless ``dim3`` is
+    False."""
+    checked = as_cloud(cloud)
+    if dim3 and checked.dim != 3:
+        raise ValueError(
+            f"cloud: {fmt} stores 3D points, got shape {checked.points.shape} "
+            "(add a z column, e.g. np.c_[xy, np.zeros(len(xy))])"
+        )
+    return checked

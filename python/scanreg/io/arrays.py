@@ -10,7 +10,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ._common import FileFormatError, PathLike, PointCloud, check_writable_cloud, cloud_from_columns
+from ._common import (
+    CloudLike,
+    FileFormatError,
+    PathLike,
+    PointCloud,
+    check_writable_cloud,
+    cloud_from_columns,
+)
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -34,7 +41,7 @@ def read_kitti_bin(path: PathLike) -> PointCloud:
     return PointCloud(points=table[:, :3], intensity=table[:, 3])
 
 
-def write_kitti_bin(path: PathLike, cloud: PointCloud) -> None:
+def write_kitti_bin(path: PathLike, cloud: CloudLike) -> None:
     """Write ``x y z intensity`` as float32 records (intensity 0 when the cloud has none)."""
     cloud = check_writable_cloud(cloud, "KITTI .bin")
     table = np.zeros((len(cloud), 4), dtype="<f4")
@@ -109,7 +116,7 @@ def read_npz(path: PathLike) -> PointCloud:
     return cloud_from_columns(p, columns, min_dim=2)
 
 
-def write_npy(path: PathLike, cloud: PointCloud) -> None:
+def write_npy(path: PathLike, cloud: CloudLike) -> None:
     """Write the points as a float64 ``(N, D)`` array — or, if the cloud has per-point fields,
     as a structured array with fields x, y, [z], intensity, ring, time, … (float64; ring int64)."""
     cloud = check_writable_cloud(cloud, "npy", dim3=False)
@@ -129,7 +136,7 @@ def write_npy(path: PathLike, cloud: PointCloud) -> None:
     np.save(path, recs, allow_pickle=False)
 
 
-def write_npz(path: PathLike, cloud: PointCloud) -> None:
+def write_npz(path: PathLike, cloud: CloudLike) -> None:
     """Write ``points`` and every per-point field as arrays of an uncompressed ``.npz``."""
     cloud = check_writable_cloud(cloud, "npz", dim3=False)
     arrays: dict[str, Any] = {"points": cloud.points, **cloud.named_fields()}
@@ -210,11 +217,11 @@ def _write_text(path: PathLike, cloud: PointCloud, sep: str, header_prefix: str)
     Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
-def write_csv(path: PathLike, cloud: PointCloud) -> None:
+def write_csv(path: PathLike, cloud: CloudLike) -> None:
     """Write a header line ``x,y,z,<fields>`` and one comma-separated line per point."""
     _write_text(path, check_writable_cloud(cloud, "CSV", dim3=False), ",", "")
 
 
-def write_xyz(path: PathLike, cloud: PointCloud) -> None:
+def write_xyz(path: PathLike, cloud: CloudLike) -> None:
     """Write a comment header ``# x y z <fields>`` and one space-separated line per point."""
     _write_text(path, check_writable_cloud(cloud, "XYZ", dim3=False), " ", "# ")

@@ -32,7 +32,6 @@ folder, renamed on success: a failure never leaves a partial file.
 from __future__ import annotations
 
 import os
-import struct
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -43,7 +42,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validate import FloatArray
-from ._common import FileFormatError, PathLike, PointCloud, check_writable_cloud
+from ._common import CloudLike, FileFormatError, PathLike, PointCloud, check_writable_cloud
+from ._las_checks import COMPRESSION_BITS, POINT_FORMAT_BYTE, check_las_file
 
 #: Standard integer fields taken from ``PointCloud.fields`` → (their LAS range).
 STANDARD_FIELDS = {
@@ -98,19 +98,13 @@ class LasHeaderInfo:
     dimensions: tuple[str, ...]
 
 
-#: Byte of the public header block that holds the point data record format (LAS 1.0-1.4).
-_POINT_FORMAT_BYTE = 104
-#: Bits 6 and 7 of that byte flag LAZ compression (laszip's convention).
-_COMPRESSION_BITS = 0xC0
-
-
 def _open_error(path: Path, exc: Exception) -> FileFormatError:
     """The reader's error, named: an unknown point format is read from the header itself
     (laspy's own message is the bare number)."""
     with path.open("rb") as fh:
-        head = fh.read(_POINT_FORMAT_BYTE + 1)
-    if head[:4] == b"LASF" and len(head) > _POINT_FORMAT_BYTE:
-        fmt = head[_POINT_FORMAT_BYTE] & ~_COMPRESSION_BITS & 0xFF
+        head = fh.read(POINT_FORMAT_BYTE + 1)
+    if head[:4] == b"LASF" and len(head) > POINT_FORMAT_BYTE:
+        fmt = head[POINT_FORMAT_BYTE] & ~COMPRESSION_BITS & 0xFF
         if fmt > 10:
             return FileFormatError(
                 path, f"unknown LAS point format {fmt} (LAS 1.4 defines formats 0-10)"
@@ -118,6 +112,15 @@ def _open_error(path: Path, exc: Exception) -> FileFormatError:
     elif head[:4] != b"LASF":
         return FileFormatError(path, "not a LAS/LAZ file (no 'LASF' signature)")
     return FileFormatError(path, f"cannot read as LAS/LAZ: {type(exc).__name__}: {exc}")
+
+
+def _panic_error(path: Path, exc: BaseException) -> BaseException:
+    """A Rust panic inside lazrs arrives as pyo3's ``PanicException``, a ``BaseException``
+    (not an ``Exception``): named like any other refusal; anything else (KeyboardInterrupt)
+    passes through."""
+    if type(exc).__name__ != "PanicException":
+        return exc
+    return FileFormatError(path, f"cannot read as LAS/LAZ: lazrs panicked: {exc}")
 
 
 def _check_exists(path: PathLike) -> Path:
@@ -128,56 +131,8 @@ def _check_exists(path: PathLike) -> Path:
         raise FileNotFoundError(f"{p}: no such file")
     if p.stat().st_size == 0:
         raise FileFormatError(p, "empty file")
-    _check_header(p)
+    check_las_file(p)
     return p
-
-
-#: Smallest public header block (LAS 1.0-1.2) and its LAS 1.4 size.
-_MIN_HEADER, _HEADER_14 = 227, 375
-#: Smallest variable-length record (its header alone).
-_VLR_HEADER = 54
-#: A LAZ file larger than this many times its compressed point data is not believed.
-_MAX_LAZ_RATIO = 200
-
-
-def _check_header(path: Path) -> None:
-    """The header's counts against the file's size, before laspy trusts them: a corrupt VLR
-    count made it loop for minutes, and a corrupt point count would allocate terabytes."""
-    size = path.stat().st_size
-    with path.open("rb") as fh:
-        head = fh.read(_HEADER_14)
-    if head[:4] != b"LASF":
-        raise FileFormatError(path, "not a LAS/LAZ file (no 'LASF' signature)")
-    if len(head) < _MIN_HEADER:
-        raise FileFormatError(path, f"truncated header ({len(head)} of {_MIN_HEADER} bytes)")
-    header_size, offset, n_vlrs = struct.unpack_from("<HII", head, 94)
-    fmt_byte, record_length, legacy_count = struct.unpack_from("<BHI", head, 104)
-    fmt = fmt_byte & ~_COMPRESSION_BITS & 0xFF
-    if fmt > 10:
-        raise FileFormatError(
-            path, f"unknown LAS point format {fmt} (LAS 1.4 defines formats 0-10)"
-        )
-    count = legacy_count
-    if head[25] >= 4 and header_size >= _HEADER_14 and len(head) >= _HEADER_14:
-        count = max(count, struct.unpack_from("<Q", head, 247)[0])
-    if not _MIN_HEADER <= header_size <= offset <= size:
-        raise FileFormatError(
-            path, f"corrupt header: size {header_size}, point data at {offset}, file {size} bytes"
-        )
-    if n_vlrs * _VLR_HEADER > offset - header_size:
-        raise FileFormatError(path, f"corrupt header: {n_vlrs} VLRs do not fit before the points")
-    data = size - offset
-    if fmt_byte & _COMPRESSION_BITS:
-        if count * record_length > _MAX_LAZ_RATIO * data + (1 << 20):
-            raise FileFormatError(
-                path, f"corrupt header: {count} points cannot be in {data} compressed bytes"
-            )
-    elif count * record_length > data:
-        raise FileFormatError(
-            path,
-            f"truncated: {count} points of {record_length} bytes need {count * record_length}"
-            f" bytes, the file has {data} after the header",
-        )
 
 
 def _wkt(header: Any) -> str | None:
@@ -210,6 +165,8 @@ def read_las_header(path: PathLike) -> LasHeaderInfo:
             )
     except Exception as exc:  # laspy raises its own, struct, value and lazrs errors
         raise _open_error(p, exc) from None
+    except BaseException as exc:
+        raise _panic_error(p, exc) from None
 
 
 def read_las(path: PathLike) -> PointCloud:
@@ -220,6 +177,20 @@ def read_las(path: PathLike) -> PointCloud:
         las = laspy.read(p)
     except Exception as exc:  # laspy raises its own, struct, value and lazrs errors
         raise _open_error(p, exc) from None
+    except BaseException as exc:
+        raise _panic_error(p, exc) from None
+    # A float field of a damaged file may hold signalling NaNs: NaN either way, read as NaN
+    # (numpy warns "invalid value" on their casts and reductions; found by fuzz/).
+    try:
+        with np.errstate(invalid="ignore"):
+            return _cloud_of(p, las)
+    except FileFormatError:
+        raise
+    except (ValueError, KeyError, IndexError) as exc:  # laspy's, on a damaged extra-bytes VLR
+        raise FileFormatError(p, f"cannot read as LAS/LAZ: {type(exc).__name__}: {exc}") from None
+
+
+def _cloud_of(p: Path, las: Any) -> PointCloud:
     dims = set(las.point_format.dimension_names)
     extra = list(las.point_format.extra_dimension_names)
     points = np.column_stack(
@@ -267,7 +238,7 @@ def _integers(values: Any, name: str, lo: int, hi: int) -> Any:
 
 def write_las(
     path: PathLike,
-    cloud: PointCloud,
+    cloud: CloudLike,
     *,
     scale: float | Sequence[float] = DEFAULT_SCALE,
     offset: Sequence[float] | None = None,
@@ -401,7 +372,7 @@ def _atomic_write(path: Path, write: Any) -> None:
         raise
 
 
-def write_laz(path: PathLike, cloud: PointCloud, **options: Any) -> None:
+def write_laz(path: PathLike, cloud: CloudLike, **options: Any) -> None:
     """:func:`write_las` with LAZ compression (the registry's ``.laz`` writer)."""
     write_las(path, cloud, **{"compress": True, **options})
 

@@ -13,6 +13,8 @@ top: +y up; occupied 0, free 254, unknown 205) and ``NAME.yaml`` (``image``, ``r
 
 from __future__ import annotations
 
+import math
+import re
 import struct
 import zlib
 from collections.abc import Sequence
@@ -23,8 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validate import FloatArray, as_points
-from ..transform import SE2
-from ._common import PathLike
+from ..transform import SE2, as_pose
+from ._common import FileFormatError, PathLike
 
 #: Pixel values (ROS map_server, trinary, ``negate: 0``): p = (255 − v) / 255.
 OCCUPIED, FREE, UNKNOWN = 0, 254, 205
@@ -53,7 +55,7 @@ class OccupancyGrid:
 
 
 def occupancy_grid(
-    poses: Sequence[SE2],
+    poses: Sequence[SE2] | Sequence[FloatArray],
     scans: Sequence[FloatArray],
     *,
     resolution: float = 0.05,
@@ -68,9 +70,10 @@ def occupancy_grid(
         raise ValueError("scans: no scan to build a map from")
     if not resolution > 0:
         raise ValueError(f"resolution: must be > 0, got {resolution!r}")
+    se2 = [as_pose(p, f"poses[{i}]", 2) for i, p in enumerate(poses)]  # SE2 or 3x3 matrices
     world = [p.apply(as_points(s, f"scans[{i}]", dim=2, min_points=0)) for i, (p, s) in
-             enumerate(zip(poses, scans, strict=True))]  # fmt: skip
-    origins = np.array([p.translation for p in poses])
+             enumerate(zip(se2, scans, strict=True))]  # fmt: skip
+    origins = np.array([p.translation for p in se2])
     every = np.vstack([origins, *world])
     lo = every.min(axis=0) - padding
     hi = every.max(axis=0) + padding
@@ -154,15 +157,131 @@ def write_map(folder: PathLike, grid: OccupancyGrid, name: str = "map") -> dict[
     return {"pgm": pgm, "yaml": yaml, "png": png}
 
 
+#: Largest map.yaml read (a map_server YAML is a few lines: a bigger file is not one).
+MAX_YAML_BYTES = 1 << 20
+#: The PGM header: magic, width, height, maxval, each after whitespace or ``#`` comments.
+#: One whitespace byte per repetition: ``(?:\s+|…)+`` backtracked exponentially on a run of
+#: newlines that ended in no number (found by fuzz/: seconds for a 261-byte file).
+_GAP = rb"(?:\s|#[^\n]*\n)+"
+_NUMBER = rb"(\d{1,9})"
+_PGM_HEADER = re.compile(rb"P5" + _GAP + _NUMBER + _GAP + _NUMBER + _GAP + rb"(\d{1,5})\s")
+
+
+def _regular_file(path: Path, field: str, owner: Path) -> Path:
+    """``path`` when it is a regular file: a map may name any path, and ``/dev/zero`` or a
+    FIFO would be read forever."""
+    try:
+        regular = path.is_file()
+    except (OSError, ValueError):  # a NUL byte, a name too long
+        regular = False
+    if not regular:
+        raise FileFormatError(owner, f"{field}: {path} is not a readable file")
+    return path
+
+
 def read_pgm(path: PathLike) -> NDArray[np.uint8]:
-    """A binary (P5) 8-bit PGM as written by :func:`write_map` (row 0 at the top)."""
-    data = Path(path).read_bytes()
-    parts = data.split(maxsplit=4)
-    if len(parts) < 5 or parts[0] != b"P5" or parts[3] != b"255":
-        raise ValueError(f"path: {path} is not an 8-bit binary PGM")
-    w, h = int(parts[1]), int(parts[2])
-    pixels = np.frombuffer(parts[4][: w * h], dtype=np.uint8)
-    if pixels.size != w * h:
-        raise ValueError(f"path: {path} is truncated")
-    out: NDArray[np.uint8] = pixels.reshape(h, w).copy()
-    return out
+    """A binary (P5) 8-bit PGM as :func:`write_map` and ROS ``map_server`` write it (row 0
+    at the top; ``#`` comments allowed in the header). Width and height are checked against
+    the bytes the file holds before anything is allocated."""
+    p = Path(path)
+    _regular_file(p, "path", p)
+    size = p.stat().st_size
+    with p.open("rb") as fh:
+        head = fh.read(1024)
+        m = _PGM_HEADER.match(head)
+        if m is None:
+            raise FileFormatError(p, "not a binary PGM (P5: magic, width, height, maxval)")
+        width, height, maxval = (int(t) for t in m.groups())
+        if maxval != 255:
+            raise FileFormatError(p, f"maxval {maxval}: only 8-bit PGM (maxval 255) is read")
+        if width == 0 or height == 0:
+            raise FileFormatError(p, f"empty image ({width} x {height} pixels)")
+        if width * height > size - m.end():
+            raise FileFormatError(
+                p,
+                f"truncated: width {width} x height {height} needs {width * height} bytes, "
+                f"{size - m.end()} follow the header",
+            )
+        fh.seek(m.end())
+        body = fh.read(width * height)
+    if len(body) != width * height:  # the file shrank while being read
+        raise FileFormatError(p, f"truncated ({len(body)} of {width * height} pixel bytes)")
+    return np.frombuffer(body, dtype=np.uint8).reshape(height, width).copy()
+
+
+def _yaml_fields(path: Path) -> dict[str, str]:
+    """``key: value`` lines of a map_server YAML (the flat subset map_server writes)."""
+    _regular_file(path, "path", path)
+    with path.open("rb") as fh:
+        raw = fh.read(MAX_YAML_BYTES + 1)
+    if len(raw) > MAX_YAML_BYTES:
+        raise FileFormatError(path, f"larger than {MAX_YAML_BYTES} bytes: not a map_server YAML")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise FileFormatError(path, "not a text file (invalid UTF-8)") from None
+    # The value is stripped here, not by the pattern: a lazy ``(.+?)[ \t]*$`` went quadratic
+    # on a long run of blanks inside a value (3.5 s for 16 000 spaces, hours for 1 MB).
+    fields = {
+        m.group(1): m.group(2).strip()
+        for m in re.finditer(r"^[ \t]*(\w+)[ \t]*:(.*)$", text, flags=re.MULTILINE)
+    }
+    return {key: value for key, value in fields.items() if value}
+
+
+def _finite(path: Path, field: str, text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise FileFormatError(path, f"{field}: expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise FileFormatError(path, f"{field}: expected a finite number, got {text!r}")
+    return value
+
+
+def read_map_server(path: PathLike) -> tuple[FloatArray, float]:
+    """Occupied cells of a ROS ``map_server`` map (``map.yaml`` and the PGM image it names)
+    as ``(M, 2)`` points in the map frame (cell centres), and the resolution.
+
+    A cell is occupied when its occupancy ``p`` (``(255 − v)/255``, or ``v/255`` with
+    ``negate: 1``) exceeds ``occupied_thresh``. The origin's yaw rotates the grid about the
+    origin, as ``map_server`` defines it. Only binary PGM (``P5``) images are read. A field
+    that is missing or out of range raises :class:`FileFormatError` naming the file and the
+    field.
+    """
+    yaml_path = Path(path)
+    fields = _yaml_fields(yaml_path)
+    missing = [k for k in ("image", "resolution", "origin") if k not in fields]
+    if missing:
+        raise FileFormatError(yaml_path, f"lacks {', '.join(missing)} (not a map_server map)")
+    resolution = _finite(yaml_path, "resolution", fields["resolution"])
+    if resolution <= 0:
+        raise FileFormatError(yaml_path, f"resolution: must be > 0, got {resolution}")
+    parts = fields["origin"].strip("[]").split(",")
+    if len(parts) != 3:
+        raise FileFormatError(yaml_path, f"origin: expected [x, y, yaw], got {fields['origin']!r}")
+    origin = [_finite(yaml_path, "origin", v) for v in parts]
+    negate = fields.get("negate", "0").lower()
+    if negate not in ("0", "1", "true", "false"):
+        raise FileFormatError(yaml_path, f"negate: expected 0 or 1, got {negate!r}")
+    occupied = _finite(yaml_path, "occupied_thresh", fields.get("occupied_thresh", "0.65"))
+    free = _finite(yaml_path, "free_thresh", fields.get("free_thresh", "0.196"))
+    if not (0.0 <= occupied <= 1.0 and 0.0 <= free <= 1.0):
+        raise FileFormatError(
+            yaml_path, f"occupied_thresh {occupied}, free_thresh {free}: must be in [0, 1]"
+        )
+    name = fields["image"].strip("'\"")
+    image_path = _regular_file(yaml_path.parent / name, "image", yaml_path)
+    image = read_pgm(image_path)
+    height, width = image.shape
+    if not math.isfinite(resolution * (width + height) + abs(origin[0]) + abs(origin[1])):
+        raise FileFormatError(yaml_path, f"resolution: {resolution} m over {width} x {height} "
+                              "cells overflows the map's coordinates")  # fmt: skip
+    value = image.astype(np.float64) / 255.0
+    p = value if negate in ("1", "true") else 1.0 - value
+    rows, cols = np.nonzero(p > occupied)
+    # Row 0 of the image is the top: y grows upwards from the last row.
+    local = np.c_[(cols + 0.5) * resolution, (height - 1 - rows + 0.5) * resolution]
+    c, s = math.cos(origin[2]), math.sin(origin[2])
+    pts = local @ np.array([[c, s], [-s, c]]) + np.array(origin[:2])
+    return np.ascontiguousarray(pts), resolution

@@ -16,7 +16,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _core
-from ._common import FileFormatError, PathLike, PointCloud, check_writable_cloud, cloud_from_columns
+from ._common import (
+    CloudLike,
+    FileFormatError,
+    PathLike,
+    PointCloud,
+    check_writable_cloud,
+    cloud_from_columns,
+)
 
 #: A header longer than this is not a PCD header (stops runaway reads of binary garbage).
 MAX_HEADER_BYTES = 1 << 16
@@ -225,7 +232,7 @@ def _read_compressed(
 
 def write_pcd(
     path: PathLike,
-    cloud: PointCloud,
+    cloud: CloudLike,
     *,
     data: Literal["binary", "ascii", "binary_compressed"] = "binary",
     precision: Literal["float32", "float64"] = "float32",

@@ -13,7 +13,14 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from ._common import FileFormatError, PathLike, PointCloud, check_writable_cloud, cloud_from_columns
+from ._common import (
+    CloudLike,
+    FileFormatError,
+    PathLike,
+    PointCloud,
+    check_writable_cloud,
+    cloud_from_columns,
+)
 
 MAX_HEADER_BYTES = 1 << 16
 _TYPES = {
@@ -201,7 +208,7 @@ def _read_ascii(path: Path, body: bytes, elements: list[_Element]) -> dict[str, 
 
 def write_ply(
     path: PathLike,
-    cloud: PointCloud,
+    cloud: CloudLike,
     *,
     data: Literal["binary_little_endian", "binary_big_endian", "ascii"] = "binary_little_endian",
     precision: Literal["float32", "float64"] = "float32",

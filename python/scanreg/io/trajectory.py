@@ -80,6 +80,20 @@ def rotation_to_quaternion(rotation: Any) -> FloatArray:
     return out
 
 
+def _pose_matrices(value: Any) -> FloatArray:
+    """``(N, 4, 4)`` float64 from an array-like of matrices or a sequence of ``SE3``."""
+    if isinstance(value, (list, tuple)) and any(isinstance(p, SE2 | SE3) for p in value):
+        if not all(isinstance(p, SE3) for p in value):
+            raise TypeError("poses: a trajectory holds 3D poses: SE3 or (4, 4) matrices")
+        value = [p.as_matrix() for p in value]
+    try:
+        return np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"poses: expected an (N, 4, 4) array or a list of SE3, got {type(value).__name__}"
+        ) from None
+
+
 @dataclass(frozen=True)
 class Trajectory:
     """Poses ``T_world_body`` over time.
@@ -97,7 +111,7 @@ class Trajectory:
     timestamps: FloatArray | None = None
 
     def __post_init__(self) -> None:
-        poses = np.array(self.poses, dtype=np.float64)
+        poses = _pose_matrices(self.poses)
         if poses.ndim != 3 or poses.shape[1:] != (4, 4):
             raise ValueError(f"poses: expected shape (N, 4, 4), got {poses.shape}")
         if not np.isfinite(poses).all():
@@ -239,10 +253,16 @@ def read_times(path: PathLike) -> FloatArray:
     return np.ascontiguousarray(table[:, 0])
 
 
-def write_kitti_poses(path: PathLike, trajectory: Trajectory) -> None:
-    """Write the poses as KITTI lines (12 numbers, ``%.9e``; timestamps are not stored)."""
+def write_kitti_poses(path: PathLike, trajectory: Trajectory | Any) -> None:
+    """Write the poses as KITTI lines (12 numbers, ``%.9e``; timestamps are not stored).
+
+    ``trajectory`` is a :class:`Trajectory` or the poses alone (an ``(N, 4, 4)`` array-like
+    or a list of ``SE3``): KITTI files hold no timestamps."""
     if not isinstance(trajectory, Trajectory):
-        raise TypeError(f"trajectory: expected Trajectory, got {type(trajectory).__name__}")
+        if trajectory is None or isinstance(trajectory, (str, bytes, dict)):
+            got = type(trajectory).__name__
+            raise TypeError(f"trajectory: expected Trajectory or (N, 4, 4) poses, got {got}")
+        trajectory = Trajectory(poses=trajectory)
     rows = trajectory.poses[:, :3, :].reshape(-1, 12)
     np.savetxt(path, rows, fmt="%.12e")
 

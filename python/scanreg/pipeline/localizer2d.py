@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +40,7 @@ import numpy as np
 
 from .._validate import FloatArray, as_points, frozen
 from ..correlative import CorrelativeGrid, match_correlative, prepare_correlative
+from ..io.occupancy import read_map_server
 from ..preprocess import DEFAULT_K
 from ..register import RegistrationResult, register
 from ..target import PreparedTarget, prepare
@@ -96,65 +96,6 @@ class LocalizationConfig2D:
             raise TypeError(
                 f"thresholds: expected VerdictThresholds, got {type(self.thresholds).__name__}"
             )
-
-
-def read_map_server(path: str | Path) -> tuple[FloatArray, float]:
-    """Occupied cells of a ROS ``map_server`` map (``map.yaml`` and the PGM/PNG-free image it
-    names) as ``(M, 2)`` points in the map frame (cell centres), and the resolution.
-
-    A cell is occupied when its occupancy ``p`` (``(255 − v)/255``, or ``v/255`` with
-    ``negate: 1``) exceeds ``occupied_thresh``. The origin's yaw rotates the grid about the
-    origin, as ``map_server`` defines it. Only binary PGM (``P5``) images are read.
-    """
-    yaml_path = Path(path)
-    try:
-        text = yaml_path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ValueError(f"path: cannot read {yaml_path}: {exc}") from None
-    fields = dict(
-        (m.group(1), m.group(2).strip())
-        for m in re.finditer(r"^\s*(\w+)\s*:\s*(.+?)\s*$", text, flags=re.MULTILINE)
-    )
-    missing = [k for k in ("image", "resolution", "origin") if k not in fields]
-    if missing:
-        raise ValueError(f"path: {yaml_path} lacks {', '.join(missing)} (not a map_server map)")
-    try:
-        resolution = float(fields["resolution"])
-        origin = [float(v) for v in fields["origin"].strip("[]").split(",")]
-        negate = int(fields.get("negate", "0"))
-        occupied = float(fields.get("occupied_thresh", "0.65"))
-    except ValueError as exc:
-        raise ValueError(f"path: {yaml_path}: {exc}") from None
-    if len(origin) != 3 or not math.isfinite(resolution) or resolution <= 0:
-        raise ValueError(f"path: {yaml_path}: bad resolution or origin")
-    image_path = yaml_path.parent / fields["image"].strip("'\"")
-    image = _read_pgm(image_path)
-    value = image.astype(np.float64) / 255.0
-    p = value if negate else 1.0 - value
-    rows, cols = np.nonzero(p > occupied)
-    height = image.shape[0]
-    # Row 0 of the image is the top: y grows upwards from the last row.
-    local = np.c_[(cols + 0.5) * resolution, (height - 1 - rows + 0.5) * resolution]
-    c, s = math.cos(origin[2]), math.sin(origin[2])
-    pts = local @ np.array([[c, s], [-s, c]]) + np.array(origin[:2])
-    return np.ascontiguousarray(pts), resolution
-
-
-def _read_pgm(path: Path) -> np.ndarray[Any, np.dtype[np.uint8]]:
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise ValueError(f"image: cannot read {path}: {exc}") from None
-    tokens = re.match(rb"P5\s+(?:#[^\n]*\n\s*)*(\d+)\s+(\d+)\s+(\d+)\s", data)
-    if tokens is None:
-        raise ValueError(f"image: {path} is not a binary PGM (P5)")
-    width, height, maxval = (int(t) for t in tokens.groups())
-    if maxval != 255:
-        raise ValueError(f"image: {path} has maxval {maxval}; only 8-bit PGM is read")
-    body = data[tokens.end() : tokens.end() + width * height]
-    if len(body) != width * height:
-        raise ValueError(f"image: {path} is truncated ({len(body)} of {width * height} bytes)")
-    return np.frombuffer(body, dtype=np.uint8).reshape(height, width)
 
 
 @dataclass(frozen=True)
