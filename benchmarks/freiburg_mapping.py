@@ -1,13 +1,14 @@
 """2D mapping with loop closure (scanreg.pipeline.mapping) on the Freiburg SLAM benchmark.
 
 The complete raw Intel, ACES and hospital logs with all Kümmerle relations (2984 / 1279 /
-2820), mapped in file order with the wheel-odometry prior (``run_mapping``, default ``MappingConfig``). Rows: our
-odometry alone (``Odometry2D``, correlative front end, the trajectory before closure) and the
-optimized trajectory after loop closure, beside Cartographer's published figures (Hess et al.
-2016, Table II). Relation error: mean ± std of the translational (m) and rotational (deg)
-error over all relations. Speed: wall time and process CPU time of the whole run (reading
-excluded), per-stage wall / CPU time (odometry, candidate search, matching, optimization),
-scans/s.
+2820), mapped in file order with the wheel-odometry prior (``run_mapping``, default
+``MappingConfig``). Rows: our odometry alone (``Odometry2D``, correlative front end, the
+trajectory before closure) and the optimized trajectory after loop closure, beside
+Cartographer's published figures (Hess et al. 2016, Table II; the hospital's is on the
+benchmark's local relations). Relation error: mean ± std of the translational (m) and
+rotational (deg) error over all relations. Speed: wall time and process CPU time of the whole
+run (reading excluded), per-stage wall / CPU time (odometry, candidate search, matching,
+optimization), scans/s.
 There is no peer in the same process (Cartographer is not installable here), so the load
 average is printed beside the times.
 
