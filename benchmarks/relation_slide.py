@@ -7,8 +7,9 @@ method="point_to_line", init=relation)`` — started *at* the relation pose — 
 never-worse-than-the-start guard (:mod:`scanreg.slide`) and without it
 (``never_worse_than_start=False``). Per log and variant: the median error against the relation,
 how many results are wrong (more than 0.15 m or 2° off), how many are accepted and wrong, the
-guard's outcomes, and the median time of the call with its verdict read (best of ``--rounds``
-per pair, the two variants alternated pair by pair in one process).
+guard's outcomes, how many accepted results lie outside their own covariance (NEES of the error
+against the relation above χ²(3) at 99.9 %), and the median time of the call with its verdict
+read (best of ``--rounds`` per pair, the two variants alternated pair by pair in one process).
 
     .venv/bin/python benchmarks/relation_slide.py [--logs intel,aces] [--count 400]
         [--rounds 3] [--start relation|odometry] [--list]
@@ -36,6 +37,7 @@ from scanreg.io import read_scans
 
 DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
 WRONG_M, WRONG_DEG = 0.15, 2.0
+CHI2_999 = 16.266  # χ²(3) at 99.9 %
 MAX_SECONDS = 10.0
 
 
@@ -84,6 +86,8 @@ def run(name: str, count: int, rounds: int, listing: bool, start_at: str) -> Non
             for _ in range(rounds - 1):
                 seconds = min(seconds, _call(source, target, start, guard)[1])
             err = (res.pose.inverse() @ relation).log()
+            cov = np.asarray(res.covariance)
+            nees = float(err @ np.linalg.solve(cov, err)) if np.isfinite(cov).all() else math.inf
             fit = [
                 _core.count_within(target.index, source, p.as_matrix(), 0.1) / len(source)
                 for p in (start, res.pose)
@@ -94,6 +98,7 @@ def run(name: str, count: int, rounds: int, listing: bool, start_at: str) -> Non
                     "m": float(np.hypot(err[0], err[1])),
                     "deg": math.degrees(abs(float(err[2]))),
                     "accepted": bool(res.verdict.accepted),
+                    "outside": nees > CHI2_999,
                     "reasons": res.verdict.reasons,
                     "outcome": "off" if res.slide is None else res.slide.outcome,
                     "seconds": seconds,
@@ -102,10 +107,10 @@ def run(name: str, count: int, rounds: int, listing: bool, start_at: str) -> Non
             )
     print(f"\n{name}: {len(pairs)} relations under {MAX_SECONDS:g} s, started at the {start_at}")
     print(
-        "| guard | median error (cm) | wrong | accepted and wrong | kept / resolved / start "
-        "| ms per call (verdict read) |"
+        "| guard | median error (cm) | wrong | accepted and wrong | accepted outside own cov. "
+        "| kept / resolved / start | ms per call (verdict read) |"
     )
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|")
     for guard in (False, True):
         rs = rows[guard]
         wrong = [r["m"] > WRONG_M or r["deg"] > WRONG_DEG for r in rs]
@@ -113,6 +118,7 @@ def run(name: str, count: int, rounds: int, listing: bool, start_at: str) -> Non
         print(
             f"| {'on' if guard else 'off'} | {100 * np.median([r['m'] for r in rs]):.2f} | "
             f"{sum(wrong)} | {sum(w and r['accepted'] for w, r in zip(wrong, rs, strict=True))} | "
+            f"{sum(r['accepted'] and r['outside'] for r in rs)} | "
             f"{' / '.join(map(str, outcomes)) if guard else '-'} | "
             f"{1e3 * np.median([r['seconds'] for r in rs]):.3f} |"
         )

@@ -35,10 +35,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import numpy as np
+
 from . import _core
 from ._validate import FloatArray
 from ._validate import build as _build
-from .basin import tight_gate
+from .basin import CHI2_999, NEAR_ROTATION_DEG, tight_gate
+from .quality import covariance_upper_bound
 from .transform import SE2, SE3
 
 #: The end explains clearly less than the start below this fraction of the start's fit ...
@@ -144,4 +147,46 @@ def guard_start(
     return evaluate_start(), _build(SlideCheck, fields)
 
 
-__all__ = ["SlideCheck", "clearly_worse", "guard_start"]
+def start_cover(
+    check: SlideCheck | None,
+    pose: SE2 | SE3,
+    start: SE2 | SE3,
+    covariance: FloatArray,
+    gate: float,
+    cover_ratio: float,
+) -> FloatArray | None:
+    """``covariance`` grown to cover the start after a re-solve that explains no more than
+    about what the start does, or None when nothing is to be covered.
+
+    A ``resolved`` pose came from a solve that slid away from its start once; when the start
+    still explains at least ``cover_ratio`` times as much of the source (the verdict's
+    ``basin_ambiguous_ratio``), the fits do not tell the two apart, and a start near the result
+    (within half the gate and ``NEAR_ROTATION_DEG``) but outside its covariance (χ² at 99.9 %)
+    is covered as the wrong-basin probe covers a near alternative that explains about as much
+    (:mod:`scanreg.basin`). Measured on the wrong_start.py Intel pairs: a corridor pair re-solved
+    0.14 m along the corridor from its reference start (66 % within 0.1 m against the start's
+    70 %) was accepted with σ 3.7 cm along it."""
+    if check is None or check.outcome != "resolved":
+        return None
+    if not check.start_fit >= cover_ratio * check.resolved_fit:
+        return None
+    cov = np.asarray(covariance, dtype=np.float64)
+    if not np.isfinite(cov).all():
+        return None
+    e = (pose.inverse() @ start).log()  # type: ignore[operator]
+    dim = pose.DIM
+    moved = float(np.linalg.norm(e[:dim]))
+    turned = abs(float(e[2])) if dim == 2 else float(np.linalg.norm(e[3:]))
+    if moved > 0.5 * gate or turned > math.radians(NEAR_ROTATION_DEG):
+        return None
+    dof = e.size
+    try:
+        chi2 = float(e @ np.linalg.solve(cov, e))
+    except np.linalg.LinAlgError:
+        return None
+    if chi2 <= CHI2_999[dof]:
+        return None
+    return covariance_upper_bound(cov, cov + np.outer(e, e))
+
+
+__all__ = ["SlideCheck", "clearly_worse", "guard_start", "start_cover"]

@@ -58,7 +58,7 @@ from .quality import (
     WeakDirection,
     information_from_covariance,
 )
-from .slide import SlideCheck
+from .slide import SlideCheck, start_cover
 from .target import PreparedTarget, median_spacing
 from .transform import SE2, SE3
 from .verdict import (
@@ -613,6 +613,14 @@ def _trust(
             if np.isfinite(chosen).all()
             else np.zeros((dof, dof))
         )
+    slide = ctx.slide
+    grown = start_cover(slide, pose, ctx.start, chosen, gate, th.basin_ambiguous_ratio)
+    if grown is not None:
+        # A re-solve from a start that explains about as much: the covariance covers both.
+        chosen = _readonly(_psd(grown))
+        info = information_from_covariance(chosen)
+        if s.covariance == "calibrated":
+            estimates = dataclasses.replace(estimates, calibrated=chosen)
     weakest = num.weakest
     cond = _build(
         Conditioning,
@@ -633,7 +641,6 @@ def _trust(
             ),
         },
     )
-    slide = ctx.slide
     # The start returned after a slide: evaluated there, not converged there.
     stop = "slid" if slide is not None and slide.outcome == "start" else str(out.stop_reason)
     probing = th.probes_basin(dim) and ctx.solve is not None
