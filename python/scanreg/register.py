@@ -158,10 +158,11 @@ class RegistrationSettings:
     extrapolate: bool = True
     #: Never return a pose that explains the scan clearly worse than the start
     #: (:mod:`scanreg.slide`): when the solve ends with clearly fewer source points within a
-    #: tenth of the gate than ``init`` had, solve again from ``init`` with a fifth of the gate,
-    #: and if that slides too return ``init`` itself (``stop_reason="slid"``, rejected by the
-    #: verdict). Two nearest-neighbour passes per call; the re-solve only when the first slid
-    #: (on Intel relation pairs started at the relation, 38 of 400). ``False``: the plain solve.
+    #: tenth of the gate than an ``init`` that fits well had, solve again from ``init`` with a
+    #: fifth of the gate, and if that slides too return ``init`` itself
+    #: (``stop_reason="slid"``, rejected by the verdict). Two nearest-neighbour passes per call;
+    #: the re-solve only when the first slid (on Intel relation pairs started at the relation,
+    #: 38 of 400). ``False``: the plain solve.
     never_worse_than_start: bool = True
 
     def __post_init__(self) -> None:
