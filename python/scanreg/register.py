@@ -162,7 +162,7 @@ class RegistrationSettings:
     #: fifth of the gate, and if that slides too return ``init`` itself
     #: (``stop_reason="slid"``, rejected by the verdict). Two nearest-neighbour passes per call;
     #: the re-solve only when the first slid (on Intel relation pairs started at the relation,
-    #: 38 of 400). ``False``: the plain solve.
+    #: 35 of 400). ``False``: the plain solve.
     never_worse_than_start: bool = True
 
     def __post_init__(self) -> None:
