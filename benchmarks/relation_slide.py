@@ -1,6 +1,7 @@
 """Started at the right pose, does point-to-line stay there? Kümmerle relations as pair truth.
 
-For the first ``--count`` relations less than 10 s apart of each log (Intel, ACES in
+For the first ``--count`` relations less than 10 s apart of each log (Intel, ACES, the hospital
+``fr-clinic`` in
 ``../shared/data/freiburg-slam-benchmark``), scan t2 (source) is matched to scan t1 (target)
 with the default call ``scanreg.register(src, scanreg.prepare(tgt, normals=True),
 method="point_to_line", init=relation)`` — started *at* the relation pose — with the
@@ -39,6 +40,8 @@ DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] /
 WRONG_M, WRONG_DEG = 0.15, 2.0
 CHI2_999 = 16.266  # χ²(3) at 99.9 %
 MAX_SECONDS = 10.0
+#: Log files whose name is not ``<name>.clf.bz2``.
+LOGS = {"fr-clinic": "fr-clinic_robotlaser.clf.bz2"}
 
 
 def relation_pairs(name: str, count: int) -> list[tuple[int, np.ndarray, Any, SE2, SE2]]:
@@ -46,9 +49,15 @@ def relation_pairs(name: str, count: int) -> list[tuple[int, np.ndarray, Any, SE
     relations under ``MAX_SECONDS`` apart whose scans are both in the log; ``odometry`` is the
     wheel odometry's relative pose between the two scans."""
     folder = DATA / "freiburg-slam-benchmark"
-    log = read_scans(folder / f"{name}.clf.bz2")
+    log = read_scans(folder / LOGS.get(name, f"{name}.clf.bz2"))
     relations = read_relations(folder / f"{name}.relations")
-    stamps = {s.timestamp: i for i, s in enumerate(log.scans) if s.kind == "FLASER"}
+    lasers = [(i, s) for i, s in enumerate(log.scans) if s.kind in ("FLASER", "ROBOTLASER1")]
+    stamps = {s.timestamp: i for i, s in lasers}
+    # The relations are between robot poses, the scans in the laser's frame (the hospital's
+    # laser is 0.22 m ahead of the robot's centre; Intel's and ACES' at it).
+    first = lasers[0][1]
+    assert first.odometry_se2 is not None and first.laser_se2 is not None
+    mount = first.odometry_se2.inverse() @ first.laser_se2
     out = []
     for k in range(len(relations)):
         if abs(relations.t2[k] - relations.t1[k]) >= MAX_SECONDS:
@@ -57,10 +66,13 @@ def relation_pairs(name: str, count: int) -> list[tuple[int, np.ndarray, Any, SE
         if i1 is None or i2 is None:
             continue
         m = relations.poses[k]
-        relation = SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
+        robot = SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
+        relation = mount.inverse() @ robot @ mount
         source = log.scans[i2].to_points(0.1, 40.0)
         target = scanreg.prepare(log.scans[i1].to_points(0.1, 40.0), normals=True)
-        odometry = log.scans[i1].odometry_se2.inverse() @ log.scans[i2].odometry_se2
+        a, b = log.scans[i1].laser_se2, log.scans[i2].laser_se2
+        assert a is not None and b is not None
+        odometry = a.inverse() @ b  # the logged laser poses are the wheel odometry's
         out.append((k, source, target, relation, odometry))
         if len(out) == count:
             break
