@@ -16,6 +16,7 @@ from scanreg import simulate as sim
 from scanreg.eval.relations import read_relations
 from scanreg.io import read_scans
 from scanreg.slide import clearly_worse
+from scanreg.verdict import assess
 
 WRONG_M, WRONG_DEG = 0.15, 2.0
 
@@ -95,6 +96,36 @@ def test_start_returned_and_rejected_when_the_resolve_slides_too() -> None:
     assert not any(r.startswith("not converged") for r in reasons)
     assert res.quality is not None and res.quality.slide is res.slide
     assert np.isfinite(res.covariance).all()
+
+
+def test_degeneracy_aware_keeps_the_guard() -> None:
+    # ACES 282 is a corridor: the aware solve would re-solve along the corridor from the start;
+    # the start returned after the slide stays the start. Intel 15: the held re-solve runs at
+    # the re-solve's narrower gate and stays on the relation.
+    source, target, relation = _relation_pair("aces", 282)
+    res = scanreg.register(
+        source, target, method="point_to_line", init=relation, degeneracy_aware=True
+    )
+    assert res.stop_reason == "slid" and res.verdict is not None and not res.verdict.accepted
+    np.testing.assert_allclose(res.pose.as_matrix(), relation.as_matrix(), atol=1e-12)
+    source, target, relation = _relation_pair("intel", 15)
+    res = scanreg.register(
+        source, target, method="point_to_line", init=relation, degeneracy_aware=True
+    )
+    assert res.slide is not None and res.slide.outcome == "resolved"
+    metres, degrees = _error(res.pose, relation)
+    assert metres < 0.02 and degrees < 0.5
+
+
+def test_assess_reads_the_guard_from_the_result() -> None:
+    # The public assess() judges a result that returned its start after a slide as register's
+    # own verdict does.
+    source, target, relation = _relation_pair("aces", 282)
+    res = scanreg.register(source, target, method="point_to_line", init=relation)
+    judged = assess(res, source, target, init=relation)
+    assert res.verdict is not None
+    assert judged.verdict.reasons[0] == res.verdict.reasons[0]
+    assert judged.report.slide is res.slide and not judged.verdict.accepted
 
 
 def _simulated_pair() -> tuple[np.ndarray, Any, SE2]:

@@ -781,12 +781,18 @@ def register(
     if s.degeneracy_aware:
         ctx = _build(TrustInputs, ctx_fields)
         first = correspondence_analysis(ctx, out)
-        if first.degeneracy.degenerate and len(out.correspondences):
+        # A start returned after a slide stays the start (rejected); a re-solve's narrower gate
+        # is the held solve's too (at the full gate it would slide again).
+        kept_start = slide is not None and slide.outcome == "start"
+        gate = s.max_correspondence_distance
+        if slide is not None and slide.outcome == "resolved":
+            gate = slide.resolve_gate
+        if first.degeneracy.degenerate and len(out.correspondences) and not kept_start:
             held = np.ascontiguousarray(np.eye(dof) - first.degeneracy.weak_projector())
-            out = run(held)
+            out = run(held, gate=gate)
             # The weak directions are the first solve's: the second is held along them.
             valley = valley_moment(
-                lambda start: run(held, start),
+                lambda start: run(held, start, gate=gate),
                 pose_from_core(out, dim),
                 first.degeneracy,
                 ctx.prior,
