@@ -30,6 +30,7 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.ndt", "NDT, 2D and 3D"),
     ("scanreg.global_registration", "3D registration without a guess: FPFH, max clique, GNC-TLS"),
     ("scanreg.basin", "the verdict's wrong-basin / ambiguity probe"),
+    ("scanreg.slide", "never worse than the start: a registration that slid from a better start"),
     ("scanreg.budget", "a memory budget for large clouds"),
     ("scanreg.quality", "covariance, conditioning, residual statistics"),
     ("scanreg.degeneracy", "weak directions named in pose coordinates"),

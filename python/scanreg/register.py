@@ -49,6 +49,7 @@ from .quality import (
     Conditioning,
 )
 from .robust import check_kernel
+from .slide import SlideCheck, guard_start
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose, pose_class
 from .trust import (
@@ -68,7 +69,7 @@ from .verdict import QualityReport, Verdict, VerdictThresholds
 Method = Literal["point_to_point", "point_to_plane", "point_to_line", "gicp"]
 Optimizer = Literal["gauss_newton", "levenberg_marquardt"]
 StopReason = Literal[
-    "converged", "max_iterations", "too_few_correspondences", "diverged", "degenerate"
+    "converged", "max_iterations", "too_few_correspondences", "diverged", "degenerate", "slid"
 ]
 
 CovarianceKind = Literal["calibrated", "hessian", "censi", "block"]
@@ -155,6 +156,14 @@ class RegistrationSettings:
     #: point-to-line: +2 % time, median error 11.5 → 11.1 mm on Intel pairs
     #: (``benchmarks/README.md``). ``False``: the textbook loop. GICP and LM ignore it.
     extrapolate: bool = True
+    #: Never return a pose that explains the scan clearly worse than the start
+    #: (:mod:`scanreg.slide`): when the solve ends with clearly fewer source points within a
+    #: tenth of the gate than an ``init`` that fits well had, solve again from ``init`` with a
+    #: fifth of the gate, and if that slides too return ``init`` itself
+    #: (``stop_reason="slid"``, rejected by the verdict). Two nearest-neighbour passes per call;
+    #: the re-solve only when the first slid (on Intel relation pairs started at the relation,
+    #: 35 of 400). ``False``: the plain solve.
+    never_worse_than_start: bool = True
 
     def __post_init__(self) -> None:
         _positive_float(
@@ -186,7 +195,7 @@ class RegistrationSettings:
             )
         if self.block_size is not None:
             _positive_float(self.block_size, "block_size")
-        for name in ("degeneracy_aware", "extrapolate"):
+        for name in ("degeneracy_aware", "extrapolate", "never_worse_than_start"):
             value = getattr(self, name)
             if not isinstance(value, bool):
                 raise TypeError(f"{name}: expected a bool, got {type(value).__name__}")
@@ -261,7 +270,9 @@ class RegistrationResult:
     #: pose is where it stopped);
     #: ``diverged``: a step was non-finite or implausibly large (over ten times the gate, or
     #: over 90°: a near-singular ``JᵀJ``), the pose before it is returned; ``degenerate``:
-    #: ``JᵀJ`` singular, the correspondences do not determine the pose.
+    #: ``JᵀJ`` singular, the correspondences do not determine the pose; ``slid``: the solve
+    #: ended clearly worse than its start and so did a re-solve with a narrower gate: the pose
+    #: is ``init``, evaluated there (``slide`` says by how much; the verdict rejects it).
     stop_reason: StopReason
     #: Source points with a correspondence inside the gate (and, for point-to-plane, a valid
     #: target normal) at ``pose``.
@@ -284,6 +295,10 @@ class RegistrationResult:
     gradient: FloatArray
     #: Residual variance per scalar residual: ``Σ r² / (m - dof)`` (kernel: IRLS-weighted).
     sigma2: float
+    #: The never-worse-than-the-start check (:mod:`scanreg.slide`): the fits at the start and
+    #: the solve's end, and whether the pose is the solve's, a re-solve's from the start or the
+    #: start's; None with ``never_worse_than_start=False``.
+    slide: SlideCheck | None
     timing: RegistrationTiming
     settings: RegistrationSettings = field(repr=False)
     #: The trust analysis behind the properties below, computed on first access (once,
@@ -639,7 +654,9 @@ def register(
         index = prepared.index
         t_points, t_normals, t_covs = prepared.points, prepared.normals, prepared.covariances
 
-    def solver_args(method: str, max_iterations: int) -> _SolverArgs:
+    def solver_args(
+        method: str, max_iterations: int, gate: float = s.max_correspondence_distance
+    ) -> _SolverArgs:
         # The binding's arguments after the start(s) and before the step projector, by
         # position in its order (17 keywords cost 0.7 µs a call): one builder for the single
         # solve and the restarts.
@@ -647,7 +664,7 @@ def register(
             method,
             s.kernel,
             k_scale,  # kernel_scale
-            s.max_correspondence_distance,
+            gate,  # max_correspondence_distance
             max_iterations,
             s.translation_tolerance,
             s.rotation_tolerance,
@@ -664,12 +681,13 @@ def register(
         start: SE2 | SE3 = pose0,
         method: str = method_eff,
         max_iterations: int = s.max_iterations,
+        gate: float = s.max_correspondence_distance,
     ) -> Any:
         return _core.register_icp(
             src,
             index,
             start.as_matrix(),  # init_pose
-            *solver_args(method, max_iterations),
+            *solver_args(method, max_iterations, gate),
             True,  # iterate
             projector,  # step_projector
             s.extrapolate,
@@ -700,6 +718,20 @@ def register(
     if step_projector is not None:
         projector0 = as_matrix(step_projector, "step_projector", (dof, dof))
     out = run(projector0)
+    slide: SlideCheck | None = None
+    if s.never_worse_than_start:
+        out, slide = guard_start(
+            out,
+            index=index,
+            source=src,
+            start=pose0,
+            gate=s.max_correspondence_distance,
+            target_points=t_points,
+            solve_from_start=lambda gate: run(projector0, gate=gate),
+            # One iteration whose every step is projected to zero: the outcome at the start,
+            # with the correspondences the analysis reads (``iterate=False`` has none).
+            evaluate_start=lambda: run(np.zeros((dof, dof)), max_iterations=1),
+        )
     # The projector the solve ran with (rebound below by the degeneracy-aware solve): the
     # point-to-point analysis's reference solve reads it through its closure.
     held: FloatArray | None = projector0
@@ -734,6 +766,7 @@ def register(
         "components": components,
         "init_covariance": given_prior,
         "start": pose0,
+        "slide": slide,
         "thresholds": th,
         "plane_solve": (
             (lambda start: run(held, start, PLANE_METHOD[dim]))
@@ -748,12 +781,18 @@ def register(
     if s.degeneracy_aware:
         ctx = _build(TrustInputs, ctx_fields)
         first = correspondence_analysis(ctx, out)
-        if first.degeneracy.degenerate and len(out.correspondences):
+        # A start returned after a slide stays the start (rejected); a re-solve's narrower gate
+        # is the held solve's too (at the full gate it would slide again).
+        kept_start = slide is not None and slide.outcome == "start"
+        gate = s.max_correspondence_distance
+        if slide is not None and slide.outcome == "resolved":
+            gate = slide.resolve_gate
+        if first.degeneracy.degenerate and len(out.correspondences) and not kept_start:
             held = np.ascontiguousarray(np.eye(dof) - first.degeneracy.weak_projector())
-            out = run(held)
+            out = run(held, gate=gate)
             # The weak directions are the first solve's: the second is held along them.
             valley = valley_moment(
-                lambda start: run(held, start),
+                lambda start: run(held, start, gate=gate),
                 pose_from_core(out, dim),
                 first.degeneracy,
                 ctx.prior,
@@ -767,6 +806,8 @@ def register(
     n_corr = out.num_correspondences  # the core's ints and floats are Python's already
     sigma2 = residual_variance(out, components, s.kernel, dof)
     stop: StopReason = out.stop_reason
+    if slide is not None and slide.outcome == "start":
+        stop = "slid"  # evaluated at the start, not converged there
     trust = LazyTrust(ctx, out, pose, first)
     if not lazy:
         trust.get()
@@ -802,6 +843,7 @@ def register(
             "hessian": hessian,
             "gradient": out.gradient,  # read-only, fresh
             "sigma2": sigma2,
+            "slide": slide,
             "timing": timing,
             "settings": s,
             "_trust": trust,

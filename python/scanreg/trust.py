@@ -58,6 +58,7 @@ from .quality import (
     WeakDirection,
     information_from_covariance,
 )
+from .slide import SlideCheck, start_cover
 from .target import PreparedTarget, median_spacing
 from .transform import SE2, SE3
 from .verdict import (
@@ -164,6 +165,9 @@ class TrustInputs:
     #: (``_core.probe_restarts``; ``probe`` holds its arguments after the solver's), for the
     #: verdict's wrong-basin probe (:mod:`scanreg.basin`).
     solve: Any = None
+    #: The never-worse-than-the-start check (:mod:`scanreg.slide`), for the verdict; None when
+    #: it did not run.
+    slide: SlideCheck | None = None
 
     @functools.cached_property
     def _scene(self) -> tuple[FloatArray, float, float, FloatArray]:
@@ -609,6 +613,14 @@ def _trust(
             if np.isfinite(chosen).all()
             else np.zeros((dof, dof))
         )
+    slide = ctx.slide
+    grown = start_cover(slide, pose, ctx.start, chosen, gate, th.basin_ambiguous_ratio)
+    if grown is not None:
+        # A re-solve from a start that explains about as much: the covariance covers both.
+        chosen = _readonly(_psd(grown))
+        info = information_from_covariance(chosen)
+        if s.covariance == "calibrated":
+            estimates = dataclasses.replace(estimates, calibrated=chosen)
     weakest = num.weakest
     cond = _build(
         Conditioning,
@@ -629,7 +641,8 @@ def _trust(
             ),
         },
     )
-    stop = str(out.stop_reason)
+    # The start returned after a slide: evaluated there, not converged there.
+    stop = "slid" if slide is not None and slide.outcome == "start" else str(out.stop_reason)
     probing = th.probes_basin(dim) and ctx.solve is not None
     # The probe's tight overlap is counted in the verdict's overlap pass (one nearest-neighbour
     # search of the source instead of two: 3.7 ms of a 25k-point KITTI call) where that pass
@@ -668,6 +681,7 @@ def _trust(
         moved=corr.moved,
         overlap=overlap,
         outcome=out,
+        slide=slide,
     )
     if checked.verdict.accepted and probing:
         # Only a result every other check accepts is probed (the restarts cannot turn a
@@ -694,9 +708,7 @@ def _trust(
             stated_prior=ctx.init_covariance,
             inlier_rmse=checked.report.residual_rmse,
             target_normals=ctx.target_normals,
-            tight_overlap=None
-            if overlap is None or tight is None
-            else (tight, float(overlap[5]) / float(src.shape[0])),
+            tight_overlap=_tight_overlap(ctx, overlap, tight),
             correlative_grid=ctx.target._probe_grid
             if isinstance(ctx.target, PreparedTarget) and dim == 2
             else None,
@@ -728,6 +740,20 @@ def _trust(
             "seconds": time.perf_counter() - t0,
         },
     )
+
+
+def _tight_overlap(
+    ctx: TrustInputs, overlap: Any, tight: float | None
+) -> tuple[float, float] | None:
+    """The result's fraction of the source within the basin probe's tight gate when it was
+    counted already: in the verdict's overlap pass (3D), or by the never-worse-than-the-start
+    check at the pose returned (its gate is the probe's when the registration's is finite)."""
+    if overlap is not None and tight is not None:
+        return tight, float(overlap[5]) / float(ctx.source.shape[0])
+    slide = ctx.slide
+    if slide is not None and math.isfinite(ctx.settings.max_correspondence_distance):
+        return slide.gate, slide.returned_fit
+    return None
 
 
 def residual_variance(out: Any, components: int, kernel: str, dof: int) -> float:

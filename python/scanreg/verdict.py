@@ -39,6 +39,7 @@ from .basin import BasinProbe
 from .degeneracy import Degeneracy
 from .local_map import LocalMap
 from .quality import DEFAULT_WEAK_RATIO, Conditioning, conditioning
+from .slide import SlideCheck
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose
 
@@ -171,6 +172,9 @@ class QualityReport(LazyFields):
     #: translation block of that start's covariance (``init_covariance``, or the gate-wide
     #: prior), when known.
     motion_nees: float | None = None
+    #: The registration's never-worse-than-the-start check (:mod:`scanreg.slide`), when it
+    #: ran: a result that returned its start after a slide is rejected, naming both fits.
+    slide: SlideCheck | None = None
 
 
 @dataclass(frozen=True)
@@ -239,6 +243,7 @@ def assess(
         degeneracy=getattr(result, "degeneracy", None),
         basin=_registration_probe(result) if th.probes_basin(dim) else None,
         motion_nees=getattr(getattr(result, "quality", None), "motion_nees", None),
+        slide=getattr(result, "slide", None),
     )
 
 
@@ -269,6 +274,7 @@ def _assess_checked(
     moved: SE2 | SE3 | None = None,
     overlap: tuple[Any, ...] | None = None,
     outcome: Any = None,
+    slide: SlideCheck | None = None,
 ) -> Assessment:
     """:func:`assess` on inputs already checked (``source`` validated, ``target`` prepared
     and of the pose's dimension, ``conditioning`` at ``thresholds.weak_ratio``): what
@@ -319,6 +325,7 @@ def _assess_checked(
             "degeneracy": degeneracy,
             "basin": basin,
             "motion_nees": motion_nees,
+            "slide": slide,
         },
         {
             "translation_from_init": lambda: float(np.linalg.norm(moved.translation)),
@@ -334,7 +341,11 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
     """Apply ``thresholds`` to a :class:`QualityReport`."""
     th = thresholds
     reasons: list[str] = []
-    if th.require_convergence and not report.converged:
+    slid = report.slide is not None and report.slide.outcome == "start"
+    if slid:
+        assert report.slide is not None
+        reasons.append(report.slide.describe())
+    elif th.require_convergence and not report.converged:
         reasons.append(f"not converged: {report.stop_reason}")
     if report.overlap < th.min_overlap:
         reasons.append(f"overlap {report.overlap:.2f} < {th.min_overlap:.2f}")
