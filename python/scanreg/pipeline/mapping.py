@@ -738,7 +738,7 @@ class Mapper:
         # covariance (that is why they were held), and a kernel would weigh them to nothing.
         # They have passed a stronger test than χ²: each other.
         confirmed = self._add_loops(confirmed, kernel=None)
-        if confirmed[0].accepted:
+        if confirmed[0].accepted and _BATCH_AFTER_AGREEMENT:
             # A correction of many σ: iSAM2's few relinearisations may not carry it through.
             self._graph.optimize()
         # The held ones were recorded as rejected when they were matched: now as decided.
@@ -1027,6 +1027,9 @@ def estimate_laser_latency(
     cost = [float(np.median(np.abs(odom_turn(d)[used] - m))) for d in shifts]
     return float(shifts[int(np.argmin(cost))])
 
+
+#: Re-solve the graph in batch after loops that agree with each other against it are closed.
+_BATCH_AFTER_AGREEMENT = True
 
 #: Joint-marginal tests of candidates beyond ``loop_max_range``, per candidate wanted.
 _GATE_TESTS_PER_CANDIDATE = 2
