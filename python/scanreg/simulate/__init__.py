@@ -2,7 +2,8 @@
 
 The test instrument for scanreg: every scene, trajectory and noise draw is reproducible from a
 seed, and the hard cases (long corridors, tunnels, moving people, motion distortion) are a
-parameter away. Ray casting runs in the Rust core, parallel over beams, with per-beam noise
+parameter away. Scanned objects (:mod:`scanreg.simulate.objects`: a knot, a blob, a figurine
+seen from one side) are sampled from their surfaces directly. Ray casting runs in the Rust core, parallel over beams, with per-beam noise
 streams so the output does not depend on the thread count.
 
 Example::
@@ -21,6 +22,7 @@ z up; see :mod:`scanreg.simulate.scan` for which frame and time each output is i
 """
 
 from .courses import Course, block_loop, room_tour
+from .objects import ObjectShape, blob, figurine, object_view, trefoil_knot
 from .scan import (
     DROPOUT,
     NO_RETURN,
@@ -50,19 +52,24 @@ __all__ = [
     "LaserScan",
     "LidarModel",
     "LidarSweep",
+    "ObjectShape",
     "Scene",
     "SceneBuilder",
     "SimulatedRun",
     "Trajectory",
+    "blob",
     "block_loop",
     "corridor",
+    "figurine",
     "floor_plan",
+    "object_view",
     "room_tour",
     "simulate_run",
     "simulate_scan",
     "simulate_sweep",
     "square_room",
     "street",
+    "trefoil_knot",
     "tunnel",
     "wheel_odometry",
 ]
