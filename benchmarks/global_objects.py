@@ -121,9 +121,10 @@ def main() -> None:
     low = [run_trial(k, rng, 150.0) for k in range(max(1, args.trials // 3))]
     if args.verbose:
         for t in trials + low:
+            verdict = "accepted" if t.accepted else "refused "
             print(
                 f"{t.shape:12s} {t.size:.1f} m {t.points:6d} pts {1000 * t.noise:.1f} mm turn "
-                f"{t.turn_deg:5.1f} views {t.views_deg:3.0f}: {'accepted' if t.accepted else 'refused '} "
+                f"{t.turn_deg:5.1f} views {t.views_deg:3.0f}: {verdict} "
                 f"{t.rotation_deg:6.2f}° {1000 * t.shift:6.1f} mm {t.cpu_s:.2f} s {t.reason[:70]}"
             )
     print(f"RAYON_NUM_THREADS={os.environ['RAYON_NUM_THREADS']}, seed {args.seed}")

@@ -2,9 +2,10 @@
 
 The test instrument for scanreg: every scene, trajectory and noise draw is reproducible from a
 seed, and the hard cases (long corridors, tunnels, moving people, motion distortion) are a
-parameter away. Scanned objects (:mod:`scanreg.simulate.objects`: a knot, a blob, a figurine
-seen from one side) are sampled from their surfaces directly. Ray casting runs in the Rust core, parallel over beams, with per-beam noise
-streams so the output does not depend on the thread count.
+parameter away. Ray casting runs in the Rust core, parallel over beams, with per-beam noise
+streams so the output does not depend on the thread count. Scanned objects
+(:mod:`scanreg.simulate.objects`: a knot, a blob, a figurine seen from one side) are sampled
+from their surfaces directly.
 
 Example::
 
