@@ -44,6 +44,7 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.eval", "ATE, RPE, the KITTI metric, Kümmerle relations"),
     ("scanreg.simulate", "scenes, sensors, trajectories and ray-cast scans with truth"),
     ("scanreg.simulate.courses", "loops and revisits with truth: block_loop, room_tour"),
+    ("scanreg.simulate.objects", "scanned objects with truth: knot, blob, figurine, views"),
     ("scanreg.place", "place recognition: Scan Context descriptors and their database"),
     ("scanreg.interop", "Open3D and ROS message layouts"),
     ("scanreg.plot", "figures (matplotlib)"),

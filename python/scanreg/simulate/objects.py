@@ -32,6 +32,8 @@ from .._validate import FloatArray, frozen
 from ._checks import count, non_negative, positive
 from ._checks import seed as check_seed
 
+__all__ = ["ObjectShape", "blob", "figurine", "object_view", "trefoil_knot"]
+
 #: ``(u, v) -> (points, core)``: ``(N, 3)`` surface points and, for each, a point inside the
 #: surface nearby (a tube's axis, a blob's centre) that tells outward from inward.
 Surface = Callable[[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]
