@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 from scanreg import simulate as sim
+from scanreg.simulate.objects import _shape
 
 
 @pytest.mark.parametrize("make", [sim.trefoil_knot, sim.blob, sim.figurine])
@@ -30,20 +31,24 @@ def test_a_shape_has_its_size_and_outward_unit_normals(make) -> None:  # type: i
 
 
 def test_samples_are_uniform_by_area() -> None:
-    # A figurine's body is a 2 x 1.24 x 1.1 ellipsoid: on the sphere of the parameters its
-    # poles are stretched least, so a sampler uniform in (u, v) would put too many points
-    # there. By area, a band of height h of a sphere holds h / diameter of its points
-    # (Archimedes); the blob is no sphere, so a sphere built as a blob with no bumps checks it.
-    sphere = sim.blob(size=0.2, bumps=1)
-    pts, _ = sphere.sample(40_000, seed=1)
-    # Bumps of 5-12 % leave the band test within a few percent: compare to the exact share.
-    z = pts[:, 2] / np.abs(pts[:, 2]).max()
-    share = float(np.mean(np.abs(z) < 0.5))
-    assert 0.45 < share < 0.56, share
+    # A sphere parametrised by polar angle: uniform (u, v) would crowd the poles (area element
+    # sin θ); by area, the band |z| < r/2 holds half of the points (Archimedes).
+    def sphere(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        theta, phi = math.pi * u, 2 * math.pi * v
+        pts = np.column_stack(
+            [np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)]
+        )
+        return pts, np.zeros_like(pts)
+
+    shape = _shape("sphere", (sphere,), 0.2)
+    pts, nrm = shape.sample(40_000, seed=1)
+    share = float(np.mean(np.abs(pts[:, 2]) < 0.05))
+    assert share == pytest.approx(0.5, abs=0.01), share  # uniform (u, v) gives 1/3
+    np.testing.assert_allclose(np.einsum("ij,ij->i", nrm, pts / 0.1), 1.0, atol=1e-3)
     # Two draws with the same seed are the same; another seed differs.
-    again, _ = sphere.sample(40_000, seed=1)
+    again, _ = shape.sample(40_000, seed=1)
     np.testing.assert_array_equal(pts, again)
-    assert not np.array_equal(pts, sphere.sample(40_000, seed=2)[0])
+    assert not np.array_equal(pts, shape.sample(40_000, seed=2)[0])
 
 
 def test_a_view_keeps_the_side_facing_its_viewpoint() -> None:
