@@ -43,9 +43,10 @@ from .verdict import Verdict, VerdictThresholds
 #: benchmark's own protocol uses).
 DEFAULT_KEYPOINTS = 5000
 #: The default voxel is at least this many times the median nearest-neighbour spacing of the
-#: larger cloud: each keypoint then averages about ten points. The count alone leaves a
-#: keypoint for every two points of a 10⁴-point object scan; the benchmark's rooms and streets
-#: hold 3.9 (3DMatch) to 23 (KITTI) spacings per voxel, so it never binds there.
+#: larger cloud: each keypoint then averages several points (about nine on a surface). The
+#: count alone leaves a keypoint for every two points of a 10⁴-point object scan; the
+#: benchmark's rooms and streets hold 3.9 (3DMatch) to 23 (KITTI) spacings per voxel, so it
+#: never binds there.
 MIN_VOXEL_SPACINGS = 3.0
 #: Query points (evenly spaced) that measure the spacing.
 SPACING_SAMPLES = 2000
@@ -405,12 +406,11 @@ class _Refiner:
                 return done
         return None
 
-    def refine(self, initial: SE3, reuse: bool = True) -> tuple[SE3, RegistrationResult, float]:
+    def refine(self, initial: SE3) -> tuple[SE3, RegistrationResult, float]:
         """``(pose, registration, close fraction)``: ``T_target_source``, the registration of
         the centred source (``pose·Tr(c)``; its trust analysis not run yet) and the fraction
-        of that source within half a voxel of the target. ``reuse``: an earlier refinement
-        that ``initial`` is the same pose as is returned instead."""
-        done = self.reused(initial) if reuse else None
+        of that source within half a voxel of the target."""
+        done = self.reused(initial)
         if done is not None:
             return done
         res = register(
