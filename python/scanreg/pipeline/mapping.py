@@ -35,7 +35,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -344,7 +344,8 @@ class Mapper:
         self._node_cov: dict[int, FloatArray] = {}  # odometry covariance of each node's scan
         self._node_blind: dict[int, tuple[float, float]] = {}  # bearing gap: start, width
         self._node_travel: list[float] = []  # path length at each node
-        self._submaps: dict[int, Submap2D] = {}
+        self._submaps: OrderedDict[int, Submap2D] = OrderedDict()
+        self._submap_bytes = 0
         self._loops: list[LoopRecord[LoopMatch]] = []
         # Loops held as hypotheses (good on their own evidence, at odds with the graph).
         self._held: list[LoopRecord[LoopMatch]] = []
@@ -527,7 +528,9 @@ class Mapper:
 
     def _submap(self, anchor: int) -> Submap2D:
         sub = self._submaps.get(anchor)
-        if sub is None:
+        if sub is not None:
+            self._submaps.move_to_end(anchor)
+        else:
             h = self.config.submap_half_size
             nodes = [n for n in range(anchor - h, anchor + h + 1) if 0 <= n < self.num_nodes]
             sub = build_submap(
@@ -542,6 +545,13 @@ class Mapper:
             # Only cache a submap whose later nodes all exist (it will not change).
             if anchor + h < self.num_nodes:
                 self._submaps[anchor] = sub
+                self._submap_bytes += _submap_bytes(sub)
+                # Least recently searched out first: a long-range laser's submap grids are
+                # ~100 MB each (an 80 m disc at 5 cm cells), and the hospital log's run grew
+                # to 20 GB with every searched submap kept.
+                while self._submap_bytes > SUBMAP_CACHE_BYTES and len(self._submaps) > 1:
+                    _, old = self._submaps.popitem(last=False)
+                    self._submap_bytes -= _submap_bytes(old)
         return sub
 
     def _candidates(
@@ -1026,6 +1036,17 @@ def estimate_laser_latency(
     shifts = np.arange(0.0, max_latency + 1e-9, 0.005)
     cost = [float(np.median(np.abs(odom_turn(d)[used] - m))) for d in shifts]
     return float(shifts[int(np.argmin(cost))])
+
+
+#: The most memory the cache of prepared submaps may hold (bytes).
+SUBMAP_CACHE_BYTES = 2 << 30
+
+
+def _submap_bytes(sub: Submap2D) -> int:
+    """About what a submap holds once searched: ~48 bytes a cell for its grid's layers and
+    pooled levels (measured: 40-60 MB for a hospital submap of 1.0 M cells), and the points."""
+    width, height = sub.grid.shape
+    return 48 * width * height + 64 * len(sub.points)
 
 
 #: Re-solve the graph in batch after loops that agree with each other against it are closed.
