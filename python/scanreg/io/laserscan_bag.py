@@ -10,8 +10,8 @@ What is read, besides the scans (:func:`~scanreg.io.rosbag.iter_bag_scans`):
 * **the wheel odometry** ``T_odom_base`` at each scan's stamp, interpolated (linearly, the
   heading along the shorter arc) between the two messages around it, from a
   ``nav_msgs/Odometry`` topic or, without one, from the ``/tf`` transforms odom → base.
-  A scan between two messages more than 1 s apart, or outside them, gets none. No odometry at all is fine:
-  the pipelines then predict each scan by constant velocity.
+  A scan between two messages more than 1 s apart, or outside them, gets none. No odometry
+  at all is fine: the pipelines then predict each scan by constant velocity.
 * **the base frame**: the Odometry messages' ``child_frame_id``, else the child of the
   ``odom`` frame on ``/tf``, else ``base_link`` / ``base_footprint`` when the tf tree links it
   to the laser, else the laser's own frame (identity mounting).
@@ -166,7 +166,8 @@ def _chain(transforms: Iterable[_Transform], start: str, goal: str) -> FloatArra
             continue
         seen.add((t.parent, t.child))
         edges.setdefault(t.parent, []).append((t.child, t.matrix))
-        edges.setdefault(t.child, []).append((t.parent, np.linalg.inv(t.matrix)))
+        inverse = np.asarray(np.linalg.inv(t.matrix), dtype=np.float64)
+        edges.setdefault(t.child, []).append((t.parent, inverse))
     reached: dict[str, FloatArray] = {start: np.eye(4)}
     queue = [start]
     while queue:

@@ -47,7 +47,7 @@ class ScanLog:
         Frame names (bags: the tf frame ids; CARMEN: ``"robot"`` / ``"laser"``).
     odometry_source : str
         Where :attr:`odometry` came from (``"nav_msgs/Odometry /odom"``, ``"tf odom →
-        base_link"``, ``"CARMEN laser fields"``, ``"none"``, …).
+        base_link"``, ``"CARMEN FLASER odometry fields / ODOM"``, ``"none"``, …).
     """
 
     path: Path
