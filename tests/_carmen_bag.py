@@ -47,10 +47,11 @@ def write_carmen_bag(
     laser: str = "FLASER",
     mounting: tuple[float, float, float] = (0.0, 0.0, 0.0),
     max_scans: int | None = None,
+    first: int = 0,
     odometry: bool = True,
     tf_static: bool = True,
 ) -> Path:
-    """Write the ``laser`` lines of ``log`` (the first ``max_scans``) as a bag of ``kind``
+    """Write the ``laser`` lines of ``log`` (``max_scans`` from the ``first``) as a bag of ``kind``
     (``"ros1"``, ``"sqlite3"`` or ``"mcap"``). The Odometry pose of each scan is its line's
     robot odometry pose, stamped with the line's timestamp; each message is received at the
     line's place in the file (the bag's order is the file's, whatever the stamps say)."""
@@ -59,7 +60,7 @@ def write_carmen_bag(
     if "tf2_msgs/msg/TFMessage" not in ts.types:  # rosbags' Noetic store has no tf2_msgs
         text = "geometry_msgs/TransformStamped[] transforms"
         ts.register(get_types_from_msg(text, "tf2_msgs/msg/TFMessage"))
-    scans = log.laser(laser)[:max_scans]
+    scans = log.laser(laser)[first:][:max_scans]
     t = ts.types
     vec3 = t["geometry_msgs/msg/Vector3"]
     static = t["tf2_msgs/msg/TFMessage"](

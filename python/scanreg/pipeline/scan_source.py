@@ -37,19 +37,28 @@ def carmen_mounting(scans: tuple[LaserScan, ...] | list[LaserScan]) -> SE2 | Non
     """``T_robot_laser`` from the laser and odometry poses of CARMEN laser lines, when it is
     the same on every line (see :data:`MOUNTING_TOLERANCE`); None when a line has no poses or
     the two poses are not rigidly linked."""
-    rel = []
-    for s in scans:
-        if s.laser_se2 is None or s.odometry_se2 is None:
-            return None
-        rel.append((s.odometry_se2.inverse() @ s.laser_se2).as_vector())
-    if not rel:
+    laser = [s.laser_pose for s in scans]
+    robot = [s.odometry_pose for s in scans]
+    if not laser or any(p is None for p in laser) or any(p is None for p in robot):
         return None
-    arr = np.array(rel)
+    lp, rp = np.array(laser), np.array(robot)
+    # inv(robot) · laser, every line at once
+    c, s = np.cos(rp[:, 2]), np.sin(rp[:, 2])
+    d = lp[:, :2] - rp[:, :2]
+    turn = lp[:, 2] - rp[:, 2]
+    arr = np.stack(
+        [
+            c * d[:, 0] + s * d[:, 1],
+            c * d[:, 1] - s * d[:, 0],
+            np.arctan2(np.sin(turn), np.cos(turn)),
+        ],
+        axis=1,
+    )
     middle = np.median(arr, axis=0)
-    turn = np.abs(np.arctan2(np.sin(arr[:, 2] - middle[2]), np.cos(arr[:, 2] - middle[2])))
+    spread = np.abs(np.arctan2(np.sin(arr[:, 2] - middle[2]), np.cos(arr[:, 2] - middle[2])))
     if np.abs(arr[:, :2] - middle[:2]).max() > MOUNTING_TOLERANCE[0]:
         return None
-    if turn.max() > MOUNTING_TOLERANCE[1]:
+    if spread.max() > MOUNTING_TOLERANCE[1]:
         return None
     # the stored digits' rounding is not a mounting: 0.220000008 m is 0.22 m
     return SE2.from_vector(np.round(middle, 6) + 0.0)
