@@ -5,17 +5,15 @@
 >>> scans = open_scan_log("run.mcap", scan_topic="/scan")        # ROS 2 bag
 >>> scans.points(0, 0.1, 40.0), scans.prior(1), scans.stamps[0]  # base frame
 
-A CARMEN laser line carries the laser's pose and the robot's odometry pose; when the two
-differ by the same transform on every line (the hospital log's ``ROBOTLASER1``: the laser
-0.22 m ahead) that transform is the mounting, and the scans are taken to the robot's frame,
-where the odometry is. Where they differ arbitrarily (the "corrected" logs, whose laser pose
-is a SLAM result) the mounting is unknown and taken as the identity.
+A CARMEN log's mounting is :func:`~scanreg.pipeline.mapping.laser_mounting` (the hospital
+log's ``ROBOTLASER1`` lines: the laser 0.22 m ahead of the robot; the identity where the
+laser and odometry poses are not one fixed offset apart): its scans go to the robot's frame,
+where the odometry is.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 from typing import Any
 
@@ -23,45 +21,9 @@ import numpy as np
 
 from ..io import read_scans
 from ..io._common import PathLike
-from ..io.carmen import CarmenLog, LaserScan
+from ..io.carmen import CarmenLog
 from ..io.scan_log import ScanLog, laser_pose_argument
 from ..io.sequences import BAG_SUFFIXES
-from ..transform import SE2
-
-#: A CARMEN log's laser and odometry poses give the mounting when ``inv(odometry) · laser``
-#: varies by less than this over the log (m, rad): the logs store 6 decimals.
-MOUNTING_TOLERANCE = (1e-3, math.radians(0.05))
-
-
-def carmen_mounting(scans: tuple[LaserScan, ...] | list[LaserScan]) -> SE2 | None:
-    """``T_robot_laser`` from the laser and odometry poses of CARMEN laser lines, when it is
-    the same on every line (see :data:`MOUNTING_TOLERANCE`); None when a line has no poses or
-    the two poses are not rigidly linked."""
-    laser = [s.laser_pose for s in scans]
-    robot = [s.odometry_pose for s in scans]
-    if not laser or any(p is None for p in laser) or any(p is None for p in robot):
-        return None
-    lp, rp = np.array(laser), np.array(robot)
-    # inv(robot) · laser, every line at once
-    c, s = np.cos(rp[:, 2]), np.sin(rp[:, 2])
-    d = lp[:, :2] - rp[:, :2]
-    turn = lp[:, 2] - rp[:, 2]
-    arr = np.stack(
-        [
-            c * d[:, 0] + s * d[:, 1],
-            c * d[:, 1] - s * d[:, 0],
-            np.arctan2(np.sin(turn), np.cos(turn)),
-        ],
-        axis=1,
-    )
-    middle = np.median(arr, axis=0)
-    spread = np.abs(np.arctan2(np.sin(arr[:, 2] - middle[2]), np.cos(arr[:, 2] - middle[2])))
-    if np.abs(arr[:, :2] - middle[:2]).max() > MOUNTING_TOLERANCE[0]:
-        return None
-    if spread.max() > MOUNTING_TOLERANCE[1]:
-        return None
-    # the stored digits' rounding is not a mounting: 0.220000008 m is 0.22 m
-    return SE2.from_vector(np.round(middle, 6) + 0.0)
 
 
 def _carmen_scan_log(
@@ -73,7 +35,7 @@ def _carmen_scan_log(
     min_range: float,
     max_range: float,
 ) -> ScanLog:
-    from .mapping import scan_odometry
+    from .mapping import laser_mounting, scan_odometry
 
     kinds = [s.kind for s in log.scans]
     if not kinds:
@@ -88,14 +50,15 @@ def _carmen_scan_log(
         indices = indices[:max_scans]
     scans = tuple(log.scans[i] for i in indices)
     wheel = scan_odometry(log, indices, latency=latency, min_range=min_range, max_range=max_range)
-    mounting = carmen_mounting(log.laser(chosen))
+    mounting = laser_mounting(log, indices)
+    with_odometry = any(s.odometry_pose is not None for s in scans)
     return ScanLog(
         path=log.path,
         scans=scans,
         stamps=np.array([s.timestamp for s in scans], dtype=np.float64),
         odometry=tuple(wheel),
-        T_base_laser=SE2.identity() if mounting is None else mounting,
-        base_frame="laser" if mounting is None else "robot",
+        T_base_laser=mounting,
+        base_frame="robot" if with_odometry else "laser",
         laser_frame="laser",
         odometry_source="none"
         if not any(w is not None for w in wheel)
@@ -118,7 +81,8 @@ def scan_log(
     A CARMEN log: the scans of message ``kind`` (default ``FLASER`` if present, else the
     first kind in the log), in file order; the wheel odometry at each scan's time
     (:func:`~scanreg.pipeline.mapping.scan_odometry` with ``latency``, ``min_range``,
-    ``max_range``); the mounting from its lines (:func:`carmen_mounting`).
+    ``max_range``); the mounting from its lines
+    (:func:`~scanreg.pipeline.mapping.laser_mounting`).
     ``laser_pose`` (``[x, y, θ]``) overrides the mounting of either.
     """
     override = laser_pose_argument(laser_pose)
@@ -188,4 +152,4 @@ def open_scan_log(
     )
 
 
-__all__ = ["MOUNTING_TOLERANCE", "carmen_mounting", "is_bag", "open_scan_log", "scan_log"]
+__all__ = ["is_bag", "open_scan_log", "scan_log"]
