@@ -405,3 +405,24 @@ def test_hospital_bag_with_the_laser_ahead_maps_like_the_log(tmp_path: Path, hos
     from_log, from_bag = (_relation_score(runs[k], "fr-clinic") for k in ("log", "bag"))
     assert len(from_bag.used) == len(from_log.used) == 77
     assert from_bag.translation.mean == pytest.approx(from_log.translation.mean, rel=0.10)
+
+
+def test_mounting_republished_on_tf(tmp_path: Path) -> None:
+    """No /tf_static: base_link → laser republished on /tf beside the moving odom → base_link
+    (older drivers do this): the mounting from /tf, the odometry from the odom edge only."""
+    kind = "sqlite3"
+    ts = _tf_store(kind)
+    msgs = []
+    for k in range(4):
+        ns = 50 * S + k * S // 5
+        moving = _transform(ts, kind, ns, "odom", "base_link", (0.2 * k, 0.0, 0.0), 0.0, 0.0)
+        mount = _transform(ts, kind, ns, "base_link", "laser", (-0.1, 0.0, 0.2), 0.0, math.pi)
+        msgs.append((ns, _tf(ts, moving, mount)))
+    scans = [(50 * S + S // 10, _scan(ts, kind, 50 * S + S // 10, RANGES))]
+    path = write_bag(tmp_path / "b", kind, ts, {"/tf": (TF, msgs), "/scan": (SCAN, scans)})
+    log = read_laserscan_bag(path)
+    assert log.base_frame == "base_link" and log.odometry_source == "tf odom → base_link"
+    np.testing.assert_allclose(log.T_base_laser.as_vector()[:2], [-0.1, 0.0], atol=1e-9)
+    assert abs(abs(log.T_base_laser.angle) - math.pi) < 1e-9  # facing backwards
+    assert log.odometry[0] is not None
+    np.testing.assert_allclose(log.odometry[0].as_vector(), [0.1, 0.0, 0.0], atol=1e-9)
