@@ -193,7 +193,9 @@ def test_odometry_topic_upside_down_laser_and_override(tmp_path: Path, kind: str
     np.testing.assert_allclose(moved.points(0)[0], [0.0, -1.0], atol=1e-6)
 
 
-def test_topic_choice_is_refused_naming_the_topics(tmp_path: Path) -> None:
+def test_topic_choice_is_refused_naming_the_topics(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     kind = "mcap"
     ts = _tf_store(kind)
     scans = [(S, _scan(ts, kind, S, RANGES))]
@@ -229,7 +231,10 @@ def test_topic_choice_is_refused_naming_the_topics(tmp_path: Path) -> None:
         read_laserscan_bag(path, scan_topic="/rear/scan", laser_pose=(0.1, 0.0))
     # the CLI says the same and exits with bad input
     out = tmp_path / "o"
-    assert main(["odometry", str(path), "-o", str(out), "--quiet"]) == EXIT_BAD_INPUT
+    for command in (["odometry"], ["map"]):
+        assert main([*command, str(path), "-o", str(out), "--quiet"]) == EXIT_BAD_INPUT
+        err = capsys.readouterr().err
+        assert "(/front/scan, /rear/scan); choose one (--scan-topic)" in err, err
 
 
 def test_interpolation_edges() -> None:
