@@ -115,7 +115,7 @@ def test_odometry_reads_carmen_logs(
     assert "max_keyframe" in capsys.readouterr().err
     code = main(["odometry", str(excerpt), "--preset", "velodyne-hdl64", "-o", str(out)])
     assert code == EXIT_BAD_INPUT
-    assert "--preset: not available for a 2D CARMEN log" in capsys.readouterr().err
+    assert "--preset: not available for a 2D laser log" in capsys.readouterr().err
 
 
 def test_interrupted_map_writes_what_was_mapped(

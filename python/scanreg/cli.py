@@ -242,6 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     odo.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
     odo.add_argument("--topic", default=None, help="bag: the PointCloud2 topic")
+    _add_laser_options(odo)
     odo.add_argument(
         "--save-map",
         action="store_true",
@@ -301,6 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--resolution", type=float, default=0.05, help="2D map cell size (m)")
     mp.add_argument("--voxel-size", type=float, default=0.2, help="3D map voxel (m)")
     mp.add_argument("--topic", default=None, help="3D bag: the PointCloud2 topic")
+    _add_laser_options(mp)
     mp.add_argument("--no-plots", action="store_true", help="skip trajectory.png")
     _add_bag_options(
         mp, "the graph nodes' poses and scans, the occupancy grid, loop closures", sensor="laser"
@@ -334,6 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
         "that folder (map.ply/.pcd, places.npz) or a point file",
     )
     lz.add_argument("--topic", default=None, help="3D bag: the PointCloud2 topic")
+    _add_laser_options(lz)
     lz.add_argument("-o", "--output", type=Path, default=Path("localize-output"))
     lz.add_argument("--max-scans", type=int, default=None, help="stop after N scans")
     lz.add_argument("--json", action="store_true", help="print JSON instead of text")
@@ -342,6 +345,46 @@ def build_parser() -> argparse.ArgumentParser:
         subparser.epilog = SUB_EXAMPLES[name]
         subparser.formatter_class = argparse.RawDescriptionHelpFormatter
     return parser
+
+
+def _add_laser_options(sub: argparse.ArgumentParser) -> None:
+    """A 2D LaserScan bag's topics and the laser's mounting (scanreg.io.laserscan_bag)."""
+    sub.add_argument("--scan-topic", default=None, help="2D bag: the LaserScan topic")
+    sub.add_argument("--odom-topic", default=None, help="2D bag: the nav_msgs/Odometry topic")
+    sub.add_argument(
+        "--laser-pose",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "THETA"),
+        default=None,
+        help="2D: the laser's mounting on the base (m, m, rad), instead of the bag's tf",
+    )
+
+
+def _is_2d_bag(args: argparse.Namespace) -> bool:
+    """A bag read as 2D laser scans: a 2D option given, or a LaserScan and no PointCloud2."""
+    from .pipeline.scan_source import is_bag
+
+    if str(args.path).startswith("sim:") or not is_bag(args.path):
+        return False
+    if args.scan_topic is not None or args.odom_topic is not None:
+        return True
+    from .io.laserscan_bag import is_laserscan_bag
+
+    return args.topic is None and is_laserscan_bag(args.path)
+
+
+def _scan_log(args: argparse.Namespace, **options: Any) -> Any:
+    """The 2D run of ``args.path`` (CARMEN log or LaserScan bag) as a ScanLog."""
+    from .pipeline.scan_source import open_scan_log
+
+    return open_scan_log(
+        args.path,
+        scan_topic=args.scan_topic,
+        odom_topic=args.odom_topic,
+        laser_pose=args.laser_pose,
+        **options,
+    )
 
 
 def _add_bag_options(sub: argparse.ArgumentParser, contents: str, *, sensor: str) -> None:
@@ -863,14 +906,14 @@ def _odometry_carmen(args: argparse.Namespace) -> dict[str, Any]:
     import time
 
     from .config import load_config, write_config
-    from .io import Trajectory, read_scans, write_kitti_poses, write_tum
-    from .pipeline.mapping import MappingConfig, scan_odometry
+    from .io import Trajectory, write_kitti_poses, write_tum
+    from .pipeline.mapping import MappingConfig
     from .pipeline.odometry2d import Odometry2D, OdometryConfig2D
 
     for flag in ("preset", "method", "topic", "bag", "save_map", "report"):
         value = getattr(args, flag, None)
         if value:
-            raise ValueError(f"--{flag.replace('_', '-')}: not available for a 2D CARMEN log")
+            raise ValueError(f"--{flag.replace('_', '-')}: not available for a 2D laser log")
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     # The mapping pipeline's odometry (correlative front end) under the user's file.
@@ -879,35 +922,25 @@ def _odometry_carmen(args: argparse.Namespace) -> dict[str, Any]:
     config = load_config(
         OdometryConfig2D, args.config, presets=["mapping"], preset_table={"mapping": preset}
     )
-    log = read_scans(args.path)
-    kinds = [s.kind for s in log.scans]
-    chosen = "FLASER" if "FLASER" in kinds else (kinds[0] if kinds else None)
-    indices = [i for i, k in enumerate(kinds) if k == chosen][: args.max_frames]
-    if not indices:
-        raise ValueError(f"path: {args.path} holds no laser scan")
+    # The wheel odometry at each scan's own time (a log whose laser messages carry stale
+    # odometry, as ACES', is read from its ODOM stream; the mapping pipeline's prior).
+    scans = _scan_log(args, max_scans=args.max_frames)
     args.output.mkdir(parents=True, exist_ok=True)
     odo = Odometry2D(config)
     rows: list[dict[str, Any]] = []
     poses: list[Any] = []
     stamps: list[float] = []
     pending = None
-    previous: int | None = None
     accepted = 0
     skipped = 0
     t0 = time.perf_counter()
     enabled = not (args.quiet or args.json)
-    # The wheel odometry at each scan's own time (a log whose laser messages carry stale
-    # odometry, as ACES', is read from its ODOM stream; the mapping pipeline's prior).
-    wheel = dict(zip(indices, scan_odometry(log, indices, latency=None), strict=True))
-    with Progress(len(indices), description="odometry", unit="scans", enabled=enabled) as bar:
-        for i in indices:
-            scan = log.scans[i]
-            before, here = None if previous is None else wheel[previous], wheel[i]
-            if before is not None and here is not None:
-                step = before.inverse() @ here
+    with Progress(len(scans), description="odometry", unit="scans", enabled=enabled) as bar:
+        for i in range(len(scans)):
+            step = scans.prior(i)
+            if step is not None:
                 pending = step if pending is None else pending @ step
-            previous = i
-            pts = scan.to_points(0.1, 40.0)
+            pts = scans.points(i, 0.1, 40.0)
             if len(pts) < 3:  # no returns: nothing to align; its motion joins the next prior
                 skipped += 1
                 bar.update()
@@ -915,13 +948,13 @@ def _odometry_carmen(args: argparse.Namespace) -> dict[str, Any]:
             frame = odo.step(pts, prior=pending if poses else None)
             pending = None
             poses.append(frame.pose)
-            stamps.append(scan.timestamp)
+            stamps.append(float(scans.stamps[i]))
             accepted += frame.verdict.accepted
             sd = np.sqrt(np.clip(np.diag(frame.covariance), 0, None))
             rows.append(
                 {
                     "scan": i,
-                    "stamp": scan.timestamp,
+                    "stamp": float(scans.stamps[i]),
                     "accepted": frame.verdict.accepted,
                     "reasons": "; ".join(frame.verdict.reasons),
                     "prediction_source": frame.prediction_source,
@@ -956,6 +989,7 @@ def _odometry_carmen(args: argparse.Namespace) -> dict[str, Any]:
         "rejected": len(poses) - accepted,
         "front_end": config.front_end,
         "final_pose": [float(v) for v in poses[-1].as_vector()],
+        "scans": scans.describe(),
     }
     written["summary"] = args.output / "summary.json"
     result["outputs"] = {k: str(v) for k, v in written.items()}
@@ -970,8 +1004,10 @@ def _odometry(args: argparse.Namespace) -> dict[str, Any]:
     from .pipeline.odometry import OdometryConfig
     from .pipeline.run import evaluate_run, run_odometry
 
-    if not str(args.path).startswith("sim:") and _carmen_key(args.path) is not None:
-        return _odometry_carmen(args)  # a 2D laser log
+    if not str(args.path).startswith("sim:") and (
+        _carmen_key(args.path) is not None or _is_2d_bag(args)
+    ):
+        return _odometry_carmen(args)  # a 2D laser log or LaserScan bag
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
     overrides = {} if args.method is None else {"method": args.method}
@@ -1075,7 +1111,6 @@ def _report(args: argparse.Namespace) -> dict[str, Any]:
 def _map(args: argparse.Namespace) -> dict[str, Any]:
     from .config import load_config, write_config
     from .graph import require_gtsam
-    from .io import read_scans
 
     require_gtsam()  # fail before reading a large log
     from .pipeline.mapping import MappingConfig, MappingInterrupted, run_mapping
@@ -1085,7 +1120,7 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"--max-scans must be >= 1, got {args.max_scans}")
     if not args.resolution > 0:
         raise ValueError(f"--resolution must be > 0, got {args.resolution}")
-    if _is_3d_source(args.path):
+    if _is_3d_source(args.path) and not _is_2d_bag(args):
         return _map_3d(args)
     config = load_config(MappingConfig, args.config)
     if args.bag is not None:
@@ -1093,17 +1128,22 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
     frames = _bag_settings(args)  # a bad bag path fails now, not after the run
     if args.checkpoint is not None and args.checkpoint < 1:
         raise ValueError(f"--checkpoint must be >= 1 scans, got {args.checkpoint}")
-    log = read_scans(args.path)
+    scans = _scan_log(
+        args,
+        kind=args.kind,
+        max_scans=args.max_scans,
+        latency=config.laser_latency,
+        min_range=config.min_range,
+        max_range=config.max_range,
+    )
 
     def checkpoint(partial: Any) -> None:
         write_outputs(args.output, partial, resolution=args.resolution, plot=False)
 
     try:
         res = run_mapping(
-            log,
+            scans,
             config,
-            kind=args.kind,
-            max_scans=args.max_scans,
             progress=not (args.quiet or args.json),
             checkpoint=None if args.checkpoint is None else checkpoint,
             checkpoint_every=args.checkpoint or 1000,
@@ -1125,6 +1165,7 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
         paths["report"] = write_report(args.output)
     result = summary(res)
     result["log"] = str(args.path)
+    result["scans"] = scans.describe()
     result["outputs"] = {k: str(v) for k, v in paths.items()}
     return result
 
@@ -1190,46 +1231,34 @@ def _localize(args: argparse.Namespace) -> dict[str, Any]:
     import time
 
     from ._progress import Progress
-    from .io import Trajectory, read_scans, write_tum
+    from .io import Trajectory, write_tum
     from .pipeline.localizer2d import Localizer2D
-    from .pipeline.mapping import scan_odometry
 
     if args.max_scans is not None and args.max_scans < 1:
         raise ValueError(f"--max-scans must be >= 1, got {args.max_scans}")
-    if _is_3d_source(args.path):
+    if _is_3d_source(args.path) and not _is_2d_bag(args):
         return _localize_3d(args)
     map_yaml = args.map / "map.yaml" if args.map.is_dir() else args.map
     loc = Localizer2D.from_map_server(map_yaml)
-    log = read_scans(args.path)
-    kinds = [s.kind for s in log.scans]
-    chosen = "FLASER" if "FLASER" in kinds else (kinds[0] if kinds else None)
-    indices = [i for i, k in enumerate(kinds) if k == chosen][: args.max_scans]
-    if not indices:
-        raise ValueError(f"path: {args.path} holds no laser scan")
+    # The scans in the base frame and the wheel odometry at each one's time, as mapped.
+    scans = _scan_log(args, max_scans=args.max_scans)
     args.output.mkdir(parents=True, exist_ok=True)
     rows, poses, stamps = [], [], []
-    previous: int | None = None
     t0 = time.perf_counter()
     enabled = not (args.quiet or args.json)
-    # The wheel odometry at each scan's own time, as the mapping run read it.
-    wheel = dict(zip(indices, scan_odometry(log, indices, latency=None), strict=True))
-    with Progress(len(indices), description="localize", unit="scans", enabled=enabled) as bar:
-        for i in indices:
-            scan = log.scans[i]
-            pts = scan.to_points(0.1, 40.0)
-            prior = None
-            before, here = None if previous is None else wheel[previous], wheel[i]
-            if before is not None and here is not None:
-                prior = before.inverse() @ here
-            previous = i
+    with Progress(len(scans), description="localize", unit="scans", enabled=enabled) as bar:
+        for i in range(len(scans)):
+            pts = scans.points(i, 0.1, 40.0)
+            prior = scans.prior(i)
             if len(pts) < 3:
                 bar.update()
                 continue
-            frame = loc.step(pts, prior=prior, stamp=scan.timestamp)
+            stamp = float(scans.stamps[i])
+            frame = loc.step(pts, prior=prior, stamp=stamp)
             sd = np.sqrt(np.clip(np.diag(frame.covariance), 0, None))
             rows.append(
                 {
-                    "stamp": scan.timestamp,
+                    "stamp": stamp,
                     "accepted": frame.verdict.accepted,
                     "reasons": "; ".join(frame.verdict.reasons),
                     "prediction_source": frame.prediction_source,
@@ -1242,7 +1271,7 @@ def _localize(args: argparse.Namespace) -> dict[str, Any]:
                 }
             )
             poses.append(frame.pose)
-            stamps.append(scan.timestamp)
+            stamps.append(stamp)
             bar.update()
     seconds = time.perf_counter() - t0
     tum = args.output / "poses_tum.txt"

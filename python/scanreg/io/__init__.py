@@ -4,7 +4,9 @@ One registry per kind of content, keyed by file extension (lower case). Adding a
 one function and one entry here; logs that hold many scans (CARMEN: :func:`read_scans`) have a
 ``SCAN_SOURCES`` registry of the same shape. ROS 1/2 bags (``sensor_msgs/LaserScan`` and
 ``PointCloud2``): :func:`read_bag_scans`, :func:`read_bag_clouds`, :func:`list_topics`
-(module :mod:`scanreg.io.rosbag`, needs the ``ros`` extra); a run written as a ROS 2 bag:
+(module :mod:`scanreg.io.rosbag`, needs the ``ros`` extra); a 2D LaserScan bag with its
+odometry and tf as the 2D pipelines read it, a :class:`ScanLog`: :func:`read_laserscan_bag`
+(module :mod:`scanreg.io.laserscan_bag`); a run written as a ROS 2 bag:
 :func:`write_run_bag` (module :mod:`scanreg.io.rosbag_write`). LAS/LAZ (``.las``/``.laz``
 in the registries, module :mod:`scanreg.io.las`, needs the ``las`` extra) keep intensity,
 GPS time and returns.
@@ -40,6 +42,7 @@ from .arrays import (
 from .carmen import CarmenLog, LaserScan, Odometry, read_carmen
 from .g2o import PoseGraph, PoseGraphEdge, g2o_information, read_g2o, write_g2o
 from .las import LasHeaderInfo, read_las, read_las_header, write_las, write_laz
+from .laserscan_bag import read_laserscan_bag
 from .pcd import read_pcd, write_pcd
 from .ply import read_ply, write_ply
 from .rosbag import (
@@ -51,6 +54,7 @@ from .rosbag import (
     read_bag_scans,
 )
 from .rosbag_write import BagFrames, BagGrid, BagTopics, LoopClosure, write_run_bag
+from .scan_log import ScanLog
 from .sequences import (
     FolderSequence,
     KittiSequence,
@@ -206,6 +210,7 @@ __all__ = [
     "PoseGraphEdge",
     "RosLaserScan",
     "RosbagSequence",
+    "ScanLog",
     "ScanSequence",
     "SequenceFrame",
     "SimulatedSequence",
@@ -226,6 +231,7 @@ __all__ = [
     "read_kitti_poses",
     "read_las",
     "read_las_header",
+    "read_laserscan_bag",
     "read_npy",
     "read_npz",
     "read_pcd",

@@ -670,7 +670,14 @@ def _typestore(ros1: bool) -> Any:
     (de)serialisers again on first use, which cost ~25 ms per bag read (measured by fuzz/)."""
     rosbags = _rosbags()
     stores = rosbags.typesys.Stores
-    return rosbags.typesys.get_typestore(stores.ROS1_NOETIC if ros1 else stores.LATEST)
+    store = rosbags.typesys.get_typestore(stores.ROS1_NOETIC if ros1 else stores.LATEST)
+    if ros1 and "tf2_msgs/msg/TFMessage" not in store.types:
+        # rosbags' Noetic store lacks tf2_msgs (a LaserScan bag's /tf and /tf_static); this
+        # definition has the message's ROS 1 md5, 94810edda583a504dfda3829e70d7eec.
+        text = "geometry_msgs/TransformStamped[] transforms"
+        for name in ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage"):
+            store.register(rosbags.typesys.get_types_from_msg(text, name))
+    return store
 
 
 @functools.cache
@@ -723,7 +730,10 @@ def _deserialised(
 
 
 def _stamp(msg: Any) -> float:
-    return float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
+    # integer nanoseconds, divided once: the float nearest the stamp (sec + 1e-9·nanosec
+    # rounds twice, one unit of 2.4e-7 s off for a 2009 stamp)
+    stamp = msg.header.stamp
+    return (int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)) / 1_000_000_000
 
 
 def _scan_from_message(path: Path, topic: str, stamp: int, msg: Any, index: int) -> RosLaserScan:

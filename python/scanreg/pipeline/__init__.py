@@ -3,7 +3,8 @@ in a prior map (:class:`Localizer`, 3D; :class:`Localizer2D`, 2D, with global re
 2D scan-to-map odometry (:class:`Odometry2D`), mapping with loop closure on a pose graph
 (:class:`Mapper` 2D, :class:`Mapper3D` 3D; needs ``scanreg[mapping]``) and 3D localization in a
 saved map with global relocalization (:class:`MapLocalizer`); :func:`write_outputs` writes a
-mapping run's folder (what ``scanreg map`` writes)."""
+mapping run's folder (what ``scanreg map`` writes); :func:`open_scan_log` / :func:`scan_log`
+read a CARMEN log or a LaserScan bag as the 2D pipelines' :class:`~scanreg.io.ScanLog`."""
 
 from .localizer import Localizer, Relocalization
 from .localizer2d import GlobalFix, LocalizationConfig2D, Localizer2D
@@ -13,6 +14,7 @@ from .mapping3d import Mapper3D, MappingConfig3D, run_mapping_3d
 from .mapping_output import write_outputs
 from .odometry import AdaptiveGate, FrameResult, FrameTiming, Odometry, OdometryConfig
 from .odometry2d import Frame2D, FrameTiming2D, Odometry2D, OdometryConfig2D
+from .scan_source import open_scan_log, scan_log
 
 __all__ = [
     "AdaptiveGate",
@@ -37,7 +39,9 @@ __all__ = [
     "OdometryConfig",
     "OdometryConfig2D",
     "Relocalization",
+    "open_scan_log",
     "run_mapping",
     "run_mapping_3d",
+    "scan_log",
     "write_outputs",
 ]

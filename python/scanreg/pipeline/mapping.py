@@ -46,6 +46,7 @@ import numpy as np
 from .._validate import FloatArray, as_points
 from ..graph import Graph, GraphSolveError, Kernel
 from ..io.carmen import CarmenLog
+from ..io.scan_log import ScanLog
 from ..preprocess import voxel_downsample
 from ..transform import SE2, SE3, as_pose
 from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, loops_agree, match_loop
@@ -1103,7 +1104,7 @@ def laser_mounting(log: CarmenLog, indices: Sequence[int]) -> SE2:
 
 
 def run_mapping(
-    log: CarmenLog,
+    log: CarmenLog | ScanLog,
     config: MappingConfig | None = None,
     *,
     kind: str | None = None,
@@ -1112,14 +1113,18 @@ def run_mapping(
     checkpoint: Checkpoint | None = None,
     checkpoint_every: int = 1000,
 ) -> MappingResult[SE2]:
-    """Map a CARMEN log in file order (its timestamps may step backwards; they are kept as
-    written), with each scan's wheel-odometry motion as the prior (the odometry at each scan's
-    time, :func:`scan_odometry`).
+    """Map a run of 2D scans in recording order (its timestamps may step backwards; they are
+    kept as written), with each scan's wheel-odometry motion as the prior.
 
-    ``kind``: the laser message kind to use (default: ``FLASER`` if present, else the first
-    kind in the log). ``progress``: a progress line on stderr (scans/s, loops accepted and
-    rejected). ``checkpoint``: called with :meth:`Mapper.snapshot` every
-    ``checkpoint_every`` scans (e.g. to write the outputs so far).
+    ``log``: a CARMEN log (the odometry at each scan's time, :func:`scan_odometry`; the
+    laser's mounting, :func:`laser_mounting`) or a :class:`~scanreg.io.ScanLog` (a LaserScan
+    bag: :func:`~scanreg.io.read_laserscan_bag`); both through
+    :func:`~scanreg.pipeline.scan_source.scan_log`. The scans are mapped in the base frame,
+    where the odometry is (the mounting applied to their points): the poses are
+    ``T_world_base``. ``kind``: a CARMEN log's laser message kind (default ``FLASER`` if
+    present, else the first kind in the log). ``progress``: a progress line on stderr
+    (scans/s, loops accepted and rejected). ``checkpoint``: called with
+    :meth:`Mapper.snapshot` every ``checkpoint_every`` scans (e.g. to write the outputs so far).
 
     Raises
     ------
@@ -1128,39 +1133,30 @@ def run_mapping(
         mapped so far (``None`` if nothing was) and chains the cause.
     """
     from .._progress import Progress
+    from .scan_source import scan_log
 
     cfg = MappingConfig() if config is None else config
-    kinds = [s.kind for s in log.scans]
-    if not kinds:
-        raise ValueError(f"log: {log.path} holds no laser scan")
-    chosen = kind if kind is not None else ("FLASER" if "FLASER" in kinds else kinds[0])
-    indices = [i for i, k in enumerate(kinds) if k == chosen]
-    if not indices:
-        raise ValueError(f"kind: the log has no {chosen!r} scans (it has {sorted(set(kinds))})")
-    if max_scans is not None:
-        if max_scans < 1:
-            raise ValueError(f"max_scans: must be >= 1, got {max_scans}")
-        indices = indices[:max_scans]
-    mapper = Mapper(cfg)
-    bar = Progress(len(indices), description="map", unit="scans", enabled=progress)
-    wheel = scan_odometry(
-        log, indices, latency=cfg.laser_latency, min_range=cfg.min_range, max_range=cfg.max_range
-    )
     if isinstance(checkpoint_every, bool) or not (
         isinstance(checkpoint_every, int) and checkpoint_every >= 1
     ):
         raise ValueError(f"checkpoint_every: must be an int >= 1, got {checkpoint_every!r}")
-
-    mounting = laser_mounting(log, indices)
+    scans = scan_log(
+        log,
+        kind=kind,
+        max_scans=max_scans,
+        latency=cfg.laser_latency,
+        min_range=cfg.min_range,
+        max_range=cfg.max_range,
+    )
+    mapper = Mapper(cfg)
+    total = len(scans)
+    bar = Progress(total, description="map", unit="scans", enabled=progress)
 
     def track(k: int) -> Tracked:
-        scan = log.scans[indices[k]]
-        before, here = (None, None) if k == 0 else (wheel[k - 1], wheel[k])
-        prior = None if before is None or here is None else before.inverse() @ here
-        # In the robot's frame, as the wheel prior and the poses are (and the relations of
-        # a benchmark: the hospital's laser sits 0.22 m ahead of the robot's centre).
-        points = mounting.apply(scan.to_points(cfg.min_range, cfg.max_range))
-        return mapper.track(points, prior=prior, stamp=scan.timestamp)
+        # In the base frame, as the wheel prior and the poses are (and the relations of a
+        # benchmark: the hospital's laser sits 0.22 m ahead of the robot's centre).
+        points = scans.points(k, cfg.min_range, cfg.max_range)
+        return mapper.track(points, prior=scans.prior(k), stamp=float(scans.stamps[k]))
 
     # The odometry of the next scans runs on a second thread while this one closes loops:
     # the two share nothing (Mapper.track / Mapper.integrate), and both spend most of their
@@ -1170,8 +1166,8 @@ def run_mapping(
     k = 0
     try:
         with bar:
-            for k in range(len(indices)):
-                while len(ahead) < _TRACK_AHEAD and k + len(ahead) < len(indices):
+            for k in range(total):
+                while len(ahead) < _TRACK_AHEAD and k + len(ahead) < total:
                     ahead.append(pool.submit(track, k + len(ahead)))
                 step = mapper.integrate(ahead.popleft().result())
                 if step.loops or step.index % 25 == 0:
@@ -1182,12 +1178,12 @@ def run_mapping(
                     )
                 bar.update()
                 if checkpoint is not None and (k + 1) % checkpoint_every == 0:
-                    checkpoint(mapper.snapshot(f"checkpoint after {k + 1} of {len(indices)} scans"))
+                    checkpoint(mapper.snapshot(f"checkpoint after {k + 1} of {total} scans"))
         pool.shutdown()
         return mapper.finish()
     except (KeyboardInterrupt, Exception) as exc:
         pool.shutdown(wait=True, cancel_futures=True)
-        stopped = _interrupted(mapper, exc, k, len(indices))
+        stopped = _interrupted(mapper, exc, k, total)
         if stopped is None:
             raise
         raise stopped from exc

@@ -1,0 +1,85 @@
+"""2D mapping from a ROS bag against mapping from the CARMEN log it was made from.
+
+Each log is written as a ROS 2 bag by rosbags' own writer (``tests/_carmen_bag.py``:
+``/scan`` LaserScan, ``/odom`` Odometry per scan, ``/tf_static`` base_link → laser; the
+hospital's laser 0.22 m ahead), read back with ``scanreg.io.read_laserscan_bag`` and mapped
+with ``run_mapping`` (default ``MappingConfig``), as the log itself is. Rows: the Kümmerle
+relations score (mean translation m / rotation deg over all relations) and the wall time of
+reading and of mapping, log and bag side by side.
+
+Run: ``.venv/bin/python benchmarks/freiburg_bags.py [--data ../shared/data] [--logs intel
+aces fr-clinic] [--max-scans N] [--storage mcap|sqlite3|ros1]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from scanreg.eval.relations import read_relations, relation_error
+from scanreg.io import read_laserscan_bag, read_scans
+from scanreg.io.trajectory import Trajectory
+from scanreg.pipeline import MappingConfig, run_mapping, scan_log
+
+HERE = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(HERE / "tests"))
+from _carmen_bag import write_carmen_bag  # noqa: E402
+
+#: log name → (file, laser message, T_base_laser written to /tf_static)
+LOGS = {
+    "intel": ("intel.clf.bz2", "FLASER", (0.0, 0.0, 0.0)),
+    "aces": ("aces.clf.bz2", "FLASER", (0.0, 0.0, 0.0)),
+    "fr-clinic": ("fr-clinic_robotlaser.clf.bz2", "ROBOTLASER1", (0.22, 0.0, 0.0)),
+}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    default = Path(os.environ.get("SCANREG_DATA", HERE.parent / "shared" / "data"))
+    parser.add_argument("--data", type=Path, default=default)
+    parser.add_argument("--logs", nargs="+", default=["intel"], choices=sorted(LOGS))
+    parser.add_argument("--max-scans", type=int, default=None)
+    parser.add_argument("--storage", choices=["mcap", "sqlite3", "ros1"], default="mcap")
+    args = parser.parse_args()
+    folder = args.data / "freiburg-slam-benchmark"
+    print("| log | source | relations | translation (m) | rotation (deg) | read (s) | map (s) |")
+    print("|---|---|---|---|---|---|---|")
+    for name in args.logs:
+        file, laser, mounting = LOGS[name]
+        relations = read_relations(folder / f"{name}.relations")
+        t0 = time.perf_counter()
+        log = read_scans(folder / file)
+        scans = scan_log(log, kind=laser, max_scans=args.max_scans)
+        read_log = time.perf_counter() - t0
+        with tempfile.TemporaryDirectory() as tmp:
+            path = write_carmen_bag(
+                log,
+                Path(tmp) / f"{name}_bag",
+                kind=args.storage,
+                laser=laser,
+                mounting=mounting,
+                max_scans=args.max_scans,
+            )
+            t0 = time.perf_counter()
+            bag = read_laserscan_bag(path)
+            read_bag = time.perf_counter() - t0
+        for source, run, seconds in (("log", scans, read_log), (args.storage, bag, read_bag)):
+            t0 = time.perf_counter()
+            res = run_mapping(run, MappingConfig())
+            mapped = time.perf_counter() - t0
+            stamps = np.array(res.stamps, dtype=np.float64)
+            err = relation_error(Trajectory.from_poses(list(res.poses), stamps), relations)
+            print(
+                f"| {name} | {source} | {len(err.used)} | {err.translation.mean:.5f} | "
+                f"{err.rotation_deg.mean:.4f} | {seconds:.1f} | {mapped:.0f} |",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,160 @@
+"""A run of 2D laser scans as the 2D pipelines read it, whatever file it came from.
+
+:class:`ScanLog` is what a CARMEN log (:func:`scanreg.pipeline.scan_source.scan_log`) and a
+ROS bag with ``sensor_msgs/LaserScan`` (:func:`scanreg.io.laserscan_bag.read_laserscan_bag`)
+both become: per scan its ranges (laser frame), its own stamp, and the wheel odometry
+``T_odom_base`` at that stamp; once per run the laser's mounting ``T_base_laser``. The
+pipelines (:func:`~scanreg.pipeline.mapping.run_mapping`, ``scanreg odometry`` / ``localize``)
+work in the base frame: :meth:`ScanLog.points` puts each scan's returns there, and
+:meth:`ScanLog.prior` is the wheels' motion of the base, so both describe the same body and
+the poses they return are ``T_world_base``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._validate import FloatArray
+from ..transform import SE2
+from ._common import _readonly
+from .carmen import LaserScan
+
+
+@dataclass(frozen=True)
+class ScanLog:
+    """2D laser scans in the order they were taken, with their odometry and mounting.
+
+    Attributes
+    ----------
+    path : Path
+        The file (or bag folder) read.
+    scans : tuple of LaserScan
+        One laser stream, in recording order (CARMEN: file order; bag: receive order).
+    stamps : (N,) float64
+        Each scan's own time, seconds, as recorded (may step backwards in corrupted logs).
+    odometry : tuple of SE2 or None
+        ``T_odom_base``: the wheel odometry at each scan's stamp (None where there is none).
+    T_base_laser : SE2
+        The laser's mounting on the base (identity: the base is the laser).
+    mirrored : bool
+        The laser is mounted upside down: its beams sweep clockwise seen from above, so
+        :meth:`points` mirrors them (y → −y) before the mounting.
+    base_frame, laser_frame : str
+        Frame names (bags: the tf frame ids; CARMEN: ``"robot"`` / ``"laser"``).
+    odometry_source : str
+        Where :attr:`odometry` came from (``"nav_msgs/Odometry /odom"``, ``"tf odom →
+        base_link"``, ``"CARMEN FLASER odometry fields / ODOM"``, ``"none"``, …).
+    """
+
+    path: Path
+    scans: tuple[LaserScan, ...]
+    stamps: FloatArray
+    odometry: tuple[SE2 | None, ...]
+    T_base_laser: SE2
+    mirrored: bool = False
+    base_frame: str = "base"
+    laser_frame: str = "laser"
+    odometry_source: str = "none"
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "path", Path(self.path))
+        set_(self, "scans", tuple(self.scans))
+        set_(self, "odometry", tuple(self.odometry))
+        stamps = np.array(self.stamps, dtype=np.float64).reshape(-1)
+        if not (len(self.scans) == len(stamps) == len(self.odometry)):
+            raise ValueError(
+                f"scans, stamps, odometry: expected the same length, got {len(self.scans)}, "
+                f"{len(stamps)}, {len(self.odometry)}"
+            )
+        if not np.isfinite(stamps).all():
+            raise ValueError("stamps: contains NaN or inf")
+        set_(self, "stamps", _readonly(stamps))
+        if not isinstance(self.T_base_laser, SE2):
+            raise TypeError(f"T_base_laser: expected SE2, got {type(self.T_base_laser).__name__}")
+        for k, pose in enumerate(self.odometry):
+            if pose is not None and not isinstance(pose, SE2):
+                raise TypeError(f"odometry[{k}]: expected SE2 or None, got {type(pose).__name__}")
+
+    def __len__(self) -> int:
+        return len(self.scans)
+
+    @property
+    def has_odometry(self) -> bool:
+        """Whether any scan has a wheel-odometry pose."""
+        return any(p is not None for p in self.odometry)
+
+    def points(self, k: int, min_range: float = 0.0, max_range: float | None = None) -> FloatArray:
+        """Scan ``k``'s valid returns in ``(min_range, max_range)`` as ``(M, 2)`` points in the
+        base frame (the scan's own ``range_min`` / ``range_max``, NaN and inf honoured:
+        :meth:`LaserScan.valid`)."""
+        pts = self.scans[k].to_points(min_range, max_range)
+        if self.mirrored:
+            pts[:, 1] = -pts[:, 1]
+        if self.T_base_laser.is_close(SE2.identity(), atol=0.0):
+            return pts  # the base is the laser: the points as read, bit for bit
+        return np.ascontiguousarray(self.T_base_laser.apply(pts))
+
+    def prior(self, k: int) -> SE2 | None:
+        """The wheels' motion of the base from scan ``k − 1`` to scan ``k``,
+        ``inv(O_{k-1}) O_k`` (None for the first scan or where either pose is missing)."""
+        if k <= 0:
+            return None
+        before, here = self.odometry[k - 1], self.odometry[k]
+        if before is None or here is None:
+            return None
+        rel = before.inverse() @ here
+        assert isinstance(rel, SE2)
+        return rel
+
+    def head(self, count: int | None) -> ScanLog:
+        """The first ``count`` scans (all when None)."""
+        if count is None:
+            return self
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise ValueError(f"max_scans: must be an integer >= 1, got {count!r}")
+        return self.select(range(min(int(count), len(self))))
+
+    def select(self, indices: Sequence[int]) -> ScanLog:
+        """The scans at ``indices``, in that order (their odometry and stamps with them)."""
+        idx = [int(i) for i in indices]
+        return ScanLog(
+            path=self.path,
+            scans=tuple(self.scans[i] for i in idx),
+            stamps=self.stamps[idx],
+            odometry=tuple(self.odometry[i] for i in idx),
+            T_base_laser=self.T_base_laser,
+            mirrored=self.mirrored,
+            base_frame=self.base_frame,
+            laser_frame=self.laser_frame,
+            odometry_source=self.odometry_source,
+        )
+
+    def describe(self) -> dict[str, object]:
+        """A JSON-ready summary: scans, frames, mounting, odometry source."""
+        return {
+            "scans": len(self),
+            "base_frame": self.base_frame,
+            "laser_frame": self.laser_frame,
+            "laser_pose": [float(v) for v in self.T_base_laser.as_vector()],
+            "laser_mirrored": self.mirrored,
+            "odometry": self.odometry_source,
+            "scans_with_odometry": sum(p is not None for p in self.odometry),
+        }
+
+
+def laser_pose_argument(value: object) -> SE2 | None:
+    """``--laser-pose x y θ`` / ``laser_pose=`` as ``T_base_laser`` (None stays None)."""
+    if value is None or isinstance(value, SE2):
+        return value
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != (3,) or not np.isfinite(arr).all():
+        raise ValueError(f"laser_pose: expected finite [x, y, θ], got {value!r}")
+    return SE2.from_vector(arr)
+
+
+__all__ = ["ScanLog", "laser_pose_argument"]
