@@ -13,14 +13,20 @@ There is no peer in the same process (Cartographer is not installable here), so 
 average is printed beside the times.
 
 Run: ``.venv/bin/python benchmarks/freiburg_mapping.py [--data ../shared/data]
-[--logs intel aces] [--max-scans N] [--config map.toml] [--output DIR]`` (``--output``: also
-write each log's mapping outputs, as ``scanreg map`` does, to ``DIR/<log>/``; the map there is
-what ``benchmarks/freiburg_localization.py`` localizes in).
+[--logs intel aces] [--max-scans N] [--config map.toml] [--output DIR] [--self-check]``
+(``--output``: also write each log's mapping outputs, as ``scanreg map`` does, to
+``DIR/<log>/``; the map there is what ``benchmarks/freiburg_localization.py`` localizes in).
+
+``--self-check``: also map each log with loop closure off (``max_candidates = 0``) and print
+the map self-check (``scanreg.pipeline.map_check``, no ground truth) of three trajectories per
+log: loop-closed, no loops, and the odometry alone. The loop-closed map should pass, the
+other two be flagged.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -30,7 +36,8 @@ from scanreg.config import load_config
 from scanreg.eval.relations import read_relations, relation_error
 from scanreg.io import read_scans
 from scanreg.io.trajectory import Trajectory
-from scanreg.pipeline.mapping import MappingConfig, run_mapping
+from scanreg.pipeline.map_check import MapCheck, check_map
+from scanreg.pipeline.mapping import MappingConfig, MappingResult, run_mapping
 
 #: Hess et al., ICRA 2016, Table II: mean ± std, translation (m) / rotation (deg).
 CARTOGRAPHER = {
@@ -51,6 +58,32 @@ def _fmt(mean: float, std: float, digits: int) -> str:
     return f"{mean:.{digits}f} ± {std:.{digits}f}"
 
 
+def self_check_row(name: str, label: str, check: MapCheck, seconds: float) -> str:
+    """One row of the self-check table."""
+    regions = "; ".join(
+        f"({r.x:.0f}, {r.y:.0f}) {r.contradictions}" for r in check.regions[:3]
+    )
+    return (
+        f"| {name} | {label} | {check.returns} | {check.contradiction_fraction:.2%} | "
+        f"{check.loops_over_bound} / {len(check.loops)} | {check.loops_downweighted} | "
+        f"{'pass' if check.consistent else 'FLAGGED'} | {regions} | {seconds:.2f} |"
+    )
+
+
+def self_checks(name: str, closed: MappingResult, no_loops: MappingResult) -> list[str]:
+    """The self-check of the loop-closed map, the map without loops and the odometry alone."""
+    rows = []
+    for label, res, poses in (
+        ("loop-closed", closed, None),
+        ("no loops", no_loops, None),
+        ("odometry alone", closed, closed.odometry_poses),
+    ):
+        t = time.perf_counter()
+        check = check_map(res, poses)
+        rows.append(self_check_row(name, label, check, time.perf_counter() - t))
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     here = Path(__file__).resolve().parent.parent
@@ -60,11 +93,13 @@ def main() -> None:
     parser.add_argument("--max-scans", type=int, default=None)
     parser.add_argument("--config", type=Path, default=None, help="MappingConfig TOML")
     parser.add_argument("--output", type=Path, default=None, help="write outputs to DIR/<log>/")
+    parser.add_argument("--self-check", action="store_true", help="self-check table (see above)")
     args = parser.parse_args()
     config = load_config(MappingConfig, args.config)
     folder = args.data / "freiburg-slam-benchmark"
     table = []
     speed = []
+    checks: list[str] = []
     for name in args.logs:
         log_file, relations_file = FILES[name]
         log = read_scans(folder / log_file)
@@ -104,6 +139,9 @@ def main() -> None:
             f"{res.num_scans / cpu:.0f} | {load:.1f} |"
         )
         print(f"{name}: done in {wall:.1f} s", flush=True)
+        if args.self_check:
+            no_loops = dataclasses.replace(config, max_candidates=0)
+            checks += self_checks(name, res, run_mapping(log, no_loops, max_scans=args.max_scans))
     print()
     print("| log | trajectory | relations | translation (m) | rotation (deg) |")
     print("|---|---|---|---|---|")
@@ -116,6 +154,14 @@ def main() -> None:
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     print("\n".join(speed))
+    if checks:
+        print()
+        print(
+            "| log | trajectory | returns | contradicted | loops over 99.9 % bound | "
+            "down-weighted | verdict | worst regions (x, y) m: count | check (s) |"
+        )
+        print("|---|---|---|---|---|---|---|---|---|")
+        print("\n".join(checks))
 
 
 if __name__ == "__main__":

@@ -800,3 +800,17 @@ def fpfh(
     radius: float,
     max_neighbors: int = 100,
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]: ...
+
+# --- map self-check (free space) ---
+
+def see_through(
+    poses: NDArray[np.float64],
+    points: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    *,
+    bins: int,
+    margin: float,
+    max_range: float,
+    min_gap: int,
+    stride: int = 1,
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.uint32], NDArray[np.uint32]]: ...

@@ -1113,6 +1113,7 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
     from .graph import require_gtsam
 
     require_gtsam()  # fail before reading a large log
+    from .pipeline.map_check import check_map
     from .pipeline.mapping import MappingConfig, MappingInterrupted, run_mapping
     from .pipeline.mapping_output import summary, write_outputs
 
@@ -1155,7 +1156,13 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
             f"{exc}; what was mapped so far is written to {args.output}/ "
             f"({len(exc.partial.poses)} scans, {len(exc.partial.node_scans)} nodes)"
         ) from exc
-    paths = write_outputs(args.output, res, resolution=args.resolution, plot=not args.no_plots)
+    check = check_map(res)
+    if not check.consistent:  # a broken map must not pass silently, --json or not
+        for reason in check.reasons:
+            print(f"scanreg map: WARNING: the map is inconsistent: {reason}", file=sys.stderr)
+    paths = write_outputs(
+        args.output, res, resolution=args.resolution, plot=not args.no_plots, check=check
+    )
     paths["config"] = write_config(args.output / "config.toml", config)
     if args.bag is not None:
         paths["bag"] = _write_map_bag(args.bag, res, args.resolution, frames)
@@ -1163,7 +1170,7 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
         from .report import write_report
 
         paths["report"] = write_report(args.output)
-    result = summary(res)
+    result = summary(res, check)
     result["log"] = str(args.path)
     result["scans"] = scans.describe()
     result["outputs"] = {k: str(v) for k, v in paths.items()}

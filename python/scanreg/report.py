@@ -22,7 +22,8 @@ Run-folder files (all but the poses optional)
 ``time_<stage>_ms``, ``overlap``, …), ``reference_tum.txt`` (ground truth or a reference
 trajectory at the same stamps), ``loops.jsonl`` (``source``, ``target`` frame indices,
 ``accepted``, optional ``reason``), ``map.ply|.pcd|.las|.laz``, ``summary.json`` (headline
-figures) and ``config.toml`` (shown as text).
+figures; a 2D mapping run's ``self_check`` is shown with its verdict, and the returns of
+``contradictions.csv`` drawn on the trajectory) and ``config.toml`` (shown as text).
 """
 
 from __future__ import annotations
@@ -161,6 +162,12 @@ class RunFolder:
         self.odometry = read_tum(odometry) if odometry.is_file() else None
         image = self.root / "map.png"  # a 2D mapping run's occupancy grid
         self.map_image = image if image.is_file() else None
+        contradictions = self.root / "contradictions.csv"  # a 2D mapping run's self-check
+        self.contradictions = (
+            np.loadtxt(contradictions, delimiter=",", skiprows=1, ndmin=2).reshape(-1, 2)
+            if contradictions.is_file()
+            else None
+        )
 
     def loop_ends(self) -> list[tuple[int, int, bool, str]]:
         """``(source, target, accepted, reasons)`` of each loop closure (``source``/``target``
@@ -488,6 +495,61 @@ def _map_figure(run: RunFolder) -> tuple[Any, int]:
     return fig, len(pts)
 
 
+def _self_check_figure(run: RunFolder, check: dict[str, Any]) -> Any:
+    """The trajectory with the returns the self-check found contradicted, and its worst
+    regions outlined."""
+    go, _, _ = _plotly()
+    est = run.estimate.positions
+    fig = go.Figure()
+    fig.add_trace(
+        go.Scatter(
+            x=est[:, 0], y=est[:, 1], mode="lines", name="trajectory",
+            line={"color": _COLORS["reference"], "width": 1},
+        )
+    )  # fmt: skip
+    points = run.contradictions if run.contradictions is not None else np.zeros((0, 2))
+    if len(points) > MAX_MAP_POINTS:  # evenly thinned: the density still shows where
+        points = points[:: int(math.ceil(len(points) / MAX_MAP_POINTS))]
+    fig.add_trace(
+        go.Scattergl(
+            x=points[:, 0], y=points[:, 1], mode="markers", name="contradicted returns",
+            marker={"color": _COLORS["rejected"], "size": 3},
+        )
+    )  # fmt: skip
+    for k, r in enumerate(check.get("regions", [])):
+        h = 0.5 * float(r["size"])
+        x, y = float(r["x"]), float(r["y"])
+        fig.add_shape(
+            type="rect", x0=x - h, x1=x + h, y0=y - h, y1=y + h,
+            line={"color": _COLORS["held"], "width": 2},
+        )  # fmt: skip
+        fig.add_annotation(
+            x=x, y=y + h, text=f"#{k + 1}: {r['contradictions']}", showarrow=False, yshift=8
+        )
+    fig.update_layout(
+        title="Self-check: returns in cells other scans saw free",
+        xaxis_title="x (m)",
+        yaxis_title="y (m)",
+        height=520,
+        legend={"orientation": "h"},
+    )
+    fig.update_yaxes(scaleanchor="x", scaleratio=1)
+    return fig
+
+
+def _self_check_text(check: dict[str, Any]) -> str:
+    verdict = "consistent" if check.get("consistent") else "INCONSISTENT"
+    fraction = float(check.get("contradiction_fraction") or 0.0)
+    lines = [
+        f"<p><b>{verdict}</b>: {check.get('contradictions', 0)} of {check.get('returns', 0)} "
+        f"returns contradicted ({fraction:.2%}); {check.get('loops_over_bound', 0)} of "
+        f"{check.get('loops', 0)} loop edges over their 99.9 % χ² bound, "
+        f"{check.get('loops_downweighted', 0)} down-weighted by the back end.</p>"
+    ]
+    lines += [f"<p>{html.escape(str(r))}</p>" for r in check.get("reasons", [])]
+    return "".join(lines)
+
+
 # --------------------------------------------------------------------------- HTML
 
 
@@ -560,6 +622,9 @@ def render_report(folder: PathLike, *, title: str | None = None) -> str:
         if timing is not None:
             sections.append(("Timing", timing[0]))
             medians = timing[1]
+    check = run.summary.get("self_check")
+    if isinstance(check, dict):
+        sections.append(("Self-check", _self_check_figure(run, check)))
     map_note = '<p class="muted">No map in the run folder (scanreg odometry --save-map).</p>'
     if run.map_path is not None:
         fig, _ = _map_figure(run)
@@ -591,6 +656,8 @@ def render_report(folder: PathLike, *, title: str | None = None) -> str:
         if heading == "Timing" and medians:
             cells = "".join(f"<td>{k}: {v:.2f} ms</td>" for k, v in medians.items())
             parts.append(f"<table><tr><th>median</th>{cells}</tr></table>")
+        if heading == "Self-check" and isinstance(check, dict):
+            parts.append(_self_check_text(check))
         if heading == "Uncertainty and verdicts":
             parts.append("<h2>Rejected and held frames</h2>" + _rejection_table(run))
     if run.map_image is not None and run.map_path is None:

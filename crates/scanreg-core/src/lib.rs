@@ -27,6 +27,7 @@ pub mod keyframe_map;
 pub mod knn;
 pub mod lie;
 pub mod lzf;
+pub mod map_check;
 pub mod ndt2d;
 pub mod ndt3d;
 pub mod normal_agreement;

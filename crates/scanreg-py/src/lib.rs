@@ -14,6 +14,7 @@ mod io;
 mod keyframe_map;
 pub mod knn;
 mod local_map;
+mod map_check;
 mod measure;
 mod ndt2d;
 mod ndt3d;
@@ -48,5 +49,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     threads::register(m)?;
     global::register(m)?;
     trust::register(m)?;
+    map_check::register(m)?;
     Ok(())
 }

@@ -11,6 +11,8 @@
 ``places.npz``         3D: the nodes' optimized poses and Scan Context descriptors (the
                        place database :class:`~scanreg.pipeline.MapLocalizer` relocalizes with)
 ``trajectory.png``     odometry against the optimized trajectory, loop edges drawn
+``summary.json``       :func:`summary`, with 2D runs' self-check (:mod:`.map_check`)
+``contradictions.csv`` 2D: ``x,y`` of every return the self-check found contradicted
 =====================  ==================================================================
 """
 
@@ -31,6 +33,7 @@ from ..io.occupancy import occupancy_grid, write_map
 from ..io.trajectory import Trajectory, write_kitti_poses, write_tum
 from ..preprocess import voxel_downsample
 from ..transform import SE2, SE3
+from .map_check import MapCheck, check_map
 from .mapping import MappingResult
 
 
@@ -106,10 +109,12 @@ def write_outputs(
     resolution: float = 0.05,
     voxel_size: float = 0.2,
     plot: bool = True,
+    check: MapCheck | None = None,
 ) -> dict[str, Path]:
     """Write every file of the table above into ``folder`` (created); returns their paths.
     ``resolution``: the 2D occupancy grid's cell (m); ``voxel_size``: the 3D map's voxel (m).
-    ``plot=False`` skips ``trajectory.png`` (the only file that needs matplotlib)."""
+    ``plot=False`` skips ``trajectory.png`` (the only file that needs matplotlib).
+    ``check``: a 2D run's self-check if already made (else it is made here)."""
     if not isinstance(folder, (str, os.PathLike)):
         raise TypeError(f"folder: expected a str or os.PathLike, got {type(folder).__name__}")
     if not isinstance(result, MappingResult):
@@ -120,6 +125,8 @@ def write_outputs(
     positive(resolution, "resolution")
     positive(voxel_size, "voxel_size")
     check_flag(plot, "plot")
+    if check is not None and not isinstance(check, MapCheck):
+        raise TypeError(f"check: expected a MapCheck or None, got {type(check).__name__}")
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     stamps = _stamps(result)
@@ -149,8 +156,16 @@ def write_outputs(
         grid = occupancy_grid(poses, list(result.node_points), resolution=resolution)  # type: ignore[arg-type]
         for key, path in write_map(out, grid).items():
             paths[f"map_{key}"] = path
+        check = check_map(result) if check is None else check
+        paths["contradictions"] = out / "contradictions.csv"
+        np.savetxt(
+            paths["contradictions"], check.contradiction_points, "%.3f", ",", header="x,y", comments=""
+        )
     if plot:
         paths["plot"] = plot_mapping(out / "trajectory.png", result)
+    paths["summary"] = out / "summary.json"
+    record = summary(result, check if result.graph.dim == 2 else None)
+    paths["summary"].write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
     return paths
 
 
@@ -191,11 +206,11 @@ def plot_mapping(path: Path, result: MappingResult[Any]) -> Path:
     return _save(fig, p)
 
 
-def summary(result: MappingResult[Any]) -> dict[str, Any]:
-    """A JSON-ready summary of a run."""
+def summary(result: MappingResult[Any], check: MapCheck | None = None) -> dict[str, Any]:
+    """A JSON-ready summary of a run (with its self-check under ``self_check`` if given)."""
     t = result.timing
     last: SE2 | SE3 = result.poses[-1]
-    return {
+    out = {
         "num_scans": result.num_scans,
         "num_nodes": len(result.node_scans),
         "skipped_scans": len(result.skipped),
@@ -226,3 +241,6 @@ def summary(result: MappingResult[Any]) -> dict[str, Any]:
         },
         "scans_per_second": result.num_scans / t.total if t.total > 0 else None,
     }
+    if check is not None:
+        out["self_check"] = check.as_dict()
+    return out

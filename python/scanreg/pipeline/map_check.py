@@ -1,0 +1,320 @@
+"""A 2D map that checks itself without ground truth: does the trajectory agree with its own scans?
+
+:func:`check_map` judges a mapping run (or any trajectory of its scans, e.g. the odometry alone)
+on two kinds of evidence a user can trust without ground truth:
+
+* **Contradictions.** A return says "beams stop here". Each node's kept scan is looked up from
+  the nodes that come back later (or came earlier: at least ``min_gap`` nodes apart in order,
+  within ``max_range`` of the return) in their own range images
+  (:func:`scanreg._core.see_through`): a node *sees* the return when its beams around that
+  bearing reach it, and *sees through* it when they all go more than ``margin`` beyond. Where
+  the trajectory is wrong, a revisit puts its walls where the first visit saw through. A
+  return is contradicted when at least ``min_views`` revisits saw it and most of them saw
+  through it; the fraction of contradicted returns among those seen, and the regions where
+  they gather, say how and where the map disagrees with itself. A door that was open once and
+  closed later, or people, contradict too: the limit leaves room for that.
+* **Loop edges after optimization.** Each accepted loop edge's residual χ² at the judged poses,
+  against the 99.9 % bound of its rank, and the weight the back end's robust kernel gives it
+  there: a loop the back end down-weighted is one the rest of the graph disagrees with.
+
+The verdict ``consistent`` holds when the contradicted fraction and the fraction of loop edges
+over their bound are both under :class:`MapCheckSettings`' limits; ``reasons`` names each limit
+exceeded. The limits were chosen on the Freiburg Intel and ACES logs (``benchmarks/
+freiburg_mapping.py --self-check``; the figures are in ``benchmarks/README.md``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .. import _core
+from .._validate import FloatArray
+from ..graph import Edge, Kernel
+from ..transform import SE2
+from .mapping import MappingResult
+
+#: χ² 99.9 % quantiles by degrees of freedom (an edge's information may be rank-deficient).
+CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266, 4: 18.467, 5: 20.515, 6: 22.458}
+
+
+@dataclass(frozen=True)
+class MapCheckSettings:
+    """How :func:`check_map` looks and what it tolerates (the limits chosen on the Freiburg
+    logs, see the module docstring)."""
+
+    #: Bearing bins of the nodes' range images (no narrower than the laser's beam spacing).
+    bins: int = 360
+    #: Tolerance along the beam (m).
+    margin: float = 0.3
+    #: Only nodes within this distance of a return judge it (m).
+    max_range: float = 10.0
+    #: Only nodes at least this many nodes apart in order judge each other: a revisit, not the
+    #: neighbours a person walking along would fool alike.
+    min_gap: int = 100
+    #: A return is judged when at least this many revisits saw it.
+    min_views: int = 2
+    #: About this many returns are judged (every k-th): the fraction needs no more.
+    max_judged: int = 50_000
+    #: The map is inconsistent above this fraction of contradicted returns among those judged
+    #: (Intel: 0.9 % loop-closed, 14.7 % without loops; ACES: 7.7 %, 31.5 %).
+    max_contradiction_fraction: float = 0.10
+    #: Side of the square regions the contradictions are gathered in (m).
+    region_size: float = 2.0
+    #: Regions reported, worst first.
+    num_regions: int = 5
+    #: A loop edge is down-weighted when its robust kernel keeps less than this share of it.
+    downweighted: float = 0.1
+    #: The map is inconsistent above this fraction of accepted loop edges over their bound.
+    max_loops_over_bound: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("margin", "max_range", "region_size"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}: must be finite and > 0, got {v!r}")
+        for name, least in (
+            ("bins", 3), ("min_gap", 0), ("min_views", 1), ("max_judged", 1), ("num_regions", 1)
+        ):  # fmt: skip
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < least:
+                raise ValueError(f"{name}: must be an int >= {least}, got {v!r}")
+        for name in ("max_contradiction_fraction", "downweighted", "max_loops_over_bound"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0 <= v <= 1):
+                raise ValueError(f"{name}: must be in [0, 1], got {v!r}")
+
+
+@dataclass(frozen=True)
+class ContradictionRegion:
+    """A square of the map (``size`` m, centred at ``x``, ``y``) and its contradicted returns."""
+
+    x: float
+    y: float
+    size: float
+    contradictions: int
+    returns: int
+
+
+@dataclass(frozen=True)
+class LoopResidual:
+    """An accepted loop edge (nodes ``i``, ``j``) at the judged poses: residual χ² over the
+    ``dof`` directions its information holds, the 99.9 % bound for them, and the share of the
+    edge the robust kernel keeps at that residual (1 without a kernel)."""
+
+    i: int
+    j: int
+    chi2: float
+    dof: int
+    bound: float
+    weight: float
+
+    @property
+    def over_bound(self) -> bool:
+        return self.chi2 > self.bound
+
+
+@dataclass(frozen=True)
+class MapCheck:
+    """What :func:`check_map` found (see the module docstring)."""
+
+    consistent: bool
+    #: One sentence per limit exceeded (empty when consistent).
+    reasons: tuple[str, ...]
+    #: Returns judged (at least ``min_views`` revisits saw them) and those most of them saw
+    #: through.
+    returns: int
+    contradictions: int
+    #: Where the contradictions gather, worst first.
+    regions: tuple[ContradictionRegion, ...]
+    #: World coordinates of every contradicted return ``(K, 2)`` (for a plot of the map).
+    contradiction_points: FloatArray = field(repr=False)
+    loops: tuple[LoopResidual, ...]
+    settings: MapCheckSettings
+
+    @property
+    def contradiction_fraction(self) -> float:
+        return self.contradictions / self.returns if self.returns else 0.0
+
+    @property
+    def loops_over_bound(self) -> int:
+        return sum(r.over_bound for r in self.loops)
+
+    @property
+    def loops_downweighted(self) -> int:
+        return sum(r.weight < self.settings.downweighted for r in self.loops)
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (without the contradicted points)."""
+        chi2 = np.array([r.chi2 for r in self.loops])
+        return {
+            "consistent": self.consistent,
+            "reasons": list(self.reasons),
+            "returns": self.returns,
+            "contradictions": self.contradictions,
+            "contradiction_fraction": self.contradiction_fraction,
+            "regions": [
+                {
+                    "x": r.x,
+                    "y": r.y,
+                    "size": r.size,
+                    "contradictions": r.contradictions,
+                    "returns": r.returns,
+                }
+                for r in self.regions
+            ],
+            "loops": len(self.loops),
+            "loops_over_bound": self.loops_over_bound,
+            "loops_downweighted": self.loops_downweighted,
+            "loop_chi2_median": float(np.median(chi2)) if len(chi2) else None,
+            "thresholds": {
+                "min_gap": self.settings.min_gap,
+                "min_views": self.settings.min_views,
+                "margin": self.settings.margin,
+                "max_contradiction_fraction": self.settings.max_contradiction_fraction,
+                "max_loops_over_bound": self.settings.max_loops_over_bound,
+                "downweighted": self.settings.downweighted,
+            },
+        }
+
+
+def kernel_weight(kernel: Kernel | None, chi2: float) -> float:
+    """The share of an edge a robust kernel keeps at whitened squared residual ``chi2``
+    (gtsam's weights: Cauchy ``1 / (1 + r²/c²)``, Huber ``min(1, k / r)``, DCS ``s²`` with
+    ``s = min(1, 2Φ / (Φ + r²))``)."""
+    if kernel is None or kernel.name == "none":
+        return 1.0
+    c = kernel.scale
+    if kernel.name == "cauchy":
+        return 1.0 / (1.0 + chi2 / (c * c))
+    if kernel.name == "huber":
+        r = math.sqrt(chi2)
+        return 1.0 if r <= c else c / r
+    s = min(1.0, 2.0 * c / (c + chi2))
+    return s * s
+
+
+def loop_residual(edge: Edge, pose_i: SE2, pose_j: SE2) -> LoopResidual:
+    """``edge``'s residual at ``pose_i``, ``pose_j`` (``T_world_i``, ``T_world_j``)."""
+    predicted = pose_i.inverse() @ pose_j
+    e = (edge.measurement.inverse() @ predicted).log()  # type: ignore[operator]
+    info = edge.information
+    vals = np.linalg.eigvalsh(info)
+    dof = int(np.sum(vals > 1e-9 * vals[-1]))
+    chi2 = float(e @ info @ e)
+    return LoopResidual(
+        edge.i, edge.j, chi2, dof, CHI2_999[dof], kernel_weight(edge.kernel, chi2)
+    )
+
+
+def _regions(
+    world: FloatArray, contradicted: np.ndarray[Any, Any], s: MapCheckSettings
+) -> tuple[ContradictionRegion, ...]:
+    if not contradicted.any():
+        return ()
+    lo = world.min(axis=0)
+    ij = np.floor((world - lo) / s.region_size).astype(np.int64)
+    key = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
+    keys, first, total = np.unique(key, return_index=True, return_counts=True)
+    bad = np.bincount(np.searchsorted(keys, key[contradicted]), minlength=len(keys))
+    order = np.lexsort((-total, -bad))[: s.num_regions]
+    return tuple(
+        ContradictionRegion(
+            x=float(lo[0] + (ij[first[k], 0] + 0.5) * s.region_size),
+            y=float(lo[1] + (ij[first[k], 1] + 0.5) * s.region_size),
+            size=s.region_size,
+            contradictions=int(bad[k]),
+            returns=int(total[k]),
+        )
+        for k in order
+        if bad[k] > 0
+    )
+
+
+def check_map(
+    result: MappingResult[SE2],
+    poses: Sequence[SE2] | None = None,
+    settings: MapCheckSettings | None = None,
+) -> MapCheck:
+    """Judge ``result``'s map from its own scans (the nodes' kept scans, ``node_points``).
+
+    ``poses``: every scan's ``T_world_scan`` to judge instead of the optimized graph's
+    (``result.odometry_poses``, say); each node is then at its scan's pose.
+    """
+    s = MapCheckSettings() if settings is None else settings
+    if not isinstance(result, MappingResult):
+        raise TypeError(f"result: expected a MappingResult, got {type(result).__name__}")
+    if not isinstance(s, MapCheckSettings):
+        raise TypeError(f"settings: expected MapCheckSettings, got {type(s).__name__}")
+    if result.graph.dim != 2:
+        raise ValueError("result: check_map needs a 2D run (an SE2 graph)")
+    if poses is None:
+        graph_poses = result.graph.poses()
+        nodes = [graph_poses[n] for n in range(len(result.node_scans))]
+    else:
+        if len(poses) != result.num_scans:
+            raise ValueError(
+                f"poses: expected one per scan ({result.num_scans}), got {len(poses)}"
+            )
+        if not all(isinstance(p, SE2) for p in poses):
+            raise TypeError("poses: expected SE2 poses")
+        nodes = [poses[k] for k in result.node_scans]
+    return _check(nodes, result.node_points, result.graph.edges, s)
+
+
+def _check(
+    nodes: Sequence[SE2],
+    points: Sequence[FloatArray],
+    edges: Sequence[Edge],
+    s: MapCheckSettings,
+) -> MapCheck:
+    pose_rows = np.ascontiguousarray([p.as_vector() for p in nodes], dtype=np.float64)
+    counts = np.array([len(p) for p in points], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    stacked = np.ascontiguousarray(np.vstack(points), dtype=np.float64).reshape(-1, 2)
+    world, judged, seen, through = _core.see_through(
+        pose_rows,
+        stacked,
+        offsets,
+        bins=s.bins,
+        margin=s.margin,
+        max_range=s.max_range,
+        min_gap=s.min_gap,
+        stride=max(1, -(-len(stacked) // s.max_judged)),
+    )
+    seen_enough = seen >= s.min_views
+    contradicted = seen_enough & (2 * through > seen)
+    where = world[judged]
+    loops = tuple(
+        loop_residual(e, nodes[e.i], nodes[e.j])  # type: ignore[arg-type]
+        for e in edges
+        if e.kind == "loop"
+    )
+    returns, bad = int(seen_enough.sum()), int(contradicted.sum())
+    reasons = []
+    if returns and bad / returns > s.max_contradiction_fraction:
+        reasons.append(
+            f"contradictions: {bad / returns:.1%} of the returns revisits saw ({bad} of "
+            f"{returns}) were seen through by most of them (limit "
+            f"{s.max_contradiction_fraction:.0%})"
+        )
+    over = sum(r.over_bound for r in loops)
+    if loops and over / len(loops) > s.max_loops_over_bound:
+        reasons.append(
+            f"loops: {over} of {len(loops)} loop edges exceed their 99.9 % χ² bound at the "
+            f"final poses (limit {s.max_loops_over_bound:.0%})"
+        )
+    return MapCheck(
+        consistent=not reasons,
+        reasons=tuple(reasons),
+        returns=returns,
+        contradictions=bad,
+        regions=_regions(where[seen_enough], contradicted[seen_enough], s),
+        contradiction_points=np.ascontiguousarray(where[contradicted]),
+        loops=loops,
+        settings=s,
+    )

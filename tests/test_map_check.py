@@ -1,0 +1,144 @@
+"""The map's self-check (scanreg.pipeline.map_check): good maps pass, broken ones are flagged
+with named reasons, on a simulated loop with a deliberately broken trajectory and on the real
+Intel excerpt (its odometry alone against its loop-closed map)."""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import cache
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import data_dir
+from scanreg import SE2
+
+pytest.importorskip("gtsam")
+
+from scanreg.graph import Edge, Kernel
+from scanreg.pipeline.map_check import (
+    MapCheck,
+    MapCheckSettings,
+    check_map,
+    kernel_weight,
+    loop_residual,
+)
+from scanreg.pipeline.mapping import MappingConfig, MappingResult
+from test_mapping import _ring_run
+
+
+@cache
+def _intel_excerpt() -> MappingResult[SE2]:
+    # The excerpt of tests/test_mapping.py: the first 300 scans of the Intel subset.
+    from scanreg.io import read_scans
+    from scanreg.pipeline.mapping import run_mapping
+
+    log = read_scans(data_dir("carmen-intel") / "intel_gfs_subset_clf_timestamps.clf")
+    return run_mapping(log, MappingConfig(), max_scans=300)
+
+
+def _broken(poses: tuple[SE2, ...], at: int, kink: SE2) -> list[SE2]:
+    """``poses`` with every pose from ``at`` on moved by ``kink`` about the pose at ``at``: a
+    trajectory that jumps once and is right, relative to itself, elsewhere."""
+    pivot = poses[at]
+    moved = pivot @ kink @ pivot.inverse()
+    return [p if k < at else moved @ p for k, p in enumerate(poses)]
+
+
+def test_simulated_loop_passes_and_a_broken_trajectory_is_flagged() -> None:
+    _, res = _ring_run()
+    good = check_map(res)
+    # Measured: 0 of 2408 judged returns contradicted, none of the 44 loops over its bound.
+    assert good.consistent, good.reasons
+    assert good.contradiction_fraction < 0.01
+    assert good.loops and good.loops_over_bound == 0
+    # The same scans with the second half of the lap turned by 3° and moved 0.3 m at its
+    # start: the return over the start puts walls where the first pass saw through.
+    broken = _broken(res.poses, res.num_scans // 2, SE2.from_vector([0.3, 0.0, np.radians(3)]))
+    bad = check_map(res, broken)
+    # Measured: 75 % of 1167 judged returns contradicted, all 44 loops over their bound.
+    assert not bad.consistent
+    assert bad.contradiction_fraction > 0.3
+    assert any(r.startswith("contradictions:") for r in bad.reasons), bad.reasons
+    # Every loop across the break is now far over its bound.
+    assert bad.loops_over_bound > 0.5 * len(bad.loops)
+    assert any(r.startswith("loops:") for r in bad.reasons), bad.reasons
+    # The worst region is where the second half overlaps the first: the first 8 m leg
+    # (y = 2 m, x from 2 to 10 m) that the lap drives again at its end.
+    worst = bad.regions[0]
+    assert 0.0 < worst.x < 12.0 and -1.0 < worst.y < 5.0, worst
+
+
+def test_intel_excerpt_odometry_is_flagged_and_the_closed_map_passes() -> None:
+    res = _intel_excerpt()
+    closed = check_map(res)
+    odometry = check_map(res, res.odometry_poses)
+    # Measured: closed 1.5 % of 13215 judged returns contradicted, 0 of 278 loops over their
+    # bound; the odometry alone 35 % of 11909, 258 of 278.
+    assert closed.consistent, closed.reasons
+    assert closed.contradiction_fraction < 0.05 and closed.loops_over_bound <= 5
+    assert not odometry.consistent, odometry.as_dict()
+    assert odometry.contradiction_fraction > 0.2
+    assert any(r.startswith("contradictions:") for r in odometry.reasons)
+    assert odometry.loops_over_bound > 0.5 * len(odometry.loops)
+
+
+def test_summary_is_json_ready_and_states_its_thresholds() -> None:
+    import json
+
+    _, res = _ring_run()
+    check = check_map(res)
+    record = json.loads(json.dumps(check.as_dict()))
+    assert record["consistent"] is True and record["reasons"] == []
+    assert record["contradictions"] <= record["returns"] == check.returns > 1000
+    assert check.returns < sum(len(p) for p in res.node_points)  # only what revisits saw
+    assert record["loops"] == len(res.accepted_loops)
+    assert record["thresholds"]["max_contradiction_fraction"] == 0.10
+    assert len(check.contradiction_points) == check.contradictions
+
+
+def test_loop_residual_against_a_hand_computed_chi2() -> None:
+    info = np.diag([100.0, 400.0, 0.0])  # nothing along θ: two degrees of freedom
+    edge = Edge("loop", 0, 1, SE2.from_vector([1.0, 0.0, 0.0]), info, Kernel("cauchy", 2.0))
+    r = loop_residual(edge, SE2.identity(), SE2.from_vector([1.1, 0.05, 0.3]))
+    e = (SE2.from_vector([1.0, 0.0, 0.0]).inverse() @ SE2.from_vector([1.1, 0.05, 0.3])).log()
+    assert r.dof == 2 and r.bound == pytest.approx(13.816)
+    assert r.chi2 == pytest.approx(100 * e[0] ** 2 + 400 * e[1] ** 2)
+    assert r.weight == pytest.approx(1 / (1 + r.chi2 / 4))
+    assert kernel_weight(Kernel("huber", 1.0), 4.0) == pytest.approx(0.5)
+    assert kernel_weight(None, 1e6) == 1.0
+
+
+def test_bad_input_names_the_argument() -> None:
+    _, res = _ring_run()
+    with pytest.raises(TypeError, match="result: expected a MappingResult"):
+        check_map("run")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="poses: expected one per scan"):
+        check_map(res, res.poses[:-1])
+    with pytest.raises(TypeError, match="settings: expected MapCheckSettings"):
+        check_map(res, settings={"resolution": 0.1})  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="max_range: must be finite and > 0"):
+        MapCheckSettings(max_range=0.0)
+    with pytest.raises(ValueError, match="min_views: must be an int >= 1"):
+        MapCheckSettings(min_views=0)
+    with pytest.raises(ValueError, match="bins: must be an int >= 3"):
+        MapCheckSettings(bins=2)
+    with pytest.raises(ValueError, match="max_contradiction_fraction: must be in"):
+        MapCheckSettings(max_contradiction_fraction=2.0)
+    assert isinstance(check_map(res, settings=dataclasses.replace(MapCheckSettings())), MapCheck)
+
+
+def test_core_refuses_bad_arrays() -> None:
+    from scanreg import _core
+
+    poses = np.zeros((1, 3))
+    points = np.array([[1.0, 0.0]])
+    opts: dict[str, Any] = {"bins": 360, "margin": 0.3, "max_range": 10.0, "min_gap": 0}
+    with pytest.raises(ValueError, match="offsets: must rise from 0"):
+        _core.see_through(poses, points, np.array([0, 2]), **opts)
+    with pytest.raises(ValueError, match="points: contains NaN"):
+        _core.see_through(poses, np.array([[np.nan, 0.0]]), np.array([0, 1]), **opts)
+    with pytest.raises(ValueError, match="poses: expected shape"):
+        _core.see_through(np.zeros((1, 2)), points, np.array([0, 1]), **opts)
+    with pytest.raises(ValueError, match="stride: must be >= 1"):
+        _core.see_through(poses, points, np.array([0, 1]), **opts, stride=0)
