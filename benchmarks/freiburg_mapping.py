@@ -60,9 +60,7 @@ def _fmt(mean: float, std: float, digits: int) -> str:
 
 def self_check_row(name: str, label: str, check: MapCheck, seconds: float) -> str:
     """One row of the self-check table."""
-    regions = "; ".join(
-        f"({r.x:.0f}, {r.y:.0f}) {r.contradictions}" for r in check.regions[:3]
-    )
+    regions = "; ".join(f"({r.x:.0f}, {r.y:.0f}) {r.contradictions}" for r in check.regions[:3])
     return (
         f"| {name} | {label} | {check.returns} | {check.contradiction_fraction:.2%} | "
         f"{check.loops_over_bound} / {len(check.loops)} | {check.loops_downweighted} | "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import bz2
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -26,7 +27,16 @@ def excerpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def test_map_end_to_end(excerpt: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_map_end_to_end(
+    excerpt: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: Any
+) -> None:
+    from scanreg.pipeline import map_check
+
+    # The self-check with neighbours judging each other and no contradiction tolerated (a
+    # person walking by is enough): the run must say so and keep going.
+    strict = map_check.MapCheckSettings(min_gap=0, max_contradiction_fraction=0.0)
+    check_map = map_check.check_map
+    monkeypatch.setattr(map_check, "check_map", lambda res: check_map(res, settings=strict))
     out = tmp_path / "out"
     config = tmp_path / "map.toml"
     config.write_text("node_distance = 0.4\n[loops]\nmin_score = 0.55\n", encoding="utf-8")
@@ -34,9 +44,15 @@ def test_map_end_to_end(excerpt: Path, tmp_path: Path, capsys: pytest.CaptureFix
     args = ["map", str(excerpt), "-o", str(out), "--config", str(config), "--json"]
     code = main([*args, "--bag", str(bag), "--report"])
     assert code == EXIT_OK
-    result = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)
     n = result["num_scans"]
     assert 300 < n < 500 and result["skipped_scans"] == 0
+    check = result["self_check"]
+    assert not check["consistent"] and check["contradictions"] > 0
+    assert "scanreg map: WARNING: the map is inconsistent: contradictions:" in captured.err
+    assert json.loads((out / "summary.json").read_text())["self_check"] == check
+    assert "Self-check" in (out / "report.html").read_text(encoding="utf-8")
     assert result["num_nodes"] > 20
     assert result["timing"]["total"] > 0 and result["scans_per_second"] > 0
     for key in ("poses_kitti", "poses_tum", "graph", "loops", "map_pgm", "map_yaml", "map_png"):

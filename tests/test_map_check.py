@@ -5,6 +5,7 @@ Intel excerpt (its odometry alone against its loop-closed map)."""
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 from functools import cache
 from typing import Any
 
@@ -95,6 +96,31 @@ def test_summary_is_json_ready_and_states_its_thresholds() -> None:
     assert record["loops"] == len(res.accepted_loops)
     assert record["thresholds"]["max_contradiction_fraction"] == 0.10
     assert len(check.contradiction_points) == check.contradictions
+
+
+def test_write_outputs_writes_the_check(tmp_path: Any) -> None:
+    import json
+
+    from scanreg.pipeline import write_outputs
+
+    _, res = _ring_run()
+    broken = check_map(res, _broken(res.poses, 100, SE2.from_vector([0.3, 0.0, 0.05])))
+    paths = write_outputs(tmp_path, res, plot=False, check=broken)
+    record = json.loads(paths["summary"].read_text())
+    assert record["self_check"] == json.loads(json.dumps(broken.as_dict()))
+    assert record["num_scans"] == res.num_scans
+    xy = np.loadtxt(paths["contradictions"], delimiter=",", skiprows=1, ndmin=2)
+    np.testing.assert_allclose(xy, broken.contradiction_points, atol=5e-4)
+    # Without a check given, the run's own is made (the ring's closed map: consistent).
+    paths = write_outputs(tmp_path / "own", res, plot=False)
+    assert json.loads(paths["summary"].read_text())["self_check"]["consistent"] is True
+    if importlib.util.find_spec("plotly") is not None:  # the report shows the verdict
+        from scanreg.report import write_report
+
+        assert "<b>INCONSISTENT</b>" in write_report(tmp_path).read_text(encoding="utf-8")
+        assert "<b>consistent</b>" in write_report(tmp_path / "own").read_text(encoding="utf-8")
+    with pytest.raises(TypeError, match="check: expected a MapCheck"):
+        write_outputs(tmp_path / "bad", res, check={"consistent": True})  # type: ignore[arg-type]
 
 
 def test_loop_residual_against_a_hand_computed_chi2() -> None:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import base64
 import html
+import io
 import json
 import math
 import os
@@ -126,6 +127,20 @@ def _read_rows(path: Path) -> list[dict[str, Any]]:
     return read_jsonl(path) if path.is_file() else []
 
 
+def _read_xy(path: Path) -> FloatArray:
+    """``x,y`` rows under a header line (none: an empty ``(0, 2)`` array)."""
+    text = path.read_text(encoding="utf-8")
+    if len(text.splitlines()) < 2:
+        return np.zeros((0, 2))
+    try:
+        xy = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2)
+    except ValueError as exc:
+        raise FileFormatError(path, f"expected x,y rows: {exc}") from None
+    if xy.shape[1] != 2:
+        raise FileFormatError(path, f"expected 2 columns (x,y), got {xy.shape[1]}")
+    return np.asarray(xy, dtype=np.float64)
+
+
 def _column(rows: Sequence[dict[str, Any]], key: str) -> FloatArray:
     return np.array(
         [np.nan if r.get(key) is None else float(r[key]) for r in rows], dtype=np.float64
@@ -163,11 +178,7 @@ class RunFolder:
         image = self.root / "map.png"  # a 2D mapping run's occupancy grid
         self.map_image = image if image.is_file() else None
         contradictions = self.root / "contradictions.csv"  # a 2D mapping run's self-check
-        self.contradictions = (
-            np.loadtxt(contradictions, delimiter=",", skiprows=1, ndmin=2).reshape(-1, 2)
-            if contradictions.is_file()
-            else None
-        )
+        self.contradictions = _read_xy(contradictions) if contradictions.is_file() else None
 
     def loop_ends(self) -> list[tuple[int, int, bool, str]]:
         """``(source, target, accepted, reasons)`` of each loop closure (``source``/``target``
@@ -509,7 +520,7 @@ def _self_check_figure(run: RunFolder, check: dict[str, Any]) -> Any:
     )  # fmt: skip
     points = run.contradictions if run.contradictions is not None else np.zeros((0, 2))
     if len(points) > MAX_MAP_POINTS:  # evenly thinned: the density still shows where
-        points = points[:: int(math.ceil(len(points) / MAX_MAP_POINTS))]
+        points = points[:: math.ceil(len(points) / MAX_MAP_POINTS)]
     fig.add_trace(
         go.Scattergl(
             x=points[:, 0], y=points[:, 1], mode="markers", name="contradicted returns",

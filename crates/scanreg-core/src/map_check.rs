@@ -33,7 +33,7 @@ pub struct SeeThrough {
 }
 
 fn check_input(poses: &[f64], points: &[f64], offsets: &[usize]) -> Result<usize> {
-    if poses.len() % 3 != 0 {
+    if !poses.len().is_multiple_of(3) {
         return Err(Error::invalid(
             "poses",
             format!("expected rows of [x, y, θ], got {} values", poses.len()),
@@ -50,7 +50,7 @@ fn check_input(poses: &[f64], points: &[f64], offsets: &[usize]) -> Result<usize
             ),
         ));
     }
-    if points.len() % 2 != 0 {
+    if !points.len().is_multiple_of(2) {
         return Err(Error::invalid("points", "expected rows of [x, y]"));
     }
     let n = points.len() / 2;
@@ -118,8 +118,8 @@ impl RangeImage {
         for p in points.chunks_exact(2) {
             let r = p[0].hypot(p[1]);
             let b = bin_of(p[1].atan2(p[0]), bins);
-            if !(ranges[b] <= r) {
-                ranges[b] = r; // NaN (empty) or farther: keep the nearest
+            if ranges[b].is_nan() || r < ranges[b] {
+                ranges[b] = r; // empty, or farther: keep the nearest
             }
             reach = reach.max(r);
         }
@@ -252,7 +252,7 @@ pub fn see_through(
                 ];
                 world.extend_from_slice(&w);
                 let index = offsets[s] + k;
-                if index % stride != 0 {
+                if !index.is_multiple_of(stride) {
                     continue;
                 }
                 let (mut a, mut b) = (0u32, 0u32);

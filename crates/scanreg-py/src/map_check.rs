@@ -8,6 +8,8 @@ use pyo3::prelude::*;
 use scanreg_core::map_check::SeeThroughSettings;
 
 type PerReturn = Py<PyArray1<u32>>;
+/// `(world, judged, seen, seen_through)`.
+type Judged = (Py<PyArray2<f64>>, Py<PyArray1<i64>>, PerReturn, PerReturn);
 
 /// `(world, judged, seen, seen_through)`: every return in the world frame, the indices of the
 /// returns judged (every `stride`-th), and per judged return the other scans that saw it and,
@@ -25,7 +27,7 @@ fn see_through(
     max_range: f64,
     min_gap: usize,
     stride: usize,
-) -> PyResult<(Py<PyArray2<f64>>, Py<PyArray1<i64>>, PerReturn, PerReturn)> {
+) -> PyResult<Judged> {
     for (arr, name, cols) in [(&poses, "poses", 3), (&points, "points", 2)] {
         let s = arr.shape();
         if s[1] != cols {

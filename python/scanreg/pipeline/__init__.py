@@ -4,10 +4,12 @@ in a prior map (:class:`Localizer`, 3D; :class:`Localizer2D`, 2D, with global re
 (:class:`Mapper` 2D, :class:`Mapper3D` 3D; needs ``scanreg[mapping]``) and 3D localization in a
 saved map with global relocalization (:class:`MapLocalizer`); :func:`write_outputs` writes a
 mapping run's folder (what ``scanreg map`` writes); :func:`open_scan_log` / :func:`scan_log`
-read a CARMEN log or a LaserScan bag as the 2D pipelines' :class:`~scanreg.io.ScanLog`."""
+read a CARMEN log or a LaserScan bag as the 2D pipelines' :class:`~scanreg.io.ScanLog`;
+:func:`check_map` judges a 2D map's consistency without ground truth."""
 
 from .localizer import Localizer, Relocalization
 from .localizer2d import GlobalFix, LocalizationConfig2D, Localizer2D
+from .map_check import MapCheck, MapCheckSettings, check_map
 from .map_localizer import GlobalFix3D, MapLocalizer
 from .mapping import LoopRecord, Mapper, MappingConfig, MappingResult, run_mapping
 from .mapping3d import Mapper3D, MappingConfig3D, run_mapping_3d
@@ -28,6 +30,8 @@ __all__ = [
     "Localizer",
     "Localizer2D",
     "LoopRecord",
+    "MapCheck",
+    "MapCheckSettings",
     "MapLocalizer",
     "Mapper",
     "Mapper3D",
@@ -39,6 +43,7 @@ __all__ = [
     "OdometryConfig",
     "OdometryConfig2D",
     "Relocalization",
+    "check_map",
     "open_scan_log",
     "run_mapping",
     "run_mapping_3d",

@@ -206,9 +206,7 @@ def loop_residual(edge: Edge, pose_i: SE2, pose_j: SE2) -> LoopResidual:
     vals = np.linalg.eigvalsh(info)
     dof = int(np.sum(vals > 1e-9 * vals[-1]))
     chi2 = float(e @ info @ e)
-    return LoopResidual(
-        edge.i, edge.j, chi2, dof, CHI2_999[dof], kernel_weight(edge.kernel, chi2)
-    )
+    return LoopResidual(edge.i, edge.j, chi2, dof, CHI2_999[dof], kernel_weight(edge.kernel, chi2))
 
 
 def _regions(
@@ -254,12 +252,11 @@ def check_map(
         raise ValueError("result: check_map needs a 2D run (an SE2 graph)")
     if poses is None:
         graph_poses = result.graph.poses()
-        nodes = [graph_poses[n] for n in range(len(result.node_scans))]
+        # A 2D graph's poses are SE2 (the filter only tells mypy so).
+        nodes = [p for n in range(len(result.node_scans)) if isinstance(p := graph_poses[n], SE2)]
     else:
         if len(poses) != result.num_scans:
-            raise ValueError(
-                f"poses: expected one per scan ({result.num_scans}), got {len(poses)}"
-            )
+            raise ValueError(f"poses: expected one per scan ({result.num_scans}), got {len(poses)}")
         if not all(isinstance(p, SE2) for p in poses):
             raise TypeError("poses: expected SE2 poses")
         nodes = [poses[k] for k in result.node_scans]
@@ -289,11 +286,7 @@ def _check(
     seen_enough = seen >= s.min_views
     contradicted = seen_enough & (2 * through > seen)
     where = world[judged]
-    loops = tuple(
-        loop_residual(e, nodes[e.i], nodes[e.j])  # type: ignore[arg-type]
-        for e in edges
-        if e.kind == "loop"
-    )
+    loops = tuple(loop_residual(e, nodes[e.i], nodes[e.j]) for e in edges if e.kind == "loop")
     returns, bad = int(seen_enough.sum()), int(contradicted.sum())
     reasons = []
     if returns and bad / returns > s.max_contradiction_fraction:

@@ -158,14 +158,13 @@ def write_outputs(
             paths[f"map_{key}"] = path
         check = check_map(result) if check is None else check
         paths["contradictions"] = out / "contradictions.csv"
-        np.savetxt(
-            paths["contradictions"], check.contradiction_points, "%.3f", ",", header="x,y", comments=""
-        )
+        points = check.contradiction_points
+        np.savetxt(paths["contradictions"], points, "%.3f", ",", header="x,y", comments="")
     if plot:
         paths["plot"] = plot_mapping(out / "trajectory.png", result)
     paths["summary"] = out / "summary.json"
-    record = summary(result, check if result.graph.dim == 2 else None)
-    paths["summary"].write_text(json.dumps(record, indent=2) + "\n", encoding="utf-8")
+    headline = summary(result, check if result.graph.dim == 2 else None)
+    paths["summary"].write_text(json.dumps(headline, indent=2) + "\n", encoding="utf-8")
     return paths
 
 
