@@ -139,7 +139,9 @@ def main() -> None:
         print(f"{name}: done in {wall:.1f} s", flush=True)
         if args.self_check:
             no_loops = dataclasses.replace(config, max_candidates=0)
-            checks += self_checks(name, res, run_mapping(log, no_loops, max_scans=args.max_scans))
+            rows = self_checks(name, res, run_mapping(log, no_loops, max_scans=args.max_scans))
+            print("\n".join(rows), flush=True)  # kept if a later log fails
+            checks += rows
     print()
     print("| log | trajectory | relations | translation (m) | rotation (deg) |")
     print("|---|---|---|---|---|")
