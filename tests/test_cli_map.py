@@ -30,13 +30,21 @@ def excerpt(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_map_end_to_end(
     excerpt: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: Any
 ) -> None:
+    from scanreg import SE2
     from scanreg.pipeline import map_check
 
-    # The self-check with neighbours judging each other and no contradiction tolerated (a
-    # person walking by is enough): the run must say so and keep going.
-    strict = map_check.MapCheckSettings(min_gap=0, max_contradiction_fraction=0.0)
+    # The self-check of the run's poses with the second half turned 0.5 rad about its first
+    # pose, neighbours judging each other too: the run must say it is inconsistent, and go on.
+    strict = map_check.MapCheckSettings(min_gap=0)
     check_map = map_check.check_map
-    monkeypatch.setattr(map_check, "check_map", lambda res: check_map(res, settings=strict))
+
+    def twisted(res: Any) -> Any:
+        half = res.poses[len(res.poses) // 2]
+        turn = half @ SE2.from_vector([0.0, 0.0, 0.5]) @ half.inverse()
+        poses = [p if k < len(res.poses) // 2 else turn @ p for k, p in enumerate(res.poses)]
+        return check_map(res, poses, settings=strict)
+
+    monkeypatch.setattr(map_check, "check_map", twisted)
     out = tmp_path / "out"
     config = tmp_path / "map.toml"
     config.write_text("node_distance = 0.4\n[loops]\nmin_score = 0.55\n", encoding="utf-8")
@@ -49,7 +57,7 @@ def test_map_end_to_end(
     n = result["num_scans"]
     assert 300 < n < 500 and result["skipped_scans"] == 0
     check = result["self_check"]
-    assert not check["consistent"] and check["contradictions"] > 0
+    assert not check["consistent"] and check["contradictions"] > 0, check
     assert "scanreg map: WARNING: the map is inconsistent: contradictions:" in captured.err
     assert json.loads((out / "summary.json").read_text())["self_check"] == check
     assert "Self-check" in (out / "report.html").read_text(encoding="utf-8")
