@@ -16,10 +16,18 @@ One :meth:`Mapper.step` per scan, in five stages:
    the nearest ``max_candidates`` are matched;
 4. **match and verify** — :func:`~scanreg.pipeline.loops.match_loop` against the candidate's
    submap; every candidate, accepted or not, is kept as a :class:`LoopRecord` with its
-   reasons;
+   reasons. Recall does not rest on the graph knowing its own drift: when these windows have
+   found nothing for ``LoopSettings.wide_spacing`` metres, the nearest candidate is searched
+   over a fixed wide window, and a match that is sound on its own evidence but fails only the
+   χ² test is held until another held loop agrees with it (both are then closed: the graph,
+   not the loops, was wrong; :func:`~scanreg.pipeline.loops.loops_agree`);
 5. **close** — an accepted loop becomes an edge with information = inverse calibrated
    covariance (nothing along its degenerate directions) and a robust kernel, and iSAM2
    re-solves.
+
+:func:`run_mapping` runs the odometry (:meth:`Mapper.track`) of the next scans on a second
+thread while the graph takes this one (:meth:`Mapper.integrate`); Ctrl-C or an error leaves
+what was mapped in :class:`MappingInterrupted`.
 
 :meth:`Mapper.finish` runs a final batch Levenberg–Marquardt pass and lays every scan on its
 node: ``T_world_scan = T_world_node @ inv(T_odom_node) @ T_odom_scan``; with wheel odometry the
