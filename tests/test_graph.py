@@ -305,3 +305,5 @@ def test_unsolvable_update_names_gtsam_and_edges_can_be_dropped(
     assert np.allclose(g.pose(1).as_vector(), [1.0, 0.0, 0.0], atol=1e-9)
     with pytest.raises(ValueError, match="count: the last 2 edges are not all relative-pose"):
         g.remove_last_edges(2)
+    with pytest.raises(ValueError, match="count: expected an int >= 0, got -1"):
+        g.remove_last_edges(-1)

@@ -25,7 +25,12 @@ EXIT_INTERRUPTED = 130
 
 
 class MappingStopped(Exception):
-    """A mapping run stopped early; its partial outputs were written (the message says where)."""
+    """A mapping run stopped early; its partial outputs were written (the message says where).
+    ``interrupted``: stopped by Ctrl-C rather than an error."""
+
+    def __init__(self, message: str, *, interrupted: bool) -> None:
+        super().__init__(message)
+        self.interrupted = interrupted
 
 
 EXAMPLES = """examples:
@@ -1154,7 +1159,8 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
         write_outputs(args.output, exc.partial, resolution=args.resolution, plot=False)
         raise MappingStopped(
             f"{exc}; what was mapped so far is written to {args.output}/ "
-            f"({len(exc.partial.poses)} scans, {len(exc.partial.node_scans)} nodes)"
+            f"({len(exc.partial.poses)} scans, {len(exc.partial.node_scans)} nodes)",
+            interrupted=isinstance(exc.__cause__, KeyboardInterrupt),
         ) from exc
     check = check_map(res)
     if not check.consistent:  # a broken map must not pass silently, --json or not
@@ -1418,7 +1424,7 @@ def main(argv: list[str] | None = None) -> int:
         result = handlers[args.command](args)
     except MappingStopped as exc:
         print(f"scanreg {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_INTERRUPTED if "interrupted" in str(exc) else EXIT_CHECK_FAILED
+        return EXIT_INTERRUPTED if exc.interrupted else EXIT_CHECK_FAILED
     except (ValueError, OSError, ImportError) as exc:  # FileFormatError is a ValueError
         print(f"scanreg {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT

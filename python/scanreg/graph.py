@@ -328,7 +328,9 @@ class Graph:
         """Drop the ``count`` edges added last (not priors), e.g. loop edges with which
         :meth:`update` raised :class:`GraphSolveError`. The next solve starts from the
         current estimate without them."""
-        if count <= 0:
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
+            raise ValueError(f"count: expected an int >= 0, got {count!r}")
+        if count == 0:
             return
         if count > len(self._edges) or any(e.kind == "prior" for e in self._edges[-count:]):
             raise ValueError(f"count: the last {count} edges are not all relative-pose edges")

@@ -756,8 +756,8 @@ class Mapper:
         # No robust kernel: the graph disagrees with these loops by far more than their
         # covariance (that is why they were held), and a kernel would weigh them to nothing.
         # They have passed a stronger test than χ²: each other.
-        confirmed = self._add_loops(confirmed, kernel=_AGREED_KERNEL)
-        if confirmed[0].accepted and _BATCH_AFTER_AGREEMENT:
+        confirmed = self._add_loops(confirmed, kernel=None)
+        if confirmed[0].accepted:
             # A correction of many σ: iSAM2's few relinearisations may not carry it through.
             self._graph.optimize()
         # The held ones were recorded as rejected when they were matched: now as decided.
@@ -1057,12 +1057,6 @@ def _submap_bytes(sub: Submap2D) -> int:
     width, height = sub.grid.shape
     return 48 * width * height + 64 * len(sub.points)
 
-
-#: The kernel of loops closed because they agree with each other against the graph.
-_AGREED_KERNEL: Kernel | None = None
-
-#: Re-solve the graph in batch after loops that agree with each other against it are closed.
-_BATCH_AFTER_AGREEMENT = True
 
 #: Joint-marginal tests of candidates beyond ``loop_max_range``, per candidate wanted.
 _GATE_TESTS_PER_CANDIDATE = 2
