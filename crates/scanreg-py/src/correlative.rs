@@ -97,7 +97,8 @@ impl CorrelativeGrid {
     fn likelihood(&self, py: Python<'_>) -> PyResult<Py<PyArray2<f32>>> {
         grid_array(py, self.inner.likelihood().to_vec(), self.inner.shape())
     }
-    /// Squared distance to the nearest occupied cell, cells², `(height, width)` float32.
+    /// Squared distance to the nearest occupied cell, cells², `(height, width)` float32; +inf
+    /// beyond the likelihood's support (where it is 0 in float32: about 14σ).
     #[getter]
     fn distance_squared(&self, py: Python<'_>) -> PyResult<Py<PyArray2<f32>>> {
         grid_array(py, self.inner.dist2().to_vec(), self.inner.shape())
