@@ -156,6 +156,20 @@ class Localizer2D:
         points, _ = read_map_server(path)
         return cls(points, config, **kwargs)
 
+    @classmethod
+    def from_saved_map(
+        cls, saved: Any, config: LocalizationConfig2D | None = None, **kwargs: Any
+    ) -> Localizer2D:
+        """A localizer in a 2D :class:`scanreg.SavedMap` (its occupancy grid's occupied
+        cells), e.g. ``SavedMap.load("out/")`` of what ``scanreg map`` wrote."""
+        from ..saved_map import SavedMap
+
+        if not isinstance(saved, SavedMap):
+            raise TypeError(f"saved: expected a SavedMap, got {type(saved).__name__}")
+        if saved.dim != 2:
+            raise ValueError(f"saved: a {saved.dim}D map; Localizer2D needs a 2D map")
+        return cls(saved.occupied_points(), config, **kwargs)
+
     @property
     def pose(self) -> SE2 | None:
         """The latest ``T_map_scan`` (``None`` before the first fix)."""
