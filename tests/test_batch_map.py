@@ -48,7 +48,9 @@ def test_batch_map_writes_each_rows_map(tmp_path: Path, capsys: pytest.CaptureFi
     assert a != b
 
 
-def test_bad_map_row_is_refused_up_front(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_map_row_is_refused_up_front(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     (tmp_path / "bad.toml").write_text("no_such_key = 1\n", encoding="utf-8")
     manifest = tmp_path / "maps.csv"
     manifest.write_text(f'id,input,config\nx,"{LOOP}",bad.toml\n', encoding="utf-8")

@@ -282,12 +282,13 @@ class SavedMap:
         out.mkdir(parents=True, exist_ok=True)
         paths: dict[str, Path] = {}
         paths["poses_kitti"] = out / "poses_kitti.txt"
-        write_kitti_poses(paths["poses_kitti"], Trajectory.from_poses(list(self.poses)))
+        traj = Trajectory.from_poses(list(self.poses), self.stamps)  # type: ignore[arg-type]
+        write_kitti_poses(paths["poses_kitti"], traj)
         paths["poses_tum"] = out / "poses_tum.txt"
-        write_tum(paths["poses_tum"], Trajectory.from_poses(list(self.poses), self.stamps))
+        write_tum(paths["poses_tum"], traj)
         if self.odometry_poses is not None:
             paths["odometry_tum"] = out / "odometry_tum.txt"
-            odo = Trajectory.from_poses(list(self.odometry_poses), self.stamps)
+            odo = Trajectory.from_poses(list(self.odometry_poses), self.stamps)  # type: ignore[arg-type]
             write_tum(paths["odometry_tum"], odo)
         paths["graph"] = out / "graph.g2o"
         write_g2o(paths["graph"], self.graph)
