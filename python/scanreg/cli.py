@@ -9,14 +9,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from ._progress import Progress
 from ._version import __version__
 
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_USAGE, EXIT_BAD_INPUT = 0, 1, 2, 3
@@ -104,13 +100,10 @@ SUB_EXAMPLES = {
     "  scanreg simulate --scene corridor --sensor laser_360 --format pcd -o run/ --json\n",
 }
 
-_SCENES_2D = ("floor_plan", "corridor", "square_room")
-_SCENES_3D = ("street", "tunnel", "corridor")
-_SENSORS_2D = ("sick_lms200", "laser_360")
-_SENSORS_3D = ("vlp16", "hdl32", "hdl64")
-
 
 def build_parser() -> argparse.ArgumentParser:
+    from .pipeline.commands import SCENES_2D, SCENES_3D, SENSORS_2D, SENSORS_3D
+
     parser = argparse.ArgumentParser(
         prog="scanreg",
         description="2D/3D LiDAR scan registration with covariance, degeneracy and a verdict.",
@@ -200,9 +193,9 @@ def build_parser() -> argparse.ArgumentParser:
         "simulate",
         help="write a simulated run: one point file per scan and the ground-truth poses",
     )
-    sim.add_argument("--scene", choices=sorted({*_SCENES_2D, *_SCENES_3D}), default="floor_plan")
+    sim.add_argument("--scene", choices=sorted({*SCENES_2D, *SCENES_3D}), default="floor_plan")
     sim.add_argument(
-        "--sensor", choices=[*_SENSORS_2D, *_SENSORS_3D], default="sick_lms200", help="preset"
+        "--sensor", choices=[*SENSORS_2D, *SENSORS_3D], default="sick_lms200", help="preset"
     )
     sim.add_argument("--scans", type=int, default=10, help="number of scans (default 10)")
     sim.add_argument("--speed", type=float, default=1.0, help="forward speed, m/s (default 1)")
@@ -473,315 +466,71 @@ def _batch(args: argparse.Namespace) -> dict[str, Any]:
     return report.as_dict()
 
 
-def _stats(stats: Any) -> dict[str, float]:
-    keys = ("rmse", "mean", "median", "std", "min", "max", "sse")
-    return {k: float(getattr(stats, k)) for k in keys}
-
-
-_BAG_SUFFIXES = {".bag": "ros1", ".db3": "ros2-sqlite3", ".mcap": "ros2-mcap"}
-
-
-def _bag_info(path: Path, topic: str | None) -> dict[str, Any]:
-    from .io import rosbag, sequences
-
-    topics = rosbag.list_topics(path)
-    out: dict[str, Any] = {
-        "kind": "bag",
-        "format": "ros2" if path.is_dir() else _BAG_SUFFIXES[path.suffix.lower()],
-        "messages": sum(t.message_count for t in topics),
-        "topics": {t.name: {"type": t.msgtype, "messages": t.message_count} for t in topics},
-    }
-    clouds = [t.name for t in topics if t.msgtype == rosbag.POINT_CLOUD2]
-    if topic is not None or len(clouds) == 1:
-        # random access re-reads a bag from the start: summarise the first frame only
-        seq = sequences.RosbagSequence(path, topic=topic)
-        out["sequence"] = sequences.describe_sequence(seq, max_frames=1)
-    return out
-
-
 def _info(args: argparse.Namespace) -> dict[str, Any]:
-    from . import io
-    from .io import sequences
+    from .pipeline.commands import describe_input
 
-    if not args.trajectory_format:
-        spec = str(args.path)
-        if spec.startswith("sim:"):
-            return sequences.describe_sequence(sequences.open_sequence(spec))
-        if args.path.suffix.lower() in _BAG_SUFFIXES or (args.path / "metadata.yaml").is_file():
-            return _bag_info(args.path, args.topic)
-        if args.path.is_dir():
-            return sequences.describe_sequence(sequences.open_sequence(args.path))
-    if args.trajectory_format:
-        traj = io.TRAJECTORY_READERS[args.trajectory_format](args.path)
-        positions = traj.positions
-        steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
-        out: dict[str, Any] = {
-            "kind": "trajectory",
-            "format": args.trajectory_format,
-            "poses": len(traj),
-            "path_length_m": float(steps.sum()),
-            "start": positions[0].tolist(),
-            "end": positions[-1].tolist(),
-        }
-        if traj.timestamps is not None:
-            out["duration_s"] = float(traj.timestamps[-1] - traj.timestamps[0])
-        return out
-    cloud = io.read_points(args.path)
-    finite = cloud.points[np.isfinite(cloud.points).all(axis=1)]
-    return {
-        "kind": "points",
-        "points": len(cloud),
-        "finite_points": int(finite.shape[0]),
-        "dim": cloud.dim,
-        "min": finite.min(axis=0).tolist() if finite.size else None,
-        "max": finite.max(axis=0).tolist() if finite.size else None,
-        "fields": sorted(cloud.named_fields()),
-        **_las_info(args.path),
-    }
-
-
-def _las_info(path: Path) -> dict[str, Any]:
-    """A LAS/LAZ file's header facts (scale, offset, CRS); nothing for other formats."""
-    if path.suffix.lower() not in (".las", ".laz"):
-        return {}
-    from .io import read_las_header
-
-    h = read_las_header(path)
-    return {
-        "las": {
-            "version": h.version,
-            "point_format": h.point_format,
-            "compressed": h.compressed,
-            "scale": h.scale.tolist(),
-            "offset": h.offset.tolist(),
-            "crs_wkt": h.crs_wkt,
-        }
-    }
+    return describe_input(args.path, topic=args.topic, trajectory_format=args.trajectory_format)
 
 
 def _evaluate(args: argparse.Namespace) -> dict[str, Any]:
-    from . import eval as ev
-    from . import io
+    from .pipeline.commands import evaluate_trajectories
 
-    read = io.TRAJECTORY_READERS[args.format]
-    est, ref = read(args.estimate), read(args.reference)
-    if args.metric == "ate":
-        ate = ev.absolute_trajectory_error(est, ref, alignment=args.alignment)
-        return {
-            "metric": "ate",
-            "alignment": args.alignment,
-            "translation_m": _stats(ate.translation),
-            "rotation_deg": _stats(ate.rotation_deg),
-        }
-    if args.metric == "rpe":
-        delta = int(args.delta) if args.unit == "frames" else args.delta
-        rpe = ev.relative_pose_error(est, ref, delta=delta, unit=args.unit)
-        return {
-            "metric": "rpe",
-            "delta": args.delta,
-            "unit": args.unit,
-            "translation_m": _stats(rpe.translation),
-            "rotation_deg": _stats(rpe.rotation_deg),
-        }
-    kitti = ev.kitti_odometry_error(est, ref)
-    return {
-        "metric": "kitti",
-        "translation_percent": kitti.translation_percent,
-        "rotation_deg_per_m": kitti.rotation_deg_per_m,
-    }
-
-
-def _register_global(args: argparse.Namespace) -> dict[str, Any]:
-    from . import io
-    from .global_registration import register_global
-
-    if args.init is not None:
-        raise ValueError("--init: --global registers without an initial guess")
-    clouds = [
-        np.ascontiguousarray(io.read_points(getattr(args, n)).finite().points)
-        for n in ("source", "target")
-    ]
-    res = register_global(clouds[0], clouds[1], voxel_size=args.voxel_size)
-    best = res.hypotheses[0] if res.accepted else None
-    return {
-        # The exit status reads "converged": false when nothing is reliable.
-        "converged": res.accepted,
-        "accepted": res.accepted,
-        "reasons": list(res.reasons),
-        "pose": None if best is None else best.pose.as_matrix().tolist(),
-        "pose_vector": None if best is None else best.pose.as_vector().tolist(),
-        "covariance": None if best is None else best.covariance.tolist(),
-        "voxel_size": res.voxel_size,
-        "feature_radius": res.feature_radius,
-        "num_correspondences": res.num_correspondences,
-        "hypotheses": [
-            {
-                "pose": h.pose.as_matrix().tolist(),
-                "initial_pose": h.initial_pose.as_matrix().tolist(),
-                "num_inliers": h.num_inliers,
-                "clique_size": h.clique_size,
-                "accepted": h.verdict.accepted,
-                "reasons": list(h.verdict.reasons),
-                "covariance": [
-                    [v if math.isfinite(v) else None for v in row] for row in h.covariance.tolist()
-                ],
-            }
-            for h in res.hypotheses
-        ],
-        "time_s": res.time_s,
-    }
+    return evaluate_trajectories(
+        args.estimate,
+        args.reference,
+        format=args.format,
+        metric=args.metric,
+        alignment=args.alignment,
+        delta=args.delta,
+        unit=args.unit,
+    )
 
 
 def _register(args: argparse.Namespace) -> dict[str, Any]:
-    from . import io, preprocess
-    from .register import register
+    from .pipeline.commands import register_files
 
-    if args.global_:
-        return _register_global(args)
-
-    clouds = []
-    for name in ("source", "target"):
-        pts = io.read_points(getattr(args, name)).finite().points
-        if args.voxel_size:
-            pts = preprocess.voxel_downsample(pts, args.voxel_size).points
-        clouds.append(np.ascontiguousarray(pts))
-    init = None if args.init is None else np.loadtxt(args.init, ndmin=2)
-    res = register(
-        clouds[0],
-        clouds[1],
+    return register_files(
+        args.source,
+        args.target,
         method=args.method,
-        init=init,
+        init=args.init,
         max_correspondence_distance=args.max_correspondence_distance,
+        voxel_size=args.voxel_size,
         kernel=args.kernel,
         max_iterations=args.max_iterations,
+        global_search=args.global_,
     )
-    from .pipeline.commands import registration_summary
-
-    return registration_summary(res)
 
 
 def _plot(args: argparse.Namespace) -> dict[str, Any]:
-    from . import io, plot
+    from .pipeline.commands import plot_trajectory_files
 
-    read = io.TRAJECTORY_READERS[args.format]
-    estimate = read(args.estimate)
-    reference = None if args.reference is None else read(args.reference)
-    if args.plot_kind == "trajectory":
-        out = plot.plot_trajectories(
-            args.output, estimate, reference, alignment=args.alignment, plane=args.plane
-        )
-    else:
-        assert reference is not None
-        out = plot.plot_error_over_distance(
-            args.output, estimate, reference, alignment=args.alignment
-        )
-    return {"plot": args.plot_kind, "output": str(out), "bytes": out.stat().st_size}
+    return plot_trajectory_files(
+        args.plot_kind,
+        args.estimate,
+        args.output,
+        format=args.format,
+        reference=args.reference,
+        alignment=args.alignment,
+        plane=getattr(args, "plane", "auto"),
+    )
 
 
 def _simulate(args: argparse.Namespace) -> dict[str, Any]:
-    from . import io
-    from . import simulate as sim
-    from .transform import SE2, SE3
+    from .pipeline.commands import simulate_to_folder
 
-    dim = 3 if args.sensor in _SENSORS_3D else 2
-    scenes = _SCENES_3D if dim == 3 else _SCENES_2D
-    if args.scene not in scenes:
-        raise ValueError(
-            f"--scene {args.scene} is not available for the {dim}D sensor {args.sensor} "
-            f"(choose from {', '.join(scenes)})"
-        )
-    if args.scans < 1:
-        raise ValueError(f"--scans must be >= 1, got {args.scans}")
-    if not args.scan_rate > 0:
-        raise ValueError(f"--scan-rate must be > 0, got {args.scan_rate}")
-    fmt = args.format if args.format != "auto" else ("pcd" if dim == 3 else "csv")
-    # PCD/PLY/LAS hold 3D points: a 2D scan is written in the plane z = 0.
-    pad_z = dim == 2 and fmt in ("pcd", "ply", "las", "laz")
-    sensor: sim.LaserModel | sim.LidarModel
-    start: SE2 | SE3
-    if dim == 3:
-        sensor = sim.LidarModel.preset(args.sensor)
-        period = sensor.sweep_duration
-        if args.scene == "street":
-            scene = sim.street(seed=args.seed)
-            start = SE3.from_vector([0.0, 1.75, 1.73, 0.0, 0.0, 0.0])
-        elif args.scene == "tunnel":
-            scene = sim.tunnel()
-            start = SE3.from_vector([0.0, 0.0, 1.73, 0.0, 0.0, 0.0])
-        else:
-            scene = sim.corridor(dim=3)
-            start = SE3.from_vector([1.0, 0.0, 1.2, 0.0, 0.0, 0.0])
-    else:
-        sensor = sim.LaserModel.preset(args.sensor)
-        period = 1.0 / args.scan_rate
-        if args.scene == "floor_plan":
-            scene = sim.floor_plan(seed=args.seed)
-            start = SE2.from_vector([1.0, 0.0, 0.0])
-        elif args.scene == "corridor":
-            scene = sim.corridor()
-            start = SE2.from_vector([1.0, 0.0, 0.0])
-        else:
-            scene = sim.square_room()
-            start = SE2.identity()
-    duration = period * args.scans + 0.5
-    traj = sim.Trajectory.from_speed_and_yaw_rate(
-        args.speed, args.yaw_rate, duration=duration, dim=dim, start=start
+    return simulate_to_folder(
+        args.output,
+        scene=args.scene,
+        sensor=args.sensor,
+        scans=args.scans,
+        speed=args.speed,
+        yaw_rate=args.yaw_rate,
+        scan_rate=args.scan_rate,
+        seed=args.seed,
+        format=args.format,
+        progress=not (args.quiet or args.json),
     )
-    out: Path = args.output
-    out.mkdir(parents=True, exist_ok=True)
-    files = []
-    # one scan at a time (the same calls and seeds as simulate_run) so the bar can move
-    start_times = traj.start_time + period * np.arange(args.scans)
-    scans: list[sim.LaserScan | sim.LidarSweep] = []
-    bar = Progress(
-        args.scans,
-        description="simulate",
-        unit="scans",
-        enabled=not (args.quiet or args.json),
-    )
-    for k, t0 in enumerate(start_times):
-        scan: sim.LaserScan | sim.LidarSweep
-        if isinstance(sensor, sim.LidarModel):
-            scan = sim.simulate_sweep(
-                scene, sensor, traj, start_time=float(t0), seed=args.seed, scan_index=k
-            )
-        else:
-            scan = sim.simulate_scan(
-                scene, sensor, traj, start_time=float(t0), seed=args.seed, scan_index=k
-            )
-        scans.append(scan)
-        points = scan.points
-        if pad_z:
-            points = np.column_stack([points, np.zeros(len(points))])
-        if isinstance(scan, sim.LidarSweep):
-            ring, stamps = scan.rings, scan.timestamps
-        else:
-            ring, stamps = None, scan.timestamps[scan.point_beams]
-        # Per-point time in seconds since the scan's start, as drivers report it.
-        cloud = io.PointCloud(
-            points=np.ascontiguousarray(points), ring=ring, time=stamps - scan.start_time
-        )
-        path = out / f"{k:06d}.{fmt}"
-        io.write_points(path, cloud)
-        files.append(path.name)
-        bar.update(points=len(scan.points))
-    bar.close()
-    poses: list[Any] = [s.pose for s in scans]
-    truth = io.Trajectory.from_poses(poses, timestamps=start_times)
-    io.write_kitti_poses(out / "poses_kitti.txt", truth)
-    io.write_tum(out / "poses_tum.txt", truth)
-    return {
-        "output": str(out),
-        "scene": args.scene,
-        "sensor": args.sensor,
-        "dim": dim,
-        "scans": len(files),
-        "files": files,
-        "points_per_scan": [len(s.points) for s in scans],
-        "poses_kitti": "poses_kitti.txt",
-        "poses_tum": "poses_tum.txt",
-        "poses": "T_world_sensor at each scan's start time (the TUM timestamps)",
-    }
 
 
 def _report(args: argparse.Namespace) -> dict[str, Any]:

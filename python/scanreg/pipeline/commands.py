@@ -7,8 +7,16 @@ the command line only parses its arguments, calls one of these and prints what i
 :func:`run_mapping_to_folder`      ``scanreg map PATH -o OUT`` (2D or 3D, with loop closure;
                                    the folder is a :class:`scanreg.SavedMap`)
 :func:`run_localization_to_folder` ``scanreg localize PATH --map MAP -o OUT``
+:func:`register_files`             ``scanreg register SOURCE TARGET [--global]``
 :func:`registration_summary`       the JSON of ``scanreg register`` for a result
+:func:`describe_input`             ``scanreg info PATH``
+:func:`evaluate_trajectories`      ``scanreg evaluate ESTIMATE REFERENCE``
+:func:`plot_trajectory_files`      ``scanreg plot trajectory|errors``
+:func:`simulate_to_folder`         ``scanreg simulate -o OUT``
 =================================  ==========================================================
+
+``scanreg report`` is :func:`scanreg.report.write_report`, ``scanreg batch``
+:func:`scanreg.batch.run_batch`, ``scanreg demo`` :func:`scanreg.demo.run_demo`.
 
 Each takes the command's options as keyword arguments (``config`` a TOML path, ``plots``,
 ``progress`` a bar on stderr...), writes the command's files into ``output`` and returns the
@@ -22,6 +30,7 @@ JSON-ready dict the command prints with ``--json`` (the paths written under ``ou
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,6 +43,18 @@ from .._progress import Progress
 from ..saved_map import refresh_manifest
 
 PathLike = str | os.PathLike[str]
+
+#: ``scanreg simulate``'s scenes and sensor presets, 2D and 3D.
+SCENES_2D = ("floor_plan", "corridor", "square_room")
+
+
+SCENES_3D = ("street", "tunnel", "corridor")
+
+
+SENSORS_2D = ("sick_lms200", "laser_360")
+
+
+SENSORS_3D = ("vlp16", "hdl32", "hdl64")
 
 
 def _path(value: PathLike | None, name: str) -> Path | None:
@@ -191,6 +212,447 @@ def run_localization_to_folder(
         quiet=not progress,
     )
     return _localize(args)
+
+
+def describe_input(
+    path: PathLike, *, topic: str | None = None, trajectory_format: str | None = None
+) -> dict[str, Any]:
+    """``scanreg info``: what ``path`` holds — a point cloud, a trajectory (read as
+    ``trajectory_format``, ``"kitti"`` or ``"tum"``), a ROS bag (its topics; ``topic`` the
+    PointCloud2 to summarise as a sequence) or a sequence (folder or ``sim:`` URI)."""
+    args = SimpleNamespace(
+        path=_path(path, "path"), topic=topic, trajectory_format=trajectory_format
+    )
+    return _info(args)
+
+
+def evaluate_trajectories(
+    estimate: PathLike,
+    reference: PathLike,
+    *,
+    format: str,  # the command's own option name
+    metric: str = "ate",
+    alignment: str = "se3",
+    delta: float = 1.0,
+    unit: str = "frames",
+) -> dict[str, Any]:
+    """``scanreg evaluate``: ``estimate`` against ``reference`` (both ``"kitti"`` or ``"tum"``
+    files): ATE, RPE over ``delta`` frames or metres, or the KITTI metric."""
+    args = SimpleNamespace(
+        estimate=_path(estimate, "estimate"),
+        reference=_path(reference, "reference"),
+        format=format,
+        metric=metric,
+        alignment=alignment,
+        delta=delta,
+        unit=unit,
+    )
+    return _evaluate(args)
+
+
+def register_files(
+    source: PathLike,
+    target: PathLike,
+    *,
+    method: str = "point_to_plane",
+    init: PathLike | None = None,
+    max_correspondence_distance: float = 1.0,
+    voxel_size: float | None = None,
+    kernel: str = "none",
+    max_iterations: int = 30,
+    global_search: bool = False,
+) -> dict[str, Any]:
+    """``scanreg register``: align the point file ``source`` to ``target`` (``init``: a text
+    file with the initial 3x3/4x4 ``T_target_source``; ``global_search``: 3D, no guess);
+    returns :func:`registration_summary` (or the global search's hypotheses)."""
+    args = SimpleNamespace(
+        source=_path(source, "source"),
+        target=_path(target, "target"),
+        method=method,
+        init=_path(init, "init"),
+        max_correspondence_distance=max_correspondence_distance,
+        voxel_size=voxel_size,
+        kernel=kernel,
+        max_iterations=max_iterations,
+        global_=global_search,
+    )
+    return _register(args)
+
+
+def plot_trajectory_files(
+    kind: str,
+    estimate: PathLike,
+    output: PathLike,
+    *,
+    format: str,  # the command's own option name
+    reference: PathLike | None = None,
+    alignment: str = "none",
+    plane: str = "auto",
+) -> dict[str, Any]:
+    """``scanreg plot trajectory|errors``: a figure (PNG/SVG by ``output``'s extension) of
+    ``estimate`` (and ``reference``; ``"errors"`` needs it)."""
+    if kind not in ("trajectory", "errors"):
+        raise ValueError(f"kind: expected 'trajectory' or 'errors', got {kind!r}")
+    if kind == "errors" and reference is None:
+        raise ValueError("reference: the errors plot needs a reference trajectory")
+    args = SimpleNamespace(
+        plot_kind=kind,
+        estimate=_path(estimate, "estimate"),
+        reference=_path(reference, "reference"),
+        output=_path(output, "output"),
+        format=format,
+        alignment=alignment,
+        plane=plane,
+    )
+    return _plot(args)
+
+
+def simulate_to_folder(
+    output: PathLike,
+    *,
+    scene: str = "floor_plan",
+    sensor: str = "sick_lms200",
+    scans: int = 10,
+    speed: float = 1.0,
+    yaw_rate: float = 0.0,
+    scan_rate: float = 10.0,
+    seed: int = 0,
+    format: str = "auto",  # the command's own option name
+    progress: bool = False,
+) -> dict[str, Any]:
+    """``scanreg simulate``: one point file per simulated scan and the ground-truth poses
+    (``poses_kitti.txt``, ``poses_tum.txt``) into ``output``."""
+    scenes = {*SCENES_2D, *SCENES_3D}
+    if scene not in scenes:
+        raise ValueError(f"scene: expected one of {', '.join(sorted(scenes))}, got {scene!r}")
+    if sensor not in (*SENSORS_2D, *SENSORS_3D):
+        known = ", ".join((*SENSORS_2D, *SENSORS_3D))
+        raise ValueError(f"sensor: expected one of {known}, got {sensor!r}")
+    args = SimpleNamespace(
+        output=_path(output, "output"),
+        scene=scene,
+        sensor=sensor,
+        scans=scans,
+        speed=speed,
+        yaw_rate=yaw_rate,
+        scan_rate=scan_rate,
+        seed=seed,
+        format=format,
+        json=False,
+        quiet=not progress,
+    )
+    return _simulate(args)
+
+
+def _info(args: SimpleNamespace) -> dict[str, Any]:
+    from .. import io
+    from ..io import sequences
+
+    if not args.trajectory_format:
+        spec = str(args.path)
+        if spec.startswith("sim:"):
+            return sequences.describe_sequence(sequences.open_sequence(spec))
+        if args.path.suffix.lower() in _BAG_SUFFIXES or (args.path / "metadata.yaml").is_file():
+            return _bag_info(args.path, args.topic)
+        if args.path.is_dir():
+            return sequences.describe_sequence(sequences.open_sequence(args.path))
+    if args.trajectory_format:
+        traj = io.TRAJECTORY_READERS[args.trajectory_format](args.path)
+        positions = traj.positions
+        steps = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+        out: dict[str, Any] = {
+            "kind": "trajectory",
+            "format": args.trajectory_format,
+            "poses": len(traj),
+            "path_length_m": float(steps.sum()),
+            "start": positions[0].tolist(),
+            "end": positions[-1].tolist(),
+        }
+        if traj.timestamps is not None:
+            out["duration_s"] = float(traj.timestamps[-1] - traj.timestamps[0])
+        return out
+    cloud = io.read_points(args.path)
+    finite = cloud.points[np.isfinite(cloud.points).all(axis=1)]
+    return {
+        "kind": "points",
+        "points": len(cloud),
+        "finite_points": int(finite.shape[0]),
+        "dim": cloud.dim,
+        "min": finite.min(axis=0).tolist() if finite.size else None,
+        "max": finite.max(axis=0).tolist() if finite.size else None,
+        "fields": sorted(cloud.named_fields()),
+        **_las_info(args.path),
+    }
+
+
+def _bag_info(path: Path, topic: str | None) -> dict[str, Any]:
+    from ..io import rosbag, sequences
+
+    topics = rosbag.list_topics(path)
+    out: dict[str, Any] = {
+        "kind": "bag",
+        "format": "ros2" if path.is_dir() else _BAG_SUFFIXES[path.suffix.lower()],
+        "messages": sum(t.message_count for t in topics),
+        "topics": {t.name: {"type": t.msgtype, "messages": t.message_count} for t in topics},
+    }
+    clouds = [t.name for t in topics if t.msgtype == rosbag.POINT_CLOUD2]
+    if topic is not None or len(clouds) == 1:
+        # random access re-reads a bag from the start: summarise the first frame only
+        seq = sequences.RosbagSequence(path, topic=topic)
+        out["sequence"] = sequences.describe_sequence(seq, max_frames=1)
+    return out
+
+
+_BAG_SUFFIXES = {".bag": "ros1", ".db3": "ros2-sqlite3", ".mcap": "ros2-mcap"}
+
+
+def _las_info(path: Path) -> dict[str, Any]:
+    """A LAS/LAZ file's header facts (scale, offset, CRS); nothing for other formats."""
+    if path.suffix.lower() not in (".las", ".laz"):
+        return {}
+    from ..io import read_las_header
+
+    h = read_las_header(path)
+    return {
+        "las": {
+            "version": h.version,
+            "point_format": h.point_format,
+            "compressed": h.compressed,
+            "scale": h.scale.tolist(),
+            "offset": h.offset.tolist(),
+            "crs_wkt": h.crs_wkt,
+        }
+    }
+
+
+def _evaluate(args: SimpleNamespace) -> dict[str, Any]:
+    from .. import eval as ev
+    from .. import io
+
+    read = io.TRAJECTORY_READERS[args.format]
+    est, ref = read(args.estimate), read(args.reference)
+    if args.metric == "ate":
+        ate = ev.absolute_trajectory_error(est, ref, alignment=args.alignment)
+        return {
+            "metric": "ate",
+            "alignment": args.alignment,
+            "translation_m": _stats(ate.translation),
+            "rotation_deg": _stats(ate.rotation_deg),
+        }
+    if args.metric == "rpe":
+        delta = int(args.delta) if args.unit == "frames" else args.delta
+        rpe = ev.relative_pose_error(est, ref, delta=delta, unit=args.unit)
+        return {
+            "metric": "rpe",
+            "delta": args.delta,
+            "unit": args.unit,
+            "translation_m": _stats(rpe.translation),
+            "rotation_deg": _stats(rpe.rotation_deg),
+        }
+    kitti = ev.kitti_odometry_error(est, ref)
+    return {
+        "metric": "kitti",
+        "translation_percent": kitti.translation_percent,
+        "rotation_deg_per_m": kitti.rotation_deg_per_m,
+    }
+
+
+def _stats(stats: Any) -> dict[str, float]:
+    keys = ("rmse", "mean", "median", "std", "min", "max", "sse")
+    return {k: float(getattr(stats, k)) for k in keys}
+
+
+def _register(args: SimpleNamespace) -> dict[str, Any]:
+    from .. import io, preprocess
+    from ..register import register
+
+    if args.global_:
+        return _register_global(args)
+
+    clouds = []
+    for name in ("source", "target"):
+        pts = io.read_points(getattr(args, name)).finite().points
+        if args.voxel_size:
+            pts = preprocess.voxel_downsample(pts, args.voxel_size).points
+        clouds.append(np.ascontiguousarray(pts))
+    init = None if args.init is None else np.loadtxt(args.init, ndmin=2)
+    res = register(
+        clouds[0],
+        clouds[1],
+        method=args.method,
+        init=init,
+        max_correspondence_distance=args.max_correspondence_distance,
+        kernel=args.kernel,
+        max_iterations=args.max_iterations,
+    )
+    from .commands import registration_summary
+
+    return registration_summary(res)
+
+
+def _register_global(args: SimpleNamespace) -> dict[str, Any]:
+    from .. import io
+    from ..global_registration import register_global
+
+    if args.init is not None:
+        raise ValueError("--init: --global registers without an initial guess")
+    clouds = [
+        np.ascontiguousarray(io.read_points(getattr(args, n)).finite().points)
+        for n in ("source", "target")
+    ]
+    res = register_global(clouds[0], clouds[1], voxel_size=args.voxel_size)
+    best = res.hypotheses[0] if res.accepted else None
+    return {
+        # The exit status reads "converged": false when nothing is reliable.
+        "converged": res.accepted,
+        "accepted": res.accepted,
+        "reasons": list(res.reasons),
+        "pose": None if best is None else best.pose.as_matrix().tolist(),
+        "pose_vector": None if best is None else best.pose.as_vector().tolist(),
+        "covariance": None if best is None else best.covariance.tolist(),
+        "voxel_size": res.voxel_size,
+        "feature_radius": res.feature_radius,
+        "num_correspondences": res.num_correspondences,
+        "hypotheses": [
+            {
+                "pose": h.pose.as_matrix().tolist(),
+                "initial_pose": h.initial_pose.as_matrix().tolist(),
+                "num_inliers": h.num_inliers,
+                "clique_size": h.clique_size,
+                "accepted": h.verdict.accepted,
+                "reasons": list(h.verdict.reasons),
+                "covariance": [
+                    [v if math.isfinite(v) else None for v in row] for row in h.covariance.tolist()
+                ],
+            }
+            for h in res.hypotheses
+        ],
+        "time_s": res.time_s,
+    }
+
+
+def _plot(args: SimpleNamespace) -> dict[str, Any]:
+    from .. import io, plot
+
+    read = io.TRAJECTORY_READERS[args.format]
+    estimate = read(args.estimate)
+    reference = None if args.reference is None else read(args.reference)
+    if args.plot_kind == "trajectory":
+        out = plot.plot_trajectories(
+            args.output, estimate, reference, alignment=args.alignment, plane=args.plane
+        )
+    else:
+        assert reference is not None
+        out = plot.plot_error_over_distance(
+            args.output, estimate, reference, alignment=args.alignment
+        )
+    return {"plot": args.plot_kind, "output": str(out), "bytes": out.stat().st_size}
+
+
+def _simulate(args: SimpleNamespace) -> dict[str, Any]:
+    from .. import io
+    from .. import simulate as sim
+    from ..transform import SE2, SE3
+
+    dim = 3 if args.sensor in SENSORS_3D else 2
+    scenes = SCENES_3D if dim == 3 else SCENES_2D
+    if args.scene not in scenes:
+        raise ValueError(
+            f"--scene {args.scene} is not available for the {dim}D sensor {args.sensor} "
+            f"(choose from {', '.join(scenes)})"
+        )
+    if args.scans < 1:
+        raise ValueError(f"--scans must be >= 1, got {args.scans}")
+    if not args.scan_rate > 0:
+        raise ValueError(f"--scan-rate must be > 0, got {args.scan_rate}")
+    fmt = args.format if args.format != "auto" else ("pcd" if dim == 3 else "csv")
+    # PCD/PLY/LAS hold 3D points: a 2D scan is written in the plane z = 0.
+    pad_z = dim == 2 and fmt in ("pcd", "ply", "las", "laz")
+    sensor: sim.LaserModel | sim.LidarModel
+    start: SE2 | SE3
+    if dim == 3:
+        sensor = sim.LidarModel.preset(args.sensor)
+        period = sensor.sweep_duration
+        if args.scene == "street":
+            scene = sim.street(seed=args.seed)
+            start = SE3.from_vector([0.0, 1.75, 1.73, 0.0, 0.0, 0.0])
+        elif args.scene == "tunnel":
+            scene = sim.tunnel()
+            start = SE3.from_vector([0.0, 0.0, 1.73, 0.0, 0.0, 0.0])
+        else:
+            scene = sim.corridor(dim=3)
+            start = SE3.from_vector([1.0, 0.0, 1.2, 0.0, 0.0, 0.0])
+    else:
+        sensor = sim.LaserModel.preset(args.sensor)
+        period = 1.0 / args.scan_rate
+        if args.scene == "floor_plan":
+            scene = sim.floor_plan(seed=args.seed)
+            start = SE2.from_vector([1.0, 0.0, 0.0])
+        elif args.scene == "corridor":
+            scene = sim.corridor()
+            start = SE2.from_vector([1.0, 0.0, 0.0])
+        else:
+            scene = sim.square_room()
+            start = SE2.identity()
+    duration = period * args.scans + 0.5
+    traj = sim.Trajectory.from_speed_and_yaw_rate(
+        args.speed, args.yaw_rate, duration=duration, dim=dim, start=start
+    )
+    out: Path = args.output
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    # one scan at a time (the same calls and seeds as simulate_run) so the bar can move
+    start_times = traj.start_time + period * np.arange(args.scans)
+    scans: list[sim.LaserScan | sim.LidarSweep] = []
+    bar = Progress(
+        args.scans,
+        description="simulate",
+        unit="scans",
+        enabled=not (args.quiet or args.json),
+    )
+    for k, t0 in enumerate(start_times):
+        scan: sim.LaserScan | sim.LidarSweep
+        if isinstance(sensor, sim.LidarModel):
+            scan = sim.simulate_sweep(
+                scene, sensor, traj, start_time=float(t0), seed=args.seed, scan_index=k
+            )
+        else:
+            scan = sim.simulate_scan(
+                scene, sensor, traj, start_time=float(t0), seed=args.seed, scan_index=k
+            )
+        scans.append(scan)
+        points = scan.points
+        if pad_z:
+            points = np.column_stack([points, np.zeros(len(points))])
+        if isinstance(scan, sim.LidarSweep):
+            ring, stamps = scan.rings, scan.timestamps
+        else:
+            ring, stamps = None, scan.timestamps[scan.point_beams]
+        # Per-point time in seconds since the scan's start, as drivers report it.
+        cloud = io.PointCloud(
+            points=np.ascontiguousarray(points), ring=ring, time=stamps - scan.start_time
+        )
+        path = out / f"{k:06d}.{fmt}"
+        io.write_points(path, cloud)
+        files.append(path.name)
+        bar.update(points=len(scan.points))
+    bar.close()
+    poses: list[Any] = [s.pose for s in scans]
+    truth = io.Trajectory.from_poses(poses, timestamps=start_times)
+    io.write_kitti_poses(out / "poses_kitti.txt", truth)
+    io.write_tum(out / "poses_tum.txt", truth)
+    return {
+        "output": str(out),
+        "scene": args.scene,
+        "sensor": args.sensor,
+        "dim": dim,
+        "scans": len(files),
+        "files": files,
+        "points_per_scan": [len(s.points) for s in scans],
+        "poses_kitti": "poses_kitti.txt",
+        "poses_tum": "poses_tum.txt",
+        "poses": "T_world_sensor at each scan's start time (the TUM timestamps)",
+    }
 
 
 class MappingStopped(Exception):
@@ -827,10 +1289,19 @@ def registration_summary(res: Any) -> dict[str, Any]:
 
 
 __all__ = [
+    "SCENES_2D",
+    "SCENES_3D",
+    "SENSORS_2D",
+    "SENSORS_3D",
     "MappingStopped",
+    "describe_input",
+    "evaluate_trajectories",
     "is_3d_source",
+    "plot_trajectory_files",
+    "register_files",
     "registration_summary",
     "run_localization_to_folder",
     "run_mapping_to_folder",
     "run_odometry_to_folder",
+    "simulate_to_folder",
 ]
