@@ -89,7 +89,8 @@ SUB_EXAMPLES = {
     "  scanreg map intel.clf.bz2 -o out/                  # CARMEN .clf/.log, .gz or .bz2\n"
     "  scanreg map sim:loop,lap_length=250 -o out/ --json  # 3D: sim:, KITTI, folder, bag\n"
     "  scanreg map aces.clf.bz2 --config map.toml --max-scans 2000 -o out/ --json\n"
-    "  scanreg map intel.clf -o out/ --bag out/map.mcap --report   # Foxglove + browser\n",
+    "  scanreg map intel.clf -o out/ --bag out/map.mcap --report   # Foxglove + browser\n"
+    "  scanreg map run2.clf --extend out/ -o out2/        # a second session into the map\n",
     "localize": "examples:\n"
     "  scanreg localize intel.clf --map out/ -o loc/        # out/map.yaml from scanreg map\n"
     "  scanreg localize run2.log --map ros_maps/lab.yaml --max-scans 500 --json\n"
@@ -295,7 +296,19 @@ def build_parser() -> argparse.ArgumentParser:
         "point files, ROS bag, or sim:loop / sim:loop-repeated[,laps=N,lap_length=M]",
     )
     mp.add_argument(
-        "-o", "--output", type=Path, default=Path("map-output"), help="folder (created)"
+        "-o",
+        "--output",
+        type=Path,
+        default=None,
+        help="folder (created; default map-output, or with --extend the extended folder)",
+    )
+    mp.add_argument(
+        "--extend",
+        type=Path,
+        default=None,
+        metavar="MAP",
+        help="2D: a folder `scanreg map` wrote: locate this run in it from no pose, map it, "
+        "close loops against it and write one map of both sessions (to -o, default MAP)",
     )
     mp.add_argument("--config", type=Path, default=None, help="TOML config (unknown keys fail)")
     mp.add_argument("--max-scans", type=int, default=None, help="stop after N scans")
@@ -572,9 +585,10 @@ def _odometry(args: argparse.Namespace) -> dict[str, Any]:
 def _map(args: argparse.Namespace) -> dict[str, Any]:
     from .pipeline.commands import run_mapping_to_folder
 
+    output = args.output or args.extend or Path("map-output")
     result = run_mapping_to_folder(
         args.path,
-        args.output,
+        output,
         config=args.config,
         max_scans=args.max_scans,
         kind=args.kind,
@@ -588,6 +602,7 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
         bag_frames=args.bag_frames,
         report=args.report,
         checkpoint=args.checkpoint,
+        extend=args.extend,
         plots=not args.no_plots,
         progress=not (args.quiet or args.json),
     )

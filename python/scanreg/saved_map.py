@@ -28,6 +28,9 @@ The folder holds ``manifest.json`` — ``format`` (``"scanreg-map"``), ``format_
 ``places.npz``         3D: the nodes' poses and Scan Context descriptors
 =====================  ==================================================================
 
+A map of several sessions (:func:`scanreg.pipeline.extend_map`) also holds
+``session_K_poses_tum.txt``: session K's scans' poses, each with its own stamp.
+
 Format versions: **2** (this one) as above. **1**: what ``scanreg map`` wrote before the
 manifest (a folder without ``manifest.json``): read, with what it lacks left ``None`` (the
 node scans, the sessions), so it can be localized in but not extended. Any other version is
@@ -290,6 +293,13 @@ class SavedMap:
             paths["odometry_tum"] = out / "odometry_tum.txt"
             odo = Trajectory.from_poses(list(self.odometry_poses), self.stamps)  # type: ignore[arg-type]
             write_tum(paths["odometry_tum"], odo)
+        if len(self.sessions) > 1 and self.scan_sessions is not None:
+            for k in range(len(self.sessions)):
+                mine = self.scan_sessions == k
+                poses = [p for p, m in zip(self.poses, mine, strict=True) if m]
+                paths[f"session_{k}_poses_tum"] = out / session_file(k)
+                own = Trajectory.from_poses(poses, self.stamps[mine])  # type: ignore[arg-type]
+                write_tum(paths[f"session_{k}_poses_tum"], own)
         paths["graph"] = out / "graph.g2o"
         write_g2o(paths["graph"], self.graph)
         paths["loops"] = out / "loops.jsonl"
@@ -378,13 +388,25 @@ class SavedMap:
         return _load_version_2(root, head)
 
 
+def session_file(k: int) -> str:
+    """The file of session ``k``'s scans' poses (a map of several sessions)."""
+    return f"session_{k}_poses_tum.txt"
+
+
+def _known_files(folder: Path, sessions: int) -> dict[str, str]:
+    """Every file of a map folder this module knows that is in ``folder``, described."""
+    known = dict(FILE_DESCRIPTIONS)
+    if sessions > 1:
+        for k in range(sessions):
+            known[session_file(k)] = f"session {k}'s scans' optimized poses with stamps (TUM)"
+    return {
+        name: known[name] for name in sorted(known) if name == MANIFEST or (folder / name).is_file()
+    }
+
+
 def write_manifest(folder: Path, dim: int, sessions: Sequence[str], num_scans: int) -> Path:
     """Write ``manifest.json`` listing every known file present in ``folder``."""
-    files = {
-        name: FILE_DESCRIPTIONS[name]
-        for name in sorted(FILE_DESCRIPTIONS)
-        if name == MANIFEST or (folder / name).is_file()
-    }
+    files = _known_files(folder, len(sessions))
     head: dict[str, Any] = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
@@ -406,9 +428,8 @@ def refresh_manifest(folder: str | os.PathLike[str]) -> Path:
     path = Path(folder) / MANIFEST
     head = read_manifest(path)
     files = head["files"]
-    for name in sorted(FILE_DESCRIPTIONS):
-        if (Path(folder) / name).is_file():
-            files.setdefault(name, FILE_DESCRIPTIONS[name])
+    for name, description in _known_files(Path(folder), len(head["sessions"])).items():
+        files.setdefault(name, description)
     head["files"] = dict(sorted(files.items()))
     path.write_text(json.dumps(head, indent=2) + "\n", encoding="utf-8")
     return path

@@ -17,6 +17,7 @@ from .commands import (
     run_mapping_to_folder,
     run_odometry_to_folder,
 )
+from .extend import ExtendReport, extend_map
 from .localizer import Localizer, Relocalization
 from .localizer2d import GlobalFix, LocalizationConfig2D, Localizer2D
 from .map_check import MapCheck, MapCheckSettings, check_map
@@ -30,6 +31,7 @@ from .scan_source import open_scan_log, scan_log
 
 __all__ = [
     "AdaptiveGate",
+    "ExtendReport",
     "Frame2D",
     "FrameResult",
     "FrameTiming",
@@ -55,6 +57,7 @@ __all__ = [
     "OdometryConfig2D",
     "Relocalization",
     "check_map",
+    "extend_map",
     "open_scan_log",
     "registration_summary",
     "run_localization_to_folder",

@@ -149,6 +149,7 @@ def run_mapping_to_folder(
     bag_frames: Sequence[str] = ("map", "odom", "laser"),
     report: bool = False,
     checkpoint: int | None = None,
+    extend: PathLike | None = None,
     plots: bool = True,
     progress: bool = False,
 ) -> dict[str, Any]:
@@ -157,7 +158,12 @@ def run_mapping_to_folder(
     :class:`scanreg.SavedMap` folder plus the run's summary, config, plot); returns the
     command's JSON. A run stopped by an error or Ctrl-C writes what it mapped and raises
     :class:`MappingStopped`. A 2D map whose self-check finds it inconsistent is returned
-    with ``self_check["consistent"] == False`` and the reasons."""
+    with ``self_check["consistent"] == False`` and the reasons.
+
+    ``extend``: a saved 2D map's folder: the run is located in it from no initial pose,
+    mapped, closed against it and joined into one graph (:func:`~scanreg.pipeline.extend_map`;
+    the saved map's ``config.toml`` unless ``config`` is given); ``output`` may be that folder
+    (updated in place once the joint map is made)."""
     args = SimpleNamespace(
         path=_source(path),
         output=_path(output, "output"),
@@ -174,6 +180,7 @@ def run_mapping_to_folder(
         bag_frames=list(bag_frames),
         report=report,
         checkpoint=checkpoint,
+        extend=_path(extend, "extend"),
         no_plots=not plots,
         json=False,
         quiet=not progress,
@@ -889,7 +896,10 @@ def _map(args: SimpleNamespace) -> dict[str, Any]:
         raise ValueError(f"--max-scans must be >= 1, got {args.max_scans}")
     if not args.resolution > 0:
         raise ValueError(f"--resolution must be > 0, got {args.resolution}")
-    if is_3d_source(args.path) and not _is_2d_bag(args):
+    three_d = is_3d_source(args.path) and not _is_2d_bag(args)
+    if args.extend is not None:
+        return _extend(args, three_d)
+    if three_d:
         return _map_3d(args)
     config = load_config(MappingConfig, args.config)
     if args.bag is not None:
@@ -954,6 +964,76 @@ def _map(args: SimpleNamespace) -> dict[str, Any]:
     result = summary(res, check)
     result["log"] = str(args.path)
     result["scans"] = scans.describe()
+    result["outputs"] = {k: str(v) for k, v in paths.items()}
+    return result
+
+
+#: Files of a map folder that describe one run and not an extended map: removed when an
+#: extended map is written over them.
+_ONE_RUN_FILES = ("trajectory.png", "contradictions.csv", "report.html")
+
+
+def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
+    """``scanreg map NEW --extend OLD/``: the new run mapped alone, then joined to the saved
+    map (:func:`scanreg.pipeline.extend.extend_map`), written to ``args.output``."""
+    from ..config import load_config, write_config
+    from ..saved_map import SavedMap
+    from .extend import extend_map
+    from .mapping import MappingConfig, MappingInterrupted, run_mapping
+
+    if three_d:
+        raise ValueError("--extend: only 2D maps can be extended yet")
+    for flag in ("bag", "checkpoint"):
+        if getattr(args, flag):
+            raise ValueError(f"--{flag}: not available with --extend")
+    if args.report:
+        raise ValueError("--report: not available with --extend")
+    saved = SavedMap.load(args.extend)
+    if saved.dim != 2 or saved.node_points is None:
+        raise ValueError(
+            f"--extend: {args.extend} is a format-{saved.format_version} {saved.dim}D map; "
+            "only a 2D map of format 2 (with its node scans) can be extended"
+        )
+    # The saved map's own configuration, unless another is given.
+    own = Path(args.extend) / "config.toml"
+    config_path = args.config if args.config is not None or not own.is_file() else own
+    config = load_config(MappingConfig, config_path)
+    scans = _scan_log(
+        args,
+        kind=args.kind,
+        max_scans=args.max_scans,
+        latency=config.laser_latency,
+        min_range=config.min_range,
+        max_range=config.max_range,
+    )
+    try:
+        res = run_mapping(scans, config, progress=not (args.quiet or args.json))
+    except MappingInterrupted as exc:
+        raise MappingStopped(
+            f"{exc}; nothing written: the saved map {args.extend}/ is unchanged",
+            interrupted=isinstance(exc.__cause__, KeyboardInterrupt),
+        ) from exc
+    joint, report = extend_map(saved, res, session=str(args.path), config=config)
+    out = Path(args.output)
+    paths = joint.save(out)
+    for name in _ONE_RUN_FILES:
+        (out / name).unlink(missing_ok=True)
+    paths["config"] = write_config(out / "config.toml", config)
+    result: dict[str, Any] = {
+        "extended": str(args.extend),
+        "log": str(args.path),
+        **report.as_dict(),
+        **{k: v for k, v in joint.describe().items() if k not in ("frames", "folder")},
+        "new_run": {
+            "num_scans": res.num_scans,
+            "num_nodes": len(res.node_scans),
+            "loops_accepted": len(res.accepted_loops),
+        },
+        "scans": scans.describe(),
+    }
+    paths["summary"] = out / "summary.json"
+    paths["summary"].write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    refresh_manifest(out)
     result["outputs"] = {k: str(v) for k, v in paths.items()}
     return result
 
