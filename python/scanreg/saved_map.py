@@ -293,6 +293,8 @@ class SavedMap:
             paths["odometry_tum"] = out / "odometry_tum.txt"
             odo = Trajectory.from_poses(list(self.odometry_poses), self.stamps)  # type: ignore[arg-type]
             write_tum(paths["odometry_tum"], odo)
+        for stale in out.glob("session_*_poses_tum.txt"):  # a former map's sessions
+            stale.unlink()
         if len(self.sessions) > 1 and self.scan_sessions is not None:
             for k in range(len(self.sessions)):
                 mine = self.scan_sessions == k

@@ -36,7 +36,6 @@ from ..saved_map import SavedMap
 from ..transform import SE2
 from .loops import build_submap, match_loop
 from .mapping import MappingConfig, MappingResult
-from .mapping_output import pose_graph, scan_stamps
 
 
 @dataclass(frozen=True)
@@ -61,16 +60,17 @@ class ExtendReport:
         }
 
 
-def _locate(saved: SavedMap, result: MappingResult[Any], tries: int) -> tuple[int, SE2, float]:
+def _locate(saved: SavedMap, new: SavedMap, tries: int) -> tuple[int, SE2, float]:
     """The first of the new run's nodes the global search places in the saved map:
     ``(node, T_old_newworld, score)``."""
     from .localizer2d import Localizer2D
 
     loc = Localizer2D.from_saved_map(saved)
     reasons: list[str] = []
-    new_poses = result.graph.poses()
-    for node in range(min(tries, len(result.node_points))):
-        pts = result.node_points[node]
+    assert new.node_points is not None
+    new_poses = new.node_poses
+    for node in range(min(tries, len(new.node_points))):
+        pts = new.node_points[node]
         if len(pts) < 3:
             continue
         fix = loc.relocalize(pts)
@@ -83,7 +83,7 @@ def _locate(saved: SavedMap, result: MappingResult[Any], tries: int) -> tuple[in
         reasons.append(f"node {node}: {'; '.join(fix.frame.verdict.reasons)}")
     raise ValueError(
         "extend: the new run could not be located in the saved map from no initial pose "
-        f"(its first {min(tries, len(result.node_points))} nodes tried): " + " | ".join(reasons)
+        f"(its first {min(tries, len(new.node_points))} nodes tried): " + " | ".join(reasons)
     )
 
 
@@ -96,9 +96,9 @@ def _scan_nodes(node_scans: tuple[int, ...], num_scans: int) -> FloatArray:
 
 def extend_map(
     saved: SavedMap,
-    result: MappingResult[Any],
+    result: MappingResult[Any] | SavedMap,
     *,
-    session: str,
+    session: str | None = None,
     config: MappingConfig | None = None,
     locate_tries: int = 10,
     max_distance: float = 2.0,
@@ -107,7 +107,9 @@ def extend_map(
     min_loops: int = 2,
 ) -> tuple[SavedMap, ExtendReport]:
     """``saved`` and the new run ``result`` as one map (module docstring): returns the joint
-    :class:`~scanreg.SavedMap` (one more session) and how they were joined.
+    :class:`~scanreg.SavedMap` (one more session) and how they were joined. ``result``: a
+    :class:`~scanreg.pipeline.MappingResult` (named ``session``) or a saved map of format 2
+    (its sessions kept).
 
     ``max_distance``: a new node is matched against its nearest old node when that lies
     within this (m) of where the fix puts it; ``prior_sigma`` (m, rad): the fix's assumed
@@ -119,22 +121,35 @@ def extend_map(
 
     if not isinstance(saved, SavedMap):
         raise TypeError(f"saved: expected a SavedMap, got {type(saved).__name__}")
-    if not isinstance(result, MappingResult):
-        raise TypeError(f"result: expected a MappingResult, got {type(result).__name__}")
-    if saved.dim != 2 or result.graph.dim != 2:
-        raise ValueError("extend: only 2D maps can be extended yet")
-    if saved.node_points is None or saved.node_scans is None or saved.graph is None:
-        raise ValueError(
-            f"saved: a format-{saved.format_version} map keeps no node scans; it cannot be "
-            "extended (map its run again to write format 2)"
+    if isinstance(result, MappingResult):
+        if session is None:
+            raise ValueError("session: a new run's name is needed (e.g. its log's path)")
+        new = SavedMap.from_result(result, session=session, resolution=_resolution(saved))
+    elif isinstance(result, SavedMap):
+        new = result
+    else:
+        raise TypeError(
+            f"result: expected a MappingResult or SavedMap, got {type(result).__name__}"
         )
-    if not isinstance(session, str) or not session or session in saved.sessions:
-        raise ValueError(f"session: expected a new, non-empty name, got {session!r}")
+    if saved.dim != 2 or new.dim != 2:
+        raise ValueError("extend: only 2D maps can be extended yet")
+    for name, m in (("saved", saved), ("result", new)):
+        if m.node_points is None or m.node_scans is None or m.graph is None:
+            raise ValueError(
+                f"{name}: a format-{m.format_version} map keeps no node scans; it cannot be "
+                "joined (map its run again to write format 2)"
+            )
+    clash = set(new.sessions) & set(saved.sessions)
+    if clash or not new.sessions:
+        raise ValueError(f"session: expected a new, non-empty name, got {sorted(clash)}")
+    assert new.node_points is not None and new.node_scans is not None and new.graph is not None
+    assert saved.node_points is not None and saved.node_scans is not None
+    assert saved.graph is not None
     if isinstance(min_loops, bool) or not isinstance(min_loops, int) or min_loops < 1:
         raise ValueError(f"min_loops: expected an int >= 1, got {min_loops!r}")
     cfg = MappingConfig() if config is None else config
     assert saved.grid is not None
-    located, transform, score = _locate(saved, result, locate_tries)
+    located, transform, score = _locate(saved, new, locate_tries)
 
     old_ids = sorted(saved.graph.vertices)
     k_old = len(old_ids)
@@ -142,8 +157,7 @@ def extend_map(
         raise ValueError("saved: its graph's node ids are not 0..K-1")
     old_poses: list[SE2] = [saved.graph.vertices[k] for k in old_ids]  # type: ignore[misc]
     old_xy = np.array([p.translation for p in old_poses])
-    new_graph_poses = result.graph.poses()
-    new_poses: list[SE2] = [new_graph_poses[n] for n in range(len(result.node_points))]  # type: ignore[misc]
+    new_poses: list[SE2] = list(new.node_poses)  # type: ignore[arg-type]
     old_points = dict(enumerate(saved.node_points))
     old_pose_map = dict(enumerate(old_poses))
 
@@ -155,7 +169,7 @@ def extend_map(
     submaps: dict[int, Any] = {}
     start: SE2 | None = None
     for n, pose in enumerate(new_poses):
-        pts = result.node_points[n]
+        pts = new.node_points[n]
         if len(pts) < 3:
             continue
         guess = transform @ pose
@@ -181,7 +195,7 @@ def extend_map(
             "submap_node": anchor,
             "node": k_old + n,
             "submap_scan": saved.node_scans[anchor],
-            "scan": saved.num_scans + result.node_scans[n],
+            "scan": saved.num_scans + new.node_scans[n],
             "accepted": match.accepted,
             "reasons": list(match.reasons),
             "measured": [float(v) for v in match.measured.as_vector()],
@@ -220,7 +234,7 @@ def extend_map(
             kind="loop" if loop else "odometry",
             kernel=kernel if loop else None,
         )
-    for e in pose_graph(result).edges:
+    for e in new.graph.edges:
         loop = abs(e.to_id - e.from_id) != 1
         g.add_edge(
             k_old + e.from_id,
@@ -246,15 +260,15 @@ def extend_map(
         ]
 
     scan_poses = moved(saved.poses, saved.node_scans, old_poses, 0)
-    new_scan_poses = moved(result.poses, result.node_scans, new_poses, k_old)
-    node_points = (*saved.node_points, *(np.asarray(p) for p in result.node_points))
+    new_scan_poses = moved(new.poses, new.node_scans, new_poses, k_old)
+    node_points = (*saved.node_points, *new.node_points)
     grid = occupancy_grid(node_poses, list(node_points), resolution=saved.grid.resolution)
     graph_edges = tuple(
         PoseGraphEdge(e.i, e.j, e.measurement, e.information) for e in g.edges if e.kind != "prior"
     )
     new_loops = []
-    for r in result.loops:
-        rec = r.as_dict()
+    for r in new.loops:
+        rec = dict(r)
         for key in ("submap_node", "node"):
             rec[key] += k_old
         for key in ("submap_scan", "scan"):
@@ -265,20 +279,28 @@ def extend_map(
     joined = SavedMap(
         dim=2,
         poses=(*scan_poses, *new_scan_poses),
-        stamps=np.concatenate([saved.stamps, scan_stamps(result)]),
+        stamps=np.concatenate([saved.stamps, new.stamps]),
         graph=PoseGraph(dict(enumerate(node_poses)), graph_edges, frozenset({0})),
-        odometry_poses=(*(saved.odometry_poses or saved.poses), *result.odometry_poses),
-        node_scans=(*saved.node_scans, *(saved.num_scans + s for s in result.node_scans)),
+        odometry_poses=(*(saved.odometry_poses or saved.poses), *(new.odometry_poses or new.poses)),
+        node_scans=(*saved.node_scans, *(saved.num_scans + s for s in new.node_scans)),
         node_points=node_points,
-        sessions=(*saved.sessions, session),
-        scan_sessions=np.concatenate(
-            [sessions, np.full(result.num_scans, len(saved.sessions), dtype=np.int64)]
-        ),
+        sessions=(*saved.sessions, *new.sessions),
+        scan_sessions=np.concatenate([sessions, len(saved.sessions) + _sessions_of(new)]),
         grid=grid,
         loops=(*saved.loops, *new_loops, *records),
     )
     report = ExtendReport(located, score, len(records), len(edges), tuple(records))
     return joined, report
+
+
+def _resolution(saved: SavedMap) -> float:
+    return 0.05 if saved.grid is None else saved.grid.resolution
+
+
+def _sessions_of(m: SavedMap) -> np.ndarray[Any, np.dtype[np.int64]]:
+    if m.scan_sessions is None:
+        return np.zeros(m.num_scans, dtype=np.int64)
+    return m.scan_sessions
 
 
 __all__ = ["ExtendReport", "extend_map"]

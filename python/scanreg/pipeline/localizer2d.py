@@ -34,7 +34,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -57,6 +57,9 @@ from .odometry2d import (
     predicted_covariance,
 )
 from .wheel import WheelNoise, WheelOdometry
+
+if TYPE_CHECKING:
+    from ..saved_map import SavedMap
 
 
 @dataclass(frozen=True)
@@ -158,7 +161,7 @@ class Localizer2D:
 
     @classmethod
     def from_saved_map(
-        cls, saved: Any, config: LocalizationConfig2D | None = None, **kwargs: Any
+        cls, saved: SavedMap, config: LocalizationConfig2D | None = None, **kwargs: Any
     ) -> Localizer2D:
         """A localizer in a 2D :class:`scanreg.SavedMap` (its occupancy grid's occupied
         cells), e.g. ``SavedMap.load("out/")`` of what ``scanreg map`` wrote."""

@@ -33,7 +33,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -46,6 +46,9 @@ from ..verdict import Verdict
 from .localizer import Localizer
 from .odometry import FrameResult, OdometryConfig, _se3
 from .odometry2d import _count, _positive
+
+if TYPE_CHECKING:
+    from ..saved_map import SavedMap
 
 
 @dataclass(frozen=True)
@@ -141,7 +144,7 @@ class MapLocalizer:
 
     @classmethod
     def from_saved_map(
-        cls, saved: Any, config: OdometryConfig | None = None, **kwargs: Any
+        cls, saved: SavedMap, config: OdometryConfig | None = None, **kwargs: Any
     ) -> MapLocalizer:
         """A localizer in a 3D :class:`scanreg.SavedMap`: its cloud, with its place database
         as the anchors (or, without one, its scans' poses)."""
