@@ -109,6 +109,10 @@ def test_round_trip_field_by_field(dim: int, tmp_path: Path) -> None:
     described = loaded.describe()
     assert described["num_nodes"] == len(result.node_scans)
     assert described["scans_per_session"] == [result.num_scans]
+    # `scanreg info FOLDER` describes it.
+    from scanreg.pipeline.commands import describe_input
+
+    assert describe_input(tmp_path) == {"kind": "map", **described}
 
 
 def test_write_outputs_folder_is_a_saved_map(tmp_path: Path) -> None:

@@ -58,7 +58,8 @@ SUB_EXAMPLES = {
     "info": "examples:\n  scanreg info scan.pcd\n  scanreg info demo.bag --json\n"
     "  scanreg info poses.txt --trajectory-format kitti\n"
     "  scanreg info dataset/sequences/00        # KITTI: frames, points, ground truth\n"
-    "  scanreg info sim:street --json          # a simulated sequence\n",
+    "  scanreg info sim:street --json          # a simulated sequence\n"
+    "  scanreg info out/                       # a map folder: version, sensor, sessions\n",
     "evaluate": "examples:\n  scanreg evaluate est.txt gt.txt --format tum --metric ate\n"
     "  scanreg evaluate est.txt gt.txt --format kitti --metric rpe --delta 10 --unit meters\n"
     "  scanreg evaluate est.txt gt.txt --format kitti --metric kitti --json\n",

@@ -224,7 +224,8 @@ def run_localization_to_folder(
 def describe_input(
     path: PathLike, *, topic: str | None = None, trajectory_format: str | None = None
 ) -> dict[str, Any]:
-    """``scanreg info``: what ``path`` holds — a point cloud, a trajectory (read as
+    """``scanreg info``: what ``path`` holds — a map folder (:meth:`scanreg.SavedMap.describe`),
+    a point cloud, a trajectory (read as
     ``trajectory_format``, ``"kitti"`` or ``"tum"``), a ROS bag (its topics; ``topic`` the
     PointCloud2 to summarise as a sequence) or a sequence (folder or ``sim:`` URI)."""
     args = SimpleNamespace(
@@ -361,6 +362,10 @@ def _info(args: SimpleNamespace) -> dict[str, Any]:
             return sequences.describe_sequence(sequences.open_sequence(spec))
         if args.path.suffix.lower() in _BAG_SUFFIXES or (args.path / "metadata.yaml").is_file():
             return _bag_info(args.path, args.topic)
+        if args.path.is_dir() and (args.path / "manifest.json").is_file():
+            from ..saved_map import SavedMap
+
+            return {"kind": "map", **SavedMap.load(args.path).describe()}
         if args.path.is_dir():
             return sequences.describe_sequence(sequences.open_sequence(args.path))
     if args.trajectory_format:
