@@ -192,6 +192,12 @@ def test_corrupt_or_missing_parts_named(tmp_path: Path) -> None:
     (tmp_path / "graph.g2o").write_text("")
     with pytest.raises(FileFormatError, match=r"map_data\.npz: node_offsets: missing"):
         SavedMap.load(tmp_path)
+    # A data file that is not an npz at all, or cut short.
+    whole = (tmp_path / "keep.npz").read_bytes()
+    for damaged in (b"not a zip file", whole[: len(whole) // 2]):
+        (tmp_path / "map_data.npz").write_bytes(damaged)
+        with pytest.raises(FileFormatError, match=r"map_data\.npz: not a readable npz"):
+            SavedMap.load(tmp_path)
     # No manifest and no map at all.
     empty = tmp_path / "empty"
     empty.mkdir()

@@ -42,6 +42,8 @@ from __future__ import annotations
 import json
 import math
 import os
+import zipfile
+import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,6 +66,9 @@ FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
 MANIFEST = "manifest.json"
 DATA = "map_data.npz"
+
+#: What a damaged ``.npz`` raises while read (a zip archive of ``.npy`` members).
+_NPZ_ERRORS = (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error)
 
 #: What each file of a map folder holds (the manifest's ``files``).
 FILE_DESCRIPTIONS: dict[str, str] = {
@@ -501,9 +506,10 @@ def _load_version_2(root: Path, head: Mapping[str, Any]) -> SavedMap:
     dim = 2 if head["sensor"] == "2d" else 3
     path = root / DATA
     try:
-        with np.load(path, allow_pickle=False) as z:
+        # The file opened here: np.load leaks its own handle when the archive is refused.
+        with path.open("rb") as fh, np.load(fh, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
-    except (OSError, ValueError) as exc:
+    except _NPZ_ERRORS as exc:
         raise FileFormatError(path, f"not a readable npz ({exc})") from None
 
     def need(key: str) -> Any:
@@ -600,7 +606,7 @@ def _read_cloud(root: Path) -> FloatArray:
 
 def _read_places(path: Path) -> Places:
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with path.open("rb") as fh, np.load(fh, allow_pickle=False) as z:
             for key in ("poses", "descriptors", "max_radius", "height_offset"):
                 if key not in z.files:
                     raise FileFormatError(path, f"{key}: missing")
@@ -610,7 +616,7 @@ def _read_places(path: Path) -> Places:
                 float(z["max_radius"]),
                 float(z["height_offset"]),
             )
-    except (OSError, ValueError) as exc:
+    except _NPZ_ERRORS as exc:
         if isinstance(exc, FileFormatError):
             raise
         raise FileFormatError(path, f"not a readable npz ({exc})") from None
