@@ -109,6 +109,11 @@ def test_round_trip_field_by_field(dim: int, tmp_path: Path) -> None:
     described = loaded.describe()
     assert described["num_nodes"] == len(result.node_scans)
     assert described["scans_per_session"] == [result.num_scans]
+    if dim == 2:  # a node's submap is rebuilt from the saved node scans
+        sub = loaded.submap(3, half_size=1)
+        assert sub.nodes == (2, 3, 4) and len(sub.points) > 100
+        with pytest.raises(ValueError, match=r"anchor: expected a node id 0\.\."):
+            loaded.submap(loaded.num_nodes)
     # `scanreg info FOLDER` describes it.
     from scanreg.pipeline.commands import describe_input
 

@@ -181,6 +181,30 @@ class SavedMap:
             raise ValueError(f"session: expected 0..{len(self.sessions) - 1}, got {session!r}")
         return tuple(p for p, s in zip(self.poses, self.scan_sessions, strict=True) if s == k)
 
+    def submap(
+        self, anchor: int, *, half_size: int = 2, resolution: float = 0.05, voxel_size: float = 0.05
+    ) -> Any:
+        """2D: the submap of node ``anchor`` — its scan and those of ``half_size`` nodes on
+        each side, in its frame, prepared for loop matching
+        (:class:`~scanreg.pipeline.loops.Submap2D`, as the mapping run built it: submaps are
+        not stored, the node scans they are made of are)."""
+        from .pipeline.loops import build_submap
+
+        if self.dim != 2 or self.node_points is None:
+            raise ValueError("map: submap needs a 2D map with its node scans (format 2)")
+        k = self.num_nodes
+        if isinstance(anchor, bool) or not isinstance(anchor, int) or not 0 <= anchor < k:
+            raise ValueError(f"anchor: expected a node id 0..{k - 1}, got {anchor!r}")
+        nodes = [n for n in range(anchor - half_size, anchor + half_size + 1) if 0 <= n < k]
+        return build_submap(
+            anchor,
+            nodes,
+            dict(enumerate(self.node_points)),
+            dict(enumerate(self.node_poses)),  # type: ignore[arg-type]
+            resolution=resolution,
+            voxel_size=voxel_size,
+        )
+
     def occupied_points(self) -> FloatArray:
         """2D: the occupied cells' centres, ``(M, 2)`` world frame (what a localizer reads)."""
         from .io.occupancy import occupied_points

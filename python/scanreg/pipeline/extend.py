@@ -34,7 +34,7 @@ from ..io.g2o import PoseGraph, PoseGraphEdge
 from ..io.occupancy import occupancy_grid
 from ..saved_map import SavedMap
 from ..transform import SE2
-from .loops import build_submap, match_loop
+from .loops import match_loop
 from .mapping import MappingConfig, MappingResult
 
 
@@ -158,12 +158,9 @@ def extend_map(
     old_poses: list[SE2] = [saved.graph.vertices[k] for k in old_ids]  # type: ignore[misc]
     old_xy = np.array([p.translation for p in old_poses])
     new_poses: list[SE2] = list(new.node_poses)  # type: ignore[arg-type]
-    old_points = dict(enumerate(saved.node_points))
-    old_pose_map = dict(enumerate(old_poses))
 
     settings = cfg.loops
     prior = np.diag([prior_sigma[0] ** 2, prior_sigma[0] ** 2, prior_sigma[1] ** 2])
-    h = cfg.submap_half_size
     records: list[dict[str, Any]] = []
     edges: list[tuple[int, int, SE2, FloatArray]] = []
     submaps: dict[int, Any] = {}
@@ -178,12 +175,9 @@ def extend_map(
         if d[anchor] > max_distance:
             continue
         if anchor not in submaps:
-            nodes = [m for m in range(anchor - h, anchor + h + 1) if 0 <= m < k_old]
-            submaps[anchor] = build_submap(
+            submaps[anchor] = saved.submap(
                 anchor,
-                nodes,
-                old_points,
-                old_pose_map,
+                half_size=cfg.submap_half_size,
                 resolution=settings.resolution,
                 voxel_size=cfg.node_voxel_size,
             )
