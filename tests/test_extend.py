@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import bz2
 import json
+import shutil
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -112,6 +113,19 @@ def test_cli_extend_writes_both_sessions(
         tum = np.loadtxt(out2 / f"session_{k}_poses_tum.txt")
         assert len(tum) == result["scans_per_session"][k] and f"session_{k}_poses_tum.txt" in files
     assert np.loadtxt(out2 / "poses_tum.txt").shape == (joint.num_scans, 8)
+    assert set(files) == {p.name for p in out2.iterdir()}
+    # In place (no -o): the folder becomes the joint map; the first run's plot and self-check
+    # (they describe one run) are gone, and the manifest says so.
+    inplace = tmp_path / "inplace"
+    shutil.copytree(out, inplace)
+    (inplace / "trajectory.png").write_bytes(b"")
+    argv = ["map", str(sessions["b"]), "--extend", str(inplace), "--json"]
+    assert main(argv) == EXIT_OK
+    capsys.readouterr()
+    files = json.loads((inplace / MANIFEST).read_text())["files"]
+    assert set(files) == {p.name for p in inplace.iterdir()}
+    assert "trajectory.png" not in files and "contradictions.csv" not in files
+    assert SavedMap.load(inplace).sessions == (str(sessions["a"]), str(sessions["b"]))
     # The saved map it extended is untouched; the joint map localizes like any other.
     assert SavedMap.load(out).sessions == (str(sessions["a"]),)
     loc = tmp_path / "loc"

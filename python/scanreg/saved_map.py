@@ -455,10 +455,11 @@ def write_manifest(folder: Path, dim: int, sessions: Sequence[str], num_scans: i
 
 def refresh_manifest(folder: str | os.PathLike[str]) -> Path:
     """Rewrite ``folder``'s manifest so its ``files`` lists what is there now (after files
-    such as ``config.toml`` or ``report.html`` were added beside the map)."""
+    such as ``config.toml`` or ``report.html`` were added beside the map, or removed)."""
     path = Path(folder) / MANIFEST
     head = read_manifest(path)
-    files = head["files"]
+    # Files gone since are dropped; the ones added, listed.
+    files = {n: d for n, d in head["files"].items() if (Path(folder) / str(n)).is_file()}
     for name, description in _known_files(Path(folder), len(head["sessions"])).items():
         files.setdefault(name, description)
     head["files"] = dict(sorted(files.items()))

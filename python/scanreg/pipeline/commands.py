@@ -1020,9 +1020,9 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
         ) from exc
     joint, report = extend_map(saved, res, session=str(args.path), config=config)
     out = Path(args.output)
-    paths = joint.save(out)
-    for name in _ONE_RUN_FILES:
+    for name in _ONE_RUN_FILES:  # (the map itself is written whole below)
         (out / name).unlink(missing_ok=True)
+    paths = joint.save(out)
     paths["config"] = write_config(out / "config.toml", config)
     result: dict[str, Any] = {
         "extended": str(args.extend),
