@@ -49,6 +49,8 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.interop", "Open3D and ROS message layouts"),
     ("scanreg.plot", "figures (matplotlib)"),
     ("scanreg.pipeline", "odometry, localization (2D/3D) and mapping pipelines"),
+    ("scanreg.pipeline.commands", "what each scanreg command does, as library functions"),
+    ("scanreg.saved_map", "a saved map folder as one versioned type: SavedMap, its manifest"),
     ("scanreg.graph", "the pose graph (gtsam): calibrated-covariance edges, iSAM2, marginals"),
     ("scanreg.report", "the HTML run report"),
     ("scanreg.batch", "many odometry/registration jobs on local workers or a Ray cluster"),

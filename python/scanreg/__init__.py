@@ -5,8 +5,7 @@ translation-first and perturb on the right (``T @ exp(δ)``); see :mod:`scanreg.
 """
 
 import importlib
-from types import ModuleType
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from . import preprocess, simulate
 from ._version import __version__
@@ -67,6 +66,7 @@ __all__ = [
     "Relocalization",
     "ResidualStats",
     "SamplingCovariance",
+    "SavedMap",
     "Verdict",
     "VerdictThresholds",
     "WeakDirection",
@@ -109,6 +109,9 @@ _LAZY_SUBMODULES = frozenset(
     }
 )
 
+#: Names loaded on first access for the same reason: ``scanreg.SavedMap`` reads map folders.
+_LAZY_ATTRIBUTES = {"SavedMap": "saved_map"}
+
 if TYPE_CHECKING:
     from . import (  # noqa: F401
         batch,
@@ -124,9 +127,14 @@ if TYPE_CHECKING:
         robust,
         verdict,
     )
+    from .saved_map import SavedMap
 
 
-def __getattr__(name: str) -> ModuleType:
+def __getattr__(name: str) -> Any:
+    if name in _LAZY_ATTRIBUTES:
+        value = getattr(importlib.import_module(f".{_LAZY_ATTRIBUTES[name]}", __name__), name)
+        globals()[name] = value
+        return value
     if name in _LAZY_SUBMODULES:
         module = importlib.import_module(f".{name}", __name__)
         globals()[name] = module
@@ -135,4 +143,4 @@ def __getattr__(name: str) -> ModuleType:
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | _LAZY_SUBMODULES)
+    return sorted(set(globals()) | _LAZY_SUBMODULES | set(_LAZY_ATTRIBUTES))

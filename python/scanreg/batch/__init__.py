@@ -1,8 +1,10 @@
-"""Batch odometry and registration: many independent jobs on an engine, same results anywhere.
+"""Batch odometry, registration and mapping: many independent jobs on an engine, same results
+anywhere.
 
 A manifest (CSV or Parquet, one row per job) names the inputs — file paths or ``sim:`` URIs,
 never arrays — and each job runs in a worker exactly as the single-job command would
-(``scanreg odometry``, ``scanreg register``), writing ``out/<id>/`` atomically. Engines:
+(``scanreg odometry``, ``scanreg register``, ``scanreg map``: the same library functions,
+:mod:`scanreg.pipeline.commands`), writing ``out/<id>/`` atomically. Engines:
 ``"local"`` (worker processes on this machine, no extra dependency) and ``"ray"`` (a Ray
 cluster, ``pip install 'scanreg[ray]'``). The core's results do not depend on the thread
 count or on the worker, so every engine gives the same poses to the bit.

@@ -2,7 +2,9 @@
 
 A job kind (:class:`JobKind`) names its manifest columns, checks a row before the batch starts
 and runs one job into a folder. :data:`JOB_KINDS` is the registry the CLI and
-:func:`scanreg.batch.run_batch` read; a new kind (``map``) is one more entry.
+:func:`scanreg.batch.run_batch` read: ``odometry``, ``register`` and ``map``, each calling
+the library function its single-job command calls (:mod:`scanreg.pipeline.commands`), never
+the command line's own code.
 
 :func:`execute` runs in the worker: it writes the job's outputs into a temporary folder beside
 the final one and renames it into place only when the job succeeded (``out/<id>/`` exists only
@@ -66,16 +68,6 @@ class JobKind:
 # --------------------------------------------------------------------------- odometry
 
 
-def _odometry_args(job: Job, folder: Path) -> Any:
-    from ..cli import build_parser
-
-    argv = ["odometry", str(job.get("input")), "-o", str(folder), "--json", "--quiet"]
-    argv.append("--no-plots")  # figures per job would dominate small jobs; plot from poses
-    if job.get("config"):
-        argv += ["--config", str(job.get("config"))]
-    return build_parser().parse_args(argv)
-
-
 def _check_odometry(job: Job) -> None:
     from ..config import load_config
     from ..io.sequences import parse_sim_spec
@@ -89,14 +81,56 @@ def _check_odometry(job: Job) -> None:
 
 
 def run_odometry_job(job: Job, folder: Path) -> dict[str, Any]:
-    """``scanreg odometry INPUT -o FOLDER [--config CONFIG] --no-plots``, in this process:
-    ``poses_kitti.txt``, ``poses_tum.txt``, ``quality.jsonl``/``.csv``, ``config.toml``."""
-    from ..cli import _odometry
+    """``scanreg odometry INPUT -o FOLDER [--config CONFIG] --no-plots``, in this process
+    (:func:`scanreg.pipeline.run_odometry_to_folder`): ``poses_kitti.txt``, ``poses_tum.txt``,
+    ``quality.jsonl``/``.csv``, ``config.toml``. Figures per job would dominate small jobs:
+    none are drawn (plot from the poses)."""
+    from ..pipeline.commands import run_odometry_to_folder
 
-    result = _odometry(_odometry_args(job, folder))
+    result = run_odometry_to_folder(
+        str(job.get("input")), folder, config=job.get("config"), plots=False
+    )
+    return _relative_outputs(result)
+
+
+def _relative_outputs(result: dict[str, Any]) -> dict[str, Any]:
     # file names, not the temporary folder's paths
     result["outputs"] = {k: Path(v).name for k, v in result["outputs"].items()}
     return result
+
+
+# --------------------------------------------------------------------------- map
+
+
+def _check_map(job: Job) -> None:
+    from ..config import load_config
+    from ..io.sequences import parse_sim_spec
+    from ..pipeline.commands import is_3d_source
+    from ..pipeline.mapping import MappingConfig
+    from ..pipeline.mapping3d import MappingConfig3D
+
+    spec = str(job.get("input"))
+    if spec.startswith("sim:"):
+        parse_sim_spec(spec)
+    if job.get("config"):
+        from ..io.laserscan_bag import is_laserscan_bag
+        from ..pipeline.scan_source import is_bag
+
+        laserscans = not spec.startswith("sim:") and is_bag(spec) and is_laserscan_bag(spec)
+        kind = MappingConfig3D if is_3d_source(spec) and not laserscans else MappingConfig
+        load_config(kind, job.get("config"))
+
+
+def run_map_job(job: Job, folder: Path) -> dict[str, Any]:
+    """``scanreg map INPUT -o FOLDER [--config CONFIG] --no-plots``, in this process
+    (:func:`scanreg.pipeline.run_mapping_to_folder`): the map folder (a
+    :class:`scanreg.SavedMap`), ``summary.json``, ``config.toml``."""
+    from ..pipeline.commands import run_mapping_to_folder
+
+    result = run_mapping_to_folder(
+        str(job.get("input")), folder, config=job.get("config"), plots=False
+    )
+    return _relative_outputs(result)
 
 
 # --------------------------------------------------------------------------- register
@@ -184,7 +218,7 @@ def run_register_job(job: Job, folder: Path) -> dict[str, Any]:
     once per worker: writes nothing but ``result.json`` (the command's JSON)."""
     import numpy as np
 
-    from ..cli import register_summary
+    from ..pipeline.commands import registration_summary
     from ..register import register
 
     options = register_options(job.get("config"))
@@ -200,7 +234,7 @@ def run_register_job(job: Job, folder: Path) -> dict[str, Any]:
         **_settings_overrides(options),
     )
     folder.mkdir(parents=True, exist_ok=True)
-    return register_summary(res)
+    return registration_summary(res)
 
 
 JOB_KINDS: dict[str, JobKind] = {
@@ -217,7 +251,13 @@ JOB_KINDS: dict[str, JobKind] = {
         run=run_register_job,
         check=_check_register,
     ),
-    # "map": the mapping pipeline's job (one map per sequence) registers here.
+    "map": JobKind(
+        columns=("input",),
+        optional=("config",),
+        run=run_map_job,
+        check=_check_map,
+        sim_columns=("input",),
+    ),
 }
 
 
@@ -309,6 +349,7 @@ __all__ = [
     "execute",
     "finished_record",
     "register_options",
+    "run_map_job",
     "run_odometry_job",
     "run_register_job",
     "shared_target",

@@ -5,6 +5,9 @@ Columns (``id`` always; the others by job kind, see :data:`scanreg.batch.jobs.JO
 * ``odometry``: ``input`` — a sequence (KITTI folder, folder of point files, ROS bag) or a
   ``sim:`` URI (``sim:street,frames=20,seed=3``); optional ``config`` — a TOML file as
   ``scanreg odometry --config`` takes.
+* ``map``: ``input`` — what ``scanreg map`` reads (a 2D CARMEN log or LaserScan bag; a 3D
+  sequence or ``sim:`` URI); optional ``config`` — a TOML file as ``scanreg map --config``
+  takes. Each job writes the map folder (:class:`scanreg.SavedMap`) without the plot.
 * ``register``: ``source`` and ``target`` — point files; optional ``config`` — a TOML file of
   ``scanreg register``'s options (``method``, ``max_correspondence_distance``, ``voxel_size``,
   ``kernel``, ``max_iterations``); optional ``init`` — a text file with the initial

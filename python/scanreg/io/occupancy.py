@@ -285,3 +285,40 @@ def read_map_server(path: PathLike) -> tuple[FloatArray, float]:
     c, s = math.cos(origin[2]), math.sin(origin[2])
     pts = local @ np.array([[c, s], [-s, c]]) + np.array(origin[:2])
     return np.ascontiguousarray(pts), resolution
+
+
+def read_occupancy_grid(path: PathLike) -> OccupancyGrid:
+    """A map :func:`write_map` wrote (``map.yaml`` and its PGM) as an :class:`OccupancyGrid`:
+    the image is trinary, so occupied cells read back as 1, free as 0, unknown as NaN (the
+    probabilities themselves are not in the file). The origin's yaw must be 0 (as
+    :func:`write_map` writes it)."""
+    yaml_path = Path(path)
+    fields = _yaml_fields(yaml_path)
+    missing = [k for k in ("image", "resolution", "origin") if k not in fields]
+    if missing:
+        raise FileFormatError(yaml_path, f"lacks {', '.join(missing)} (not a map_server map)")
+    resolution = _finite(yaml_path, "resolution", fields["resolution"])
+    if resolution <= 0:
+        raise FileFormatError(yaml_path, f"resolution: must be > 0, got {resolution}")
+    parts = fields["origin"].strip("[]").split(",")
+    if len(parts) != 3:
+        raise FileFormatError(yaml_path, f"origin: expected [x, y, yaw], got {fields['origin']!r}")
+    origin = [_finite(yaml_path, "origin", v) for v in parts]
+    if origin[2] != 0.0:
+        raise FileFormatError(yaml_path, f"origin: a rotated grid (yaw {origin[2]}) is not read")
+    occupied = _finite(yaml_path, "occupied_thresh", fields.get("occupied_thresh", "0.65"))
+    free = _finite(yaml_path, "free_thresh", fields.get("free_thresh", "0.196"))
+    name = fields["image"].strip("'\"")
+    image = read_pgm(_regular_file(yaml_path.parent / name, "image", yaml_path))[::-1]
+    prob = np.full(image.shape, np.nan)
+    prob[image == OCCUPIED] = 1.0
+    prob[image == FREE] = 0.0
+    return OccupancyGrid(prob, resolution, (origin[0], origin[1]), occupied, free)
+
+
+def occupied_points(grid: OccupancyGrid) -> FloatArray:
+    """The centres of the cells of ``grid`` above its ``occupied_thresh``, ``(M, 2)`` in the
+    world frame (what :func:`read_map_server` reads from the written map)."""
+    rows, cols = np.nonzero(np.nan_to_num(grid.probability, nan=0.0) > grid.occupied_thresh)
+    pts = np.c_[(cols + 0.5) * grid.resolution, (rows + 0.5) * grid.resolution]
+    return np.ascontiguousarray(pts + np.asarray(grid.origin, dtype=np.float64))

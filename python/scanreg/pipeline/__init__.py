@@ -5,8 +5,19 @@ in a prior map (:class:`Localizer`, 3D; :class:`Localizer2D`, 2D, with global re
 saved map with global relocalization (:class:`MapLocalizer`); :func:`write_outputs` writes a
 mapping run's folder (what ``scanreg map`` writes); :func:`open_scan_log` / :func:`scan_log`
 read a CARMEN log or a LaserScan bag as the 2D pipelines' :class:`~scanreg.io.ScanLog`;
-:func:`check_map` judges a 2D map's consistency without ground truth."""
+:func:`check_map` judges a 2D map's consistency without ground truth.
+:func:`run_odometry_to_folder`, :func:`run_mapping_to_folder` and
+:func:`run_localization_to_folder` are what ``scanreg odometry|map|localize`` do, callable
+the same way from Python (:mod:`.commands`)."""
 
+from .commands import (
+    MappingStopped,
+    registration_summary,
+    run_localization_to_folder,
+    run_mapping_to_folder,
+    run_odometry_to_folder,
+)
+from .extend import ExtendReport, extend_map
 from .localizer import Localizer, Relocalization
 from .localizer2d import GlobalFix, LocalizationConfig2D, Localizer2D
 from .map_check import MapCheck, MapCheckSettings, check_map
@@ -20,6 +31,7 @@ from .scan_source import open_scan_log, scan_log
 
 __all__ = [
     "AdaptiveGate",
+    "ExtendReport",
     "Frame2D",
     "FrameResult",
     "FrameTiming",
@@ -38,15 +50,21 @@ __all__ = [
     "MappingConfig",
     "MappingConfig3D",
     "MappingResult",
+    "MappingStopped",
     "Odometry",
     "Odometry2D",
     "OdometryConfig",
     "OdometryConfig2D",
     "Relocalization",
     "check_map",
+    "extend_map",
     "open_scan_log",
+    "registration_summary",
+    "run_localization_to_folder",
     "run_mapping",
     "run_mapping_3d",
+    "run_mapping_to_folder",
+    "run_odometry_to_folder",
     "scan_log",
     "write_outputs",
 ]

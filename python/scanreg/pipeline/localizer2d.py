@@ -34,7 +34,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -57,6 +57,9 @@ from .odometry2d import (
     predicted_covariance,
 )
 from .wheel import WheelNoise, WheelOdometry
+
+if TYPE_CHECKING:
+    from ..saved_map import SavedMap
 
 
 @dataclass(frozen=True)
@@ -155,6 +158,20 @@ class Localizer2D:
         """A localizer in the occupancy map ``path`` (``map.yaml``; :func:`read_map_server`)."""
         points, _ = read_map_server(path)
         return cls(points, config, **kwargs)
+
+    @classmethod
+    def from_saved_map(
+        cls, saved: SavedMap, config: LocalizationConfig2D | None = None, **kwargs: Any
+    ) -> Localizer2D:
+        """A localizer in a 2D :class:`scanreg.SavedMap` (its occupancy grid's occupied
+        cells), e.g. ``SavedMap.load("out/")`` of what ``scanreg map`` wrote."""
+        from ..saved_map import SavedMap
+
+        if not isinstance(saved, SavedMap):
+            raise TypeError(f"saved: expected a SavedMap, got {type(saved).__name__}")
+        if saved.dim != 2:
+            raise ValueError(f"saved: a {saved.dim}D map; Localizer2D needs a 2D map")
+        return cls(saved.occupied_points(), config, **kwargs)
 
     @property
     def pose(self) -> SE2 | None:

@@ -33,7 +33,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -46,6 +46,9 @@ from ..verdict import Verdict
 from .localizer import Localizer
 from .odometry import FrameResult, OdometryConfig, _se3
 from .odometry2d import _count, _positive
+
+if TYPE_CHECKING:
+    from ..saved_map import SavedMap
 
 
 @dataclass(frozen=True)
@@ -127,35 +130,36 @@ class MapLocalizer:
     def from_folder(
         cls, path: str | Path, config: OdometryConfig | None = None, **kwargs: Any
     ) -> MapLocalizer:
-        """A localizer in the map ``scanreg map`` wrote: ``path`` is its folder (``map.ply``
-        or ``map.pcd``, with ``poses_kitti.txt`` as the anchors when present) or a point file."""
+        """A localizer in the map ``scanreg map`` wrote: ``path`` is its folder (read as a
+        :class:`scanreg.SavedMap`) or a point file."""
         from ..io import read_points
-        from ..io.trajectory import read_kitti_poses
+        from ..saved_map import SavedMap
 
         p = Path(path)
         if p.is_dir():
-            found = [p / n for n in ("map.ply", "map.pcd") if (p / n).is_file()]
-            if not found:
-                raise FileNotFoundError(f"{p}: holds no map.ply or map.pcd")
-            map_file = found[0]
-            places_file = p / "places.npz"
-            poses_file = p / "poses_kitti.txt"
-            if "anchors" not in kwargs and "places" not in kwargs:
-                if places_file.is_file():
-                    with np.load(places_file) as z:
-                        kwargs["places"] = (
-                            z["poses"],
-                            z["descriptors"],
-                            float(z["max_radius"]),
-                            float(z["height_offset"]),
-                        )
-                elif poses_file.is_file():
-                    kwargs["anchors"] = read_kitti_poses(poses_file).poses
-        elif p.is_file():
-            map_file = p
-        else:
+            return cls.from_saved_map(SavedMap.load(p), config, **kwargs)
+        if not p.is_file():
             raise FileNotFoundError(f"path: {p} is neither a map folder nor a point file")
-        return cls(read_points(map_file).points, config, **kwargs)
+        return cls(read_points(p).points, config, **kwargs)
+
+    @classmethod
+    def from_saved_map(
+        cls, saved: SavedMap, config: OdometryConfig | None = None, **kwargs: Any
+    ) -> MapLocalizer:
+        """A localizer in a 3D :class:`scanreg.SavedMap`: its cloud, with its place database
+        as the anchors (or, without one, its scans' poses)."""
+        from ..saved_map import SavedMap
+
+        if not isinstance(saved, SavedMap):
+            raise TypeError(f"saved: expected a SavedMap, got {type(saved).__name__}")
+        if saved.dim != 3 or saved.map_points is None:
+            raise ValueError(f"saved: a {saved.dim}D map; MapLocalizer needs a 3D map cloud")
+        if "anchors" not in kwargs and "places" not in kwargs:
+            if saved.places is not None:
+                kwargs["places"] = tuple(saved.places)
+            elif saved.poses:
+                kwargs["anchors"] = np.array([q.as_matrix() for q in saved.poses])
+        return cls(saved.map_points, config, **kwargs)
 
     # -- anchors ------------------------------------------------------------------------
     def _choose_anchors(self, anchors: Any, sensor_height: float) -> tuple[SE3, ...]:

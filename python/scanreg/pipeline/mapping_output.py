@@ -13,6 +13,8 @@
 ``trajectory.png``     odometry against the optimized trajectory, loop edges drawn
 ``summary.json``       :func:`summary`, with 2D runs' self-check (:mod:`.map_check`)
 ``contradictions.csv`` 2D: ``x,y`` of every return the self-check found contradicted
+``map_data.npz``       the exact state :class:`scanreg.SavedMap` reads (node scans included)
+``manifest.json``      format version, sensor, frames, sessions, what each file is
 =====================  ==================================================================
 """
 
@@ -27,20 +29,18 @@ from typing import Any
 import numpy as np
 
 from .._validate import FloatArray, check_flag, positive
-from ..io import PointCloud, write_points
-from ..io.g2o import PoseGraph, PoseGraphEdge, write_g2o
-from ..io.occupancy import occupancy_grid, write_map
-from ..io.trajectory import Trajectory, write_kitti_poses, write_tum
+from ..io.g2o import PoseGraph, PoseGraphEdge
 from ..preprocess import voxel_downsample
+from ..saved_map import SavedMap, refresh_manifest
 from ..transform import SE2, SE3
 from .map_check import MapCheck, check_map
 from .mapping import MappingResult
 
 
-def _stamps(result: MappingResult[Any]) -> np.ndarray[Any, np.dtype[np.float64]]:
+def scan_stamps(result: MappingResult[Any]) -> np.ndarray[Any, np.dtype[np.float64]]:
+    """Every scan's stamp; the scan index stands in where the input had no times."""
     if all(s is not None for s in result.stamps):
         return np.array(result.stamps, dtype=np.float64)
-    # Without stamps the scan index stands in for the time.
     return np.arange(result.num_scans, dtype=np.float64)
 
 
@@ -76,7 +76,7 @@ def map_points_3d(result: MappingResult[Any], voxel_size: float = 0.2) -> FloatA
     return pts
 
 
-def write_places(path: Path, result: MappingResult[Any]) -> Path:
+def places_of(result: MappingResult[Any]) -> tuple[FloatArray, FloatArray, float, float]:
     """A 3D run's place database: ``poses`` ``(K, 4, 4)`` the nodes' optimized
     ``T_world_node``, ``descriptors`` ``(K, rings, sectors)`` their Scan Context (computed from
     the node clouds, out to ``max_radius``: as far as the keyframes reach, at most 80 m),
@@ -84,20 +84,27 @@ def write_places(path: Path, result: MappingResult[Any]) -> Path:
     from ..place import PlaceDatabase
 
     if result.graph.dim != 3:
-        raise ValueError("result: write_places needs a 3D run (an SE3 graph)")
+        raise ValueError("result: places_of needs a 3D run (an SE3 graph)")
     reach = max(float(np.hypot(p[:, 0], p[:, 1]).max()) for p in result.node_points if len(p))
     db = PlaceDatabase(max_radius=min(80.0, max(reach, 1.0)))
     node_poses = result.graph.poses()
     descriptors = np.array([db.describe(p).descriptor for p in result.node_points])
     poses = np.array([node_poses[n].as_matrix() for n in range(len(result.node_points))])
+    return poses, descriptors, float(db.max_radius), float(db.height_offset)
+
+
+def write_places(path: Path, result: MappingResult[Any]) -> Path:
+    """Write :func:`places_of` as ``places.npz`` (keys ``poses``, ``descriptors``,
+    ``max_radius``, ``height_offset``)."""
+    poses, descriptors, max_radius, height_offset = places_of(result)
     p = Path(path)
     with p.open("wb") as fh:
         np.savez(
             fh,
             poses=poses,
             descriptors=descriptors,
-            max_radius=np.float64(db.max_radius),
-            height_offset=np.float64(db.height_offset),
+            max_radius=np.float64(max_radius),
+            height_offset=np.float64(height_offset),
         )
     return p
 
@@ -110,11 +117,14 @@ def write_outputs(
     voxel_size: float = 0.2,
     plot: bool = True,
     check: MapCheck | None = None,
+    session: str = "session-0",
 ) -> dict[str, Path]:
     """Write every file of the table above into ``folder`` (created); returns their paths.
     ``resolution``: the 2D occupancy grid's cell (m); ``voxel_size``: the 3D map's voxel (m).
     ``plot=False`` skips ``trajectory.png`` (the only file that needs matplotlib).
-    ``check``: a 2D run's self-check if already made (else it is made here)."""
+    ``check``: a 2D run's self-check if already made (else it is made here). ``session``:
+    the run's name in the manifest (e.g. the input's path). The map itself goes through
+    :class:`scanreg.SavedMap` (``manifest.json``, ``map_data.npz``)."""
     if not isinstance(folder, (str, os.PathLike)):
         raise TypeError(f"folder: expected a str or os.PathLike, got {type(folder).__name__}")
     if not isinstance(result, MappingResult):
@@ -127,35 +137,14 @@ def write_outputs(
     check_flag(plot, "plot")
     if check is not None and not isinstance(check, MapCheck):
         raise TypeError(f"check: expected a MapCheck or None, got {type(check).__name__}")
+    if not isinstance(session, str) or not session:
+        raise ValueError(f"session: expected a non-empty str, got {session!r}")
     out = Path(folder)
-    out.mkdir(parents=True, exist_ok=True)
-    stamps = _stamps(result)
-    paths: dict[str, Path] = {}
-    traj = Trajectory.from_poses(list(result.poses), stamps)
-    paths["poses_kitti"] = out / "poses_kitti.txt"
-    write_kitti_poses(paths["poses_kitti"], traj)
-    paths["poses_tum"] = out / "poses_tum.txt"
-    write_tum(paths["poses_tum"], traj)
-    paths["odometry_tum"] = out / "odometry_tum.txt"
-    write_tum(paths["odometry_tum"], Trajectory.from_poses(list(result.odometry_poses), stamps))
-    paths["graph"] = out / "graph.g2o"
-    write_g2o(paths["graph"], pose_graph(result))
-    paths["loops"] = out / "loops.jsonl"
-    with paths["loops"].open("w", encoding="utf-8") as fh:
-        for record in result.loops:
-            fh.write(json.dumps(record.as_dict()) + "\n")
-    if result.graph.dim == 3:
-        cloud = PointCloud(points=map_points_3d(result, voxel_size))
-        for ext in ("ply", "pcd"):
-            paths[f"map_{ext}"] = out / f"map.{ext}"
-            write_points(paths[f"map_{ext}"], cloud)
-        paths["places"] = write_places(out / "places.npz", result)
-    else:
-        node_poses = result.graph.poses()
-        poses = [node_poses[n] for n in range(len(result.node_scans))]
-        grid = occupancy_grid(poses, list(result.node_points), resolution=resolution)  # type: ignore[arg-type]
-        for key, path in write_map(out, grid).items():
-            paths[f"map_{key}"] = path
+    saved = SavedMap.from_result(
+        result, session=session, resolution=resolution, voxel_size=voxel_size
+    )
+    paths = saved.save(out)
+    if result.graph.dim == 2:
         check = check_map(result) if check is None else check
         paths["contradictions"] = out / "contradictions.csv"
         points = check.contradiction_points
@@ -165,6 +154,7 @@ def write_outputs(
     paths["summary"] = out / "summary.json"
     headline = summary(result, check if result.graph.dim == 2 else None)
     paths["summary"].write_text(json.dumps(headline, indent=2) + "\n", encoding="utf-8")
+    refresh_manifest(out)
     return paths
 
 

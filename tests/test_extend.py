@@ -1,0 +1,178 @@
+"""``scanreg map NEW --extend OLD/`` (scanreg.pipeline.extend): a second session joined to a
+saved 2D map in one graph. Real Intel excerpts: the scans both sessions hold get the same pose
+from each; the old nodes keep their ids; a map of another building is refused."""
+
+from __future__ import annotations
+
+import bz2
+import json
+import shutil
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import data_dir
+from scanreg import SE2
+from scanreg.cli import EXIT_BAD_INPUT, EXIT_OK, main
+
+pytest.importorskip("gtsam")
+
+from scanreg.pipeline import MappingConfig, extend_map, run_mapping
+from scanreg.saved_map import MANIFEST, SavedMap
+
+
+@cache
+def _lines(name: str, count: int) -> tuple[str, ...]:
+    with bz2.open(data_dir("freiburg-slam-benchmark", name), "rt", encoding="utf-8") as fh:
+        return tuple(next(fh) for _ in range(count))
+
+
+def _log(folder: Path, name: str, lines: tuple[str, ...]) -> Path:
+    path = folder / name
+    path.write_text("".join(lines), encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Intel lines 0-1800 (session a, 604 scans) and 900-2700 (session b, 604 scans): b
+    drives a's second half again, then on."""
+    lines = _lines("intel.clf.bz2", 2700)
+    folder = tmp_path_factory.mktemp("intel")
+    return {"a": _log(folder, "a.clf", lines[:1800]), "b": _log(folder, "b.clf", lines[900:])}
+
+
+def _by_stamp(saved: SavedMap, session: int) -> dict[float, SE2]:
+    assert saved.scan_sessions is not None
+    stamps = saved.stamps[saved.scan_sessions == session]
+    poses = saved.session_poses(session)
+    return {round(float(s), 6): p for s, p in zip(stamps, poses, strict=True)}  # type: ignore[misc]
+
+
+@pytest.fixture(scope="module")
+def mapped(sessions: dict[str, Path]) -> dict[str, Any]:
+    from scanreg.io import read_scans
+
+    return {
+        "a": run_mapping(read_scans(sessions["a"]), MappingConfig()),
+        "b": run_mapping(read_scans(sessions["b"]), MappingConfig()),
+        "b_log": sessions["b"],
+    }
+
+
+def test_extend_joins_a_second_session(mapped: dict[str, Any]) -> None:
+    a, b = mapped["a"], mapped["b"]
+    old = SavedMap.from_result(a, session="a")
+    joint, report = extend_map(old, b, session="b")
+    assert joint.sessions == ("a", "b") and joint.num_scans == a.num_scans + b.num_scans
+    assert joint.num_nodes == len(a.node_scans) + len(b.node_scans)
+    # Measured: located at b's first node; 33 of 33 candidates accepted.
+    assert report.accepted >= 20 and report.accepted >= 0.8 * report.candidates
+    # The old nodes keep their ids and (node 0 fixed, their edges kept) their place.
+    assert joint.graph is not None and old.graph is not None
+    assert joint.node_scans is not None and old.node_scans is not None
+    assert joint.node_scans[: old.num_nodes] == old.node_scans
+    moved = [
+        np.linalg.norm((old.graph.vertices[k].inverse() @ joint.graph.vertices[k]).translation)
+        for k in range(old.num_nodes)
+    ]
+    assert max(moved) < 0.1  # measured 0.063 m at a's far end
+    # The scans both sessions mapped (~300): the same pose from each, in one frame. Without
+    # the join they are in unrelated frames (b starts at its own origin).
+    mine, theirs = _by_stamp(joint, 0), _by_stamp(joint, 1)
+    shared = sorted(set(mine) & set(theirs))
+    assert len(shared) > 250
+    err = np.array([np.linalg.norm((mine[t].inverse() @ theirs[t]).translation) for t in shared])
+    # Measured: median 0.007 m, max 0.055 m.
+    assert np.median(err) < 0.02 and err.max() < 0.1, (np.median(err), err.max())
+    alone = {round(float(s), 6): p for s, p in zip(b.stamps, b.poses, strict=True)}
+    apart = [np.linalg.norm((mine[t].inverse() @ alone[t]).translation) for t in shared]
+    assert min(apart) > 1.0  # b's own frame is not a's: the join did the work
+    # Inter-session loops are recorded as such.
+    records = [r for r in joint.loops if r.get("inter_session")]
+    assert len(records) == report.candidates and all(r["node"] >= old.num_nodes for r in records)
+
+
+def test_cli_extend_writes_both_sessions(
+    sessions: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, out2 = tmp_path / "out", tmp_path / "out2"
+    assert main(["map", str(sessions["a"]), "-o", str(out), "--json", "--no-plots"]) == EXIT_OK
+    first = json.loads(capsys.readouterr().out)
+    argv = ["map", str(sessions["b"]), "--extend", str(out), "-o", str(out2), "--json"]
+    assert main(argv) == EXIT_OK
+    result = json.loads(capsys.readouterr().out)
+    assert result["sessions"] == [str(sessions["a"]), str(sessions["b"])]
+    assert result["num_scans"] == first["num_scans"] + result["new_run"]["num_scans"]
+    assert result["scans_per_session"] == [first["num_scans"], result["new_run"]["num_scans"]]
+    joint = SavedMap.load(out2)
+    files = json.loads((out2 / MANIFEST).read_text())["files"]
+    for k in (0, 1):
+        tum = np.loadtxt(out2 / f"session_{k}_poses_tum.txt")
+        assert len(tum) == result["scans_per_session"][k] and f"session_{k}_poses_tum.txt" in files
+    assert np.loadtxt(out2 / "poses_tum.txt").shape == (joint.num_scans, 8)
+    assert set(files) == {p.name for p in out2.iterdir()}
+    # In place (no -o): the folder becomes the joint map; the first run's plot and self-check
+    # (they describe one run) are gone, and the manifest says so.
+    inplace = tmp_path / "inplace"
+    shutil.copytree(out, inplace)
+    (inplace / "trajectory.png").write_bytes(b"")
+    argv = ["map", str(sessions["b"]), "--extend", str(inplace), "--json"]
+    assert main(argv) == EXIT_OK
+    capsys.readouterr()
+    files = json.loads((inplace / MANIFEST).read_text())["files"]
+    assert set(files) == {p.name for p in inplace.iterdir()}
+    assert "trajectory.png" not in files and "contradictions.csv" not in files
+    assert SavedMap.load(inplace).sessions == (str(sessions["a"]), str(sessions["b"]))
+    # The saved map it extended is untouched; the joint map localizes like any other.
+    assert SavedMap.load(out).sessions == (str(sessions["a"]),)
+    loc = tmp_path / "loc"
+    argv = ["localize", str(sessions["b"]), "--map", str(out2), "-o", str(loc), "--json"]
+    assert main([*argv, "--max-scans", "30"]) == EXIT_OK
+    located = json.loads(capsys.readouterr().out)
+    assert located["accepted"] >= 28, located
+
+
+def _floor_plan_run() -> Any:
+    """30 scans of a simulated floor plan: another building."""
+    import dataclasses
+
+    from scanreg import simulate as sim
+    from scanreg.pipeline import Mapper
+
+    laser = dataclasses.replace(sim.LaserModel.preset("laser_360"), max_range=10.0)
+    traj = sim.Trajectory.from_speed_and_yaw_rate(
+        1.0, 0.2, duration=7.0, dim=2, start=SE2.from_vector([1.0, 0.0, 0.0])
+    )
+    run = sim.simulate_run(sim.floor_plan(seed=0), laser, traj, num_scans=30, scan_rate=5.0)
+    mapper = Mapper(MappingConfig())
+    for k, scan in enumerate(run.scans):
+        mapper.step(scan.points, stamp=k / 5.0)
+    return mapper.finish()
+
+
+def test_extend_refuses_another_building_and_old_formats(
+    mapped: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from scanreg.pipeline import write_outputs
+
+    old = SavedMap.from_result(mapped["a"], session="a")
+    other = _floor_plan_run()
+    with pytest.raises(ValueError, match=r"no reliable overlap, nothing joined|not be located"):
+        extend_map(old, other, session="floor")
+    with pytest.raises(ValueError, match="session: expected a new, non-empty name"):
+        extend_map(old, other, session="a")
+    # A folder from before the manifest (format 1) keeps no node scans: refused, naming it.
+    out = tmp_path / "old"
+    write_outputs(out, mapped["a"], plot=False)
+    (out / MANIFEST).unlink()
+    (out / "map_data.npz").unlink()
+    with pytest.raises(ValueError, match="format-1 map keeps no node scans"):
+        extend_map(SavedMap.load(out), mapped["b"], session="b")
+    argv = ["map", str(mapped["b_log"]), "--extend", str(out), "-o", str(tmp_path / "x")]
+    assert main([*argv, "--json"]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "is a format-1 2D map; only a 2D map of format 2" in err, err
+    assert not (tmp_path / "x").exists()
