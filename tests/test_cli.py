@@ -73,11 +73,22 @@ def test_usage_errors_exit_2() -> None:
     assert exc.value.code == cli.EXIT_USAGE
 
 
-def test_demo_runs_end_to_end_as_a_command() -> None:
+def test_demo_runs_end_to_end_as_a_command(tmp_path: Path) -> None:
+    # The whole demo (its figures are tested one by one in test_demo.py): every check passes
+    # and it leaves the 2D map and its report where it was told.
+    pytest.importorskip("gtsam")
+    pytest.importorskip("plotly")
     done = subprocess.run(
-        [sys.executable, "-m", "scanreg", "demo"], capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", "scanreg", "demo", "-o", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert done.returncode == 0, done.stderr
+    assert "scanreg demo: PASS: all 14 checks" in done.stdout, done.stdout
+    assert f"open {tmp_path / 'room_tour' / 'report.html'}" in done.stdout
+    assert (tmp_path / "room_tour" / "report.html").stat().st_size > 10_000
+    assert (tmp_path / "room_tour" / "map.yaml").is_file()
     assert "estimate inside 3σ of the predicted covariance: yes" in done.stdout
     assert "street drift below 2 % of the path: yes" in done.stdout
     assert "held to the prior: translation along (1.00" in done.stdout

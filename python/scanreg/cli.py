@@ -54,7 +54,7 @@ EXAMPLES = """examples:
 
 #: Per-subcommand examples, shown by ``scanreg SUBCOMMAND --help``.
 SUB_EXAMPLES = {
-    "demo": "examples:\n  scanreg demo\n  scanreg demo --seed 3\n",
+    "demo": "examples:\n  scanreg demo\n  scanreg demo --seed 3 -o /tmp/demo\n",
     "info": "examples:\n  scanreg info scan.pcd\n  scanreg info demo.bag --json\n"
     "  scanreg info poses.txt --trajectory-format kitti\n"
     "  scanreg info dataset/sequences/00        # KITTI: frames, points, ground truth\n"
@@ -117,6 +117,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="run the built-in demo on generated data")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    demo.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        default=Path("scanreg-demo"),
+        help="folder for the maps and report.html (default ./scanreg-demo)",
+    )
 
     info = sub.add_parser(
         "info",
@@ -646,7 +653,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "demo":
         from .demo import run_demo
 
-        return run_demo(args.seed)
+        return run_demo(args.seed, args.output)
     handlers = {
         "info": _info,
         "evaluate": _evaluate,
