@@ -12,7 +12,10 @@ export PATH := $(abspath $(BIN)):$(PATH)
 # install (`build`, `dev`, `demo`) and the wheel then run the same cargo build, so `make wheel`
 # after `make test` reuses it and costs seconds instead of a second release build.
 ZIG_ARGS := --zig --compatibility manylinux2014
-EDITABLE := MATURIN_PEP517_ARGS="$(ZIG_ARGS)" $(BIN)/python -m pip install -q --no-build-isolation -e
+# The core is now `_core.abi3.so`; a stale `_core.cpython-3XX-….so` from an older build would be
+# imported before it, so it is removed first.
+EDITABLE := rm -f python/scanreg/_core.cpython-*.so && \
+	MATURIN_PEP517_ARGS="$(ZIG_ARGS)" $(BIN)/python -m pip install -q --no-build-isolation -e
 ZIG_STAMP := $(VENV)/.ziglang
 WHEEL_VENV := target/wheel-venv
 
