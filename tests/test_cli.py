@@ -85,7 +85,7 @@ def test_demo_runs_end_to_end_as_a_command(tmp_path: Path) -> None:
         timeout=300,
     )
     assert done.returncode == 0, done.stderr
-    assert "scanreg demo: PASS: all 14 checks" in done.stdout, done.stdout
+    assert "scanreg demo: PASS: all 13 checks" in done.stdout, done.stdout
     assert f"open {tmp_path / 'room_tour' / 'report.html'}" in done.stdout
     assert (tmp_path / "room_tour" / "report.html").stat().st_size > 10_000
     assert (tmp_path / "room_tour" / "map.yaml").is_file()
