@@ -381,7 +381,7 @@ def run_mapping_demo(seed: int, output: Path) -> list[Check]:
     """The three sections and the report, printed; returns every check (none when gtsam is
     missing: the sections are skipped, naming the extra)."""
     skip = missing_extra(
-        "gtsam", "mapping", "mapping with loop closure (and localizing in its map)"
+        "gtsam", "mapping", "mapping with loop closure (its localization and report.html too)"
     )
     if skip:
         print("scanreg demo: mapping with loop closure, localization in the saved map")
