@@ -474,6 +474,15 @@ def correspondence_analysis(
         overlap_gate,
         out if overlap_gate is not None else None,
         float(s.max_correspondence_distance) if fold_scene else None,
+        # A sweep's motion distortion (2D scans without per-beam time): its shift's outer
+        # product joins ``calibrated``.
+        sweep_motion=None if s.sweep_motion is None else np.asarray(s.sweep_motion),
+        target_sweep_motion=None
+        if s.target_sweep_motion is None
+        else np.asarray(s.target_sweep_motion),
+        target_sweep_origin=None
+        if s.target_sweep_origin is None
+        else SE2.from_vector(s.target_sweep_origin).as_matrix(),
     )
     if fold_scene:
         ctx.__dict__["_scene"] = num.scene
