@@ -34,9 +34,7 @@ SCAN_INTERVAL = 0.2
 TARGET_TOO = True
 
 
-def run(
-    rate_deg: float, sweep: float, guard: bool, seeds: int, trials: int, modelled: bool
-) -> str:
+def run(rate_deg: float, sweep: float, guard: bool, seeds: int, trials: int, modelled: bool) -> str:
     laser = _laser(sweep)
     errors = []
     accepted_wrong = 0
@@ -106,8 +104,12 @@ def odometry(rate_deg: float, sweep: float, seeds: int, modelled: bool) -> str:
         rng = np.random.default_rng(seed)
         start = SE2.from_vector([rng.uniform(3, 7), rng.uniform(3, 5), rng.uniform(-3, 3)])
         path = sim.Trajectory.from_speed_and_yaw_rate(
-            0.3, 0.0, duration=4.2, start=start,
-            yaw_rate_amplitude=math.radians(rate_deg), yaw_rate_period=4.0,
+            0.3,
+            0.0,
+            duration=4.2,
+            start=start,
+            yaw_rate_amplitude=math.radians(rate_deg),
+            yaw_rate_period=4.0,
         )
         run = sim.simulate_run(
             scene, laser, path, num_scans=40, scan_rate=10.0, seed=seed, reference="middle"

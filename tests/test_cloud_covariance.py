@@ -55,8 +55,10 @@ def test_a_walled_room_with_an_obstacle_seen_from_both_sides_is_calibrated() -> 
         lim = np.array([0.2, 0.2, math.radians(3.0)])
         truth = SE2.from_vector(rng.uniform(-lim, lim))
         tgt = frame.inverse().apply(sim.surface_samples(room, 0.05, noise=0.01, seed=2 * k))
-        src = (frame @ truth).inverse().apply(
-            sim.surface_samples(room, 0.05, noise=0.01, seed=2 * k + 1)
+        src = (
+            (frame @ truth)
+            .inverse()
+            .apply(sim.surface_samples(room, 0.05, noise=0.01, seed=2 * k + 1))
         )
         res = scanreg.register(
             np.ascontiguousarray(src),
@@ -87,8 +89,9 @@ def _turning_pair(seed: int, rate_deg: float, sweep: float) -> tuple[np.ndarray,
         0.3, math.radians(rate_deg), duration=1.0, start=start
     )
     a, b = (
-        sim.simulate_scan(scene, laser, path, start_time=t, seed=seed, scan_index=i,
-                          reference="middle")
+        sim.simulate_scan(
+            scene, laser, path, start_time=t, seed=seed, scan_index=i, reference="middle"
+        )
         for i, t in enumerate((0.2, 0.4))
     )
     return b.points, a.points, a.pose.inverse() @ b.pose

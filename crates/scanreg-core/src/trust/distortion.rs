@@ -185,14 +185,14 @@ mod tests {
         let (_, g) =
             distortion_system(&pts, &pts, &corr, &eye, Some(sweep), Some(alike), nrm).unwrap();
         assert!(g.iter().all(|v| v.abs() < 1e-12), "{g:?}");
-        // The target's sensor elsewhere (turned by 30°): no longer alike.
-        let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
-        let turned = TargetSweep {
+        // The target's sensor elsewhere (0.5 m off the centre): its beams' times, read from
+        // there, are no longer the source's.
+        let moved = TargetSweep {
             motion: sweep,
-            origin: [c, s, 0.0, 0.0],
+            origin: [1.0, 0.0, 0.5, 0.0],
         };
         let (_, g) =
-            distortion_system(&pts, &pts, &corr, &eye, Some(sweep), Some(turned), nrm).unwrap();
+            distortion_system(&pts, &pts, &corr, &eye, Some(sweep), Some(moved), nrm).unwrap();
         assert!(g.iter().map(|v| v.abs()).sum::<f64>() > 1e-3, "{g:?}");
         let still = [0.0; 3];
         let (_, g) = distortion_system(&pts, &pts, &corr, &eye, Some(still), None, nrm).unwrap();

@@ -324,6 +324,10 @@ fn model_of(source: &[f64], order: &[usize], bearing: &[f64]) -> SamplingModel {
     }
 }
 
+/// A point's sampling step `(s, back, ahead)` from its rank in bearing order, its index and its
+/// target normal in the source frame (None: no neighbours to step to).
+type StepOf<'a> = dyn Fn(usize, usize, [f64; 2]) -> Option<([f64; 2], f64, f64)> + 'a;
+
 /// Neighbours searched per point for [`SamplingModel::Cloud`]'s samples on either side.
 const CLOUD_NEIGHBOURS: usize = 8;
 
@@ -375,61 +379,60 @@ pub fn sampling_system(
     let pt = |i: usize| [source[2 * i], source[2 * i + 1]];
     let dist = |a: [f64; 2], b: [f64; 2]| (b[0] - a[0]).hypot(b[1] - a[1]);
     // Per point: `(s, back, ahead)`, its sampling step and the distances to its neighbours.
-    let steps: Box<dyn Fn(usize, usize, [f64; 2]) -> Option<([f64; 2], f64, f64)> + '_> =
-        match model {
-            SamplingModel::Sweep => {
-                // `step[k]`: from the k-th point in bearing order to the next; a point's step
-                // back is its predecessor's step ahead, each taken once.
-                let step: Vec<f64> = order.windows(2).map(|w| dist(pt(w[0]), pt(w[1]))).collect();
-                let order = &order;
-                Box::new(move |k: usize, _i: usize, _m: [f64; 2]| {
-                    if k == 0 || k == n - 1 {
-                        return None;
+    let steps: Box<StepOf<'_>> = match model {
+        SamplingModel::Sweep => {
+            // `step[k]`: from the k-th point in bearing order to the next; a point's step
+            // back is its predecessor's step ahead, each taken once.
+            let step: Vec<f64> = order.windows(2).map(|w| dist(pt(w[0]), pt(w[1]))).collect();
+            let order = &order;
+            Box::new(move |k: usize, _i: usize, _m: [f64; 2]| {
+                if k == 0 || k == n - 1 {
+                    return None;
+                }
+                let (prev, next) = (pt(order[k - 1]), pt(order[k + 1]));
+                let s = [0.5 * (next[0] - prev[0]), 0.5 * (next[1] - prev[1])];
+                Some((s, step[k - 1], step[k]))
+            })
+        }
+        SamplingModel::Cloud => {
+            let tree = KdTree::build(source, dim).ok()?;
+            let buf = std::cell::RefCell::new(Vec::with_capacity(CLOUD_NEIGHBOURS + 2));
+            Box::new(move |_k: usize, i: usize, m: [f64; 2]| {
+                let p = pt(i);
+                let tangent = [-m[1], m[0]];
+                let mut buf = buf.borrow_mut();
+                buf.clear();
+                tree.knn_into(&p, CLOUD_NEIGHBOURS + 1, f64::INFINITY, &mut buf);
+                let (mut prev, mut next) = (None, None);
+                for &(j, _) in buf.iter() {
+                    let q = pt(j as usize);
+                    if j as usize == i || (q[0] == p[0] && q[1] == p[1]) {
+                        continue;
                     }
-                    let (prev, next) = (pt(order[k - 1]), pt(order[k + 1]));
-                    let s = [0.5 * (next[0] - prev[0]), 0.5 * (next[1] - prev[1])];
-                    Some((s, step[k - 1], step[k]))
-                })
-            }
-            SamplingModel::Cloud => {
-                let tree = KdTree::build(source, dim).ok()?;
-                let buf = std::cell::RefCell::new(Vec::with_capacity(CLOUD_NEIGHBOURS + 2));
-                Box::new(move |_k: usize, i: usize, m: [f64; 2]| {
-                    let p = pt(i);
-                    let tangent = [-m[1], m[0]];
-                    let mut buf = buf.borrow_mut();
-                    buf.clear();
-                    tree.knn_into(&p, CLOUD_NEIGHBOURS + 1, f64::INFINITY, &mut buf);
-                    let (mut prev, mut next) = (None, None);
-                    for &(j, _) in buf.iter() {
-                        let q = pt(j as usize);
-                        if j as usize == i || (q[0] == p[0] && q[1] == p[1]) {
-                            continue;
-                        }
-                        let along = (q[0] - p[0]) * tangent[0] + (q[1] - p[1]) * tangent[1];
-                        if along < 0.0 {
-                            prev = prev.or(Some(q));
-                        } else {
-                            next = next.or(Some(q));
-                        }
+                    let along = (q[0] - p[0]) * tangent[0] + (q[1] - p[1]) * tangent[1];
+                    if along < 0.0 {
+                        prev = prev.or(Some(q));
+                    } else {
+                        next = next.or(Some(q));
                     }
-                    match (prev, next) {
-                        (Some(a), Some(b)) => Some((
-                            [0.5 * (b[0] - a[0]), 0.5 * (b[1] - a[1])],
-                            dist(a, p),
-                            dist(p, b),
-                        )),
-                        (Some(a), None) => {
-                            Some(([p[0] - a[0], p[1] - a[1]], dist(a, p), f64::INFINITY))
-                        }
-                        (None, Some(b)) => {
-                            Some(([b[0] - p[0], b[1] - p[1]], f64::INFINITY, dist(p, b)))
-                        }
-                        (None, None) => None,
+                }
+                match (prev, next) {
+                    (Some(a), Some(b)) => Some((
+                        [0.5 * (b[0] - a[0]), 0.5 * (b[1] - a[1])],
+                        dist(a, p),
+                        dist(p, b),
+                    )),
+                    (Some(a), None) => {
+                        Some(([p[0] - a[0], p[1] - a[1]], dist(a, p), f64::INFINITY))
                     }
-                })
-            }
-        };
+                    (None, Some(b)) => {
+                        Some(([b[0] - p[0], b[1] - p[1]], f64::INFINITY, dist(p, b)))
+                    }
+                    (None, None) => None,
+                }
+            })
+        }
+    };
     let mut h = [0.0; 9];
     let mut m = [0.0; 9];
     let mut count = 0usize;
