@@ -344,9 +344,9 @@ const CLOUD_PHASE_RATIO: f64 = 1.0 / 3.0;
 /// them elsewhere. Moving point `i`'s sample one step along its surface,
 /// `s_i = (p_next − p_prev) / 2`, changes its point-to-line residual by `e_i = m_i · s_i`
 /// (`m_i = Rᵀ n_i`, its target normal in the source frame): zero along a straight wall, up
-/// to the step on clutter, corners and edges. `H = Σ J_i J_iᵀ` and `M = Σ J_i J_iᵀ e_i²` with
-/// the point-to-line Jacobian `J_i = [m_i, m_i · p_i^⊥]` over the matched points
-/// (`correspondences[i] ≥ 0`). `normals` are the target's (`normal_of(j)` for target row `j`).
+/// to the step on clutter, corners and edges. `H = Σ J_i J_iᵀ` over the matched points
+/// (`correspondences[i] ≥ 0`) and `M = Σ J_i J_iᵀ e_i²` over those with a step, with the
+/// point-to-line Jacobian `J_i = [m_i, m_i · p_i^⊥]`. `normals` are the target's (`normal_of(j)` for target row `j`).
 ///
 /// Which samples are a point's neighbours depends on what the source is ([`sampling_model`]).
 /// One scan from its origin (the sensor): its neighbours in bearing order, the beams next to
@@ -434,6 +434,7 @@ pub fn sampling_system(
         }
     };
     let mut h = [0.0; 9];
+    let mut h_all = [0.0; 9];
     let mut m = [0.0; 9];
     let mut count = 0usize;
     for (k, &i) in order.iter().enumerate() {
@@ -449,6 +450,13 @@ pub fn sampling_system(
         // m = Rᵀ n (R row-major).
         let mx = rotation[0] * nt[0] + rotation[2] * nt[1];
         let my = rotation[1] * nt[0] + rotation[3] * nt[1];
+        let (px, py) = (source[2 * i], source[2 * i + 1]);
+        let jac = [mx, my, -mx * py + my * px];
+        for r in 0..3 {
+            for c in 0..3 {
+                h_all[3 * r + c] += jac[r] * jac[c];
+            }
+        }
         let Some(([sx, sy], back, ahead)) = steps(k, i, [mx, my]) else {
             continue;
         };
@@ -456,8 +464,6 @@ pub fn sampling_system(
             continue;
         }
         let e = mx * sx + my * sy;
-        let (px, py) = (source[2 * i], source[2 * i + 1]);
-        let jac = [mx, my, -mx * py + my * px];
         let e2 = e * e;
         for r in 0..3 {
             for c in 0..3 {
@@ -474,8 +480,32 @@ pub fn sampling_system(
     if model == SamplingModel::Cloud {
         m = m.map(|v| v * CLOUD_PHASE_RATIO);
     }
+    if misses_a_direction(&h, &h_all) {
+        h = h_all;
+    }
     Some((h, m, model))
 }
+
+/// Whether the stepped points' `H` leaves out a direction every matched point's `H_all`
+/// constrains (the least generalised eigenvalue of the pair below [`MIN_STEPPED_SHARE`]).
+/// The sampling term's `A⁻¹` is then taken from `H_all`: the stepped points alone were
+/// singular where only one wall's points had neighbours close enough (a hospital split-beam
+/// pair: σ 4·10⁷ m along the corridor). Otherwise the stepped points' own `H`, on which the
+/// term was calibrated (taking `H_all` everywhere made it 2–5× over-confident on the
+/// split-beam pairs: grazing walls carry much of `H_all` and none of `M`).
+fn misses_a_direction(h: &[f64; 9], h_all: &[f64; 9]) -> bool {
+    use super::dense::{eigh, from_rows, scale_columns};
+    let (vals, vecs) = eigh(&from_rows(3, h_all));
+    if vals[0] <= 0.0 {
+        return false; // nothing better to fall back on
+    }
+    let inv_root = scale_columns(&vecs, &vals.map(|v| 1.0 / v.sqrt()));
+    let (w, _) = eigh(&(inv_root.transpose() * from_rows(3, h) * &inv_root));
+    w[0] < MIN_STEPPED_SHARE
+}
+
+/// See [`misses_a_direction`].
+const MIN_STEPPED_SHARE: f64 = 1e-3;
 
 /// The gate-wide prior of the initial guess: `diag(δ², …, (δ/L_a)², …) / 3` with `δ` the gate
 /// (the RMS lever when the gate is infinite), row-major.
@@ -552,6 +582,16 @@ mod tests {
             })
             .collect();
         assert_eq!(sampling_model(&scrambled, 2), SamplingModel::Sweep);
+    }
+
+    #[test]
+    fn stepped_points_missing_a_direction_fall_back_on_every_point() {
+        let all = [2.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 3.0];
+        // Only x and θ among the stepped points: y is every matched point's alone.
+        let stepped = [1.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0];
+        assert!(misses_a_direction(&stepped, &all));
+        let most = [1.5, 0.0, 0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 2.0];
+        assert!(!misses_a_direction(&most, &all));
     }
 
     #[test]
