@@ -222,7 +222,10 @@ class TrustInputs:
         sandwich ``¼ H⁻¹ (Σ J Jᵀ e²) H⁻¹`` on the well-constrained subspace (a phase of up to
         ±½ step between the two scans). A fixed ``Δα²/12`` made the simulated corridor's
         heading σ 12× its error, while leaving MbICP split-beam pairs 2× over-confident in
-        translation, which the fixed heading term cannot reach (``docs/calibration.md``).
+        translation, which the fixed heading term cannot reach (``docs/calibration.md``). A
+        source that is not one scan (no single sweep in its input order, and points behind
+        points along a bearing: a map, merged submaps) takes each point's neighbours along its
+        surface instead of in bearing order (``scanreg_core::trust::scene::sampling_model``).
         """
         phase: float = _core.trust_scene(self.source, math.inf)[2]
         return phase
