@@ -51,8 +51,9 @@ of the sampling, as they are for a robot.
 Scenes: 2D square room, 2D long corridor (degenerate along x), 3D street, 3D tunnel
 (degenerate along x). Also printed: how often each scene was flagged degenerate.
 
-``--split-beam [--pairs N]``: instead, real geometry with exact truth. 2D: a real Intel or
-MbICP scan split into its even beams (target) and its odd beams (source), the odd half
+``--split-beam [--pairs N] [--sets ...]``: instead, real geometry with exact truth. 2D: a real
+scan of Intel (the CARMEN subset and the Freiburg benchmark's full log), MbICP, ACES or the
+Freiburg hospital split into its even beams (target) and its odd beams (source), the odd half
 re-noised by 1 cm along the beam and moved by a random known transform (≤ 0.2 m, ≤ 3°); 3D: a
 KITTI frame or the outdoor pair's source split into two random halves (voxel 0.5 m after
 moving), one re-noised by 2 cm and moved (≤ 0.2 m, ≤ 3° yaw, ≤ 1° roll/pitch). Registered from
@@ -301,9 +302,16 @@ def main() -> None:
     )
     parser.add_argument("--split-beam", action="store_true", help="real split-beam pairs")
     parser.add_argument("--pairs", type=int, default=40, help="--split-beam: pairs per set")
+    parser.add_argument(
+        "--sets",
+        nargs="*",
+        default=None,
+        help="--split-beam: only these sets (intel mbicp freiburg-intel aces hospital kitti "
+        "outdoor; default all)",
+    )
     args = parser.parse_args()
     if args.split_beam:
-        split_beam(args.pairs, args.methods)
+        split_beam(args.pairs, args.methods, args.sets)
         return
     if args.markdown_from:
         with open(args.markdown_from) as f:
@@ -347,20 +355,28 @@ def main() -> None:
 CHI2_999 = {3: 16.266, 6: 22.458}
 
 
+#: The 2D split-beam sets: log file under the data folder and the laser message it reads.
+SPLIT_BEAM_2D = {
+    "intel": ("carmen-intel/intel_gfs_subset_clf_timestamps.clf", "FLASER"),
+    "mbicp": ("carmen-mbicp-laserazos/laserazosSM3.log", None),
+    "freiburg-intel": ("freiburg-slam-benchmark/intel.clf.bz2", "FLASER"),
+    "aces": ("freiburg-slam-benchmark/aces.clf.bz2", "FLASER"),
+    "hospital": ("freiburg-slam-benchmark/fr-clinic_robotlaser.clf.bz2", "ROBOTLASER1"),
+}
+
+
 def _split_beam_2d(name: str, count: int, rng: np.random.Generator) -> list[tuple]:
-    from scanreg.io import read_carmen
+    from scanreg.io import read_scans
 
     data = os.environ.get(
         "SCANREG_DATA", os.path.join(os.path.dirname(__file__), "../../shared/data")
     )
-    path = {
-        "intel": "carmen-intel/intel_gfs_subset_clf_timestamps.clf",
-        "mbicp": "carmen-mbicp-laserazos/laserazosSM3.log",
-    }[name]
-    log = read_carmen(os.path.join(data, path))
+    path, kind = SPLIT_BEAM_2D[name]
+    log = read_scans(os.path.join(data, path))
+    scans = log.scans if kind is None else log.laser(kind)
     out = []
-    for i in np.linspace(0, len(log) - 1, count).round().astype(int):
-        scan = log.scans[int(i)]
+    for i in np.linspace(0, len(scans) - 1, count).round().astype(int):
+        scan = scans[int(i)]
         valid = scan.valid(min_range=0.1, max_range=40.0)
         r, a = scan.ranges, scan.angles
         even = valid & (np.arange(len(r)) % 2 == 0)
@@ -425,14 +441,17 @@ def _nees(err: np.ndarray, cov: np.ndarray) -> float:
     return float(np.sum(proj[~tiny] ** 2 / vals[~tiny]))
 
 
-def split_beam(count: int, methods: list[str]) -> None:
+def split_beam(count: int, methods: list[str], sets: list[str] | None = None) -> None:
     """The split-beam protocol (see the module docstring): one table row per set and method."""
     print(
         "| pairs | method | accepted | mean NEES hessian | censi | block | **calibrated** "
         "| calibrated / dof | outside 99.9 % |"
     )
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|")
-    for name, dim in (("intel", 2), ("mbicp", 2), ("kitti", 3), ("outdoor", 3)):
+    every = [(name, 2) for name in SPLIT_BEAM_2D] + [("kitti", 3), ("outdoor", 3)]
+    for name, dim in every:
+        if sets and name not in sets:
+            continue
         rng = np.random.default_rng(0)
         n3 = count if dim == 2 else max(count // 4, 4)
         pairs = _split_beam_2d(name, n3, rng) if dim == 2 else _split_beam_3d(name, n3, rng)

@@ -26,19 +26,16 @@ import numpy as np
 import scanreg
 from scanreg import SE2
 from scanreg import simulate as sim
+from scanreg.pipeline import Odometry2D, OdometryConfig2D
 
 CHI2_999 = 16.266
+#: Seconds between the two scans of a pair.
+SCAN_INTERVAL = 0.2
+TARGET_TOO = True
 
 
-def run(rate_deg: float, sweep: float, guard: bool, seeds: int, trials: int) -> str:
-    laser = sim.LaserModel(
-        num_beams=361,
-        angle_min=-math.pi / 2,
-        angle_increment=math.radians(0.5),
-        max_range=40.0,
-        range_sigma=0.01,
-        time_increment=sweep / 360,
-    )
+def run(rate_deg: float, sweep: float, guard: bool, seeds: int, trials: int, modelled: bool) -> str:
+    laser = _laser(sweep)
     errors = []
     accepted_wrong = 0
     nees = []
@@ -65,12 +62,17 @@ def run(rate_deg: float, sweep: float, guard: bool, seeds: int, trials: int) -> 
             if min(len(s.points) for s in scans) < 100:
                 continue
             truth = scans[0].pose.inverse() @ scans[1].pose
+            # The motion over one sweep, from the motion between the scans (what an odometry's
+            # prediction gives): both scans were swept while turning alike.
+            swept = tuple(truth.log() * (sweep / SCAN_INTERVAL)) if modelled else None
             res = scanreg.register(
                 scans[1].points,
                 scanreg.prepare(scans[0].points, normals=True),
                 method="point_to_line",
                 init=truth,
                 never_worse_than_start=guard,
+                sweep_motion=swept,
+                target_sweep_motion=swept if TARGET_TOO else None,
             )
             e = (res.pose.inverse() @ truth).log()  # type: ignore[operator]
             metres, degrees = float(np.hypot(e[0], e[1])), math.degrees(abs(float(e[2])))
@@ -81,10 +83,65 @@ def run(rate_deg: float, sweep: float, guard: bool, seeds: int, trials: int) -> 
                 nees.append(float(e @ np.linalg.solve(res.covariance, e)))
     err = np.array(errors)
     return (
-        f"| {rate_deg:g} | {rate_deg * sweep:.2f} | {'on' if guard else 'off'} | {len(err)} | "
+        f"| {rate_deg:g} | {rate_deg * sweep:.2f} | {'on' if guard else 'off'} | "
+        f"{'yes' if modelled else 'no'} | {len(err)} | "
         f"{100 * np.median(err[:, 0]):.2f} | {np.median(err[:, 1]):.2f} | "
         f"{np.percentile(err[:, 1], 90):.2f} | {accepted_wrong} | {len(nees)} | "
         f"{np.mean(nees):.1f} | {sum(x > CHI2_999 for x in nees)} |"
+    )
+
+
+def odometry(rate_deg: float, sweep: float, seeds: int, modelled: bool) -> str:
+    """``Odometry2D`` over a turning drive (the rate swinging ±``rate_deg`` °/s with a 4 s
+    period, 0.3 m/s, scans 0.1 s apart, the wheels' exact relative motion as the prior): mean
+    NEES of each frame's error relative to the previous frame's (truth vs estimate) against
+    the frame's covariance, over the frames turning faster than half the peak rate."""
+    laser = _laser(sweep)
+    cfg = OdometryConfig2D(sweep_duration=sweep if modelled else 0.0)
+    nees, turning, errors = [], 0, []
+    for seed in range(seeds):
+        scene = sim.floor_plan(seed=seed, num_people=0)
+        rng = np.random.default_rng(seed)
+        start = SE2.from_vector([rng.uniform(3, 7), rng.uniform(3, 5), rng.uniform(-3, 3)])
+        path = sim.Trajectory.from_speed_and_yaw_rate(
+            0.3,
+            0.0,
+            duration=4.2,
+            start=start,
+            yaw_rate_amplitude=math.radians(rate_deg),
+            yaw_rate_period=4.0,
+        )
+        run = sim.simulate_run(
+            scene, laser, path, num_scans=40, scan_rate=10.0, seed=seed, reference="middle"
+        )
+        odo = Odometry2D(cfg)
+        prev = None
+        for k, scan in enumerate(run.scans):
+            wheels = None if k == 0 else run.poses[k - 1].inverse() @ run.poses[k]
+            frame = odo.step(scan.points, prior=wheels, stamp=float(run.start_times[k]))
+            if k > 0 and prev is not None and frame.verdict.accepted:
+                true_step = run.poses[k - 1].inverse() @ run.poses[k]
+                est_step = prev.inverse() @ frame.pose
+                e = (est_step.inverse() @ true_step).log()  # type: ignore[operator]
+                if abs(true_step.angle) > 0.5 * math.radians(rate_deg) * 0.1:
+                    turning += 1
+                    errors.append(math.degrees(abs(float(e[2]))))
+                    nees.append(float(e @ np.linalg.solve(frame.covariance, e)))
+            prev = frame.pose
+    return (
+        f"| {rate_deg:g} | {rate_deg * sweep:.2f} | {'yes' if modelled else 'no'} | {turning} "
+        f"| {np.median(errors):.2f} | {np.mean(nees):.1f} | {sum(x > CHI2_999 for x in nees)} |"
+    )
+
+
+def _laser(sweep: float) -> sim.LaserModel:
+    return sim.LaserModel(
+        num_beams=361,
+        angle_min=-math.pi / 2,
+        angle_increment=math.radians(0.5),
+        max_range=40.0,
+        range_sigma=0.01,
+        time_increment=sweep / 360,
     )
 
 
@@ -93,15 +150,31 @@ def main() -> None:
     parser.add_argument("--sweep", type=float, default=0.0267)
     parser.add_argument("--seeds", type=int, default=6)
     parser.add_argument("--trials", type=int, default=8)
-    args = parser.parse_args()
-    print(
-        "| rate (°/s) | ωT (°) | guard | pairs | median error (cm) | median heading error (°) "
-        "| p90 heading (°) | accepted and wrong | accepted | mean NEES | outside |"
+    parser.add_argument(
+        "--odometry", action="store_true", help="Odometry2D over turning drives instead"
     )
-    print("|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    args = parser.parse_args()
+    if args.odometry:
+        print(
+            "| peak rate (°/s) | ωT (°) | sweep_duration | turning frames "
+            "| median heading error (°) | mean NEES | outside |"
+        )
+        print("|---|---|---|---:|---:|---:|---:|")
+        for rate in (90.0, 250.0):
+            for modelled in (False, True):
+                print(odometry(rate, args.sweep, args.seeds, modelled), flush=True)
+        return
+    print(
+        "| rate (°/s) | ωT (°) | guard | sweep_motion | pairs | median error (cm) "
+        "| median heading error (°) | p90 heading (°) | accepted and wrong | accepted "
+        "| mean NEES | outside |"
+    )
+    print("|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for rate in (0.0, 90.0, 250.0):
-        for guard in (False, True):
-            print(run(rate, args.sweep, guard, args.seeds, args.trials))
+        for modelled in (False, True):
+            if rate == 0.0 and modelled:
+                continue  # nothing to model
+            print(run(rate, args.sweep, True, args.seeds, args.trials, modelled), flush=True)
 
 
 if __name__ == "__main__":

@@ -477,6 +477,9 @@ def trust_analysis(
     overlap_gate: float | None = None,
     outcome: IcpOutcome | None = None,
     scene_gate: float | None = None,
+    sweep_motion: NDArray[np.float64] | None = None,
+    target_sweep_motion: NDArray[np.float64] | None = None,
+    target_sweep_origin: NDArray[np.float64] | None = None,
 ) -> TrustNumbers: ...
 def trust_numbers(
     analysis: CensiAnalysis,

@@ -164,6 +164,24 @@ class RegistrationSettings:
     #: the re-solve only when the first slid (on Intel relation pairs started at the relation,
     #: 35 of 400). ``False``: the plain solve.
     never_worse_than_start: bool = True
+    #: 2D scans without per-beam time, taken while the sensor moved: its motion over the
+    #: source's sweep, ``(vx, vy, ω)·T`` (the body twist times the sweep's duration, translation
+    #: first, the source frame; e.g. :func:`scanreg.deskew.velocity_from_motion` of the motion
+    #: between scans times ``T``). ``calibrated`` then covers the estimate's shift that the
+    #: sweep's distortion causes (each beam off by the motion between its time and the
+    #: sweep's middle, its time read from its bearing; ``docs/calibration.md``). ``None``: the
+    #: scans are taken as instantaneous (or deskewed, :func:`scanreg.deskew`).
+    sweep_motion: tuple[float, float, float] | None = None
+    #: The same for the target when it is one scan in its own frame swept while moving (two
+    #: consecutive scans of a turning robot: much of the distortion is common and cancels);
+    #: ``None``: the target is taken as undistorted (a deskewed scan).
+    target_sweep_motion: tuple[float, float, float] | None = None
+    #: Where the target's sensor was when it swept, ``(x, y, θ)`` in the target's frame (its
+    #: bearings, hence its beams' times, are read from there, and its ``target_sweep_motion``
+    #: is in that sensor's frame). ``None``: the target frame's origin (a scan in its own
+    #: frame). For a map: the pose of the scan that added to it last (what ``Odometry2D``
+    #: passes: its map's freshest points, the ones that overlap the new scan most).
+    target_sweep_origin: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         _positive_float(
@@ -199,6 +217,26 @@ class RegistrationSettings:
             value = getattr(self, name)
             if not isinstance(value, bool):
                 raise TypeError(f"{name}: expected a bool, got {type(value).__name__}")
+        for name in ("sweep_motion", "target_sweep_motion", "target_sweep_origin"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, _sweep_motion(value, name))
+
+
+def _sweep_motion(value: Any, name: str) -> tuple[float, float, float]:
+    """``value`` as three finite floats (a 2D tangent or pose vector), or an error naming
+    ``name``."""
+    if isinstance(value, str | bytes) or not hasattr(value, "__len__"):
+        raise TypeError(f"{name}: expected three numbers, got {value!r}")
+    try:
+        out = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise TypeError(f"{name}: expected three numbers, got {value!r}") from exc
+    if out.shape != (3,):
+        raise ValueError(f"{name}: expected 3 values, got shape {out.shape}")
+    if not np.isfinite(out).all():
+        raise ValueError(f"{name}: must be finite, got {value!r}")
+    return (float(out[0]), float(out[1]), float(out[2]))
 
 
 _DEFAULT_SETTINGS = RegistrationSettings()
@@ -633,6 +671,11 @@ def register(
     )
     if k_scale != k_scale:  # NaN: see _Plan
         raise ValueError("kernel_scale: required with an infinite max_correspondence_distance")
+
+    if dim != 2 and (s.sweep_motion is not None or s.target_sweep_motion is not None):
+        raise ValueError("sweep_motion: only 2D scans are modelled (deskew a 3D sweep instead)")
+    if s.target_sweep_motion is not None and isinstance(prepared, LocalMap):
+        raise ValueError("target_sweep_motion: the target is a LocalMap, not one scan")
 
     given_prior = None
     if init_covariance is not None:

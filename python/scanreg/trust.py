@@ -222,7 +222,10 @@ class TrustInputs:
         sandwich ``¼ H⁻¹ (Σ J Jᵀ e²) H⁻¹`` on the well-constrained subspace (a phase of up to
         ±½ step between the two scans). A fixed ``Δα²/12`` made the simulated corridor's
         heading σ 12× its error, while leaving MbICP split-beam pairs 2× over-confident in
-        translation, which the fixed heading term cannot reach (``docs/calibration.md``).
+        translation, which the fixed heading term cannot reach (``docs/calibration.md``). A
+        source that is not one scan (no single sweep in its input order, and points behind
+        points along a bearing: a map, merged submaps) takes each point's neighbours along its
+        surface instead of in bearing order (``scanreg_core::trust::scene::sampling_model``).
         """
         phase: float = _core.trust_scene(self.source, math.inf)[2]
         return phase
@@ -474,6 +477,15 @@ def correspondence_analysis(
         overlap_gate,
         out if overlap_gate is not None else None,
         float(s.max_correspondence_distance) if fold_scene else None,
+        # A sweep's motion distortion (2D scans without per-beam time): its shift's outer
+        # product joins ``calibrated``.
+        sweep_motion=None if s.sweep_motion is None else np.asarray(s.sweep_motion),
+        target_sweep_motion=None
+        if s.target_sweep_motion is None
+        else np.asarray(s.target_sweep_motion),
+        target_sweep_origin=None
+        if s.target_sweep_origin is None
+        else SE2.from_vector(s.target_sweep_origin).as_matrix(),
     )
     if fold_scene:
         ctx.__dict__["_scene"] = num.scene

@@ -22,7 +22,7 @@ use scanreg_core::normal_agreement::{self, AgreementInput};
 use scanreg_core::normal_noise;
 use scanreg_core::overlap;
 use scanreg_core::trust::dense::{flat, Mat, Vector};
-use scanreg_core::trust::{self, scene, shift::System, Held, Input, Kind};
+use scanreg_core::trust::{self, distortion, scene, shift::System, Held, Input, Kind};
 use scanreg_core::Kernel;
 
 /// A source's sampled normals `(indices, normals)`, as `sampled_normals` returns them.
@@ -259,6 +259,7 @@ fn trust_numbers(
             })
             .transpose()?,
         sampling,
+        distortion_system: None,
         length_scale,
         chosen: Kind::from_name(covariance).map_err(core_err)?,
         motion: c_slice(&motion, "motion")?,
@@ -335,7 +336,8 @@ type SampledNormals<'py> = (PyReadonlyArray1<'py, i64>, PyReadonlyArray2<'py, f6
     num_correspondences, sum_squared_distances, score_outer, effective_residuals,
     normal_noise, typical_normal_noise, beam_phase_variance, max_step, min_agreement,
     sampling_scale, source_normals=None, valley=None, held=None, target_linear=None,
-    target_spacing=None, overlap_target=None, overlap_gate=None, outcome=None, scene_gate=None
+    target_spacing=None, overlap_target=None, overlap_gate=None, outcome=None, scene_gate=None,
+    sweep_motion=None, target_sweep_motion=None, target_sweep_origin=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn trust_analysis(
@@ -380,6 +382,9 @@ fn trust_analysis(
     overlap_gate: Option<f64>,
     outcome: Option<&Bound<'_, IcpOutcome>>,
     scene_gate: Option<f64>,
+    sweep_motion: Option<PyReadonlyArray1<'_, f64>>,
+    target_sweep_motion: Option<PyReadonlyArray1<'_, f64>>,
+    target_sweep_origin: Option<PyReadonlyArray2<'_, f64>>,
 ) -> PyResult<TrustNumbers> {
     let (src, dim) = points(&source, "source")?;
     let n = src.len() / dim;
@@ -414,6 +419,32 @@ fn trust_analysis(
     };
     let method = Method::from_name(method).map_err(core_err)?;
     let kernel = Kernel::from_name(kernel, kernel_scale).map_err(core_err)?;
+    let sweep = |a: &Option<PyReadonlyArray1<'_, f64>>, name: &str| -> PyResult<Option<[f64; 3]>> {
+        let Some(a) = a else { return Ok(None) };
+        let v = c_slice(a, name)?;
+        match (dim, v) {
+            (2, &[vx, vy, w]) if v.iter().all(|x| x.is_finite()) => Ok(Some([vx, vy, w])),
+            (2, _) => Err(PyValueError::new_err(format!(
+                "{name}: expected 3 finite values [vx, vy, ω]·T, got {v:?}"
+            ))),
+            _ => Err(PyValueError::new_err(format!("{name}: 2D scans only"))),
+        }
+    };
+    let source_sweep = sweep(&sweep_motion, "sweep_motion")?;
+    let target_sweep = match (sweep(&target_sweep_motion, "target_sweep_motion")?, dim) {
+        (None, _) => None,
+        (Some(motion), 2) => {
+            let origin = match &target_sweep_origin {
+                None => [1.0, 0.0, 0.0, 0.0],
+                Some(o) => {
+                    let m = pose(o, "target_sweep_origin", 2)?;
+                    [m[0], m[3], m[2], m[5]]
+                }
+            };
+            Some(distortion::TargetSweep { motion, origin })
+        }
+        (Some(_), _) => None,
+    };
     let tn = target_normals
         .as_ref()
         .map(|a| points_dim(a, "target_normals", dim))
@@ -595,17 +626,33 @@ fn trust_analysis(
         }
         // Scaled as the caller says (the target's sampling density relative to the source's).
         let scaled = |(h, m): ([f64; 9], [f64; 9])| (h, m.map(|v| v * sampling_scale));
-        let sampling_system = if dim == 2 {
+        // The target's normal of row `j` (or its covariances' least-spread axis).
+        let normal_2d = |j: usize| -> Option<[f64; 2]> {
             match (tn, tc) {
-                (Some(nr), _) => scene::sampling_system(src, dim, corr, &rot, max_step, |j| {
-                    (2 * j + 1 < nr.len()).then(|| [nr[2 * j], nr[2 * j + 1]])
-                }),
-                (None, Some(c)) => scene::sampling_system(src, dim, corr, &rot, max_step, |j| {
+                (Some(nr), _) => (2 * j + 1 < nr.len()).then(|| [nr[2 * j], nr[2 * j + 1]]),
+                (None, Some(c)) => {
                     (4 * j + 3 < c.len()).then(|| scene::smallest_axis_2d(&c[4 * j..4 * j + 4]))
-                }),
+                }
                 (None, None) => None,
             }
-            .map(scaled)
+        };
+        let has_normals = tn.is_some() || tc.is_some();
+        let sampling_system = if dim == 2 && has_normals {
+            scene::sampling_system(src, dim, corr, &rot, max_step, normal_2d)
+                .map(|(h, m, _)| scaled((h, m)))
+        } else {
+            None
+        };
+        let distortion_system = if dim == 2 && has_normals {
+            distortion::distortion_system(
+                src,
+                tgt,
+                corr,
+                &rot,
+                source_sweep,
+                target_sweep,
+                normal_2d,
+            )
         } else {
             None
         };
@@ -645,6 +692,7 @@ fn trust_analysis(
         };
         let analysis = censi::analyse(&input, pm, dim, &opts)?;
         let sampling_flat = sampling_system.as_ref().map(|(h, m)| (&h[..], &m[..]));
+        let distortion_flat = distortion_system.as_ref().map(|(h, g)| (&h[..], &g[..]));
         let input = Input {
             dim,
             method,
@@ -672,6 +720,7 @@ fn trust_analysis(
                 (true, false) => beam_phase_variance,
                 (true, true) => scene::beam_phase_variance(src, dim),
             },
+            distortion_system: distortion_flat,
             length_scale,
             chosen,
             motion,
@@ -817,7 +866,7 @@ fn trust_sampling(
         }),
         (None, None) => None,
     };
-    out.map(|(h, m)| {
+    out.map(|(h, m, _)| {
         Ok((
             mat(py, &Mat::from_row_slice(3, 3, &h))?,
             mat(py, &Mat::from_row_slice(3, 3, &m))?,

@@ -117,6 +117,12 @@ class OdometryConfig2D:
     #: two poses the scan supports about equally the one nearer the prediction is refined,
     #: while the refinement, verdict and covariance stay the scan's own.
     prior_covariance_use: PriorUse = "solve"
+    #: How long one scan's sweep takes (s), for scans without per-beam time (``step`` then
+    #: needs ``stamp``): the prediction's motion between the scans, scaled to this duration,
+    #: is the registration's ``sweep_motion``, so the covariance covers what the sweep's
+    #: distortion does to the pose while turning fast (:class:`~scanreg.RegistrationSettings`).
+    #: ``0``: scans taken as instantaneous.
+    sweep_duration: float = 0.0
 
     def __post_init__(self) -> None:
         if self.front_end not in FRONT_ENDS:
@@ -142,6 +148,7 @@ class OdometryConfig2D:
         for i, v in enumerate(w):
             _positive(v, f"correlative_window[{i}]", allow_zero=True)
         _positive(self.correlative_resolution, "correlative_resolution")
+        _positive(self.sweep_duration, "sweep_duration", allow_zero=True)
         step = self.max_refinement_step
         if step is not None and not (isinstance(step, float) and step == math.inf):
             _positive(step, "max_refinement_step")
@@ -235,6 +242,8 @@ class Odometry2D:
             2, cfg.map_voxel_size, DEFAULT_K, cfg.max_keyframes, np.zeros(2)
         )
         self._last_keyframe: SE2 | None = None
+        #: The last keyframe's sweep motion (``OdometryConfig2D.sweep_duration``), or None.
+        self._keyframe_sweep: tuple[float, float, float] | None = None
         self._pose: SE2 | None = None
         self._velocity = SE2.identity()
         self._target: PreparedTarget | None = None
@@ -267,6 +276,17 @@ class Odometry2D:
         )
         self._map_points = self._target.points
         self._grid = None
+
+    def _map_sweep(self) -> dict[str, Any]:
+        """The map's sweep for :func:`scanreg.register` (``OdometryConfig2D.sweep_duration``):
+        its freshest points, which overlap the new scan most, were swept by the last keyframe
+        (``target_sweep_motion`` at ``target_sweep_origin``, its pose in the map); nothing
+        when that keyframe's sweep is not known (the first scan's, no interval yet)."""
+        sweep, pose = self._keyframe_sweep, self._last_keyframe
+        if sweep is None or pose is None:
+            return {}
+        x, y, theta = pose.as_vector()
+        return {"target_sweep_motion": sweep, "target_sweep_origin": (x, y, theta)}
 
     def step(
         self,
@@ -327,6 +347,9 @@ class Odometry2D:
         motion = None if prior is None else as_pose(prior, "prior", 2)
         assert motion is None or isinstance(motion, SE2)
         cfg = self.config
+        if cfg.sweep_duration > 0 and stamp is None:
+            raise ValueError("stamp: required with config.sweep_duration > 0 (the turn rate)")
+        previous_time = self._last_time
         search = cfg.prior_covariance_use == "search"
         prior_cov = _checked_prior_covariance(prior_covariance, motion, definite=search)
         search_cov = prior_cov if search else None
@@ -378,6 +401,9 @@ class Odometry2D:
         predicted = predicted.orthonormalized()
         assert isinstance(predicted, SE2)
         assert self._target is not None and self._map_points is not None
+        sweep = _sweep_motion(
+            motion if motion is not None else self._velocity, stamp, previous_time, cfg
+        )
 
         # 2. align
         t0 = time.perf_counter()
@@ -409,6 +435,8 @@ class Odometry2D:
             max_iterations=cfg.max_iterations,
             thresholds=self._register_thresholds,
             never_worse_than_start=_NEVER_WORSE,
+            sweep_motion=sweep,
+            **self._map_sweep(),
         )
         fallback = False
         probe = None if res.quality is None else res.quality.basin
@@ -447,11 +475,15 @@ class Odometry2D:
                 max_iterations=cfg.max_iterations,
                 thresholds=self._register_thresholds,
                 never_worse_than_start=_NEVER_WORSE,
+                sweep_motion=sweep,
+                **self._map_sweep(),
             )
         held: tuple[str, ...] = ()
         if prior_cov is not None and motion is not None and res.stop_reason not in _FAILED:
             predicted_cov = predicted_covariance(self._covariance, motion, prior_cov)
-            res, held, held_start = _hold(res, pts, self._target, predicted, predicted_cov, cfg)
+            res, held, held_start = _hold(
+                res, pts, self._target, predicted, predicted_cov, cfg, sweep, self._map_sweep()
+            )
             if held:
                 start = held_start
         t_align = time.perf_counter() - t0
@@ -486,6 +518,7 @@ class Odometry2D:
         keyframe = moved and not failed and out.report.overlap >= cfg.thresholds.min_overlap
         if keyframe:
             self._add_keyframe(pts, pose)
+            self._keyframe_sweep = sweep
         t_map = time.perf_counter() - t0
 
         velocity = previous.inverse() @ pose
@@ -550,9 +583,12 @@ def _hold(
     predicted: SE2,
     covariance: FloatArray,
     config: Any,
+    sweep_motion: tuple[float, float, float] | None = None,
+    map_sweep: dict[str, Any] | None = None,
 ) -> tuple[RegistrationResult, tuple[str, ...], SE2]:
     """:func:`hold_to_prediction` with the point-to-line settings of a 2D pipeline's
-    ``config`` (:class:`OdometryConfig2D`, ``LocalizationConfig2D``): the one call both make."""
+    ``config`` (:class:`OdometryConfig2D`, ``LocalizationConfig2D``): the one call both make
+    (``sweep_motion`` and ``map_sweep``: the registration's, :meth:`Odometry2D._map_sweep`)."""
     return hold_to_prediction(
         res,
         points,
@@ -565,7 +601,24 @@ def _hold(
         max_iterations=config.max_iterations,
         thresholds=_without_default_probe(config.thresholds),
         never_worse_than_start=_NEVER_WORSE,
+        sweep_motion=sweep_motion,
+        **(map_sweep or {}),
     )
+
+
+def _sweep_motion(
+    step: SE2, stamp: float | None, previous: float | None, config: OdometryConfig2D
+) -> tuple[float, float, float] | None:
+    """The sensor's motion over one sweep, ``log(step) · T / Δt``: the predicted motion
+    between the scans (``Δt`` apart) at the rate it implies over the sweep's duration ``T``
+    (``config.sweep_duration``); None without a duration or an interval."""
+    if config.sweep_duration <= 0 or stamp is None or previous is None:
+        return None
+    interval = float(stamp) - previous
+    if not interval > 0:
+        return None
+    xi = step.log() * (config.sweep_duration / interval)
+    return (float(xi[0]), float(xi[1]), float(xi[2]))
 
 
 def hold_to_prediction(

@@ -5,7 +5,8 @@ seed, and the hard cases (long corridors, tunnels, moving people, motion distort
 parameter away. Ray casting runs in the Rust core, parallel over beams, with per-beam noise
 streams so the output does not depend on the thread count. Scanned objects
 (:mod:`scanreg.simulate.objects`: a knot, a blob, a figurine seen from one side) are sampled
-from their surfaces directly.
+from their surfaces directly, and a 2D scene's outlines by :func:`surface_samples` (a
+map-like cloud, every side of every object sampled).
 
 Example::
 
@@ -38,6 +39,7 @@ from .scan import (
 )
 from .scene import Scene, SceneBuilder, corridor, floor_plan, square_room, street, tunnel
 from .sensors import LASER_PRESETS, LIDAR_PRESETS, LaserModel, LidarModel
+from .surfaces import surface_samples
 from .trajectory import Trajectory
 from .wheel import wheel_odometry
 
@@ -70,6 +72,7 @@ __all__ = [
     "simulate_sweep",
     "square_room",
     "street",
+    "surface_samples",
     "trefoil_knot",
     "tunnel",
     "wheel_odometry",

@@ -7,13 +7,15 @@
 //!
 //! One idea per file: [`dense`] (eigen, inverse, PSD on `dof × dof`), [`degeneracy`],
 //! [`covariance`], [`describe`] (directions named), [`weak`] (the prior along weak directions), [`shift`] (the model-error
-//! term), [`conditioning`], [`scene`] (per-point levers, length scale, beam phase).
+//! term), [`conditioning`], [`scene`] (per-point levers, length scale, beam phase), [`distortion`] (a
+//! sweep's motion distortion).
 
 pub mod conditioning;
 pub mod covariance;
 pub mod degeneracy;
 pub mod dense;
 pub mod describe;
+pub mod distortion;
 pub mod scene;
 pub mod shift;
 pub mod weak;
@@ -95,6 +97,10 @@ pub struct Input<'a> {
     /// variance `Δα²/12`).
     pub sampling_system: Option<(&'a [f64], &'a [f64])>,
     pub sampling: f64,
+    /// 2D: the distortion system `(H, g)` of a sweep's motion, row-major `H` and `g`
+    /// ([`distortion::distortion_system`], [`covariance::distortion`]): its `b bᵀ` is added
+    /// to `calibrated`. None: the scans are taken as instantaneous (or deskewed).
+    pub distortion_system: Option<(&'a [f64], &'a [f64])>,
     pub length_scale: f64,
     pub chosen: Kind,
     /// Translation of `start⁻¹ · pose`, for the motion χ² against the prior's translation block.
@@ -232,6 +238,10 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
         check_len("sampling_system", hs.len(), nn)?;
         check_len("sampling_system", ms.len(), nn)?;
     }
+    if let Some((hd, gd)) = input.distortion_system {
+        check_len("distortion_system", hd.len(), nn)?;
+        check_len("distortion_system", gd.len(), dof)?;
+    }
     if let Some(h) = input.held {
         check_len("held", h.information.len(), nn)?;
     }
@@ -350,6 +360,12 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
             }
             None if input.sampling > 0.0 => calibrated[(2, 2)] += input.sampling,
             None => {}
+        }
+        if let Some((hd, gd)) = input.distortion_system {
+            let g = Vector::from_column_slice(gd);
+            if let Some(term) = covariance::distortion(&from_rows(dof, hd), &g, &deg) {
+                calibrated += term;
+            }
         }
     }
     let (censi, block, calibrated) = (psd(&censi), psd(&block), psd(&calibrated));
