@@ -50,6 +50,7 @@ EXAMPLES = """examples:
   scanreg batch register pairs.parquet --engine ray --address 10.0.0.1:6379 -o out/
   scanreg batch map logs.csv -o maps/        # one map per row (2D logs/bags, 3D sequences)
   scanreg map intel.clf.bz2 -o out/          # 2D mapping with loop closure (CARMEN log)
+  scanreg merge mapA/ mapB/ -o merged/       # two saved 2D maps, unrelated frames, one graph
 """
 
 #: Per-subcommand examples, shown by ``scanreg SUBCOMMAND --help``.
@@ -96,6 +97,9 @@ SUB_EXAMPLES = {
     "  scanreg localize intel.clf --map out/ -o loc/        # out/map.yaml from scanreg map\n"
     "  scanreg localize run2.log --map ros_maps/lab.yaml --max-scans 500 --json\n"
     "  scanreg localize run2/velodyne --map out/ -o loc/    # 3D: out/map.ply from scanreg map\n",
+    "merge": "examples:\n"
+    "  scanreg merge day1/ day2/ -o both/       # two maps of `scanreg map`, in day1's frame\n"
+    "  scanreg merge day1/ day2/ -o day1/ --json  # day1/ becomes the merged map\n",
     "simulate": "examples:\n"
     "  scanreg simulate -o run/                  # 2D: floor_plan, sick_lms200\n"
     "  scanreg simulate --scene street --sensor vlp16 --scans 10 --speed 10 -o run/\n"
@@ -363,6 +367,30 @@ def build_parser() -> argparse.ArgumentParser:
     lz.add_argument("--max-scans", type=int, default=None, help="stop after N scans")
     lz.add_argument("--json", action="store_true", help="print JSON instead of text")
     lz.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
+    mg = sub.add_parser(
+        "merge",
+        help="merge two saved 2D maps made separately (unrelated frames) into one graph: "
+        "inter-session loops by global search, verified and mutually consistent",
+    )
+    mg.add_argument("a", type=Path, help="the first map's folder (its frame is kept)")
+    mg.add_argument("b", type=Path, help="the second map's folder")
+    mg.add_argument(
+        "-o", "--output", type=Path, required=True, help="the merged map's folder (may be A)"
+    )
+    mg.add_argument("--config", type=Path, default=None, help="TOML (default: A's config.toml)")
+    mg.add_argument(
+        "--locate-tries",
+        type=int,
+        default=20,
+        help="B's nodes, spread over its run, the global search tries (default 20)",
+    )
+    mg.add_argument(
+        "--min-loops",
+        type=int,
+        default=2,
+        help="agreeing inter-session loops needed to merge (default 2)",
+    )
+    mg.add_argument("--json", action="store_true", help="print JSON instead of text")
     for name, subparser in sub.choices.items():
         subparser.epilog = SUB_EXAMPLES[name]
         subparser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -637,6 +665,19 @@ def _localize(args: argparse.Namespace) -> dict[str, Any]:
     )
 
 
+def _merge(args: argparse.Namespace) -> dict[str, Any]:
+    from .pipeline.commands import merge_maps_to_folder
+
+    return merge_maps_to_folder(
+        args.a,
+        args.b,
+        args.output,
+        config=args.config,
+        locate_tries=args.locate_tries,
+        min_loops=args.min_loops,
+    )
+
+
 def _print_text(result: dict[str, Any], indent: str = "") -> None:
     for key, value in result.items():
         if isinstance(value, dict):
@@ -665,6 +706,7 @@ def main(argv: list[str] | None = None) -> int:
         "batch": _batch,
         "map": _map,
         "localize": _localize,
+        "merge": _merge,
     }
     try:
         result = handlers[args.command](args)

@@ -6,18 +6,22 @@ saved map with global relocalization (:class:`MapLocalizer`); :func:`write_outpu
 mapping run's folder (what ``scanreg map`` writes); :func:`open_scan_log` / :func:`scan_log`
 read a CARMEN log or a LaserScan bag as the 2D pipelines' :class:`~scanreg.io.ScanLog`;
 :func:`check_map` judges a 2D map's consistency without ground truth.
-:func:`run_odometry_to_folder`, :func:`run_mapping_to_folder` and
-:func:`run_localization_to_folder` are what ``scanreg odometry|map|localize`` do, callable
-the same way from Python (:mod:`.commands`)."""
+:func:`extend_map` joins a new run to a saved 2D map, :func:`merge_maps` two saved 2D maps
+made in unrelated frames (one graph, agreeing inter-session loops).
+:func:`run_odometry_to_folder`, :func:`run_mapping_to_folder`,
+:func:`run_localization_to_folder` and :func:`merge_maps_to_folder` are what ``scanreg
+odometry|map|localize|merge`` do, callable the same way from Python (:mod:`.commands`)."""
 
 from .commands import (
     MappingStopped,
+    merge_maps_to_folder,
     registration_summary,
     run_localization_to_folder,
     run_mapping_to_folder,
     run_odometry_to_folder,
 )
 from .extend import ExtendReport, extend_map
+from .join import JoinReport
 from .localizer import Localizer, Relocalization
 from .localizer2d import GlobalFix, LocalizationConfig2D, Localizer2D
 from .map_check import MapCheck, MapCheckSettings, check_map
@@ -25,6 +29,7 @@ from .map_localizer import GlobalFix3D, MapLocalizer
 from .mapping import LoopRecord, Mapper, MappingConfig, MappingResult, run_mapping
 from .mapping3d import Mapper3D, MappingConfig3D, run_mapping_3d
 from .mapping_output import write_outputs
+from .merge import MergeReport, merge_maps
 from .odometry import AdaptiveGate, FrameResult, FrameTiming, Odometry, OdometryConfig
 from .odometry2d import Frame2D, FrameTiming2D, Odometry2D, OdometryConfig2D
 from .scan_source import open_scan_log, scan_log
@@ -38,6 +43,7 @@ __all__ = [
     "FrameTiming2D",
     "GlobalFix",
     "GlobalFix3D",
+    "JoinReport",
     "LocalizationConfig2D",
     "Localizer",
     "Localizer2D",
@@ -51,6 +57,7 @@ __all__ = [
     "MappingConfig3D",
     "MappingResult",
     "MappingStopped",
+    "MergeReport",
     "Odometry",
     "Odometry2D",
     "OdometryConfig",
@@ -58,6 +65,8 @@ __all__ = [
     "Relocalization",
     "check_map",
     "extend_map",
+    "merge_maps",
+    "merge_maps_to_folder",
     "open_scan_log",
     "registration_summary",
     "run_localization_to_folder",

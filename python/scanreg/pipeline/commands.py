@@ -7,6 +7,7 @@ the command line only parses its arguments, calls one of these and prints what i
 :func:`run_mapping_to_folder`      ``scanreg map PATH -o OUT`` (2D or 3D, with loop closure;
                                    the folder is a :class:`scanreg.SavedMap`)
 :func:`run_localization_to_folder` ``scanreg localize PATH --map MAP -o OUT``
+:func:`merge_maps_to_folder`       ``scanreg merge A/ B/ -o M/`` (two saved 2D maps, one graph)
 :func:`register_files`             ``scanreg register SOURCE TARGET [--global]``
 :func:`registration_summary`       the JSON of ``scanreg register`` for a result
 :func:`describe_input`             ``scanreg info PATH``
@@ -981,7 +982,7 @@ _ONE_RUN_FILES = ("trajectory.png", "contradictions.csv", "report.html")
 def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
     """``scanreg map NEW --extend OLD/``: the new run mapped alone, then joined to the saved
     map (:func:`scanreg.pipeline.extend.extend_map`), written to ``args.output``."""
-    from ..config import load_config, write_config
+    from ..config import load_config
     from ..saved_map import SavedMap
     from .extend import extend_map
     from .mapping import MappingConfig, MappingInterrupted, run_mapping
@@ -1019,16 +1020,8 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
             interrupted=isinstance(exc.__cause__, KeyboardInterrupt),
         ) from exc
     joint, report = extend_map(saved, res, session=str(args.path), config=config)
-    out = Path(args.output)
-    for name in _ONE_RUN_FILES:  # (the map itself is written whole below)
-        (out / name).unlink(missing_ok=True)
-    paths = joint.save(out)
-    paths["config"] = write_config(out / "config.toml", config)
-    result: dict[str, Any] = {
-        "extended": str(args.extend),
-        "log": str(args.path),
-        **report.as_dict(),
-        **{k: v for k, v in joint.describe().items() if k not in ("frames", "folder")},
+    head: dict[str, Any] = {"extended": str(args.extend), "log": str(args.path)}
+    tail: dict[str, Any] = {
         "new_run": {
             "num_scans": res.num_scans,
             "num_nodes": len(res.node_scans),
@@ -1036,11 +1029,85 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
         },
         "scans": scans.describe(),
     }
+    return _write_joint(Path(args.output), joint, report, config, head, tail)
+
+
+def _write_joint(
+    out: Path,
+    joint: Any,
+    report: Any,
+    config: Any,
+    head: dict[str, Any],
+    tail: dict[str, Any],
+) -> dict[str, Any]:
+    """Write a joined map (extend, merge) with its config and summary into ``out`` (the
+    one-run files a former map there had removed); returns the command's JSON."""
+    from ..config import write_config
+
+    for name in _ONE_RUN_FILES:  # (the map itself is written whole below)
+        (out / name).unlink(missing_ok=True)
+    paths = joint.save(out)
+    paths["config"] = write_config(out / "config.toml", config)
+    result: dict[str, Any] = {
+        **head,
+        **report.as_dict(),
+        **{k: v for k, v in joint.describe().items() if k not in ("frames", "folder")},
+        **tail,
+    }
     paths["summary"] = out / "summary.json"
     paths["summary"].write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     refresh_manifest(out)
     result["outputs"] = {k: str(v) for k, v in paths.items()}
     return result
+
+
+def merge_maps_to_folder(
+    a: PathLike,
+    b: PathLike,
+    output: PathLike,
+    *,
+    config: PathLike | None = None,
+    locate_tries: int = 20,
+    min_loops: int = 2,
+) -> dict[str, Any]:
+    """``scanreg merge A/ B/ -o M/``: two saved 2D map folders (format 2, frames unrelated)
+    merged into one map in ``a``'s frame (:func:`~scanreg.pipeline.merge_maps`), written to
+    ``output`` (which may be ``a``: updated in place); ``a``'s ``config.toml`` unless
+    ``config`` is given. ``M/poses_tum.txt`` holds every scan of both maps with its own stamp,
+    ``M/session_K_poses_tum.txt`` each session's. Maps without a reliable overlap raise
+    ValueError with the reason, and nothing is written."""
+    from ..config import load_config
+    from ..saved_map import SavedMap
+    from .mapping import MappingConfig
+    from .merge import merge_maps
+
+    folders = {"a": _path(a, "a"), "b": _path(b, "b")}
+    out = _path(output, "output")
+    assert out is not None
+    maps = {}
+    for name, folder in folders.items():
+        assert folder is not None
+        if not folder.is_dir():
+            raise ValueError(f"{name}: {folder} is not a map folder")
+        m = SavedMap.load(folder)
+        if m.dim != 2 or m.node_points is None:
+            raise ValueError(
+                f"{name}: {folder} is a format-{m.format_version} {m.dim}D map; only 2D maps "
+                "of format 2 (with their node scans) can be merged"
+            )
+        maps[name] = m
+    if out.resolve() == Path(b).resolve():
+        raise ValueError(f"output: {out} is map b; merge into a new folder or into a")
+    own = Path(a) / "config.toml"
+    config_path = _path(config, "config")
+    config_path = config_path if config_path is not None or not own.is_file() else own
+    settings = load_config(MappingConfig, config_path)
+    joint, report = merge_maps(
+        maps["a"], maps["b"], config=settings, locate_tries=locate_tries, min_loops=min_loops
+    )
+    head: dict[str, Any] = {"merged": [str(folders["a"]), str(folders["b"])]}
+    tail: dict[str, Any] = {"maps": {k: m.describe()["num_scans"] for k, m in maps.items()}}
+    return _write_joint(out, joint, report, settings, head, tail)
 
 
 def _map_3d(args: SimpleNamespace) -> dict[str, Any]:
