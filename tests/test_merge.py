@@ -8,6 +8,7 @@ import bz2
 import dataclasses
 import json
 import math
+import re
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -20,7 +21,9 @@ from scanreg.cli import EXIT_BAD_INPUT, EXIT_OK, main
 
 pytest.importorskip("gtsam")
 
+from scanreg.eval.relations import read_relations, relation_error
 from scanreg.io.occupancy import occupancy_grid
+from scanreg.io.trajectory import Trajectory
 from scanreg.pipeline import MappingConfig, merge_maps, run_mapping
 from scanreg.saved_map import MANIFEST, SavedMap
 
@@ -80,30 +83,49 @@ def test_merge_two_sessions_in_unrelated_frames(intel: dict[str, SavedMap]) -> N
     merged, report = merge_maps(a, b)
     assert merged.sessions == ("a", "b") and merged.num_scans == a.num_scans + b.num_scans
     assert merged.num_nodes == a.num_nodes + b.num_nodes
-    # Measured: 13 of 15 candidates accepted, all agreeing.
-    assert report.accepted >= 8 and report.disagreeing <= 1, report.as_dict()
+    # Measured: 25 of 29 candidates accepted, none left out for disagreeing.
+    assert report.accepted >= 15 and report.disagreeing <= 2, report.as_dict()
     records = [r for r in merged.loops if r.get("inter_session")]
     assert len(records) == report.candidates
     assert sum(r["accepted"] for r in records) == report.accepted
-    # Every scan of both sessions, against the single run over the same lines (same first
-    # scan, so the same frame). Measured: median 0.010 m, max 0.055 m.
+    # Every scan of both sessions against the single run over the same lines (same first
+    # scan, so the same frame). Measured: median 0.086 m, max 0.129 m, 0.80°; a alone
+    # against it: median 0.019 m, max 0.053 m (the two runs' own drift differs).
     truth = _by_stamp(one.poses, one.stamps)
     assert merged.scan_sessions is not None
     err, rot = [], []
     for k, stamp in enumerate(merged.stamps):
-        ref = truth[round(float(stamp), 6)]
-        delta = ref.inverse() @ merged.poses[k]  # type: ignore[operator]
+        delta = truth[round(float(stamp), 6)].inverse() @ merged.poses[k]  # type: ignore[operator]
         err.append(np.linalg.norm(delta.translation))
         rot.append(abs(delta.angle))
-    err_b = np.array(err)[merged.scan_sessions == 1]
-    assert np.median(err) < 0.03 and max(err) < 0.15, (np.median(err), max(err))
+    assert np.median(err) < 0.15 and max(err) < 0.2, (np.median(err), max(err))
     assert max(rot) < math.radians(1.5), math.degrees(max(rot))
     # b was 47 m / 73° away: the merge did the work.
     apart = [
         np.linalg.norm((truth[round(float(s), 6)].inverse() @ p).translation)
         for s, p in zip(b.stamps, b.poses, strict=True)
     ]
-    assert min(apart) > 10.0 and np.median(err_b) < 0.05
+    assert min(apart) > 10.0
+    # The ~200 scans both sessions hold: the same pose from each. Measured: median 0.027 m,
+    # max 0.169 m, 0.65°.
+    mine = _by_stamp(merged.session_poses(0), merged.stamps[merged.scan_sessions == 0])
+    theirs = _by_stamp(merged.session_poses(1), merged.stamps[merged.scan_sessions == 1])
+    shared = sorted(set(mine) & set(theirs))
+    assert len(shared) > 150
+    gap = np.array([np.linalg.norm((mine[t].inverse() @ theirs[t]).translation) for t in shared])
+    assert np.median(gap) < 0.05 and gap.max() < 0.25, (np.median(gap), gap.max())
+    # The Kümmerle relations these lines hold (a's scans, then b's after them). Measured:
+    # 0.0192 m / 0.187° over 47 (the single run: 0.0170 m / 0.162°).
+    relations = read_relations(data_dir("freiburg-slam-benchmark", "intel.relations"))
+    keep = [
+        k
+        for k in range(merged.num_scans)
+        if merged.scan_sessions[k] == 0 or merged.stamps[k] > a.stamps[-1]
+    ]
+    traj = Trajectory.from_poses([merged.poses[k] for k in keep], merged.stamps[keep])  # type: ignore[misc]
+    scored = relation_error(traj, relations)
+    assert len(scored.used) >= 40
+    assert scored.translation.mean < 0.025 and scored.rotation_deg.mean < 0.25, scored
 
 
 def test_merge_refuses_another_building(
@@ -112,12 +134,16 @@ def test_merge_refuses_another_building(
     aces = _map(tmp_path, "aces.clf", _lines("aces.clf.bz2", 900), "aces")
     with pytest.raises(ValueError, match=r"^merge: .*no reliable overlap, nothing joined"):
         merge_maps(intel["a"], aces)
-    with pytest.raises(ValueError, match=r"^merge: .*no reliable overlap, nothing joined"):
+    # Measured: the global search placed an Intel node in the ACES map and 2 of 29 Intel
+    # nodes matched there, but they disagree: without the agreement test they would join.
+    with pytest.raises(ValueError, match=r"^merge: .*no reliable overlap") as caught:
         merge_maps(aces, intel["a"])
+    found = re.search(r"but (\d+) of \d+ .*, (\d+) of them agreeing", str(caught.value))
+    assert found is not None and int(found[1]) >= 2 > int(found[2]), caught.value
     # The command: the reason on stderr, exit 3, no folder written.
     intel["a"].save(tmp_path / "a")
     aces.save(tmp_path / "aces")
-    argv = ["merge", str(tmp_path / "a"), str(tmp_path / "aces"), "-o", str(tmp_path / "m")]
+    argv = ["merge", str(tmp_path / "aces"), str(tmp_path / "a"), "-o", str(tmp_path / "m")]
     assert main([*argv, "--json"]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert "scanreg merge: error: merge: " in err and "no reliable overlap" in err, err
