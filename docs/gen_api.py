@@ -50,6 +50,7 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.plot", "figures (matplotlib)"),
     ("scanreg.pipeline", "odometry, localization (2D/3D) and mapping pipelines"),
     ("scanreg.pipeline.commands", "what each scanreg command does, as library functions"),
+    ("scanreg.pipeline.join", "one graph over two 2D maps' sessions (extend and merge)"),
     ("scanreg.saved_map", "a saved map folder as one versioned type: SavedMap, its manifest"),
     ("scanreg.graph", "the pose graph (gtsam): calibrated-covariance edges, iSAM2, marginals"),
     ("scanreg.report", "the HTML run report"),

@@ -28,7 +28,8 @@ The folder holds ``manifest.json`` — ``format`` (``"scanreg-map"``), ``format_
 ``places.npz``         3D: the nodes' poses and Scan Context descriptors
 =====================  ==================================================================
 
-A map of several sessions (:func:`scanreg.pipeline.extend_map`) also holds
+A map of several sessions (:func:`scanreg.pipeline.extend_map`,
+:func:`scanreg.pipeline.merge_maps`) also holds
 ``session_K_poses_tum.txt``: session K's scans' poses, each with its own stamp.
 
 Format versions: **2** (this one) as above. **1**: what ``scanreg map`` wrote before the
