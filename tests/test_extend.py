@@ -78,14 +78,14 @@ def test_extend_joins_a_second_session(mapped: dict[str, Any]) -> None:
         np.linalg.norm((old.graph.vertices[k].inverse() @ joint.graph.vertices[k]).translation)
         for k in range(old.num_nodes)
     ]
-    assert max(moved) < 0.1  # measured 0.063 m at a's far end
+    assert max(moved) < 0.1  # measured 0.062 m at a's far end
     # The scans both sessions mapped (~300): the same pose from each, in one frame. Without
     # the join they are in unrelated frames (b starts at its own origin).
     mine, theirs = _by_stamp(joint, 0), _by_stamp(joint, 1)
     shared = sorted(set(mine) & set(theirs))
     assert len(shared) > 250
     err = np.array([np.linalg.norm((mine[t].inverse() @ theirs[t]).translation) for t in shared])
-    # Measured: median 0.007 m, max 0.055 m.
+    # Measured: median 0.007 m, max 0.057 m (the agreeing loops without a kernel; 0.055 m with).
     assert np.median(err) < 0.02 and err.max() < 0.1, (np.median(err), err.max())
     alone = {round(float(s), 6): p for s, p in zip(b.stamps, b.poses, strict=True)}
     apart = [np.linalg.norm((mine[t].inverse() @ alone[t]).translation) for t in shared]
