@@ -180,3 +180,13 @@ def test_cli_merge_writes_every_scan(
     assert "output:" in capsys.readouterr().err
     merged, _ = merge_maps(a, dataclasses.replace(b, sessions=("a",)))
     assert merged.sessions == ("a", "a#2")
+    # A folder from before the manifest (format 1) keeps no node scans: refused, naming it.
+    (tmp_path / "b" / MANIFEST).unlink()
+    (tmp_path / "b" / "map_data.npz").unlink()
+    argv = ["merge", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "m1")]
+    assert main(argv) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "b: " in err and "is a format-1 2D map; only 2D maps of format 2" in err, err
+    assert not (tmp_path / "m1").exists()
+    with pytest.raises(TypeError, match="b: expected a SavedMap"):
+        merge_maps(a, str(tmp_path / "b"))  # type: ignore[arg-type]
