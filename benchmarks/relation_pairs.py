@@ -1,0 +1,230 @@
+"""As accurate as Karto on relation pairs, and faster? Kümmerle relations as pair truth.
+
+For the first ``--count`` relations less than 10 s apart of each Freiburg log (Intel, ACES, the
+hospital ``fr-clinic``; ``../shared/data/freiburg-slam-benchmark``), scan t2 (source) is matched
+to scan t1 (target) from the wheel odometry's relative pose, by
+
+* ``register``: scanreg's default 2D call, ``scanreg.register(src, scanreg.prepare(tgt,
+  normals=True), method="point_to_line", init=odometry)``, its verdict read;
+* ``register, refine_in_basin=False``: the same without the refinement in the basin
+  (:func:`scanreg.slide.refine_in_basin`), the default call before it;
+* ``correlative + register``: the README's 2D log recipe, correlative branch and bound at 5 cm
+  over Karto's window, then the default call from its answer;
+* ``karto``: OpenKarto's scan matcher (``karto-scanmatcher`` on PyPI, the matcher inside
+  slam_toolbox) with its default configuration (±0.3 m, ±20° around the start, 1 cm grid,
+  penalised and refined, as slam_toolbox calls it for consecutive scans).
+
+Every contender is timed from the raw scans on: building its target (scanreg: ``prepare``;
+Karto: its grid, inside ``match_scan``) is part of each pair's time. The contenders alternate
+pair by pair in one process (best of ``--rounds`` calls each). Per log and contender: the median
+translation error against the relation, how many results are wrong (more than 0.15 m or 2° off),
+how many are accepted and wrong (Karto has no verdict: every result counts as accepted), the
+median ms per pair and its ratio to Karto's. Run with ``RAYON_NUM_THREADS=1`` for the timing
+comparison (Karto is single-threaded).
+
+    RAYON_NUM_THREADS=1 .venv/bin/python benchmarks/relation_pairs.py
+        [--logs intel,aces,fr-clinic] [--count 400] [--rounds 3] [--list]
+
+``--list``: every pair some contender gets wrong, with each contender's error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("RAYON_NUM_THREADS", "1")
+
+import karto_scanmatcher as karto
+import numpy as np
+import scanreg
+from scanreg import SE2
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from relation_slide import LOGS, MAX_SECONDS, WRONG_DEG, WRONG_M
+
+DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
+MIN_RANGE, MAX_RANGE = 0.1, 40.0
+
+
+def relation_scans(name: str, count: int) -> list[tuple[int, Any, Any, SE2, SE2]]:
+    """``(relation index, scan t1, scan t2, relation, odometry)`` of the first ``count``
+    relations under ``MAX_SECONDS`` apart, both poses in the laser's frame."""
+    from scanreg.eval.relations import read_relations
+    from scanreg.io import read_scans
+
+    folder = DATA / "freiburg-slam-benchmark"
+    log = read_scans(folder / LOGS.get(name, f"{name}.clf.bz2"))
+    relations = read_relations(folder / f"{name}.relations")
+    lasers = [(i, s) for i, s in enumerate(log.scans) if s.kind in ("FLASER", "ROBOTLASER1")]
+    stamps = {s.timestamp: i for i, s in lasers}
+    first = lasers[0][1]
+    assert first.odometry_se2 is not None and first.laser_se2 is not None
+    # The relations are between robot poses; the hospital's laser is 0.22 m ahead of the centre.
+    mount = first.odometry_se2.inverse() @ first.laser_se2
+    out = []
+    for k in range(len(relations)):
+        if abs(relations.t2[k] - relations.t1[k]) >= MAX_SECONDS:
+            continue
+        i1, i2 = stamps.get(float(relations.t1[k])), stamps.get(float(relations.t2[k]))
+        if i1 is None or i2 is None:
+            continue
+        m = relations.poses[k]
+        robot = SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
+        a, b = log.scans[i1].laser_se2, log.scans[i2].laser_se2
+        assert a is not None and b is not None
+        out.append(
+            (k, log.scans[i1], log.scans[i2], mount.inverse() @ robot @ mount, a.inverse() @ b)
+        )
+        if len(out) == count:
+            break
+    return out
+
+
+def scanreg_default(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
+    """The default 2D call, from the raw scans."""
+    target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
+    res = scanreg.register(
+        scan2.to_points(MIN_RANGE, MAX_RANGE), target, method="point_to_line", init=start
+    )
+    return res.pose, bool(res.verdict.accepted)
+
+
+def scanreg_unrefined(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
+    """The default call without the refinement in the basin (``refine_in_basin=False``)."""
+    target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
+    res = scanreg.register(
+        scan2.to_points(MIN_RANGE, MAX_RANGE),
+        target,
+        method="point_to_line",
+        init=start,
+        refine_in_basin=False,
+    )
+    return res.pose, bool(res.verdict.accepted)
+
+
+def scanreg_correlative(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
+    """The README's 2D log recipe: correlative branch and bound over Karto's window, then the
+    default point-to-line call from its answer."""
+    ref, src = scan1.to_points(MIN_RANGE, MAX_RANGE), scan2.to_points(MIN_RANGE, MAX_RANGE)
+    grid = scanreg.prepare_correlative(ref, resolution=0.05)
+    found = scanreg.match_correlative(src, grid, init=start, window=(0.3, 0.3, math.radians(20)))
+    res = scanreg.register(
+        src, scanreg.prepare(ref, normals=True), method="point_to_line", init=found.pose
+    )
+    return res.pose, bool(res.verdict.accepted)
+
+
+def _karto_config(scan: Any) -> Any:
+    step = float(scan.angles[1] - scan.angles[0])
+    return karto.LaserScanConfig(
+        float(scan.angles[0]),
+        float(scan.angles[-1]),
+        step,
+        MIN_RANGE,
+        MAX_RANGE,
+        MAX_RANGE,
+        "laser",
+    )
+
+
+def _karto_ranges(scan: Any) -> list[float]:
+    # Karto ignores readings beyond its range threshold; invalid ones are sent there.
+    r = np.where(scan.valid(MIN_RANGE, MAX_RANGE), scan.ranges, MAX_RANGE + 1.0)
+    return [float(v) for v in r]
+
+
+_MATCHER: list[Any] = []
+
+
+def _karto_matcher() -> Any:
+    # Built once (70 ms: it allocates its correlation grid), as slam_toolbox builds its own.
+    if not _MATCHER:
+        _MATCHER.append(karto.Wrapper(karto.ScanMatcherConfig()))
+    return _MATCHER[0]
+
+
+def karto_match(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
+    """Karto's matcher, scan 1 at the origin, scan 2 started at ``start``."""
+    config = _karto_config(scan1)
+    origin = karto.Pose2(0.0, 0.0, 0.0)
+    x, y, yaw = start.as_vector()
+    guess = karto.Pose2(float(x), float(y), float(yaw))
+    base = karto.LocalizedRangeScan(config, _karto_ranges(scan1), origin, origin, 0, 0.0)
+    query = karto.LocalizedRangeScan(config, _karto_ranges(scan2), guess, guess, 1, 1.0)
+    found = _karto_matcher().match_scan(query, [base], True, True).best_pose
+    return SE2.from_vector([found.x, found.y, found.yaw]), True
+
+
+CONTENDERS: dict[str, Callable[[Any, Any, SE2], tuple[SE2, bool]]] = {
+    "register": scanreg_default,
+    "register, refine_in_basin=False": scanreg_unrefined,
+    "correlative + register": scanreg_correlative,
+    "karto": karto_match,
+}
+
+
+def run(name: str, count: int, rounds: int, listing: bool) -> None:
+    pairs = relation_scans(name, count)
+    rows: dict[str, list[dict[str, Any]]] = {c: [] for c in CONTENDERS}
+    for k, scan1, scan2, relation, odometry in pairs:
+        for label, call in CONTENDERS.items():
+            best = math.inf
+            for _ in range(rounds):
+                t0 = time.perf_counter()
+                pose, accepted = call(scan1, scan2, odometry)
+                best = min(best, time.perf_counter() - t0)
+            err = (pose.inverse() @ relation).log()
+            m, deg = float(np.hypot(err[0], err[1])), math.degrees(abs(float(err[2])))
+            rows[label].append(
+                {
+                    "k": k,
+                    "m": m,
+                    "deg": deg,
+                    "wrong": m > WRONG_M or deg > WRONG_DEG,
+                    "accepted": accepted,
+                    "seconds": best,
+                }
+            )
+    karto_ms = 1e3 * float(np.median([r["seconds"] for r in rows["karto"]]))
+    print(f"\n{name}: {len(pairs)} relations under {MAX_SECONDS:g} s, from the wheel odometry")
+    print("| contender | median error (cm) | wrong | accepted and wrong | ms per pair | ÷ Karto |")
+    print("|---|---|---|---|---|---|")
+    for label, rs in rows.items():
+        ms = 1e3 * float(np.median([r["seconds"] for r in rs]))
+        print(
+            f"| {label} | {100 * np.median([r['m'] for r in rs]):.3f} | "
+            f"{sum(r['wrong'] for r in rs)} | {sum(r['wrong'] and r['accepted'] for r in rs)} | "
+            f"{ms:.2f} | {ms / karto_ms:.2f} |"
+        )
+    if listing:
+        for i in range(len(pairs)):
+            if any(rows[c][i]["wrong"] for c in rows):
+                cells = [
+                    f"{c} {rows[c][i]['m']:.3f} m {rows[c][i]['deg']:.2f}°"
+                    f"{'' if rows[c][i]['accepted'] else ' (rejected)'}"
+                    for c in rows
+                ]
+                print(f"  relation {rows['karto'][i]['k']}: " + " | ".join(cells))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--logs", default="intel,aces,fr-clinic")
+    parser.add_argument("--count", type=int, default=400)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--list", action="store_true")
+    args = parser.parse_args()
+    print(f"RAYON_NUM_THREADS={os.environ['RAYON_NUM_THREADS']}")
+    for name in args.logs.split(","):
+        run(name, args.count, args.rounds, args.list)
+
+
+if __name__ == "__main__":
+    main()
