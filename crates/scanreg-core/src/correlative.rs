@@ -352,13 +352,19 @@ impl Gaussian {
     /// The least whole radius (cells) beyond which `at` is `+0.0` in `f32` (the likelihood's
     /// whole support: a grid cut there holds every bit a full distance transform's would).
     fn reach(&self) -> i64 {
-        // exp underflows f32 below e^−104: start there and step to the first zero.
-        let mut d = (2.0 * self.s2 * 100.0).floor().max(0.0);
-        while self.at(d) != 0.0 {
-            d += 1.0;
+        // `at` does not increase with d and is 0 past d = 220 s²: bisect for the least whole
+        // d where it is 0 (`lo` is never 0, `hi` always is).
+        let (mut lo, mut hi) = (0.0f64, (220.0 * self.s2).ceil() + 1.0);
+        while hi - lo > 1.0 {
+            let mid = ((lo + hi) / 2.0).floor();
+            if self.at(mid) == 0.0 {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
         }
-        // Every d² ≥ d is zero; the disc must hold every d² < d.
-        ((d - 1.0).max(0.0)).sqrt().ceil() as i64
+        // The disc must hold every d² < hi.
+        lo.sqrt().ceil() as i64
     }
 
     fn at(&self, d: f64) -> f32 {
@@ -494,6 +500,10 @@ fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64, sequential: bool) -> 
         data,
     }
 }
+
+/// Largest disc [`stamped`] lays (offsets held in memory): a blur hundreds of cells wide
+/// takes the distance transform instead.
+const MAX_STAMP_OFFSETS: usize = 1 << 20;
 
 /// The grid's margin in cells around the reference: `4σ` and one cell (beyond, the
 /// likelihood is < 3.4e-4 of a hit).
@@ -634,8 +644,9 @@ impl LikelihoodGrid {
     }
 
     /// The distance transform and likelihood of `reference` on the given lattice, within the
-    /// blur's support ([`support`]): a cell farther than that from every reference cell holds
-    /// likelihood 0 and distance +∞.
+    /// likelihood's support ([`Gaussian::reach`]): a cell farther than that from every
+    /// reference cell holds likelihood 0 (what the full transform gives there too) and
+    /// distance +∞.
     fn rasterise(
         reference: &[f64],
         origin: [f64; 2],
@@ -662,7 +673,9 @@ impl LikelihoodGrid {
         // transform O(cells) over ~4 passes: a long-range laser's local map (80 m across at
         // 5 cm, 2.5 M cells, a few thousand occupied) stamps several times faster. The same
         // grid either way (tested).
-        let (likelihood, dist2) = if occupied.len().saturating_mul(disc) < 4 * width * height {
+        let stamp =
+            disc <= MAX_STAMP_OFFSETS && occupied.len().saturating_mul(disc) < 4 * width * height;
+        let (likelihood, dist2) = if stamp {
             stamped(&occupied, width, height, reach, &gauss)
         } else {
             transformed(&occupied, width, height, reach, &gauss)
@@ -1275,6 +1288,20 @@ mod tests {
                 let expected = if brute <= 225.0 { brute } else { f64::INFINITY };
                 assert_eq!(g.dist2()[y * w + x] as f64, expected, "cell {x},{y}");
             }
+        }
+    }
+
+    #[test]
+    fn the_reach_is_the_least_radius_past_which_the_likelihood_is_zero() {
+        for s2 in [0.25, 1.0, 9.61, 1e6] {
+            let g = Gaussian::new(s2, 1 << 16);
+            let r = g.reach();
+            let (inside, past) = (((r - 1) * (r - 1)) as f64, (r * r) as f64);
+            assert!((1..=200).all(|k| g.at(past + k as f64) == 0.0), "s2 {s2}");
+            assert!(
+                (inside as i64 + 1..=past as i64).any(|d| g.at(d as f64) > 0.0),
+                "s2 {s2}"
+            );
         }
     }
 
