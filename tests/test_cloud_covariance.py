@@ -44,6 +44,12 @@ def test_surface_samples_cover_every_side_and_check_their_arguments() -> None:
         sim.surface_samples(_room(), 0.0)
     with pytest.raises(ValueError, match="scene: must be 2D"):
         sim.surface_samples(sim.tunnel(length=20.0), 0.1)
+    with pytest.raises(ValueError, match=r"spacing: .* more than 20,000,000 points"):
+        sim.surface_samples(_room(), 1e-9)
+    with pytest.raises(ValueError, match="spacing"):
+        sim.surface_samples(_room(), math.nan)
+    with pytest.raises(TypeError, match="scene: expected a Scene"):
+        sim.surface_samples(np.zeros((3, 2)), 0.1)  # type: ignore[arg-type]
 
 
 def test_a_walled_room_with_an_obstacle_seen_from_both_sides_is_calibrated() -> None:

@@ -40,6 +40,11 @@ def _segments(scene: Scene) -> list[tuple[FloatArray, FloatArray]]:
     return out
 
 
+#: The most points one call draws (on average): a spacing far below the outline's scale is a
+#: mistake, not a cloud (1e-9 m along a floor plan asked for 24 billion).
+_MAX_POINTS = 20_000_000
+
+
 def surface_samples(
     scene: Scene, spacing: float, *, noise: float = 0.0, seed: int = 0
 ) -> FloatArray:
@@ -47,13 +52,22 @@ def surface_samples(
     side of every box, circles), one per ``spacing`` metres on average, each moved by
     isotropic Gaussian ``noise`` (m). Reproducible from ``seed``; in the scene's frame, in
     outline order (no sweep)."""
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
     if scene.dim != 2:
         raise ValueError(f"scene: must be 2D, got dim {scene.dim}")
     step = positive(spacing, "spacing")
     sigma = non_negative(noise, "noise")
     rng = np.random.default_rng(check_seed(seed))
+    segments = _segments(scene)
+    length = sum(float(np.hypot(*(b - a))) for a, b in segments)
+    if length / step > _MAX_POINTS:
+        raise ValueError(
+            f"spacing: {step:g} m over {length:.1f} m of outline is more than "
+            f"{_MAX_POINTS:,} points; use a coarser spacing"
+        )
     parts = []
-    for a, b in _segments(scene):
+    for a, b in segments:
         count = int(rng.poisson(float(np.hypot(*(b - a))) / step))
         t = rng.uniform(0.0, 1.0, count)
         parts.append(a + t[:, None] * (b - a))
