@@ -239,17 +239,19 @@ def _finite(path: Path, field: str, text: str) -> float:
     return value
 
 
-def read_map_server(path: PathLike) -> tuple[FloatArray, float]:
-    """Occupied cells of a ROS ``map_server`` map (``map.yaml`` and the PGM image it names)
-    as ``(M, 2)`` points in the map frame (cell centres), and the resolution.
+@dataclass(frozen=True)
+class _MapHeader:
+    """A ``map.yaml``'s fields, the ones both readers need checked."""
 
-    A cell is occupied when its occupancy ``p`` (``(255 − v)/255``, or ``v/255`` with
-    ``negate: 1``) exceeds ``occupied_thresh``. The origin's yaw rotates the grid about the
-    origin, as ``map_server`` defines it. Only binary PGM (``P5``) images are read. A field
-    that is missing or out of range raises :class:`FileFormatError` naming the file and the
-    field.
-    """
-    yaml_path = Path(path)
+    fields: dict[str, str]
+    resolution: float
+    origin: list[float]
+    occupied: float
+    free: float
+    image: Path
+
+
+def _map_header(yaml_path: Path) -> _MapHeader:
     fields = _yaml_fields(yaml_path)
     missing = [k for k in ("image", "resolution", "origin") if k not in fields]
     if missing:
@@ -261,9 +263,6 @@ def read_map_server(path: PathLike) -> tuple[FloatArray, float]:
     if len(parts) != 3:
         raise FileFormatError(yaml_path, f"origin: expected [x, y, yaw], got {fields['origin']!r}")
     origin = [_finite(yaml_path, "origin", v) for v in parts]
-    negate = fields.get("negate", "0").lower()
-    if negate not in ("0", "1", "true", "false"):
-        raise FileFormatError(yaml_path, f"negate: expected 0 or 1, got {negate!r}")
     occupied = _finite(yaml_path, "occupied_thresh", fields.get("occupied_thresh", "0.65"))
     free = _finite(yaml_path, "free_thresh", fields.get("free_thresh", "0.196"))
     if not (0.0 <= occupied <= 1.0 and 0.0 <= free <= 1.0):
@@ -271,8 +270,27 @@ def read_map_server(path: PathLike) -> tuple[FloatArray, float]:
             yaml_path, f"occupied_thresh {occupied}, free_thresh {free}: must be in [0, 1]"
         )
     name = fields["image"].strip("'\"")
-    image_path = _regular_file(yaml_path.parent / name, "image", yaml_path)
-    image = read_pgm(image_path)
+    image = _regular_file(yaml_path.parent / name, "image", yaml_path)
+    return _MapHeader(fields, resolution, origin, occupied, free, image)
+
+
+def read_map_server(path: PathLike) -> tuple[FloatArray, float]:
+    """Occupied cells of a ROS ``map_server`` map (``map.yaml`` and the PGM image it names)
+    as ``(M, 2)`` points in the map frame (cell centres), and the resolution.
+
+    A cell is occupied when its occupancy ``p`` (``(255 − v)/255``, or ``v/255`` with
+    ``negate: 1``) exceeds ``occupied_thresh``. The origin's yaw rotates the grid about the
+    origin, as ``map_server`` defines it. Only binary PGM (``P5``) images are read. A field
+    that is missing or out of range raises :class:`FileFormatError` naming the file and the
+    field.
+    """
+    yaml_path = Path(path)
+    head = _map_header(yaml_path)
+    resolution, origin, occupied = head.resolution, head.origin, head.occupied
+    negate = head.fields.get("negate", "0").lower()
+    if negate not in ("0", "1", "true", "false"):
+        raise FileFormatError(yaml_path, f"negate: expected 0 or 1, got {negate!r}")
+    image = read_pgm(head.image)
     height, width = image.shape
     if not math.isfinite(resolution * (width + height) + abs(origin[0]) + abs(origin[1])):
         raise FileFormatError(yaml_path, f"resolution: {resolution} m over {width} x {height} "
@@ -293,27 +311,15 @@ def read_occupancy_grid(path: PathLike) -> OccupancyGrid:
     probabilities themselves are not in the file). The origin's yaw must be 0 (as
     :func:`write_map` writes it)."""
     yaml_path = Path(path)
-    fields = _yaml_fields(yaml_path)
-    missing = [k for k in ("image", "resolution", "origin") if k not in fields]
-    if missing:
-        raise FileFormatError(yaml_path, f"lacks {', '.join(missing)} (not a map_server map)")
-    resolution = _finite(yaml_path, "resolution", fields["resolution"])
-    if resolution <= 0:
-        raise FileFormatError(yaml_path, f"resolution: must be > 0, got {resolution}")
-    parts = fields["origin"].strip("[]").split(",")
-    if len(parts) != 3:
-        raise FileFormatError(yaml_path, f"origin: expected [x, y, yaw], got {fields['origin']!r}")
-    origin = [_finite(yaml_path, "origin", v) for v in parts]
+    head = _map_header(yaml_path)
+    origin = head.origin
     if origin[2] != 0.0:
         raise FileFormatError(yaml_path, f"origin: a rotated grid (yaw {origin[2]}) is not read")
-    occupied = _finite(yaml_path, "occupied_thresh", fields.get("occupied_thresh", "0.65"))
-    free = _finite(yaml_path, "free_thresh", fields.get("free_thresh", "0.196"))
-    name = fields["image"].strip("'\"")
-    image = read_pgm(_regular_file(yaml_path.parent / name, "image", yaml_path))[::-1]
+    image = read_pgm(head.image)[::-1]
     prob = np.full(image.shape, np.nan)
     prob[image == OCCUPIED] = 1.0
     prob[image == FREE] = 0.0
-    return OccupancyGrid(prob, resolution, (origin[0], origin[1]), occupied, free)
+    return OccupancyGrid(prob, head.resolution, (origin[0], origin[1]), head.occupied, head.free)
 
 
 def occupied_points(grid: OccupancyGrid) -> FloatArray:
