@@ -225,10 +225,10 @@ class Localizer2D:
         frame = self._judged(
             pts, res, predicted, how, index, stamp, t_start, t_align, held_directions=held
         )
+        if motion is not None and self._wheels is not None:
+            pinned = frame.verdict.accepted and not held and not frame.degenerate
+            self._wheels.observe(motion, previous.inverse() @ frame.pose, constrained=pinned)
         if frame.verdict.accepted:
-            pinned = not held and not frame.degenerate
-            if motion is not None and self._wheels is not None and pinned:
-                self._wheels.observe(motion, previous.inverse() @ frame.pose)
             self._velocity = previous.inverse() @ frame.pose
             self._pose = frame.pose
             self._covariance = _finite_or_zero(frame.covariance)

@@ -121,18 +121,18 @@ class MappingConfig:
     #: 0.017 m, the simulated room tours' mean ATE 0.0144 against 0.0135 m.
     wheel: WheelNoise | None = None
     #: The motion cost of the odometry's correlative search: the wheels' step (its distance
-    #: scale learned online, as for ``wheel``) with this noise model's covariance ranks the
-    #: candidates (``OdometryConfig2D.prior_covariance_use="search"``), so that where the scan
-    #: barely prefers one pose over another (a corridor's axis, a repeated doorway) the one
-    #: the wheels support is refined; the refinement, verdict and covariance stay the scan's.
-    #: ``None``: the candidates are ranked by the scan alone and the raw wheels predict.
-    #: Unused while ``wheel`` is set (the wheels are then in the solve itself); otherwise the
-    #: odometry runs with ``prior_covariance_use="search"``. Off by default (a TOML table
-    #: ``[motion_cost]`` turns it on): it removes ACES' single-scan spikes (0.0390 → 0.0377–
-    #: 0.0379 m, within a run's ±3 mm) but lets the odometry drift more over long relations
-    #: (ACES before closure 0.0625 → 0.107 m) and reads the Intel excerpt of
-    #: tests/test_mapping.py 0.023 against 0.017 m (benchmarks/README.md, "freiburg_mapping.py").
-    motion_cost: WheelNoise | None = None
+    #: scale and its noise model's variances calibrated on the run against the steps the
+    #: scans pin, :class:`~scanreg.pipeline.wheel.WheelOdometry`) with that covariance ranks
+    #: the candidates (``OdometryConfig2D.prior_covariance_use="search"``), so that where the
+    #: scan barely prefers one pose over another (a corridor's axis, a repeated doorway) the
+    #: one the wheels support is refined; the refinement, verdict and covariance stay the
+    #: scan's. Unused without wheel odometry and while ``wheel`` is set (the wheels are then
+    #: in the solve itself). On by default: without it the Freiburg hospital's odometry lost
+    #: its heading in places (351 steps more than 3° off the wheels'; all relations 10.0 m,
+    #: mapped 9.97 m), with it 1.01 m (mapped 1.02 m); Intel 0.0152 → 0.0154 m, ACES
+    #: 0.0360 → 0.0352 m mapped (benchmarks/README.md, "freiburg_mapping.py"). ``None`` (from
+    #: Python or a dict): the candidates are ranked by the scan alone.
+    motion_cost: WheelNoise | None = field(default_factory=WheelNoise)
     #: The final pass (:meth:`Mapper.finish`, after the batch pass): every scan re-solved
     #: from its scan step and its wheel step, each weighted by step noise identified on the
     #: run itself, with each node's scan held at its loop-closed pose (σ: the drift floors)
@@ -451,15 +451,13 @@ class Mapper:
         if wheel is not None and self._wheels is not None:
             scaled, cov = self._wheels.prior(wheel)
             frame = self._odometry.step(pts, prior=scaled, prior_covariance=cov)
-            if _well_constrained(frame):
-                self._wheels.observe(wheel, frame.motion)
+            self._wheels.observe(wheel, frame.motion, constrained=_well_constrained(frame))
         elif wheel is not None and self._cost_wheels is not None:
             # The wheels' step (rescaled) both predicts and, with its covariance, ranks the
             # correlative candidates; the scan alone refines and is judged.
             scaled, cost = self._cost_wheels.prior(wheel)
             frame = self._odometry.step(pts, prior=scaled, prior_covariance=cost)
-            if _well_constrained(frame):
-                self._cost_wheels.observe(wheel, frame.motion)
+            self._cost_wheels.observe(wheel, frame.motion, constrained=_well_constrained(frame))
         else:
             frame = self._odometry.step(pts, prior=wheel)
         self._pending = SE2.identity()

@@ -87,6 +87,39 @@ def _scaled(wheel: SE2, scale: float) -> SE2:
     return SE2.from_vector([x, y, wheel.angle])
 
 
+@dataclass(frozen=True)
+class ResidualMoments:
+    """Per axis ``[x, y, θ]``, what consecutive step residuals ``r_k = log(W_k⁻¹ S_k)`` say
+    (:func:`residual_moments`)."""
+
+    #: var(ε): one scan's error against its local map, ``−cov(r_k, r_{k−1})`` (≥ 0).
+    scan_variance: FloatArray
+    #: var(r) (about the mean) and the mean of the residuals.
+    variance: FloatArray
+    mean: FloatArray
+    #: ``(n, 3)``: which pairs each axis kept (both residuals within the trim).
+    kept: np.ndarray
+
+
+def residual_moments(here: FloatArray, before: FloatArray) -> ResidualMoments:
+    """The moments of ``(n, 3)`` residuals ``here[k]`` whose step follows ``before[k]``'s,
+    each axis trimmed at :data:`TRIM_PERCENTILE` (module docstring; shared with the wheels'
+    online identification, :class:`~scanreg.pipeline.wheel.WheelOdometry`)."""
+    limit = np.percentile(np.abs(np.vstack([here, before])), TRIM_PERCENTILE, axis=0)
+    kept = (np.abs(here) <= limit) & (np.abs(before) <= limit)
+    var_scan, var, mean = np.zeros(3), np.zeros(3), np.zeros(3)
+    for i in range(3):
+        keep = kept[:, i]
+        mean[i] = float(here[keep, i].mean())
+        a = here[keep, i] - mean[i]
+        b = before[keep, i] - before[keep, i].mean()
+        # A positive lag-one covariance (wheel errors that persist over steps: a heading bias
+        # on a turn) leaves nothing to the scans.
+        var_scan[i] = max(-float(np.mean(a * b)), 0.0)
+        var[i] = float(np.mean(a * a))
+    return ResidualMoments(scan_variance=var_scan, variance=var, mean=mean, kept=kept)
+
+
 def identify_step_noise(
     scan_steps: Sequence[SE2 | None], wheel_steps: Sequence[SE2 | None]
 ) -> StepNoise | None:
@@ -131,21 +164,11 @@ def identify_step_noise(
     ]
     if len(pairs) < MIN_PAIRS:
         return None
-    here = np.array([a for a, _ in pairs])
-    before = np.array([b for _, b in pairs])
-    limit = np.percentile(np.abs(np.vstack([here, before])), TRIM_PERCENTILE, axis=0)
-    var_scan, var_wheel = np.zeros(3), np.zeros(3)
-    for i in range(3):
-        keep = (np.abs(here[:, i]) <= limit[i]) & (np.abs(before[:, i]) <= limit[i])
-        a = here[keep, i] - here[keep, i].mean()
-        b = before[keep, i] - before[keep, i].mean()
-        # A positive lag-one covariance (wheel errors that persist over steps: a heading bias
-        # on a turn) leaves nothing to the scans.
-        var_scan[i] = max(-float(np.mean(a * b)), 0.0)
-        var_wheel[i] = max(float(np.mean(a * a)) - 2.0 * var_scan[i], 0.0)
+    moments = residual_moments(np.array([a for a, _ in pairs]), np.array([b for _, b in pairs]))
+    var_wheel = np.maximum(moments.variance - 2.0 * moments.scan_variance, 0.0)
     return StepNoise(
         scale=float(scale),
-        scan=np.maximum(np.sqrt(var_scan), NOISE_FLOOR),
+        scan=np.maximum(np.sqrt(moments.scan_variance), NOISE_FLOOR),
         wheel=np.maximum(np.sqrt(var_wheel), NOISE_FLOOR),
         pairs=len(pairs),
     )
@@ -202,4 +225,10 @@ def smooth_scan_poses(
     return [SE2.from_vector(rows[i]) for i in order]
 
 
-__all__ = ["StepNoise", "identify_step_noise", "smooth_scan_poses"]
+__all__ = [
+    "ResidualMoments",
+    "StepNoise",
+    "identify_step_noise",
+    "residual_moments",
+    "smooth_scan_poses",
+]

@@ -12,12 +12,23 @@ distance the wheels say, over the recent path. Scan matching pins such a step to
 while the wheels' scale is off by percents (a worn or differently inflated tyre: Intel's
 wheels read 4.6 % long, ACES' 1.3 %); where the scans cannot pin the step (a corridor's axis)
 the scaled wheels are what holds it (:meth:`scanreg.pipeline.Odometry2D.step`'s
-``prior_covariance``). The relations of a benchmark play no part.
+``prior_covariance``).
+
+The noise model's variances are calibrated on the run the same way: how far the wheels'
+prediction actually lands from where the scans put the robot differs by a factor of ten from
+robot to robot (per step of heading: Intel's wheels 0.56°, the Freiburg hospital's 0.10°,
+where a fixed model says 0.06° and 0.2°). From the same well-constrained steps, the residuals
+``r_k = log(W_k⁻¹ S_k)`` give per axis the scans' own error against the map (their lag-one
+covariance, :func:`~scanreg.pipeline.smoothing.residual_moments`) and hence the prediction's
+(the residuals' second moment less that); each axis of the model is rescaled so that over the
+recent steps its variance averages the prediction's. The relations of a benchmark play no
+part.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,6 +37,7 @@ import numpy as np
 from .._validate import FloatArray
 from ..transform import SE2, as_pose
 from .odometry2d import _positive
+from .smoothing import MIN_PAIRS, NOISE_FLOOR, residual_moments
 
 
 @dataclass(frozen=True)
@@ -61,6 +73,9 @@ class WheelNoise:
     #: A learned scale outside ``[1 / max_scale_error, max_scale_error]`` is not used: a
     #: scale so far off is no calibration but a fault (wheels slipping, a wrong unit).
     max_scale_error: float = 1.25
+    #: Rescale the model's variances per axis to what the run shows (module docstring), once
+    #: enough consecutive well-constrained steps were observed; ``False``: the model as set.
+    calibrate_noise: bool = True
 
     def __post_init__(self) -> None:
         for name in ("along", "across", "turn", "heading_per_metre"):
@@ -71,10 +86,11 @@ class WheelNoise:
         _positive(self.max_scale_error, "max_scale_error")
         if self.max_scale_error <= 1.0:
             raise ValueError(f"max_scale_error: must exceed 1, got {self.max_scale_error}")
-        if not isinstance(self.calibrate_scale, bool):
-            raise TypeError(
-                f"calibrate_scale: expected a bool, got {type(self.calibrate_scale).__name__}"
-            )
+        for name in ("calibrate_scale", "calibrate_noise"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(
+                    f"{name}: expected a bool, got {type(getattr(self, name)).__name__}"
+                )
 
     def covariance(self, motion: Any) -> FloatArray:
         """``(3, 3)`` covariance of the increment ``motion`` (``SE2`` or ``3x3``) over its
@@ -98,6 +114,11 @@ class WheelNoise:
 #: A step counts towards the scale when the wheels rolled more than this many times their
 #: distance noise floor.
 _MOVING = 5.0
+#: The noise is calibrated over this many recent observed steps (a few minutes of driving:
+#: enough pairs for a variance to a few percent, recent enough to follow a change of floor) ...
+_NOISE_STEPS = 2000
+#: ... and recomputed every this many observations.
+_NOISE_EVERY = 50
 
 
 class WheelOdometry:
@@ -106,8 +127,7 @@ class WheelOdometry:
     >>> wheels = WheelOdometry(WheelNoise())
     >>> prior, cov = wheels.prior(increment)           # scaled increment and its covariance
     >>> frame = odometry.step(points, prior=prior, prior_covariance=cov)
-    >>> if well_constrained(frame):
-    ...     wheels.observe(increment, frame.motion)      # the raw increment, the scans' step
+    >>> wheels.observe(increment, frame.motion, constrained=well_constrained(frame))
     """
 
     def __init__(self, noise: WheelNoise | None = None) -> None:
@@ -118,6 +138,12 @@ class WheelOdometry:
         self._scanned = 0.0  # the scans' distance along the wheels' direction, faded
         self._rolled = 0.0  # the wheels' distance, faded alike
         self._behind = 0.0  # metres of observed steps in all
+        # The noise calibration: each observed step's residual against the wheels, the model's
+        # variances for it, and whether it directly follows the previous observed step.
+        self._steps: deque[tuple[FloatArray, FloatArray, bool]] = deque(maxlen=_NOISE_STEPS)
+        self._linked = False
+        self._since = 0
+        self._factor = np.ones(3)
 
     @property
     def scale(self) -> float:
@@ -132,6 +158,12 @@ class WheelOdometry:
         return s
 
     @property
+    def noise_factor(self) -> FloatArray:
+        """Per axis ``[x, y, θ]``, the factor the model's variances are multiplied by (ones
+        until calibrated, or with ``calibrate_noise=False``)."""
+        return self._factor.copy()
+
+    @property
     def observed_distance(self) -> float:
         """Metres of well-constrained steps observed so far."""
         return self._behind
@@ -144,14 +176,24 @@ class WheelOdometry:
         s = self.scale
         if s != 1.0:
             motion = SE2.from_rt(motion.rotation, s * motion.translation)
-        return motion, self.noise.covariance(motion)
+        cov = self.noise.covariance(motion)
+        return motion, cov * np.sqrt(np.outer(self._factor, self._factor))
 
-    def observe(self, increment: Any, measured: Any) -> None:
-        """Learn from one step the scans pinned: ``increment`` the wheels' raw ``T_prev_curr``
-        (as given to :meth:`prior`), ``measured`` the scan matcher's. Only the distance along
-        the wheels' direction is compared (the heading is not rescaled)."""
+    def observe(self, increment: Any, measured: Any, *, constrained: bool = True) -> None:
+        """Learn from one step: ``increment`` the wheels' raw ``T_prev_curr`` (as given to
+        :meth:`prior`), ``measured`` the scan matcher's. Only a step the scans pinned
+        (``constrained``: registered, accepted, no weak direction) teaches anything; any
+        other breaks the chain of consecutive steps the noise calibration pairs up. Only the
+        distance along the wheels' direction is compared for the scale (the heading is not
+        rescaled)."""
         wheel = as_pose(increment, "increment", 2)
         scan = as_pose(measured, "measured", 2)
+        assert isinstance(wheel, SE2) and isinstance(scan, SE2)
+        if not constrained:
+            self._linked = False
+            return
+        if self.noise.calibrate_noise:
+            self._observe_noise(wheel, scan)
         d = float(np.linalg.norm(wheel.translation))
         if d < _MOVING * self.noise.floor_translation:
             # Standing or turning on the spot: the wheels' distance is then their floor noise,
@@ -163,6 +205,34 @@ class WheelOdometry:
         self._scanned = fade * self._scanned + along
         self._rolled = fade * self._rolled + d
         self._behind += d
+
+    def _observe_noise(self, wheel: SE2, scan: SE2) -> None:
+        motion, _ = self.prior(wheel)
+        residual = (motion.inverse() @ scan).log()
+        model = np.diag(self.noise.covariance(motion))
+        self._steps.append((residual, model, self._linked))
+        self._linked = True
+        self._since += 1
+        if self._since >= _NOISE_EVERY:
+            self._since = 0
+            self._calibrate()
+
+    def _calibrate(self) -> None:
+        """The model's per-axis factors from the recent steps (module docstring): the
+        prediction's variance (the residuals' second moment less the scans' own variance,
+        floored at what a run can resolve) over the model's mean variance."""
+        linked = [k for k in range(1, len(self._steps)) if self._steps[k][2]]
+        if len(linked) < MIN_PAIRS:
+            return
+        here = np.array([self._steps[k][0] for k in linked])
+        before = np.array([self._steps[k - 1][0] for k in linked])
+        model = np.array([self._steps[k][1] for k in linked])
+        moments = residual_moments(here, before)
+        predicted = moments.variance + moments.mean**2 - moments.scan_variance
+        predicted = np.maximum(predicted, NOISE_FLOOR**2)
+        for i in range(3):
+            kept = moments.kept[:, i]
+            self._factor[i] = predicted[i] / float(model[kept, i].mean())
 
 
 __all__ = ["WheelNoise", "WheelOdometry"]
