@@ -164,3 +164,21 @@ def test_merge_refuses_another_block(
     err = capsys.readouterr().err
     assert "scanreg merge: error: merge: " in err and "no reliable overlap, nothing joined" in err
     assert not (tmp_path / "m").exists()
+
+
+def test_cli_extend_a_3d_map(tmp_path: Path) -> None:
+    """``scanreg map NEW --extend OLD/`` on 3D: a second run over the first one's start (the
+    simulator's same sweeps: the wiring, not the search, is what this tests) joins it."""
+    old, out = tmp_path / "old", tmp_path / "both"
+    assert main(["map", "sim:loop,lap_length=200,frames=40", "-o", str(old), "--json"]) == 0
+    spec = "sim:loop,lap_length=200,frames=25"
+    assert main(["map", spec, "--extend", str(old), "-o", str(out), "--json"]) == EXIT_OK
+    joint = SavedMap.load(out)
+    assert joint.dim == 3 and joint.sessions == ("sim:loop,lap_length=200,frames=40", spec)
+    assert joint.num_scans == 65 and joint.scan_sessions is not None
+    first, second = joint.session_poses(0), joint.session_poses(1)
+    gap = [
+        np.linalg.norm((p.inverse() @ q).translation) for p, q in zip(first, second, strict=False)
+    ]
+    assert max(gap) < 0.05, max(gap)
+    assert sum(bool(r.get("inter_session")) and r["accepted"] for r in joint.loops) >= 2
