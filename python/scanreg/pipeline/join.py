@@ -62,7 +62,8 @@ MAP_VOXEL_SIZE = 0.2
 class JoinReport:
     """How a second session was joined to a saved map (:func:`join_sessions`)."""
 
-    #: Second-map node located by the global search, and its correlative score.
+    #: Second-map node first placed in the first map, and the score that placed it (2D: the
+    #: global search's correlative score; 3D: the Scan Context distance of its place).
     located_node: int
     located_score: float
     #: Inter-session matches tried, and the loops joined (accepted and agreeing).
