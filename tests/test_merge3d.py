@@ -96,6 +96,14 @@ def test_two_drives_merge_against_exact_truth(drives: dict[str, Any]) -> None:
     assert all(
         np.array_equal(p, q) for p, q in zip(merged.node_points, a.node_points or (), strict=False)
     )
+    # Both maps' own edges, as they were (g2o's information convention in and out), then the
+    # inter-session loops.
+    assert merged.graph is not None and a.graph is not None and b.graph is not None
+    own = [*a.graph.edges, *b.graph.edges]
+    offsets = [0] * len(a.graph.edges) + [a.num_nodes] * len(b.graph.edges)
+    for e, f, k in zip(merged.graph.edges, own, offsets, strict=False):
+        assert (e.from_id, e.to_id) == (f.from_id + k, f.to_id + k)
+        np.testing.assert_allclose(e.information, f.information, rtol=1e-9, atol=1e-9)
     # Every scan keeps its own stamp.
     assert np.array_equal(merged.stamps, drives["stamps"])
     # ATE over all 220 scans against the exact truth (≤ 0.10 m asked). Measured: 0.0513 m
