@@ -174,5 +174,5 @@ def test_extend_refuses_another_building_and_old_formats(
     argv = ["map", str(mapped["b_log"]), "--extend", str(out), "-o", str(tmp_path / "x")]
     assert main([*argv, "--json"]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
-    assert "is a format-1 2D map; only a 2D map of format 2" in err, err
+    assert "is a format-1 2D map; a 2D run extends only a 2D map of format 2" in err, err
     assert not (tmp_path / "x").exists()

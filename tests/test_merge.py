@@ -186,7 +186,7 @@ def test_cli_merge_writes_every_scan(
     argv = ["merge", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(tmp_path / "m1")]
     assert main(argv) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
-    assert "b: " in err and "is a format-1 2D map; only 2D maps of format 2" in err, err
+    assert "b: " in err and "is a format-1 2D map; only maps of format 2" in err, err
     assert not (tmp_path / "m1").exists()
     with pytest.raises(TypeError, match="b: expected a SavedMap"):
         merge_maps(a, str(tmp_path / "b"))  # type: ignore[arg-type]

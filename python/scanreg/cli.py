@@ -50,7 +50,7 @@ EXAMPLES = """examples:
   scanreg batch register pairs.parquet --engine ray --address 10.0.0.1:6379 -o out/
   scanreg batch map logs.csv -o maps/        # one map per row (2D logs/bags, 3D sequences)
   scanreg map intel.clf.bz2 -o out/          # 2D mapping with loop closure (CARMEN log)
-  scanreg merge mapA/ mapB/ -o merged/       # two saved 2D maps, unrelated frames, one graph
+  scanreg merge mapA/ mapB/ -o merged/       # two saved maps (2D or 3D), unrelated frames
 """
 
 #: Per-subcommand examples, shown by ``scanreg SUBCOMMAND --help``.
@@ -319,8 +319,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=None,
         metavar="MAP",
-        help="2D: a folder `scanreg map` wrote: locate this run in it from no pose, map it, "
-        "close loops against it and write one map of both sessions (to -o, default MAP)",
+        help="a folder `scanreg map` wrote (2D or 3D, as this run): map this run, locate it "
+        "there from no pose, close loops against it and write one map of both sessions (to -o, "
+        "default MAP)",
     )
     mp.add_argument("--config", type=Path, default=None, help="TOML config (unknown keys fail)")
     mp.add_argument("--max-scans", type=int, default=None, help="stop after N scans")
@@ -369,8 +370,9 @@ def build_parser() -> argparse.ArgumentParser:
     lz.add_argument("--quiet", action="store_true", help="no progress bar on stderr")
     mg = sub.add_parser(
         "merge",
-        help="merge two saved 2D maps made separately (unrelated frames) into one graph: "
-        "inter-session loops by global search, verified and mutually consistent",
+        help="merge two saved maps made separately (both 2D or both 3D, unrelated frames) into "
+        "one graph: inter-session loops by global search (2D) or place recognition and global "
+        "registration (3D), verified and mutually consistent",
     )
     mg.add_argument("a", type=Path, help="the first map's folder (its frame is kept)")
     mg.add_argument("b", type=Path, help="the second map's folder")
@@ -382,7 +384,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--locate-tries",
         type=int,
         default=20,
-        help="B's nodes, spread over its run, the global search tries (default 20)",
+        help="2D: B's nodes, spread over its run, the global search tries (default 20; 3D "
+        "looks every node up by place recognition)",
     )
     mg.add_argument(
         "--min-loops",

@@ -226,6 +226,10 @@ class SavedMap:
             "num_nodes": self.num_nodes,
             "num_edges": 0 if self.graph is None else len(self.graph.edges),
             "loops_accepted": sum(bool(r.get("accepted")) for r in self.loops),
+            # (those closing one session against another: extend, merge)
+            "inter_session_loops": sum(
+                bool(r.get("accepted")) and bool(r.get("inter_session")) for r in self.loops
+            ),
             "has_node_points": self.node_points is not None,
         }
         if self.scan_sessions is not None:

@@ -6,8 +6,8 @@ saved map with global relocalization (:class:`MapLocalizer`); :func:`write_outpu
 mapping run's folder (what ``scanreg map`` writes); :func:`open_scan_log` / :func:`scan_log`
 read a CARMEN log or a LaserScan bag as the 2D pipelines' :class:`~scanreg.io.ScanLog`;
 :func:`check_map` judges a 2D map's consistency without ground truth.
-:func:`extend_map` joins a new run to a saved 2D map, :func:`merge_maps` two saved 2D maps
-made in unrelated frames (one graph, agreeing inter-session loops).
+:func:`extend_map` joins a new run to a saved map, :func:`merge_maps` two saved maps made in
+unrelated frames (2D or 3D; one graph, agreeing inter-session loops).
 :func:`run_odometry_to_folder`, :func:`run_mapping_to_folder`,
 :func:`run_localization_to_folder` and :func:`merge_maps_to_folder` are what ``scanreg
 odometry|map|localize|merge`` do, callable the same way from Python (:mod:`.commands`)."""

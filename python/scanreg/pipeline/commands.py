@@ -7,7 +7,8 @@ the command line only parses its arguments, calls one of these and prints what i
 :func:`run_mapping_to_folder`      ``scanreg map PATH -o OUT`` (2D or 3D, with loop closure;
                                    the folder is a :class:`scanreg.SavedMap`)
 :func:`run_localization_to_folder` ``scanreg localize PATH --map MAP -o OUT``
-:func:`merge_maps_to_folder`       ``scanreg merge A/ B/ -o M/`` (two saved 2D maps, one graph)
+:func:`merge_maps_to_folder`       ``scanreg merge A/ B/ -o M/`` (two saved maps, 2D or 3D, one
+                                   graph)
 :func:`register_files`             ``scanreg register SOURCE TARGET [--global]``
 :func:`registration_summary`       the JSON of ``scanreg register`` for a result
 :func:`describe_input`             ``scanreg info PATH``
@@ -161,10 +162,10 @@ def run_mapping_to_folder(
     :class:`MappingStopped`. A 2D map whose self-check finds it inconsistent is returned
     with ``self_check["consistent"] == False`` and the reasons.
 
-    ``extend``: a saved 2D map's folder: the run is located in it from no initial pose,
-    mapped, closed against it and joined into one graph (:func:`~scanreg.pipeline.extend_map`;
-    the saved map's ``config.toml`` unless ``config`` is given); ``output`` may be that folder
-    (updated in place once the joint map is made)."""
+    ``extend``: a saved map's folder (of the run's dimension): the run is mapped, located
+    in it from no initial pose, closed against it and joined into one graph
+    (:func:`~scanreg.pipeline.extend_map`; the saved map's ``config.toml`` unless ``config``
+    is given); ``output`` may be that folder (updated in place once the joint map is made)."""
     args = SimpleNamespace(
         path=_source(path),
         output=_path(output, "output"),
@@ -986,39 +987,50 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
     from ..saved_map import SavedMap
     from .extend import extend_map
     from .mapping import MappingConfig, MappingInterrupted, run_mapping
+    from .mapping3d import MappingConfig3D, run_mapping_3d
 
-    if three_d:
-        raise ValueError("--extend: only 2D maps can be extended yet")
     for flag in ("bag", "checkpoint"):
         if getattr(args, flag):
             raise ValueError(f"--{flag}: not available with --extend")
     if args.report:
         raise ValueError("--report: not available with --extend")
     saved = SavedMap.load(args.extend)
-    if saved.dim != 2 or saved.node_points is None:
+    dim = 3 if three_d else 2
+    if saved.dim != dim or saved.node_points is None:
         raise ValueError(
             f"--extend: {args.extend} is a format-{saved.format_version} {saved.dim}D map; "
-            "only a 2D map of format 2 (with its node scans) can be extended"
+            f"a {dim}D run extends only a {dim}D map of format 2 (with its node scans)"
         )
     # The saved map's own configuration, unless another is given.
     own = Path(args.extend) / "config.toml"
     config_path = args.config if args.config is not None or not own.is_file() else own
-    config = load_config(MappingConfig, config_path)
-    scans = _scan_log(
-        args,
-        kind=args.kind,
-        max_scans=args.max_scans,
-        latency=config.laser_latency,
-        min_range=config.min_range,
-        max_range=config.max_range,
-    )
-    try:
-        res = run_mapping(scans, config, progress=not (args.quiet or args.json))
-    except MappingInterrupted as exc:
-        raise MappingStopped(
-            f"{exc}; nothing written: the saved map {args.extend}/ is unchanged",
-            interrupted=isinstance(exc.__cause__, KeyboardInterrupt),
-        ) from exc
+    progress = not (args.quiet or args.json)
+    res: Any
+    if three_d:
+        from ..io import open_sequence
+
+        config: Any = load_config(MappingConfig3D, config_path)
+        seq = open_sequence(args.path, topic=args.topic)
+        res = run_mapping_3d(seq, config, max_scans=args.max_scans, progress=progress)
+        described: dict[str, Any] = {"sequence": getattr(seq, "name", str(args.path))}
+    else:
+        config = load_config(MappingConfig, config_path)
+        scans = _scan_log(
+            args,
+            kind=args.kind,
+            max_scans=args.max_scans,
+            latency=config.laser_latency,
+            min_range=config.min_range,
+            max_range=config.max_range,
+        )
+        try:
+            res = run_mapping(scans, config, progress=progress)
+        except MappingInterrupted as exc:
+            raise MappingStopped(
+                f"{exc}; nothing written: the saved map {args.extend}/ is unchanged",
+                interrupted=isinstance(exc.__cause__, KeyboardInterrupt),
+            ) from exc
+        described = {"scans": scans.describe()}
     joint, report = extend_map(saved, res, session=str(args.path), config=config)
     head: dict[str, Any] = {"extended": str(args.extend), "log": str(args.path)}
     tail: dict[str, Any] = {
@@ -1027,7 +1039,7 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
             "num_nodes": len(res.node_scans),
             "loops_accepted": len(res.accepted_loops),
         },
-        "scans": scans.describe(),
+        **described,
     }
     return _write_joint(Path(args.output), joint, report, config, head, tail)
 
@@ -1070,15 +1082,17 @@ def merge_maps_to_folder(
     locate_tries: int = 20,
     min_loops: int = 2,
 ) -> dict[str, Any]:
-    """``scanreg merge A/ B/ -o M/``: two saved 2D map folders (format 2, frames unrelated)
-    merged into one map in ``a``'s frame (:func:`~scanreg.pipeline.merge_maps`), written to
-    ``output`` (which may be ``a``: updated in place); ``a``'s ``config.toml`` unless
-    ``config`` is given. ``M/poses_tum.txt`` holds every scan of both maps with its own stamp,
-    ``M/session_K_poses_tum.txt`` each session's. Maps without a reliable overlap raise
+    """``scanreg merge A/ B/ -o M/``: two saved map folders (format 2, both 2D or both 3D,
+    frames unrelated) merged into one map in ``a``'s frame
+    (:func:`~scanreg.pipeline.merge_maps`), written to ``output`` (which may be ``a``:
+    updated in place); ``a``'s ``config.toml`` unless ``config`` is given. ``M/poses_tum.txt``
+    holds every scan of both maps with its own stamp, ``M/session_K_poses_tum.txt`` each
+    session's. Maps without a reliable overlap raise
     ValueError with the reason, and nothing is written."""
     from ..config import load_config
     from ..saved_map import SavedMap
     from .mapping import MappingConfig
+    from .mapping3d import MappingConfig3D
     from .merge import merge_maps
 
     folders = {"a": _path(a, "a"), "b": _path(b, "b")}
@@ -1090,18 +1104,24 @@ def merge_maps_to_folder(
         if not folder.is_dir():
             raise ValueError(f"{name}: {folder} is not a map folder")
         m = SavedMap.load(folder)
-        if m.dim != 2 or m.node_points is None:
+        if m.node_points is None:
             raise ValueError(
-                f"{name}: {folder} is a format-{m.format_version} {m.dim}D map; only 2D maps "
-                "of format 2 (with their node scans) can be merged"
+                f"{name}: {folder} is a format-{m.format_version} {m.dim}D map; only maps "
+                "of format 2 (with their node scans or clouds) can be merged"
             )
         maps[name] = m
+    if maps["a"].dim != maps["b"].dim:
+        raise ValueError(
+            f"b: {folders['b']} is a {maps['b'].dim}D map and a ({folders['a']}) a "
+            f"{maps['a'].dim}D map; they cannot merge"
+        )
     if out.resolve() == Path(b).resolve():
         raise ValueError(f"output: {out} is map b; merge into a new folder or into a")
     own = Path(a) / "config.toml"
     config_path = _path(config, "config")
     config_path = config_path if config_path is not None or not own.is_file() else own
-    settings = load_config(MappingConfig, config_path)
+    kind = MappingConfig if maps["a"].dim == 2 else MappingConfig3D
+    settings: Any = load_config(kind, config_path)
     joint, report = merge_maps(
         maps["a"], maps["b"], config=settings, locate_tries=locate_tries, min_loops=min_loops
     )

@@ -1,10 +1,13 @@
-"""Extend a saved 2D map with a new run: one graph over both sessions.
+"""Extend a saved map (2D or 3D) with a new run: one graph over both sessions.
 
-:func:`extend_map` takes a :class:`scanreg.SavedMap` (format 2: it keeps its nodes' scans)
-and a new run mapped on its own (:func:`~scanreg.pipeline.run_mapping`, in its own frame),
-and joins them (:func:`~scanreg.pipeline.join.join_sessions`): the new run's first node is
-located in the saved map by the global search (the next nodes if the run starts outside the
-old map), every new node is matched against the nearest old node's submap, the agreeing
+:func:`extend_map` takes a :class:`scanreg.SavedMap` (format 2: it keeps its nodes' scans
+or clouds) and a new run mapped on its own (:func:`~scanreg.pipeline.run_mapping` or
+:func:`~scanreg.pipeline.run_mapping_3d`, in its own frame), and joins them
+(:func:`~scanreg.pipeline.join.join_sessions`): 2D, the new run's first node is located in
+the saved map by the global search (the next nodes if the run starts outside the old map),
+every new node is matched against the nearest old node's submap; 3D, the new nodes are looked
+up by place recognition and global registration (:mod:`~scanreg.pipeline.join3d`); the
+agreeing
 inter-session loops close one graph in which the old nodes keep their ids. A new run that
 fewer than ``min_loops`` agreeing matches place in the old map is refused: nothing is written
 that would pretend to be one map. (:func:`~scanreg.pipeline.merge_maps` is the same join for
@@ -19,6 +22,7 @@ from typing import Any
 from ..saved_map import SavedMap
 from .join import JoinReport, join_sessions
 from .mapping import MappingConfig, MappingResult
+from .mapping3d import MappingConfig3D
 
 #: How a new run was joined (:func:`extend_map`).
 ExtendReport = JoinReport
@@ -29,7 +33,7 @@ def extend_map(
     result: MappingResult[Any] | SavedMap,
     *,
     session: str | None = None,
-    config: MappingConfig | None = None,
+    config: MappingConfig | MappingConfig3D | None = None,
     locate_tries: int = 10,
     max_distance: float = 2.0,
     prior_sigma: tuple[float, float] = (0.3, math.radians(5.0)),
@@ -41,7 +45,7 @@ def extend_map(
     :class:`~scanreg.pipeline.MappingResult` (named ``session``) or a saved map of format 2
     (its sessions kept).
 
-    ``locate_tries``: the new run's first nodes the global search tries; ``max_distance``,
+    ``locate_tries`` (2D): the new run's first nodes the global search tries; ``max_distance``,
     ``prior_sigma``, ``window``, ``min_loops``: as :func:`~scanreg.pipeline.join.join_sessions`
     takes them (``min_loops`` agreeing inter-session loops are needed to join)."""
     if not isinstance(saved, SavedMap):
@@ -56,8 +60,8 @@ def extend_map(
         raise TypeError(
             f"result: expected a MappingResult or SavedMap, got {type(result).__name__}"
         )
-    if saved.dim != 2 or new.dim != 2:
-        raise ValueError("extend: only 2D maps can be extended yet")
+    if saved.dim != new.dim:
+        raise ValueError(f"extend: a {saved.dim}D map cannot be extended with a {new.dim}D run")
     if isinstance(locate_tries, bool) or not isinstance(locate_tries, int) or locate_tries < 1:
         raise ValueError(f"locate_tries: expected an int >= 1, got {locate_tries!r}")
     return join_sessions(

@@ -1,17 +1,22 @@
-"""Join a second 2D session to a saved map: one graph over both (what ``extend`` and
+"""Join a second session to a saved map, 2D or 3D: one graph over both (what ``extend`` and
 ``merge`` share).
 
 :func:`join_sessions` takes two :class:`scanreg.SavedMap` of format 2 (they keep their nodes'
-scans), each in its own frame — the frames need have nothing to do with each other:
+scans or clouds), each in its own frame — the frames need have nothing to do with each other.
+Steps 1-2 find inter-session loop candidates, each dimension its own way; 3-4 are shared:
 
-1. **locate** — nodes of the second map are searched for over the whole first map at any
+1. **locate** — 2D: nodes of the second map are searched for over the whole first map at any
    heading (:meth:`Localizer2D.relocalize`, the global search ``scanreg localize`` uses),
-   until the verdict accepts one;
-2. **close** — from the located node forward, then back from it to the second map's start,
-   every node is matched against the submap of its nearest node of the first map, from the
-   pose the latest fix predicts (:func:`~scanreg.pipeline.loops.match_loop`: correlative
+   until the verdict accepts one. 3D (:mod:`~scanreg.pipeline.join3d`): every node of the
+   second map is looked up among the first's by Scan Context, and each place retrieved is
+   matched from :func:`scanreg.register_global`'s pose (then GICP, the verdict);
+2. **close** — 2D: from the located node forward, then back from it to the second map's
+   start, every node is matched against the submap of its nearest node of the first map, from
+   the pose the latest fix predicts (:func:`~scanreg.pipeline.loops.match_loop`: correlative
    search, point-to-line refinement, verdict, χ² against a generous prior); accepted matches
-   refresh the fix, so the second session's own drift stays small against the search window;
+   refresh the fix, so the second session's own drift stays small against the search window.
+   3D: the nodes place recognition missed are matched the same way, by GICP from the fix of
+   the nearest node it placed;
 3. **agree** — the accepted inter-session loops must tell one story: the largest set that
    agrees with one of them (:func:`~scanreg.pipeline.loops.loops_agree`: each pair's cycle
    through both sessions' own graphs closes) is kept, the others are recorded as rejected;
@@ -29,8 +34,9 @@ after is kept).
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,19 +46,24 @@ from .._validate import FloatArray
 from ..io.g2o import PoseGraph, PoseGraphEdge
 from ..io.occupancy import occupancy_grid
 from ..saved_map import SavedMap
-from ..transform import SE2
-from .loops import LoopMatch, LoopSettings, loops_agree, match_loop
+from ..transform import SE2, SE3
+from .loops import AgreementTolerances, LoopMatch, loops_agree, match_loop
 from .mapping import MappingConfig
+from .mapping3d import MappingConfig3D
 
 #: Why an accepted inter-session match was left out of the graph.
 DISAGREES = "disagrees with the other inter-session loops"
+#: The voxel (m) of a joint 3D map's cloud (``scanreg map``'s ``--voxel-size`` default: a
+#: saved map does not record the one it was made with).
+MAP_VOXEL_SIZE = 0.2
 
 
 @dataclass(frozen=True)
 class JoinReport:
     """How a second session was joined to a saved map (:func:`join_sessions`)."""
 
-    #: Second-map node located by the global search, and its correlative score.
+    #: Second-map node first placed in the first map, and the score that placed it (2D: the
+    #: global search's correlative score; 3D: the Scan Context distance of its place).
     located_node: int
     located_score: float
     #: Inter-session matches tried, and the loops joined (accepted and agreeing).
@@ -74,16 +85,34 @@ class JoinReport:
 
 
 def check_joinable(m: SavedMap, name: str) -> None:
-    """Raise ValueError naming ``name`` unless ``m`` is a 2D map that keeps its node scans."""
+    """Raise ValueError naming ``name`` unless ``m`` is a map that keeps its node scans (2D)
+    or clouds (3D)."""
     if not isinstance(m, SavedMap):
         raise TypeError(f"{name}: expected a SavedMap, got {type(m).__name__}")
-    if m.dim != 2:
-        raise ValueError(f"{name}: only 2D maps can be joined yet (got a {m.dim}D map)")
     if m.node_points is None or m.node_scans is None or m.graph is None:
         raise ValueError(
             f"{name}: a format-{m.format_version} map keeps no node scans; it cannot be "
             "joined (map its run again to write format 2)"
         )
+
+
+@dataclass
+class Closure:
+    """What one way of closing a second session against a saved map found (2D:
+    :func:`_close_2d`; 3D: :func:`~scanreg.pipeline.join3d.close_3d`), before the agreement
+    test: the matches the verdict accepted, in the order their records hold them."""
+
+    #: Second-map node first placed in the saved map, and the score that placed it.
+    located_node: int
+    located_score: float
+    #: Every candidate as a ``loops.jsonl`` record (node ids of the joint map).
+    records: list[dict[str, Any]]
+    #: The accepted matches (``submap_node``: a saved node; ``node``: ``K_saved + n``) ...
+    matches: list[Any]
+    #: ... and the ``T_saved_new`` each implies.
+    fixes: list[SE2 | SE3]
+    #: How the location was found, for the refusal's message.
+    located: str
 
 
 def _locate(
@@ -124,11 +153,12 @@ def _scan_nodes(node_scans: tuple[int, ...], num_scans: int) -> FloatArray:
 
 
 def agreeing_loops(
-    matches: Sequence[LoopMatch], poses: dict[int, SE2], settings: LoopSettings
+    matches: Sequence[Any], poses: Mapping[int, SE2 | SE3], settings: AgreementTolerances
 ) -> list[int]:
     """Indices of the largest set of ``matches`` that all agree with one of them (the one
     most others agree with; ties: the earliest), in order. ``poses``: every node's pose in its
-    own session's graph (the legs between two matches' nodes stay within one session)."""
+    own session's graph (the legs between two matches' nodes stay within one session). 2D or
+    3D matches alike (:func:`~scanreg.pipeline.loops.loops_agree`)."""
     best: list[int] = []
     for i, first in enumerate(matches):
         group = [
@@ -141,68 +171,38 @@ def agreeing_loops(
     return best
 
 
-def join_sessions(
+def _close_2d(
     saved: SavedMap,
     new: SavedMap,
+    cfg: MappingConfig,
+    nodes: Sequence[int],
     *,
-    config: MappingConfig | None = None,
-    locate_nodes: Sequence[int] = range(10),
-    max_distance: float = 2.0,
-    prior_sigma: tuple[float, float] = (0.3, math.radians(5.0)),
-    window: tuple[float, float] = (1.0, math.radians(15.0)),
-    min_loops: int = 2,
-    verb: str = "join",
-) -> tuple[SavedMap, JoinReport]:
-    """``saved`` and ``new`` (each a 2D map of format 2, in any frames) as one map in
-    ``saved``'s frame (module docstring): returns the joint :class:`~scanreg.SavedMap` (the
-    sessions of both) and how they were joined. Raises ValueError starting with ``verb`` and
-    saying why when there is no reliable overlap.
-
-    ``locate_nodes``: the new map's nodes the global search tries, in order;
-    ``max_distance``: a new node is matched against its nearest old node when that lies
-    within this (m) of where the fix puts it; ``prior_sigma`` (m, rad): the fix's assumed
-    uncertainty per axis (the χ² test's prior); ``window`` (m, rad): the search half-widths;
-    ``min_loops``: the agreeing inter-session loops needed to join (one alone could be a
-    look-alike: the global search placed an ACES excerpt in an Intel map, and one loop would
-    have followed it)."""
-    from ..graph import Graph
-
-    check_joinable(saved, "saved")
-    check_joinable(new, "new")
-    clash = set(new.sessions) & set(saved.sessions)
-    if clash or not new.sessions:
-        raise ValueError(f"session: expected a new, non-empty name, got {sorted(clash)}")
-    assert new.node_points is not None and new.node_scans is not None and new.graph is not None
-    assert saved.node_points is not None and saved.node_scans is not None
-    assert saved.graph is not None and saved.grid is not None
-    if isinstance(min_loops, bool) or not isinstance(min_loops, int) or min_loops < 1:
-        raise ValueError(f"min_loops: expected an int >= 1, got {min_loops!r}")
-    nodes = [int(n) for n in locate_nodes if 0 <= int(n) < new.num_nodes]
-    if not nodes:
-        raise ValueError(f"locate_nodes: expected node ids 0..{new.num_nodes - 1}")
-    cfg = MappingConfig() if config is None else config
+    max_distance: float,
+    prior_sigma: tuple[float, float],
+    window: tuple[float, float],
+    verb: str,
+) -> Closure:
+    """2D: locate by the global search, then match every node from the fix (module
+    docstring, steps 1-2)."""
+    assert new.node_points is not None and new.node_scans is not None
+    assert saved.node_scans is not None
     located, found, score = _locate(saved, new, nodes, verb)
-
-    old_ids = sorted(saved.graph.vertices)
-    k_old = len(old_ids)
-    if old_ids != list(range(k_old)):
-        raise ValueError("saved: its graph's node ids are not 0..K-1")
-    old_poses: list[SE2] = [saved.graph.vertices[k] for k in old_ids]  # type: ignore[misc]
+    old_poses: list[SE2] = list(saved.node_poses)  # type: ignore[arg-type]
+    k_old = len(old_poses)
     old_xy = np.array([p.translation for p in old_poses])
     new_poses: list[SE2] = list(new.node_poses)  # type: ignore[arg-type]
-
     settings = cfg.loops
     prior = np.diag([prior_sigma[0] ** 2, prior_sigma[0] ** 2, prior_sigma[1] ** 2])
     records: list[dict[str, Any]] = []
     matches: list[LoopMatch] = []
-    fixes: list[SE2] = []  # T_saved_new each accepted match implies
+    fixes: list[SE2 | SE3] = []  # T_saved_new each accepted match implies
     submaps: dict[int, Any] = {}
     # Forward from the located node, then back from it: the fix is freshest where it starts.
     order = [*range(located, len(new_poses)), *range(located - 1, -1, -1)]
     transform = found
     for n in order:
         if n == located - 1:
-            transform = fixes[0] if fixes else found
+            transform = fixes[0] if fixes else found  # type: ignore[assignment]
         pose = new_poses[n]
         pts = new.node_points[n]
         if len(pts) < 3:
@@ -241,30 +241,150 @@ def join_sessions(
             # The fix follows the second session: its drift since the last match stays small.
             transform = old_poses[anchor] @ match.measured @ pose.inverse()
             fixes.append(transform)
-    accepted_records = [r for r in records if r["accepted"]]
-    poses = {k: p for k, p in enumerate(old_poses)}
-    poses.update({k_old + n: p for n, p in enumerate(new_poses)})
+    return Closure(
+        located,
+        score,
+        records,
+        matches,
+        fixes,
+        f"located at node {located} of the second map (score {score:.2f})",
+    )
+
+
+def join_sessions(
+    saved: SavedMap,
+    new: SavedMap,
+    *,
+    config: MappingConfig | MappingConfig3D | None = None,
+    locate_nodes: Sequence[int] = range(10),
+    max_distance: float = 2.0,
+    prior_sigma: tuple[float, float] = (0.3, math.radians(5.0)),
+    window: tuple[float, float] = (1.0, math.radians(15.0)),
+    min_loops: int = 2,
+    verb: str = "join",
+) -> tuple[SavedMap, JoinReport]:
+    """``saved`` and ``new`` (two 2D or two 3D maps of format 2, in any frames) as one map in
+    ``saved``'s frame (module docstring): returns the joint :class:`~scanreg.SavedMap` (the
+    sessions of both) and how they were joined. Raises ValueError starting with ``verb`` and
+    saying why when there is no reliable overlap.
+
+    2D: ``locate_nodes``: the new map's nodes the global search tries, in order;
+    ``max_distance``: a new node is matched against its nearest old node when that lies
+    within this (m) of where the fix puts it; ``prior_sigma`` (m, rad): the fix's assumed
+    uncertainty per axis (the χ² test's prior); ``window`` (m, rad): the search half-widths.
+    3D (:func:`~scanreg.pipeline.join3d.close_3d`): every new node is looked up by place
+    recognition; ``max_distance`` and ``prior_sigma`` then serve the nodes it missed, matched
+    from the fix (``locate_nodes`` and ``window`` are 2D's). ``min_loops``: the agreeing
+    inter-session loops needed to join (one alone could be a look-alike: the global search
+    placed an ACES excerpt in an Intel map, and one loop would have followed it).
+    ``config``: the mapping settings of the maps' dimension (defaults if ``None``)."""
+    check_joinable(saved, "saved")
+    check_joinable(new, "new")
+    if saved.dim != new.dim:
+        raise ValueError(f"{verb}: a {saved.dim}D map and a {new.dim}D map cannot be joined")
+    clash = set(new.sessions) & set(saved.sessions)
+    if clash or not new.sessions:
+        raise ValueError(f"session: expected a new, non-empty name, got {sorted(clash)}")
+    if isinstance(min_loops, bool) or not isinstance(min_loops, int) or min_loops < 1:
+        raise ValueError(f"min_loops: expected an int >= 1, got {min_loops!r}")
+    assert saved.graph is not None
+    k_old = saved.num_nodes
+    if sorted(saved.graph.vertices) != list(range(k_old)):
+        raise ValueError("saved: its graph's node ids are not 0..K-1")
+    if saved.dim == 2:
+        cfg2 = MappingConfig() if config is None else config
+        if not isinstance(cfg2, MappingConfig):
+            raise TypeError(f"config: expected MappingConfig, got {type(cfg2).__name__}")
+        nodes = [int(n) for n in locate_nodes if 0 <= int(n) < new.num_nodes]
+        if not nodes:
+            raise ValueError(f"locate_nodes: expected node ids 0..{new.num_nodes - 1}")
+        closure = _close_2d(
+            saved,
+            new,
+            cfg2,
+            nodes,
+            max_distance=max_distance,
+            prior_sigma=prior_sigma,
+            window=window,
+            verb=verb,
+        )
+        settings: AgreementTolerances = cfg2.loops
+        kernel = cfg2.loop_kernel
+    else:
+        from .join3d import close_3d
+
+        cfg3 = MappingConfig3D() if config is None else config
+        if not isinstance(cfg3, MappingConfig3D):
+            raise TypeError(f"config: expected MappingConfig3D, got {type(cfg3).__name__}")
+        closure = close_3d(
+            saved,
+            new,
+            cfg3,
+            max_distance=max_distance,
+            prior_sigma=prior_sigma,
+            min_loops=min_loops,
+            verb=verb,
+        )
+        settings = cfg3.loops
+        kernel = cfg3.loop_kernel
+
+    # 3. agree: the accepted inter-session loops must tell one story.
+    matches, records = closure.matches, closure.records
+    poses: dict[int, SE2 | SE3] = dict(enumerate(saved.node_poses))
+    poses.update({k_old + n: p for n, p in enumerate(new.node_poses)})
     kept = agreeing_loops(matches, poses, settings)
+    accepted_records = [r for r in records if r["accepted"]]
     for i, record in enumerate(accepted_records):
         if i not in kept:
             record["accepted"] = False
             record["reasons"] = [*record["reasons"], DISAGREES]
     if len(kept) < min_loops:
         raise ValueError(
-            f"{verb}: located at node {located} of the second map (score {score:.2f}) but "
-            f"{len(matches)} of {len(records)} of its nodes' scans matched the first map "
-            f"(within {max_distance} m), {len(kept)} of them agreeing ({min_loops} needed): "
-            "no reliable overlap, nothing joined"
+            f"{verb}: {closure.located} but {len(matches)} of {len(records)} of its nodes' "
+            f"scans matched the first map (within {max_distance} m), {len(kept)} of them "
+            f"agreeing ({min_loops} needed): no reliable overlap, nothing joined"
         )
+    joined = _joint_map(saved, new, [matches[i] for i in kept], closure.fixes[kept[0]], kernel)
+    joined = dataclasses.replace(joined, loops=(*joined.loops, *records))
+    report = JoinReport(
+        closure.located_node,
+        closure.located_score,
+        len(records),
+        len(kept),
+        len(matches) - len(kept),
+        tuple(records),
+    )
+    return joined, report
 
-    g = Graph(2)
+
+#: g2o's 3D rotation error is half the rotation vector: a saved graph's information is
+#: ``D Λ D`` of the graph's own (:func:`scanreg.io.g2o.g2o_information`).
+_G2O_SCALE = {2: np.ones(3), 3: np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])}
+
+
+def _joint_map(
+    saved: SavedMap, new: SavedMap, loops: Sequence[Any], start: SE2 | SE3, kernel: Any
+) -> SavedMap:
+    """Step 4 (module docstring): one graph over both maps' nodes and edges and the agreeing
+    ``loops``, the new nodes starting at ``start @ pose``; every scan laid on its node; the
+    map (2D grid, 3D cloud and places) made again from the nodes at their joint poses."""
+    from ..graph import Graph
+
+    assert saved.graph is not None and new.graph is not None
+    assert saved.node_points is not None and saved.node_scans is not None
+    assert new.node_points is not None and new.node_scans is not None
+    dim = saved.dim
+    scale = _G2O_SCALE[dim]
+    old_poses = list(saved.node_poses)
+    new_poses = list(new.node_poses)
+    k_old = len(old_poses)
+    g = Graph(dim)
     for k, p in enumerate(old_poses):
         g.add_node(k, p)
-    g.add_prior(0, old_poses[0], 1e6 * np.eye(3))
-    start = fixes[kept[0]]  # the graph starts from the first agreeing loop's fix
+    g.add_prior(0, old_poses[0], 1e6 * np.eye(len(scale)))
+    fix: Any = start  # (of the maps' dimension, as their poses)
     for n, p in enumerate(new_poses):
-        g.add_node(k_old + n, start @ p)
-    kernel = cfg.loop_kernel
+        g.add_node(k_old + n, fix @ p)
     for offset, graph in ((0, saved.graph), (k_old, new.graph)):
         for e in graph.edges:
             loop = abs(e.to_id - e.from_id) != 1
@@ -272,20 +392,19 @@ def join_sessions(
                 offset + e.from_id,
                 offset + e.to_id,
                 e.measurement,
-                e.information,
+                e.information / np.outer(scale, scale),
                 kind="loop" if loop else "odometry",
                 kernel=kernel if loop else None,
             )
-    for i in kept:  # (no kernel: verified by agreement; see the module docstring)
-        m = matches[i]
+    for m in loops:  # (no kernel: verified by agreement; see the module docstring)
         g.add_edge(m.submap_node, m.node, m.measured, m.information, kind="loop")
     g.optimize()
     joint = g.poses()
-    node_poses: list[SE2] = [joint[k] for k in range(k_old + len(new_poses))]  # type: ignore[misc]
+    node_poses = [joint[k] for k in range(k_old + len(new_poses))]
 
     def moved(
-        poses: tuple[Any, ...], node_scans: tuple[int, ...], before: list[SE2], offset: int
-    ) -> list[SE2]:
+        poses: tuple[Any, ...], node_scans: tuple[int, ...], before: list[Any], offset: int
+    ) -> list[Any]:
         owner = _scan_nodes(node_scans, len(poses))
         return [
             node_poses[offset + int(o)] @ before[int(o)].inverse() @ p
@@ -295,9 +414,10 @@ def join_sessions(
     scan_poses = moved(saved.poses, saved.node_scans, old_poses, 0)
     new_scan_poses = moved(new.poses, new.node_scans, new_poses, k_old)
     node_points = (*saved.node_points, *new.node_points)
-    grid = occupancy_grid(node_poses, list(node_points), resolution=saved.grid.resolution)
     graph_edges = tuple(
-        PoseGraphEdge(e.i, e.j, e.measurement, e.information) for e in g.edges if e.kind != "prior"
+        PoseGraphEdge(e.i, e.j, e.measurement, e.information * np.outer(scale, scale))
+        for e in g.edges
+        if e.kind != "prior"
     )
     new_loops = []
     for r in new.loops:
@@ -307,8 +427,23 @@ def join_sessions(
         for key in ("submap_scan", "scan"):
             rec[key] += saved.num_scans
         new_loops.append(rec)
-    joined = SavedMap(
-        dim=2,
+    grid = map_points = places = None
+    if dim == 2:
+        assert saved.grid is not None
+        grid = occupancy_grid(
+            node_poses,  # type: ignore[arg-type]
+            list(node_points),
+            resolution=saved.grid.resolution,
+        )
+    else:
+        from ..saved_map import Places
+        from .mapping_output import map_cloud, places_of_nodes
+
+        cloud = map_cloud(node_poses, node_points, MAP_VOXEL_SIZE)
+        map_points = np.ascontiguousarray(cloud.astype(np.float32).astype(np.float64))
+        places = Places(*places_of_nodes(node_poses, node_points))
+    return SavedMap(
+        dim=dim,
         poses=(*scan_poses, *new_scan_poses),
         stamps=np.concatenate([saved.stamps, new.stamps]),
         graph=PoseGraph(dict(enumerate(node_poses)), graph_edges, frozenset({0})),
@@ -320,17 +455,10 @@ def join_sessions(
             [_sessions_of(saved), len(saved.sessions) + _sessions_of(new)]
         ),
         grid=grid,
-        loops=(*saved.loops, *new_loops, *records),
+        map_points=map_points,
+        places=places,
+        loops=(*saved.loops, *new_loops),
     )
-    report = JoinReport(
-        located,
-        score,
-        len(records),
-        len(kept),
-        len(matches) - len(kept),
-        tuple(records),
-    )
-    return joined, report
 
 
 def _sessions_of(m: SavedMap) -> np.ndarray[Any, np.dtype[np.int64]]:
@@ -339,4 +467,11 @@ def _sessions_of(m: SavedMap) -> np.ndarray[Any, np.dtype[np.int64]]:
     return m.scan_sessions
 
 
-__all__ = ["DISAGREES", "JoinReport", "agreeing_loops", "check_joinable", "join_sessions"]
+__all__ = [
+    "DISAGREES",
+    "Closure",
+    "JoinReport",
+    "agreeing_loops",
+    "check_joinable",
+    "join_sessions",
+]

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -384,28 +384,48 @@ def _not_found(
     )
 
 
+class AgreementTolerances(Protocol):
+    """What :func:`loops_agree` reads of a loop setting (2D :class:`LoopSettings` and 3D
+    :class:`~scanreg.pipeline.loops3d.LoopSettings3D` both carry it)."""
+
+    @property
+    def agreement(self) -> tuple[float, float]: ...
+    @property
+    def agreement_per_metre(self) -> tuple[float, float]: ...
+
+
+class _Loop(Protocol):
+    """The fields of a loop match :func:`loops_agree` reads (2D or 3D)."""
+
+    @property
+    def submap_node(self) -> int: ...
+    @property
+    def node(self) -> int: ...
+    @property
+    def measured(self) -> SE2 | SE3: ...
+
+
 def loops_agree(
-    first: LoopMatch,
-    second: LoopMatch,
+    first: _Loop,
+    second: _Loop,
     poses: Mapping[int, SE2 | SE3],
-    settings: LoopSettings,
+    settings: AgreementTolerances,
 ) -> bool:
     """Whether two loop matches tell the same story: the cycle ``submap₁ → node₁ → node₂ →
     submap₂ → submap₁`` closes, with the graph's ``poses`` for the two short legs between the
     nodes and between the submaps. Each leg is locally consistent even when the graph as a
     whole has drifted, so two true loops agree whatever the drift, and two false ones rarely
     do (pairwise consistency, as in Olson's single-cluster graph partitioning and Mangelson's
-    PCM)."""
+    PCM). 2D (SE2) or 3D (SE3) alike: the rotation compared is the cycle's angle."""
 
-    def leg(i: int, j: int) -> SE2:
-        start, end = poses[i], poses[j]
-        assert isinstance(start, SE2) and isinstance(end, SE2)
-        return start.inverse() @ end
+    def leg(i: int, j: int) -> Any:
+        start: Any = poses[i]  # (both SE2 or both SE3)
+        return start.inverse() @ poses[j]
 
     t_a = leg(first.submap_node, second.submap_node)
     t_n = leg(first.node, second.node)
     cycle = first.measured.inverse() @ t_a @ second.measured @ t_n.inverse()
-    assert isinstance(cycle, SE2)
+    assert isinstance(cycle, SE2 | SE3)
     span = float(np.linalg.norm(t_a.translation) + np.linalg.norm(t_n.translation))
     (tol_t, tol_r), (per_t, per_r) = settings.agreement, settings.agreement_per_metre
     return bool(

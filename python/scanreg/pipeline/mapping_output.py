@@ -66,10 +66,18 @@ def map_points_3d(result: MappingResult[Any], voxel_size: float = 0.2) -> FloatA
     ``voxel_size`` (m; 0 keeps every point)."""
     if result.graph.dim != 3:
         raise ValueError("result: map_points_3d needs a 3D run (an SE3 graph)")
+    node_poses = result.graph.poses()
+    return map_cloud(
+        [node_poses[n] for n in range(len(result.node_points))], result.node_points, voxel_size
+    )
+
+
+def map_cloud(node_poses: Any, node_points: Any, voxel_size: float = 0.2) -> FloatArray:
+    """Node clouds (each in its node's frame) laid at ``node_poses`` (``T_world_node``, one
+    per cloud) and voxelized to ``voxel_size`` (m; 0 keeps every point): a 3D map."""
     if not (math.isfinite(voxel_size) and voxel_size >= 0):
         raise ValueError(f"voxel_size: must be finite and >= 0, got {voxel_size}")
-    node_poses = result.graph.poses()
-    parts = [node_poses[n].apply(pts) for n, pts in enumerate(result.node_points)]
+    parts = [pose.apply(pts) for pose, pts in zip(node_poses, node_points, strict=True)]
     pts = np.ascontiguousarray(np.vstack(parts))
     if voxel_size > 0:
         pts = np.ascontiguousarray(voxel_downsample(pts, voxel_size).points)
@@ -81,15 +89,30 @@ def places_of(result: MappingResult[Any]) -> tuple[FloatArray, FloatArray, float
     ``T_world_node``, ``descriptors`` ``(K, rings, sectors)`` their Scan Context (computed from
     the node clouds, out to ``max_radius``: as far as the keyframes reach, at most 80 m),
     ``max_radius`` and ``height_offset``."""
-    from ..place import PlaceDatabase
-
     if result.graph.dim != 3:
         raise ValueError("result: places_of needs a 3D run (an SE3 graph)")
-    reach = max(float(np.hypot(p[:, 0], p[:, 1]).max()) for p in result.node_points if len(p))
-    db = PlaceDatabase(max_radius=min(80.0, max(reach, 1.0)))
     node_poses = result.graph.poses()
-    descriptors = np.array([db.describe(p).descriptor for p in result.node_points])
-    poses = np.array([node_poses[n].as_matrix() for n in range(len(result.node_points))])
+    return places_of_nodes(
+        [node_poses[n] for n in range(len(result.node_points))], result.node_points
+    )
+
+
+def place_layout(node_points: Any) -> Any:
+    """The :class:`~scanreg.place.PlaceDatabase` (empty) whose layout a map's nodes are
+    described with: out to as far as the keyframes reach, at most 80 m."""
+    from ..place import PlaceDatabase
+
+    reach = max(float(np.hypot(p[:, 0], p[:, 1]).max()) for p in node_points if len(p))
+    return PlaceDatabase(max_radius=min(80.0, max(reach, 1.0)))
+
+
+def places_of_nodes(
+    node_poses: Any, node_points: Any
+) -> tuple[FloatArray, FloatArray, float, float]:
+    """:func:`places_of` for nodes given as poses (``T_world_node``) and clouds (own frame)."""
+    db = place_layout(node_points)
+    descriptors = np.array([db.describe(p).descriptor for p in node_points])
+    poses = np.array([p.as_matrix() for p in node_poses])
     return poses, descriptors, float(db.max_radius), float(db.height_offset)
 
 
