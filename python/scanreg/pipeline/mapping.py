@@ -44,7 +44,7 @@ import dataclasses
 import math
 import time
 from collections import OrderedDict, deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
@@ -591,25 +591,20 @@ class Mapper:
         limit = cfg.max_candidates if limit is None else limit
         near = np.flatnonzero(d <= reach)
         order = near[np.argsort(d[near], kind="stable")]
-        # Nearest first, but a node that could not have seen most of this scan from where the
-        # graph puts it (a 180° laser passing the same spot the other way) only after the
-        # others: its match is doomed and would take a candidate's place.
-        seen = np.array([self._visible(node, here, old[n], int(n)) for n in order])
-        order = np.concatenate([order[seen >= 0.5], order[seen < 0.5]])
         gated: list[tuple[float, int]] = []
         # Each test beyond the range costs a joint marginal (milliseconds on a large graph):
         # a few per node, nearest first (a drifting graph's marginals let hundreds in).
-        tests = _GATE_TESTS_PER_CANDIDATE * limit
-        for n in order:
+        tests = [_GATE_TESTS_PER_CANDIDATE * limit]  # shared with _seen_first, which reads it
+        for n in self._seen_first(node, here, old, order, d, fixed, tests):
             if len(gated) >= limit:
                 break
             dist = float(d[n])
             if fixed or dist <= cfg.loop_max_range:
                 gated.append((dist, int(n)))
                 continue
-            if tests == 0:
+            if tests[0] == 0:
                 continue
-            tests -= 1
+            tests[0] -= 1
             # Beyond the range: a Mahalanobis test on the relative pose's joint marginal.
             cov = g.relative_covariance(int(n), node)
             c, s = math.cos(old[n, 2]), math.sin(old[n, 2])
@@ -619,6 +614,33 @@ class Mapper:
             if (dist - cfg.loop_max_range) / sigma <= cfg.loop_gate_sigmas:
                 gated.append((dist, int(n)))
         return gated
+
+    def _seen_first(
+        self,
+        node: int,
+        here: FloatArray,
+        old: FloatArray,
+        order: np.ndarray,
+        d: FloatArray,
+        fixed: bool,
+        tests_left: list[int],
+    ) -> Iterator[int]:
+        """``order`` (nearest first), but a node that could not have seen most of this scan
+        from where the graph puts it (a 180° laser passing the same spot the other way) only
+        after the others: its match is doomed and would take a candidate's place. Lazily: the
+        visibility of the far nodes, which most searches never reach, is not computed; past
+        ``loop_max_range`` with no gate test left (``tests_left[0]``, spent by the caller as
+        it goes) no later node can be a candidate (unless ``fixed``), so the seen ones stop
+        there and the deferred ones follow."""
+        deferred = []
+        for n in order:
+            if not fixed and d[n] > self.config.loop_max_range and tests_left[0] == 0:
+                break
+            if self._visible(node, here, old[n], int(n)) >= 0.5:
+                yield n
+            else:
+                deferred.append(n)
+        yield from deferred
 
     def _visible(self, node: int, here: FloatArray, there: FloatArray, other: int) -> float:
         """The fraction of ``node``'s points that lie outside ``other``'s blind sector (the
