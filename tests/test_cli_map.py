@@ -80,7 +80,10 @@ def test_map_end_to_end(
     topics = {t.name: t for t in list_topics(bag)}
     assert topics["/scanreg/grid"].msgtype == "nav_msgs/msg/OccupancyGrid"
     assert topics["/scanreg/odometry"].message_count == result["num_nodes"]
-    assert ("/scanreg/loop_closures" in topics) == bool(result["loops_accepted"])
+    # Latched once when the run matched any loop (accepted or rejected: both are drawn).
+    assert ("/scanreg/loop_closures" in topics) == bool(
+        result["loops_accepted"] + result["loops_rejected"]
+    )
     assert result["outputs"]["bag"] == str(bag)
     report = Path(result["outputs"]["report"]).read_text(encoding="utf-8")
     assert report.startswith("<!DOCTYPE html>") and "plotly" in report

@@ -710,7 +710,14 @@ class Mapper:
             far = self._candidates(node, reach=cfg.loop_max_range + wide[0], limit=1)
             for _, n in far:
                 self._last_wide = travel
-                record, _ = self._match(n, node, wide)
+                # No wider than the drift the path between the two could hold: a candidate
+                # just past loop_min_travel along the same corridor is not metres off, and a
+                # window that lets it be finds the corridor's look-alikes (the hospital log:
+                # pairs of hypotheses 13 nodes apart, 1-4 m along the corridor, agreeing
+                # with each other and accepted).
+                between = travel - self._node_travel[n]
+                half = min(wide[0], cfg.loops.min_window[0] + _MAX_DRIFT * between)
+                record, _ = self._match(n, node, (half, wide[1]))
                 records.append(record)
                 if record.accepted:
                     self._last_closed = travel
@@ -1080,6 +1087,11 @@ def _submap_bytes(sub: Submap2D) -> int:
 
 #: Joint-marginal tests of candidates beyond ``loop_max_range``, per candidate wanted.
 _GATE_TESTS_PER_CANDIDATE = 2
+
+#: The most a 2D odometry drifts per metre of path (a wrong wheel scale of several percent
+#: and a heading off by degrees): the wide search's window is no wider than this times the
+#: path between the two nodes, plus the least loop window.
+_MAX_DRIFT = 0.1
 
 #: How many scans the odometry thread may run ahead of the graph.
 _TRACK_AHEAD = 4
