@@ -221,12 +221,13 @@ class WheelOdometry:
         """The model's per-axis factors from the recent steps (module docstring): the
         prediction's variance (the residuals' second moment less the scans' own variance,
         floored at what a run can resolve) over the model's mean variance."""
-        linked = [k for k in range(1, len(self._steps)) if self._steps[k][2]]
+        steps = list(self._steps)
+        linked = [k for k in range(1, len(steps)) if steps[k][2]]
         if len(linked) < MIN_PAIRS:
             return
-        here = np.array([self._steps[k][0] for k in linked])
-        before = np.array([self._steps[k - 1][0] for k in linked])
-        model = np.array([self._steps[k][1] for k in linked])
+        here = np.array([steps[k][0] for k in linked])
+        before = np.array([steps[k - 1][0] for k in linked])
+        model = np.array([steps[k][1] for k in linked])
         moments = residual_moments(here, before)
         predicted = moments.variance + moments.mean**2 - moments.scan_variance
         predicted = np.maximum(predicted, NOISE_FLOOR**2)
