@@ -62,10 +62,12 @@ def surface_noise(points: Any) -> SurfaceNoise:
     tree = _core.KdTree(cloud)
     queries = np.ascontiguousarray(cloud[:: max(1, len(cloud) // NOISE_QUERIES)])
     best = SurfaceNoise(0.0, 0.0, 0.0)
+    # One search for the widest scale; its rows are sorted, so each narrower one is a prefix.
+    widest, widest_d2 = tree.knn(queries, max(k for k in NEIGHBOURS if k <= len(cloud)))
     for k in NEIGHBOURS:
         if k > len(cloud):
             break
-        index, d2 = tree.knn(queries, k)
+        index, d2 = widest[:, :k], widest_d2[:, :k]
         local = cloud[index]  # (queries, k, 3)
         centred = local - local.mean(axis=1, keepdims=True)
         cov = np.matmul(centred.transpose(0, 2, 1), centred) / k
