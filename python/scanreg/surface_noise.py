@@ -1,8 +1,8 @@
 """How noisy a scanned surface is, and whether the noise leaves its shape resolved.
 
-:func:`surface_noise` fits the covariance of neighbourhoods of growing radius around sampled
-points and reads three regimes from its eigenvalues ``λ₁ ≥ λ₂ ≥ λ₃`` (medians over the
-samples):
+:func:`surface_noise` fits the covariance of neighbourhoods of growing size (the k nearest
+points, k doubling) around sampled points and reads three regimes from its eigenvalues
+``λ₁ ≥ λ₂ ≥ λ₃`` (medians over the samples):
 
 * below the noise a neighbourhood is a ball: ``λ₂ / λ₃`` about 1;
 * once it is several noise widths across it is a noisy disc: ``λ₂`` grows as the radius
