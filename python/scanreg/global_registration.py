@@ -125,7 +125,9 @@ RIVAL_CLIQUE_RATIO = 0.5
 #: started at the truth, refine 2-3 mm and up to 3.6° away from it (views from one side: within
 #: 0.3 mm), and the verdict accepted some (``benchmarks/global_objects.py``, seed 41: every
 #: trial below 3.6 biased or borderline, every one above 5.2 resolved; seed 7 alike). Rooms,
-#: streets and the 3DMatch fragments read 9-7000.
+#: streets and the 3DMatch fragments read 9-7000; it is measured only when the refinement
+#: found the target's normals noisy (:data:`NOISY_NORMALS`), which every object below 5 did
+#: and none of those did.
 MIN_FLATNESS = 5.0
 
 NO_ALIGNMENT = "no reliable alignment"
@@ -219,7 +221,9 @@ class GlobalRegistrationResult:
     #: wall time also counts other jobs' turns.
     stage_cpu_seconds: dict[str, float] = field(default_factory=dict)
     #: The source's and the target's measured noise and flatness (:data:`MIN_FLATNESS`), or
-    #: ``None`` when not measured (no hypothesis passed on its own, or ``refine=False``).
+    #: ``None`` when not measured: no hypothesis passed on its own, the refinement found the
+    #: target's normals clean (:data:`NOISY_NORMALS`: resolved at its scale), or
+    #: ``refine=False``.
     surface_noise: tuple[SurfaceNoise, SurfaceNoise] | None = None
 
     @property
@@ -373,7 +377,8 @@ class _Refiner:
         self.target = prepare(
             target_fine, normals=True, covariances=True, num_neighbors=self.num_neighbors
         )
-        if self.target.normal_noise[1] > NOISY_NORMALS:
+        self.noisy_normals = bool(self.target.normal_noise[1] > NOISY_NORMALS)
+        if self.noisy_normals:
             # Millimetre noise over a few grid cells (a small object's scan): normals over
             # more neighbours, or the verdict reads the noise as missing information.
             self.num_neighbors = min(NOISY_NORMALS_NEIGHBORS, len(target_fine))
@@ -679,7 +684,10 @@ def register_global(
                 ]
                 break
     noise: tuple[SurfaceNoise, SurfaceNoise] | None = None
-    if not reasons_out and refiner is not None:
+    if not reasons_out and refiner is not None and refiner.noisy_normals:
+        # Only where the refinement found the target's normals noisy: normals that agree with
+        # their neighbours' at the library's count say the surface is flat above its noise at
+        # that scale already (rooms and streets; measuring them cost ~0.1 s of CPU a call).
         noise = (surface_noise(src), surface_noise(tgt))
         flat = min(n.flatness for n in noise)
         if flat < MIN_FLATNESS:
