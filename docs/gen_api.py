@@ -29,6 +29,7 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.correlative", "2D correlative scan matching (global within a window)"),
     ("scanreg.ndt", "NDT, 2D and 3D"),
     ("scanreg.global_registration", "3D registration without a guess: FPFH, max clique, GNC-TLS"),
+    ("scanreg.surface_noise", "a scanned surface's noise and whether it leaves the shape resolved"),
     ("scanreg.basin", "the verdict's wrong-basin / ambiguity probe"),
     ("scanreg.slide", "never worse than the start: a registration that slid from a better start"),
     ("scanreg.budget", "a memory budget for large clouds"),

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 import scanreg
 from conftest import data_dir
-from scanreg import _core, io
+from scanreg import _core, global_registration, io
 from scanreg import simulate as sim
-from scanreg.global_registration import NO_ALIGNMENT, register_global
+from scanreg.global_registration import MIN_FLATNESS, NO_ALIGNMENT, register_global
+from scanreg.surface_noise import surface_noise
 from scanreg.transform import SE3
 
 
@@ -382,3 +383,51 @@ def test_the_voxel_is_at_least_three_point_spacings() -> None:
     _, d2 = _core.KdTree(pts).knn(pts, 2)
     spacing = float(np.median(np.sqrt(d2[:, 1])))
     assert res.voxel_size == pytest.approx(3 * spacing, rel=0.05)
+
+
+# --- the clouds' own noise and whether it leaves the surface resolved ----------------------
+
+
+def test_surface_noise_reads_the_noise_of_a_plane_and_its_flatness() -> None:
+    # A 0.2 m square with 2 mm of noise across it (and a gentle bend, 0.5 m radius): the
+    # noise is the thickness, within the estimate's stated √2 (curvature adds to it).
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-0.1, 0.1, size=(30_000, 2))
+    z = (xy**2).sum(axis=1) / (2 * 0.5) + rng.normal(0, 0.002, size=len(xy))
+    got = surface_noise(np.column_stack([xy, z]))
+    assert 0.002 <= got.sigma < 0.002 * math.sqrt(2), got
+    assert got.flatness > 20, got  # flat over many noise widths
+    # Clean: the noise term vanishes and the flatness soars.
+    clean = surface_noise(np.column_stack([xy, (xy**2).sum(axis=1) / (2 * 0.5)]))
+    assert clean.sigma < 0.0005 and clean.flatness > 100, clean
+
+
+def test_surface_noise_finds_a_thin_noisy_tube_unresolved() -> None:
+    # A tube 5 mm in radius under 2.5 mm of noise bends within two noise widths: below
+    # MIN_FLATNESS. The same tube at 0.3 mm of noise is resolved.
+    rng = np.random.default_rng(4)
+    t = rng.uniform(0, 0.2, size=40_000)
+    phi = rng.uniform(0, math.pi, size=len(t))  # the half facing a viewer
+    tube = np.column_stack([t, 0.005 * np.cos(phi), 0.005 * np.sin(phi)])
+    noisy = surface_noise(tube + rng.normal(0, 0.0025, size=tube.shape))
+    assert noisy.flatness < MIN_FLATNESS, noisy
+    fine = surface_noise(tube + rng.normal(0, 0.0003, size=tube.shape))
+    assert fine.flatness > MIN_FLATNESS, fine
+    with pytest.raises(ValueError, match="points"):
+        surface_noise(tube[:5].copy())
+
+
+def test_an_unresolved_object_is_refused_not_answered_off(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    # A 0.2 m knot (its tube 9 mm thick) under 3 mm of noise: the best pose lands 5 mm (2.7 %
+    # of the size) from the truth, and without the flatness check the verdict accepts it.
+    shape = sim.trefoil_knot(size=0.2)
+    src, tgt, truth = _object_pair(shape, 30_000, 0.003, 60.0, seed=5)
+    res = register_global(src, tgt)
+    assert not res.accepted
+    assert res.reasons[0] == NO_ALIGNMENT
+    assert "surface not resolved" in res.reasons[1], res.reasons
+    assert res.surface_noise is not None
+    assert min(n.flatness for n in res.surface_noise) < MIN_FLATNESS
+    assert _centre_error(res.hypotheses[0].pose, truth, src) > 0.002  # beyond 1 %
+    monkeypatch.setattr(global_registration, "MIN_FLATNESS", 0.0)
+    assert register_global(src, tgt).accepted  # what the check stops
