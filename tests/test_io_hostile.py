@@ -642,6 +642,28 @@ def test_a_config_past_what_toml_holds_is_a_config_error(
         load_config(OdometryConfig, "/dev/zero")
 
 
+@pytest.mark.parametrize(
+    ("size_bytes", "limit"),
+    [(0, 100), (1, 100), (100, 100), (101, 100), (70_000, 100_000), (70_000, 65_537)],
+)
+def test_a_config_is_read_up_to_its_size_limit_and_no_further(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, size_bytes: int, limit: int
+) -> None:
+    """``read_config_file`` reads by the file's size instead of reserving the whole limit
+    per read (16 MB: a fifth of a batch manifest check); the limit still holds at, below and
+    above it, and for a file larger than one read step."""
+    from scanreg import config
+
+    monkeypatch.setattr(config, "MAX_CONFIG_BYTES", limit)
+    path = tmp_path / "c.toml"
+    path.write_bytes(b"#" * size_bytes)
+    if size_bytes <= limit:
+        assert config.read_config_file(path) == {}
+    else:
+        with pytest.raises(config.ConfigError, match=rf"c\.toml: larger than {limit} bytes"):
+            config.read_config_file(path)
+
+
 def test_a_pgm_header_of_many_blank_lines_is_refused_at_once(tmp_path: Path) -> None:
     """Found by the map_server target: a PGM header whose comment was followed by a run of
     newlines and no number made the header pattern backtrack exponentially (seconds for a
