@@ -324,3 +324,74 @@ def test_a_laz_layer_larger_than_its_chunk_is_refused_at_once(tmp_path: Path) ->
     with pytest.raises(FileFormatError, match=r"l\.laz: corrupt LAZ chunk 0: its layers claim"):
         read_points(path)
     assert time.perf_counter() - start < 1.0
+
+
+def _laszip_items_at(raw: bytes) -> int:
+    """Where the laszip VLR's item list (``(type, size, version)`` uint16 each) starts."""
+    at = int.from_bytes(raw[94:96], "little")  # the header's size: the first VLR
+    for _ in range(int.from_bytes(raw[100:104], "little")):
+        length = int.from_bytes(raw[at + 20 : at + 22], "little")
+        if raw[at + 2 : at + 18].rstrip(b"\0") == b"laszip encoded":
+            return at + 54 + 34
+        at += 54 + length
+    raise AssertionError("no laszip VLR")
+
+
+def _laz_with_items_changed(tmp_path: Path, point_format: int) -> tuple[Path, Path, int]:
+    """A sound LAZ of ``point_format`` (with extra bytes) and a copy whose first laszip item
+    type is one higher (POINT10 -> GPSTIME11, POINT14 -> RGB14): ``(good, bad, new type)``."""
+    from scanreg.io import write_las
+
+    rng = np.random.default_rng(point_format)
+    cloud = PointCloud(points=rng.normal(size=(50, 3)), ring=np.arange(50) % 4)
+    good = tmp_path / "good.laz"
+    write_las(good, cloud, point_format=point_format)
+    raw = bytearray(good.read_bytes())
+    items = _laszip_items_at(bytes(raw))
+    changed = int.from_bytes(raw[items : items + 2], "little") + 1
+    raw[items : items + 2] = changed.to_bytes(2, "little")
+    bad = tmp_path / "bad.laz"
+    bad.write_bytes(bytes(raw))
+    return good, bad, changed
+
+
+@pytest.mark.parametrize("point_format", range(11))
+def test_laszip_items_must_be_the_point_formats(tmp_path: Path, point_format: int) -> None:
+    """lazrs decodes by the laszip VLR's items, laspy reads by the header's point format:
+    the items must be the format's (as lazrs writes them, extra bytes included)."""
+    good, bad, changed = _laz_with_items_changed(tmp_path, point_format)
+    assert read_points(good).ring is not None
+    with pytest.raises(
+        FileFormatError,
+        match=rf"bad\.laz: laszip VLR items \(type, bytes\) \[\({changed}, .* are not point "
+        rf"format {point_format}'s",
+    ):
+        read_points(bad)
+
+
+def test_a_laz_with_an_rgb14_item_for_point14_is_refused_at_once_in_1_gb(tmp_path: Path) -> None:
+    """Found by the laz target: one byte turned the POINT14 item of a 1.5 kB file into a
+    30-byte RGB14 (the record length unchanged); lazrs took 2.6 s and 2 GB before refusing
+    it (a libFuzzer timeout; an abort where the memory is not there). Refused at once, in a
+    child process capped at 1 GB of address space."""
+    _, bad, _ = _laz_with_items_changed(tmp_path, 6)
+    code = (
+        "import resource, sys, time\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))\n"
+        "from scanreg.io import FileFormatError, read_points\n"
+        "start = time.perf_counter()\n"
+        "try:\n"
+        "    read_points(sys.argv[1])\n"
+        "    print('read')\n"
+        "except FileFormatError as exc:\n"
+        "    print('FileFormatError:', exc, f'in {time.perf_counter() - start:.2f} s')\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(_PYTHON), *sys.path])}
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(bad)],
+        capture_output=True, text=True, timeout=120, env=env, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    match = re.search(r"FileFormatError: .*bad\.laz: laszip VLR items .* in (\S+) s", done.stdout)
+    assert match, done.stdout
+    assert float(match.group(1)) < 0.5
