@@ -664,6 +664,28 @@ def test_a_config_is_read_up_to_its_size_limit_and_no_further(
             config.read_config_file(path)
 
 
+def test_a_config_read_asks_for_no_more_than_the_file_holds(tmp_path: Path) -> None:
+    """Found by the command_configs campaign: each read asked for the whole 16 MB limit, and
+    a process reading configs grew ~1 MB per 1 000 executions (glibc's heap fragmenting
+    around the 16 MB buffers: 1153 MB after 1 M; 72 MB once reads ask for the file's size)."""
+    import io
+
+    from scanreg import config
+
+    path = tmp_path / "c.toml"
+    path.write_bytes(b"voxel_size = 0.5\n" * 100)
+    asked: list[int] = []
+
+    class Recording(io.BufferedReader):
+        def read(self, size: int | None = -1, /) -> bytes:
+            asked.append(-1 if size is None else size)
+            return super().read(size)
+
+    with Recording(io.FileIO(path, "rb")) as fh:
+        assert config._read_at_most(fh, config.MAX_CONFIG_BYTES + 1) == path.read_bytes()
+    assert asked and max(asked) <= path.stat().st_size + 1
+
+
 def test_a_pgm_header_of_many_blank_lines_is_refused_at_once(tmp_path: Path) -> None:
     """Found by the map_server target: a PGM header whose comment was followed by a run of
     newlines and no number made the header pattern backtrack exponentially (seconds for a
