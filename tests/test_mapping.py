@@ -570,7 +570,9 @@ def test_aces_odometry_at_scan_time_and_latency() -> None:
     idx = [i for i, s in enumerate(log.scans) if s.kind == "FLASER"]
     stamps = np.array([log.scans[i].timestamp for i in idx])
     latency = estimate_laser_latency(log, idx)
-    assert 0.05 <= latency <= 0.10
+    # 0.07 s; 0.06 s when the scans' turns were measured with register's refine_in_basin,
+    # which leans to the start it was given (the unshifted odometry).
+    assert 0.065 <= latency <= 0.075
 
     def error(poses: list[Any]) -> Any:
         err = relation_error(Trajectory.from_poses(poses, stamps), relations)
