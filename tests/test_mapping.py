@@ -112,15 +112,6 @@ def test_simulated_loop_closure_reduces_the_end_error() -> None:
         rel = truth[record.submap_scan].inverse() @ truth[record.scan]
         err = rel.inverse() @ record.match.measured
         assert np.linalg.norm(err.translation) < 0.1, record.as_dict()
-    # A wide window (beyond the marginal-sized ones' 3 m) is no wider than 10 % of the path
-    # between the two scans plus the least window (mapping._MAX_DRIFT).
-    steps = [np.linalg.norm((a.inverse() @ b).translation) for a, b in itertools.pairwise(truth)]
-    travel = np.concatenate([[0.0], np.cumsum(steps)])
-    wide = [r for r in res.loops if r.match.window[0] > 3.0]
-    assert wide
-    for record in wide:
-        between = travel[record.scan] - travel[record.submap_scan]
-        assert record.match.window[0] <= 0.5 + 0.1 * 1.05 * between, record.as_dict()
     # Rejected candidates say why.
     assert all(r.match.reasons for r in res.rejected_loops)
 
