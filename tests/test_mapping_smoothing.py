@@ -75,6 +75,17 @@ def test_identification_needs_enough_steps_and_matching_lengths() -> None:
         StepNoise(scale=1.0, scan=np.full(3, 1e-3), wheel=np.full(2, 1e-3), pairs=0)
     with pytest.raises(ValueError, match="scale: must be > 0"):
         StepNoise(scale=0.0, scan=np.full(3, 1e-3), wheel=np.full(3, 1e-3), pairs=0)
+    from scanreg.pipeline.smoothing import residual_moments
+
+    good = np.zeros((60, 3))
+    with pytest.raises(ValueError, match=r"here: residuals must be finite"):
+        residual_moments(np.full((60, 3), np.nan), good)
+    with pytest.raises(ValueError, match=r"before: expected shape \(n, 3\) with n >= 1"):
+        residual_moments(good, np.zeros((0, 3)))
+    with pytest.raises(ValueError, match=r"here: expected shape \(n, 3\)"):
+        residual_moments(np.zeros((60, 2)), good)
+    with pytest.raises(ValueError, match=r"before: expected the shape of here"):
+        residual_moments(good, np.zeros((59, 3)))
     with pytest.raises(TypeError, match="smooth_scans: expected a bool"):
         MappingConfig(smooth_scans="yes")  # type: ignore[arg-type]
 

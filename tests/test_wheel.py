@@ -71,5 +71,9 @@ def test_calibration_waits_for_consecutive_steps_and_can_be_off() -> None:
     np.testing.assert_array_equal(fixed.noise_factor, np.ones(3))
     motion, cov = fixed.prior(wheels[0])
     np.testing.assert_array_equal(cov, WheelNoise().covariance(motion))
+    with pytest.raises(TypeError, match="constrained: expected a bool, got str"):
+        fixed.observe(wheels[0], steps[0], constrained="yes")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="increment: matrix: contains NaN"):
+        fixed.observe(np.full((3, 3), np.nan), steps[0])
     with pytest.raises(TypeError, match="calibrate_noise: expected a bool"):
         WheelNoise(calibrate_noise=1)  # type: ignore[arg-type]

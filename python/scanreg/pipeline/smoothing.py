@@ -105,6 +105,16 @@ def residual_moments(here: FloatArray, before: FloatArray) -> ResidualMoments:
     """The moments of ``(n, 3)`` residuals ``here[k]`` whose step follows ``before[k]``'s,
     each axis trimmed at :data:`TRIM_PERCENTILE` (module docstring; shared with the wheels'
     online identification, :class:`~scanreg.pipeline.wheel.WheelOdometry`)."""
+    for name, value in (("here", here), ("before", before)):
+        arr = np.asarray(value)
+        if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] == 0:
+            raise ValueError(f"{name}: expected shape (n, 3) with n >= 1, got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name}: residuals must be finite (NaN or inf found)")
+    if np.shape(here) != np.shape(before):
+        raise ValueError(
+            f"before: expected the shape of here {np.shape(here)}, got {np.shape(before)}"
+        )
     limit = np.percentile(np.abs(np.vstack([here, before])), TRIM_PERCENTILE, axis=0)
     kept = (np.abs(here) <= limit) & (np.abs(before) <= limit)
     var_scan, var, mean = np.zeros(3), np.zeros(3), np.zeros(3)

@@ -189,6 +189,8 @@ class WheelOdometry:
         wheel = as_pose(increment, "increment", 2)
         scan = as_pose(measured, "measured", 2)
         assert isinstance(wheel, SE2) and isinstance(scan, SE2)
+        if not isinstance(constrained, (bool, np.bool_)):
+            raise TypeError(f"constrained: expected a bool, got {type(constrained).__name__}")
         if not constrained:
             self._linked = False
             return
