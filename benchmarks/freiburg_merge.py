@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import bz2
-import dataclasses
 import math
 import os
 import tempfile
@@ -27,7 +26,6 @@ import numpy as np
 from scanreg import SE2
 from scanreg.eval.relations import Relations, read_relations, relation_error
 from scanreg.io import read_scans
-from scanreg.io.occupancy import occupancy_grid
 from scanreg.io.trajectory import Trajectory
 from scanreg.pipeline import MappingConfig, merge_maps, run_mapping
 from scanreg.saved_map import SavedMap
@@ -35,20 +33,6 @@ from scanreg.saved_map import SavedMap
 FILES = {"intel": ("intel.clf.bz2", "intel.relations"), "aces": ("aces.clf.bz2", "aces.relations")}
 #: The unrelated frame the second map is moved into.
 ELSEWHERE = SE2.from_vector([40.0, -25.0, math.radians(73.0)])
-
-
-def moved(m: SavedMap, t: SE2) -> SavedMap:
-    """``m`` with every pose, node and its grid in another frame (``t @ pose``)."""
-    assert m.graph is not None and m.node_points is not None and m.grid is not None
-    vertices = {k: t @ p for k, p in m.graph.vertices.items()}
-    nodes = [vertices[k] for k in sorted(vertices)]
-    return dataclasses.replace(
-        m,
-        poses=tuple(t @ p for p in m.poses),  # type: ignore[operator]
-        odometry_poses=tuple(t @ p for p in m.odometry_poses or ()),  # type: ignore[operator]
-        graph=dataclasses.replace(m.graph, vertices=vertices),
-        grid=occupancy_grid(nodes, list(m.node_points), resolution=m.grid.resolution),  # type: ignore[arg-type]
-    )
 
 
 def map_lines(lines: list[str], name: str, folder: Path) -> SavedMap:
@@ -89,7 +73,7 @@ def main() -> None:
         wall = time.perf_counter()
         with tempfile.TemporaryDirectory() as tmp:
             a = map_lines(lines[:half], "a", Path(tmp))
-            b = moved(map_lines(lines[half:], "b", Path(tmp)), ELSEWHERE)
+            b = map_lines(lines[half:], "b", Path(tmp)).transformed(ELSEWHERE)
         mapped = time.perf_counter() - wall
         wall = time.perf_counter()
         merged, report = merge_maps(a, b)

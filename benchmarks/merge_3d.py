@@ -17,7 +17,6 @@ merge`` write them, in ``DIR/{a,b,merged}``).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import time
 from pathlib import Path
@@ -28,7 +27,7 @@ from scanreg.eval import absolute_trajectory_error
 from scanreg.io import Trajectory
 from scanreg.io.sequences import SimulatedSequence
 from scanreg.pipeline import Mapper3D, MappingConfig3D, merge_maps
-from scanreg.saved_map import Places, SavedMap
+from scanreg.saved_map import SavedMap
 
 #: The unrelated frame the second map is moved into.
 ELSEWHERE = SE3.from_vector([40.0, -25.0, 3.0, 0.0, 0.0, math.radians(73.0)])
@@ -41,21 +40,6 @@ def drive(seq: SimulatedSequence, frames: range, session: str) -> SavedMap:
         f = seq[k]
         mapper.step(f.points, f.timestamps, stamp=f.stamp)
     return SavedMap.from_result(mapper.finish(), session=session)
-
-
-def moved(m: SavedMap, t: SE3) -> SavedMap:
-    """``m`` with every pose, node, its cloud and places in another frame (``t @ pose``)."""
-    assert m.graph is not None and m.places is not None and m.map_points is not None
-    vertices = {k: t @ p for k, p in m.graph.vertices.items()}
-    places = m.places._replace(poses=np.array([t.as_matrix() @ p for p in m.places.poses]))
-    return dataclasses.replace(
-        m,
-        poses=tuple(t @ p for p in m.poses),
-        odometry_poses=tuple(t @ p for p in m.odometry_poses or ()),
-        graph=dataclasses.replace(m.graph, vertices=vertices),
-        map_points=t.apply(m.map_points),
-        places=Places(*places),
-    )
 
 
 def ate(m: SavedMap, truth: np.ndarray) -> float:
@@ -80,7 +64,7 @@ def main() -> None:
 
     wall = time.perf_counter()
     a = drive(seq, a_frames, "a")
-    b = moved(drive(seq, b_frames, "b"), ELSEWHERE)
+    b = drive(seq, b_frames, "b").transformed(ELSEWHERE)
     mapped = time.perf_counter() - wall
     wall = time.perf_counter()
     merged, report = merge_maps(a, b)
@@ -107,7 +91,7 @@ def main() -> None:
     other = drive(other_seq, b_frames, "c")
     wall = time.perf_counter()
     try:
-        merge_maps(a, moved(other, ELSEWHERE))
+        merge_maps(a, other.transformed(ELSEWHERE))
         outcome = "MERGED (a false merge)"
     except ValueError as exc:
         outcome = f"refused: {exc}"

@@ -47,44 +47,7 @@ import scanreg
 from scanreg import SE2
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from relation_slide import LOGS, MAX_SECONDS, WRONG_DEG, WRONG_M
-
-DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
-MIN_RANGE, MAX_RANGE = 0.1, 40.0
-
-
-def relation_scans(name: str, count: int) -> list[tuple[int, Any, Any, SE2, SE2]]:
-    """``(relation index, scan t1, scan t2, relation, odometry)`` of the first ``count``
-    relations under ``MAX_SECONDS`` apart, both poses in the laser's frame."""
-    from scanreg.eval.relations import read_relations
-    from scanreg.io import read_scans
-
-    folder = DATA / "freiburg-slam-benchmark"
-    log = read_scans(folder / LOGS.get(name, f"{name}.clf.bz2"))
-    relations = read_relations(folder / f"{name}.relations")
-    lasers = [(i, s) for i, s in enumerate(log.scans) if s.kind in ("FLASER", "ROBOTLASER1")]
-    stamps = {s.timestamp: i for i, s in lasers}
-    first = lasers[0][1]
-    assert first.odometry_se2 is not None and first.laser_se2 is not None
-    # The relations are between robot poses; the hospital's laser is 0.22 m ahead of the centre.
-    mount = first.odometry_se2.inverse() @ first.laser_se2
-    out = []
-    for k in range(len(relations)):
-        if abs(relations.t2[k] - relations.t1[k]) >= MAX_SECONDS:
-            continue
-        i1, i2 = stamps.get(float(relations.t1[k])), stamps.get(float(relations.t2[k]))
-        if i1 is None or i2 is None:
-            continue
-        m = relations.poses[k]
-        robot = SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
-        a, b = log.scans[i1].laser_se2, log.scans[i2].laser_se2
-        assert a is not None and b is not None
-        out.append(
-            (k, log.scans[i1], log.scans[i2], mount.inverse() @ robot @ mount, a.inverse() @ b)
-        )
-        if len(out) == count:
-            break
-    return out
+from relation_slide import MAX_RANGE, MAX_SECONDS, MIN_RANGE, WRONG_DEG, WRONG_M, relation_scans
 
 
 def scanreg_default(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:

@@ -40,14 +40,17 @@ DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] /
 WRONG_M, WRONG_DEG = 0.15, 2.0
 CHI2_999 = 16.266  # χ²(3) at 99.9 %
 MAX_SECONDS = 10.0
+#: The ranges each scan's points are read between (m).
+MIN_RANGE, MAX_RANGE = 0.1, 40.0
 #: Log files whose name is not ``<name>.clf.bz2``.
 LOGS = {"fr-clinic": "fr-clinic_robotlaser.clf.bz2"}
 
 
-def relation_pairs(name: str, count: int) -> list[tuple[int, np.ndarray, Any, SE2, SE2]]:
-    """``(relation index, source, prepared target, relation, odometry)`` of the first ``count``
-    relations under ``MAX_SECONDS`` apart whose scans are both in the log; ``odometry`` is the
-    wheel odometry's relative pose between the two scans."""
+def relation_scans(name: str, count: int) -> list[tuple[int, Any, Any, SE2, SE2]]:
+    """``(relation index, scan t1, scan t2, relation, odometry)`` of the first ``count``
+    relations under ``MAX_SECONDS`` apart whose scans are both in the log, the raw scans as read;
+    ``relation`` is in the laser's frame, ``odometry`` the wheel odometry's relative pose
+    between the two scans."""
     folder = DATA / "freiburg-slam-benchmark"
     log = read_scans(folder / LOGS.get(name, f"{name}.clf.bz2"))
     relations = read_relations(folder / f"{name}.relations")
@@ -68,15 +71,29 @@ def relation_pairs(name: str, count: int) -> list[tuple[int, np.ndarray, Any, SE
         m = relations.poses[k]
         robot = SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
         relation = mount.inverse() @ robot @ mount
-        source = log.scans[i2].to_points(0.1, 40.0)
-        target = scanreg.prepare(log.scans[i1].to_points(0.1, 40.0), normals=True)
         a, b = log.scans[i1].laser_se2, log.scans[i2].laser_se2
         assert a is not None and b is not None
         odometry = a.inverse() @ b  # the logged laser poses are the wheel odometry's
-        out.append((k, source, target, relation, odometry))
+        out.append((k, log.scans[i1], log.scans[i2], relation, odometry))
         if len(out) == count:
             break
     return out
+
+
+def relation_pairs(name: str, count: int) -> list[tuple[int, np.ndarray, Any, SE2, SE2]]:
+    """``(relation index, source, prepared target, relation, odometry)``: the pairs of
+    :func:`relation_scans`, scan t2's points (source) and scan t1's prepared for
+    point-to-line (target)."""
+    return [
+        (
+            k,
+            scan2.to_points(MIN_RANGE, MAX_RANGE),
+            scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True),
+            relation,
+            odometry,
+        )
+        for k, scan1, scan2, relation, odometry in relation_scans(name, count)
+    ]
 
 
 def _call(source: Any, target: Any, start: SE2, guard: bool) -> tuple[Any, float]:

@@ -49,3 +49,32 @@ def test_bad_options_are_named(tmp_path: Path) -> None:
         commands.plot_trajectory_files("map", "a.txt", "b.png", format="tum")
     with pytest.raises(TypeError, match=r"path: expected a str or os\.PathLike"):
         commands.run_mapping_to_folder(3, tmp_path)  # type: ignore[arg-type]
+    # The counts, positive values and options not available, each named as the CLI spells it.
+    for scans, rate, message in (
+        (0, 10.0, "--scans must be >= 1, got 0"),
+        (2, 0.0, "--scan-rate must be > 0, got 0.0"),
+        (2, float("nan"), "--scan-rate must be > 0, got nan"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            commands.simulate_to_folder(tmp_path, scans=scans, scan_rate=rate)
+    with pytest.raises(ValueError, match="--max-frames must be >= 1, got 0"):
+        commands.run_odometry_to_folder("sim:loop", tmp_path, max_frames=0)
+    log = tmp_path / "run.clf"
+    for options, message in (
+        ({"max_frames": -2}, "--max-frames must be >= 1, got -2"),
+        ({"save_map": True}, "--save-map: not available for a 2D laser log"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            commands.run_odometry_to_folder(log, tmp_path, **options)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="--max-scans must be >= 1, got 0"):
+        commands.run_localization_to_folder(log, tmp_path, tmp_path / "loc", max_scans=0)
+    pytest.importorskip("gtsam")
+    for options, message in (
+        ({"max_scans": 0}, "--max-scans must be >= 1, got 0"),
+        ({"resolution": 0.0}, "--resolution must be > 0, got 0.0"),
+        ({"checkpoint": 0}, "--checkpoint must be >= 1 scans, got 0"),
+        ({"extend": tmp_path, "checkpoint": 5}, "--checkpoint: not available with --extend"),
+        ({"extend": tmp_path, "report": True}, "--report: not available with --extend"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            commands.run_mapping_to_folder(log, tmp_path / "map", **options)  # type: ignore[arg-type]

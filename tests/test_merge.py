@@ -22,7 +22,6 @@ from scanreg.cli import EXIT_BAD_INPUT, EXIT_OK, main
 pytest.importorskip("gtsam")
 
 from scanreg.eval.relations import read_relations, relation_error
-from scanreg.io.occupancy import occupancy_grid
 from scanreg.io.trajectory import Trajectory
 from scanreg.pipeline import MappingConfig, merge_maps, run_mapping
 from scanreg.saved_map import MANIFEST, SavedMap
@@ -45,22 +44,6 @@ def _map(folder: Path, name: str, lines: tuple[str, ...], session: str) -> Saved
     return SavedMap.from_result(run_mapping(read_scans(path), MappingConfig()), session=session)
 
 
-def _moved(m: SavedMap, t: SE2) -> SavedMap:
-    """``m`` with every pose, node and its grid in another frame (``t @ pose``)."""
-    assert m.graph is not None and m.node_points is not None and m.grid is not None
-    vertices = {k: t @ p for k, p in m.graph.vertices.items()}
-    graph = dataclasses.replace(m.graph, vertices=vertices)
-    nodes = [vertices[k] for k in sorted(vertices)]
-    grid = occupancy_grid(nodes, list(m.node_points), resolution=m.grid.resolution)  # type: ignore[arg-type]
-    return dataclasses.replace(
-        m,
-        poses=tuple(t @ p for p in m.poses),  # type: ignore[operator]
-        odometry_poses=tuple(t @ p for p in m.odometry_poses or ()),  # type: ignore[operator]
-        graph=graph,
-        grid=grid,
-    )
-
-
 @pytest.fixture(scope="module")
 def intel(tmp_path_factory: pytest.TempPathFactory) -> dict[str, SavedMap]:
     """Intel lines 0-1800 mapped in one run (604 scans), and cut into a (lines 0-1200) and
@@ -70,7 +53,7 @@ def intel(tmp_path_factory: pytest.TempPathFactory) -> dict[str, SavedMap]:
     return {
         "one": _map(folder, "one.clf", lines, "one"),
         "a": _map(folder, "a.clf", lines[:1200], "a"),
-        "b": _moved(_map(folder, "b.clf", lines[600:], "b"), ELSEWHERE),
+        "b": _map(folder, "b.clf", lines[600:], "b").transformed(ELSEWHERE),
     }
 
 

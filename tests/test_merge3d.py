@@ -5,7 +5,6 @@ exact truth. A drive around another block (another seed) is refused."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 from pathlib import Path
@@ -23,7 +22,7 @@ from scanreg.io import Trajectory, read_tum
 from scanreg.io.sequences import SimulatedSequence
 from scanreg.pipeline import MapLocalizer, Mapper3D, MappingConfig3D
 from scanreg.pipeline.join import DISAGREES
-from scanreg.saved_map import MANIFEST, Places, SavedMap
+from scanreg.saved_map import MANIFEST, SavedMap
 
 #: A 200 m lap; drive a covers its first 120 m, drive b (a lap later) 50-150 m: 70 m shared.
 LAP = 200.0
@@ -42,21 +41,6 @@ def _drive(seq: SimulatedSequence, frames: range, session: str) -> SavedMap:
     return SavedMap.from_result(mapper.finish(), session=session)
 
 
-def _moved(m: SavedMap, t: SE3) -> SavedMap:
-    """``m`` with every pose, node, its cloud and places in another frame (``t @ pose``)."""
-    assert m.graph is not None and m.places is not None and m.map_points is not None
-    vertices = {k: t @ p for k, p in m.graph.vertices.items()}
-    places = m.places._replace(poses=np.array([t.as_matrix() @ p for p in m.places.poses]))
-    return dataclasses.replace(
-        m,
-        poses=tuple(t @ p for p in m.poses),
-        odometry_poses=tuple(t @ p for p in m.odometry_poses or ()),
-        graph=dataclasses.replace(m.graph, vertices=vertices),
-        map_points=t.apply(m.map_points),
-        places=Places(*places),
-    )
-
-
 @pytest.fixture(scope="module")
 def drives(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """Drives a and b mapped alone and saved (b moved 47 m / 73° away and 3 m up), merged
@@ -64,7 +48,7 @@ def drives(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     seq = SimulatedSequence("loop", laps=2, lap_length=LAP)
     root = tmp_path_factory.mktemp("merge3d")
     a = _drive(seq, A_FRAMES, "a")
-    b = _moved(_drive(seq, B_FRAMES, "b"), ELSEWHERE)
+    b = _drive(seq, B_FRAMES, "b").transformed(ELSEWHERE)
     a.save(root / "a")
     b.save(root / "b")
     argv = ["merge", str(root / "a"), str(root / "b"), "-o", str(root / "m"), "--json"]

@@ -221,3 +221,64 @@ def test_bad_arguments_named(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"session: expected 0\.\.0"):
         saved.session_poses(2)
     assert math.isfinite(saved.stamps.sum())
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_transformed_moves_the_map_frame_and_back(dim: int) -> None:
+    """A map moved into another frame: every pose is ``T @ pose``, the map cloud and places
+    moved with it, the 2D grid rebuilt where the moved scans fall; moved back it is the
+    original to round-off."""
+    from scanreg import SE3
+
+    saved = SavedMap.from_result(_run_2d() if dim == 2 else _run_3d(), session="run-a")
+    t: SE2 | SE3 = (
+        SE2.from_vector([40.0, -25.0, math.radians(73.0)])
+        if dim == 2
+        else SE3.from_vector([40.0, -25.0, 3.0, 0.1, -0.05, math.radians(73.0)])
+    )
+    moved = saved.transformed(t)
+    assert moved is not saved and moved.folder is None
+    for p, q in zip(saved.poses, moved.poses, strict=True):
+        assert np.allclose(q.as_matrix(), t.as_matrix() @ p.as_matrix(), atol=1e-12)
+    assert saved.odometry_poses is not None and moved.odometry_poses is not None
+    q = moved.odometry_poses[-1].as_matrix()
+    assert np.allclose(q, t.as_matrix() @ saved.odometry_poses[-1].as_matrix(), atol=1e-12)
+    assert moved.graph is not None and saved.graph is not None
+    # Relative quantities and the nodes' own frames are kept as they are.
+    assert moved.graph.edges == saved.graph.edges and moved.node_points is saved.node_points
+    assert moved.loops == saved.loops and np.array_equal(moved.stamps, saved.stamps)
+    # The first scan no longer sits at the origin: it sits at t.
+    assert np.linalg.norm(moved.poses[0].translation - t.translation) < 1e-9
+    if dim == 2:
+        assert saved.grid is not None and moved.grid is not None
+        assert moved.grid.origin != saved.grid.origin
+        # The rebuilt grid holds about as many occupied cells (cells are cut anew).
+        before, after = len(saved.occupied_points()), len(moved.occupied_points())
+        assert abs(after - before) < 0.1 * before, (before, after)
+    else:
+        assert saved.map_points is not None and moved.map_points is not None
+        assert np.allclose(moved.map_points, t.apply(saved.map_points), atol=1e-9)
+        assert saved.places is not None and moved.places is not None
+        assert np.allclose(moved.places.poses[1], t.as_matrix() @ saved.places.poses[1])
+        assert np.array_equal(moved.places.descriptors, saved.places.descriptors)
+    back = moved.transformed(t.inverse())
+    for p, q in zip(saved.poses, back.poses, strict=True):
+        assert np.allclose(p.as_matrix(), q.as_matrix(), atol=1e-9)
+    assert back.graph is not None
+    for k, p in saved.graph.vertices.items():
+        assert np.allclose(p.as_matrix(), back.graph.vertices[k].as_matrix(), atol=1e-9)
+    if dim == 2:
+        assert saved.grid is not None and back.grid is not None
+        assert back.grid.probability.shape == saved.grid.probability.shape
+        assert np.allclose(back.grid.origin, saved.grid.origin, atol=1e-9)
+        assert np.allclose(back.grid.probability, saved.grid.probability, atol=1e-9, equal_nan=True)
+    else:
+        assert back.map_points is not None and back.places is not None
+        assert np.allclose(back.map_points, saved.map_points, atol=1e-9)
+        assert np.allclose(back.places.poses, saved.places.poses, atol=1e-9)
+    # A 2D map takes an SE2, a 3D map an SE3.
+    with pytest.raises(TypeError, match="transform: expected an SE"):
+        saved.transformed(SE3.identity() if dim == 2 else SE2.identity())
+    if dim == 2:  # a grid without the node scans it was made of (format 1) cannot be moved
+        with pytest.raises(ValueError, match="map: transformed needs the node scans"):
+            dataclasses.replace(saved, node_points=None).transformed(t)

@@ -40,6 +40,7 @@ refused with a :class:`~scanreg.io.FileFormatError` naming it.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -248,6 +249,66 @@ class SavedMap:
         if self.folder is not None:
             out["folder"] = str(self.folder)
         return out
+
+    # -- moving -----------------------------------------------------------------------
+    def transformed(self, transform: SE2 | SE3) -> SavedMap:
+        """This map in another frame: a new map with ``transform`` (``T_new_world``: an
+        :class:`~scanreg.SE2` for a 2D map, :class:`~scanreg.SE3` for 3D) applied to all that
+        is in the map frame — every scan's pose and odometry pose (``transform @ pose``), the
+        graph's node poses; 2D the occupancy grid, rebuilt from the node scans at the moved
+        node poses at the same resolution and thresholds (a grid cannot be turned cell for
+        cell, so its origin and extent follow the scans); 3D the map cloud and the places'
+        poses. What is in a node's own frame (node scans, graph edges, the loops' records,
+        Scan Context descriptors), the stamps and sessions are kept. The new map is in memory
+        only (``folder`` ``None``).
+
+        ``m.transformed(T).transformed(T.inverse())`` is ``m`` to round-off.
+        """
+        kind = SE2 if self.dim == 2 else SE3
+        if type(transform) is not kind:
+            raise TypeError(
+                f"transform: expected an {kind.__name__} for a {self.dim}D map, "
+                f"got {type(transform).__name__}"
+            )
+
+        def move(pose: Pose) -> Pose:
+            return transform @ pose  # type: ignore[operator]
+
+        graph = self.graph
+        if graph is not None:
+            vertices = {k: move(p) for k, p in graph.vertices.items()}
+            graph = dataclasses.replace(graph, vertices=vertices)
+        grid = self.grid
+        if grid is not None:
+            from .io.occupancy import occupancy_grid
+
+            if self.node_points is None or graph is None:
+                raise ValueError(
+                    "map: transformed needs the node scans to rebuild a 2D map's grid "
+                    f"(a format-{self.format_version} map has none)"
+                )
+            nodes = [graph.vertices[k] for k in sorted(graph.vertices)]
+            rebuilt = occupancy_grid(nodes, list(self.node_points), resolution=grid.resolution)  # type: ignore[arg-type]
+            grid = dataclasses.replace(
+                rebuilt, occupied_thresh=grid.occupied_thresh, free_thresh=grid.free_thresh
+            )
+        places = self.places
+        if places is not None:
+            matrix = transform.as_matrix()
+            moved = np.array([matrix @ p for p in places.poses]).reshape(places.poses.shape)
+            places = places._replace(poses=moved)
+        return dataclasses.replace(
+            self,
+            poses=tuple(move(p) for p in self.poses),
+            odometry_poses=(
+                None if self.odometry_poses is None else tuple(move(p) for p in self.odometry_poses)
+            ),
+            graph=graph,
+            grid=grid,
+            map_points=None if self.map_points is None else transform.apply(self.map_points),
+            places=places,
+            folder=None,
+        )
 
     # -- building ---------------------------------------------------------------------
     @classmethod

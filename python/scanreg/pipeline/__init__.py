@@ -20,7 +20,7 @@ from .commands import (
     run_mapping_to_folder,
     run_odometry_to_folder,
 )
-from .extend import ExtendReport, extend_map
+from .extend import extend_map
 from .join import JoinReport
 from .localizer import Localizer, Relocalization
 from .localizer2d import GlobalFix, LocalizationConfig2D, Localizer2D
@@ -29,14 +29,13 @@ from .map_localizer import GlobalFix3D, MapLocalizer
 from .mapping import LoopRecord, Mapper, MappingConfig, MappingResult, run_mapping
 from .mapping3d import Mapper3D, MappingConfig3D, run_mapping_3d
 from .mapping_output import write_outputs
-from .merge import MergeReport, merge_maps
+from .merge import merge_maps
 from .odometry import AdaptiveGate, FrameResult, FrameTiming, Odometry, OdometryConfig
 from .odometry2d import Frame2D, FrameTiming2D, Odometry2D, OdometryConfig2D
 from .scan_source import open_scan_log, scan_log
 
 __all__ = [
     "AdaptiveGate",
-    "ExtendReport",
     "Frame2D",
     "FrameResult",
     "FrameTiming",
@@ -57,7 +56,6 @@ __all__ = [
     "MappingConfig3D",
     "MappingResult",
     "MappingStopped",
-    "MergeReport",
     "Odometry",
     "Odometry2D",
     "OdometryConfig",

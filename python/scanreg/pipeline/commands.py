@@ -77,6 +77,26 @@ def _pose(value: Sequence[float] | None) -> list[float] | None:
     return None if value is None else [float(v) for v in value]
 
 
+def _at_least_one(value: int | None, option: str, unit: str = "") -> None:
+    """Refuse a count option below 1 (``None``: not given)."""
+    if value is not None and value < 1:
+        raise ValueError(f"--{option} must be >= 1{unit}, got {value}")
+
+
+def _positive(value: float, option: str) -> None:
+    """Refuse an option that must be > 0 (NaN too)."""
+    if not value > 0:
+        raise ValueError(f"--{option} must be > 0, got {value}")
+
+
+def _not_available(args: SimpleNamespace, flags: Sequence[str], where: str) -> None:
+    """Refuse the first of ``flags`` (option names as ``args`` spells them) that is set:
+    ``--flag: not available <where>``."""
+    for flag in flags:
+        if getattr(args, flag, None):
+            raise ValueError(f"--{flag.replace('_', '-')}: not available {where}")
+
+
 def run_odometry_to_folder(
     path: PathLike,
     output: PathLike = "odometry-output",
@@ -575,10 +595,8 @@ def _simulate(args: SimpleNamespace) -> dict[str, Any]:
             f"--scene {args.scene} is not available for the {dim}D sensor {args.sensor} "
             f"(choose from {', '.join(scenes)})"
         )
-    if args.scans < 1:
-        raise ValueError(f"--scans must be >= 1, got {args.scans}")
-    if not args.scan_rate > 0:
-        raise ValueError(f"--scan-rate must be > 0, got {args.scan_rate}")
+    _at_least_one(args.scans, "scans")
+    _positive(args.scan_rate, "scan-rate")
     fmt = args.format if args.format != "auto" else ("pcd" if dim == 3 else "csv")
     # PCD/PLY/LAS hold 3D points: a 2D scan is written in the plane z = 0.
     pad_z = dim == 2 and fmt in ("pcd", "ply", "las", "laz")
@@ -689,8 +707,7 @@ def _odometry(args: SimpleNamespace) -> dict[str, Any]:
         _carmen_key(args.path) is not None or _is_2d_bag(args)
     ):
         return _odometry_carmen(args)  # a 2D laser log or LaserScan bag
-    if args.max_frames is not None and args.max_frames < 1:
-        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
+    _at_least_one(args.max_frames, "max-frames")
     overrides = {} if args.method is None else {"method": args.method}
     config = load_config(OdometryConfig, args.config, presets=args.preset, overrides=overrides)
     las_options = _las_options(args)
@@ -793,12 +810,9 @@ def _odometry_carmen(args: SimpleNamespace) -> dict[str, Any]:
     from .mapping import MappingConfig
     from .odometry2d import Odometry2D, OdometryConfig2D
 
-    for flag in ("preset", "method", "topic", "bag", "save_map", "report"):
-        value = getattr(args, flag, None)
-        if value:
-            raise ValueError(f"--{flag.replace('_', '-')}: not available for a 2D laser log")
-    if args.max_frames is not None and args.max_frames < 1:
-        raise ValueError(f"--max-frames must be >= 1, got {args.max_frames}")
+    flags = ("preset", "method", "topic", "bag", "save_map", "report")
+    _not_available(args, flags, "for a 2D laser log")
+    _at_least_one(args.max_frames, "max-frames")
     # The mapping pipeline's odometry (correlative front end) under the user's file.
     mapping = MappingConfig().odometry
     preset = {f: getattr(mapping, f) for f in ("front_end", "kernel", "max_keyframes")}
@@ -899,10 +913,8 @@ def _map(args: SimpleNamespace) -> dict[str, Any]:
     from .mapping import MappingConfig, MappingInterrupted, run_mapping
     from .mapping_output import summary, write_outputs
 
-    if args.max_scans is not None and args.max_scans < 1:
-        raise ValueError(f"--max-scans must be >= 1, got {args.max_scans}")
-    if not args.resolution > 0:
-        raise ValueError(f"--resolution must be > 0, got {args.resolution}")
+    _at_least_one(args.max_scans, "max-scans")
+    _positive(args.resolution, "resolution")
     three_d = is_3d_source(args.path) and not _is_2d_bag(args)
     if args.extend is not None:
         return _extend(args, three_d)
@@ -912,8 +924,7 @@ def _map(args: SimpleNamespace) -> dict[str, Any]:
     if args.bag is not None:
         args.output.mkdir(parents=True, exist_ok=True)  # a --bag inside it can be checked now
     frames = _bag_settings(args)  # a bad bag path fails now, not after the run
-    if args.checkpoint is not None and args.checkpoint < 1:
-        raise ValueError(f"--checkpoint must be >= 1 scans, got {args.checkpoint}")
+    _at_least_one(args.checkpoint, "checkpoint", " scans")
     scans = _scan_log(
         args,
         kind=args.kind,
@@ -989,11 +1000,7 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
     from .mapping import MappingConfig, MappingInterrupted, run_mapping
     from .mapping3d import MappingConfig3D, run_mapping_3d
 
-    for flag in ("bag", "checkpoint"):
-        if getattr(args, flag):
-            raise ValueError(f"--{flag}: not available with --extend")
-    if args.report:
-        raise ValueError("--report: not available with --extend")
+    _not_available(args, ("bag", "checkpoint", "report"), "with --extend")
     saved = SavedMap.load(args.extend)
     dim = 3 if three_d else 2
     if saved.dim != dim or saved.node_points is None:
@@ -1199,8 +1206,7 @@ def _localize(args: SimpleNamespace) -> dict[str, Any]:
     from ..io import Trajectory, write_tum
     from .localizer2d import Localizer2D
 
-    if args.max_scans is not None and args.max_scans < 1:
-        raise ValueError(f"--max-scans must be >= 1, got {args.max_scans}")
+    _at_least_one(args.max_scans, "max-scans")
     if is_3d_source(args.path) and not _is_2d_bag(args):
         return _localize_3d(args)
     if args.map.is_dir():  # the folder scanreg map wrote

@@ -24,9 +24,6 @@ from .join import JoinReport, join_sessions
 from .mapping import MappingConfig, MappingResult
 from .mapping3d import MappingConfig3D
 
-#: How a new run was joined (:func:`extend_map`).
-ExtendReport = JoinReport
-
 
 def extend_map(
     saved: SavedMap,
@@ -81,4 +78,4 @@ def _resolution(saved: SavedMap) -> float:
     return 0.05 if saved.grid is None else saved.grid.resolution
 
 
-__all__ = ["ExtendReport", "extend_map"]
+__all__ = ["extend_map"]

@@ -60,7 +60,9 @@ MAP_VOXEL_SIZE = 0.2
 
 @dataclass(frozen=True)
 class JoinReport:
-    """How a second session was joined to a saved map (:func:`join_sessions`)."""
+    """How a second session was joined to a saved map (:func:`join_sessions`): what
+    :func:`~scanreg.pipeline.extend_map` and :func:`~scanreg.pipeline.merge_maps` return
+    beside the joint map."""
 
     #: Second-map node first placed in the first map, and the score that placed it (2D: the
     #: global search's correlative score; 3D: the Scan Context distance of its place).

@@ -28,9 +28,6 @@ from .join import JoinReport, check_joinable, join_sessions
 from .mapping import MappingConfig
 from .mapping3d import MappingConfig3D
 
-#: How two maps were merged (:func:`merge_maps`).
-MergeReport = JoinReport
-
 
 def _spread(count: int, tries: int) -> list[int]:
     """``tries`` node ids spread evenly over ``0..count-1`` (the first included)."""
@@ -95,4 +92,4 @@ def merge_maps(
     )
 
 
-__all__ = ["MergeReport", "merge_maps"]
+__all__ = ["merge_maps"]
