@@ -263,6 +263,7 @@ def join_sessions(
     prior_sigma: tuple[float, float] = (0.3, math.radians(5.0)),
     window: tuple[float, float] = (1.0, math.radians(15.0)),
     min_loops: int = 2,
+    min_fraction: float = 0.25,
     verb: str = "join",
 ) -> tuple[SavedMap, JoinReport]:
     """``saved`` and ``new`` (two 2D or two 3D maps of format 2, in any frames) as one map in
@@ -278,7 +279,10 @@ def join_sessions(
     recognition; ``max_distance`` and ``prior_sigma`` then serve the nodes it missed, matched
     from the fix (``locate_nodes`` and ``window`` are 2D's). ``min_loops``: the agreeing
     inter-session loops needed to join (one alone could be a look-alike: the global search
-    placed an ACES excerpt in an Intel map, and one loop would have followed it).
+    placed an ACES excerpt in an Intel map, and one loop would have followed it), and at
+    least ``min_fraction`` of the new nodes tried: a true overlap is followed node after node
+    (Intel's halves: 25 of 29; ACES' 42 of 108), a look-alike here and there (an ACES excerpt
+    located in an Intel map: 2 agreeing of 19 tried).
     ``config``: the mapping settings of the maps' dimension (defaults if ``None``)."""
     check_joinable(saved, "saved")
     check_joinable(new, "new")
@@ -289,6 +293,8 @@ def join_sessions(
         raise ValueError(f"session: expected a new, non-empty name, got {sorted(clash)}")
     if isinstance(min_loops, bool) or not isinstance(min_loops, int) or min_loops < 1:
         raise ValueError(f"min_loops: expected an int >= 1, got {min_loops!r}")
+    if not (isinstance(min_fraction, (int, float)) and 0.0 <= min_fraction <= 1.0):
+        raise ValueError(f"min_fraction: expected a number in [0, 1], got {min_fraction!r}")
     assert saved.graph is not None
     k_old = saved.num_nodes
     if sorted(saved.graph.vertices) != list(range(k_old)):
@@ -340,11 +346,13 @@ def join_sessions(
         if i not in kept:
             record["accepted"] = False
             record["reasons"] = [*record["reasons"], DISAGREES]
-    if len(kept) < min_loops:
+    needed = max(min_loops, math.ceil(min_fraction * len(records)))
+    if len(kept) < needed:
         raise ValueError(
             f"{verb}: {closure.located} but {len(matches)} of {len(records)} of its nodes' "
             f"scans matched the first map (within {max_distance} m), {len(kept)} of them "
-            f"agreeing ({min_loops} needed): no reliable overlap, nothing joined"
+            f"agreeing ({needed} needed: at least {min_loops} and {min_fraction:.0%} of those "
+            "tried): no reliable overlap, nothing joined"
         )
     joined = _joint_map(saved, new, [matches[i] for i in kept], closure.fixes[kept[0]], kernel)
     joined = dataclasses.replace(joined, loops=(*joined.loops, *records))
