@@ -17,10 +17,12 @@ One :meth:`Mapper.step` per scan, in five stages:
 4. **match and verify** — :func:`~scanreg.pipeline.loops.match_loop` against the candidate's
    submap; every candidate, accepted or not, is kept as a :class:`LoopRecord` with its
    reasons. Recall does not rest on the graph knowing its own drift: when these windows have
-   found nothing for ``LoopSettings.wide_spacing`` metres, the nearest candidate is searched
-   over a fixed wide window, and a match that is sound on its own evidence but fails only the
-   χ² test is held until another held loop agrees with it (both are then closed: the graph,
-   not the loops, was wrong; :func:`~scanreg.pipeline.loops.loops_agree`);
+   found nothing for ``LoopSettings.wide_spacing`` metres, the nearest candidate's larger
+   submap is searched over a wide window (``LoopSettings.wide_window``: up to ±20 m, as wide
+   as the path between the two could have drifted), and a match that is sound on its own
+   evidence (and not degenerate) but fails only the χ² test is held until another held loop
+   agrees with it (both are then closed: the graph, not the loops, was wrong;
+   :func:`~scanreg.pipeline.loops.loops_agree`);
 5. **close** — an accepted loop becomes an edge with information = inverse calibrated
    covariance (nothing along its degenerate directions) and a robust kernel, and iSAM2
    re-solves.
@@ -40,6 +42,7 @@ are the odometry front end and the loop matcher (:mod:`scanreg.pipeline.loops`).
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 import time
@@ -353,7 +356,7 @@ class Mapper:
         self._node_cov: dict[int, FloatArray] = {}  # odometry covariance of each node's scan
         self._node_blind: dict[int, tuple[float, float]] = {}  # bearing gap: start, width
         self._node_travel: list[float] = []  # path length at each node
-        self._submaps: OrderedDict[int, Submap2D] = OrderedDict()
+        self._submaps: OrderedDict[tuple[int, int], Submap2D] = OrderedDict()  # (anchor, half)
         self._submap_bytes = 0
         self._loops: list[LoopRecord[LoopMatch]] = []
         # Loops held as hypotheses (good on their own evidence, at odds with the graph).
@@ -533,13 +536,16 @@ class Mapper:
         self._timing.add("optimization", t0)
         return node
 
-    def _submap(self, anchor: int) -> Submap2D:
-        sub = self._submaps.get(anchor)
+    def _submap(self, anchor: int, before: int, half_size: int | None = None) -> Submap2D:
+        """Nodes ``anchor ± half_size`` (default ``submap_half_size``), none from ``before``
+        on: a submap must not hold the searching node's recent past (matched against its own
+        last metres, a scan "closes" a loop that says nothing)."""
+        h = self.config.submap_half_size if half_size is None else half_size
+        sub = self._submaps.get((anchor, h))
         if sub is not None:
-            self._submaps.move_to_end(anchor)
+            self._submaps.move_to_end((anchor, h))
         else:
-            h = self.config.submap_half_size
-            nodes = [n for n in range(anchor - h, anchor + h + 1) if 0 <= n < self.num_nodes]
+            nodes = [n for n in range(anchor - h, anchor + h + 1) if 0 <= n < before]
             sub = build_submap(
                 anchor,
                 nodes,
@@ -549,9 +555,10 @@ class Mapper:
                 voxel_size=self.config.node_voxel_size,
                 covariances=self._node_cov,
             )
-            # Only cache a submap whose later nodes all exist (it will not change).
-            if anchor + h < self.num_nodes:
-                self._submaps[anchor] = sub
+            # Only cache a submap whose later nodes all exist and were all taken (it will
+            # not change).
+            if anchor + h < before:
+                self._submaps[(anchor, h)] = sub
                 self._submap_bytes += _submap_bytes(sub)
                 # Least recently searched out first: a long-range laser's submap grids are
                 # ~100 MB each (an 80 m disc at 5 cm cells), and the hospital log's run grew
@@ -572,9 +579,7 @@ class Mapper:
         at most ``limit``."""
         cfg = self.config
         g = self._graph
-        travel = np.asarray(self._node_travel)
-        # Nodes before the recent past (the last loop_min_travel metres of path).
-        num_old = int(np.searchsorted(travel, travel[node] - cfg.loop_min_travel, side="left"))
+        num_old = self._num_old(node)
         if num_old == 0:
             return []
         _, rows = g.pose_vectors()
@@ -614,6 +619,12 @@ class Mapper:
             if (dist - cfg.loop_max_range) / sigma <= cfg.loop_gate_sigmas:
                 gated.append((dist, int(n)))
         return gated
+
+    def _num_old(self, node: int) -> int:
+        """How many nodes come before ``node``'s recent past (its last ``loop_min_travel``
+        metres of path): the ones a loop from it may close to."""
+        travel = self._node_travel
+        return bisect.bisect_left(travel, travel[node] - self.config.loop_min_travel)
 
     def _seen_first(
         self,
@@ -712,18 +723,27 @@ class Mapper:
                 self._last_wide = travel
                 # No wider than the drift the path between the two could hold: a candidate
                 # just past loop_min_travel along the same corridor is not metres off, and a
-                # window that lets it be finds the corridor's look-alikes (the hospital log:
-                # pairs of hypotheses 13 nodes apart, 1-4 m along the corridor, agreeing
-                # with each other and accepted).
+                # window that lets it be finds the corridor's look-alikes (the hospital log,
+                # windows grown with the path since the last loop: pairs of hypotheses 13
+                # nodes apart, 1-4 m along the corridor, agreeing with each other and
+                # accepted). Against a larger submap than the usual search's: a revisit from
+                # another heading sees little of a few nodes' points.
                 between = travel - self._node_travel[n]
                 half = min(wide[0], cfg.loops.min_window[0] + _MAX_DRIFT * between)
-                record, _ = self._match(n, node, (half, wide[1]))
+                record, _ = self._match(
+                    n, node, (half, wide[1]), half_size=cfg.loops.wide_submap_half_size
+                )
                 records.append(record)
                 if record.accepted:
                     self._last_closed = travel
 
     def _match(
-        self, n: int, node: int, window: tuple[float, float] | None
+        self,
+        n: int,
+        node: int,
+        window: tuple[float, float] | None,
+        *,
+        half_size: int | None = None,
     ) -> tuple[LoopRecord[LoopMatch], tuple[float, float]]:
         """Match ``node``'s scan against submap ``n``; close the loop, or hold it as a
         hypothesis (see :meth:`_hypothesize`)."""
@@ -736,7 +756,7 @@ class Mapper:
         match = match_loop(
             self._node_points[node],
             node,
-            self._submap(n),
+            self._submap(n, self._num_old(node), half_size),
             predicted,
             rel_cov,
             cfg.loops,
