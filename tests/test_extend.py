@@ -219,7 +219,7 @@ def test_cli_extend_from_a_bag_with_report_and_bag(
     text = re.sub(r"\\u([0-9a-f]{4})", lambda m: chr(int(m.group(1), 16)), text)
     assert f"session 0: {sessions['a']}" in text and f"session 1: {bag}" in text
     assert "loop closures (between sessions)" in text and "loops between sessions" in text
-    assert "Occupancy grid" in text
+    assert "Occupancy grid" in text and "both, a map of 2 sessions" in text
     assert result["outputs"]["report"] == str(out / "report.html")
     files = json.loads((out / MANIFEST).read_text())["files"]
     assert "report.html" in files and "new_run_checkpoint" not in {p.name for p in out.iterdir()}

@@ -640,7 +640,11 @@ def _cards(run: RunFolder) -> str:
         ("held", str(verdicts.count("held"))),
     ]
     pos = run.estimate.positions
-    cards.append(("path length", f"{np.linalg.norm(np.diff(pos, axis=0), axis=1).sum():.1f} m"))
+    length = sum(  # each session's own: not the jump from one session's end to the next's start
+        float(np.linalg.norm(np.diff(pos[idx], axis=0), axis=1).sum())
+        for _, idx in run.session_indices()
+    )
+    cards.append(("path length", f"{length:.1f} m"))
     if "frames_per_second" in run.summary:
         cards.append(("frames/s", f"{run.summary['frames_per_second']:.1f}"))
     total = _column(run.rows, "time_ms")
@@ -697,6 +701,8 @@ def render_report(folder: PathLike, *, title: str | None = None) -> str:
     _, pio, _ = _plotly()
     run = RunFolder(folder)
     name = title or str(run.summary.get("sequence") or run.root.resolve().name)
+    if title is None and run.scan_sessions is not None:  # a joint map: not its last run's name
+        name = f"{run.root.resolve().name}, a map of {len(run.sessions)} sessions"
     sections: list[tuple[str, Any]] = [("Trajectory", _trajectory_figure(run))]
     medians: dict[str, float] = {}
     if run.rows:
