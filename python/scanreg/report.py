@@ -310,16 +310,16 @@ def _trajectory_figure(run: RunFolder) -> Any:
             )
         )
     several = run.scan_sessions is not None
-    for k, (name, idx) in enumerate(run.session_indices()):
+    for k, (name, scans) in enumerate(run.session_indices()):
         fig.add_trace(
             go.Scatter(
-                x=est[idx, 0],
-                y=est[idx, 1],
+                x=est[scans, 0],
+                y=est[scans, 1],
                 mode="lines+markers",
                 name=f"session {k}: {name}" if several else "estimate",
                 marker={"size": 4},
                 line={"color": _SESSION_COLORS[k % len(_SESSION_COLORS)], "width": 2},
-                text=[f"frame {i}" for i in idx],
+                text=[f"frame {i}" for i in scans],
                 hoverinfo="text+x+y",
             )
         )
@@ -339,12 +339,12 @@ def _trajectory_figure(run: RunFolder) -> Any:
                 )
             )
     odo = run.odometry_positions()
-    for k, (_, idx) in enumerate(run.session_indices() if odo is not None else ()):
+    for k, (_, scans) in enumerate(run.session_indices() if odo is not None else ()):
         assert odo is not None
         fig.add_trace(
             go.Scatter(
-                x=odo[idx, 0],
-                y=odo[idx, 1],
+                x=odo[scans, 0],
+                y=odo[scans, 1],
                 mode="lines",
                 name="odometry (before loop closure)",
                 legendgroup="odometry",

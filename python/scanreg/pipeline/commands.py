@@ -185,7 +185,12 @@ def run_mapping_to_folder(
     ``extend``: a saved map's folder (of the run's dimension): the run is mapped, located
     in it from no initial pose, closed against it and joined into one graph
     (:func:`~scanreg.pipeline.extend_map`; the saved map's ``config.toml`` unless ``config``
-    is given); ``output`` may be that folder (updated in place once the joint map is made)."""
+    is given); ``output`` may be that folder (updated in place once the joint map is made).
+    With it, ``report`` and ``bag`` are the joint map's (every session), and ``checkpoint``
+    (2D) writes the new run's map alone, in its own frame, to ``output/new_run_checkpoint/``
+    (kept after a stop, for :func:`merge_maps_to_folder`; removed once joined).
+
+    >>> run_mapping_to_folder("run2.mcap", "out2/", extend="out/", report=True)"""
     args = SimpleNamespace(
         path=_source(path),
         output=_path(output, "output"),
