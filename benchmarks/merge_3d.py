@@ -6,27 +6,32 @@ a's start), each mapped alone (``Mapper3D``, default ``MappingConfig3D``); b's m
 moved into an unrelated frame (73° yaw, (40, -25, 3) m) and merged into a's
 (:func:`scanreg.pipeline.merge_maps`). Rows: ATE (SE(3)-aligned RMSE) against the exact truth
 of a alone, b alone (its own frame), and the merged map over every scan of both in a's frame;
-inter-session loops joined of those tried; times. Then a drive around another block (another
+inter-session loops joined of those tried; times. The same join through ``scanreg map B
+--extend A/`` (:func:`scanreg.pipeline.run_mapping_to_folder` with ``extend``): a's map saved
+as a folder, drive b's sweeps written as a folder of PCD files (per-point time, stamps in
+``poses_tum.txt``), mapped by the command in its own frame (b's first sweep: half a lap from
+a's start, heading the other way) and joined. Then a drive around another block (another
 seed: the same road, other façades, poles, cars) is merged into a: it must be refused.
 
 Run: ``.venv/bin/python benchmarks/merge_3d.py [--lap-length 300] [--scans 300]
 [--output DIR]`` (``--output``: the maps and the merged one, as ``scanreg map`` / ``scanreg
-merge`` write them, in ``DIR/{a,b,merged}``).
+merge`` write them, in ``DIR/{a,b,merged}``, and ``DIR/{b_sweeps,extended}``).
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 from scanreg import SE3
 from scanreg.eval import absolute_trajectory_error
-from scanreg.io import Trajectory
+from scanreg.io import PointCloud, Trajectory, write_points, write_poses
 from scanreg.io.sequences import SimulatedSequence
-from scanreg.pipeline import Mapper3D, MappingConfig3D, merge_maps
+from scanreg.pipeline import Mapper3D, MappingConfig3D, merge_maps, run_mapping_to_folder
 from scanreg.saved_map import SavedMap
 
 #: The unrelated frame the second map is moved into.
@@ -48,6 +53,32 @@ def ate(m: SavedMap, truth: np.ndarray) -> float:
         Trajectory(est, m.stamps), Trajectory(truth, m.stamps), alignment="se3"
     )
     return float(err.translation.rmse)
+
+
+def write_sweeps(seq: SimulatedSequence, frames: range, folder: Path) -> Path:
+    """``frames`` of ``seq`` as a folder ``scanreg map`` reads: one PCD per sweep (points as
+    the driver reports them, per-point time since the sweep's start), ``poses_tum.txt`` (the
+    truth, for the stamps)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for k in frames:
+        f = seq[k]
+        write_points(folder / f"{k:06d}.pcd", PointCloud(points=f.points, time=f.timestamps))
+    truth = seq.ground_truth_at(CONFIG.odometry.reference_time)[list(frames)]
+    write_poses(folder / "poses_tum.txt", truth, "tum", timestamps=seq.stamps[list(frames)])
+    return folder
+
+
+def extend_through_command(
+    seq: SimulatedSequence, a: SavedMap, frames: range, root: Path
+) -> tuple[SavedMap, dict[str, object], float]:
+    """``scanreg map B_SWEEPS/ --extend A/ -o EXTENDED/``: the joint map, the command's JSON
+    and its seconds (b's mapping included)."""
+    a.save(root / "a")
+    sweeps = write_sweeps(seq, frames, root / "b_sweeps")
+    wall = time.perf_counter()
+    result = run_mapping_to_folder(sweeps, root / "extended", extend=root / "a")
+    seconds = time.perf_counter() - wall
+    return SavedMap.load(root / "extended"), result, seconds
 
 
 def main() -> None:
@@ -84,6 +115,17 @@ def main() -> None:
     print(
         f"| merged, a's frame | {merged.num_scans} | {ate(merged, both):.4f} | {loops} | "
         f"{joined:.1f} |"
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp) if args.output is None else args.output
+        extended, result, seconds = extend_through_command(seq, a, b_frames, root)
+    loops = (
+        f"{result['inter_session_loops']} of {result['inter_session_candidates']} "
+        f"({result['inter_session_disagreeing']})"
+    )
+    print(
+        f"| extended (`scanreg map B/ --extend A/`), a's frame | {extended.num_scans} | "
+        f"{ate(extended, both):.4f} | {loops} | {seconds:.1f} (b mapped in it) |"
     )
     print(f"<!-- mapping both drives {mapped:.0f} s -->")
 

@@ -73,8 +73,11 @@ def test_bad_options_are_named(tmp_path: Path) -> None:
         ({"max_scans": 0}, "--max-scans must be >= 1, got 0"),
         ({"resolution": 0.0}, "--resolution must be > 0, got 0.0"),
         ({"checkpoint": 0}, "--checkpoint must be >= 1 scans, got 0"),
-        ({"extend": tmp_path, "checkpoint": 5}, "--checkpoint: not available with --extend"),
-        ({"extend": tmp_path, "report": True}, "--report: not available with --extend"),
+        ({"extend": tmp_path, "checkpoint": 0}, "--checkpoint must be >= 1 scans, got 0"),
     ):
         with pytest.raises(ValueError, match=message):
             commands.run_mapping_to_folder(log, tmp_path / "map", **options)  # type: ignore[arg-type]
+    # 3D mapping has no checkpoints: refused (with --extend too), not ignored.
+    for extend in (None, tmp_path):
+        with pytest.raises(ValueError, match=r"--checkpoint: not available for 3D mapping runs"):
+            commands.run_mapping_to_folder("sim:loop", tmp_path / "m", checkpoint=5, extend=extend)

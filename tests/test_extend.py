@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import bz2
 import json
+import re
 import shutil
 from functools import cache
 from pathlib import Path
@@ -176,3 +177,109 @@ def test_extend_refuses_another_building_and_old_formats(
     err = capsys.readouterr().err
     assert "is a format-1 2D map; a 2D run extends only a 2D map of format 2" in err, err
     assert not (tmp_path / "x").exists()
+
+
+@pytest.fixture(scope="module")
+def old_map(sessions: dict[str, Path], tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Session a's map, as ``scanreg map`` writes it."""
+    out = tmp_path_factory.mktemp("old") / "a"
+    assert main(["map", str(sessions["a"]), "-o", str(out), "--quiet", "--no-plots"]) == EXIT_OK
+    return out
+
+
+def test_cli_extend_from_a_bag_with_report_and_bag(
+    sessions: dict[str, Path], old_map: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The new run from a LaserScan bag (session b written as ROS 2 by rosbags' writer):
+    placed like the log; ``--report`` draws both sessions and the loops between them;
+    ``--bag`` holds every node of both."""
+    pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'scanreg[ros]')")
+    pytest.importorskip("plotly", reason="plotly is not installed (pip install 'scanreg[report]')")
+    from _carmen_bag import write_carmen_bag
+    from scanreg.io import read_scans
+    from scanreg.io.rosbag import list_topics
+
+    capsys.readouterr()
+    bag = write_carmen_bag(read_scans(sessions["b"]), tmp_path / "b.mcap")
+    out = tmp_path / "both"
+    argv = ["map", str(bag), "--extend", str(old_map), "-o", str(out), "--json"]
+    assert main([*argv, "--report", "--bag", str(out / "map.mcap")]) == EXIT_OK
+    result = json.loads(capsys.readouterr().out)
+    assert result["sessions"] == [str(sessions["a"]), str(bag)]
+    assert result["inter_session_loops"] >= 20, result
+    joint = SavedMap.load(out)
+    mine, theirs = _by_stamp(joint, 0), _by_stamp(joint, 1)
+    shared = sorted(set(mine) & set(theirs))
+    assert len(shared) > 250  # the bag's stamps are the log's
+    err = np.array([np.linalg.norm((mine[t].inverse() @ theirs[t]).translation) for t in shared])
+    assert np.median(err) < 0.02 and err.max() < 0.1, (np.median(err), err.max())
+    # The report is the joint map's: one trajectory per session, the loops between them.
+    text = (out / "report.html").read_text(encoding="utf-8")
+    # (plotly's JSON escapes "/" as \u002f: decoded to read the trace names)
+    text = re.sub(r"\\u([0-9a-f]{4})", lambda m: chr(int(m.group(1), 16)), text)
+    assert f"session 0: {sessions['a']}" in text and f"session 1: {bag}" in text
+    assert "loop closures (between sessions)" in text and "loops between sessions" in text
+    assert "Occupancy grid" in text and "both, a map of 2 sessions" in text
+    assert result["outputs"]["report"] == str(out / "report.html")
+    files = json.loads((out / MANIFEST).read_text())["files"]
+    assert "report.html" in files and "new_run_checkpoint" not in {p.name for p in out.iterdir()}
+    # The bag: every node of both sessions, the joint grid once.
+    topics = {t.name: t.message_count for t in list_topics(out / "map.mcap")}
+    assert topics["/scanreg/pose"] == topics["/scanreg/scan"] == joint.num_nodes
+    assert topics["/scanreg/grid"] == 1 and result["outputs"]["bag"] == str(out / "map.mcap")
+
+
+def test_cli_extend_checkpoint_keeps_the_new_run(
+    sessions: dict[str, Path],
+    old_map: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``--checkpoint N`` with ``--extend``: the new run's map alone every N scans in
+    OUT/new_run_checkpoint/, removed once joined; a stop leaves it there, the saved map
+    untouched, and ``scanreg merge`` joins what was mapped."""
+    from scanreg.cli import EXIT_INTERRUPTED
+    from scanreg.pipeline import mapping, mapping_output
+
+    written: list[tuple[Path, int]] = []
+    write_outputs = mapping_output.write_outputs
+
+    def spy(folder: Path, result: Any, **options: Any) -> Any:
+        written.append((Path(folder), result.num_scans))
+        return write_outputs(folder, result, **options)
+
+    monkeypatch.setattr(mapping_output, "write_outputs", spy)
+    capsys.readouterr()
+    out = tmp_path / "both"
+    argv = ["map", str(sessions["b"]), "--extend", str(old_map), "-o", str(out), "--quiet"]
+    assert main([*argv, "--checkpoint", "200", "--no-plots"]) == EXIT_OK
+    held = out / "new_run_checkpoint"
+    assert written == [(held, 200), (held, 400), (held, 600)]
+    assert not held.exists() and len(SavedMap.load(out).sessions) == 2
+    # Ctrl-C at the new run's 250th scan: the saved map is unchanged, the new run's 250
+    # scans are a map of their own, which merge joins to the saved one.
+    integrate = mapping.Mapper.integrate
+
+    def interrupt_at_250(self: mapping.Mapper, tracked: mapping.Tracked) -> mapping.MappingStep:
+        if tracked.index == 250:
+            raise KeyboardInterrupt
+        return integrate(self, tracked)
+
+    monkeypatch.setattr(mapping.Mapper, "integrate", interrupt_at_250)
+    stopped = tmp_path / "stopped"
+    argv = ["map", str(sessions["b"]), "--extend", str(old_map), "-o", str(stopped)]
+    assert main([*argv, "--quiet", "--checkpoint", "100"]) == EXIT_INTERRUPTED
+    err = capsys.readouterr().err
+    held = stopped / "new_run_checkpoint"
+    assert f"the saved map {old_map}/ is unchanged" in err, err
+    assert f"written to {held}/ (250 scans" in err, err
+    assert SavedMap.load(old_map).sessions == (str(sessions["a"]),)
+    partial = SavedMap.load(held)
+    assert partial.num_scans == 250 and partial.sessions == (str(sessions["b"]),)
+    argv = ["merge", str(old_map), str(held), "-o", str(tmp_path / "merged"), "--json"]
+    assert main(argv) == EXIT_OK
+    assert json.loads(capsys.readouterr().out)["inter_session_loops"] >= 10
+    argv = ["map", str(sessions["b"]), "--extend", str(old_map), "--checkpoint", "0"]
+    assert main(argv) == EXIT_BAD_INPUT
+    assert "--checkpoint must be >= 1 scans" in capsys.readouterr().err

@@ -192,3 +192,62 @@ def test_cli_extend_a_3d_map(tmp_path: Path) -> None:
     ]
     assert max(gap) < 0.05, max(gap)
     assert sum(bool(r.get("inter_session")) and r["accepted"] for r in joint.loops) >= 2
+
+
+def test_cli_extend_a_3d_map_from_a_bag_with_report_and_bag(tmp_path: Path) -> None:
+    """The new 3D run from a ROS 2 PointCloud2 bag (the simulator's sweeps with their
+    per-point time, written by rosbags' writer); ``--report`` and ``--bag`` of the joint map,
+    as plain 3D runs write them."""
+    pytest.importorskip("rosbags", reason="rosbags is not installed (pip install 'scanreg[ros]')")
+    pytest.importorskip("plotly", reason="plotly is not installed (pip install 'scanreg[report]')")
+    import re
+
+    from scanreg.io.rosbag import list_topics
+    from test_rosbag import CLOUD, _cloud_msg, _store, write_bag
+
+    old, out = tmp_path / "old", tmp_path / "both"
+    spec = "sim:loop,lap_length=200,frames=40"
+    argv = ["map", spec, "-o", str(old), "--json", "--report", "--bag", str(old / "map.mcap")]
+    assert main(argv) == EXIT_OK
+    assert (old / "report.html").is_file() and (old / "map.mcap").is_file()
+    seq = SimulatedSequence("loop", lap_length=200, num_frames=25)
+    ts, t0 = _store("mcap"), 1_700_000_000_000_000_000
+    layout = np.dtype([("x", "f4"), ("y", "f4"), ("z", "f4"), ("time", "f4")])
+    msgs = []
+    for k in range(len(seq)):
+        f = seq[k]
+        records = np.zeros(len(f.points), layout)
+        for i, axis in enumerate("xyz"):
+            records[axis] = f.points[:, i]
+        records["time"] = f.timestamps
+        stamp = t0 + round(f.stamp * 1e9)
+        msgs.append((stamp, _cloud_msg(ts, "mcap", records, stamp)))
+    bag = write_bag(tmp_path / "drive", "mcap", {"/points": (CLOUD, msgs)})
+    argv = ["map", str(bag), "--extend", str(old), "-o", str(out), "--json", "--report"]
+    assert main([*argv, "--bag", str(out / "map.mcap")]) == EXIT_OK
+    joint = SavedMap.load(out)
+    assert joint.sessions == (spec, str(bag)) and joint.num_scans == 65
+    first, second = joint.session_poses(0), joint.session_poses(1)
+    gap = [
+        np.linalg.norm((p.inverse() @ q).translation) for p, q in zip(first, second, strict=False)
+    ]
+    assert max(gap) < 0.05, max(gap)  # the same sweeps, from the bag
+    text = (out / "report.html").read_text(encoding="utf-8")
+    text = re.sub(r"\\u([0-9a-f]{4})", lambda m: chr(int(m.group(1), 16)), text)
+    assert f"session 0: {spec}" in text and f"session 1: {bag}" in text
+    assert 'id="scanreg-map"' in text and "loop closures (between sessions)" in text
+    assert "both, a map of 2 sessions" in text
+    # The path length is each session's own (not the jump back to the start between them).
+    length = sum(
+        np.linalg.norm(
+            np.diff([p.translation for p in joint.session_poses(k)], axis=0), axis=1
+        ).sum()
+        for k in (0, 1)
+    )
+    assert f"<b>{length:.1f} m</b>" in text, length
+    topics = {t.name: t.message_count for t in list_topics(out / "map.mcap")}
+    assert topics["/scanreg/pose"] == topics["/scanreg/scan"] == joint.num_nodes
+    assert topics["/scanreg/map"] == 1
+    assert "report.html" in json.loads((out / MANIFEST).read_text())["files"]
+    # 3D mapping has no checkpoints: refused, not ignored.
+    assert main([*argv, "--checkpoint", "10"]) == EXIT_BAD_INPUT

@@ -304,8 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     mp.add_argument(
         "path",
-        help="2D: CARMEN log (.clf, .log, optionally .gz or .bz2); 3D: KITTI folder, folder of "
-        "point files, ROS bag, or sim:loop / sim:loop-repeated[,laps=N,lap_length=M]",
+        help="2D: CARMEN log (.clf, .log, optionally .gz or .bz2) or ROS bag of LaserScans; "
+        "3D: KITTI folder, folder of point files, ROS bag of PointCloud2, or sim:loop / "
+        "sim:loop-repeated[,laps=N,lap_length=M]",
     )
     mp.add_argument(
         "-o",
@@ -319,9 +320,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         default=None,
         metavar="MAP",
-        help="a folder `scanreg map` wrote (2D or 3D, as this run): map this run, locate it "
-        "there from no pose, close loops against it and write one map of both sessions (to -o, "
-        "default MAP)",
+        help="a folder `scanreg map` wrote (2D or 3D, as this run; the run a log or bag): map "
+        "this run, locate it there from no pose, close loops against it and write one map of "
+        "both sessions (to -o, default MAP)",
     )
     mp.add_argument("--config", type=Path, default=None, help="TOML config (unknown keys fail)")
     mp.add_argument("--max-scans", type=int, default=None, help="stop after N scans")
@@ -332,16 +333,24 @@ def build_parser() -> argparse.ArgumentParser:
     _add_laser_options(mp)
     mp.add_argument("--no-plots", action="store_true", help="skip trajectory.png")
     _add_bag_options(
-        mp, "the graph nodes' poses and scans, the occupancy grid, loop closures", sensor="laser"
+        mp,
+        "the graph nodes' poses and scans or clouds, the occupancy grid or map cloud, loop "
+        "closures; with --extend every session's, one after another",
+        sensor="laser",
     )
-    mp.add_argument("--report", action="store_true", help="also write report.html")
+    mp.add_argument(
+        "--report",
+        action="store_true",
+        help="also write report.html (with --extend: the joint map's, each session drawn)",
+    )
     mp.add_argument(
         "--checkpoint",
         type=int,
         default=None,
         metavar="N",
         help="2D: write the outputs so far every N scans (a partial map; the final run "
-        "overwrites it)",
+        "overwrites it). With --extend: the new run's map alone, in its own frame, to "
+        "OUT/new_run_checkpoint/ (also on a stop; removed once the joint map is written)",
     )
     mp.add_argument("--json", action="store_true", help="print JSON instead of text")
     mp.add_argument("--quiet", action="store_true", help="no progress bar on stderr")

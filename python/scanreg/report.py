@@ -23,7 +23,10 @@ Run-folder files (all but the poses optional)
 trajectory at the same stamps), ``loops.jsonl`` (``source``, ``target`` frame indices,
 ``accepted``, optional ``reason``), ``map.ply|.pcd|.las|.laz``, ``summary.json`` (headline
 figures; a 2D mapping run's ``self_check`` is shown with its verdict, and the returns of
-``contradictions.csv`` drawn on the trajectory) and ``config.toml`` (shown as text).
+``contradictions.csv`` drawn on the trajectory) and ``config.toml`` (shown as text). A map
+of several sessions (``scanreg map NEW --extend OLD/``, ``scanreg merge``: ``manifest.json``
+lists the sessions, ``map_data.npz`` each scan's) is drawn one trajectory per session, each
+session's odometry started at its first optimized pose, the loops between sessions apart.
 """
 
 from __future__ import annotations
@@ -56,7 +59,10 @@ _COLORS = {
     "accepted": "#2ca02c",
     "held": "#ff7f0e",
     "rejected": "#d62728",
+    "between": "#9467bd",
 }
+#: One colour per session of a map of several (the first is the one-run estimate's).
+_SESSION_COLORS = ("#1f77b4", "#17becf", "#8c564b", "#e377c2", "#7f7f7f")
 #: Collects script errors into the page itself, so a headless browser's DOM dump shows them.
 _ERROR_HOOK = """<script>
 window.scanregErrors = [];
@@ -141,6 +147,33 @@ def _read_xy(path: Path) -> FloatArray:
     return np.asarray(xy, dtype=np.float64)
 
 
+def _sessions(
+    root: Path, num_scans: int
+) -> tuple[list[str], np.ndarray[Any, np.dtype[np.int64]] | None]:
+    """A map folder's session names and every scan's session (``None``: one session, or no
+    map folder)."""
+    from .saved_map import DATA, MANIFEST, read_manifest
+
+    if not (root / MANIFEST).is_file():
+        return [], None
+    names = [str(n) for n in read_manifest(root / MANIFEST)["sessions"]]
+    if len(names) < 2:
+        return names, None
+    try:
+        with np.load(root / DATA, allow_pickle=False) as data:
+            owner = np.asarray(data["scan_sessions"], dtype=np.int64)
+    except (OSError, ValueError, KeyError) as exc:
+        raise FileFormatError(root / DATA, f"scan_sessions: cannot be read: {exc}") from None
+    if owner.shape != (num_scans,) or (
+        num_scans and not 0 <= owner.min() <= owner.max() < len(names)
+    ):
+        raise FileFormatError(
+            root / DATA,
+            f"scan_sessions: expected {num_scans} session indices 0..{len(names) - 1}",
+        )
+    return names, owner
+
+
 def _column(rows: Sequence[dict[str, Any]], key: str) -> FloatArray:
     return np.array(
         [np.nan if r.get(key) is None else float(r[key]) for r in rows], dtype=np.float64
@@ -179,6 +212,28 @@ class RunFolder:
         self.map_image = image if image.is_file() else None
         contradictions = self.root / "contradictions.csv"  # a 2D mapping run's self-check
         self.contradictions = _read_xy(contradictions) if contradictions.is_file() else None
+        self.sessions, self.scan_sessions = _sessions(self.root, len(self.estimate))
+
+    def session_indices(self) -> list[tuple[str, np.ndarray[Any, np.dtype[np.intp]]]]:
+        """``(name, scan indices)`` per session; one unnamed session for a one-run folder."""
+        if self.scan_sessions is None:
+            return [("", np.arange(len(self.estimate)))]
+        return [
+            (name, np.flatnonzero(self.scan_sessions == k)) for k, name in enumerate(self.sessions)
+        ]
+
+    def odometry_positions(self) -> FloatArray | None:
+        """The odometry before loop closure (``None`` if absent), each session's started at
+        its first optimized pose (a later session's odometry is in a frame of its own)."""
+        if self.odometry is None or len(self.odometry) != len(self.estimate):
+            return None
+        out = self.odometry.positions
+        for _, idx in self.session_indices()[1:]:
+            if len(idx):
+                start = self.estimate.poses[idx[0]] @ np.linalg.inv(self.odometry.poses[idx[0]])
+                moved = start @ self.odometry.poses[idx]
+                out[idx] = moved[:, :3, 3]
+        return out
 
     def loop_ends(self) -> list[tuple[int, int, bool, str]]:
         """``(source, target, accepted, reasons)`` of each loop closure (``source``/``target``
@@ -254,18 +309,20 @@ def _trajectory_figure(run: RunFolder) -> Any:
                 line={"color": _COLORS["reference"], "width": 3, "dash": "dot"},
             )
         )
-    fig.add_trace(
-        go.Scatter(
-            x=est[:, 0],
-            y=est[:, 1],
-            mode="lines+markers",
-            name="estimate",
-            marker={"size": 4},
-            line={"color": _COLORS["estimate"], "width": 2},
-            text=[f"frame {k}" for k in range(len(est))],
-            hoverinfo="text+x+y",
+    several = run.scan_sessions is not None
+    for k, (name, scans) in enumerate(run.session_indices()):
+        fig.add_trace(
+            go.Scatter(
+                x=est[scans, 0],
+                y=est[scans, 1],
+                mode="lines+markers",
+                name=f"session {k}: {name}" if several else "estimate",
+                marker={"size": 4},
+                line={"color": _SESSION_COLORS[k % len(_SESSION_COLORS)], "width": 2},
+                text=[f"frame {i}" for i in scans],
+                hoverinfo="text+x+y",
+            )
         )
-    )
     verdicts = run.verdicts()
     for kind in ("held", "rejected"):
         idx = [k for k, v in enumerate(verdicts) if v == kind]
@@ -281,37 +338,47 @@ def _trajectory_figure(run: RunFolder) -> Any:
                     hoverinfo="text",
                 )
             )
-    if run.odometry is not None and len(run.odometry) == len(run.estimate):
-        odo = run.odometry.positions
+    odo = run.odometry_positions()
+    for k, (_, scans) in enumerate(run.session_indices() if odo is not None else ()):
+        assert odo is not None
         fig.add_trace(
             go.Scatter(
-                x=odo[:, 0],
-                y=odo[:, 1],
+                x=odo[scans, 0],
+                y=odo[scans, 1],
                 mode="lines",
                 name="odometry (before loop closure)",
+                legendgroup="odometry",
+                showlegend=k == 0,
                 line={"color": "#bcbd22", "width": 1.5},
             )
         )
     loops = run.loop_ends()
-    for accepted in (True, False):
+    owner = run.scan_sessions
+    kinds = [(True, False), (False, False)]
+    if owner is not None:
+        kinds = [(True, True), *kinds]
+    for accepted, between in kinds:
         xs: list[float | None] = []
         ys: list[float | None] = []
         texts: list[str | None] = []
         for i, j, ok, reasons in loops:
             if ok != accepted or not (0 <= i < len(est) and 0 <= j < len(est)):
                 continue
+            if owner is not None and accepted and (owner[i] != owner[j]) != between:
+                continue
             xs += [est[i, 0], est[j, 0], None]
             ys += [est[i, 1], est[j, 1], None]
             label = f"loop {i} → {j}" + (f"<br>{html.escape(reasons)}" if reasons else "")
             texts += [label, label, None]
         if xs:
-            color = _COLORS["accepted" if accepted else "rejected"]
+            color = _COLORS["between" if between else "accepted" if accepted else "rejected"]
+            kind = "between sessions" if between else "accepted" if accepted else "rejected"
             fig.add_trace(
                 go.Scatter(
                     x=xs,
                     y=ys,
                     mode="lines",
-                    name=f"loop closures ({'accepted' if accepted else 'rejected'})",
+                    name=f"loop closures ({kind})",
                     line={"color": color, "width": 2, "dash": "solid" if accepted else "dash"},
                     text=texts,
                     hoverinfo="text",
@@ -573,7 +640,11 @@ def _cards(run: RunFolder) -> str:
         ("held", str(verdicts.count("held"))),
     ]
     pos = run.estimate.positions
-    cards.append(("path length", f"{np.linalg.norm(np.diff(pos, axis=0), axis=1).sum():.1f} m"))
+    length = sum(  # each session's own: not the jump from one session's end to the next's start
+        float(np.linalg.norm(np.diff(pos[idx], axis=0), axis=1).sum())
+        for _, idx in run.session_indices()
+    )
+    cards.append(("path length", f"{length:.1f} m"))
     if "frames_per_second" in run.summary:
         cards.append(("frames/s", f"{run.summary['frames_per_second']:.1f}"))
     total = _column(run.rows, "time_ms")
@@ -587,6 +658,11 @@ def _cards(run: RunFolder) -> str:
     if run.loops:
         n_ok = sum(ok for _, _, ok, _ in run.loop_ends())
         cards.append(("loop closures", f"{n_ok} / {len(run.loops)}"))
+    if run.scan_sessions is not None:
+        cards.append(("sessions", str(len(run.sessions))))
+        between = [lp for lp in run.loops if lp.get("inter_session")]
+        n_between = sum(bool(lp.get("accepted")) for lp in between)
+        cards.append(("loops between sessions", f"{n_between} / {len(between)}"))
     return (
         '<div class="cards">'
         + "".join(
@@ -625,6 +701,8 @@ def render_report(folder: PathLike, *, title: str | None = None) -> str:
     _, pio, _ = _plotly()
     run = RunFolder(folder)
     name = title or str(run.summary.get("sequence") or run.root.resolve().name)
+    if title is None and run.scan_sessions is not None:  # a joint map: not its last run's name
+        name = f"{run.root.resolve().name}, a map of {len(run.sessions)} sessions"
     sections: list[tuple[str, Any]] = [("Trajectory", _trajectory_figure(run))]
     medians: dict[str, float] = {}
     if run.rows:

@@ -185,7 +185,12 @@ def run_mapping_to_folder(
     ``extend``: a saved map's folder (of the run's dimension): the run is mapped, located
     in it from no initial pose, closed against it and joined into one graph
     (:func:`~scanreg.pipeline.extend_map`; the saved map's ``config.toml`` unless ``config``
-    is given); ``output`` may be that folder (updated in place once the joint map is made)."""
+    is given); ``output`` may be that folder (updated in place once the joint map is made).
+    With it, ``report`` and ``bag`` are the joint map's (every session), and ``checkpoint``
+    (2D) writes the new run's map alone, in its own frame, to ``output/new_run_checkpoint/``
+    (kept after a stop, for :func:`merge_maps_to_folder`; removed once joined).
+
+    >>> run_mapping_to_folder("run2.mcap", "out2/", extend="out/", report=True)"""
     args = SimpleNamespace(
         path=_source(path),
         output=_path(output, "output"),
@@ -973,7 +978,9 @@ def _map(args: SimpleNamespace) -> dict[str, Any]:
     )
     paths["config"] = write_config(args.output / "config.toml", config)
     if args.bag is not None:
-        paths["bag"] = _write_map_bag(args.bag, res, args.resolution, frames)
+        from ..saved_map import SavedMap
+
+        paths["bag"] = _write_map_bag(args.bag, SavedMap.load(args.output), frames)
     if args.report:
         from ..report import write_report
 
@@ -990,17 +997,29 @@ def _map(args: SimpleNamespace) -> dict[str, Any]:
 #: extended map is written over them.
 _ONE_RUN_FILES = ("trajectory.png", "contradictions.csv", "report.html")
 
+#: The folder (inside the output) where ``--extend --checkpoint N`` writes the new run's map
+#: so far: a map of the new run alone, in its own frame (removed once the joint map is
+#: written; after a stop, ``scanreg merge OLD/ OUT/new_run_checkpoint -o OUT/`` joins it).
+EXTEND_CHECKPOINT = "new_run_checkpoint"
+
 
 def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
-    """``scanreg map NEW --extend OLD/``: the new run mapped alone, then joined to the saved
-    map (:func:`scanreg.pipeline.extend.extend_map`), written to ``args.output``."""
+    """``scanreg map NEW --extend OLD/``: the new run (a log or bag, as ``scanreg map`` reads
+    it) mapped alone, then joined to the saved map (:func:`scanreg.pipeline.extend_map`),
+    written to ``args.output`` with, on request, the joint map's report and ROS 2 bag;
+    ``--checkpoint``: the new run's map so far in ``OUT/new_run_checkpoint/``."""
+    import shutil
+
     from ..config import load_config
-    from ..saved_map import SavedMap
+    from ..saved_map import MANIFEST, SavedMap
     from .extend import extend_map
     from .mapping import MappingConfig, MappingInterrupted, run_mapping
     from .mapping3d import MappingConfig3D, run_mapping_3d
+    from .mapping_output import write_outputs
 
-    _not_available(args, ("bag", "checkpoint", "report"), "with --extend")
+    _at_least_one(args.checkpoint, "checkpoint", " scans")
+    if three_d:
+        _not_available(args, ("checkpoint",), "for 3D mapping runs (2D only)")
     saved = SavedMap.load(args.extend)
     dim = 3 if three_d else 2
     if saved.dim != dim or saved.node_points is None:
@@ -1008,10 +1027,15 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
             f"--extend: {args.extend} is a format-{saved.format_version} {saved.dim}D map; "
             f"a {dim}D run extends only a {dim}D map of format 2 (with its node scans)"
         )
+    out = Path(args.output)
+    if args.bag is not None:
+        out.mkdir(parents=True, exist_ok=True)  # a --bag inside it can be checked now
+    frames = _bag_settings(args)  # a bad bag path fails now, not after the run
     # The saved map's own configuration, unless another is given.
     own = Path(args.extend) / "config.toml"
     config_path = args.config if args.config is not None or not own.is_file() else own
     progress = not (args.quiet or args.json)
+    held = out / EXTEND_CHECKPOINT
     res: Any
     if three_d:
         from ..io import open_sequence
@@ -1030,11 +1054,31 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
             min_range=config.min_range,
             max_range=config.max_range,
         )
+
+        def checkpoint(partial: Any) -> None:  # the new run alone, in its own frame
+            write_outputs(
+                held, partial, resolution=args.resolution, plot=False, session=str(args.path)
+            )
+
         try:
-            res = run_mapping(scans, config, progress=progress)
+            res = run_mapping(
+                scans,
+                config,
+                progress=progress,
+                checkpoint=None if args.checkpoint is None else checkpoint,
+                checkpoint_every=args.checkpoint or 1000,
+            )
         except MappingInterrupted as exc:
+            kept = ""
+            if args.checkpoint is not None:  # never lose the new run's work
+                checkpoint(exc.partial)
+                kept = (
+                    f"; the new run mapped so far is written to {held}/ "
+                    f"({len(exc.partial.poses)} scans; `scanreg merge {args.extend} {held} "
+                    f"-o OUT/` joins it)"
+                )
             raise MappingStopped(
-                f"{exc}; nothing written: the saved map {args.extend}/ is unchanged",
+                f"{exc}; nothing joined: the saved map {args.extend}/ is unchanged{kept}",
                 interrupted=isinstance(exc.__cause__, KeyboardInterrupt),
             ) from exc
         described = {"scans": scans.describe()}
@@ -1048,7 +1092,19 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
         },
         **described,
     }
-    return _write_joint(Path(args.output), joint, report, config, head, tail)
+    result = _write_joint(out, joint, report, config, head, tail)
+    if args.checkpoint is not None and (held / MANIFEST).is_file():
+        shutil.rmtree(held)  # superseded by the joint map
+    extra: dict[str, Path] = {}
+    if frames is not None:
+        extra["bag"] = _write_map_bag(args.bag, joint, frames)
+    if args.report:
+        from ..report import write_report
+
+        extra["report"] = write_report(out)
+        refresh_manifest(out)
+    result["outputs"].update({k: str(v) for k, v in extra.items()})
+    return result
 
 
 def _write_joint(
@@ -1146,10 +1202,12 @@ def _map_3d(args: SimpleNamespace) -> dict[str, Any]:
     from .mapping3d import MappingConfig3D, run_mapping_3d
     from .mapping_output import summary, write_outputs
 
-    if args.bag is not None or args.report:
-        raise ValueError("--bag, --report: not available for 3D mapping runs yet")
+    _not_available(args, ("checkpoint",), "for 3D mapping runs (2D only)")
     if not args.voxel_size >= 0:
         raise ValueError(f"--voxel-size must be >= 0, got {args.voxel_size}")
+    if args.bag is not None:
+        args.output.mkdir(parents=True, exist_ok=True)  # a --bag inside it can be checked now
+    frames = _bag_settings(args)  # a bad bag path fails now, not after the run
     config = load_config(MappingConfig3D, args.config)
     seq = open_sequence(args.path, topic=args.topic)
     res = run_mapping_3d(
@@ -1187,6 +1245,15 @@ def _map_3d(args: SimpleNamespace) -> dict[str, Any]:
                     np.linalg.norm(est[-1, :3, 3] - truth[-1, :3, 3])
                 )
             result["accuracy"] = accuracy
+    if frames is not None:
+        from ..saved_map import SavedMap
+
+        paths["bag"] = _write_map_bag(args.bag, SavedMap.load(args.output), frames)
+    if args.report:
+        from ..report import write_report
+
+        paths["report"] = write_report(args.output)
+        refresh_manifest(args.output)
     result["outputs"] = {k: str(v) for k, v in paths.items()}
     return result
 
@@ -1404,34 +1471,43 @@ def _write_bag(args: SimpleNamespace, frames: Any, seq: Any, run: Any) -> dict[s
     return {"path": str(summary.path), "storage": summary.storage, "messages": summary.messages}
 
 
-def _write_map_bag(path: Path, res: Any, resolution: float, frames: Any) -> Path:
-    """The mapping run as a ROS 2 bag: one message set per graph node (its scan's optimized
-    pose, the odometry's, the node scan), the occupancy grid and the loop closures."""
-    from ..io.occupancy import occupancy_grid
+def _write_map_bag(path: Path, saved: Any, frames: Any) -> Path:
+    """A map (a :class:`~scanreg.SavedMap`, one session or several) as a ROS 2 bag: one
+    message set per graph node (its scan's optimized pose, the odometry's, the node's scan or
+    cloud), the map (2D occupancy grid, 3D voxelized cloud) and the loop closures. Bag time is
+    each session's own, the sessions one after another (1 s apart): a later session's stamps
+    may lie before an earlier one's, or days after it."""
     from ..io.rosbag_write import BagGrid, write_run_bag
 
-    nodes = list(res.node_scans)
-    index = {scan: k for k, scan in enumerate(nodes)}
-    stamps = [res.stamps[s] for s in nodes]
-    if any(t is None for t in stamps):
-        stamps = [0.1 * k for k in range(len(nodes))]  # a log without times: 10 Hz
-    t0 = float(stamps[0])
-    grid_poses = res.graph.poses()
-    grid = occupancy_grid(
-        [grid_poses[n] for n in range(len(nodes))], list(res.node_points), resolution=resolution
-    )
+    nodes = list(saved.node_scans)
+    stamps = np.asarray(saved.stamps, dtype=np.float64)[nodes]
+    sessions = (
+        np.zeros(len(nodes), np.int64) if saved.scan_sessions is None
+        else saved.scan_sessions[nodes]
+    )  # fmt: skip
+    times = np.zeros(len(nodes))
+    start = 0.0
+    for k in range(len(saved.sessions) or 1):
+        mine = sessions == k
+        if mine.any():
+            times[mine] = start + stamps[mine] - stamps[mine][0]
+            start = float(times[mine].max()) + 1.0
+    grid = saved.grid
+    index = {n: k for k, n in enumerate(sorted(saved.graph.vertices))}
     loops = [
-        (index[r.scan], index[r.submap_scan], r.accepted)
-        for r in res.loops
-        if r.scan in index and r.submap_scan in index
+        (index[r["node"]], index[r["submap_node"]], bool(r["accepted"]))
+        for r in saved.loops
+        if r.get("node") in index and r.get("submap_node") in index
     ]
+    odometry = saved.odometry_poses or saved.poses
     summary = write_run_bag(
         path,
-        [float(t) - t0 for t in stamps],
-        [res.poses[s] for s in nodes],
-        odometry_poses=[res.odometry_poses[s] for s in nodes],
-        scans=list(res.node_points),
-        grid=BagGrid(grid.probability, grid.resolution, grid.origin),
+        times,
+        [saved.poses[s] for s in nodes],
+        odometry_poses=[odometry[s] for s in nodes],
+        scans=list(saved.node_points),
+        map_points=saved.map_points,
+        grid=None if grid is None else BagGrid(grid.probability, grid.resolution, grid.origin),
         loops=loops,
         frames=frames,
         overwrite=True,
