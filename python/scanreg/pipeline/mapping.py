@@ -17,8 +17,8 @@ One :meth:`Mapper.step` per scan, in five stages:
 4. **match and verify** — :func:`~scanreg.pipeline.loops.match_loop` against the candidate's
    submap; every candidate, accepted or not, is kept as a :class:`LoopRecord` with its
    reasons. Recall does not rest on the graph knowing its own drift: when these windows have
-   found nothing for ``LoopSettings.wide_spacing`` metres, the nearest candidate's larger
-   submap is searched over a wide window (``LoopSettings.wide_window``: up to ±20 m, as wide
+   found nothing for ``LoopSettings.wide_spacing`` metres, the nearest candidate is searched
+   for in a larger submap over a wide window (``LoopSettings.wide_window``: up to ±20 m, as wide
    as the path between the two could have drifted), and a match that is sound on its own
    evidence (and not degenerate) but fails only the χ² test is held until another held loop
    agrees with it (both are then closed: the graph, not the loops, was wrong;
@@ -726,8 +726,9 @@ class Mapper:
                 # window that lets it be finds the corridor's look-alikes (the hospital log,
                 # windows grown with the path since the last loop: pairs of hypotheses 13
                 # nodes apart, 1-4 m along the corridor, agreeing with each other and
-                # accepted). Against a larger submap than the usual search's: a revisit from
-                # another heading sees little of a few nodes' points.
+                # accepted). Searched over a larger submap than the usual search's (a revisit
+                # from another heading sees little of a few nodes' points), measured against
+                # the usual one.
                 between = travel - self._node_travel[n]
                 half = min(wide[0], cfg.loops.min_window[0] + _MAX_DRIFT * between)
                 record, _ = self._match(
@@ -753,14 +754,16 @@ class Mapper:
         predicted = g.pose(n).inverse() @ g.pose(node)  # type: ignore[operator]
         assert isinstance(predicted, SE2)
         rel_cov = g.relative_covariance(n, node)
+        before = self._num_old(node)
         match = match_loop(
             self._node_points[node],
             node,
-            self._submap(n, self._num_old(node), half_size),
+            self._submap(n, before),
             predicted,
             rel_cov,
             cfg.loops,
             window=window,
+            search_submap=None if half_size is None else self._submap(n, before, half_size),
         )
         self._timing.add("matching", t_m)
         record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
