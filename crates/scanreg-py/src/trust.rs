@@ -22,7 +22,7 @@ use scanreg_core::normal_agreement::{self, AgreementInput};
 use scanreg_core::normal_noise;
 use scanreg_core::overlap;
 use scanreg_core::trust::dense::{flat, Mat, Vector};
-use scanreg_core::trust::{self, distortion, scene, shift::System, Held, Input, Kind};
+use scanreg_core::trust::{self, association, distortion, scene, shift::System, Held, Input, Kind};
 use scanreg_core::Kernel;
 
 /// A source's sampled normals `(indices, normals)`, as `sampled_normals` returns them.
@@ -259,6 +259,8 @@ fn trust_numbers(
             })
             .transpose()?,
         sampling,
+        // The registration's own analysis (`trust_analysis`) measures it; given numbers, none.
+        hidden_noise_variance: 0.0,
         distortion_system: None,
         length_scale,
         chosen: Kind::from_name(covariance).map_err(core_err)?,
@@ -637,11 +639,28 @@ fn trust_analysis(
             }
         };
         let has_normals = tn.is_some() || tc.is_some();
-        let sampling_system = if dim == 2 && has_normals {
+        let sampled_surfaces = if dim == 2 && has_normals {
             scene::sampling_system(src, dim, corr, &rot, max_step, normal_2d)
-                .map(|(h, m, _)| scaled((h, m)))
         } else {
             None
+        };
+        let sampling_system = sampled_surfaces.map(|s| scaled((s.hessian, s.meat)));
+        // 2D point-to-line: the noise the nearest-neighbour association hides, against the
+        // target's step along its surfaces (the source's, times how much finer the target
+        // samples them).
+        let hidden_noise_variance = match (&sampled_surfaces, tn) {
+            (Some(s), Some(_)) if method == Method::PointToPlane => {
+                association::hidden_noise_variance(
+                    src,
+                    tgt,
+                    corr,
+                    pm,
+                    s.mean_step * sampling_scale.sqrt(),
+                    s.surface_noise,
+                    normal_2d,
+                )
+            }
+            _ => 0.0,
         };
         let distortion_system = if dim == 2 && has_normals {
             distortion::distortion_system(
@@ -713,6 +732,7 @@ fn trust_analysis(
             agreement,
             valley,
             sampling_system: sampling_flat,
+            hidden_noise_variance,
             // NaN: measured here, only where it is used (a 2D result without a sampling
             // system): the scan's angular sort is most of the scene pass.
             sampling: match (sampling_system.is_none(), beam_phase_variance.is_nan()) {
@@ -866,10 +886,10 @@ fn trust_sampling(
         }),
         (None, None) => None,
     };
-    out.map(|(h, m, _)| {
+    out.map(|s| {
         Ok((
-            mat(py, &Mat::from_row_slice(3, 3, &h))?,
-            mat(py, &Mat::from_row_slice(3, 3, &m))?,
+            mat(py, &Mat::from_row_slice(3, 3, &s.hessian))?,
+            mat(py, &Mat::from_row_slice(3, 3, &s.meat))?,
         ))
     })
     .transpose()
