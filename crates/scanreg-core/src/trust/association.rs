@@ -111,8 +111,8 @@ mod tests {
         // The pose applies to the source: moved 1 cm up, the even points 2 cm off the wall and
         // the odd ones on it, the median square 4e-4 instead of 1e-4.
         let lift = [1.0, 0.0, 0.0, 0.0, 1.0, 0.01, 0.0, 0.0, 1.0];
-        let moved = hidden_noise_variance(&source, &target, &corr, &lift, 0.02, f64::NAN, up);
-        assert!((moved / got - 16.0).abs() < 1e-9);
+        let moved = hidden_noise_variance(&source, &target, &corr, &lift, 0.2, f64::NAN, up);
+        assert!((moved / far - 16.0).abs() < 1e-9);
         // Bounded by the surface noise given, and by the largest noise-to-step covered.
         let bounded = hidden_noise_variance(&source, &target, &corr, &eye, 0.02, 0.5 * s2, up);
         assert!((bounded / got - 0.25).abs() < 1e-12);
