@@ -51,6 +51,9 @@ pub struct TrustNumbers {
     degeneracy_removed_normal_noise: f64,
     #[pyo3(get)]
     point_variance: f64,
+    /// Of `point_variance`, what the nearest-neighbour association hid from the residuals.
+    #[pyo3(get)]
+    hidden_noise_variance: f64,
     #[pyo3(get)]
     hessian: Py<PyArray2<f64>>,
     #[pyo3(get)]
@@ -172,7 +175,7 @@ fn system(
     analysis, hessian, sigma2, *, method, levers, prior, drift, motion, length_scale, covariance,
     num_correspondences, sum_squared_distances, score_outer=None, effective_residuals=0.0,
     normal_noise=f64::NAN, typical_normal_noise=f64::NAN, normal_variance=0.0, agreement=None,
-    valley=None, sampling_system=None, sampling=0.0, held=None
+    valley=None, sampling_system=None, sampling=0.0, held=None, hidden_noise_variance=0.0
 ))]
 #[allow(clippy::too_many_arguments)]
 fn trust_numbers(
@@ -199,6 +202,7 @@ fn trust_numbers(
     sampling_system: Option<(PyReadonlyArray2<'_, f64>, PyReadonlyArray2<'_, f64>)>,
     sampling: f64,
     held: Option<Holding<'_>>,
+    hidden_noise_variance: f64,
 ) -> PyResult<TrustNumbers> {
     let a = &analysis.inner;
     let dof = (a.hessian.len() as f64).sqrt() as usize;
@@ -259,8 +263,8 @@ fn trust_numbers(
             })
             .transpose()?,
         sampling,
-        // The registration's own analysis (`trust_analysis`) measures it; given numbers, none.
-        hidden_noise_variance: 0.0,
+        // Measured by `trust_analysis` (`scanreg_core::trust::association`); given here.
+        hidden_noise_variance,
         distortion_system: None,
         length_scale,
         chosen: Kind::from_name(covariance).map_err(core_err)?,
@@ -290,6 +294,7 @@ fn numbers(
         degeneracy_count: deg.num_correspondences,
         degeneracy_removed_normal_noise: deg.removed_normal_noise,
         point_variance: out.point_variance,
+        hidden_noise_variance: out.hidden_noise_variance,
         hessian: mat(py, &out.hessian)?,
         censi: mat(py, &out.censi)?,
         block: mat(py, &out.block)?,

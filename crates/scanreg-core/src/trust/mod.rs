@@ -120,7 +120,10 @@ pub struct Outcome {
     pub descriptions: Vec<String>,
     /// The conditioning's weakest direction named.
     pub weakest_description: String,
+    /// Point variance per coordinate: the residuals' plus `hidden_noise_variance`.
     pub point_variance: f64,
+    /// The input's [`Input::hidden_noise_variance`], as added.
+    pub hidden_noise_variance: f64,
     pub hessian: Mat,
     pub censi: Mat,
     pub block: Mat,
@@ -297,7 +300,8 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
             degeneracy::MIN_CONSTRAINT,
         ),
     };
-    let pv = point_variance(input, dof) + input.hidden_noise_variance.max(0.0);
+    let hidden = input.hidden_noise_variance.max(0.0);
+    let pv = point_variance(input, dof) + hidden;
     let nv = input.normal_variance;
 
     let score_outer = input.score_outer.map(|s| from_rows(dof, s));
@@ -406,6 +410,7 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
         descriptions,
         weakest_description,
         point_variance: pv,
+        hidden_noise_variance: hidden,
         hessian: hessian_cov,
         censi,
         block,
