@@ -35,6 +35,9 @@ DEFAULT_MIN_CONSTRAINT = 0.03
 DETERMINED_MIN_CONSTRAINT = 0.01
 MIN_FACING = 20.0
 DEFAULT_NOISE_FACTOR = 6.0
+MEDIAN_CHI2_1 = 0.4549364231195728
+HIDDEN_NOISE_GAIN = 6.0
+MAX_NOISE_TO_STEP = 0.46
 
 
 @dataclass(frozen=True)
@@ -106,13 +109,15 @@ def sampling_system(
     max_step: float,
     tn: Any,
     tc: Any,
-) -> tuple[FloatArray, FloatArray] | None:
-    """2D: ``(H, M)`` of the source's beam phase (``scanreg_core::trust::scene``)."""
+) -> tuple[FloatArray, FloatArray, float, float] | None:
+    """2D: ``(H, M)`` of the source's beam phase (``scanreg_core::trust::scene``), the mean
+    step along the surfaces and the surface noise from the bends (NaN: fewer than 3)."""
     n = len(src)
     if src.shape[1] != 2 or n < 3 or (tn is None and tc is None):
         return None
     order = np.argsort(np.arctan2(src[:, 1], src[:, 0]), kind="stable")
     h, m, count = np.zeros((3, 3)), np.zeros((3, 3)), 0
+    along, bends = 0.0, []
     for k in range(1, n - 1):
         i = order[k]
         j = int(corr[i])
@@ -132,12 +137,43 @@ def sampling_system(
         if min(back, ahead) > max_step:
             continue
         e = float(mm @ step)
+        along += abs(float(mm[1] * step[0] - mm[0] * step[1]))
+        bend = 0.5 * (src[order[k + 1]] + src[order[k - 1]]) - src[i]
+        bends.append(float(mm @ bend) ** 2)
         p = src[i]
         jac = np.array([mm[0], mm[1], -mm[0] * p[1] + mm[1] * p[0]])
         h += np.outer(jac, jac)
         m += np.outer(jac, jac) * e * e
         count += 1
-    return (h, m) if count >= 3 else None
+    if count < 3:
+        return None
+    noise = float(np.median(bends)) / MEDIAN_CHI2_1 / 1.5 if len(bends) >= 3 else math.nan
+    return h, m, along / count, noise
+
+
+def hidden_noise_variance(
+    src: FloatArray,
+    tp: FloatArray,
+    tn: FloatArray,
+    corr: Any,
+    pose: FloatArray,
+    step: float,
+    surface_noise: float,
+) -> float:
+    """2D point-to-line: ``a σ̂⁴/h²`` (``scanreg_core::trust::association``)."""
+    used = np.asarray(corr) >= 0
+    if not (math.isfinite(step) and step > 0.0) or used.sum() < 3:
+        return 0.0
+    j = np.asarray(corr)[used]
+    moved = src[used] @ pose[:2, :2].T + pose[:2, 2]
+    r = ((moved - tp[j]) * tn[j]).sum(axis=1)
+    r2 = r[np.isfinite(r)] ** 2
+    if len(r2) < 3:
+        return 0.0
+    noise = float(np.sort(r2)[len(r2) // 2]) / MEDIAN_CHI2_1 / 2.0
+    if surface_noise < noise:
+        noise = surface_noise
+    return HIDDEN_NOISE_GAIN * noise * min(noise / step**2, MAX_NOISE_TO_STEP)
 
 
 def sampling_covariance(h: FloatArray, m: FloatArray, deg: Degeneracy) -> FloatArray | None:
@@ -386,23 +422,33 @@ def correspondence_analysis(ctx: Any, out: Any) -> CorrespondenceAnalysis:
             typical_normal_noise=eps2_typical,
             basis="hessian",
         )
+    ratio = _density_ratio(ctx)
+    system = sampling_system(
+        src,
+        corr,
+        np.asarray(out.pose)[:dim, :dim],
+        0.5 * float(s.max_correspondence_distance),
+        tn,
+        tc,
+    )
+    hidden = 0.0
+    if system is not None and tn is not None and method in ("point_to_plane", "point_to_line"):
+        hidden = hidden_noise_variance(
+            src,
+            np.asarray(tp),
+            np.asarray(tn),
+            corr,
+            np.asarray(out.pose),
+            system[2] * ratio,
+            system[3],
+        )
     return CorrespondenceAnalysis(
         censi=ana,
         degeneracy=deg,
-        point_variance=_point_variance(out, ana, method, dim, dof),
+        point_variance=_point_variance(out, ana, method, dim, dof) + hidden,
         normal_variance=normal_var,
         agreement=agreement,
-        sampling=_scaled(
-            sampling_system(
-                src,
-                corr,
-                np.asarray(out.pose)[:dim, :dim],
-                0.5 * float(s.max_correspondence_distance),
-                tn,
-                tc,
-            ),
-            _density_ratio(ctx),
-        ),
+        sampling=_scaled(None if system is None else system[:2], ratio),
     )
 
 

@@ -284,13 +284,6 @@ def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_inpu
     )  # fmt: skip
     common: dict[str, Any] = {"levers": levers, "prior": prior, "drift": np.zeros(3),
                               "motion": np.zeros(2), "length_scale": length}  # fmt: skip
-    want = _core.trust_numbers(
-        ana, out.hessian, 1e-4, method="point_to_line", covariance="calibrated",
-        num_correspondences=int(out.num_correspondences),
-        sum_squared_distances=float(out.sum_squared_distances), normal_noise=eps2,
-        typical_normal_noise=eps2t, normal_variance=nvar, agreement=(ha, ga, na, hk, gk, nk),
-        sampling_system=system, **common,
-    )  # fmt: skip
 
     def call(**change: Any) -> Any:
         args: dict[str, Any] = {
@@ -308,10 +301,21 @@ def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_inpu
         return _core.trust_analysis(**{**args, **change})
 
     got = call()
+    # The noise the association hides (its arithmetic: test_core_trust_equals_the_python_
+    # reference), added to the residuals' point variance.
+    assert 0.0 < got.hidden_noise_variance < got.point_variance
+    want = _core.trust_numbers(
+        ana, out.hessian, 1e-4, method="point_to_line", covariance="calibrated",
+        num_correspondences=int(out.num_correspondences),
+        sum_squared_distances=float(out.sum_squared_distances), normal_noise=eps2,
+        typical_normal_noise=eps2t, normal_variance=nvar, agreement=(ha, ga, na, hk, gk, nk),
+        sampling_system=system, hidden_noise_variance=got.hidden_noise_variance, **common,
+    )  # fmt: skip
     for name in ("calibrated", "censi", "block", "hessian", "model_shift", "information",
                  "degeneracy_information", "degeneracy_eigenvalues"):  # fmt: skip
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
     assert got.normal_variance == nvar and got.num_blocks == ana.num_blocks
+    assert got.point_variance == want.point_variance
     # The sampled normals it measured come back; given again, the same numbers.
     assert got.source_normals is not None
     np.testing.assert_array_equal(got.source_normals[1], normals)
@@ -324,7 +328,8 @@ def test_trust_analysis_in_one_call_equals_the_separate_calls_and_names_bad_inpu
         num_correspondences=int(out.num_correspondences),
         sum_squared_distances=float(out.sum_squared_distances), normal_noise=eps2,
         typical_normal_noise=eps2t, normal_variance=nvar, agreement=(ha, ga, na, hk, gk, nk),
-        sampling_system=(system[0], system[1] * 0.25), **common,
+        sampling_system=(system[0], system[1] * 0.25),
+        hidden_noise_variance=call(sampling_scale=0.25).hidden_noise_variance, **common,
     )  # fmt: skip
     np.testing.assert_array_equal(call(sampling_scale=0.25).calibrated, scaled.calibrated)
     # Given the target's spacing, the core measures the source's off the search of its sampled

@@ -388,6 +388,8 @@ class TrustNumbers:
     @property
     def point_variance(self) -> float: ...
     @property
+    def hidden_noise_variance(self) -> float: ...
+    @property
     def hessian(self) -> NDArray[np.float64]: ...
     @property
     def censi(self) -> NDArray[np.float64]: ...
@@ -513,6 +515,7 @@ def trust_numbers(
     sampling_system: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
     sampling: float = 0.0,
     held: tuple[NDArray[np.float64], float, float, float, int, float] | None = None,
+    hidden_noise_variance: float = 0.0,
 ) -> TrustNumbers: ...
 def trust_sampling(
     source: NDArray[np.float64],

@@ -98,7 +98,9 @@ class CovarianceEstimates:
     #: ``censi`` ∨ ``block``, with the prior variance along degenerate directions, plus
     #: ``model_shift`` as ``δδᵀ``.
     calibrated: FloatArray
-    #: Variance of each coordinate of a source or target point used by ``censi`` (units²).
+    #: Variance of each coordinate of a source or target point used by ``censi`` (units²): half
+    #: the residual variance, plus in 2D point-to-line the noise the nearest-neighbour
+    #: association hides from the residuals (``scanreg_core::trust::association``).
     point_variance: float
     #: Variance of a target normal's direction per tangent axis used by ``censi`` (rad²),
     #: measured between the two scans (point-to-plane/line; 0 otherwise).

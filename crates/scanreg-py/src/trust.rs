@@ -22,7 +22,7 @@ use scanreg_core::normal_agreement::{self, AgreementInput};
 use scanreg_core::normal_noise;
 use scanreg_core::overlap;
 use scanreg_core::trust::dense::{flat, Mat, Vector};
-use scanreg_core::trust::{self, distortion, scene, shift::System, Held, Input, Kind};
+use scanreg_core::trust::{self, association, distortion, scene, shift::System, Held, Input, Kind};
 use scanreg_core::Kernel;
 
 /// A source's sampled normals `(indices, normals)`, as `sampled_normals` returns them.
@@ -51,6 +51,9 @@ pub struct TrustNumbers {
     degeneracy_removed_normal_noise: f64,
     #[pyo3(get)]
     point_variance: f64,
+    /// Of `point_variance`, what the nearest-neighbour association hid from the residuals.
+    #[pyo3(get)]
+    hidden_noise_variance: f64,
     #[pyo3(get)]
     hessian: Py<PyArray2<f64>>,
     #[pyo3(get)]
@@ -172,7 +175,7 @@ fn system(
     analysis, hessian, sigma2, *, method, levers, prior, drift, motion, length_scale, covariance,
     num_correspondences, sum_squared_distances, score_outer=None, effective_residuals=0.0,
     normal_noise=f64::NAN, typical_normal_noise=f64::NAN, normal_variance=0.0, agreement=None,
-    valley=None, sampling_system=None, sampling=0.0, held=None
+    valley=None, sampling_system=None, sampling=0.0, held=None, hidden_noise_variance=0.0
 ))]
 #[allow(clippy::too_many_arguments)]
 fn trust_numbers(
@@ -199,6 +202,7 @@ fn trust_numbers(
     sampling_system: Option<(PyReadonlyArray2<'_, f64>, PyReadonlyArray2<'_, f64>)>,
     sampling: f64,
     held: Option<Holding<'_>>,
+    hidden_noise_variance: f64,
 ) -> PyResult<TrustNumbers> {
     let a = &analysis.inner;
     let dof = (a.hessian.len() as f64).sqrt() as usize;
@@ -259,6 +263,8 @@ fn trust_numbers(
             })
             .transpose()?,
         sampling,
+        // Measured by `trust_analysis` (`scanreg_core::trust::association`); given here.
+        hidden_noise_variance,
         distortion_system: None,
         length_scale,
         chosen: Kind::from_name(covariance).map_err(core_err)?,
@@ -288,6 +294,7 @@ fn numbers(
         degeneracy_count: deg.num_correspondences,
         degeneracy_removed_normal_noise: deg.removed_normal_noise,
         point_variance: out.point_variance,
+        hidden_noise_variance: out.hidden_noise_variance,
         hessian: mat(py, &out.hessian)?,
         censi: mat(py, &out.censi)?,
         block: mat(py, &out.block)?,
@@ -637,11 +644,28 @@ fn trust_analysis(
             }
         };
         let has_normals = tn.is_some() || tc.is_some();
-        let sampling_system = if dim == 2 && has_normals {
+        let sampled_surfaces = if dim == 2 && has_normals {
             scene::sampling_system(src, dim, corr, &rot, max_step, normal_2d)
-                .map(|(h, m, _)| scaled((h, m)))
         } else {
             None
+        };
+        let sampling_system = sampled_surfaces.map(|s| scaled((s.hessian, s.meat)));
+        // 2D point-to-line: the noise the nearest-neighbour association hides, against the
+        // target's step along its surfaces (the source's, times how much finer the target
+        // samples them).
+        let hidden_noise_variance = match (&sampled_surfaces, tn) {
+            (Some(s), Some(_)) if method == Method::PointToPlane => {
+                association::hidden_noise_variance(
+                    src,
+                    tgt,
+                    corr,
+                    pm,
+                    s.mean_step * sampling_scale.sqrt(),
+                    s.surface_noise,
+                    normal_2d,
+                )
+            }
+            _ => 0.0,
         };
         let distortion_system = if dim == 2 && has_normals {
             distortion::distortion_system(
@@ -713,6 +737,7 @@ fn trust_analysis(
             agreement,
             valley,
             sampling_system: sampling_flat,
+            hidden_noise_variance,
             // NaN: measured here, only where it is used (a 2D result without a sampling
             // system): the scan's angular sort is most of the scene pass.
             sampling: match (sampling_system.is_none(), beam_phase_variance.is_nan()) {
@@ -866,10 +891,10 @@ fn trust_sampling(
         }),
         (None, None) => None,
     };
-    out.map(|(h, m, _)| {
+    out.map(|s| {
         Ok((
-            mat(py, &Mat::from_row_slice(3, 3, &h))?,
-            mat(py, &Mat::from_row_slice(3, 3, &m))?,
+            mat(py, &Mat::from_row_slice(3, 3, &s.hessian))?,
+            mat(py, &Mat::from_row_slice(3, 3, &s.meat))?,
         ))
     })
     .transpose()

@@ -5,11 +5,13 @@
 //! and the result dataclasses; the models behind each step are documented there and in
 //! `docs/calibration.md`.
 //!
-//! One idea per file: [`dense`] (eigen, inverse, PSD on `dof × dof`), [`degeneracy`],
+//! One idea per file: [`association`] (the noise the nearest-neighbour association hides),
+//! [`dense`] (eigen, inverse, PSD on `dof × dof`), [`degeneracy`],
 //! [`covariance`], [`describe`] (directions named), [`weak`] (the prior along weak directions), [`shift`] (the model-error
 //! term), [`conditioning`], [`scene`] (per-point levers, length scale, beam phase), [`distortion`] (a
 //! sweep's motion distortion).
 
+pub mod association;
 pub mod conditioning;
 pub mod covariance;
 pub mod degeneracy;
@@ -97,6 +99,10 @@ pub struct Input<'a> {
     /// variance `Δα²/12`).
     pub sampling_system: Option<(&'a [f64], &'a [f64])>,
     pub sampling: f64,
+    /// 2D point-to-line: the per-coordinate point variance the nearest-neighbour association
+    /// hides from the residuals ([`association::hidden_noise_variance`]), added to the
+    /// residuals' own; 0 elsewhere.
+    pub hidden_noise_variance: f64,
     /// 2D: the distortion system `(H, g)` of a sweep's motion, row-major `H` and `g`
     /// ([`distortion::distortion_system`], [`covariance::distortion`]): its `b bᵀ` is added
     /// to `calibrated`. None: the scans are taken as instantaneous (or deskewed).
@@ -114,7 +120,10 @@ pub struct Outcome {
     pub descriptions: Vec<String>,
     /// The conditioning's weakest direction named.
     pub weakest_description: String,
+    /// Point variance per coordinate: the residuals' plus `hidden_noise_variance`.
     pub point_variance: f64,
+    /// The input's [`Input::hidden_noise_variance`], as added.
+    pub hidden_noise_variance: f64,
     pub hessian: Mat,
     pub censi: Mat,
     pub block: Mat,
@@ -291,7 +300,8 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
             degeneracy::MIN_CONSTRAINT,
         ),
     };
-    let pv = point_variance(input, dof);
+    let hidden = input.hidden_noise_variance.max(0.0);
+    let pv = point_variance(input, dof) + hidden;
     let nv = input.normal_variance;
 
     let score_outer = input.score_outer.map(|s| from_rows(dof, s));
@@ -400,6 +410,7 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
         descriptions,
         weakest_description,
         point_variance: pv,
+        hidden_noise_variance: hidden,
         hessian: hessian_cov,
         censi,
         block,

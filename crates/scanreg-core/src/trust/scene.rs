@@ -324,9 +324,39 @@ fn model_of(source: &[f64], order: &[usize], bearing: &[f64]) -> SamplingModel {
     }
 }
 
-/// A point's sampling step `(s, back, ahead)` from its rank in bearing order, its index and its
-/// target normal in the source frame (None: no neighbours to step to).
-type StepOf<'a> = dyn Fn(usize, usize, [f64; 2]) -> Option<([f64; 2], f64, f64)> + 'a;
+/// [`sampling_system`]'s result: `H` and `M`, row-major `3 × 3`, the model used and the mean
+/// step along the surfaces.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SamplingSystem {
+    pub hessian: [f64; 9],
+    pub meat: [f64; 9],
+    pub model: SamplingModel,
+    pub mean_step: f64,
+    /// The per-coordinate noise of the points about their surfaces, from the bends along it
+    /// ([`surface_noise`]); NaN with fewer than 3 points stepped on both sides.
+    pub surface_noise: f64,
+}
+
+/// Per-coordinate noise variance of points about their surface from each point's bend
+/// `b_i = m_i · ((p_prev + p_next)/2 − p_i)` (variance `1.5 σ²` for independent noise on a
+/// straight surface): `median(b²) / median(χ²₁) / 1.5`, so that corners and clutter, a
+/// minority, do not enter. Neighbours chosen as the nearest on either side read a little less
+/// than the noise where it is not small against the step: a bound the association's hidden
+/// noise is kept under ([`super::association`]).
+fn surface_noise(mut bends: Vec<f64>) -> f64 {
+    if bends.len() < 3 {
+        return f64::NAN;
+    }
+    let mid = bends.len() / 2;
+    let (_, &mut median, _) = bends.select_nth_unstable_by(mid, f64::total_cmp);
+    median / super::association::MEDIAN_CHI2_1 / 1.5
+}
+
+/// A point's sampling step `(s, back, ahead, bend)` from its rank in bearing order, its index
+/// and its target normal in the source frame (None: no neighbours to step to); `bend`, with a
+/// neighbour on either side, is their midpoint less the point.
+type StepOf<'a> = dyn Fn(usize, usize, [f64; 2]) -> Option<Step> + 'a;
+type Step = ([f64; 2], f64, f64, Option<[f64; 2]>);
 
 /// Neighbours searched per point for [`SamplingModel::Cloud`]'s samples on either side.
 const CLOUD_NEIGHBOURS: usize = 8;
@@ -361,6 +391,8 @@ const CLOUD_PHASE_RATIO: f64 = 1.0 / 3.0;
 /// whose steps to both neighbours are longer than `max_step` (half the gate) is left out: a
 /// wall seen at grazing incidence, along which moving a sample changes nothing but where the
 /// target's normal, fitted over a stretch longer than the wall is wide, is not the wall's.
+/// Also the stepped points' mean step along their surface, `|m_i^⊥ · s_i|`: the sampling step
+/// [`super::association`] reads the hidden noise against.
 /// None with fewer than 3 matched points or in 3D.
 pub fn sampling_system(
     source: &[f64],
@@ -369,7 +401,7 @@ pub fn sampling_system(
     rotation: &[f64],
     max_step: f64,
     normal_of: impl Fn(usize) -> Option<[f64; 2]>,
-) -> Option<([f64; 9], [f64; 9], SamplingModel)> {
+) -> Option<SamplingSystem> {
     let n = source.len() / dim.max(1);
     if dim != 2 || n < 3 || correspondences.len() != n || rotation.len() < 4 {
         return None;
@@ -378,6 +410,9 @@ pub fn sampling_system(
     let model = model_of(source, &order, &bearing);
     let pt = |i: usize| [source[2 * i], source[2 * i + 1]];
     let dist = |a: [f64; 2], b: [f64; 2]| (b[0] - a[0]).hypot(b[1] - a[1]);
+    let bend = |a: [f64; 2], p: [f64; 2], b: [f64; 2]| {
+        [0.5 * (a[0] + b[0]) - p[0], 0.5 * (a[1] + b[1]) - p[1]]
+    };
     // Per point: `(s, back, ahead)`, its sampling step and the distances to its neighbours.
     let steps: Box<StepOf<'_>> = match model {
         SamplingModel::Sweep => {
@@ -391,7 +426,12 @@ pub fn sampling_system(
                 }
                 let (prev, next) = (pt(order[k - 1]), pt(order[k + 1]));
                 let s = [0.5 * (next[0] - prev[0]), 0.5 * (next[1] - prev[1])];
-                Some((s, step[k - 1], step[k]))
+                Some((
+                    s,
+                    step[k - 1],
+                    step[k],
+                    Some(bend(prev, pt(order[k]), next)),
+                ))
             })
         }
         SamplingModel::Cloud => {
@@ -421,12 +461,13 @@ pub fn sampling_system(
                         [0.5 * (b[0] - a[0]), 0.5 * (b[1] - a[1])],
                         dist(a, p),
                         dist(p, b),
+                        Some(bend(a, p, b)),
                     )),
                     (Some(a), None) => {
-                        Some(([p[0] - a[0], p[1] - a[1]], dist(a, p), f64::INFINITY))
+                        Some(([p[0] - a[0], p[1] - a[1]], dist(a, p), f64::INFINITY, None))
                     }
                     (None, Some(b)) => {
-                        Some(([b[0] - p[0], b[1] - p[1]], f64::INFINITY, dist(p, b)))
+                        Some(([b[0] - p[0], b[1] - p[1]], f64::INFINITY, dist(p, b), None))
                     }
                     (None, None) => None,
                 }
@@ -437,6 +478,8 @@ pub fn sampling_system(
     let mut h_all = [0.0; 9];
     let mut m = [0.0; 9];
     let mut count = 0usize;
+    let mut along = 0.0;
+    let mut bends = Vec::new();
     for (k, &i) in order.iter().enumerate() {
         let Ok(j) = usize::try_from(correspondences[i]) else {
             continue;
@@ -457,7 +500,7 @@ pub fn sampling_system(
                 h_all[3 * r + c] += jac[r] * jac[c];
             }
         }
-        let Some(([sx, sy], back, ahead)) = steps(k, i, [mx, my]) else {
+        let Some(([sx, sy], back, ahead, bent)) = steps(k, i, [mx, my]) else {
             continue;
         };
         if back.min(ahead) > max_step {
@@ -465,6 +508,10 @@ pub fn sampling_system(
         }
         let e = mx * sx + my * sy;
         let e2 = e * e;
+        along += (my * sx - mx * sy).abs();
+        if let Some([bx, by]) = bent {
+            bends.push((mx * bx + my * by).powi(2));
+        }
         for r in 0..3 {
             for c in 0..3 {
                 let v = jac[r] * jac[c];
@@ -483,7 +530,13 @@ pub fn sampling_system(
     if misses_a_direction(&h, &h_all) {
         h = h_all;
     }
-    Some((h, m, model))
+    Some(SamplingSystem {
+        hessian: h,
+        meat: m,
+        model,
+        mean_step: along / count as f64,
+        surface_noise: surface_noise(bends),
+    })
 }
 
 /// Whether the stepped points' `H` leaves out a direction every matched point's `H_all`
@@ -600,16 +653,17 @@ mod tests {
         let corr: Vec<i64> = vec![0; 40];
         // A wall at y = 2, normal (0, 1): moving a sample along it changes no residual.
         let wall: Vec<f64> = (0..40).flat_map(|i| [i as f64 * 0.1 - 2.0, 2.0]).collect();
-        let (h, m, model) =
-            sampling_system(&wall, 2, &corr, &eye, 1.0, |_| Some([0.0, 1.0])).unwrap();
-        assert_eq!(model, SamplingModel::Sweep);
-        assert!(h[4] > 37.0 && m.iter().all(|v| v.abs() < 1e-24));
+        let sys = sampling_system(&wall, 2, &corr, &eye, 1.0, |_| Some([0.0, 1.0])).unwrap();
+        assert_eq!(sys.model, SamplingModel::Sweep);
+        assert!(sys.hessian[4] > 37.0 && sys.meat.iter().all(|v| v.abs() < 1e-24));
+        assert!((sys.mean_step - 0.1).abs() < 1e-12);
+        assert!(sys.surface_noise.abs() < 1e-24);
         // Every third point 5 cm off the wall (clutter): a step crosses the surface.
         let zig: Vec<f64> = (0..40)
             .flat_map(|i| [i as f64 * 0.1 - 2.0, 2.0 + 0.05 * f64::from(i % 3 == 0)])
             .collect();
-        let (_, m, _) = sampling_system(&zig, 2, &corr, &eye, 1.0, |_| Some([0.0, 1.0])).unwrap();
-        assert!(m[4] > 0.0);
+        let sys = sampling_system(&zig, 2, &corr, &eye, 1.0, |_| Some([0.0, 1.0])).unwrap();
+        assert!(sys.meat[4] > 0.0);
         assert!(sampling_system(&wall, 3, &corr, &eye, 1.0, |_| None).is_none());
         let axis = smallest_axis_2d(&[4.0, 0.0, 0.0, 0.01]);
         assert!((axis[0].abs() - 0.0).abs() < 1e-12 && (axis[1].abs() - 1.0).abs() < 1e-12);

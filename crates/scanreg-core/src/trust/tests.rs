@@ -69,6 +69,7 @@ fn corridor_is_weak_along_x_and_takes_the_prior_there() {
         valley: None,
         sampling_system: None,
         sampling: 0.0,
+        hidden_noise_variance: 0.0,
         distortion_system: None,
         length_scale: 3.0,
         chosen: Kind::Calibrated,
