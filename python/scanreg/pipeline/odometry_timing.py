@@ -85,16 +85,18 @@ def settle_odometry(
     stream = scans.odometry_stream
     if stream is None:
         return scans
-    received = np.array([s.logger_timestamp for s in scans.scans], dtype=np.float64)
-    last = np.searchsorted(stream.received, received, side="right") - 1
-    own = [None if j < 0 else SE2.from_vector(stream.poses[j]) for j in last]
-    lags = [float(scans.stamps[k] - stream.stamps[j]) for k, j in enumerate(last) if j >= 0]
+    order = np.argsort(stream.received, kind="stable")  # the order recorded
+    t_odom, p_odom, received = stream.stamps[order], stream.poses[order], stream.received[order]
+    at = np.array([s.logger_timestamp for s in scans.scans], dtype=np.float64)
+    last = np.searchsorted(received, at, side="right") - 1
+    own = [None if j < 0 else SE2.from_vector(p_odom[j]) for j in last]
+    lags = [float(scans.stamps[k] - t_odom[j]) for k, j in enumerate(last) if j >= 0]
     odometry, applied = odometry_at_scans(
         own,
         lags,
         scans.stamps,
-        stream.stamps,
-        stream.poses,
+        t_odom,
+        p_odom,
         lambda k: scans.points(k, min_range, max_range),
         latency=latency,
     )
