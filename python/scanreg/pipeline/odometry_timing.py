@@ -53,7 +53,7 @@ def odometry_at_scans(
     (for the latency). When the own poses are stale (median lag over
     :data:`STALE_ODOMETRY`), the stream is interpolated (:func:`interpolate_poses`) at each
     scan's stamp less ``latency`` (``None``: :func:`measure_laser_latency`); a scan that no
-    two messages less than 1 s apart bracket keeps its own pose.
+    two messages at most 1 s apart bracket keeps its own pose.
     """
     out = list(own)
     if len(odom_stamps) < 2 or not out:
