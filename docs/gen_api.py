@@ -53,6 +53,7 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.pipeline.commands", "what each scanreg command does, as library functions"),
     ("scanreg.pipeline.join", "one graph over two maps' sessions, 2D or 3D (extend and merge)"),
     ("scanreg.pipeline.join3d", "3D inter-session loops: place recognition, global registration"),
+    ("scanreg.pipeline.odometry_timing", "which wheel odometry goes with each 2D scan: latency"),
     ("scanreg.saved_map", "a saved map folder as one versioned type: SavedMap, its manifest"),
     ("scanreg.graph", "the pose graph (gtsam): calibrated-covariance edges, iSAM2, marginals"),
     ("scanreg.report", "the HTML run report"),

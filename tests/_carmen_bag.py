@@ -1,7 +1,7 @@
 """A CARMEN log written as a ROS bag by rosbags' own writer (not scanreg's), as a robot would
-have recorded it: ``/scan`` (sensor_msgs/LaserScan, frame ``laser``), ``/odom``
-(nav_msgs/Odometry odom → base_link, one per laser line: the robot pose it carries) and
-``/tf_static`` (base_link → laser: the mounting given). Used by tests and benchmarks."""
+have recorded it: ``/scan`` (sensor_msgs/LaserScan, frame ``laser``) from the laser lines,
+``/odom`` (nav_msgs/Odometry odom → base_link) from the ``ODOM`` lines, each at its own stamp,
+and ``/tf_static`` (base_link → laser: the mounting given). Used by tests and benchmarks."""
 
 from __future__ import annotations
 
@@ -39,6 +39,48 @@ def _quaternion(ts: Any, yaw: float) -> Any:
     )
 
 
+def _odometry(ts: Any, ros1: bool, seconds: float, pose: Any) -> Any:
+    t = ts.types
+    x, y, yaw = (float(v) for v in pose)
+    vec3 = t["geometry_msgs/msg/Vector3"]
+    return t["nav_msgs/msg/Odometry"](
+        header=_header(ts, ros1, seconds, "odom"),
+        child_frame_id="base_link",
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](
+            pose=t["geometry_msgs/msg/Pose"](
+                position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+                orientation=_quaternion(ts, yaw),
+            ),
+            covariance=np.zeros(36),
+        ),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](
+                linear=vec3(x=0, y=0, z=0), angular=vec3(x=0, y=0, z=0)
+            ),
+            covariance=np.zeros(36),
+        ),
+    )
+
+
+def _odometry_lines(log: CarmenLog, scans: tuple[Any, ...]) -> list[tuple[int, float, Any]]:
+    """``(file line, stamp, [x, y, θ])`` of the odometry a recorder would have received
+    while ``scans`` were: the ``ODOM`` messages between the first and the last scan's lines
+    and the one on either side (so that every scan has odometry around it); a log without
+    ``ODOM`` lines (the hospital's ``ROBOTLASER1``: the odometry inside each laser line) gives
+    each scan's own odometry fields at its stamp."""
+    odom = log.odometry
+    if len(odom) == 0:
+        return [
+            (s.line, s.timestamp, s.odometry_pose) for s in scans if s.odometry_pose is not None
+        ]
+    if len(odom.lines) != len(odom):
+        raise ValueError("log: its ODOM messages carry no line numbers (read it with read_scans)")
+    lines = np.asarray(odom.lines)
+    lo = max(int(np.searchsorted(lines, scans[0].line)) - 1, 0)
+    hi = min(int(np.searchsorted(lines, scans[-1].line)) + 1, len(lines))
+    return [(int(lines[k]), float(odom.timestamps[k]), odom.poses[k]) for k in range(lo, hi)]
+
+
 def write_carmen_bag(
     log: CarmenLog,
     path: Path,
@@ -52,9 +94,10 @@ def write_carmen_bag(
     tf_static: bool = True,
 ) -> Path:
     """Write the ``laser`` lines of ``log`` (``max_scans`` from the ``first``) as a bag of ``kind``
-    (``"ros1"``, ``"sqlite3"`` or ``"mcap"``). The Odometry pose of each scan is its line's
-    robot odometry pose, stamped with the line's timestamp; each message is received at the
-    line's place in the file (the bag's order is the file's, whatever the stamps say)."""
+    (``"ros1"``, ``"sqlite3"`` or ``"mcap"``): each laser line a LaserScan and each ``ODOM`` line
+    an Odometry message (:func:`_odometry_lines`; none when ``odometry`` is false), stamped
+    with the line's own timestamp and received at the line's place in the file (the bag's
+    order is the file's, whatever the stamps say)."""
     ros1 = kind == "ros1"
     ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST)
     if "tf2_msgs/msg/TFMessage" not in ts.types:  # rosbags' Noetic store has no tf2_msgs
@@ -75,36 +118,19 @@ def write_carmen_bag(
             )
         ]
     )
+    events: list[tuple[int, str, float, Any]] = [(s.line, "/scan", s.timestamp, s) for s in scans]
+    if odometry:
+        events += [(line, "/odom", when, pose) for line, when, pose in _odometry_lines(log, scans)]
+    events.sort(key=lambda e: (e[0], e[1]))  # file order (a laser line's own fields: odom first)
     messages: list[tuple[str, int, Any]] = []
     received = 0
-    for s in scans:
+    for _, topic, when, item in events:
         # receive times follow the file, a microsecond apart at least
-        received = max(_ns(s.timestamp), received + 1000)
-        if odometry and s.odometry_pose is not None:
-            x, y, yaw = (float(v) for v in s.odometry_pose)
-            pose = t["geometry_msgs/msg/Pose"](
-                position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
-                orientation=_quaternion(ts, yaw),
-            )
-            twist = t["geometry_msgs/msg/Twist"](
-                linear=vec3(x=0, y=0, z=0), angular=vec3(x=0, y=0, z=0)
-            )
-            messages.append(
-                (
-                    "/odom",
-                    received,
-                    t["nav_msgs/msg/Odometry"](
-                        header=_header(ts, ros1, s.timestamp, "odom"),
-                        child_frame_id="base_link",
-                        pose=t["geometry_msgs/msg/PoseWithCovariance"](
-                            pose=pose, covariance=np.zeros(36)
-                        ),
-                        twist=t["geometry_msgs/msg/TwistWithCovariance"](
-                            twist=twist, covariance=np.zeros(36)
-                        ),
-                    ),
-                )
-            )
+        received = max(_ns(when), received + 1000)
+        if topic == "/odom":
+            messages.append((topic, received, _odometry(ts, ros1, when, item)))
+            continue
+        s = item
         n = len(s.ranges)
         step = float(s.angles[1] - s.angles[0]) if n > 1 else 0.0
         messages.append(
@@ -130,9 +156,8 @@ def write_carmen_bag(
         "/odom": "nav_msgs/msg/Odometry",
         "/tf_static": "tf2_msgs/msg/TFMessage",
     }
-    first = _ns(scans[0].timestamp)
     if tf_static:
-        messages.insert(0, ("/tf_static", first, static))
+        messages.insert(0, ("/tf_static", messages[0][1], static))
     return write_messages(path, kind, ts, [(types[k], k, when, m) for k, when, m in messages])
 
 

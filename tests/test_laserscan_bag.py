@@ -193,6 +193,63 @@ def test_odometry_topic_upside_down_laser_and_override(tmp_path: Path, kind: str
     np.testing.assert_allclose(moved.points(0)[0], [0.0, -1.0], atol=1e-6)
 
 
+def _paired_bag(
+    tmp_path: Path, odom: list[tuple[int, int, float]], scans: list[tuple[int, int]]
+) -> Any:
+    """A bag of /odom messages ``(stamp_ns, received_ns, x)`` (the robot at ``x`` along its
+    heading 0) and /scan messages ``(stamp_ns, received_ns)``."""
+    kind = "mcap"
+    ts = _tf_store(kind)
+    topics = {
+        "/odom": (ODOM, [(got, _odom(ts, kind, stamp, x, 0.0, 0.0)) for stamp, got, x in odom]),
+        "/scan": (SCAN, [(got, _scan(ts, kind, stamp, RANGES)) for stamp, got in scans]),
+    }
+    return read_laserscan_bag(write_bag(tmp_path / "b", kind, ts, topics), laser_pose=(0, 0, 0))
+
+
+def test_stale_odometry_is_read_at_the_scan_time_less_the_latency(tmp_path: Path) -> None:
+    """Odometry at 5 Hz (x = t), scans 0.13 s after the last message received (stale, as
+    ACES' lines): the stream at each scan's stamp less the latency, as for a CARMEN log."""
+    odom = [(S + k * S // 5, S + k * S // 5, 1 + 0.2 * k) for k in range(11)]
+    scans = [(S + t, S + t + S // 1000) for t in (330_000_000, 730_000_000, 1_130_000_000)]
+    bag = _paired_bag(tmp_path, odom, scans)
+    # as read: at the stamps, the stream kept for the pipelines
+    assert bag.odometry_stream is not None and len(bag.odometry_stream) == 11
+    assert bag.laser_latency is None
+    late = scan_log(bag, latency=0.05)
+    assert late.odometry_stream is None and late.laser_latency == 0.05
+    xs = [p.translation[0] for p in late.odometry if p is not None]
+    np.testing.assert_allclose(xs, [1.28, 1.68, 2.08], atol=1e-9)
+    # measured: these 7-beam scans cannot time a turn, so 0 s; the stream at the stamps
+    measured = scan_log(bag)
+    assert measured.laser_latency == 0.0
+    xs = [p.translation[0] for p in measured.odometry if p is not None]
+    np.testing.assert_allclose(xs, [1.33, 1.73, 2.13], atol=1e-9)
+    # settled once: the stream is gone, a second pass changes nothing
+    assert scan_log(measured, latency=0.05).odometry == measured.odometry
+    assert measured.describe()["laser_latency"] == 0.0
+
+
+def test_synchronous_odometry_is_the_message_received_with_the_scan(tmp_path: Path) -> None:
+    """Each scan received 0.5 ms after an odometry message (synchronous, as Intel's lines),
+    one scan's stamp 0.35 s back (a busy logger's clock: 631 of Intel's step back): each scan
+    takes the message received with it, as a CARMEN laser line's odometry fields are; the
+    stream read at that scan's stamp puts it 0.35 m back."""
+    odom, scans = [], []
+    for k in range(8):
+        t = S + k * S // 10
+        odom.append((t, t, 1 + 0.1 * k))
+        scans.append((t + 500_000 - (350_000_000 if k == 5 else 0), t + 500_000))
+    bag = _paired_bag(tmp_path, odom, scans)
+    paired = scan_log(bag)
+    assert paired.laser_latency is None  # the own odometry kept: nothing shifted
+    xs = np.array([p.translation[0] for p in paired.odometry if p is not None])
+    np.testing.assert_allclose(xs, 1 + 0.1 * np.arange(8), atol=1e-9)
+    at_stamp = bag.odometry[5]
+    assert at_stamp is not None
+    assert at_stamp.translation[0] == pytest.approx(1.1505, abs=1e-9)  # x = t at 1.1505 s
+
+
 def test_topic_choice_is_refused_naming_the_topics(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -315,6 +372,54 @@ def test_converted_hospital_log_reads_like_the_log(
         np.testing.assert_allclose(bag.points(k, 0.1, 40), log.points(k, 0.1, 40), atol=1e-5)
         a, b = bag.prior(k), log.prior(k)
         assert (a is None) == (b is None) and (a is None or a.is_close(b, atol=1e-9))
+
+
+def _gaps(a: Any, b: Any) -> Any:
+    """Per scan, how far apart two odometry poses are: ``[metres, radians]`` (inf where either
+    is missing)."""
+    rows = []
+    for p, q in zip(a, b, strict=True):
+        if p is None or q is None:
+            rows.append([np.inf, np.inf])
+            continue
+        d = p.inverse() @ q
+        rows.append([float(np.hypot(*d.translation)), abs(d.angle)])
+    return np.array(rows)
+
+
+@pytest.mark.parametrize(("name", "latency"), [("aces", 0.07), ("intel", None)])
+def test_converted_log_bag_pairs_the_odometry_as_the_log(
+    tmp_path: Path, name: str, latency: float | None
+) -> None:
+    """400 scans of ACES and of Intel (from their 1000th) as a bag with /odom from the log's
+    ODOM lines at their own stamps: the wheel odometry the pipelines read from the bag is the
+    log path's, to rounding. ACES' lines carry a stale ODOM (0.1 s by median): both read the
+    stream at each scan's stamp less the latency both measure (0.07 s); Intel's are
+    synchronous: both keep each line's own. The old converter wrote each laser line's own
+    fields as /odom at the line's stamp: ACES' fields are 6.4 cm from the log path's odometry
+    at worst (0.4 cm by median); reading Intel's stream at the stamps (the old reader) leaves
+    scans without odometry and moves others by centimetres."""
+    from scanreg.pipeline.mapping import scan_odometry
+
+    log = read_scans(data_dir("freiburg-slam-benchmark", f"{name}.clf.bz2"))
+    first, n = 1000, 400
+    indices = [i for i, s in enumerate(log.scans) if s.kind == "FLASER"][first : first + n]
+    expected = scan_odometry(log, indices, latency=None)
+    raw = read_laserscan_bag(write_carmen_bag(log, tmp_path / name, first=first, max_scans=n))
+    bag = scan_log(raw)
+    assert bag.laser_latency == latency
+    gaps = _gaps(bag.odometry, expected)
+    assert gaps[:, 0].max() < 1e-9 and gaps[:, 1].max() < 1e-9
+    for k in range(1, n):
+        a, b = bag.prior(k), expected[k - 1].inverse() @ expected[k]  # type: ignore[union-attr]
+        assert a is not None and a.is_close(b, atol=1e-9)
+    # what the old converter and reader gave is not within that
+    if name == "aces":
+        fields = _gaps([log.scans[i].odometry_se2 for i in indices], expected)
+        assert fields[:, 0].max() > 0.05 and np.median(fields[:, 0]) > 0.003
+    else:
+        at_stamps = _gaps(raw.odometry, expected)
+        assert np.isinf(at_stamps[:, 0]).any() and np.median(at_stamps[:, 0]) > 0.002
 
 
 def test_map_and_localize_a_bag_cli(

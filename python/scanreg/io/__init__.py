@@ -54,7 +54,7 @@ from .rosbag import (
     read_bag_scans,
 )
 from .rosbag_write import BagFrames, BagGrid, BagTopics, LoopClosure, write_run_bag
-from .scan_log import ScanLog
+from .scan_log import OdometryStream, ScanLog
 from .sequences import (
     FolderSequence,
     KittiSequence,
@@ -205,6 +205,7 @@ __all__ = [
     "LaserScan",
     "LoopClosure",
     "Odometry",
+    "OdometryStream",
     "PointCloud",
     "PoseGraph",
     "PoseGraphEdge",

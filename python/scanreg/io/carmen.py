@@ -165,11 +165,15 @@ class Odometry:
         ``[tv, rv, accel]`` as logged (m/s, rad/s, m/s²).
     timestamps : (K,) float64
         ``ipc_timestamp`` as stored.
+    lines : (K,) int64
+        1-based line number of each message in the file (how the messages interleave with
+        the laser lines, :attr:`LaserScan.line`); empty when not known.
     """
 
     poses: FloatArray
     velocities: FloatArray
     timestamps: FloatArray
+    lines: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -180,8 +184,14 @@ class Odometry:
             _readonly(np.array(self.velocities, dtype=np.float64).reshape(-1, 3)),
         )
         set_(self, "timestamps", _readonly(np.array(self.timestamps, dtype=np.float64).reshape(-1)))
+        set_(self, "lines", _readonly(np.array(self.lines, dtype=np.int64).reshape(-1)))
         if not (len(self.poses) == len(self.velocities) == len(self.timestamps)):
             raise ValueError("poses, velocities, timestamps: expected the same length")
+        if len(self.lines) not in (0, len(self.timestamps)):
+            raise ValueError(
+                f"lines: expected one per message ({len(self.timestamps)}) or none, "
+                f"got {len(self.lines)}"
+            )
 
     def __len__(self) -> int:
         return int(self.poses.shape[0])
@@ -439,6 +449,7 @@ def read_carmen(path: PathLike) -> CarmenLog:
     scans: list[LaserScan] = []
     odom_values: list[FloatArray] = []
     odom_times: list[float] = []
+    odom_lines: list[int] = []
     skipped: dict[str, int] = {}
     for number, text in enumerate(lines, start=1):
         parts = text.split()
@@ -456,6 +467,7 @@ def read_carmen(path: PathLike) -> CarmenLog:
                 values, ts = _parse_odom(parts)
                 odom_values.append(values)
                 odom_times.append(ts)
+                odom_lines.append(number)
             elif _MESSAGE_NAME.fullmatch(kind):
                 skipped[kind] = skipped.get(kind, 0) + 1
             else:
@@ -471,6 +483,7 @@ def read_carmen(path: PathLike) -> CarmenLog:
         poses=values[:, :3],
         velocities=values[:, 3:],
         timestamps=np.array(odom_times, dtype=np.float64),
+        lines=np.array(odom_lines, dtype=np.int64),
     )
     return CarmenLog(path=p, scans=tuple(scans), odometry=odometry, skipped=skipped)
 

@@ -11,7 +11,11 @@ What is read, besides the scans (:func:`~scanreg.io.rosbag.iter_bag_scans`):
   heading along the shorter arc) between the two messages around it, from a
   ``nav_msgs/Odometry`` topic or, without one, from the ``/tf`` transforms odom → base.
   A scan between two messages more than 1 s apart, or outside them, gets none. No odometry
-  at all is fine: the pipelines then predict each scan by constant velocity.
+  at all is fine: the pipelines then predict each scan by constant velocity. The messages
+  themselves are kept as :attr:`~scanreg.io.ScanLog.odometry_stream` (stamps and receive
+  times): the pipelines pair them with the scans as they do a CARMEN log's
+  (:func:`scanreg.pipeline.odometry_timing.settle_odometry`: each scan's last odometry when
+  the two arrive together, else the stream at each stamp less the laser's latency).
 * **the base frame**: the Odometry messages' ``child_frame_id``, else the child of the
   ``odom`` frame on ``/tf``, else ``base_link`` / ``base_footprint`` when the tf tree links it
   to the laser, else the laser's own frame (identity mounting).
@@ -43,7 +47,7 @@ from .rosbag import (
     _stamp,
     iter_bag_scans,
 )
-from .scan_log import ScanLog, laser_pose_argument
+from .scan_log import OdometryStream, ScanLog, laser_pose_argument
 
 ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
@@ -107,6 +111,7 @@ class _Transform:
     parent: str
     child: str
     matrix: FloatArray  # 4x4, T_parent_child
+    received: float = 0.0  # the bag's receive time (s)
 
 
 def _quaternion_matrix(x: float, y: float, z: float, w: float) -> FloatArray:
@@ -141,7 +146,7 @@ def _read_tf(path: Path, topics: set[tuple[str, str]], topic: str) -> list[_Tran
     if (topic, TF_MESSAGE) not in topics:
         return []
     out = []
-    for _, _, msg, index in _deserialised(path, topic, TF_MESSAGE):
+    for _, received, msg, index in _deserialised(path, topic, TF_MESSAGE):
         for t in msg.transforms:
             try:
                 matrix = _pose_matrix(t.transform.translation, t.transform.rotation)
@@ -149,11 +154,8 @@ def _read_tf(path: Path, topics: set[tuple[str, str]], topic: str) -> list[_Tran
                 raise FileFormatError(path, f"{topic} message {index}: {exc}") from None
             if not np.isfinite(matrix).all():
                 raise FileFormatError(path, f"{topic} message {index}: non-finite transform")
-            out.append(
-                _Transform(
-                    _stamp(t), _frame(str(t.header.frame_id)), _frame(t.child_frame_id), matrix
-                )
-            )
+            parent, child = _frame(str(t.header.frame_id)), _frame(t.child_frame_id)
+            out.append(_Transform(_stamp(t), parent, child, matrix, received * 1e-9))
     return out
 
 
@@ -202,11 +204,11 @@ def _mounting(path: Path, transforms: list[_Transform], base: str, laser: str) -
 # --------------------------------------------------------------------------- odometry
 
 
-def _read_odometry(path: Path, topic: str) -> tuple[FloatArray, FloatArray, str, str]:
-    """``(stamps, [x, y, θ] rows, frame_id, child_frame_id)`` of a nav_msgs/Odometry topic."""
-    stamps, rows = [], []
+def _read_odometry(path: Path, topic: str) -> tuple[OdometryStream, str, str]:
+    """The messages of a nav_msgs/Odometry topic, its ``frame_id`` and ``child_frame_id``."""
+    stamps, rows, received = [], [], []
     parent = child = ""
-    for _, _, msg, index in _deserialised(path, topic, ODOMETRY):
+    for _, when, msg, index in _deserialised(path, topic, ODOMETRY):
         try:
             m = _pose_matrix(msg.pose.pose.position, msg.pose.pose.orientation)
         except ValueError as exc:
@@ -215,8 +217,10 @@ def _read_odometry(path: Path, topic: str) -> tuple[FloatArray, FloatArray, str,
             raise FileFormatError(path, f"{topic} message {index}: non-finite pose")
         stamps.append(_stamp(msg))
         rows.append(_planar(m).as_vector())
+        received.append(when * 1e-9)
         parent, child = parent or _frame(msg.header.frame_id), child or _frame(msg.child_frame_id)
-    return np.array(stamps), np.array(rows).reshape(-1, 3), parent, child
+    stream = OdometryStream(np.array(stamps), np.array(rows).reshape(-1, 3), np.array(received))
+    return stream, parent, child
 
 
 def interpolate_poses(
@@ -290,12 +294,13 @@ def read_laserscan_bag(
     odom = _pick_topic(p, topics, odom_topic, ODOMETRY, "odom_topic")
     base: str | None = None
     odometry: list[SE2 | None] = [None] * len(scans)
+    stream: OdometryStream | None = None
     source = "none"
     if odom is not None:
-        t_odom, rows, _, child = _read_odometry(p, odom)
+        read, _, child = _read_odometry(p, odom)
         base = child or None
-        if len(t_odom):
-            odometry = interpolate_poses(t_odom, rows, stamps)
+        if len(read):
+            stream = read
             source = f"{ODOMETRY.replace('/msg/', '/')} {odom}"
     else:
         # odom → base on /tf: the transforms whose parent is named odom
@@ -304,9 +309,14 @@ def read_laserscan_bag(
         if children:
             base = next((c for c in children if c in BASE_FRAMES), children[0])
             ours = [t for t in moving if t.child == base]
-            rows = np.array([_planar(t.matrix).as_vector() for t in ours])
-            odometry = interpolate_poses(np.array([t.stamp for t in ours]), rows, stamps)
+            stream = OdometryStream(
+                np.array([t.stamp for t in ours]),
+                np.array([_planar(t.matrix).as_vector() for t in ours]),
+                np.array([t.received for t in ours]),
+            )
             source = f"tf {ours[0].parent} → {base}"
+    if stream is not None:
+        odometry = interpolate_poses(stream.stamps, stream.poses, stamps)
     # The mounting: static transforms first, then /tf's (not the moving odom edge).
     tree = static + [t for t in dynamic if t.child != base or base is None]
     if base is None:
@@ -325,6 +335,7 @@ def read_laserscan_bag(
         base_frame=base,
         laser_frame=laser,
         odometry_source=source,
+        odometry_stream=stream,
     )
 
 

@@ -12,6 +12,7 @@ the poses they return are ``T_world_base``.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +23,39 @@ from .._validate import FloatArray
 from ..transform import SE2
 from ._common import _readonly
 from .carmen import LaserScan
+
+
+@dataclass(frozen=True)
+class OdometryStream:
+    """Wheel-odometry messages as a bag recorded them, in the order it received them.
+
+    Attributes
+    ----------
+    stamps : (K,) float64
+        Each message's own stamp (s).
+    poses : (K, 3) float64
+        ``[x, y, θ]``: ``T_odom_base`` per message.
+    received : (K,) float64
+        When the bag received each message (s; the scans': their ``logger_timestamp``).
+    """
+
+    stamps: FloatArray
+    poses: FloatArray
+    received: FloatArray
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        for name in ("stamps", "received"):
+            set_(self, name, _readonly(np.array(getattr(self, name), dtype=np.float64).ravel()))
+        set_(self, "poses", _readonly(np.array(self.poses, dtype=np.float64).reshape(-1, 3)))
+        if not len(self.stamps) == len(self.poses) == len(self.received):
+            raise ValueError(
+                f"stamps, poses, received: expected the same length, got {len(self.stamps)}, "
+                f"{len(self.poses)}, {len(self.received)}"
+            )
+
+    def __len__(self) -> int:
+        return len(self.stamps)
 
 
 @dataclass(frozen=True)
@@ -37,7 +71,9 @@ class ScanLog:
     stamps : (N,) float64
         Each scan's own time, seconds, as recorded (may step backwards in corrupted logs).
     odometry : tuple of SE2 or None
-        ``T_odom_base``: the wheel odometry at each scan's stamp (None where there is none).
+        ``T_odom_base``: the wheel odometry at each scan's stamp (None where there is none;
+        a bag's as read: interpolated at the stamps, until the pipelines pair it with the
+        scans as a log's: :func:`scanreg.pipeline.odometry_timing.settle_odometry`).
     T_base_laser : SE2
         The laser's mounting on the base (identity: the base is the laser).
     mirrored : bool
@@ -48,6 +84,12 @@ class ScanLog:
     odometry_source : str
         Where :attr:`odometry` came from (``"nav_msgs/Odometry /odom"``, ``"tf odom →
         base_link"``, ``"CARMEN FLASER odometry fields / ODOM"``, ``"none"``, …).
+    odometry_stream : OdometryStream or None
+        A bag's odometry messages as recorded, until the pipelines have paired them with the
+        scans (then None; always None for a CARMEN log, whose lines pair them).
+    laser_latency : float or None
+        How long before its stamp each scan was taken, as applied to :attr:`odometry` (s;
+        None: the odometry is each scan's own, or none was measured).
     """
 
     path: Path
@@ -59,6 +101,8 @@ class ScanLog:
     base_frame: str = "base"
     laser_frame: str = "laser"
     odometry_source: str = "none"
+    odometry_stream: OdometryStream | None = None
+    laser_latency: float | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -79,6 +123,11 @@ class ScanLog:
         for k, pose in enumerate(self.odometry):
             if pose is not None and not isinstance(pose, SE2):
                 raise TypeError(f"odometry[{k}]: expected SE2 or None, got {type(pose).__name__}")
+        stream = self.odometry_stream
+        if stream is not None and not isinstance(stream, OdometryStream):
+            raise TypeError(
+                f"odometry_stream: expected OdometryStream or None, got {type(stream).__name__}"
+            )
 
     def __len__(self) -> int:
         return len(self.scans)
@@ -122,16 +171,11 @@ class ScanLog:
     def select(self, indices: Sequence[int]) -> ScanLog:
         """The scans at ``indices``, in that order (their odometry and stamps with them)."""
         idx = [int(i) for i in indices]
-        return ScanLog(
-            path=self.path,
+        return dataclasses.replace(
+            self,
             scans=tuple(self.scans[i] for i in idx),
             stamps=self.stamps[idx],
             odometry=tuple(self.odometry[i] for i in idx),
-            T_base_laser=self.T_base_laser,
-            mirrored=self.mirrored,
-            base_frame=self.base_frame,
-            laser_frame=self.laser_frame,
-            odometry_source=self.odometry_source,
         )
 
     def describe(self) -> dict[str, object]:
@@ -143,6 +187,7 @@ class ScanLog:
             "laser_pose": [float(v) for v in self.T_base_laser.as_vector()],
             "laser_mirrored": self.mirrored,
             "odometry": self.odometry_source,
+            "laser_latency": self.laser_latency,
             "scans_with_odometry": sum(p is not None for p in self.odometry),
         }
 
@@ -157,4 +202,4 @@ def laser_pose_argument(value: object) -> SE2 | None:
     return SE2.from_vector(arr)
 
 
-__all__ = ["ScanLog", "laser_pose_argument"]
+__all__ = ["OdometryStream", "ScanLog", "laser_pose_argument"]

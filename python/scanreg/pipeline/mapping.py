@@ -64,6 +64,7 @@ from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, loops_agree,
 from .loops3d import LoopMatch3D
 from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph_fields
 from .odometry2d import Odometry2D, OdometryConfig2D, _positive
+from .odometry_timing import measure_laser_latency, odometry_at_scans
 from .smoothing import StepNoise, identify_step_noise, smooth_scan_poses
 from .wheel import WheelNoise, WheelOdometry
 
@@ -966,12 +967,6 @@ def _blind_sector(points: FloatArray) -> tuple[float, float]:
     return float(b[k]), float(gaps[k])
 
 
-#: A log's scans carry stale odometry when their odometry fields are, by median, this much
-#: older than the scans themselves (s): clock jitter between two messages logged together is
-#: a few milliseconds (Intel: 0.3 ms).
-STALE_ODOMETRY = 0.01
-
-
 def scan_odometry(
     log: CarmenLog,
     indices: Sequence[int],
@@ -981,25 +976,35 @@ def scan_odometry(
     max_range: float = 40.0,
 ) -> list[SE2 | None]:
     """The wheel odometry ``T_odom_robot`` of each scan ``log.scans[i]``, ``i`` in ``indices``,
-    at the scan's own time.
+    at the scan's own time (:func:`~scanreg.pipeline.odometry_timing.odometry_at_scans`, as
+    for a bag).
 
     A CARMEN laser message carries, as its odometry fields, the last ``ODOM`` message the
     logger had received. When those are stale — by a median of more than
-    :data:`STALE_ODOMETRY` over the log (ACES: 0.02-0.25 s, median 0.08 s, or 3 cm at the
-    robot's 0.4 m/s; Intel: 0.3 ms, synchronous) — the ``ODOM`` stream is interpolated
-    instead (linearly, the heading along the shorter arc) at the scan's time less
-    ``latency`` (s: how long before its timestamp the scan was taken; ``None``: measured on
-    the log by :func:`estimate_laser_latency` with the returns in ``[min_range, max_range]``,
-    only when the odometry is stale; ACES: 0.07 s). A scan keeps its own
-    fields when the log is synchronous, when no two in-order ``ODOM`` messages less than 1 s
-    apart bracket that time, or when its fields match no ``ODOM`` message. ``None`` for a
-    scan without odometry.
+    :data:`~scanreg.pipeline.odometry_timing.STALE_ODOMETRY` over the log (ACES: 0.02-0.25 s,
+    median 0.08 s, or 3 cm at the robot's 0.4 m/s; Intel: 0.3 ms, synchronous) — the ``ODOM``
+    stream is interpolated instead (linearly, the heading along the shorter arc) at the scan's
+    time less ``latency`` (s: how long before its timestamp the scan was taken; ``None``:
+    measured on the log by :func:`estimate_laser_latency` with the returns in ``[min_range,
+    max_range]``, only when the odometry is stale; ACES: 0.07 s). A scan keeps its own
+    fields when the log is synchronous, when no two ``ODOM`` messages at most 1 s apart
+    bracket that time, or when its fields match no ``ODOM`` message (its lag is then
+    unknown). ``None`` for a scan without odometry.
     """
+    return _scan_odometry(log, indices, latency, min_range, max_range)[0]
+
+
+def _scan_odometry(
+    log: CarmenLog,
+    indices: Sequence[int],
+    latency: float | None,
+    min_range: float,
+    max_range: float,
+) -> tuple[list[SE2 | None], float | None]:
+    """:func:`scan_odometry` and the latency it applied (None: the fields kept)."""
     scans = [log.scans[i] for i in indices]
     own = [s.odometry_se2 for s in scans]
     odom = log.odometry
-    if len(odom) < 2 or not scans:
-        return own
     t_odom, p_odom = np.asarray(odom.timestamps), np.asarray(odom.poses)
     message = {tuple(p): k for k, p in enumerate(p_odom.tolist())}
     lags = [
@@ -1007,26 +1012,16 @@ def scan_odometry(
         for s in scans
         if s.odometry_pose is not None and tuple(s.odometry_pose.tolist()) in message
     ]
-    if not lags or float(np.median(lags)) <= STALE_ODOMETRY:
-        return own
-    if latency is None:
-        latency = estimate_laser_latency(log, indices, min_range=min_range, max_range=max_range)
-    out: list[SE2 | None] = []
-    for s, pose in zip(scans, own, strict=True):
-        t = s.timestamp - latency
-        k = int(np.searchsorted(t_odom, t, side="right")) - 1
-        if pose is None or not 0 <= k < len(t_odom) - 1:
-            out.append(pose)
-            continue
-        t0, t1 = float(t_odom[k]), float(t_odom[k + 1])
-        if not (t0 <= t <= t1 and 0.0 < t1 - t0 < 1.0):
-            out.append(pose)
-            continue
-        a = (t - t0) / (t1 - t0)
-        p0, p1 = p_odom[k], p_odom[k + 1]
-        turn = math.atan2(math.sin(p1[2] - p0[2]), math.cos(p1[2] - p0[2]))
-        out.append(SE2.from_vector([*(p0[:2] + a * (p1[:2] - p0[:2])), p0[2] + a * turn]))
-    return out
+    stamps = np.array([s.timestamp for s in scans], dtype=np.float64)
+    return odometry_at_scans(
+        own,
+        lags,
+        stamps,
+        t_odom,
+        p_odom,
+        lambda k: scans[k].to_points(min_range, max_range),
+        latency=latency,
+    )
 
 
 def estimate_laser_latency(
@@ -1038,67 +1033,19 @@ def estimate_laser_latency(
     max_pairs: int = 400,
     max_latency: float = 0.3,
 ) -> float:
-    """How long before its timestamp a laser scan was taken, against the log's ``ODOM``
-    stream (s, in ``[0, max_latency]``, 5 ms steps): the shift δ that makes the heading change
-    between consecutive scans measured by the scans themselves (point-to-line registration of
-    each to the previous one) best agree with the ``ODOM`` stream's, interpolated at the
-    scans' times less δ (median absolute difference). Only pairs over which the odometry turns
-    more than 1° are used (up to ``max_pairs``, spread over the log): a shift changes nothing
-    on a straight line. The relations of a benchmark play no part.
-
-    A scan is sent after its sweep (a SICK LMS200 at 38.4 kBd needs about 0.1 s for a 180-beam
-    scan): on ACES this gives 0.08 s. ``0.0`` when the log has too few turning pairs (fewer
-    than 20) or no ``ODOM`` stream.
-    """
-    from ..register import register
-    from ..target import prepare
-
-    odom = log.odometry
-    if len(odom) < 2 or len(indices) < 2:
-        return 0.0
-    t_odom, p_odom = np.asarray(odom.timestamps), np.asarray(odom.poses)
-    if not (np.diff(t_odom) >= 0).mean() > 0.99:
-        return 0.0
-    heading = np.unwrap(p_odom[:, 2])
-    stamps = np.array([log.scans[i].timestamp for i in indices])
-
-    def odom_turn(shift: float) -> FloatArray:
-        h = np.interp(stamps - shift, t_odom, heading)
-        turn: FloatArray = np.diff(h)
-        return turn
-
-    turning = np.flatnonzero((np.abs(odom_turn(0.0)) > math.radians(1.0)) & (np.diff(stamps) > 0))
-    if len(turning) < 20:
-        return 0.0
-    pick = turning[np.linspace(0, len(turning) - 1, min(max_pairs, len(turning))).astype(int)]
-    measured, used = [], []
-    for k in pick:
-        a = log.scans[indices[k]].to_points(min_range, max_range)
-        b = log.scans[indices[k + 1]].to_points(min_range, max_range)
-        if len(a) < 20 or len(b) < 20:
-            continue
-        init = SE2.from_vector([0.0, 0.0, float(odom_turn(0.0)[k])])
-        res = register(
-            b,
-            prepare(a, normals=True),
-            method="point_to_line",
-            init=init,
-            max_correspondence_distance=0.3,
-            kernel="cauchy",
-            # The scans' own turn: a refinement that prefers its start where the fit cannot
-            # tell poses apart would lean towards the unshifted odometry the turn is compared
-            # with (ACES: 0.07 -> 0.06 s read, the halves 0.08 / 0.07 -> 0.055 / 0.065 s).
-            refine_in_basin=False,
-        )
-        if res.stop_reason == "converged":
-            measured.append(res.pose.angle)
-            used.append(k)
-    if len(used) < 20:
-        return 0.0
-    m = np.asarray(measured)
-    shifts = np.arange(0.0, max_latency + 1e-9, 0.005)
-    cost = [float(np.median(np.abs(odom_turn(d)[used] - m))) for d in shifts]
-    return float(shifts[int(np.argmin(cost))])
+    """How long before its timestamp a laser scan ``log.scans[i]``, ``i`` in ``indices``, was
+    taken, against the log's ``ODOM`` stream (s):
+    :func:`~scanreg.pipeline.odometry_timing.measure_laser_latency` with the scans' returns
+    in ``[min_range, max_range]`` (ACES: 0.07 s; ``0.0`` without an ``ODOM`` stream)."""
+    scans = [log.scans[i] for i in indices]
+    return measure_laser_latency(
+        np.array([s.timestamp for s in scans], dtype=np.float64),
+        lambda k: scans[k].to_points(min_range, max_range),
+        np.asarray(log.odometry.timestamps),
+        np.asarray(log.odometry.poses),
+        max_pairs=max_pairs,
+        max_latency=max_latency,
+    )
 
 
 #: The most memory the cache of prepared submaps may hold (bytes).

@@ -24,6 +24,7 @@ from ..io._common import PathLike
 from ..io.carmen import CarmenLog
 from ..io.scan_log import ScanLog, laser_pose_argument
 from ..io.sequences import BAG_SUFFIXES
+from .odometry_timing import settle_odometry
 
 
 def _carmen_scan_log(
@@ -35,7 +36,7 @@ def _carmen_scan_log(
     min_range: float,
     max_range: float,
 ) -> ScanLog:
-    from .mapping import laser_mounting, scan_odometry
+    from .mapping import _scan_odometry, laser_mounting
 
     kinds = [s.kind for s in log.scans]
     if not kinds:
@@ -49,7 +50,7 @@ def _carmen_scan_log(
             raise ValueError(f"max_scans: must be >= 1, got {max_scans}")
         indices = indices[:max_scans]
     scans = tuple(log.scans[i] for i in indices)
-    wheel = scan_odometry(log, indices, latency=latency, min_range=min_range, max_range=max_range)
+    wheel, applied = _scan_odometry(log, indices, latency, min_range, max_range)
     mounting = laser_mounting(log, indices)
     with_odometry = any(s.odometry_pose is not None for s in scans)
     return ScanLog(
@@ -63,6 +64,7 @@ def _carmen_scan_log(
         odometry_source="none"
         if not any(w is not None for w in wheel)
         else f"CARMEN {chosen} odometry fields / ODOM",
+        laser_latency=applied,
     )
 
 
@@ -82,14 +84,18 @@ def scan_log(
     first kind in the log), in file order; the wheel odometry at each scan's time
     (:func:`~scanreg.pipeline.mapping.scan_odometry` with ``latency``, ``min_range``,
     ``max_range``); the mounting from its lines
-    (:func:`~scanreg.pipeline.mapping.laser_mounting`).
+    (:func:`~scanreg.pipeline.mapping.laser_mounting`). A ScanLog read from a bag: its
+    odometry messages paired with its scans the same way
+    (:func:`~scanreg.pipeline.odometry_timing.settle_odometry`, the same arguments).
     ``laser_pose`` (``[x, y, θ]``) overrides the mounting of either.
     """
     override = laser_pose_argument(laser_pose)
     if isinstance(source, ScanLog):
         if kind is not None:
             raise ValueError("kind: only for a CARMEN log (a ScanLog holds one laser stream)")
-        out = source.head(max_scans)
+        out = settle_odometry(
+            source.head(max_scans), latency=latency, min_range=min_range, max_range=max_range
+        )
     elif isinstance(source, CarmenLog):
         out = _carmen_scan_log(
             source,
@@ -131,13 +137,14 @@ def open_scan_log(
 
         if kind is not None:
             raise ValueError("kind: only for a CARMEN log (a bag's stream is its scan_topic)")
-        return read_laserscan_bag(
+        bag = read_laserscan_bag(
             path,
             scan_topic=scan_topic,
             odom_topic=odom_topic,
             laser_pose=laser_pose,
             max_scans=max_scans,
         )
+        return scan_log(bag, latency=latency, min_range=min_range, max_range=max_range)
     for name, value in (("scan_topic", scan_topic), ("odom_topic", odom_topic)):
         if value is not None:
             raise ValueError(f"{name}: only for a ROS bag, not {path}")
