@@ -166,9 +166,9 @@ def test_cli_map_3d_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     code = main(["map", "sim:loop,frames=5", "-o", str(tmp_path / "o"), "--config", str(config)])
     assert code == EXIT_BAD_INPUT
     assert "node_distanse" in capsys.readouterr().err
-    code = main(["map", "sim:loop,frames=5", "-o", str(tmp_path / "o"), "--report"])
+    code = main(["map", "sim:loop,frames=5", "-o", str(tmp_path / "o"), "--checkpoint", "2"])
     assert code == EXIT_BAD_INPUT
-    assert "--report" in capsys.readouterr().err
+    assert "--checkpoint" in capsys.readouterr().err
 
 
 def _room(rng: np.random.Generator, n: int = 3000) -> np.ndarray:
