@@ -24,6 +24,7 @@ pytest.importorskip("gtsam")
 from scanreg.eval.relations import read_relations, relation_error
 from scanreg.io.trajectory import Trajectory
 from scanreg.pipeline import MappingConfig, merge_maps, run_mapping
+from scanreg.pipeline.join import join_sessions
 from scanreg.saved_map import MANIFEST, SavedMap
 
 #: The unrelated frame the second map is moved into.
@@ -63,6 +64,9 @@ def _by_stamp(poses: tuple[Any, ...], stamps: Any) -> dict[float, SE2]:
 
 def test_merge_two_sessions_in_unrelated_frames(intel: dict[str, SavedMap]) -> None:
     one, a, b = intel["one"], intel["a"], intel["b"]
+    for bad in (1.5, -0.1, float("nan"), True):
+        with pytest.raises(ValueError, match=r"^min_fraction: expected a number in \[0, 1\]"):
+            join_sessions(a, b, min_fraction=bad)
     merged, report = merge_maps(a, b)
     assert merged.sessions == ("a", "b") and merged.num_scans == a.num_scans + b.num_scans
     assert merged.num_nodes == a.num_nodes + b.num_nodes

@@ -293,7 +293,9 @@ def join_sessions(
         raise ValueError(f"session: expected a new, non-empty name, got {sorted(clash)}")
     if isinstance(min_loops, bool) or not isinstance(min_loops, int) or min_loops < 1:
         raise ValueError(f"min_loops: expected an int >= 1, got {min_loops!r}")
-    if not (isinstance(min_fraction, (int, float)) and 0.0 <= min_fraction <= 1.0):
+    if isinstance(min_fraction, bool) or not (
+        isinstance(min_fraction, (int, float)) and 0.0 <= min_fraction <= 1.0
+    ):
         raise ValueError(f"min_fraction: expected a number in [0, 1], got {min_fraction!r}")
     assert saved.graph is not None
     k_old = saved.num_nodes
