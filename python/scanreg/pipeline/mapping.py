@@ -748,7 +748,9 @@ class Mapper:
         half_size: int | None = None,
     ) -> tuple[LoopRecord[LoopMatch], tuple[float, float]]:
         """Match ``node``'s scan against submap ``n``; close the loop, or hold it as a
-        hypothesis (see :meth:`_hypothesize`)."""
+        hypothesis (see :meth:`_hypothesize`). ``half_size``: the correlative search runs in
+        submap ``n`` of that many nodes a side (the wide search's larger one); the match is
+        measured against the usual submap either way."""
         g = self._graph
         cfg = self.config
         t_m = _clock()
