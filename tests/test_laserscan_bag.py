@@ -536,3 +536,19 @@ def test_mounting_republished_on_tf(tmp_path: Path) -> None:
     assert abs(abs(log.T_base_laser.angle) - math.pi) < 1e-9  # facing backwards
     assert log.odometry[0] is not None
     np.testing.assert_allclose(log.odometry[0].as_vector(), [0.1, 0.0, 0.0], atol=1e-9)
+
+
+def test_odometry_stream_refuses_bad_rows_naming_the_argument() -> None:
+    from scanreg.io.scan_log import OdometryStream
+
+    good = OdometryStream([0.0, 1.0], [[0, 0, 0], [1, 0, 0.1]], [0.0, 1.0])
+    assert good.poses.shape == (2, 3) and len(good) == 2
+    assert len(OdometryStream([], [], [])) == 0  # a bag with no odometry messages
+    with pytest.raises(ValueError, match=r"^poses: expected \(K, 3\) rows .*shape \(2, 2\)"):
+        OdometryStream([0.0, 1.0], [[0, 0], [1, 0]], [0.0, 1.0])
+    with pytest.raises(ValueError, match=r"^stamps: expected finite values"):
+        OdometryStream([0.0, math.nan], [[0, 0, 0], [1, 0, 0]], [0.0, 1.0])
+    with pytest.raises(ValueError, match=r"^poses: expected finite values"):
+        OdometryStream([0.0, 1.0], [[0, 0, 0], [math.inf, 0, 0]], [0.0, 1.0])
+    with pytest.raises(ValueError, match=r"^stamps, poses, received: expected the same length"):
+        OdometryStream([0.0], [[0, 0, 0], [1, 0, 0]], [0.0, 1.0])

@@ -47,7 +47,15 @@ class OdometryStream:
         set_ = object.__setattr__
         for name in ("stamps", "received"):
             set_(self, name, _readonly(np.array(getattr(self, name), dtype=np.float64).ravel()))
-        set_(self, "poses", _readonly(np.array(self.poses, dtype=np.float64).reshape(-1, 3)))
+        poses = np.array(self.poses, dtype=np.float64)
+        if poses.size == 0:
+            poses = poses.reshape(0, 3)
+        if poses.ndim != 2 or poses.shape[1] != 3:
+            raise ValueError(f"poses: expected (K, 3) rows [x, y, θ], got shape {poses.shape}")
+        set_(self, "poses", _readonly(poses))
+        for name in ("stamps", "poses", "received"):
+            if not np.isfinite(getattr(self, name)).all():
+                raise ValueError(f"{name}: expected finite values, got NaN or inf")
         if not len(self.stamps) == len(self.poses) == len(self.received):
             raise ValueError(
                 f"stamps, poses, received: expected the same length, got {len(self.stamps)}, "
