@@ -152,6 +152,30 @@ def test_corridor_loop_has_no_information_along_the_corridor() -> None:
     assert abs(across) > 0.15 and abs(moved[1] - across) < 0.01  # across: onto the truth
 
 
+def test_a_degenerate_loop_is_no_hypothesis_and_the_search_submap_shares_the_anchor() -> None:
+    # The corridor above, with the graph certain of a prediction 0.4 m along the corridor:
+    # the match fails χ² on its own good evidence, but along the axis it cannot fix itself,
+    # so it is not held as a hypothesis (a look-alike one window away would agree with it).
+    scene = sim.corridor(length=80.0, width=2.0, closed_ends=False)
+    laser = dataclasses.replace(sim.LaserModel.preset("laser_360"), max_range=8.0)
+    poses = {n: SE2.from_vector([26.0 + 0.5 * n, 0.1 * (n % 2), 0.0]) for n in range(17)}
+    scans = {n: sim.simulate_scan(scene, laser, p, seed=n).points for n, p in poses.items()}
+    sub = build_submap(8, list(range(6, 11)), scans, poses, resolution=0.05, voxel_size=0.05)
+    wide = build_submap(8, list(range(17)), scans, poses, resolution=0.05, voxel_size=0.05)
+    here = SE2.from_vector([31.3, -0.3, 0.05])
+    points = sim.simulate_scan(scene, laser, here, seed=11).points
+    predicted = (poses[8].inverse() @ here) @ SE2.from_vector([0.4, 0.2, 0.0])
+    certain = np.diag([1e-6, 1e-6, 1e-8])
+    match = match_loop(points, 30, sub, predicted, certain, LoopSettings(), search_submap=wide)
+    assert match.degenerate_directions and match.chi2 > 16.27
+    assert not match.accepted and not match.hypothesis, match.reasons
+    other = build_submap(9, list(range(7, 12)), scans, poses, resolution=0.05, voxel_size=0.05)
+    with pytest.raises(ValueError, match=r"^search_submap: must share the submap's anchor"):
+        match_loop(points, 30, sub, predicted, certain, LoopSettings(), search_submap=other)
+    with pytest.raises(TypeError, match=r"^search_submap: expected a Submap2D or None, got"):
+        match_loop(points, 30, sub, predicted, certain, LoopSettings(), search_submap=wide.grid)  # type: ignore[arg-type]
+
+
 def test_intel_excerpt_relations_after_closure() -> None:
     # The first 300 scans of the Intel subset (one scan every ~3 s of the raw log, with its
     # wheel odometry): the first third of the run, around the lab's first loops.

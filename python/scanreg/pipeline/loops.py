@@ -286,6 +286,16 @@ def match_loop(
     ``submap``). The χ² test against ``relative_covariance`` never
     stops a match whose own evidence is good: it is then returned as a ``hypothesis``."""
     s = settings
+    if search_submap is not None:
+        if not isinstance(search_submap, Submap2D):
+            raise TypeError(
+                f"search_submap: expected a Submap2D or None, got {type(search_submap).__name__}"
+            )
+        if search_submap.anchor != submap.anchor:
+            raise ValueError(
+                f"search_submap: must share the submap's anchor (its frame), got anchor "
+                f"{search_submap.anchor} for {submap.anchor}"
+            )
     dt, dr = search_window(relative_covariance, s) if window is None else window
     # Branch and bound with the score floor: a window that does not hold the place (most
     # candidates) is given up early instead of searched to its best non-match.
