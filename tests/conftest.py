@@ -31,6 +31,20 @@ def data_dir(*parts: str) -> Path:
     return path
 
 
+def interrupt_mapping_at(monkeypatch: pytest.MonkeyPatch, index: int) -> None:
+    """Make the 2D mapper raise KeyboardInterrupt (Ctrl-C) as it takes scan ``index``."""
+    from scanreg.pipeline import mapping
+
+    integrate = mapping.Mapper.integrate
+
+    def interrupted(self: mapping.Mapper, tracked: mapping.Tracked) -> mapping.MappingStep:
+        if tracked.index == index:
+            raise KeyboardInterrupt
+        return integrate(self, tracked)
+
+    monkeypatch.setattr(mapping.Mapper, "integrate", interrupted)
+
+
 @pytest.fixture
 def data() -> Path:
     """The real-data root folder (see :func:`data_dir`)."""

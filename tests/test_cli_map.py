@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import data_dir
+from conftest import data_dir, interrupt_mapping_at
 from scanreg.cli import EXIT_BAD_INPUT, EXIT_OK, main
 
 pytest.importorskip("gtsam")
@@ -154,16 +154,8 @@ def test_interrupted_map_writes_what_was_mapped(
     # Ctrl-C at the 150th scan: the run stops, says so, and leaves a readable folder of what
     # it had mapped (poses, graph, map), never nothing.
     from scanreg.cli import EXIT_INTERRUPTED
-    from scanreg.pipeline import mapping
 
-    integrate = mapping.Mapper.integrate
-
-    def interrupt_at_150(self: mapping.Mapper, tracked: mapping.Tracked) -> mapping.MappingStep:
-        if tracked.index == 150:
-            raise KeyboardInterrupt
-        return integrate(self, tracked)
-
-    monkeypatch.setattr(mapping.Mapper, "integrate", interrupt_at_150)
+    interrupt_mapping_at(monkeypatch, 150)
     out = tmp_path / "out"
     code = main(["map", str(excerpt), "-o", str(out), "--quiet", "--no-plots"])
     assert code == EXIT_INTERRUPTED

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import data_dir
+from conftest import data_dir, interrupt_mapping_at
 from scanreg import SE2
 from scanreg.cli import EXIT_BAD_INPUT, EXIT_OK, main
 
@@ -240,7 +240,7 @@ def test_cli_extend_checkpoint_keeps_the_new_run(
     OUT/new_run_checkpoint/, removed once joined; a stop leaves it there, the saved map
     untouched, and ``scanreg merge`` joins what was mapped."""
     from scanreg.cli import EXIT_INTERRUPTED
-    from scanreg.pipeline import mapping, mapping_output
+    from scanreg.pipeline import mapping_output
 
     written: list[tuple[Path, int]] = []
     write_outputs = mapping_output.write_outputs
@@ -259,14 +259,7 @@ def test_cli_extend_checkpoint_keeps_the_new_run(
     assert not held.exists() and len(SavedMap.load(out).sessions) == 2
     # Ctrl-C at the new run's 250th scan: the saved map is unchanged, the new run's 250
     # scans are a map of their own, which merge joins to the saved one.
-    integrate = mapping.Mapper.integrate
-
-    def interrupt_at_250(self: mapping.Mapper, tracked: mapping.Tracked) -> mapping.MappingStep:
-        if tracked.index == 250:
-            raise KeyboardInterrupt
-        return integrate(self, tracked)
-
-    monkeypatch.setattr(mapping.Mapper, "integrate", interrupt_at_250)
+    interrupt_mapping_at(monkeypatch, 250)
     stopped = tmp_path / "stopped"
     argv = ["map", str(sessions["b"]), "--extend", str(old_map), "-o", str(stopped)]
     assert main([*argv, "--quiet", "--checkpoint", "100"]) == EXIT_INTERRUPTED
