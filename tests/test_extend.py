@@ -115,8 +115,12 @@ def test_cli_extend_writes_both_sessions(
         assert len(tum) == result["scans_per_session"][k] and f"session_{k}_poses_tum.txt" in files
     assert np.loadtxt(out2 / "poses_tum.txt").shape == (joint.num_scans, 8)
     assert set(files) == {p.name for p in out2.iterdir()}
-    # In place (no -o): the folder becomes the joint map; the first run's plot and self-check
-    # (they describe one run) are gone, and the manifest says so.
+    # The joint map's self-check (each session's scans judge the other's) in its summary.
+    check = json.loads((out2 / "summary.json").read_text())["self_check"]
+    assert check == result["self_check"] and check["consistent"], check
+    assert check["returns"] > 1000 and (out2 / "contradictions.csv").is_file(), check
+    # In place (no -o): the folder becomes the joint map; the first run's plot (it describes
+    # one run) is gone, its self-check replaced by the joint map's, and the manifest says so.
     inplace = tmp_path / "inplace"
     shutil.copytree(out, inplace)
     (inplace / "trajectory.png").write_bytes(b"")
@@ -125,7 +129,8 @@ def test_cli_extend_writes_both_sessions(
     capsys.readouterr()
     files = json.loads((inplace / MANIFEST).read_text())["files"]
     assert set(files) == {p.name for p in inplace.iterdir()}
-    assert "trajectory.png" not in files and "contradictions.csv" not in files
+    assert "trajectory.png" not in files and "contradictions.csv" in files
+    assert json.loads((inplace / "summary.json").read_text())["self_check"]["consistent"]
     assert SavedMap.load(inplace).sessions == (str(sessions["a"]), str(sessions["b"]))
     # The saved map it extended is untouched; the joint map localizes like any other.
     assert SavedMap.load(out).sessions == (str(sessions["a"]),)
@@ -220,6 +225,7 @@ def test_cli_extend_from_a_bag_with_report_and_bag(
     assert f"session 0: {sessions['a']}" in text and f"session 1: {bag}" in text
     assert "loop closures (between sessions)" in text and "loops between sessions" in text
     assert "Occupancy grid" in text and "both, a map of 2 sessions" in text
+    assert "Self-check" in text and result["self_check"]["consistent"], result["self_check"]
     assert result["outputs"]["report"] == str(out / "report.html")
     files = json.loads((out / MANIFEST).read_text())["files"]
     assert "report.html" in files and "new_run_checkpoint" not in {p.name for p in out.iterdir()}

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import data_dir
 from scanreg import SE2
+from scanreg.saved_map import SavedMap
 
 pytest.importorskip("gtsam")
 
@@ -145,8 +146,15 @@ def test_loop_residual_against_a_hand_computed_chi2() -> None:
 
 def test_bad_input_names_the_argument() -> None:
     _, res = _ring_run()
-    with pytest.raises(TypeError, match="result: expected a MappingResult"):
+    with pytest.raises(TypeError, match="result: expected a MappingResult or a SavedMap"):
         check_map("run")  # type: ignore[arg-type]
+    # A saved map: 2D, of format 2 (its node scans kept) only.
+    saved = SavedMap.from_result(res, session="ring")
+    assert check_map(saved).returns == check_map(res).returns
+    with pytest.raises(ValueError, match=r"result: the map keeps no node scans \(format 1\)"):
+        check_map(dataclasses.replace(saved, node_points=None, format_version=1))
+    with pytest.raises(ValueError, match="result: check_map needs a 2D map, got a 3D one"):
+        check_map(dataclasses.replace(saved, dim=3))
     with pytest.raises(ValueError, match="poses: expected one per scan"):
         check_map(res, res.poses[:-1])
     with pytest.raises(TypeError, match="settings: expected MapCheckSettings"):
@@ -176,3 +184,5 @@ def test_core_refuses_bad_arrays() -> None:
         _core.see_through(np.zeros((1, 2)), points, np.array([0, 1]), **opts)
     with pytest.raises(ValueError, match="stride: must be >= 1"):
         _core.see_through(poses, points, np.array([0, 1]), **opts, stride=0)
+    with pytest.raises(ValueError, match=r"sessions: expected one per scan \(1\), got 2"):
+        _core.see_through(poses, points, np.array([0, 1]), **opts, sessions=np.zeros(2, np.uint32))

@@ -23,7 +23,7 @@ pytest.importorskip("gtsam")
 
 from scanreg.eval.relations import read_relations, relation_error
 from scanreg.io.trajectory import Trajectory
-from scanreg.pipeline import MappingConfig, merge_maps, run_mapping
+from scanreg.pipeline import MappingConfig, check_map, merge_maps, run_mapping
 from scanreg.pipeline.join import join_sessions
 from scanreg.saved_map import MANIFEST, SavedMap
 
@@ -113,6 +113,22 @@ def test_merge_two_sessions_in_unrelated_frames(intel: dict[str, SavedMap]) -> N
     scored = relation_error(traj, relations)
     assert len(scored.used) >= 40
     assert scored.translation.mean < 0.025 and scored.rotation_deg.mean < 0.25, scored
+    # The joint map checks itself, each session's scans judging the other's. Measured: 0.3 %
+    # of 4108 returns contradicted, no loop edge over its bound; b's nodes moved 0.5 m along
+    # x: 24 % of 3073 and all 25 inter-session loops over their bound.
+    good = check_map(merged)
+    assert good.consistent and good.returns > 2000, good.as_dict()
+    assert good.contradiction_fraction < 0.02 and good.loops_over_bound == 0, good.as_dict()
+    shift = SE2.from_vector([0.5, 0.0, 0.0])
+    moved = {k: p if k < a.num_nodes else shift @ p for k, p in merged.graph.vertices.items()}  # type: ignore[operator]
+    bad = check_map(
+        dataclasses.replace(merged, graph=dataclasses.replace(merged.graph, vertices=moved))
+    )
+    assert not bad.consistent and bad.contradiction_fraction > 0.15, bad.as_dict()
+    assert bad.reasons[0].startswith("contradictions:") and bad.loops_over_bound >= 20
+    # Without the sessions the second run's first 100 nodes could not judge the first's.
+    one_run = check_map(dataclasses.replace(merged, scan_sessions=None))
+    assert one_run.returns < good.returns / 2, (one_run.returns, good.returns)
 
 
 def test_merge_refuses_another_building(
@@ -166,6 +182,14 @@ def test_cli_merge_writes_every_scan(
         np.testing.assert_allclose(session[:, 0], m.stamps, atol=1e-6)
     files = json.loads((out / MANIFEST).read_text())["files"]
     assert set(files) == {p.name for p in out.iterdir()}
+    # The joint map's self-check, as a single run's: in the summary, its points on disk.
+    check = json.loads((out / "summary.json").read_text())["self_check"]
+    assert check == result["self_check"] and check["consistent"], check
+    assert check["returns"] > 2000 and check["contradiction_fraction"] < 0.02, check
+    assert (
+        np.loadtxt(out / "contradictions.csv", delimiter=",", skiprows=1).size
+        == 2 * check["contradictions"]
+    )
     assert SavedMap.load(out).sessions == ("a", "b")
     # The inputs are untouched; b cannot be the output; same-named sessions are told apart.
     assert SavedMap.load(tmp_path / "b").sessions == ("b",)

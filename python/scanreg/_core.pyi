@@ -819,4 +819,5 @@ def see_through(
     max_range: float,
     min_gap: int,
     stride: int = 1,
+    sessions: NDArray[np.uint32] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.uint32], NDArray[np.uint32]]: ...

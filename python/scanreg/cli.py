@@ -654,11 +654,16 @@ def _map(args: argparse.Namespace) -> dict[str, Any]:
         plots=not args.no_plots,
         progress=not (args.quiet or args.json),
     )
-    check = result.get("self_check")
-    if check is not None and not check["consistent"]:  # never silent, --json or not
-        for reason in check["reasons"]:
-            print(f"scanreg map: WARNING: the map is inconsistent: {reason}", file=sys.stderr)
+    _warn_inconsistent("map", result)
     return result
+
+
+def _warn_inconsistent(command: str, result: dict[str, Any]) -> None:
+    """The map's self-check on stderr when it failed: never silent, ``--json`` or not."""
+    check = result.get("self_check")
+    if check is not None and not check["consistent"]:
+        for reason in check["reasons"]:
+            print(f"scanreg {command}: WARNING: the map is inconsistent: {reason}", file=sys.stderr)
 
 
 def _localize(args: argparse.Namespace) -> dict[str, Any]:
@@ -680,7 +685,7 @@ def _localize(args: argparse.Namespace) -> dict[str, Any]:
 def _merge(args: argparse.Namespace) -> dict[str, Any]:
     from .pipeline.commands import merge_maps_to_folder
 
-    return merge_maps_to_folder(
+    result = merge_maps_to_folder(
         args.a,
         args.b,
         args.output,
@@ -688,6 +693,8 @@ def _merge(args: argparse.Namespace) -> dict[str, Any]:
         locate_tries=args.locate_tries,
         min_loops=args.min_loops,
     )
+    _warn_inconsistent("merge", result)
+    return result
 
 
 def _print_text(result: dict[str, Any], indent: str = "") -> None:

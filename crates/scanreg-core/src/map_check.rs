@@ -173,7 +173,8 @@ pub struct SeeThroughSettings {
     /// Only scans within this distance of a return judge it (m).
     pub max_range: f64,
     /// Only scans more than this many scans away in order judge (a revisit, not the
-    /// neighbours a person walking by or a small slip of the odometry would fool alike).
+    /// neighbours a person walking by or a small slip of the odometry would fool alike);
+    /// scans of different sessions always judge each other.
     pub min_gap: usize,
     /// Judge every `stride`-th return (input order; >= 1): the fractions need far fewer than a
     /// run's every return, and the cost is per return and judging scan.
@@ -183,13 +184,24 @@ pub struct SeeThroughSettings {
 /// Judge every return of every scan (`points`, row-major `N x 2` in its scan's frame, scan `s`
 /// holding rows `offsets[s]..offsets[s + 1]`, posed at `poses[s] = [x, y, θ]` =
 /// `T_world_scan`, the sensor at the scan's origin) from the other scans `settings` admits.
+/// `sessions`: each scan's session (a joint map of several runs; `None`: one run).
 pub fn see_through(
     poses: &[f64],
     points: &[f64],
     offsets: &[usize],
+    sessions: Option<&[u32]>,
     settings: SeeThroughSettings,
 ) -> Result<SeeThrough> {
     let scans = check_input(poses, points, offsets)?;
+    if let Some(v) = sessions {
+        if v.len() != scans {
+            return Err(Error::invalid(
+                "sessions",
+                format!("expected one per scan ({scans}), got {}", v.len()),
+            ));
+        }
+    }
+    let same_session = |a: usize, b: usize| sessions.is_none_or(|v| v[a] == v[b]);
     let SeeThroughSettings {
         bins,
         margin,
@@ -263,7 +275,7 @@ pub fn see_through(
                             continue;
                         };
                         for &o in near {
-                            if o.abs_diff(s) <= min_gap {
+                            if same_session(o, s) && o.abs_diff(s) <= min_gap {
                                 continue;
                             }
                             let im = &images[o];
@@ -327,13 +339,13 @@ mod tests {
         // Both see the wall at x = 3: each sees the other's returns, none through.
         let pts = [wall_scan(0.0, 3.0), wall_scan(0.5, 3.0)].concat();
         let n = pts.len() / 2;
-        let g = see_through(&poses, &pts, &[0, n / 2, n], settings(360, 0.2)).unwrap();
+        let g = see_through(&poses, &pts, &[0, n / 2, n], None, settings(360, 0.2)).unwrap();
         // The middle return of the first scan (y = 0) is seen by the second, not through.
         assert_eq!((g.seen[50], g.seen_through[50]), (1, 0));
         // The second scan sees its wall 1 m further (at x = 4): it saw through the first
         // scan's wall, and the first scan, whose beams stop at 3 m, cannot tell about it.
         let pts = [wall_scan(0.0, 3.0), wall_scan(0.5, 4.0)].concat();
-        let g = see_through(&poses, &pts, &[0, n / 2, n], settings(360, 0.2)).unwrap();
+        let g = see_through(&poses, &pts, &[0, n / 2, n], None, settings(360, 0.2)).unwrap();
         assert_eq!((g.seen[50], g.seen_through[50]), (1, 1));
         assert_eq!((g.seen[n / 2 + 50], g.seen_through[n / 2 + 50]), (0, 0));
         assert_eq!(&g.world[2 * (n / 2 + 50)..2 * (n / 2 + 51)], &[4.0, 0.0]);
@@ -342,21 +354,28 @@ mod tests {
             min_gap: 1,
             ..settings(360, 0.2)
         };
-        let g = see_through(&poses, &pts, &[0, n / 2, n], gap).unwrap();
+        let g = see_through(&poses, &pts, &[0, n / 2, n], None, gap).unwrap();
         assert!(g.seen.iter().all(|&v| v == 0));
+        // ... unless they are of different sessions (two runs): then the gap does not apply.
+        let two = see_through(&poses, &pts, &[0, n / 2, n], Some(&[0, 1]), gap).unwrap();
+        assert_eq!((two.seen[50], two.seen_through[50]), (1, 1));
+        let one = see_through(&poses, &pts, &[0, n / 2, n], Some(&[3, 3]), gap).unwrap();
+        assert_eq!(one, g);
+        let wrong = see_through(&poses, &pts, &[0, n / 2, n], Some(&[0]), gap);
+        assert!(wrong.unwrap_err().to_string().starts_with("sessions:"));
         let near = SeeThroughSettings {
             max_range: 2.0,
             ..settings(360, 0.2)
         };
-        let g = see_through(&poses, &pts, &[0, n / 2, n], near).unwrap();
+        let g = see_through(&poses, &pts, &[0, n / 2, n], None, near).unwrap();
         assert_eq!(g.seen[50], 0);
         // Every third return judged: the same figures for those.
         let thinned = SeeThroughSettings {
             stride: 3,
             ..settings(360, 0.2)
         };
-        let all = see_through(&poses, &pts, &[0, n / 2, n], settings(360, 0.2)).unwrap();
-        let g = see_through(&poses, &pts, &[0, n / 2, n], thinned).unwrap();
+        let all = see_through(&poses, &pts, &[0, n / 2, n], None, settings(360, 0.2)).unwrap();
+        let g = see_through(&poses, &pts, &[0, n / 2, n], None, thinned).unwrap();
         assert_eq!(g.judged, (0..n).step_by(3).collect::<Vec<_>>());
         let picked: Vec<u32> = g.judged.iter().map(|&i| all.seen_through[i]).collect();
         assert_eq!(g.seen_through, picked);
@@ -380,7 +399,7 @@ mod tests {
         // The second sees a single return 1 m beyond that wall: too sparse to see through.
         let pts = [first.clone(), vec![3.0, 0.0]].concat();
         let n = pts.len() / 2;
-        let g = see_through(&poses, &pts, &[0, n - 1, n], settings(360, 0.2)).unwrap();
+        let g = see_through(&poses, &pts, &[0, n - 1, n], None, settings(360, 0.2)).unwrap();
         assert!((g.world[40] - 0.0).abs() < 1e-12 && (g.world[41] - 0.0).abs() < 1e-12);
         assert_eq!((g.seen[20], g.seen_through[20]), (0, 0));
     }
@@ -398,11 +417,14 @@ mod tests {
     #[test]
     fn bad_input_names_the_argument() {
         let err = |r: Result<SeeThrough>| r.unwrap_err().to_string();
-        assert!(err(see_through(&[0.0; 2], &[], &[0], settings(360, 0.0))).starts_with("poses:"));
+        assert!(
+            err(see_through(&[0.0; 2], &[], &[0], None, settings(360, 0.0))).starts_with("poses:")
+        );
         assert!(err(see_through(
             &[0.0; 3],
             &[1.0, 0.0],
             &[0, 2],
+            None,
             settings(360, 0.0)
         ))
         .starts_with("offsets:"));
@@ -410,6 +432,7 @@ mod tests {
             &[0.0; 3],
             &[1.0, 0.0],
             &[0, 1],
+            None,
             settings(2, 0.0)
         ))
         .starts_with("bins:"));
@@ -417,6 +440,7 @@ mod tests {
             &[0.0; 3],
             &[1.0, 0.0],
             &[0, 1],
+            None,
             settings(360, -1.0)
         ))
         .starts_with("margin:"));
@@ -424,6 +448,7 @@ mod tests {
             &[0.0; 3],
             &[f64::NAN, 0.0],
             &[0, 1],
+            None,
             settings(360, 0.0)
         ))
         .starts_with("points:"));
@@ -431,6 +456,8 @@ mod tests {
             max_range: 0.0,
             ..settings(360, 0.0)
         };
-        assert!(err(see_through(&[0.0; 3], &[1.0, 0.0], &[0, 1], far)).starts_with("max_range:"));
+        assert!(
+            err(see_through(&[0.0; 3], &[1.0, 0.0], &[0, 1], None, far)).starts_with("max_range:")
+        );
     }
 }

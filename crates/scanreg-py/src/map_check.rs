@@ -15,7 +15,7 @@ type Judged = (Py<PyArray2<f64>>, Py<PyArray1<i64>>, PerReturn, PerReturn);
 /// returns judged (every `stride`-th), and per judged return the other scans that saw it and,
 /// of those, the scans that saw through it.
 #[pyfunction]
-#[pyo3(signature = (poses, points, offsets, *, bins, margin, max_range, min_gap, stride=1))]
+#[pyo3(signature = (poses, points, offsets, *, bins, margin, max_range, min_gap, stride=1, sessions=None))]
 #[allow(clippy::too_many_arguments)]
 fn see_through(
     py: Python<'_>,
@@ -27,6 +27,7 @@ fn see_through(
     max_range: f64,
     min_gap: usize,
     stride: usize,
+    sessions: Option<PyReadonlyArray1<'_, u32>>,
 ) -> PyResult<Judged> {
     for (arr, name, cols) in [(&poses, "poses", 3), (&points, "points", 2)] {
         let s = arr.shape();
@@ -44,6 +45,10 @@ fn see_through(
         .map(|&v| usize::try_from(v))
         .collect::<Result<_, _>>()
         .map_err(|_| PyValueError::new_err("offsets: must be >= 0"))?;
+    let sessions = match &sessions {
+        Some(v) => Some(c_slice(v, "sessions")?),
+        None => None,
+    };
     let g = py
         .detach(|| {
             let settings = SeeThroughSettings {
@@ -53,7 +58,9 @@ fn see_through(
                 min_gap,
                 stride,
             };
-            scanreg_core::map_check::see_through(pose_data, point_data, &offsets, settings)
+            scanreg_core::map_check::see_through(
+                pose_data, point_data, &offsets, sessions, settings,
+            )
         })
         .map_err(core_err)?;
     Ok((

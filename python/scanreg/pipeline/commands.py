@@ -1116,7 +1116,9 @@ def _write_joint(
     tail: dict[str, Any],
 ) -> dict[str, Any]:
     """Write a joined map (extend, merge) with its config and summary into ``out`` (the
-    one-run files a former map there had removed); returns the command's JSON."""
+    one-run files a former map there had removed); a 2D one with its self-check
+    (:func:`~scanreg.pipeline.check_map`: ``self_check`` in the summary,
+    ``contradictions.csv``); returns the command's JSON."""
     from ..config import write_config
 
     for name in _ONE_RUN_FILES:  # (the map itself is written whole below)
@@ -1129,6 +1131,14 @@ def _write_joint(
         **{k: v for k, v in joint.describe().items() if k not in ("frames", "folder")},
         **tail,
     }
+    if joint.dim == 2:  # the joint map judged by its own scans, as a single run's is
+        from .map_check import check_map
+
+        check = check_map(joint)
+        paths["contradictions"] = out / "contradictions.csv"
+        points = check.contradiction_points
+        np.savetxt(paths["contradictions"], points, "%.3f", ",", header="x,y", comments="")
+        result["self_check"] = check.as_dict()
     paths["summary"] = out / "summary.json"
     paths["summary"].write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     refresh_manifest(out)

@@ -1,7 +1,7 @@
 """A 2D map that checks itself without ground truth: does the trajectory agree with its own scans?
 
-:func:`check_map` judges a mapping run (or any trajectory of its scans, e.g. the odometry alone)
-on two kinds of evidence a user can trust without ground truth:
+:func:`check_map` judges a mapping run or a saved 2D map (or any trajectory of its scans, e.g.
+the odometry alone) on two kinds of evidence a user can trust without ground truth:
 
 * **Contradictions.** A return says "beams stop here". Each node's kept scan is looked up from
   the nodes that come back later (or came earlier: at least ``min_gap`` nodes apart in order,
@@ -35,6 +35,7 @@ import numpy as np
 from .. import _core
 from .._validate import FloatArray
 from ..graph import Edge, Kernel
+from ..saved_map import SavedMap
 from ..transform import SE2
 from .mapping import MappingResult
 
@@ -235,33 +236,73 @@ def _regions(
 
 
 def check_map(
-    result: MappingResult[SE2],
+    result: MappingResult[SE2] | SavedMap,
     poses: Sequence[SE2] | None = None,
     settings: MapCheckSettings | None = None,
 ) -> MapCheck:
     """Judge ``result``'s map from its own scans (the nodes' kept scans, ``node_points``).
 
-    ``poses``: every scan's ``T_world_scan`` to judge instead of the optimized graph's
-    (``result.odometry_poses``, say); each node is then at its scan's pose.
+    ``result``: a mapping run, or a saved 2D map of format 2 (:class:`scanreg.SavedMap`, e.g.
+    the joint map ``merge`` or ``--extend`` wrote: the sessions' scans judge each other). A
+    saved graph keeps no robust kernels: its loop edges (those between nodes that are not
+    consecutive) count at full weight. ``poses``: every scan's ``T_world_scan`` to judge
+    instead of the optimized graph's (``result.odometry_poses``, say); each node is then at
+    its scan's pose.
     """
     s = MapCheckSettings() if settings is None else settings
-    if not isinstance(result, MappingResult):
-        raise TypeError(f"result: expected a MappingResult, got {type(result).__name__}")
-    if not isinstance(s, MapCheckSettings):
-        raise TypeError(f"settings: expected MapCheckSettings, got {type(s).__name__}")
-    if result.graph.dim != 2:
-        raise ValueError("result: check_map needs a 2D run (an SE2 graph)")
-    if poses is None:
+    if not isinstance(settings, MapCheckSettings | None):
+        raise TypeError(f"settings: expected MapCheckSettings, got {type(settings).__name__}")
+    sessions = None
+    if isinstance(result, SavedMap):
+        node_scans, node_points, graph_nodes, edges = _saved_parts(result)
+        if result.scan_sessions is not None and len(result.sessions) > 1:
+            sessions = np.asarray(result.scan_sessions, dtype=np.uint32)[list(node_scans)]
+    elif isinstance(result, MappingResult):
+        if result.graph.dim != 2:
+            raise ValueError("result: check_map needs a 2D run (an SE2 graph)")
+        node_scans, node_points, edges = result.node_scans, result.node_points, result.graph.edges
         graph_poses = result.graph.poses()
+        graph_nodes = [graph_poses[n] for n in range(len(node_scans))]
+    else:
+        raise TypeError(
+            f"result: expected a MappingResult or a SavedMap, got {type(result).__name__}"
+        )
+    if poses is None:
         # A 2D graph's poses are SE2 (the filter only tells mypy so).
-        nodes = [p for n in range(len(result.node_scans)) if isinstance(p := graph_poses[n], SE2)]
+        nodes = [p for p in graph_nodes if isinstance(p, SE2)]
     else:
         if len(poses) != result.num_scans:
             raise ValueError(f"poses: expected one per scan ({result.num_scans}), got {len(poses)}")
         if not all(isinstance(p, SE2) for p in poses):
             raise TypeError("poses: expected SE2 poses")
-        nodes = [poses[k] for k in result.node_scans]
-    return _check(nodes, result.node_points, result.graph.edges, s)
+        nodes = [poses[k] for k in node_scans]
+    return _check(nodes, node_points, edges, s, sessions)
+
+
+def _saved_parts(
+    m: SavedMap,
+) -> tuple[Sequence[int], Sequence[FloatArray], Sequence[Any], Sequence[Edge]]:
+    """A saved map's node scans, their points, node poses and edges (loop edges: between
+    nodes that are not consecutive, as :mod:`.join` reads them)."""
+    where = "" if m.folder is None else f" ({m.folder})"
+    if m.dim != 2:
+        raise ValueError(f"result: check_map needs a 2D map{where}, got a {m.dim}D one")
+    if m.graph is None or m.node_scans is None or m.node_points is None:
+        raise ValueError(
+            f"result: the map{where} keeps no node scans (format {m.format_version}); "
+            "only maps of format 2 can be checked"
+        )
+    edges = [
+        Edge(
+            "loop" if abs(e.to_id - e.from_id) != 1 else "odometry",
+            e.from_id,
+            e.to_id,
+            e.measurement,
+            e.information,  # (2D: g2o's ordering and scale are scanreg's)
+        )
+        for e in m.graph.edges
+    ]
+    return m.node_scans, m.node_points, m.node_poses, edges
 
 
 def _check(
@@ -269,6 +310,7 @@ def _check(
     points: Sequence[FloatArray],
     edges: Sequence[Edge],
     s: MapCheckSettings,
+    sessions: np.ndarray[Any, np.dtype[np.uint32]] | None = None,
 ) -> MapCheck:
     pose_rows = np.ascontiguousarray([p.as_vector() for p in nodes], dtype=np.float64)
     counts = np.array([len(p) for p in points], dtype=np.int64)
@@ -283,6 +325,8 @@ def _check(
         max_range=s.max_range,
         min_gap=s.min_gap,
         stride=max(1, -(-len(stacked) // s.max_judged)),
+        # Another session's scans are revisits however close in order (min_gap).
+        sessions=None if sessions is None else np.ascontiguousarray(sessions),
     )
     seen_enough = seen >= s.min_views
     contradicted = seen_enough & (2 * through > seen)
