@@ -2,9 +2,11 @@
 
 Each Freiburg log (Intel, ACES) is cut at its middle line into two sessions, each mapped alone
 (``run_mapping``, default ``MappingConfig``); the second map is then moved into an unrelated
-frame (73°, (40, -25) m) and merged into the first. Rows: the Kümmerle relations over all
-scans of the merged map (2984 Intel / 1279 ACES), and those whose two stamps fall in different
-sessions; the inter-session loops joined and left out for disagreeing; times.
+frame (73°, (40, -25) m) and merged into the first; and the second half's map, in its own
+frame, joined to the first as ``scanreg map --extend`` joins a new run (``extend_map``). Rows:
+the Kümmerle relations over all scans of the joint map (2984 Intel / 1279 ACES), and those
+whose two stamps fall in different sessions; the inter-session loops joined and left out for
+disagreeing; the joint map's self-check (``check_map``: contradicted returns); times.
 
 Run: ``.venv/bin/python benchmarks/freiburg_merge.py [--data ../shared/data]
 [--logs intel aces] [--output DIR]`` (``--output``: the two maps and the merged one, as
@@ -27,7 +29,7 @@ from scanreg import SE2
 from scanreg.eval.relations import Relations, read_relations, relation_error
 from scanreg.io import read_scans
 from scanreg.io.trajectory import Trajectory
-from scanreg.pipeline import MappingConfig, merge_maps, run_mapping
+from scanreg.pipeline import MappingConfig, check_map, extend_map, merge_maps, run_mapping
 from scanreg.saved_map import SavedMap
 
 FILES = {"intel": ("intel.clf.bz2", "intel.relations"), "aces": ("aces.clf.bz2", "aces.relations")}
@@ -63,8 +65,11 @@ def main() -> None:
     parser.add_argument("--output", type=Path, default=None)
     args = parser.parse_args()
     folder = args.data / "freiburg-slam-benchmark"
-    print("| log | relations | n | translation (m) | rotation (deg) | loops (left out) |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "| log | join | relations | n | translation (m) | rotation (deg) | loops (left out) "
+        "| self-check |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
     for name in args.logs:
         log_file, relations_file = FILES[name]
         with bz2.open(folder / log_file, "rt", encoding="utf-8") as fh:
@@ -73,18 +78,29 @@ def main() -> None:
         wall = time.perf_counter()
         with tempfile.TemporaryDirectory() as tmp:
             a = map_lines(lines[:half], "a", Path(tmp))
-            b = map_lines(lines[half:], "b", Path(tmp)).transformed(ELSEWHERE)
+            own = map_lines(lines[half:], "b", Path(tmp))  # (the second half's own frame)
+        b = own.transformed(ELSEWHERE)
         mapped = time.perf_counter() - wall
-        wall = time.perf_counter()
-        merged, report = merge_maps(a, b)
-        joined = time.perf_counter() - wall
-        both, cross = score(merged, read_relations(folder / relations_file), float(b.stamps[0]))
-        loops = f"{report.accepted} of {report.candidates} ({report.disagreeing})"
-        print(f"| {name} | all | {both} | {loops} |")
-        print(f"| {name} | across the sessions | {cross} | |")
-        print(f"<!-- {name}: mapping both halves {mapped:.0f} s, merge {joined:.1f} s -->")
+        relations = read_relations(folder / relations_file)
+        joints = {}
+        for how in ("merge", "extend"):
+            wall = time.perf_counter()
+            if how == "merge":
+                joint, report = merge_maps(a, b)
+            else:
+                joint, report = extend_map(a, own)
+            joined = time.perf_counter() - wall
+            joints[how] = joint
+            both, cross = score(joint, relations, float(b.stamps[0]))
+            loops = f"{report.accepted} of {report.candidates} ({report.disagreeing})"
+            check = check_map(joint)
+            verdict = "consistent" if check.consistent else "INCONSISTENT"
+            judged = f"{verdict}, {check.contradiction_fraction:.2%} of {check.returns}"
+            print(f"| {name} | {how} | all | {both} | {loops} | {judged} |")
+            print(f"| {name} | {how} | across the sessions | {cross} | | |")
+            print(f"<!-- {name}: mapping both halves {mapped:.0f} s, {how} {joined:.1f} s -->")
         if args.output is not None:
-            for key, m in (("a", a), ("b", b), ("merged", merged)):
+            for key, m in (("a", a), ("b", b), ("merged", joints["merge"])):
                 m.save(args.output / name / key)
 
 
