@@ -305,9 +305,12 @@ def test_bad_input() -> None:
         Mapper().step(np.zeros((5, 3)))
     with pytest.raises(ValueError, match=r"points: .*NaN"):
         Mapper().step(np.full((5, 2), np.nan))
-    # Per-point times: a 2D scan is instantaneous; refused by name, never taken for a prior.
-    with pytest.raises(ValueError, match="timestamps: Mapper takes each 2D scan as instantaneous"):
-        Mapper().step(scan, step)
+    # Per-point times (a motion passed in their place is refused by name, never taken for a
+    # prior; deskewing: tests/test_mapping_deskew.py).
+    with pytest.raises(TypeError, match="timestamps: expected"):
+        Mapper().step(scan, step, stamp=0.0)
+    with pytest.raises(ValueError, match="stamp: required with timestamps"):
+        Mapper().step(scan, np.zeros(len(scan)))
     with pytest.raises(ValueError, match="loop_max_range"):
         MappingConfig(loop_max_range=-1.0)
     with pytest.raises(TypeError, match="odometry: expected OdometryConfig2D"):

@@ -177,8 +177,11 @@ def test_hostile_input() -> None:
         odo.step(pts, stamp=math.inf)
     with pytest.raises(TypeError, match="stamp"):
         odo.step(pts, stamp="1.0")  # type: ignore[arg-type]
-    with pytest.raises(ValueError, match="timestamps: Odometry2D takes each scan as instantaneous"):
+    # Per-point times deskew the scan to its stamp (tests/test_mapping_deskew.py): they need it.
+    with pytest.raises(ValueError, match="stamp: required with timestamps"):
         odo.step(pts, np.zeros(len(pts)))
+    with pytest.raises(ValueError, match=r"timestamps: expected shape"):
+        odo.step(pts, np.zeros(len(pts) + 1), stamp=1e9)
     with pytest.raises(ValueError, match="prior"):
         odo.step(pts, prior=np.array([0.1, 0.0, 0.0]))
     with pytest.raises(ValueError, match="prior"):

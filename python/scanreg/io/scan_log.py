@@ -13,6 +13,7 @@ the poses they return are ``T_world_base``.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -155,6 +156,43 @@ class ScanLog:
         if self.T_base_laser.is_close(SE2.identity(), atol=0.0):
             return pts  # the base is the laser: the points as read, bit for bit
         return np.ascontiguousarray(self.T_base_laser.apply(pts))
+
+    def point_times(
+        self, k: int, min_range: float = 0.0, max_range: float | None = None
+    ) -> FloatArray | None:
+        """When each of :meth:`points`' returns was measured, seconds after ``stamps[k]``: a
+        ``sensor_msgs/LaserScan``'s ``k · time_increment`` (its stamp is its first beam's
+        time); ``None`` for a scan that does not say (a CARMEN log's, ``time_increment`` 0)."""
+        scan = self.scans[k]
+        increment = float(getattr(scan, "time_increment", 0.0))  # (a RosLaserScan field)
+        if increment == 0.0 or not math.isfinite(increment):
+            return None
+        times = np.arange(len(scan), dtype=np.float64) * increment
+        return np.ascontiguousarray(times[scan.valid(min_range, max_range)])
+
+    def swept_points(
+        self, k: int, min_range: float = 0.0, max_range: float | None = None
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """Scan ``k``'s returns as :meth:`points` gives them, its sweep undone when the scan
+        says when each beam was measured (:meth:`point_times`): ``(points, None)`` with every
+        return moved into the base frame at ``stamps[k]`` by the wheels' motion from this
+        scan to the next (the motion during its sweep, which starts at its stamp), spread
+        evenly over the time between them (:func:`scanreg.deskew`); without that motion (no
+        odometry at either scan, the last scan, stamps not increasing) ``(points, times)``,
+        each return's time on the clock of ``stamps`` for the pipeline to deskew with its own
+        prediction; ``(points, None)`` for a scan without beam times."""
+        from ..deskew import deskew, velocity_from_motion
+
+        pts = self.points(k, min_range, max_range)
+        times = self.point_times(k, min_range, max_range)
+        if times is None:
+            return pts, None
+        stamp = float(self.stamps[k])
+        during = self.prior(k + 1) if k + 1 < len(self) else None
+        if during is None or not float(self.stamps[k + 1]) > stamp:
+            return pts, stamp + times
+        velocity = velocity_from_motion(during, float(self.stamps[k + 1]) - stamp)
+        return deskew(pts, times, velocity, reference_time=0.0), None
 
     def prior(self, k: int) -> SE2 | None:
         """The wheels' motion of the base from scan ``k − 1`` to scan ``k``,

@@ -842,7 +842,7 @@ def _odometry_carmen(args: SimpleNamespace) -> dict[str, Any]:
             step = scans.prior(i)
             if step is not None:
                 pending = step if pending is None else pending @ step
-            pts = scans.points(i, 0.1, 40.0)
+            pts, _ = scans.swept_points(i, 0.1, 40.0)  # (its sweep undone by the wheels)
             if len(pts) < 3:  # no returns: nothing to align; its motion joins the next prior
                 skipped += 1
                 bar.update()
@@ -1300,7 +1300,7 @@ def _localize(args: SimpleNamespace) -> dict[str, Any]:
     enabled = not (args.quiet or args.json)
     with Progress(len(scans), description="localize", unit="scans", enabled=enabled) as bar:
         for i in range(len(scans)):
-            pts = scans.points(i, 0.1, 40.0)
+            pts, _ = scans.swept_points(i, 0.1, 40.0)  # (its sweep undone by the wheels)
             prior = scans.prior(i)
             if len(pts) < 3:
                 bar.update()

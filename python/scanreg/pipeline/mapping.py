@@ -54,7 +54,7 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from .._validate import FloatArray, as_points
+from .._validate import FloatArray, as_matrix, as_points
 from ..graph import Graph, GraphSolveError, Kernel
 from ..io.carmen import CarmenLog
 from ..io.scan_log import ScanLog
@@ -367,6 +367,7 @@ class Mapper:
         self._last_wide = -math.inf
         self._skipped: list[int] = []
         self._pending = SE2.identity()  # motion prior accumulated over skipped scans
+        self._timed_stamp: float | None = None  # the last stamp a deskewed scan had
         self._last_pose: SE2 | None = None
         self._timing = MappingTiming()
         self._finished = False
@@ -401,10 +402,13 @@ class Mapper:
     ) -> MappingStep:
         """Add one scan; the signature of :meth:`scanreg.pipeline.Mapper3D.step`.
 
-        ``points``: ``(N, 2)`` in the scan's own frame. ``timestamps``: per-point times; a 2D
-        scan is taken as instantaneous, so only ``None`` is accepted (deskew a rotating sweep
-        first with :func:`scanreg.deskew`). ``prior``: ``T_prev_curr`` from wheel odometry (or
-        ``None``). ``stamp``: the scan's time (may step backwards: it is only recorded).
+        ``points``: ``(N, 2)`` in the scan's own frame. ``timestamps``: ``(N,)`` each point's
+        time on the clock of ``stamp`` (a ``sensor_msgs/LaserScan``'s stamp plus ``k ·
+        time_increment``), or ``None`` (the scan taken as instantaneous): with them the scan
+        is deskewed to ``stamp`` under the predicted motion (:meth:`Odometry2D.step`), and
+        the node keeps the deskewed scan; ``stamp`` is then required and must not decrease.
+        ``prior``: ``T_prev_curr`` from wheel odometry (or ``None``). ``stamp``: the scan's
+        time (without ``timestamps`` it may step backwards: it is only recorded).
 
         The same as ``integrate(track(points, timestamps, prior, stamp=stamp))``."""
         return self.integrate(self.track(points, timestamps, prior, stamp=stamp))
@@ -426,14 +430,18 @@ class Mapper:
             raise RuntimeError("Mapper: finish() was called; start a new Mapper")
         t_start = _clock()
         pts = as_points(points, "points", dim=2, min_points=0)
-        if timestamps is not None:
-            raise ValueError(
-                "timestamps: Mapper takes each 2D scan as instantaneous; deskew it first "
-                "(scanreg.deskew) and pass timestamps=None"
-            )
         motion = None if prior is None else as_pose(prior, "prior", 2)
         if stamp is not None and not math.isfinite(float(stamp)):
             raise ValueError(f"stamp: must be finite, got {stamp!r}")
+        # The odometry deskews (and checks the times and that stamps do not decrease).
+        timed: dict[str, Any] = {}
+        if timestamps is not None:
+            if stamp is None:
+                raise ValueError("stamp: required with timestamps (the time they deskew it to)")
+            times = as_matrix(timestamps, "timestamps", (len(pts),))
+            # A stamp out of order (a corrupted log) gives no interval: taken as instantaneous.
+            if self._timed_stamp is None or float(stamp) >= self._timed_stamp:
+                timed = {"timestamps": times, "stamp": float(stamp)}
         index = len(self._odom_poses)
         self._stamps.append(None if stamp is None else float(stamp))
         if motion is not None:
@@ -454,16 +462,18 @@ class Mapper:
         wheel = None if first or prior is None else self._pending
         if wheel is not None and self._wheels is not None:
             scaled, cov = self._wheels.prior(wheel)
-            frame = self._odometry.step(pts, prior=scaled, prior_covariance=cov)
+            frame = self._odometry.step(pts, prior=scaled, prior_covariance=cov, **timed)
             self._wheels.observe(wheel, frame.motion, constrained=_well_constrained(frame))
         elif wheel is not None and self._cost_wheels is not None:
             # The wheels' step (rescaled) both predicts and, with its covariance, ranks the
             # correlative candidates; the scan alone refines and is judged.
             scaled, cost = self._cost_wheels.prior(wheel)
-            frame = self._odometry.step(pts, prior=scaled, prior_covariance=cost)
+            frame = self._odometry.step(pts, prior=scaled, prior_covariance=cost, **timed)
             self._cost_wheels.observe(wheel, frame.motion, constrained=_well_constrained(frame))
         else:
-            frame = self._odometry.step(pts, prior=wheel)
+            frame = self._odometry.step(pts, prior=wheel, **timed)
+        if timed:
+            self._timed_stamp = timed["stamp"]
         self._pending = SE2.identity()
         if self._last_pose is None:
             pose = frame.pose
@@ -476,7 +486,8 @@ class Mapper:
         self._scanned.append(True)
         self._timing.add("odometry", t_start)
         self._timing.add("total", t_start)
-        return Tracked(index, pts, pose, frame.covariance)
+        kept = pts if frame.deskewed is None else frame.deskewed  # (a node keeps it deskewed)
+        return Tracked(index, kept, pose, frame.covariance)
 
     def integrate(self, tracked: Tracked) -> MappingStep:
         """The back end of :meth:`step`: ``tracked`` (from :meth:`track`) becomes a node when
@@ -1165,8 +1176,10 @@ def run_mapping(
     def track(k: int) -> Tracked:
         # In the base frame, as the wheel prior and the poses are (and the relations of a
         # benchmark: the hospital's laser sits 0.22 m ahead of the robot's centre).
-        points = scans.points(k, cfg.min_range, cfg.max_range)
-        return mapper.track(points, prior=scans.prior(k), stamp=float(scans.stamps[k]))
+        # A sweep with beam times (a LaserScan's time_increment) is undone by the wheels'
+        # motion during it, else by the odometry's prediction (ScanLog.swept_points).
+        points, times = scans.swept_points(k, cfg.min_range, cfg.max_range)
+        return mapper.track(points, times, prior=scans.prior(k), stamp=float(scans.stamps[k]))
 
     # The odometry of the next scans runs on a second thread while this one closes loops:
     # the two share nothing (Mapper.track / Mapper.integrate), and both spend most of their

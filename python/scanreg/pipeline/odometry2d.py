@@ -34,8 +34,9 @@ from typing import Any, Literal
 import numpy as np
 
 from .. import _core
-from .._validate import FloatArray, as_covariance, as_points, frozen
+from .._validate import FloatArray, as_covariance, as_matrix, as_points, frozen
 from ..correlative import CorrelativeGrid, match_correlative, prepare_correlative
+from ..deskew import deskew, velocity_from_motion
 from ..preprocess import DEFAULT_K, voxel_downsample
 from ..register import RegistrationResult, register
 from ..target import PreparedTarget, prepared_from_normals
@@ -213,6 +214,9 @@ class Frame2D:
     #: registered again from the probe's better pose or a correlative search over every
     #: heading (:mod:`scanreg.basin`).
     basin_fallback: bool = False
+    #: The scan's points re-expressed at ``stamp`` (``step``'s ``timestamps``: deskewed, before
+    #: ``scan_voxel_size``); ``None`` when the scan came without per-point times.
+    deskewed: FloatArray | None = field(default=None, repr=False)
 
     @property
     def degenerate(self) -> bool:
@@ -304,8 +308,13 @@ class Odometry2D:
         points
             ``(N, 2)`` points in the scan's own frame (metres).
         timestamps
-            Per-point times: a 2D scan is taken as instantaneous, so only ``None`` is accepted
-            (deskew a rotating 2D sweep first with :func:`scanreg.deskew`).
+            ``(N,)`` each point's time (s, on the clock of ``stamp``, which is then required),
+            or ``None`` (the scan taken as instantaneous). With them the scan is deskewed
+            before it is registered: every point re-expressed in the scan's frame at
+            ``stamp`` under the predicted motion (the prior, or the last motion) spread evenly
+            over the time since the previous scan (:func:`scanreg.deskew`), as the 3D
+            odometry does; the frame's ``deskewed`` holds the result. The first scan, whose
+            motion is not known, is kept as it is.
         prior
             ``T_prev_curr`` motion from wheel odometry (``SE2`` or ``3x3``), used as the
             prediction instead of constant velocity.
@@ -328,11 +337,9 @@ class Odometry2D:
         pts = as_points(points, "points", dim=2)
         if pts.shape[0] < 3:
             raise ValueError(f"points: need at least 3 points, got {pts.shape[0]}")
-        if timestamps is not None:
-            raise ValueError(
-                "timestamps: Odometry2D takes each scan as instantaneous; deskew it first "
-                "(scanreg.deskew) and pass timestamps=None"
-            )
+        times = None if timestamps is None else as_matrix(timestamps, "timestamps", (len(pts),))
+        if times is not None and stamp is None:
+            raise ValueError("stamp: required with timestamps (the time the scan is deskewed to)")
         if stamp is not None:
             if isinstance(stamp, bool) or not isinstance(
                 stamp, (int, float, np.integer, np.floating)
@@ -355,6 +362,9 @@ class Odometry2D:
         search_cov = prior_cov if search else None
         if search:
             prior_cov = None
+        deskewed = None
+        if times is not None:
+            pts = deskewed = self._deskewed(pts, times, motion, float(stamp), previous_time)  # type: ignore[arg-type]
         if cfg.scan_voxel_size > 0:
             pts = np.ascontiguousarray(voxel_downsample(pts, cfg.scan_voxel_size).points)
         index = self._index
@@ -386,6 +396,7 @@ class Odometry2D:
                 timing=FrameTiming2D(
                     align=0.0, judge=0.0, map_update=t_map, total=time.perf_counter() - t_start
                 ),
+                deskewed=deskewed,
             )
 
         # 1. predict
@@ -401,9 +412,12 @@ class Odometry2D:
         predicted = predicted.orthonormalized()
         assert isinstance(predicted, SE2)
         assert self._target is not None and self._map_points is not None
-        sweep = _sweep_motion(
-            motion if motion is not None else self._velocity, stamp, previous_time, cfg
-        )
+        # (a deskewed scan's sweep is undone; the sweep term is for scans without beam times)
+        sweep = None
+        if times is None:
+            sweep = _sweep_motion(
+                motion if motion is not None else self._velocity, stamp, previous_time, cfg
+            )
 
         # 2. align
         t0 = time.perf_counter()
@@ -549,10 +563,29 @@ class Odometry2D:
             ),
             basin_fallback=fallback,
             held_directions=held,
+            deskewed=deskewed,
         )
+
+    def _deskewed(
+        self,
+        points: FloatArray,
+        times: FloatArray,
+        motion: SE2 | None,
+        stamp: float,
+        previous_time: float | None,
+    ) -> FloatArray:
+        """``points`` in the scan's frame at ``stamp``, moved by the predicted motion spread
+        over the time since the previous scan (as they are for the first scan, or when that
+        time is not positive)."""
+        if self._pose is None or previous_time is None or not stamp > previous_time:
+            return np.ascontiguousarray(points)
+        guess = motion if motion is not None else self._velocity
+        velocity = velocity_from_motion(guess, stamp - previous_time)
+        return deskew(points, times, velocity, reference_time=stamp)
 
 
 _FAILED = ("diverged", "too_few_correspondences")
+
 
 
 def _checked_prior_covariance(
