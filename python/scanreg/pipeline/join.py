@@ -14,7 +14,9 @@ Steps 1-2 find inter-session loop candidates, each dimension its own way; 3-4 ar
    start, every node is matched against the submap of its nearest node of the first map, from
    the pose the latest fix predicts (:func:`~scanreg.pipeline.loops.match_loop`: correlative
    search, point-to-line refinement, verdict, χ² against a generous prior); accepted matches
-   refresh the fix, so the second session's own drift stays small against the search window.
+   refresh the fix, so the second session's own drift stays small against the search window;
+   where none has for a stretch, the window and the prior grow with the path since the fix
+   (the most that path could have drifted, as the mapping's wide search allows).
    3D: the nodes place recognition missed are matched the same way, by GICP from the fix of
    the nearest node it placed;
 3. **agree** — the accepted inter-session loops must tell one story: the largest set that
@@ -47,8 +49,8 @@ from ..io.g2o import PoseGraph, PoseGraphEdge
 from ..io.occupancy import occupancy_grid
 from ..saved_map import SavedMap
 from ..transform import SE2, SE3
-from .loops import AgreementTolerances, LoopMatch, loops_agree, match_loop
-from .mapping import MappingConfig
+from .loops import AgreementTolerances, LoopMatch, LoopSettings, loops_agree, match_loop
+from .mapping import _MAX_DRIFT, MappingConfig
 from .mapping3d import MappingConfig3D
 
 #: Why an accepted inter-session match was left out of the graph.
@@ -173,6 +175,50 @@ def agreeing_loops(
     return best
 
 
+def _match_from_fix(
+    points: FloatArray,
+    node: int,
+    submap: Any,
+    predicted: SE2,
+    settings: LoopSettings,
+    *,
+    prior_sigma: tuple[float, float],
+    window: tuple[float, float],
+    since_fix: float,
+) -> LoopMatch:
+    """Match one node of the second session from the pose the fix ``predicted``, searched
+    over ``window`` with the χ² prior ``prior_sigma``; the fix was taken ``since_fix`` metres
+    of the session's path ago.
+
+    The fix is only as good as the session's own map over that path: once the most it could
+    have drifted there (``_MAX_DRIFT`` per metre, as the mapping's wide search allows) exceeds
+    the window, a node the window does not find is searched again over that bound, with the
+    prior grown alike (on ACES' halves the fix turned 2.5° over 45 m without a match and the
+    next place lay 1.4 m off, at the fixed window's edge). What is found so has only the drift
+    bound to vouch for it, not the fix: it needs the strong score of a loop the graph
+    disagrees with (``LoopSettings.hypothesis_min_score``; on Intel's halves a look-alike at
+    0.54 would have carried the fix away from six true matches after it). Searching wider
+    from the start let a look-alike 1.3 m off outscore the true place 4 m after a fix."""
+    prior = np.diag([prior_sigma[0] ** 2, prior_sigma[0] ** 2, prior_sigma[1] ** 2])
+    match = match_loop(points, node, submap, predicted, prior, settings, window=window)
+    drift = _MAX_DRIFT * since_fix
+    if match.accepted or drift <= window[0]:
+        return match
+    sigma = prior_sigma[0] + drift / settings.window_sigmas
+    prior = np.diag([sigma**2, sigma**2, prior_sigma[1] ** 2])
+    half = min(settings.wide_window[0], window[0] + drift)
+    wide = match_loop(points, node, submap, predicted, prior, settings, window=(half, window[1]))
+    if wide.accepted and wide.score >= settings.hypothesis_min_score:
+        return wide
+    again = wide.reasons or (
+        f"score {wide.score:.2f} < {settings.hypothesis_min_score:.2f}, the least beyond the "
+        "fix's window",
+    )
+    return dataclasses.replace(
+        match, reasons=(*match.reasons, f"searched again over ±{half:.1f} m: " + "; ".join(again))
+    )
+
+
 def _close_2d(
     saved: SavedMap,
     new: SavedMap,
@@ -194,17 +240,21 @@ def _close_2d(
     old_xy = np.array([p.translation for p in old_poses])
     new_poses: list[SE2] = list(new.node_poses)  # type: ignore[arg-type]
     settings = cfg.loops
-    prior = np.diag([prior_sigma[0] ** 2, prior_sigma[0] ** 2, prior_sigma[1] ** 2])
+    # Path (m) along the second session's nodes: its own drift since the fix grows with it.
+    steps = np.linalg.norm(np.diff([p.translation for p in new_poses], axis=0), axis=1)
+    path = np.concatenate([[0.0], np.cumsum(steps)])
     records: list[dict[str, Any]] = []
     matches: list[LoopMatch] = []
     fixes: list[SE2 | SE3] = []  # T_saved_new each accepted match implies
+    fix_nodes: list[int] = []  # ... and the new node each was taken at
     submaps: dict[int, Any] = {}
     # Forward from the located node, then back from it: the fix is freshest where it starts.
     order = [*range(located, len(new_poses)), *range(located - 1, -1, -1)]
-    transform = found
+    transform, fixed_at = found, located  # the fix, and the new node it was taken at
     for n in order:
         if n == located - 1:
             transform = fixes[0] if fixes else found  # type: ignore[assignment]
+            fixed_at = fix_nodes[0] if fix_nodes else located
         pose = new_poses[n]
         pts = new.node_points[n]
         if len(pts) < 3:
@@ -222,8 +272,15 @@ def _close_2d(
                 voxel_size=cfg.node_voxel_size,
             )
         predicted = old_poses[anchor].inverse() @ guess
-        match = match_loop(
-            pts, k_old + n, submaps[anchor], predicted, prior, settings, window=window
+        match = _match_from_fix(
+            pts,
+            k_old + n,
+            submaps[anchor],
+            predicted,
+            settings,
+            prior_sigma=prior_sigma,
+            window=window,
+            since_fix=abs(float(path[n] - path[fixed_at])),
         )
         records.append(
             {
@@ -243,6 +300,8 @@ def _close_2d(
             # The fix follows the second session: its drift since the last match stays small.
             transform = old_poses[anchor] @ match.measured @ pose.inverse()
             fixes.append(transform)
+            fixed_at = n
+            fix_nodes.append(n)
     return Closure(
         located,
         score,
@@ -274,7 +333,10 @@ def join_sessions(
     2D: ``locate_nodes``: the new map's nodes the global search tries, in order;
     ``max_distance``: a new node is matched against its nearest old node when that lies
     within this (m) of where the fix puts it; ``prior_sigma`` (m, rad): the fix's assumed
-    uncertainty per axis (the χ² test's prior); ``window`` (m, rad): the search half-widths.
+    uncertainty per axis (the χ² test's prior); ``window`` (m, rad): the search half-widths;
+    both as they are at the node the fix was taken at: their translation grows with the second
+    session's path from there (its drift, up to 10 % of it; the window to at most
+    ``LoopSettings.wide_window``).
     3D (:func:`~scanreg.pipeline.join3d.close_3d`): every new node is looked up by place
     recognition; ``max_distance`` and ``prior_sigma`` then serve the nodes it missed, matched
     from the fix (``locate_nodes`` and ``window`` are 2D's). ``min_loops``: the agreeing
