@@ -101,7 +101,9 @@ class OdometryConfig2D:
     max_keyframes: int = 20
     #: The map's accumulated points are voxel-downsampled to this (``0``: not at all).
     map_voxel_size: float = 0.05
-    #: Correlative front end: search half-widths (dx, dy, dθ) around the prediction ...
+    #: Correlative front end: search half-widths (dx, dy, dθ) around the prediction (around
+    #: constant velocity, without a prior, widened by the last motion: the robot may have
+    #: stopped, or turned as much again) ...
     correlative_window: tuple[float, float, float] = (0.3, 0.3, math.radians(10.0))
     #: ... and grid resolution.
     correlative_resolution: float = 0.05
@@ -434,7 +436,7 @@ class Odometry2D:
                 pts,
                 self._grid,
                 init=predicted,
-                window=cfg.correlative_window,
+                window=_search_window(cfg.correlative_window, motion, self._velocity),
                 search="branch_and_bound",
                 init_covariance=search_cov,
             )
@@ -586,6 +588,17 @@ class Odometry2D:
 
 _FAILED = ("diverged", "too_few_correspondences")
 
+
+def _search_window(
+    window: tuple[float, float, float], prior: SE2 | None, velocity: SE2
+) -> tuple[float, float, float]:
+    """The correlative search's half-widths around the prediction: ``window`` around a prior;
+    around constant velocity (no prior), widened by the last motion itself, so that a robot
+    that stopped, or turned as much again, is still inside it."""
+    if prior is not None:
+        return window
+    step = float(np.linalg.norm(velocity.translation))
+    return (window[0] + step, window[1] + step, window[2] + abs(float(velocity.angle)))
 
 
 def _checked_prior_covariance(
