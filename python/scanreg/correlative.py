@@ -178,6 +178,29 @@ class CorrelativeGrid:
         """:func:`match_correlative` against this grid."""
         return match_correlative(source, self, **options)
 
+    def updated(self, points: Any) -> CorrelativeGrid:
+        """The grid :func:`prepare_correlative` builds from ``points`` with this grid's
+        resolution, sigma and levels — equal to it cell for cell, to the bit — computed from
+        this one: a cell's likelihood depends only on the occupied cells within the blur's
+        reach, so only the cells near an occupied cell that appeared or disappeared (and
+        those the grid's extent gained) are rasterised again. For a local map that gains a
+        keyframe and drops its oldest (:class:`scanreg.pipeline.Odometry2D`)."""
+        ref = as_points(points, "points", dim=2)
+        t0 = time.perf_counter()
+        native = self._native.updated(ref)
+        elapsed = time.perf_counter() - t0
+        return CorrelativeGrid(
+            resolution=self.resolution,
+            sigma=self.sigma,
+            levels=native.levels,
+            origin=native.origin,
+            shape=native.shape,
+            num_points=int(ref.shape[0]),
+            _native=native,
+            build_seconds=elapsed,
+            _inputs=(readonly(np.array(ref)), self.resolution, self.sigma, self.levels),
+        )
+
 
 def prepare_correlative(
     points: Any,
