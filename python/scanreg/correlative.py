@@ -454,20 +454,9 @@ def _search(
         else positive(angular_resolution, "angular_resolution")
     )
     nx, ny, nt = _steps(dx, r), _steps(dy, r), _steps(dtheta, dth)
-    center = pose0.as_vector()
-    penalty = None if init_covariance is None else _window_information(init_covariance, pose0)
     t0 = time.perf_counter()
-    m = grid._native.search(
-        src,
-        (center[0], center[1], center[2]),
-        nx,
-        ny,
-        nt,
-        dth,
-        search,
-        int(covariance_radius),
-        penalty,
-        min_score,
+    m = _native_search(
+        src, grid, pose0, (nx, ny, nt), dth, search, covariance_radius, init_covariance, min_score
     )
     search_seconds = time.perf_counter() - t0
     if m is None:
@@ -499,6 +488,55 @@ def _search(
         timing=CorrelativeTiming(grid_seconds=grid_seconds, search_seconds=search_seconds),
         length_scale=length,
     )
+
+
+def _native_search(
+    src: FloatArray,
+    grid: CorrelativeGrid,
+    init: SE2,
+    steps: tuple[int, int, int],
+    angular_step: float,
+    search: str,
+    covariance_radius: int,
+    init_covariance: Any,
+    min_score: float | None,
+) -> Any:
+    """The core's search of the lattice ``steps`` (half-widths in steps) around ``init``."""
+    center = init.as_vector()
+    penalty = None if init_covariance is None else _window_information(init_covariance, init)
+    nx, ny, nt = steps
+    return grid._native.search(
+        src,
+        (center[0], center[1], center[2]),
+        nx,
+        ny,
+        nt,
+        angular_step,
+        search,
+        int(covariance_radius),
+        penalty,
+        min_score,
+    )
+
+
+def _best_pose(
+    source: FloatArray,
+    grid: CorrelativeGrid,
+    init: SE2,
+    window: tuple[float, float, float],
+    init_covariance: FloatArray | None = None,
+) -> SE2:
+    """``match_correlative(source, grid, init=init, window=window,
+    init_covariance=init_covariance).pose`` (branch and bound, the default angular step) and
+    nothing else: no covariance, statistics or result to assemble, for a caller that reads
+    only the pose (:class:`scanreg.pipeline.Odometry2D`'s search before its refinement, once
+    a scan). Arguments as validated there (``source`` ``(N, 2)`` float64 C-contiguous)."""
+    dx, dy, dtheta = _window(window)
+    r = grid.resolution
+    dth = default_angular_resolution(source, r)
+    steps = (_steps(dx, r), _steps(dy, r), _steps(dtheta, dth))
+    m = _native_search(source, grid, init, steps, dth, "branch_and_bound", 0, init_covariance, None)
+    return SE2.from_vector(m.pose)
 
 
 def _window_information(covariance: Any, init: SE2) -> tuple[float, ...]:

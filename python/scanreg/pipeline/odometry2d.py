@@ -38,7 +38,7 @@ import numpy as np
 
 from .. import _core
 from .._validate import FloatArray, as_covariance, as_matrix, as_points, frozen
-from ..correlative import CorrelativeGrid, match_correlative, prepare_correlative
+from ..correlative import CorrelativeGrid, _best_pose, match_correlative, prepare_correlative
 from ..deskew import deskew, velocity_from_motion
 from ..preprocess import DEFAULT_K, voxel_downsample
 from ..register import RegistrationResult, register
@@ -447,15 +447,10 @@ class Odometry2D:
             # With a motion cost the lattice's candidates are ranked by their posterior: of
             # two that the scan scores about alike (a corridor's axis, a repeated doorway)
             # the one the wheels' step supports wins; a clearly better basin still does.
-            coarse = match_correlative(
-                pts,
-                grid,
-                init=predicted,
-                window=_search_window(cfg.correlative_window, motion, self._velocity),
-                search="branch_and_bound",
-                init_covariance=search_cov,
-            )
-            start = coarse.pose
+            # Only the pose is read (the refinement gives the frame's covariance): neither
+            # Olson's covariance nor the result's statistics are computed.
+            window = _search_window(cfg.correlative_window, motion, self._velocity)
+            start = _best_pose(pts, grid, predicted, window, search_cov)
         res = register(
             pts,
             self._target,
