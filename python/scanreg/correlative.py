@@ -190,12 +190,14 @@ class CorrelativeGrid:
         return match_correlative(source, self, **options)
 
     def updated(self, points: Any) -> CorrelativeGrid:
-        """The grid :func:`prepare_correlative` builds from ``points`` with this grid's
-        resolution, sigma and levels — equal to it cell for cell, to the bit — computed from
-        this one: a cell's likelihood depends only on the occupied cells within the blur's
-        reach, so only the cells near an occupied cell that appeared or disappeared (and
-        those the grid's extent gained) are rasterised again. For a local map that gains a
-        keyframe and drops its oldest (:class:`scanreg.pipeline.Odometry2D`)."""
+        """The grid of ``points``, computed from this one (equal to prepare_correlative's).
+
+        The grid :func:`prepare_correlative` builds from ``points`` with this grid's
+        resolution, sigma and levels, cell for cell and to the bit: a cell's likelihood
+        depends only on the occupied cells within the blur's reach, so only the cells near an
+        occupied cell that disappeared (and those the grid's extent gained) are rasterised
+        again, and the discs of the cells that appeared are lowered in. For a local map that
+        gains a keyframe and drops its oldest (:class:`scanreg.pipeline.Odometry2D`)."""
         ref = as_points(points, "points", dim=2)
         t0 = time.perf_counter()
         native = self._native.updated(ref)

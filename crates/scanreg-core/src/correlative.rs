@@ -690,8 +690,14 @@ impl Dirty {
     fn near(&self, x: i64, y: i64, reach: i64) -> bool {
         let b = DIRTY_BLOCK as i64;
         let rows = self.blocks.len() / self.blocks_x;
-        let (bx0, bx1) = (((x - reach).max(0) / b) as usize, ((x + reach) / b) as usize);
-        let (by0, by1) = (((y - reach).max(0) / b) as usize, ((y + reach) / b) as usize);
+        let (bx0, bx1) = (
+            ((x - reach).max(0) / b) as usize,
+            ((x + reach) / b) as usize,
+        );
+        let (by0, by1) = (
+            ((y - reach).max(0) / b) as usize,
+            ((y + reach) / b) as usize,
+        );
         (by0..=by1.min(rows - 1)).any(|by| {
             (bx0..=bx1.min(self.blocks_x - 1)).any(|bx| self.blocks[by * self.blocks_x + bx])
         })
@@ -1573,7 +1579,11 @@ mod tests {
         assert_eq!(a.levels(), b.levels(), "{what}: levels");
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(a.dist2()), bits(b.dist2()), "{what}: distance");
-        assert_eq!(bits(a.likelihood()), bits(b.likelihood()), "{what}: likelihood");
+        assert_eq!(
+            bits(a.likelihood()),
+            bits(b.likelihood()),
+            "{what}: likelihood"
+        );
         for h in 1..=a.levels() {
             assert_eq!(
                 bits(&a.level(h).data),
@@ -1590,7 +1600,9 @@ mod tests {
         // updated from the previous one: every step equals a build of the same points, bit
         // for bit, and so does a search on it.
         let room = room();
-        let far: Vec<f64> = (0..40).flat_map(|k| [30.0 + 0.37 * k as f64, -5.0]).collect();
+        let far: Vec<f64> = (0..40)
+            .flat_map(|k| [30.0 + 0.37 * k as f64, -5.0])
+            .collect();
         let frames: Vec<Vec<f64>> = (0..12)
             .map(|k| {
                 let pose = [0.21 * k as f64, -0.13 * k as f64, 0.05 * k as f64];
@@ -1631,9 +1643,17 @@ mod tests {
         let g = grid.unwrap();
         let away = transform(&room, [100.0, 50.0, 1.0]);
         let moved = g.updated(&away).unwrap();
-        assert_same_grid(&moved, &LikelihoodGrid::build(&away, 0.05, 0.05, 5).unwrap(), "away");
+        assert_same_grid(
+            &moved,
+            &LikelihoodGrid::build(&away, 0.05, 0.05, 5).unwrap(),
+            "away",
+        );
         let back = moved.updated(&room).unwrap();
-        assert_same_grid(&back, &LikelihoodGrid::build(&room, 0.05, 0.05, 5).unwrap(), "back");
+        assert_same_grid(
+            &back,
+            &LikelihoodGrid::build(&room, 0.05, 0.05, 5).unwrap(),
+            "back",
+        );
         // Bad input is refused as build refuses it.
         assert!(g.updated(&[]).is_err());
         assert!(g.updated(&[0.0, f64::NAN]).is_err());
