@@ -433,3 +433,33 @@ def test_find_with_a_score_floor_is_the_full_answer_or_none() -> None:
     assert found >= 5 and missing >= 5  # both outcomes were tested
     with pytest.raises(ValueError, match=r"min_score: must be in \[0, 1\], got 1.5"):
         find_correlative(_c(src), grid, min_score=1.5)
+
+
+def test_an_updated_grid_is_the_grid_built_from_scratch() -> None:
+    # A local map that slides along a path (the last 4 scans, world frame) as the 2D odometry's
+    # does: each grid updated from the previous one equals a fresh build, cell for cell and bit
+    # for bit, and so does a match against it.
+    scene, _ = _office_map()
+    path = [SE2.from_vector([2.0 + 0.25 * k, 3.5 + 0.1 * k, 0.2 * k]) for k in range(10)]
+    world = [
+        path[k].apply(sim.simulate_scan(scene, SICK, path[k], seed=k).points)
+        for k in range(len(path))
+    ]
+    grid = None
+    for end in range(1, len(world) + 1):
+        points = _c(np.concatenate(world[max(0, end - 4) : end]))
+        built = scanreg.prepare_correlative(points, resolution=0.05)
+        grid = built if grid is None else grid.updated(points)
+        assert grid.origin == built.origin and grid.shape == built.shape
+        assert grid.levels == built.levels and grid.num_points == built.num_points
+        np.testing.assert_array_equal(grid.likelihood, built.likelihood)
+        np.testing.assert_array_equal(grid._native.distance_squared, built._native.distance_squared)
+        scan = _c(sim.simulate_scan(scene, SICK, path[end - 1], seed=100 + end).points)
+        init = path[end - 1] @ SE2.from_vector([0.1, -0.05, 0.03])
+        a = grid.match(scan, init=init, window=(0.3, 0.3, 0.2))
+        b = built.match(scan, init=init, window=(0.3, 0.3, 0.2))
+        assert a.pose == b.pose and a.score == b.score and a.num_evaluated == b.num_evaluated
+        np.testing.assert_array_equal(a.covariance, b.covariance)
+    assert grid is not None
+    with pytest.raises(ValueError, match="points"):
+        grid.updated(np.array([[0.0, np.nan]]))

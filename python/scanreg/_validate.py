@@ -123,7 +123,12 @@ def as_covariance(value: Any, name: str, dof: int, *, definite: bool = False) ->
         ) from None
     if cov.shape != (dof, dof):
         raise ValueError(f"{name}: expected shape ({dof}, {dof}), got {cov.shape}")
-    if not np.isfinite(cov).all() or not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-12):
+    # np.allclose's test (|a − b| <= atol + rtol·|b|) written out: for finite values the same
+    # answer at a fraction of its cost (every odometry step and graph edge checks one).
+    if (
+        not np.isfinite(cov).all()
+        or not (np.abs(cov - cov.T) <= 1e-12 + 1e-9 * np.abs(cov.T)).all()
+    ):
         raise ValueError(f"{name}: must be finite and symmetric")
     low = float(np.linalg.eigvalsh(cov)[0])
     if definite and low <= 0.0:

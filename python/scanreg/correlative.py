@@ -35,6 +35,7 @@ The covariance
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -107,6 +108,10 @@ class CorrelativeResult:
     resolution, angular_resolution : float
         The lattice steps (m, rad).
     timing : CorrelativeTiming
+    length_scale : float
+        RMS range of the source points (m): the length scale of ``conditioning``.
+    conditioning : Conditioning
+        Eigen-analysis of ``covariance⁻¹`` (computed on first read).
     """
 
     pose: SE2
@@ -123,7 +128,13 @@ class CorrelativeResult:
     resolution: float
     angular_resolution: float
     timing: CorrelativeTiming
-    conditioning: Conditioning
+    length_scale: float = field(default=1.0, repr=False)
+
+    @functools.cached_property
+    def conditioning(self) -> Conditioning:
+        """Eigen-analysis of the information ``covariance⁻¹``; computed on first read (the 2D
+        odometry reads only the pose, and this was a fifth of its search's time)."""
+        return conditioning(_frozen(np.linalg.inv(self.covariance)), 2, self.length_scale)
 
     @property
     def standard_deviations(self) -> FloatArray:
@@ -177,6 +188,31 @@ class CorrelativeGrid:
     def match(self, source: Any, **options: Any) -> CorrelativeResult:
         """:func:`match_correlative` against this grid."""
         return match_correlative(source, self, **options)
+
+    def updated(self, points: Any) -> CorrelativeGrid:
+        """The grid of ``points``, computed from this one (equal to prepare_correlative's).
+
+        The grid :func:`prepare_correlative` builds from ``points`` with this grid's
+        resolution, sigma and levels, cell for cell and to the bit: a cell's likelihood
+        depends only on the occupied cells within the blur's reach, so only the cells near an
+        occupied cell that disappeared (and those the grid's extent gained) are rasterised
+        again, and the discs of the cells that appeared are lowered in. For a local map that
+        gains a keyframe and drops its oldest (:class:`scanreg.pipeline.Odometry2D`)."""
+        ref = as_points(points, "points", dim=2)
+        t0 = time.perf_counter()
+        native = self._native.updated(ref)
+        elapsed = time.perf_counter() - t0
+        return CorrelativeGrid(
+            resolution=self.resolution,
+            sigma=self.sigma,
+            levels=native.levels,
+            origin=native.origin,
+            shape=native.shape,
+            num_points=int(ref.shape[0]),
+            _native=native,
+            build_seconds=elapsed,
+            _inputs=(readonly(np.array(ref)), self.resolution, self.sigma, self.levels),
+        )
 
 
 def prepare_correlative(
@@ -420,20 +456,9 @@ def _search(
         else positive(angular_resolution, "angular_resolution")
     )
     nx, ny, nt = _steps(dx, r), _steps(dy, r), _steps(dtheta, dth)
-    center = pose0.as_vector()
-    penalty = None if init_covariance is None else _window_information(init_covariance, pose0)
     t0 = time.perf_counter()
-    m = grid._native.search(
-        src,
-        (center[0], center[1], center[2]),
-        nx,
-        ny,
-        nt,
-        dth,
-        search,
-        int(covariance_radius),
-        penalty,
-        min_score,
+    m = _native_search(
+        src, grid, pose0, (nx, ny, nt), dth, search, covariance_radius, init_covariance, min_score
     )
     search_seconds = time.perf_counter() - t0
     if m is None:
@@ -463,8 +488,57 @@ def _search(
         resolution=r,
         angular_resolution=dth,
         timing=CorrelativeTiming(grid_seconds=grid_seconds, search_seconds=search_seconds),
-        conditioning=conditioning(_frozen(np.linalg.inv(cov)), 2, length),
+        length_scale=length,
     )
+
+
+def _native_search(
+    src: FloatArray,
+    grid: CorrelativeGrid,
+    init: SE2,
+    steps: tuple[int, int, int],
+    angular_step: float,
+    search: str,
+    covariance_radius: int,
+    init_covariance: Any,
+    min_score: float | None,
+) -> Any:
+    """The core's search of the lattice ``steps`` (half-widths in steps) around ``init``."""
+    center = init.as_vector()
+    penalty = None if init_covariance is None else _window_information(init_covariance, init)
+    nx, ny, nt = steps
+    return grid._native.search(
+        src,
+        (center[0], center[1], center[2]),
+        nx,
+        ny,
+        nt,
+        angular_step,
+        search,
+        int(covariance_radius),
+        penalty,
+        min_score,
+    )
+
+
+def _best_pose(
+    source: FloatArray,
+    grid: CorrelativeGrid,
+    init: SE2,
+    window: tuple[float, float, float],
+    init_covariance: FloatArray | None = None,
+) -> SE2:
+    """``match_correlative(source, grid, init=init, window=window,
+    init_covariance=init_covariance).pose`` (branch and bound, the default angular step) and
+    nothing else: no covariance, statistics or result to assemble, for a caller that reads
+    only the pose (:class:`scanreg.pipeline.Odometry2D`'s search before its refinement, once
+    a scan). Arguments as validated there (``source`` ``(N, 2)`` float64 C-contiguous)."""
+    dx, dy, dtheta = _window(window)
+    r = grid.resolution
+    dth = default_angular_resolution(source, r)
+    steps = (_steps(dx, r), _steps(dy, r), _steps(dtheta, dth))
+    m = _native_search(source, grid, init, steps, dth, "branch_and_bound", 0, init_covariance, None)
+    return SE2.from_vector(m.pose)
 
 
 def _window_information(covariance: Any, init: SE2) -> tuple[float, ...]:

@@ -98,6 +98,20 @@ pub struct LikelihoodGrid {
     /// needs only as many levels as its window is wide (an odometry window of ±6 cells uses
     /// 4 of the default 7), and each costs about a third of the base grid's build.
     pooled: Vec<OnceLock<Level>>,
+    /// `origin / resolution`: the global index (a multiple of the resolution from 0) of cell
+    /// `(0, 0)`, so that two grids of the same resolution place their cells alike.
+    offset: [i64; 2],
+    /// The occupied cells, global `[y, x]` (cell + `offset`), sorted: what
+    /// [`LikelihoodGrid::updated`] compares a new reference's with.
+    occupied: Vec<[i64; 2]>,
+}
+
+/// The cells [`LikelihoodGrid::build`] lays a reference on: `origin = offset · resolution`.
+struct Lattice {
+    origin: [f64; 2],
+    offset: [i64; 2],
+    width: usize,
+    height: usize,
 }
 
 /// A search window around an initial pose.
@@ -520,9 +534,8 @@ fn stamped(
     reach: i64,
     gauss: &Gaussian,
 ) -> (Vec<f32>, Vec<f32>) {
-    let offsets: Vec<(i64, i64, f32, f32)> = (-reach..=reach)
-        .flat_map(|dy| (-reach..=reach).map(move |dx| (dx, dy)))
-        .filter(|&(dx, dy)| dx * dx + dy * dy <= reach * reach)
+    let offsets: Vec<(i64, i64, f32, f32)> = disc_offsets(reach)
+        .into_iter()
         .map(|(dx, dy)| {
             let d = (dx * dx + dy * dy) as f64;
             (dx, dy, d as f32, gauss.at(d))
@@ -587,29 +600,135 @@ fn transformed(
     (likelihood, dist2)
 }
 
-impl LikelihoodGrid {
-    /// Rasterise `reference` (flat `(N, 2)`, metres) at `resolution` (m/cell) with blur `sigma`
-    /// (m), and precompute `levels` max-pooled grids (`0` = none: exhaustive search only).
-    pub fn build(reference: &[f64], resolution: f64, sigma: f64, levels: usize) -> Result<Self> {
-        let n = check_points(reference, "reference")?;
-        if !(resolution.is_finite() && resolution > 0.0) {
-            return Err(Error::invalid(
-                "resolution",
-                format!("must be finite and > 0, got {resolution}"),
-            ));
+/// The offsets `(dx, dy)` of a disc of radius `reach` cells (`dx² + dy² ≤ reach²`).
+fn disc_offsets(reach: i64) -> Vec<(i64, i64)> {
+    (-reach..=reach)
+        .flat_map(|dy| (-reach..=reach).map(move |dx| (dx, dy)))
+        .filter(|&(dx, dy)| dx * dx + dy * dy <= reach * reach)
+        .collect()
+}
+
+/// The cells of sorted, deduplicated `old` not in `new` and of `new` not in `old`.
+fn differences(old: &[[i64; 2]], new: &[[i64; 2]]) -> (Vec<[i64; 2]>, Vec<[i64; 2]>) {
+    let (mut i, mut j) = (0, 0);
+    let (mut removed, mut added) = (Vec::new(), Vec::new());
+    while i < old.len() && j < new.len() {
+        match old[i].cmp(&new[j]) {
+            std::cmp::Ordering::Less => {
+                removed.push(old[i]);
+                i += 1;
+            }
+            std::cmp::Ordering::Greater => {
+                added.push(new[j]);
+                j += 1;
+            }
+            std::cmp::Ordering::Equal => {
+                i += 1;
+                j += 1;
+            }
         }
-        if !(sigma.is_finite() && sigma > 0.0) {
-            return Err(Error::invalid(
-                "sigma",
-                format!("must be finite and > 0, got {sigma}"),
-            ));
+    }
+    removed.extend_from_slice(&old[i..]);
+    added.extend_from_slice(&new[j..]);
+    (removed, added)
+}
+
+/// Side of the blocks [`Dirty`] also marks (cells).
+const DIRTY_BLOCK: usize = 16;
+
+/// The cells of a grid being updated that are stamped again, and the `16 × 16` blocks that
+/// hold one: whether an occupied cell has a dirty cell within reach is a look at a few blocks.
+struct Dirty {
+    width: usize,
+    cells: Vec<bool>,
+    blocks_x: usize,
+    blocks: Vec<bool>,
+    count: usize,
+}
+
+impl Dirty {
+    fn new(width: usize, height: usize) -> Self {
+        let blocks_x = width.div_ceil(DIRTY_BLOCK);
+        Dirty {
+            width,
+            cells: vec![false; width * height],
+            blocks_x,
+            blocks: vec![false; blocks_x * height.div_ceil(DIRTY_BLOCK)],
+            count: 0,
         }
-        if levels > MAX_LEVELS {
-            return Err(Error::invalid(
-                "levels",
-                format!("at most {MAX_LEVELS}, got {levels}"),
-            ));
+    }
+
+    /// Mark `(x, y)`; whether it was not marked before.
+    fn mark(&mut self, x: usize, y: usize) -> bool {
+        let cell = &mut self.cells[y * self.width + x];
+        if *cell {
+            return false;
         }
+        *cell = true;
+        self.blocks[(y / DIRTY_BLOCK) * self.blocks_x + x / DIRTY_BLOCK] = true;
+        self.count += 1;
+        true
+    }
+
+    /// Mark the cells `[x0, x1)` of row `y`.
+    fn mark_run(&mut self, y: usize, x0: usize, x1: usize) {
+        for x in x0..x1 {
+            self.mark(x, y);
+        }
+    }
+
+    fn is(&self, x: usize, y: usize) -> bool {
+        self.cells[y * self.width + x]
+    }
+
+    fn any(&self) -> bool {
+        self.count > 0
+    }
+
+    /// Whether a block within `reach` (Chebyshev) of `(x, y)` holds a dirty cell: a superset
+    /// of the cells that may have one within reach.
+    fn near(&self, x: i64, y: i64, reach: i64) -> bool {
+        let b = DIRTY_BLOCK as i64;
+        let rows = self.blocks.len() / self.blocks_x;
+        let (bx0, bx1) = (
+            ((x - reach).max(0) / b) as usize,
+            ((x + reach) / b) as usize,
+        );
+        let (by0, by1) = (
+            ((y - reach).max(0) / b) as usize,
+            ((y + reach) / b) as usize,
+        );
+        (by0..=by1.min(rows - 1)).any(|by| {
+            (bx0..=bx1.min(self.blocks_x - 1)).any(|bx| self.blocks[by * self.blocks_x + bx])
+        })
+    }
+}
+
+fn check_settings(resolution: f64, sigma: f64, levels: usize) -> Result<()> {
+    if !(resolution.is_finite() && resolution > 0.0) {
+        return Err(Error::invalid(
+            "resolution",
+            format!("must be finite and > 0, got {resolution}"),
+        ));
+    }
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return Err(Error::invalid(
+            "sigma",
+            format!("must be finite and > 0, got {sigma}"),
+        ));
+    }
+    if levels > MAX_LEVELS {
+        return Err(Error::invalid(
+            "levels",
+            format!("at most {MAX_LEVELS}, got {levels}"),
+        ));
+    }
+    Ok(())
+}
+
+impl Lattice {
+    /// The cells of `reference` (checked finite, non-empty) with the blur's margin.
+    fn of(reference: &[f64], resolution: f64, sigma: f64) -> Result<Self> {
         // The margin holds the blur's whole support around every reference cell.
         let margin = support(sigma, resolution) as f64;
         let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
@@ -621,10 +740,11 @@ impl LikelihoodGrid {
         }
         // Cell boundaries on multiples of the resolution: the lattice does not depend on
         // where the reference happens to start.
-        let origin = [
-            ((lo[0] / resolution).floor() - margin) * resolution,
-            ((lo[1] / resolution).floor() - margin) * resolution,
+        let first = [
+            (lo[0] / resolution).floor() - margin,
+            (lo[1] / resolution).floor() - margin,
         ];
+        let origin = [first[0] * resolution, first[1] * resolution];
         let cells_x = ((hi[0] - origin[0]) / resolution).floor() + margin + 1.0;
         let cells_y = ((hi[1] - origin[1]) / resolution).floor() + margin + 1.0;
         if cells_x * cells_y > MAX_CELLS as f64 || !(cells_x * cells_y).is_finite() {
@@ -636,26 +756,17 @@ impl LikelihoodGrid {
                 ),
             ));
         }
-        let (width, height) = (cells_x as usize, cells_y as usize);
-        let _ = n;
-        Ok(Self::rasterise(
-            reference, origin, width, height, resolution, sigma, levels,
-        ))
+        Ok(Lattice {
+            origin,
+            offset: [first[0] as i64, first[1] as i64],
+            width: cells_x as usize,
+            height: cells_y as usize,
+        })
     }
 
-    /// The distance transform and likelihood of `reference` on the given lattice, within the
-    /// likelihood's support ([`Gaussian::reach`]): a cell farther than that from every
-    /// reference cell holds likelihood 0 (what the full transform gives there too) and
-    /// distance +∞.
-    fn rasterise(
-        reference: &[f64],
-        origin: [f64; 2],
-        width: usize,
-        height: usize,
-        resolution: f64,
-        sigma: f64,
-        levels: usize,
-    ) -> Self {
+    /// The cells `reference`'s points fall in, row-major indices, sorted and deduplicated.
+    fn occupied(&self, reference: &[f64], resolution: f64) -> Vec<usize> {
+        let (origin, width, height) = (self.origin, self.width, self.height);
         let mut occupied: Vec<usize> = reference
             .chunks_exact(2)
             .map(|p| {
@@ -666,6 +777,48 @@ impl LikelihoodGrid {
             .collect();
         occupied.sort_unstable();
         occupied.dedup();
+        occupied
+    }
+
+    /// Row-major indices as global `[y, x]` (the order is kept: sorted stays sorted).
+    fn global(&self, cells: &[usize]) -> Vec<[i64; 2]> {
+        cells
+            .iter()
+            .map(|&c| {
+                [
+                    (c / self.width) as i64 + self.offset[1],
+                    (c % self.width) as i64 + self.offset[0],
+                ]
+            })
+            .collect()
+    }
+}
+
+impl LikelihoodGrid {
+    /// Rasterise `reference` (flat `(N, 2)`, metres) at `resolution` (m/cell) with blur `sigma`
+    /// (m), and precompute `levels` max-pooled grids (`0` = none: exhaustive search only).
+    pub fn build(reference: &[f64], resolution: f64, sigma: f64, levels: usize) -> Result<Self> {
+        check_points(reference, "reference")?;
+        check_settings(resolution, sigma, levels)?;
+        let lattice = Lattice::of(reference, resolution, sigma)?;
+        Ok(Self::rasterise(
+            reference, lattice, resolution, sigma, levels,
+        ))
+    }
+
+    /// The distance transform and likelihood of `reference` on the given lattice, within the
+    /// likelihood's support ([`Gaussian::reach`]): a cell farther than that from every
+    /// reference cell holds likelihood 0 (what the full transform gives there too) and
+    /// distance +∞.
+    fn rasterise(
+        reference: &[f64],
+        lattice: Lattice,
+        resolution: f64,
+        sigma: f64,
+        levels: usize,
+    ) -> Self {
+        let (width, height) = (lattice.width, lattice.height);
+        let occupied = lattice.occupied(reference, resolution);
         let gauss = Gaussian::new((sigma / resolution).powi(2), width * height);
         let reach = gauss.reach();
         let disc = ((2 * reach + 1) * (2 * reach + 1)) as usize;
@@ -686,8 +839,9 @@ impl LikelihoodGrid {
             height: height as i64,
             data: likelihood,
         };
+        let global = lattice.global(&occupied);
         LikelihoodGrid {
-            origin,
+            origin: lattice.origin,
             resolution,
             sigma,
             width,
@@ -695,7 +849,119 @@ impl LikelihoodGrid {
             dist2,
             base,
             pooled: (0..levels).map(|_| OnceLock::new()).collect(),
+            offset: lattice.offset,
+            occupied: global,
         }
+    }
+
+    /// The grid of `reference` — what [`LikelihoodGrid::build`] gives with this grid's
+    /// resolution, blur and levels, to the bit — computed from this one. A cell's likelihood
+    /// and distance are those of the nearest occupied cell within the blur's support
+    /// ([`Gaussian::reach`]), so: a cell near an occupied cell that disappeared, or one the
+    /// lattice gained, is stamped again from the occupied cells near it; any other keeps its
+    /// value, lowered by the discs of the occupied cells that appeared (a nearer cell can only
+    /// lower a minimum). A local map that gains a keyframe and drops its oldest changes a few
+    /// hundred of its thousands of occupied cells. The pooled levels are pooled on first use.
+    pub fn updated(&self, reference: &[f64]) -> Result<Self> {
+        check_points(reference, "reference")?;
+        let (resolution, sigma) = (self.resolution, self.sigma);
+        let lattice = Lattice::of(reference, resolution, sigma)?;
+        let (width, height) = (lattice.width, lattice.height);
+        let occupied = lattice.occupied(reference, resolution);
+        let global = lattice.global(&occupied);
+        let gauss = Gaussian::new((sigma / resolution).powi(2), width * height);
+        let reach = gauss.reach();
+        let mut likelihood = vec![0.0f32; width * height];
+        let mut dist2 = vec![f32::INFINITY; width * height];
+        let mut dirty = Dirty::new(width, height);
+        // The old grid's cells where the lattices overlap; the cells it did not have, dirty.
+        let shift = [
+            self.offset[0] - lattice.offset[0],
+            self.offset[1] - lattice.offset[1],
+        ];
+        let (x0, x1) = (
+            shift[0].clamp(0, width as i64) as usize,
+            (shift[0] + self.width as i64).clamp(0, width as i64) as usize,
+        );
+        for y in 0..height {
+            let old_y = y as i64 - shift[1];
+            if old_y < 0 || old_y >= self.height as i64 || x0 >= x1 {
+                dirty.mark_run(y, 0, width);
+                continue;
+            }
+            let (row, old_row) = (y * width, old_y as usize * self.width);
+            let old_x0 = (x0 as i64 - shift[0]) as usize;
+            let old = old_row + old_x0..old_row + old_x0 + (x1 - x0);
+            likelihood[row + x0..row + x1].copy_from_slice(&self.base.data[old.clone()]);
+            dist2[row + x0..row + x1].copy_from_slice(&self.dist2[old]);
+            dirty.mark_run(y, 0, x0);
+            dirty.mark_run(y, x1, width);
+        }
+        let stamps: Vec<(i64, i64, f32, f32)> = disc_offsets(reach)
+            .into_iter()
+            .map(|(dx, dy)| {
+                let d = (dx * dx + dy * dy) as f64;
+                (dx, dy, d as f32, gauss.at(d))
+            })
+            .collect();
+        let (w, h) = (width as i64, height as i64);
+        let local = |c: &[i64; 2]| (c[1] - lattice.offset[0], c[0] - lattice.offset[1]);
+        let (removed, added) = differences(&self.occupied, &global);
+        // Around a cell that disappeared the nearest occupied cell may be another: cleared,
+        // then stamped again (below) by every occupied cell with a cleared cell within reach.
+        for c in &removed {
+            let (cx, cy) = local(c);
+            for &(dx, dy, _, _) in &stamps {
+                let (x, y) = (cx + dx, cy + dy);
+                if x >= 0 && y >= 0 && x < w && y < h && dirty.mark(x as usize, y as usize) {
+                    let i = (y * w + x) as usize;
+                    likelihood[i] = 0.0;
+                    dist2[i] = f32::INFINITY;
+                }
+            }
+        }
+        let stamp = |cx: i64, cy: i64, only_dirty: bool, l: &mut [f32], e: &mut [f32]| {
+            for &(dx, dy, d, g) in &stamps {
+                let (x, y) = (cx + dx, cy + dy);
+                if x < 0 || y < 0 || x >= w || y >= h {
+                    continue;
+                }
+                let i = (y * w + x) as usize;
+                if d < e[i] && (!only_dirty || dirty.is(x as usize, y as usize)) {
+                    e[i] = d;
+                    l[i] = g;
+                }
+            }
+        };
+        if dirty.any() {
+            for &c in &occupied {
+                let (cx, cy) = ((c % width) as i64, (c / width) as i64);
+                if dirty.near(cx, cy, reach) {
+                    stamp(cx, cy, true, &mut likelihood, &mut dist2);
+                }
+            }
+        }
+        for c in &added {
+            let (cx, cy) = local(c);
+            stamp(cx, cy, false, &mut likelihood, &mut dist2);
+        }
+        Ok(LikelihoodGrid {
+            origin: lattice.origin,
+            resolution,
+            sigma,
+            width,
+            height,
+            dist2,
+            base: Level {
+                shift: 0,
+                width: w,
+                height: h,
+                data: likelihood,
+            },
+            pooled: (0..self.pooled.len()).map(|_| OnceLock::new()).collect(),
+            offset: lattice.offset,
+            occupied: global,
+        })
     }
 
     /// Level `h` (`0`: the likelihood), pooling it on first use.
@@ -1303,6 +1569,94 @@ mod tests {
                 "s2 {s2}"
             );
         }
+    }
+
+    fn assert_same_grid(a: &LikelihoodGrid, b: &LikelihoodGrid, what: &str) {
+        assert_eq!(a.origin(), b.origin(), "{what}: origin");
+        assert_eq!(a.shape(), b.shape(), "{what}: shape");
+        assert_eq!(a.offset, b.offset, "{what}: offset");
+        assert_eq!(a.occupied, b.occupied, "{what}: occupied cells");
+        assert_eq!(a.levels(), b.levels(), "{what}: levels");
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(a.dist2()), bits(b.dist2()), "{what}: distance");
+        assert_eq!(
+            bits(a.likelihood()),
+            bits(b.likelihood()),
+            "{what}: likelihood"
+        );
+        for h in 1..=a.levels() {
+            assert_eq!(
+                bits(&a.level(h).data),
+                bits(&b.level(h).data),
+                "{what}: level {h}"
+            );
+        }
+    }
+
+    #[test]
+    fn an_updated_grid_is_the_grid_built_from_scratch() {
+        // A sliding window of "keyframes" (the room seen from moving poses, with a sparse far
+        // wall so that the stamping and the distance-transform builds both occur), each grid
+        // updated from the previous one: every step equals a build of the same points, bit
+        // for bit, and so does a search on it.
+        let room = room();
+        let far: Vec<f64> = (0..40)
+            .flat_map(|k| [30.0 + 0.37 * k as f64, -5.0])
+            .collect();
+        let frames: Vec<Vec<f64>> = (0..12)
+            .map(|k| {
+                let pose = [0.21 * k as f64, -0.13 * k as f64, 0.05 * k as f64];
+                let mut pts = transform(&room, pose);
+                if k % 3 == 1 {
+                    pts.extend_from_slice(&far);
+                }
+                pts.truncate(pts.len() - 2 * (k % 5)); // a few points fewer now and then
+                pts
+            })
+            .collect();
+        let window = 3;
+        let mut grid: Option<LikelihoodGrid> = None;
+        for end in 1..=frames.len() {
+            let reference: Vec<f64> = frames[end.saturating_sub(window)..end].concat();
+            let built = LikelihoodGrid::build(&reference, 0.05, 0.05, 5).unwrap();
+            let next = match &grid {
+                None => built.clone(),
+                Some(g) => g.updated(&reference).unwrap(),
+            };
+            assert_same_grid(&next, &built, &format!("window ending at {end}"));
+            let w = Window {
+                center: [0.2, -0.1, 0.03],
+                nx: 6,
+                ny: 6,
+                ntheta: 5,
+                angular_step: 0.01,
+                penalty: None,
+            };
+            let scan = &frames[end - 1][..200];
+            assert_eq!(
+                match_branch_and_bound(&next, scan, &w, 3).unwrap(),
+                match_branch_and_bound(&built, scan, &w, 3).unwrap()
+            );
+            grid = Some(next);
+        }
+        // A reference elsewhere entirely (no overlap of the lattices), and back.
+        let g = grid.unwrap();
+        let away = transform(&room, [100.0, 50.0, 1.0]);
+        let moved = g.updated(&away).unwrap();
+        assert_same_grid(
+            &moved,
+            &LikelihoodGrid::build(&away, 0.05, 0.05, 5).unwrap(),
+            "away",
+        );
+        let back = moved.updated(&room).unwrap();
+        assert_same_grid(
+            &back,
+            &LikelihoodGrid::build(&room, 0.05, 0.05, 5).unwrap(),
+            "back",
+        );
+        // Bad input is refused as build refuses it.
+        assert!(g.updated(&[]).is_err());
+        assert!(g.updated(&[0.0, f64::NAN]).is_err());
     }
 
     #[test]

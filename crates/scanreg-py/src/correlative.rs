@@ -70,6 +70,15 @@ impl CorrelativeGrid {
         Ok(CorrelativeGrid { inner })
     }
 
+    /// The grid of `reference` (what `CorrelativeGrid(reference, ...)` with this grid's
+    /// settings builds, to the bit), computed from this one: only the cells near occupied
+    /// cells that changed are rasterised again.
+    fn updated(&self, py: Python<'_>, reference: PyReadonlyArray2<'_, f64>) -> PyResult<Self> {
+        let data = points_dim(&reference, "reference", 2)?;
+        let inner = py.detach(|| self.inner.updated(data)).map_err(core_err)?;
+        Ok(CorrelativeGrid { inner })
+    }
+
     #[getter]
     fn origin(&self) -> (f64, f64) {
         let o = self.inner.origin();

@@ -18,7 +18,10 @@ One :meth:`Odometry2D.step` per scan, in four stages:
    computed again — the same map, normals, normal noise and point spacing as downsampling and
    :func:`scanreg.prepare` of the window from scratch, at about half the cost on the Intel log
    (the k-d tree is rebuilt).
-   The correlative grid is rebuilt when next needed.
+   The correlative grid is brought up to date when next needed
+   (:meth:`scanreg.CorrelativeGrid.updated`): only the cells near the occupied cells the
+   keyframe added or the evicted one took away are rasterised again — the grid a build from
+   scratch gives, to the bit.
 
 Poses are ``T_world_scan`` with the world frame that of the first scan.
 """
@@ -35,7 +38,7 @@ import numpy as np
 
 from .. import _core
 from .._validate import FloatArray, as_covariance, as_matrix, as_points, frozen
-from ..correlative import CorrelativeGrid, match_correlative, prepare_correlative
+from ..correlative import CorrelativeGrid, _best_pose, match_correlative, prepare_correlative
 from ..deskew import deskew, velocity_from_motion
 from ..preprocess import DEFAULT_K, voxel_downsample
 from ..register import RegistrationResult, register
@@ -254,6 +257,8 @@ class Odometry2D:
         self._velocity = SE2.identity()
         self._target: PreparedTarget | None = None
         self._grid: CorrelativeGrid | None = None
+        #: The map changed since ``_grid`` was made (:meth:`_correlative_grid`).
+        self._grid_stale = False
         self._map_points: FloatArray | None = None
         self._index = 0
         self._last_time: float | None = None
@@ -281,7 +286,20 @@ class Odometry2D:
             index, normals, valid, self._num_neighbors, noise, spacing
         )
         self._map_points = self._target.points
-        self._grid = None
+        self._grid_stale = True
+
+    def _correlative_grid(self) -> CorrelativeGrid:
+        """The local map's correlative grid: built on first use, then updated where the
+        keyframes since changed it (the same grid as a build from scratch)."""
+        assert self._map_points is not None
+        if self._grid is None:
+            self._grid = prepare_correlative(
+                self._map_points, resolution=self.config.correlative_resolution
+            )
+        elif self._grid_stale:
+            self._grid = self._grid.updated(self._map_points)
+        self._grid_stale = False
+        return self._grid
 
     def _map_sweep(self) -> dict[str, Any]:
         """The map's sweep for :func:`scanreg.register` (``OdometryConfig2D.sweep_duration``):
@@ -425,22 +443,14 @@ class Odometry2D:
         t0 = time.perf_counter()
         start = predicted
         if cfg.front_end == "correlative":
-            if self._grid is None:
-                self._grid = prepare_correlative(
-                    self._map_points, resolution=cfg.correlative_resolution
-                )
+            grid = self._correlative_grid()
             # With a motion cost the lattice's candidates are ranked by their posterior: of
             # two that the scan scores about alike (a corridor's axis, a repeated doorway)
             # the one the wheels' step supports wins; a clearly better basin still does.
-            coarse = match_correlative(
-                pts,
-                self._grid,
-                init=predicted,
-                window=_search_window(cfg.correlative_window, motion, self._velocity),
-                search="branch_and_bound",
-                init_covariance=search_cov,
-            )
-            start = coarse.pose
+            # Only the pose is read (the refinement gives the frame's covariance): neither
+            # Olson's covariance nor the result's statistics are computed.
+            window = _search_window(cfg.correlative_window, motion, self._velocity)
+            start = _best_pose(pts, grid, predicted, window, search_cov)
         res = register(
             pts,
             self._target,
@@ -467,14 +477,10 @@ class Odometry2D:
             if wrong_basin and probe is not None and isinstance(probe.alternative, SE2):
                 start = probe.alternative
             else:
-                if self._grid is None:
-                    self._grid = prepare_correlative(
-                        self._map_points, resolution=cfg.correlative_resolution
-                    )
                 gate = cfg.max_correspondence_distance
                 start = match_correlative(
                     pts,
-                    self._grid,
+                    self._correlative_grid(),
                     init=predicted,
                     window=(2.0 * gate, 2.0 * gate, math.pi),
                     angular_resolution=math.radians(1.0),

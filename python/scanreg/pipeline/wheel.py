@@ -144,6 +144,10 @@ class WheelOdometry:
         self._linked = False
         self._since = 0
         self._factor = np.ones(3)
+        #: The last :meth:`prior`: its increment (an SE2, immutable), the scale, the scaled
+        #: increment and the model's covariance of it, which :meth:`observe` of the same
+        #: increment reads again (the scale only changes after that).
+        self._last_prior: tuple[SE2, float, SE2, FloatArray] | None = None
 
     @property
     def scale(self) -> float:
@@ -177,6 +181,8 @@ class WheelOdometry:
         if s != 1.0:
             motion = SE2.from_rt(motion.rotation, s * motion.translation)
         cov = self.noise.covariance(motion)
+        if isinstance(increment, SE2):
+            self._last_prior = (increment, s, motion, cov)
         return motion, cov * np.sqrt(np.outer(self._factor, self._factor))
 
     def observe(self, increment: Any, measured: Any, *, constrained: bool = True) -> None:
@@ -195,7 +201,7 @@ class WheelOdometry:
             self._linked = False
             return
         if self.noise.calibrate_noise:
-            self._observe_noise(wheel, scan)
+            self._observe_noise(increment, wheel, scan)
         d = float(np.linalg.norm(wheel.translation))
         if d < _MOVING * self.noise.floor_translation:
             # Standing or turning on the spot: the wheels' distance is then their floor noise,
@@ -208,10 +214,15 @@ class WheelOdometry:
         self._rolled = fade * self._rolled + d
         self._behind += d
 
-    def _observe_noise(self, wheel: SE2, scan: SE2) -> None:
-        motion, _ = self.prior(wheel)
+    def _observe_noise(self, increment: Any, wheel: SE2, scan: SE2) -> None:
+        last = self._last_prior
+        if last is not None and last[0] is increment and last[1] == self.scale:
+            motion, cov = last[2], last[3]  # what prior(increment) just gave
+        else:
+            motion, _ = self.prior(wheel)
+            cov = self.noise.covariance(motion)
         residual = (motion.inverse() @ scan).log()
-        model = np.diag(self.noise.covariance(motion))
+        model = np.diag(cov)
         self._steps.append((residual, model, self._linked))
         self._linked = True
         self._since += 1
