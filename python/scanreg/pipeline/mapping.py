@@ -412,7 +412,9 @@ class Mapper:
         time on the clock of ``stamp`` (a ``sensor_msgs/LaserScan``'s stamp plus ``k ·
         time_increment``), or ``None`` (the scan taken as instantaneous): with them the scan
         is deskewed to ``stamp`` under the predicted motion (:meth:`Odometry2D.step`), and
-        the node keeps the deskewed scan; ``stamp`` is then required and must not decrease.
+        the node keeps the deskewed scan; ``stamp`` is then required (a stamp earlier than
+        the last deskewed scan's, as in a corrupted log, gives no interval: that scan is
+        taken as instantaneous).
         ``prior``: ``T_prev_curr`` from wheel odometry (or ``None``). ``stamp``: the scan's
         time (without ``timestamps`` it may step backwards: it is only recorded).
 

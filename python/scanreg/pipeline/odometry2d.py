@@ -384,7 +384,8 @@ class Odometry2D:
             prior_cov = None
         deskewed = None
         if times is not None:
-            pts = deskewed = self._deskewed(pts, times, motion, float(stamp), previous_time)  # type: ignore[arg-type]
+            assert stamp is not None  # (checked above)
+            pts = deskewed = self._deskewed(pts, times, motion, float(stamp), previous_time)
         if cfg.scan_voxel_size > 0:
             pts = np.ascontiguousarray(voxel_downsample(pts, cfg.scan_voxel_size).points)
         index = self._index
