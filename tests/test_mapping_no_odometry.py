@@ -56,6 +56,9 @@ def test_search_window_grows_by_the_last_motion_without_a_prior() -> None:
     assert odometry2d._search_window(base, turn, turn) == base  # a prior: as configured
     wide = odometry2d._search_window(base, None, turn)
     assert wide == pytest.approx((0.46, 0.46, math.radians(10.0) + 0.3))
+    # A half-turn since the last scan: every heading, no more (the search refuses dθ > π).
+    back = SE2.from_vector([0.0, 0.0, 3.1])
+    assert odometry2d._search_window(base, None, back)[2] == pytest.approx(math.pi)
 
 
 @pytest.mark.slow

@@ -835,6 +835,7 @@ def _odometry_carmen(args: SimpleNamespace) -> dict[str, Any]:
     pending = None
     accepted = 0
     skipped = 0
+    last_timed: float | None = None
     t0 = time.perf_counter()
     enabled = not (args.quiet or args.json)
     with Progress(len(scans), description="odometry", unit="scans", enabled=enabled) as bar:
@@ -842,12 +843,18 @@ def _odometry_carmen(args: SimpleNamespace) -> dict[str, Any]:
             step = scans.prior(i)
             if step is not None:
                 pending = step if pending is None else pending @ step
-            pts, _ = scans.swept_points(i, 0.1, 40.0)  # (its sweep undone by the wheels)
+            # Its sweep undone by the wheels, or with beam times left to the odometry's own
+            # prediction (as Mapper.track: a stamp out of order is taken as instantaneous).
+            pts, times = scans.swept_points(i, 0.1, 40.0)
             if len(pts) < 3:  # no returns: nothing to align; its motion joins the next prior
                 skipped += 1
                 bar.update()
                 continue
-            frame = odo.step(pts, prior=pending if poses else None)
+            stamp = float(scans.stamps[i])
+            timed: dict[str, Any] = {}
+            if times is not None and (last_timed is None or stamp >= last_timed):
+                timed, last_timed = {"timestamps": times, "stamp": stamp}, stamp
+            frame = odo.step(pts, prior=pending if poses else None, **timed)
             pending = None
             poses.append(frame.pose)
             stamps.append(float(scans.stamps[i]))

@@ -605,7 +605,8 @@ def _search_window(
     if prior is not None:
         return window
     step = float(np.linalg.norm(velocity.translation))
-    return (window[0] + step, window[1] + step, window[2] + abs(float(velocity.angle)))
+    turn = min(math.pi, window[2] + abs(float(velocity.angle)))  # (every heading at most)
+    return (window[0] + step, window[1] + step, turn)
 
 
 def _checked_prior_covariance(
