@@ -232,3 +232,28 @@ def test_cli_merge_writes_every_scan(
     assert not (tmp_path / "m1").exists()
     with pytest.raises(TypeError, match="b: expected a SavedMap"):
         merge_maps(a, str(tmp_path / "b"))  # type: ignore[arg-type]
+
+
+def test_cli_merge_warns_when_the_joint_map_is_inconsistent(
+    intel: dict[str, SavedMap],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Never silent: a joint map its self-check finds inconsistent is still written, with the
+    reasons on stderr whether or not --json (here the check is told to tolerate nothing)."""
+    from scanreg.pipeline import map_check
+
+    intel["a"].save(tmp_path / "a")
+    intel["b"].save(tmp_path / "b")
+    strict = map_check.MapCheckSettings(max_contradiction_fraction=0.0)
+    real = map_check.check_map
+    monkeypatch.setattr(map_check, "check_map", lambda m: real(m, settings=strict))
+    out = tmp_path / "m"
+    argv = ["merge", str(tmp_path / "a"), str(tmp_path / "b"), "-o", str(out), "--json"]
+    assert main(argv) == EXIT_OK
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)
+    assert not result["self_check"]["consistent"]
+    assert "scanreg merge: WARNING: the map is inconsistent: contradictions:" in captured.err
+    assert SavedMap.load(out).sessions == ("a", "b")
