@@ -15,52 +15,19 @@ from typing import Any
 
 import numpy as np
 import pytest
+from _sim_scan_log import RATE, ate, tour_log
 from scanreg import SE2
 from scanreg import simulate as sim
 from scanreg.deskew import deskew, velocity_from_motion
-from scanreg.io.rosbag import RosLaserScan
 from scanreg.io.scan_log import ScanLog
 from scanreg.pipeline import MappingConfig
 from scanreg.pipeline.odometry2d import Odometry2D
 
-RATE = 5.0
-
 
 @cache
 def _tour(beam_times: bool) -> tuple[ScanLog, tuple[SE2, ...]]:
-    """One room on each side of a corridor toured with ``laser_360`` (720 beams, a 0.1 s
-    sweep) at 5 Hz, wheel odometry at each scan's stamp; ``beam_times=False``: the same
-    scans with ``time_increment`` 0 (as a driver that does not fill it in)."""
-    course = sim.room_tour(seed=0, rooms_per_side=1)
-    laser = sim.LaserModel.preset("laser_360")
-    run = sim.simulate_run(
-        course.scene, laser, course.trajectory,
-        num_scans=course.num_scans(RATE), scan_rate=RATE, seed=0,
-    )  # fmt: skip
-    truth = tuple(run.poses[0].inverse() @ p for p in run.poses)
-    odometry = [SE2.identity()]
-    for step in sim.wheel_odometry(list(truth), 7)[1:]:
-        assert step is not None
-        odometry.append(odometry[-1] @ step)
-    increment = laser.time_increment if beam_times else 0.0
-    scans = tuple(_message(s, k / RATE, laser, increment) for k, s in enumerate(run.scans))
-    stamps = np.arange(len(scans)) / RATE
-    log = ScanLog("sim", scans, stamps, tuple(odometry), SE2.identity(), odometry_source="sim")
-    return log, truth  # type: ignore[return-value]
-
-
-def _message(scan: Any, stamp: float, laser: sim.LaserModel, increment: float) -> RosLaserScan:
-    return RosLaserScan(
-        kind="sensor_msgs/LaserScan", ranges=scan.ranges, angles=scan.angles,
-        max_range=laser.max_range, laser_pose=None, odometry_pose=None, timestamp=stamp,
-        logger_timestamp=stamp + 0.1, range_min=laser.min_range, time_increment=increment,
-        scan_time=1 / RATE,
-    )  # fmt: skip
-
-
-def _ate(poses: tuple[SE2, ...], truth: tuple[SE2, ...]) -> float:
-    err = [np.linalg.norm((t.inverse() @ p).translation) for p, t in zip(poses, truth, strict=True)]
-    return float(np.sqrt(np.mean(np.square(err))))
+    """``laser_360`` (720 beams, a 0.1 s sweep) with the wheels' odometry."""
+    return tour_log(0, "laser_360", beam_times=beam_times, odometry=True)
 
 
 def test_swept_points_undo_the_sweep_with_the_wheels() -> None:
@@ -103,7 +70,7 @@ def test_a_360_laser_maps_when_its_sweeps_are_undone() -> None:
     for beam_times in (True, False):
         log, truth = _tour(beam_times)
         res = run_mapping(log, MappingConfig())
-        errors[beam_times] = _ate(res.poses, truth)
+        errors[beam_times] = ate(res.poses, truth)
     # Measured: 0.012 m with the beams' times, 0.053 m without (each sweep 0.1 s long,
     # turning up to ~1.9 rad/s).
     assert errors[True] < 0.02 and errors[False] > 2 * errors[True], errors
@@ -219,7 +186,7 @@ def test_a_360_laser_bag_maps_deskewed(tmp_path: Path, capsys: pytest.CaptureFix
     np.testing.assert_allclose(tum[:, 0], np.arange(len(truth)) / RATE, atol=1e-6)
     poses = tuple(SE2.from_vector([r[1], r[2], 2 * math.atan2(r[6], r[7])]) for r in tum)
     # Measured: 0.012 m, as from the ScanLog above (0.053 m without the beams' times).
-    assert _ate(poses, truth) < 0.02, _ate(poses, truth)
+    assert ate(poses, truth) < 0.02, ate(poses, truth)
     # No /odom: constant velocity, each scan deskewed with the last motion.
     bare = _write_bag(tmp_path / "bare", odometry=False)
     odo = tmp_path / "odo"
@@ -231,3 +198,15 @@ def test_a_360_laser_bag_maps_deskewed(tmp_path: Path, capsys: pytest.CaptureFix
     # measured 2.35 m ATE; a motion of nearly a half-turn made the widened search ask for
     # more than every heading, which the correlative search refused, before its clamp.)
     assert len(poses) == len(truth)
+
+
+def test_scan_log_refuses_a_scan_index_it_does_not_hold() -> None:
+    log, _ = _tour(True)
+    with pytest.raises(IndexError, match=rf"k: scan {len(log)} out of range for {len(log)} scans"):
+        log.swept_points(len(log))
+    with pytest.raises(TypeError, match="k: expected an int scan index, got float"):
+        log.point_times(1.0)  # type: ignore[arg-type]
+    # From the end, as a sequence's: the last scan (no next odometry: its times returned).
+    points, times = log.swept_points(-1)
+    np.testing.assert_array_equal(points, log.points(len(log) - 1))
+    assert times is not None and times[0] == pytest.approx(log.stamps[-1])

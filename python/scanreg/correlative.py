@@ -201,18 +201,7 @@ class CorrelativeGrid:
         ref = as_points(points, "points", dim=2)
         t0 = time.perf_counter()
         native = self._native.updated(ref)
-        elapsed = time.perf_counter() - t0
-        return CorrelativeGrid(
-            resolution=self.resolution,
-            sigma=self.sigma,
-            levels=native.levels,
-            origin=native.origin,
-            shape=native.shape,
-            num_points=int(ref.shape[0]),
-            _native=native,
-            build_seconds=elapsed,
-            _inputs=(readonly(np.array(ref)), self.resolution, self.sigma, self.levels),
-        )
+        return _grid(native, ref, self.resolution, self.sigma, self.levels, t0)
 
 
 def prepare_correlative(
@@ -242,17 +231,25 @@ def prepare_correlative(
         raise ValueError(f"levels: must be in [0, 12], got {levels}")
     t0 = time.perf_counter()
     native = _core.CorrelativeGrid(ref, res, sig, int(levels))
+    return _grid(native, ref, res, sig, int(levels), t0)
+
+
+def _grid(
+    native: Any, ref: FloatArray, resolution: float, sigma: float, levels: int, t0: float
+) -> CorrelativeGrid:
+    """The :class:`CorrelativeGrid` around the core's ``native`` grid of ``ref``, built (or
+    updated) since ``t0``; ``levels`` as asked (the core may pool fewer)."""
     elapsed = time.perf_counter() - t0
     return CorrelativeGrid(
-        resolution=res,
-        sigma=sig,
+        resolution=resolution,
+        sigma=sigma,
         levels=native.levels,
         origin=native.origin,
         shape=native.shape,
         num_points=int(ref.shape[0]),
         _native=native,
         build_seconds=elapsed,
-        _inputs=(readonly(np.array(ref)), res, sig, int(levels)),
+        _inputs=(readonly(np.array(ref)), resolution, sigma, levels),
     )
 
 

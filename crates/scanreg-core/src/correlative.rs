@@ -534,13 +534,7 @@ fn stamped(
     reach: i64,
     gauss: &Gaussian,
 ) -> (Vec<f32>, Vec<f32>) {
-    let offsets: Vec<(i64, i64, f32, f32)> = disc_offsets(reach)
-        .into_iter()
-        .map(|(dx, dy)| {
-            let d = (dx * dx + dy * dy) as f64;
-            (dx, dy, d as f32, gauss.at(d))
-        })
-        .collect();
+    let offsets = disc_stamps(reach, gauss);
     let mut likelihood = vec![0.0f32; width * height];
     let mut dist2 = vec![f32::INFINITY; width * height];
     let (w, h) = (width as i64, height as i64);
@@ -605,6 +599,18 @@ fn disc_offsets(reach: i64) -> Vec<(i64, i64)> {
     (-reach..=reach)
         .flat_map(|dy| (-reach..=reach).map(move |dx| (dx, dy)))
         .filter(|&(dx, dy)| dx * dx + dy * dy <= reach * reach)
+        .collect()
+}
+
+/// Each cell of the disc of radius `reach` with its squared distance (cells²) and likelihood:
+/// what an occupied cell stamps around itself.
+fn disc_stamps(reach: i64, gauss: &Gaussian) -> Vec<(i64, i64, f32, f32)> {
+    disc_offsets(reach)
+        .into_iter()
+        .map(|(dx, dy)| {
+            let d = (dx * dx + dy * dy) as f64;
+            (dx, dy, d as f32, gauss.at(d))
+        })
         .collect()
 }
 
@@ -897,13 +903,7 @@ impl LikelihoodGrid {
             dirty.mark_run(y, 0, x0);
             dirty.mark_run(y, x1, width);
         }
-        let stamps: Vec<(i64, i64, f32, f32)> = disc_offsets(reach)
-            .into_iter()
-            .map(|(dx, dy)| {
-                let d = (dx * dx + dy * dy) as f64;
-                (dx, dy, d as f32, gauss.at(d))
-            })
-            .collect();
+        let stamps = disc_stamps(reach, &gauss);
         let (w, h) = (width as i64, height as i64);
         let local = |c: &[i64; 2]| (c[1] - lattice.offset[0], c[0] - lattice.offset[1]);
         let (removed, added) = differences(&self.occupied, &global);

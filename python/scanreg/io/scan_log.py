@@ -150,12 +150,20 @@ class ScanLog:
         """Scan ``k``'s valid returns in ``(min_range, max_range)`` as ``(M, 2)`` points in the
         base frame (the scan's own ``range_min`` / ``range_max``, NaN and inf honoured:
         :meth:`LaserScan.valid`)."""
-        pts = self.scans[k].to_points(min_range, max_range)
+        pts = self.scans[self._index(k)].to_points(min_range, max_range)
         if self.mirrored:
             pts[:, 1] = -pts[:, 1]
         if self.T_base_laser.is_close(SE2.identity(), atol=0.0):
             return pts  # the base is the laser: the points as read, bit for bit
         return np.ascontiguousarray(self.T_base_laser.apply(pts))
+
+    def _index(self, k: int) -> int:
+        """``k`` checked as a scan index (negative from the end, as a sequence's)."""
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+            raise TypeError(f"k: expected an int scan index, got {type(k).__name__}")
+        if not -len(self) <= k < len(self):
+            raise IndexError(f"k: scan {k} out of range for {len(self)} scans")
+        return int(k) % len(self)
 
     def point_times(
         self, k: int, min_range: float = 0.0, max_range: float | None = None
@@ -163,7 +171,7 @@ class ScanLog:
         """When each of :meth:`points`' returns was measured, seconds after ``stamps[k]``: a
         ``sensor_msgs/LaserScan``'s ``k · time_increment`` (its stamp is its first beam's
         time); ``None`` for a scan that does not say (a CARMEN log's, ``time_increment`` 0)."""
-        scan = self.scans[k]
+        scan = self.scans[self._index(k)]
         increment = float(getattr(scan, "time_increment", 0.0))  # (a RosLaserScan field)
         if increment == 0.0 or not math.isfinite(increment):
             return None
@@ -183,6 +191,7 @@ class ScanLog:
         prediction; ``(points, None)`` for a scan without beam times."""
         from ..deskew import deskew, velocity_from_motion
 
+        k = self._index(k)
         pts = self.points(k, min_range, max_range)
         times = self.point_times(k, min_range, max_range)
         if times is None:
