@@ -307,3 +307,39 @@ def test_unsolvable_update_names_gtsam_and_edges_can_be_dropped(
         g.remove_last_edges(2)
     with pytest.raises(ValueError, match="count: expected an int >= 0, got -1"):
         g.remove_last_edges(-1)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_move_gauge_puts_the_key_at_the_pose_and_keeps_every_relative_pose(dim: int) -> None:
+    g = G.Graph(dim)
+    pose = SE2 if dim == 2 else SE3
+    along = [pose.exp(np.r_[x, 0.1 * x, [0.0] * (g.dof - 3), 0.05 * x]) for x in (0.0, 1.0, 2.0)]
+    for k, p in enumerate(along):
+        g.add_node(k, p)
+    g.add_prior(0, pose.identity(), np.eye(g.dof) * 1e2)
+    g.add_edge(0, 1, along[0].inverse() @ along[1], _info(dim))
+    g.add_edge(1, 2, along[1].inverse() @ along[2], _info(dim))
+    loop = along[0].inverse() @ along[2]
+    off = pose.exp(np.r_[[0.3] * dim, [0.01] * (g.dof - dim)])
+    g.add_edge(0, 2, loop @ off, _info(dim), kind="loop")
+    g.optimize()
+    before = g.poses()
+    target = pose.exp(np.r_[[0.5] * dim, [0.2] * (g.dof - dim)])  # anywhere, not the prior
+    g.move_gauge(0, target)
+    after = g.poses()
+    assert np.abs((target.inverse() @ after[0]).log()).max() < 1e-9
+    for i, j in ((0, 1), (1, 2), (0, 2)):
+        rel_before = before[i].inverse() @ before[j]
+        rel_after = after[i].inverse() @ after[j]
+        assert np.abs((rel_before.inverse() @ rel_after).log()).max() < 1e-9
+    # Back at the prior's pose, the next incremental update builds on the moved estimate.
+    g.move_gauge(0, pose.identity())
+    back = g.poses()
+    g.add_node(3, back[2] @ (along[1].inverse() @ along[2]))
+    g.add_edge(2, 3, along[1].inverse() @ along[2], _info(dim))
+    g.update()
+    assert np.abs((g.pose(2).inverse() @ back[2]).log()).max() < 1e-6
+    with pytest.raises(TypeError, match="pose"):
+        g.move_gauge(0, SE3.identity() if dim == 2 else SE2.identity())
+    with pytest.raises(ValueError, match="node 9"):
+        g.move_gauge(9, pose.identity())

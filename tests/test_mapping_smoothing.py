@@ -123,6 +123,8 @@ def test_scans_between_nodes_are_resolved(scan: Any, wheel: Any, bound: float) -
     smoothed = smooth_scan_poses(closed, odometry, [True] * len(truth), wheels, nodes, noise, hold)
     for k in nodes:  # the nodes stay about where the graph put them
         assert np.linalg.norm((closed[k].inverse() @ smoothed[k]).translation) < 0.01
+    # The first node is the map's frame: it does not move at all.
+    assert np.abs((closed[0].inverse() @ smoothed[0]).log()).max() < 1e-12
     before, after = _rms(closed, truth), _rms(smoothed, truth)
     # Measured: 0.0155 -> 0.0035 m (0.22x); 0.0045 -> 0.0037 m (0.82x).
     assert after < bound * before
@@ -150,6 +152,11 @@ def test_mapper_runs_the_pass_only_with_wheels() -> None:
             mapper.step(scan(p), prior=prior, stamp=0.2 * k)
         res = mapper.finish()
         assert (mapper.step_noise is not None) is with_wheels
+        # The map's frame is the first scan's odometry pose exactly, whatever the loops and
+        # the pass pulled (the pass moved it by ~1 mm while it held it as any other node).
+        first = res.odometry_poses[0].inverse() @ res.poses[0]
+        assert np.abs(first.log()).max() < 1e-12
+        assert np.abs((res.odometry_poses[0].inverse() @ res.graph.pose(0)).log()).max() < 1e-12
         assert len(res.poses) == len(truth)
         end = (truth[0].inverse() @ truth[-1]).inverse() @ (res.poses[0].inverse() @ res.poses[-1])
         assert np.linalg.norm(end.translation) < 0.05

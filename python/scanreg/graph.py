@@ -422,6 +422,21 @@ class Graph:
         self._marginals = None
         return int(optimizer.iterations())
 
+    def move_gauge(self, key: int, pose: SE2 | SE3) -> None:
+        """Move every solved node by one rigid transform so that ``key`` sits exactly at
+        ``pose``. Relative poses, hence every edge's error, are unchanged; only a prior sees
+        it. Why: a finite anchoring prior is met only as far as the solver converged (iSAM2
+        relinearises beyond a threshold), and a map is read in its first scan's frame."""
+        k = self._solved(key)
+        target = self._pose(pose, "pose")
+        correction = target @ self.pose(k).inverse()  # type: ignore[operator]
+        moved = self._g.Values()
+        for n in self._estimate.keys():  # noqa: SIM118 (gtsam.Values)
+            moved.insert(n, self._to_gtsam(correction @ self.pose(int(n))))  # type: ignore[operator]
+        self._estimate = moved
+        self._isam_current = False  # iSAM2 restarts from the moved estimate at its next update
+        self._marginals = None
+
     # -- reading -------------------------------------------------------------------------
     @property
     def edges(self) -> tuple[Edge, ...]:

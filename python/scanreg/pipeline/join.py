@@ -473,6 +473,7 @@ def _joint_map(
     for m in loops:  # (no kernel: verified by agreement; see the module docstring)
         g.add_edge(m.submap_node, m.node, m.measured, m.information, kind="loop")
     g.optimize()
+    g.move_gauge(0, old_poses[0])  # the old map's frame kept exactly (Graph.move_gauge)
     joint = g.poses()
     node_poses = [joint[k] for k in range(k_old + len(new_poses))]
 

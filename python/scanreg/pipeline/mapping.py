@@ -889,6 +889,8 @@ class Mapper:
             g.optimize()
             self._timing.add("optimization", t0)
             self._timing.add("total", t0)
+        # The map's frame is its first node's odometry pose, exactly (Graph.move_gauge).
+        g.move_gauge(0, self._node_odom[0])
         return self._result(smooth=self.config.smooth_scans)
 
     def snapshot(self, reason: str) -> MappingResult[SE2]:

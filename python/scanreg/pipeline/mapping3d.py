@@ -489,6 +489,8 @@ class Mapper3D:
             dt = time.perf_counter() - t0
             self._timing.optimization += dt
             self._timing.total += dt
+        # The map's frame is its first node's odometry pose, exactly (Graph.move_gauge).
+        g.move_gauge(0, self._node_odom[0])
         node_poses = g.poses()
         poses: list[SE3] = []
         odometry: list[SE3] = []
