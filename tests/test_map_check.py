@@ -75,6 +75,27 @@ def test_simulated_loop_passes_and_a_broken_trajectory_is_flagged() -> None:
     assert 0.0 < worst.x < 12.0 and -1.0 < worst.y < 5.0, worst
 
 
+def test_a_local_break_is_flagged_where_the_whole_map_would_pass() -> None:
+    # The last tenth of the lap moved 0.3 m: only the stretch over the start disagrees, too
+    # little of the whole map for the map-wide limit; its square gives it away. (Loops are
+    # not judged here: against the exact poses every loop edge of the broken lap is off.)
+    run, res = _ring_run()
+    truth = _truth(run)
+    settings = MapCheckSettings(max_loops_over_bound=1.0)
+    assert check_map(res, truth, settings).consistent
+    broken = _broken(tuple(truth), int(0.9 * res.num_scans), SE2.from_vector([0.3, 0.0, 0.0]))
+    bad = check_map(res, broken, settings)
+    # Measured: 6.6 % of 2362 judged returns over the map; 38 of 45 in the worst 4 m square.
+    assert bad.contradiction_fraction < settings.max_contradiction_fraction
+    assert not bad.consistent
+    assert [r.split(":")[0] for r in bad.reasons] == ["contradictions gather"], bad.reasons
+    worst = bad.regions[0]
+    assert worst.contradictions > 0.5 * worst.returns
+    # Without the square's limit (a share no square can reach), the same map passes.
+    lenient = dataclasses.replace(settings, min_region_share=1.0)
+    assert check_map(res, broken, lenient).consistent
+
+
 def test_intel_excerpt_odometry_is_flagged_and_the_closed_map_passes() -> None:
     res = _intel_excerpt()
     closed = check_map(res)
