@@ -153,6 +153,9 @@ def test_merge_searches_again_after_a_stretch_without_a_fix(intel: dict[str, Sav
     assert sum(r["accepted"] for r in after) >= 6, [r["reasons"] for r in after]
     assert report.accepted >= 6
     assert after[0]["node"] - a.num_nodes == 18 and after[0]["accepted"], after[0]["reasons"]
+    # Its record says where it was found: beyond the tight window, in the drift bound's.
+    assert after[0]["window"][0] > tight["window"][0], after[0]["window"]
+    assert all(r["window"][0] == tight["window"][0] for r in report.records[:3]), report.records
 
 
 def test_merge_refuses_another_building(

@@ -290,7 +290,11 @@ def _close_2d(
                 "scan": saved.num_scans + new.node_scans[n],
                 "accepted": match.accepted,
                 "reasons": list(match.reasons),
+                "predicted": [float(v) for v in match.predicted.as_vector()],
                 "measured": [float(v) for v in match.measured.as_vector()],
+                # The window it was searched in: wider than ``window`` where the fix's drift
+                # bound searched it again (_match_from_fix), as the mapping's records say.
+                "window": [float(v) for v in match.window],
                 "score": float(match.score),
                 "inter_session": True,
             }
