@@ -26,6 +26,11 @@ comparison (Karto is single-threaded).
         [--logs intel,aces,fr-clinic] [--count 400] [--rounds 3] [--list]
 
 ``--list``: every pair some contender gets wrong, with each contender's error.
+
+``--front-end``: also the ``Odometry2D`` front end as ``scanreg map`` runs it (scan to local map,
+the wheel prior, loop closure off: ``run_mapping`` with ``max_candidates=0``) over the whole log,
+read at the same pairs (its relative pose between the two scans' stamps, in the robot's frame as
+the relations are); it has no per-pair verdict or time: its "ms" is CPU per scan of the run.
 """
 
 from __future__ import annotations
@@ -133,7 +138,38 @@ CONTENDERS: dict[str, Callable[[Any, Any, SE2], tuple[SE2, bool]]] = {
 }
 
 
-def run(name: str, count: int, rounds: int, listing: bool) -> None:
+def front_end_rows(name: str, pairs: list[tuple[int, SE2]]) -> tuple[list[dict[str, Any]], float]:
+    """The mapping's front end over the whole log (loops off), its error at each of ``pairs``
+    (relation index, relation in the laser's frame), and its CPU ms per scan."""
+    import dataclasses
+
+    from relation_slide import DATA, LOGS
+    from scanreg.eval.relations import read_relations
+    from scanreg.io import read_scans
+    from scanreg.pipeline.mapping import MappingConfig, run_mapping
+
+    folder = DATA / "freiburg-slam-benchmark"
+    log = read_scans(folder / LOGS.get(name, f"{name}.clf.bz2"))
+    relations = read_relations(folder / f"{name}.relations")
+    t0 = time.process_time()
+    res = run_mapping(log, dataclasses.replace(MappingConfig(), max_candidates=0))
+    ms = 1e3 * (time.process_time() - t0) / res.num_scans
+    at = {float(t): p for t, p in zip(res.stamps, res.odometry_poses, strict=True)}
+    first = next(s for s in log.scans if s.kind in ("FLASER", "ROBOTLASER1"))
+    assert first.odometry_se2 is not None and first.laser_se2 is not None
+    mount = first.odometry_se2.inverse() @ first.laser_se2
+    rows = []
+    for k, relation in pairs:
+        a, b = at[float(relations.t1[k])], at[float(relations.t2[k])]
+        # The run's poses are the robot's; the relation here is the laser's (relation_scans).
+        pose = mount.inverse() @ a.inverse() @ b @ mount
+        err = (pose.inverse() @ relation).log()
+        m, deg = float(np.hypot(err[0], err[1])), math.degrees(abs(float(err[2])))
+        rows.append({"k": k, "m": m, "deg": deg, "wrong": m > WRONG_M or deg > WRONG_DEG})
+    return rows, ms
+
+
+def run(name: str, count: int, rounds: int, listing: bool, front_end: bool = False) -> None:
     pairs = relation_scans(name, count)
     rows: dict[str, list[dict[str, Any]]] = {c: [] for c in CONTENDERS}
     for k, scan1, scan2, relation, odometry in pairs:
@@ -166,6 +202,14 @@ def run(name: str, count: int, rounds: int, listing: bool) -> None:
             f"{sum(r['wrong'] for r in rs)} | {sum(r['wrong'] and r['accepted'] for r in rs)} | "
             f"{ms:.2f} | {ms / karto_ms:.2f} |"
         )
+    if front_end:
+        fe = front_end_rows(name, [(r["k"], rel) for r, (_, _, _, rel, _) in zip(
+            rows["karto"], pairs, strict=True)])  # fmt: skip
+        print(
+            f"| Odometry2D front end (run over the log) | "
+            f"{100 * np.median([r['m'] for r in fe[0]]):.3f} | "
+            f"{sum(r['wrong'] for r in fe[0])} | – | {fe[1]:.2f} per scan | – |"
+        )
     if listing:
         for i in range(len(pairs)):
             if any(rows[c][i]["wrong"] for c in rows):
@@ -183,10 +227,11 @@ def main() -> None:
     parser.add_argument("--count", type=int, default=400)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--list", action="store_true")
+    parser.add_argument("--front-end", action="store_true", help="also the Odometry2D front end")
     args = parser.parse_args()
     print(f"RAYON_NUM_THREADS={os.environ['RAYON_NUM_THREADS']}")
     for name in args.logs.split(","):
-        run(name, args.count, args.rounds, args.list)
+        run(name, args.count, args.rounds, args.list, args.front_end)
 
 
 if __name__ == "__main__":
