@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -49,7 +50,7 @@ from .quality import (
     Conditioning,
 )
 from .robust import check_kernel
-from .slide import SlideCheck, guard_start, refine_in_basin
+from .slide import SlideCheck, guard_start, refine_in_basin, refined_objective
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose, pose_class
 from .trust import (
@@ -187,8 +188,10 @@ class RegistrationSettings:
     #: chose (:func:`scanreg.slide.refine_in_basin`): two more solves with 0.3 of the gate and
     #: a Cauchy kernel, from ``init`` and from the solve's end; of ``init`` and the converged
     #: two, the pose with the least point-to-line residual truncated at a tenth of the gate is
-    #: returned (evaluated with this gate and kernel; ties to ``init``). On 400 Kümmerle
-    #: relation pairs per log from the wheel odometry (``benchmarks/relation_pairs.py``):
+    #: returned (evaluated with this gate and kernel; ties to ``init``; a source that is not
+    #: one scan takes its covariance from the narrow objective there, :mod:`scanreg.trust`).
+    #: On 400 Kümmerle relation pairs per log from the wheel odometry
+    #: (``benchmarks/relation_pairs.py``):
     #: wrong results 22 → 6 (Intel), 15 → 7 (ACES), 137 → 53 (hospital), Karto's 6 / 7 / 58,
     #: for about 0.4 ms more a call. ``False``: the solve (and guard) alone.
     refine_in_basin: bool = True
@@ -810,6 +813,25 @@ def register(
                     np.zeros((dof, dof)), pose, max_iterations=1, gate=gate, kernel=("none", 1.0)
                 ),
             )
+    refined_at: Callable[[], tuple[Any, tuple[str, float]]] | None = None
+    if slide is not None and slide.refined_solve:
+        narrow_gate, narrow_kernel = refined_objective(s.max_correspondence_distance)
+        returned = out.pose
+
+        def evaluate_refined() -> tuple[Any, tuple[str, float]]:
+            # The refinement's narrow objective at the pose returned, without moving (the
+            # trust analysis of a source that is not one scan reads it: scanreg.trust).
+            at = run(
+                np.zeros((dof, dof)),
+                returned,
+                max_iterations=1,
+                gate=narrow_gate,
+                kernel=narrow_kernel,
+            )
+            return at, narrow_kernel
+
+        refined_at = evaluate_refined
+
     # The projector the solve ran with (rebound below by the degeneracy-aware solve): the
     # point-to-point analysis's reference solve reads it through its closure.
     held: FloatArray | None = projector0
@@ -852,6 +874,7 @@ def register(
             else None
         ),
         "solve": lambda starts, iterations, probe: run_starts(held, starts, iterations, probe),
+        "refined_objective": refined_at,
     }
     # Built here only when the solve needs it; a lazy analysis builds it on first use.
     ctx: TrustInputs | dict[str, Any] = ctx_fields

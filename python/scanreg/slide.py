@@ -118,6 +118,12 @@ class SlideCheck:
         return self.start_fit if self.outcome == "start" else self.end_fit
 
     @property
+    def refined_solve(self) -> bool:
+        """The pose returned is the minimum of the refinement's narrow objective (``from
+        start`` / ``from end``; :func:`refined_objective`)."""
+        return self.refined in ("from start", "from end")
+
+    @property
     def slid(self) -> bool:
         """The solve's own end explained clearly less than the start."""
         return self.outcome != "kept"
@@ -229,7 +235,7 @@ def refine_in_basin(
     best_cost = truncated_cost(residuals_at(start_matrix, check.gate), len(source), check.gate)
     best: Any = None
     label: RefinedFrom = "start"
-    narrow = REFINE_GATE_FRACTION * gate
+    narrow, _ = refined_objective(gate)
     for begin, name in ((start, "from start"), (out.pose, "from end")):
         again = solve_narrow(begin, narrow)
         if str(again.stop_reason) != "converged":
@@ -246,6 +252,14 @@ def refine_in_basin(
     fields["refined_fit"] = _fit(index, source, best.pose, check.gate)
     fields["refined_iterations"] = int(best.iterations)
     return evaluate_at(best.pose), _build(SlideCheck, fields)
+
+
+def refined_objective(gate: float) -> tuple[float, tuple[str, float]]:
+    """The narrow objective :func:`refine_in_basin` solves for a registration's ``gate``: its
+    gate (:data:`REFINE_GATE_FRACTION` of ``gate``) and its kernel ``(name, scale)`` (Cauchy,
+    a third of that gate)."""
+    narrow = REFINE_GATE_FRACTION * gate
+    return narrow, ("cauchy", narrow / 3.0)
 
 
 def truncated_cost(evaluated: Any, count: int, gate: float) -> float:
@@ -303,6 +317,7 @@ __all__ = [
     "clearly_worse",
     "guard_start",
     "refine_in_basin",
+    "refined_objective",
     "start_cover",
     "truncated_cost",
 ]

@@ -106,6 +106,11 @@ pub struct TrustNumbers {
     /// the verdict reads), from the same call; None otherwise.
     #[pyo3(get)]
     overlap: Option<OverlapTuple>,
+    /// `trust_analysis` in 2D with a sampling system: the source is not one scan in bearing
+    /// order from one viewpoint (`scene::sampling_model`: a map, merged submaps, wall
+    /// samples); false otherwise.
+    #[pyo3(get)]
+    source_is_cloud: bool,
     /// `trust_analysis` without `levers`: `trust_scene(source, scene_gate, beam_phase=False)`'s
     /// tuple, measured in the same call; None otherwise.
     #[pyo3(get)]
@@ -317,6 +322,7 @@ fn numbers(
         source_normals,
         source_spacing,
         overlap: None,
+        source_is_cloud: false,
         scene: None,
     })
 }
@@ -650,6 +656,9 @@ fn trust_analysis(
             None
         };
         let sampling_system = sampled_surfaces.map(|s| scaled((s.hessian, s.meat)));
+        let source_is_cloud = sampled_surfaces
+            .as_ref()
+            .is_some_and(|s| s.model == scene::SamplingModel::Cloud);
         // 2D point-to-line: the noise the nearest-neighbour association hides, against the
         // target's step along its surfaces (the source's, times how much finer the target
         // samples them).
@@ -767,9 +776,10 @@ fn trust_analysis(
             sampled,
             source_spacing,
             overlap,
+            source_is_cloud,
         ))
     };
-    let (out, analysis, normal_variance, sampled, source_spacing, overlap) = py
+    let (out, analysis, normal_variance, sampled, source_spacing, overlap, source_is_cloud) = py
         .detach(|| in_pool_unless_small(n, num_threads, run).and_then(|r| r))
         .map_err(core_err)?;
     let sampled = sampled
@@ -791,6 +801,7 @@ fn trust_analysis(
         source_spacing,
     )?;
     numbers.overlap = overlap;
+    numbers.source_is_cloud = source_is_cloud;
     numbers.scene = scene_own
         .map(|(own, length, default)| -> PyResult<Scene> {
             let k = dim + own.len();
