@@ -60,7 +60,15 @@ from ..io.carmen import CarmenLog
 from ..io.scan_log import ScanLog
 from ..preprocess import voxel_downsample
 from ..transform import SE2, SE3, as_pose
-from .loops import LoopMatch, LoopSettings, Submap2D, build_submap, loops_agree, match_loop
+from .loops import (
+    LoopMatch,
+    LoopSettings,
+    Submap2D,
+    build_submap,
+    loops_agree,
+    match_loop,
+    wide_submap_span,
+)
 from .loops3d import LoopMatch3D
 from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph_fields
 from .odometry2d import Odometry2D, OdometryConfig2D, _positive
@@ -363,7 +371,7 @@ class Mapper:
         self._node_cov: dict[int, FloatArray] = {}  # odometry covariance of each node's scan
         self._node_blind: dict[int, tuple[float, float]] = {}  # bearing gap: start, width
         self._node_travel: list[float] = []  # path length at each node
-        self._submaps: OrderedDict[tuple[int, int], Submap2D] = OrderedDict()  # (anchor, half)
+        self._submaps: OrderedDict[tuple[int, int, int], Submap2D] = OrderedDict()  # anchor, lo, hi
         self._submap_bytes = 0
         self._loops: list[LoopRecord[LoopMatch]] = []
         # Loops held as hypotheses (good on their own evidence, at odds with the graph).
@@ -561,11 +569,16 @@ class Mapper:
         on: a submap must not hold the searching node's recent past (matched against its own
         last metres, a scan "closes" a loop that says nothing)."""
         h = self.config.submap_half_size if half_size is None else half_size
-        sub = self._submaps.get((anchor, h))
+        return self._submap_of(anchor, anchor - h, anchor + h, before)
+
+    def _submap_of(self, anchor: int, lo: int, hi: int, before: int) -> Submap2D:
+        """Nodes ``lo … hi`` that exist before ``before``, in ``anchor``'s frame; cached."""
+        key = (anchor, lo, hi)
+        sub = self._submaps.get(key)
         if sub is not None:
-            self._submaps.move_to_end((anchor, h))
+            self._submaps.move_to_end(key)
         else:
-            nodes = [n for n in range(anchor - h, anchor + h + 1) if 0 <= n < before]
+            nodes = [n for n in range(lo, hi + 1) if 0 <= n < before]
             sub = build_submap(
                 anchor,
                 nodes,
@@ -577,8 +590,8 @@ class Mapper:
             )
             # Only cache a submap whose later nodes all exist and were all taken (it will
             # not change).
-            if anchor + h < before:
-                self._submaps[(anchor, h)] = sub
+            if hi < before:
+                self._submaps[key] = sub
                 self._submap_bytes += _submap_bytes(sub)
                 # Least recently searched out first: a long-range laser's submap grids are
                 # ~100 MB each (an 80 m disc at 5 cm cells), and the hospital log's run grew
@@ -587,6 +600,16 @@ class Mapper:
                     _, old = self._submaps.popitem(last=False)
                     self._submap_bytes -= _submap_bytes(old)
         return sub
+
+    def _wide_submap(self, anchor: int, node: int, before: int) -> Submap2D:
+        """The wide search's submap around ``anchor``: nodes ``anchor ± wide_submap_half_size``,
+        grown along the anchor's own pass (consecutive nodes, whose odometry poses agree with
+        each other) while the next node lies within ``wide_submap_radius`` of where the graph
+        puts ``node``, up to ``wide_submap_max_half_size`` a side; none from ``before`` on. A
+        scan that passes the place the other way sees what lay behind the earlier pass."""
+        _, rows = self._graph.pose_vectors()
+        lo, hi = wide_submap_span(anchor, rows[:before, :2], rows[node, :2], self.config.loops)
+        return self._submap_of(anchor, lo, hi, before)
 
     def _candidates(
         self, node: int, *, reach: float | None = None, limit: int | None = None
@@ -751,9 +774,7 @@ class Mapper:
                 # the usual one.
                 between = travel - self._node_travel[n]
                 half = min(wide[0], cfg.loops.min_window[0] + _MAX_DRIFT * between)
-                record, _ = self._match(
-                    n, node, (half, wide[1]), half_size=cfg.loops.wide_submap_half_size
-                )
+                record, _ = self._match(n, node, (half, wide[1]), wide_submap=True)
                 records.append(record)
                 if record.accepted:
                     self._last_closed = travel
@@ -764,12 +785,12 @@ class Mapper:
         node: int,
         window: tuple[float, float] | None,
         *,
-        half_size: int | None = None,
+        wide_submap: bool = False,
     ) -> tuple[LoopRecord[LoopMatch], tuple[float, float]]:
         """Match ``node``'s scan against submap ``n``; close the loop, or hold it as a
-        hypothesis (see :meth:`_hypothesize`). ``half_size``: the correlative search runs in
-        submap ``n`` of that many nodes a side (the wide search's larger one); the match is
-        measured against the usual submap either way."""
+        hypothesis (see :meth:`_hypothesize`). ``wide_submap``: the correlative search runs
+        in the wide search's larger submap (:meth:`_wide_submap`); the match is measured
+        against the usual submap, or the larger one when the usual one rejects it."""
         g = self._graph
         cfg = self.config
         t_m = _clock()
@@ -785,7 +806,7 @@ class Mapper:
             rel_cov,
             cfg.loops,
             window=window,
-            search_submap=None if half_size is None else self._submap(n, before, half_size),
+            search_submap=self._wide_submap(n, node, before) if wide_submap else None,
         )
         self._timing.add("matching", t_m)
         record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
