@@ -20,7 +20,7 @@ from scanreg import simulate as sim
 pytest.importorskip("gtsam")
 
 from scanreg.graph import Graph
-from scanreg.pipeline.loops import LoopSettings, build_submap, match_loop
+from scanreg.pipeline.loops import LoopSettings, build_submap, match_loop, wide_submap_span
 from scanreg.pipeline.mapping import Mapper, MappingConfig, MappingResult
 
 RATE = 5.0  # scans per second
@@ -175,6 +175,65 @@ def test_a_degenerate_loop_is_no_hypothesis_and_the_search_submap_shares_the_anc
         match_loop(points, 30, sub, predicted, certain, LoopSettings(), search_submap=other)
     with pytest.raises(TypeError, match=r"^search_submap: expected a Submap2D or None, got"):
         match_loop(points, 30, sub, predicted, certain, LoopSettings(), search_submap=wide.grid)  # type: ignore[arg-type]
+
+
+def test_a_return_driven_the_other_way_closes_on_the_submap_its_scan_sees() -> None:
+    # An office corridor driven east with a 180° laser (a node every 0.5 m), then passed the
+    # other way, facing west, where a drifted graph puts the scan 3 m further east than it
+    # is. Facing west, the scan sees what lay BEHIND the eastbound pass: an index-centred
+    # submap around the nearest node (±8 nodes, ±4 m) holds little of it, and its best
+    # optimum in the wide window is a look-alike 7 m off. Grown along the pass while its
+    # nodes lie within wide_submap_radius of the scan, the submap holds what the scan sees
+    # and the match lands on the truth (the Freiburg hospital's return to its start).
+    scene = sim.floor_plan(seed=3, rooms_per_side=8, num_people=0)
+    laser = sim.LaserModel.preset("sick_lms200")
+    out = [SE2.from_vector([1.0 + 0.5 * k, 0.0, 0.0]) for k in range(91)]
+    scans = {k: sim.simulate_scan(scene, laser, p, seed=k).points for k, p in enumerate(out)}
+    poses = dict(enumerate(out))
+    truth = SE2.from_vector([20.0, 0.3, math.pi - 0.05])
+    points = sim.simulate_scan(scene, laser, truth, seed=500).points
+    graph_pose = SE2.from_vector([23.0, 0.1, math.pi - 0.02])
+    positions = np.array([p.translation for p in out])
+    anchor = int(np.argmin(np.linalg.norm(positions - graph_pose.translation, axis=1)))
+    settings = LoopSettings()
+    sub = build_submap(
+        anchor, list(range(anchor - 2, anchor + 3)), scans, poses, resolution=0.05, voxel_size=0.05
+    )
+    predicted = out[anchor].inverse() @ graph_pose
+    uncertain = np.diag([1.0, 1.0, 0.01])
+    window = (3.5, math.radians(30.0))
+    lo, hi = wide_submap_span(anchor, positions, graph_pose.translation, settings)
+    # Grown towards the west (what the scan sees) and east, within 16 m of 23 m, 40 a side.
+    assert (lo, hi) == (13, 75)
+    results = {}
+    for label, span in (("index", (anchor - 8, anchor + 8)), ("seen", (lo, hi))):
+        wide = build_submap(
+            anchor, list(range(span[0], span[1] + 1)), scans, poses, resolution=0.05,
+            voxel_size=0.05,
+        )  # fmt: skip
+        match = match_loop(
+            points, 999, sub, predicted, uncertain, settings, window=window, search_submap=wide
+        )
+        error = (out[anchor].inverse() @ truth).inverse() @ match.measured
+        results[label] = (match, float(np.linalg.norm(error.translation)), abs(error.angle))
+    index, index_error, _ = results["index"]
+    assert not index.accepted and index_error > 3.0, (index.reasons, index_error)
+    seen, seen_error, seen_turn = results["seen"]
+    assert seen.accepted, seen.reasons
+    # Measured on the grown submap: on the usual 5 nodes, which look east from 21-23 m, the
+    # scan has no correspondence at all (overlap 0).
+    assert seen.overlap > 0.8, seen.overlap
+    assert seen_error < 0.05 and seen_turn < math.radians(0.5), (seen_error, seen_turn)
+    # The span stops at the pass's ends and at the cap; a bad anchor or setting is named.
+    assert wide_submap_span(0, positions[:5], positions[0], settings) == (0, 4)
+    capped = dataclasses.replace(settings, wide_submap_max_half_size=10)
+    assert wide_submap_span(anchor, positions, graph_pose.translation, capped) == (34, 54)
+    with pytest.raises(ValueError, match=r"^anchor: 91 is not one of the 91 positions"):
+        wide_submap_span(91, positions, graph_pose.translation, settings)
+    with pytest.raises(ValueError, match=r"^wide_submap_max_half_size: must be an int >= "):
+        LoopSettings(wide_submap_max_half_size=4)
+    with pytest.raises(ValueError, match=r"^wide_submap_radius: must be finite and >= 0"):
+        LoopSettings(wide_submap_radius=math.nan)
 
 
 def test_intel_excerpt_relations_after_closure() -> None:

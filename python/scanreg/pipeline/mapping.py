@@ -810,31 +810,53 @@ class Mapper:
         )
         self._timing.add("matching", t_m)
         record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
-        if match.accepted:
+        if match.accepted and wide_submap and not match.degenerate_directions:
+            # The wide search's window is as wide as the drift could be, and the graph that
+            # passed its χ² test may know too little to check it: the loop waits for another
+            # loop to agree with it (Freiburg hospital: a lone one, 2 m and 27° off, bent the
+            # map around it; every true one there had a partner within 20 m of path). A
+            # degenerate one cannot wait (its look-alikes agree with each other); it carries
+            # nothing along its weak directions.
+            unchecked = dataclasses.replace(
+                match, accepted=False, evidence="", hypothesis=True, reasons=(_UNCHECKED,)
+            )
+            record = self._hypothesize(dataclasses.replace(record, match=unchecked))
+        elif match.accepted:
             (record,) = self._add_loops([record], kernel=cfg.loop_kernel)
         elif match.hypothesis:
             record = self._hypothesize(record)
         return record, match.window
 
     def _hypothesize(self, record: LoopRecord[LoopMatch]) -> LoopRecord[LoopMatch]:
-        """Hold a loop the graph disagrees with; once ``loops.min_agreeing`` held loops from
-        different nodes agree with each other (:func:`loops_agree`), close them all: the
-        graph, not the loops, was wrong. Returns ``record``, accepted if it completed a
-        group."""
+        """Hold a loop the graph disagrees with (or one the wide search found, which the
+        graph could not check); once ``loops.min_agreeing`` held loops from different nodes
+        agree with each other (:func:`loops_agree`), close them all: the graph, not the loops,
+        was wrong. A wide-search loop may also be confirmed by a loop accepted within the
+        horizon. Returns ``record``, accepted if it completed a group."""
         cfg = self.config
         travel = self._node_travel
         here = record.match.node
         # Only recent hypotheses: the leg between two nodes must be short to be trusted.
         horizon = cfg.loops.hypothesis_horizon
         self._held = [h for h in self._held if travel[here] - travel[h.match.node] <= horizon]
-        needed = {k for h in (*self._held, record) for k in (h.match.node, h.match.submap_node)}
+        support: list[LoopRecord[LoopMatch]] = []
+        if record.match.reasons == (_UNCHECKED,):
+            for r in reversed(self._loops):
+                if travel[here] - travel[r.match.node] > horizon:
+                    break
+                if r.accepted:
+                    support.append(r)
+        needed = {
+            k for h in (*self._held, *support, record) for k in (h.match.node, h.match.submap_node)
+        }
         poses = {k: self._graph.pose(k) for k in needed}
-        group = [record] + [
-            h
-            for h in self._held
-            if h.match.node != here and loops_agree(h.match, record.match, poses, cfg.loops)
-        ]
-        if len({h.match.node for h in group}) < cfg.loops.min_agreeing:
+
+        def agrees(h: LoopRecord[LoopMatch]) -> bool:
+            return h.match.node != here and loops_agree(h.match, record.match, poses, cfg.loops)
+
+        group = [record] + [h for h in self._held if agrees(h)]
+        backers = [h for h in support if agrees(h)]
+        if len({h.match.node for h in (*group, *backers)}) < cfg.loops.min_agreeing:
             self._held.append(record)
             return record
         confirmed = [
@@ -848,8 +870,10 @@ class Mapper:
         self._held = [h for h in self._held if id(h) not in held]
         # No robust kernel: the graph disagrees with these loops by far more than their
         # covariance (that is why they were held), and a kernel would weigh them to nothing.
-        # They have passed a stronger test than χ²: each other.
-        confirmed = self._add_loops(confirmed, kernel=None)
+        # They have passed a stronger test than χ²: each other. Wide-search loops the graph
+        # agreed with keep the usual kernel.
+        graph_agreed = all(h.match.reasons == (_UNCHECKED,) for h in group)
+        confirmed = self._add_loops(confirmed, kernel=cfg.loop_kernel if graph_agreed else None)
         if confirmed[0].accepted:
             # A correction of many σ: iSAM2's few relinearisations may not carry it through.
             self._graph.optimize()
@@ -1102,6 +1126,9 @@ def _submap_bytes(sub: Submap2D) -> int:
     width, height = sub.grid.shape
     return 48 * width * height + 64 * len(sub.points)
 
+
+#: Why a loop the wide search found waits (:meth:`Mapper._match`).
+_UNCHECKED = "found by the wide search: waits for another loop to agree"
 
 #: Joint-marginal tests of candidates beyond ``loop_max_range``, per candidate wanted.
 _GATE_TESTS_PER_CANDIDATE = 2
