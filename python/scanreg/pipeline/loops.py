@@ -159,9 +159,10 @@ class LoopSettings:
     #: ... its correlative search over a larger submap than the usual one: this many nodes
     #: on each side of the candidate (a revisit from another heading sees little of 5 nodes'
     #: points; on the Freiburg hospital the true pose scored 0.13-0.64 against 5 nodes,
-    #: 0.26-0.76 against 17). The match is refined and verified against the usual submap:
-    #: 17 nodes' odometry poses hold centimetres of their own drift, and loops measured
-    #: against them made the simulated room tours' maps worse (seed 0: 0.009 -> 0.014 m).
+    #: 0.26-0.76 against 17). The match is refined and verified against the usual submap,
+    #: and against this one only when the usual one rejects it: many nodes' odometry poses
+    #: hold centimetres of their own drift, and loops always measured against 17 made the
+    #: simulated room tours' maps worse (seed 0: 0.009 -> 0.014 m).
     wide_submap_half_size: int = 8
     #: ... grown, along the candidate's own pass (consecutive nodes: their odometry poses
     #: agree), while its nodes lie within this distance (m) of where the graph puts the

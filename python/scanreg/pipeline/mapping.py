@@ -18,11 +18,12 @@ One :meth:`Mapper.step` per scan, in five stages:
    submap; every candidate, accepted or not, is kept as a :class:`LoopRecord` with its
    reasons. Recall does not rest on the graph knowing its own drift: when these windows have
    found nothing for ``LoopSettings.wide_spacing`` metres, the nearest candidate is searched
-   for in a larger submap over a wide window (``LoopSettings.wide_window``: up to ±20 m, as wide
-   as the path between the two could have drifted), and a match that is sound on its own
-   evidence (and not degenerate) but fails only the χ² test is held until another held loop
-   agrees with it (both are then closed: the graph, not the loops, was wrong;
-   :func:`~scanreg.pipeline.loops.loops_agree`);
+   for in a larger submap (its pass, grown to what the scan can see:
+   :func:`~scanreg.pipeline.loops.wide_submap_span`) over a wide window
+   (``LoopSettings.wide_window``: up to ±20 m, as wide as the path between the two could have
+   drifted); such a loop, and a match that is sound on its own evidence (and not degenerate)
+   but fails only the χ² test, is held until another loop agrees with it (both are then
+   closed: the graph, not the loops, was wrong; :func:`~scanreg.pipeline.loops.loops_agree`);
 5. **close** — an accepted loop becomes an edge with information = inverse calibrated
    covariance (nothing along its degenerate directions) and a robust kernel, and iSAM2
    re-solves.
