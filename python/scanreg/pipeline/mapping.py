@@ -409,7 +409,6 @@ class Mapper:
         prior: Any = None,
         *,
         stamp: float | None = None,
-        deskewed_with: tuple[Any, ...] | None = None,
     ) -> MappingStep:
         """Add one scan; the signature of :meth:`scanreg.pipeline.Mapper3D.step`.
 
@@ -422,19 +421,9 @@ class Mapper:
         taken as instantaneous).
         ``prior``: ``T_prev_curr`` from wheel odometry (or ``None``). ``stamp``: the scan's
         time (without ``timestamps`` it may step backwards: it is only recorded).
-        ``deskewed_with``: ``(fractions, increment[, previous])`` for a scan already deskewed
-        with the wheels' ``increment`` (``T_prev_curr`` as reported) over an interval at a
-        constant rate, each point measured at ``fractions`` (``(N,)``) of it, ``previous``
-        the interval before's motion at its rate over this one (or None;
-        :meth:`scanreg.io.ScanLog.deskew_motion`): its loops' covariances then cover what
-        the deskew left (:mod:`scanreg.pipeline.sweep_residual`); ignored without a wheel
-        noise model.
 
-        The same as ``integrate(track(points, timestamps, prior, stamp=stamp, deskewed_with=
-        deskewed_with))``."""
-        return self.integrate(
-            self.track(points, timestamps, prior, stamp=stamp, deskewed_with=deskewed_with)
-        )
+        The same as ``integrate(track(points, timestamps, prior, stamp=stamp))``."""
+        return self.integrate(self.track(points, timestamps, prior, stamp=stamp))
 
     def track(
         self,
@@ -446,6 +435,14 @@ class Mapper:
         deskewed_with: tuple[Any, ...] | None = None,
     ) -> Tracked:
         """The front end of :meth:`step`: the scan's odometry (arguments as there).
+
+        ``deskewed_with``: ``(fractions, increment[, previous])`` for a scan already deskewed
+        with the wheels' ``increment`` (``T_prev_curr`` as reported) over an interval at a
+        constant rate, each point measured at ``fractions`` (``(N,)``) of it, ``previous``
+        the interval before's motion at its rate over this one (or None;
+        :meth:`scanreg.io.ScanLog.deskew_motion`, as :func:`run_mapping` passes it): its
+        loops' covariances then cover what the deskew left
+        (:mod:`scanreg.pipeline.sweep_residual`); ignored without a wheel noise model.
 
         :meth:`track` touches only the odometry and :meth:`integrate` only the graph, so the
         two may run on two threads, the odometry of the next scans going on while the graph
