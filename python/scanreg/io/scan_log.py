@@ -203,6 +203,31 @@ class ScanLog:
         velocity = velocity_from_motion(during, float(self.stamps[k + 1]) - stamp)
         return deskew(pts, times, velocity, reference_time=0.0), None
 
+    def deskew_motion(
+        self, k: int, min_range: float = 0.0, max_range: float | None = None
+    ) -> tuple[FloatArray, SE2, SE2 | None] | None:
+        """How :meth:`swept_points` undid scan ``k``'s sweep with the wheels: each return's
+        time as a fraction of the interval to the next scan, the wheels' increment over that
+        interval (the motion it was undone with, at a constant rate), and the previous
+        interval's increment at its rate over this interval (None for the first scan or
+        without it): what the robot did before, which the rate during the sweep may still
+        be closer to (a corner's turn ending within the interval). What the deskew leaves in
+        the scan follows from both (:mod:`scanreg.pipeline.sweep_residual`). None where the
+        sweep was not undone so."""
+        k = self._index(k)
+        times = self.point_times(k, min_range, max_range)
+        if times is None or k + 1 >= len(self):
+            return None
+        during = self.prior(k + 1)
+        interval = float(self.stamps[k + 1]) - float(self.stamps[k])
+        if during is None or not interval > 0:
+            return None
+        before = self.prior(k)
+        if before is not None:
+            gap = float(self.stamps[k]) - float(self.stamps[k - 1])
+            before = SE2.exp(before.log() * (interval / gap)) if gap > 0 else None
+        return times / interval, during, before
+
     def prior(self, k: int) -> SE2 | None:
         """The wheels' motion of the base from scan ``k − 1`` to scan ``k``,
         ``inv(O_{k-1}) O_k`` (None for the first scan or where either pose is missing)."""

@@ -34,6 +34,7 @@ from ..register import register
 from ..target import PreparedTarget, prepare
 from ..transform import SE2, SE3
 from ..verdict import VerdictThresholds, assess
+from .sweep_residual import DeskewedSweep, SubmapSweeps, submap_sweeps, sweep_covariance
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,6 +51,10 @@ class Submap2D:
     #: into that frame (zeros when none were given). A loop matched against the submap
     #: inherits it (:func:`match_loop`).
     covariance: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))
+    #: The deskewed sweeps behind its points (None: none of its scans was deskewed with a
+    #: motion of known error); a loop matched against it covers what they leave
+    #: (:mod:`scanreg.pipeline.sweep_residual`).
+    sweeps: SubmapSweeps | None = None
 
 
 def build_submap(
@@ -61,13 +66,15 @@ def build_submap(
     resolution: float,
     voxel_size: float,
     covariances: dict[int, FloatArray] | None = None,
+    sweeps: dict[int, DeskewedSweep] | None = None,
 ) -> Submap2D:
     """``scans[n]`` (scan frame) laid into ``anchor``'s frame with the relative poses
     ``inv(poses[anchor]) @ poses[n]`` (locally consistent odometry poses).
 
     ``covariances[n]``: the odometry covariance of node ``n``'s pose (3×3, right perturbation,
     as :class:`~scanreg.pipeline.Frame2D` gives it); their mean, carried into the anchor's
-    frame, is the submap's :attr:`Submap2D.covariance`."""
+    frame, is the submap's :attr:`Submap2D.covariance`. ``sweeps[n]``: how node ``n``'s scan
+    was deskewed (:attr:`Submap2D.sweeps`)."""
     base = poses[anchor].inverse()
     relative = [base @ poses[n] for n in nodes]
     parts = [rel.apply(scans[n]) for rel, n in zip(relative, nodes, strict=True)]
@@ -83,8 +90,14 @@ def build_submap(
                 spread += ad @ np.asarray(cov, dtype=np.float64) @ ad.T
         spread = 0.5 * (spread + spread.T) / len(nodes)
     pts = np.ascontiguousarray(np.vstack(parts))
+    kept = None
     if voxel_size > 0:
-        pts = np.ascontiguousarray(voxel_downsample(pts, voxel_size).points)
+        grid = voxel_downsample(pts, voxel_size)
+        pts, kept = np.ascontiguousarray(grid.points), grid.indices
+    swept = None
+    if sweeps:
+        sizes = [len(part) for part in parts]
+        swept = submap_sweeps(anchor, nodes, relative, sizes, kept, sweeps)
     return Submap2D(
         anchor=anchor,
         nodes=tuple(nodes),
@@ -92,6 +105,7 @@ def build_submap(
         grid=prepare_correlative(pts, resolution=resolution),
         target=prepare(pts, normals=True),
         covariance=spread,
+        sweeps=swept,
     )
 
 
@@ -318,6 +332,7 @@ def match_loop(
     *,
     window: tuple[float, float] | None = None,
     search_submap: Submap2D | None = None,
+    sweep: DeskewedSweep | None = None,
 ) -> LoopMatch:
     """Match ``points`` (keyframe ``node``'s scan, own frame) against ``submap`` from the
     graph's ``predicted`` ``T_submap_node`` with its ``relative_covariance``.
@@ -326,8 +341,10 @@ def match_loop(
     (sized by ``relative_covariance``). ``search_submap``: a larger submap with the same
     anchor for the correlative search; the refinement and verification run on ``submap``,
     and on ``search_submap`` when ``submap`` rejects the match (a revisit from another
-    heading may see little of ``submap``). The χ² test against ``relative_covariance`` never
-    stops a match whose own evidence is good: it is then returned as a ``hypothesis``."""
+    heading may see little of ``submap``). ``sweep``: how ``points`` were deskewed; the loop's
+    covariance then covers what that deskew and the submap's (:attr:`Submap2D.sweeps`) leave.
+    The χ² test against ``relative_covariance`` never stops a match whose own evidence is
+    good: it is then returned as a ``hypothesis``."""
     s = settings
     if search_submap is not None:
         if not isinstance(search_submap, Submap2D):
@@ -352,13 +369,15 @@ def match_loop(
     )
     if coarse is None:
         return _not_found(node, submap, predicted, (dt, dr), s)
-    match = _measure(points, node, submap, coarse, predicted, relative_covariance, (dt, dr), s)
+    match = _measure(
+        points, node, submap, coarse, predicted, relative_covariance, (dt, dr), s, sweep
+    )
     if search_submap is not None and not match.accepted and not match.hypothesis:
         # The usual submap may hold too little of what the scan sees (a revisit driven the
         # other way sees what lay behind the earlier pass): the match is then measured on
         # the search submap it was found in, by the same tests.
         wide = _measure(
-            points, node, search_submap, coarse, predicted, relative_covariance, (dt, dr), s
+            points, node, search_submap, coarse, predicted, relative_covariance, (dt, dr), s, sweep
         )
         if wide.accepted or wide.hypothesis:
             return wide
@@ -374,6 +393,7 @@ def _measure(
     relative_covariance: FloatArray,
     window: tuple[float, float],
     s: LoopSettings,
+    sweep: DeskewedSweep | None,
 ) -> LoopMatch:
     """Refine the correlative optimum ``coarse`` on ``submap`` and verify it (see
     :func:`match_loop`)."""
@@ -420,6 +440,13 @@ def _measure(
     # simulated room tours, without it the accepted loops' NEES was about 2× the ideal.
     ad = pose.inverse().adjoint()
     cov = np.array(res.covariance, dtype=np.float64) + ad @ submap.covariance @ ad.T
+    # Scans deskewed with the wheels keep the wheels' error over their sweeps: a distortion
+    # their beams' noise, which the match's own covariance reads, says nothing of.
+    residual = sweep_covariance(
+        points, sweep, submap.target, submap.sweeps, pose, s.max_correspondence_distance
+    )
+    if residual is not None:
+        cov = cov + residual
     combined = relative_covariance + cov
     hypothesis = False
     if _well_posed(cov) and _well_posed(combined):

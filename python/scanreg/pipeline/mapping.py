@@ -75,6 +75,7 @@ from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph
 from .odometry2d import Odometry2D, OdometryConfig2D, _positive
 from .odometry_timing import measure_laser_latency, odometry_at_scans
 from .smoothing import StepNoise, identify_step_noise, smooth_scan_poses
+from .sweep_residual import DeskewedSweep, deskew_error
 from .wheel import WheelNoise, WheelOdometry
 
 #: The pose type of a run (2D or 3D) and of its loop matches: one result shape for both.
@@ -293,6 +294,8 @@ class Tracked:
     pose: SE2 | None
     #: The odometry's covariance of the scan (``None``: too few points, skipped).
     covariance: FloatArray | None
+    #: How the scan was deskewed before it came in (``Mapper.track``'s ``deskewed_with``).
+    sweep: DeskewedSweep | None = None
 
 
 @dataclass(frozen=True)
@@ -371,6 +374,7 @@ class Mapper:
         self._node_odom: dict[int, SE2] = {}
         self._node_cov: dict[int, FloatArray] = {}  # odometry covariance of each node's scan
         self._node_blind: dict[int, tuple[float, float]] = {}  # bearing gap: start, width
+        self._node_sweep: dict[int, DeskewedSweep] = {}  # how each node's scan was deskewed
         self._node_travel: list[float] = []  # path length at each node
         self._submaps: OrderedDict[tuple[int, int, int], Submap2D] = OrderedDict()  # anchor, lo, hi
         self._submap_bytes = 0
@@ -437,8 +441,17 @@ class Mapper:
         prior: Any = None,
         *,
         stamp: float | None = None,
+        deskewed_with: tuple[Any, ...] | None = None,
     ) -> Tracked:
         """The front end of :meth:`step`: the scan's odometry (arguments as there).
+
+        ``deskewed_with``: ``(fractions, increment[, previous])`` for a scan already deskewed
+        with the wheels' ``increment`` (``T_prev_curr`` as reported) over an interval at a
+        constant rate, each point measured at ``fractions`` (``(N,)``) of it, ``previous``
+        the interval before's motion at its rate over this one (or None;
+        :meth:`scanreg.io.ScanLog.deskew_motion`, as :func:`run_mapping` passes it): its
+        loops' covariances then cover what the deskew left
+        (:mod:`scanreg.pipeline.sweep_residual`); ignored without a wheel noise model.
 
         :meth:`track` touches only the odometry and :meth:`integrate` only the graph, so the
         two may run on two threads, the odometry of the next scans going on while the graph
@@ -504,7 +517,30 @@ class Mapper:
         self._timing.add("odometry", t_start)
         self._timing.add("total", t_start)
         kept = pts if frame.deskewed is None else frame.deskewed  # (a node keeps it deskewed)
-        return Tracked(index, kept, pose, frame.covariance)
+        return Tracked(
+            index, kept, pose, frame.covariance, self._deskewed_sweep(deskewed_with, pts)
+        )
+
+    def _deskewed_sweep(self, deskewed_with: Any, pts: FloatArray) -> DeskewedSweep | None:
+        """``deskewed_with`` (:meth:`step`) with its increment's error: the wheels' noise
+        model as calibrated so far, and the rate's change from the previous interval
+        (:func:`~scanreg.pipeline.sweep_residual.deskew_error`); None without a model."""
+        wheels = self._wheels if self._wheels is not None else self._cost_wheels
+        if deskewed_with is None or wheels is None:
+            return None
+        if not (isinstance(deskewed_with, tuple) and len(deskewed_with) in (2, 3)):
+            raise TypeError(
+                "deskewed_with: expected (fractions, increment[, previous]), got "
+                f"{deskewed_with!r:.60}"
+            )
+        fractions = as_matrix(deskewed_with[0], "deskewed_with fractions", (len(pts),))
+        increment = as_pose(deskewed_with[1], "deskewed_with increment", 2)
+        before = deskewed_with[2] if len(deskewed_with) == 3 else None
+        if before is not None:
+            before = as_pose(before, "deskewed_with previous", 2)
+        assert isinstance(increment, SE2) and (before is None or isinstance(before, SE2))
+        cov = deskew_error(increment, before, wheels.covariance(increment))
+        return DeskewedSweep(np.ascontiguousarray(fractions), cov)
 
     def integrate(self, tracked: Tracked) -> MappingStep:
         """The back end of :meth:`step`: ``tracked`` (from :meth:`track`) becomes a node when
@@ -521,7 +557,9 @@ class Mapper:
             self._timing.add("total", t_start)
             return MappingStep(tracked.index, tracked.pose, None, ())
         assert tracked.pose is not None
-        node = self._maybe_add_node(tracked.index, tracked.points, tracked.pose, tracked.covariance)
+        node = self._maybe_add_node(
+            tracked.index, tracked.points, tracked.pose, tracked.covariance, tracked.sweep
+        )
         self._scan_node.append(self.num_nodes - 1)
         records: tuple[LoopRecord[LoopMatch], ...] = ()
         if node is not None:
@@ -530,7 +568,12 @@ class Mapper:
         return MappingStep(tracked.index, tracked.pose, node, records)
 
     def _maybe_add_node(
-        self, index: int, pts: FloatArray, pose: SE2, covariance: FloatArray
+        self,
+        index: int,
+        pts: FloatArray,
+        pose: SE2,
+        covariance: FloatArray,
+        sweep: DeskewedSweep | None = None,
     ) -> int | None:
         cfg = self.config
         g = self._graph
@@ -542,7 +585,12 @@ class Mapper:
         node = self.num_nodes
         kept = pts
         if cfg.node_voxel_size > 0:
-            kept = np.ascontiguousarray(voxel_downsample(pts, cfg.node_voxel_size).points)
+            grid = voxel_downsample(pts, cfg.node_voxel_size)
+            kept = np.ascontiguousarray(grid.points)
+            if sweep is not None:  # (a voxel's time: its first point's)
+                sweep = DeskewedSweep(sweep.fractions[grid.indices], sweep.covariance)
+        if sweep is not None:
+            self._node_sweep[node] = sweep
         self._node_scans.append(index)
         self._node_points[node] = kept
         self._node_blind[node] = _blind_sector(kept)
@@ -588,6 +636,7 @@ class Mapper:
                 resolution=self.config.loops.resolution,
                 voxel_size=self.config.node_voxel_size,
                 covariances=self._node_cov,
+                sweeps=self._node_sweep,
             )
             # Only cache a submap whose later nodes all exist and were all taken (it will
             # not change).
@@ -808,6 +857,7 @@ class Mapper:
             cfg.loops,
             window=window,
             search_submap=self._wide_submap(n, node, before) if wide_submap else None,
+            sweep=self._node_sweep.get(node),
         )
         self._timing.add("matching", t_m)
         record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
@@ -1238,7 +1288,14 @@ def run_mapping(
         # A sweep with beam times (a LaserScan's time_increment) is undone by the wheels'
         # motion during it, else by the odometry's prediction (ScanLog.swept_points).
         points, times = scans.swept_points(k, cfg.min_range, cfg.max_range)
-        return mapper.track(points, times, prior=scans.prior(k), stamp=float(scans.stamps[k]))
+        undone = None if times is not None else scans.deskew_motion(k, cfg.min_range, cfg.max_range)
+        return mapper.track(
+            points,
+            times,
+            prior=scans.prior(k),
+            stamp=float(scans.stamps[k]),
+            deskewed_with=undone,
+        )
 
     # The odometry of the next scans runs on a second thread while this one closes loops:
     # the two share nothing (Mapper.track / Mapper.integrate), and both spend most of their

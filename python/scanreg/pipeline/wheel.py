@@ -185,6 +185,16 @@ class WheelOdometry:
             self._last_prior = (increment, s, motion, cov)
         return motion, cov * np.sqrt(np.outer(self._factor, self._factor))
 
+    def covariance(self, increment: Any) -> FloatArray:
+        """The covariance of the wheels' ``increment`` as reported (unscaled: its scale error
+        is in the along-track σ), the model's variances calibrated on the run as
+        :meth:`prior`'s are; no state is touched."""
+        motion = as_pose(increment, "increment", 2)
+        out: FloatArray = self.noise.covariance(motion) * np.sqrt(
+            np.outer(self._factor, self._factor)
+        )
+        return out
+
     def observe(self, increment: Any, measured: Any, *, constrained: bool = True) -> None:
         """Learn from one step: ``increment`` the wheels' raw ``T_prev_curr`` (as given to
         :meth:`prior`), ``measured`` the scan matcher's. Only a step the scans pinned
