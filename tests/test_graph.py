@@ -343,3 +343,53 @@ def test_move_gauge_puts_the_key_at_the_pose_and_keeps_every_relative_pose(dim: 
         g.move_gauge(0, SE3.identity() if dim == 2 else SE2.identity())
     with pytest.raises(ValueError, match="node 9"):
         g.move_gauge(9, pose.identity())
+
+
+def test_covariances_read_again_are_the_same_until_the_solve_changes() -> None:
+    # The graph keeps what it read off the current solve: the same bits again (a copy the
+    # caller may change), and a new solve's own after an update, a batch solve or a dropped
+    # edge (the loop, as certain as the chain's two edges together, cuts the 0-2 variance to
+    # a third: a stale answer would be the chain's).
+    chain = G.Graph(2)
+    for k in range(3):
+        chain.add_node(k, SE2.from_vector([float(k), 0, 0]))
+    chain.add_prior(0, SE2.identity(), np.eye(3) * 1e12)
+    for k in range(2):
+        chain.add_edge(k, k + 1, SE2.from_vector([1.0, 0, 0]), _info(2))
+    chain.update()
+    first = chain.relative_covariance(0, 2)
+    first[0, 0] = -1.0
+    again = chain.relative_covariance(0, 2)
+    assert again[0, 0] > 0
+    assert np.array_equal(again, chain.relative_covariance(0, 2))
+    marginal = chain.marginal_covariance(2)
+    assert np.array_equal(marginal, chain.marginal_covariance(2))
+    # A loop edge added but not solved changes nothing read; solved, it does.
+    chain.add_edge(0, 2, SE2.from_vector([2.2, 0, 0]), _info(2), kind="loop")
+    assert np.array_equal(again, chain.relative_covariance(0, 2))
+    chain.update()
+    looped = chain.relative_covariance(0, 2)
+    assert looped[0, 0] == pytest.approx(again[0, 0] / 3, rel=1e-6)
+    chain.remove_last_edges(1)
+    chain.optimize()
+    assert chain.relative_covariance(0, 2)[0, 0] == pytest.approx(again[0, 0], rel=1e-6)
+    assert chain.marginal_covariance(2)[0, 0] == pytest.approx(marginal[0, 0], rel=1e-6)
+
+
+def test_edges_with_the_same_information_each_keep_their_own_copy() -> None:
+    g = G.Graph(2)
+    for k in range(3):
+        g.add_node(k, SE2.from_vector([float(k), 0, 0]))
+    info = _info(2)
+    g.add_edge(0, 1, SE2.from_vector([1.0, 0, 0]), info)
+    g.add_edge(1, 2, SE2.from_vector([1.0, 0, 0]), info)
+    first, second = g.edges
+    assert first.information is not second.information
+    assert np.array_equal(first.information, second.information)
+    first.information[0, 0] = 0.0
+    assert second.information[0, 0] == info[0, 0]
+    # A matrix refused once is refused again (nothing of it was kept).
+    bad = np.diag([1.0, -1.0, 1.0])
+    for _ in range(2):
+        with pytest.raises(ValueError, match="positive semi-definite"):
+            g.add_edge(0, 2, SE2.from_vector([2.0, 0, 0]), bad)

@@ -46,6 +46,8 @@ from .transform import SE2, SE3
 
 #: Added to every eigenvalue of an edge's information before gtsam sees it (1/m², 1/rad²).
 INFORMATION_FLOOR = 1e-6
+#: Information matrices whose checked copy and noise model :class:`Graph` keeps at a time.
+_NOISE_MODELS_KEPT = 64
 #: The prior that anchors a group of nodes nothing else anchors (σ = 1 km, 1000 rad): it
 #: fixes the group's gauge and nothing else.
 ANCHOR_INFORMATION = 1e-6
@@ -203,6 +205,16 @@ class Graph:
         self._initial: dict[int, SE2 | SE3] = {}
         self._edges: list[Edge] = []
         self._marginals: Any = None  # gtsam.Marginals after a batch solve
+        # Marginal and relative covariances read off the current solve: a loop search asks
+        # for the same pair again (its candidate gate, then its window) and each is a joint
+        # marginal of the Bayes tree (~1 ms on a 3000-node graph). Emptied where the solve
+        # (iSAM2's, the estimate or the batch marginals) changes; new nodes and edges change
+        # nothing read until the next update.
+        self._covariances: dict[tuple[int, ...], FloatArray] = {}
+        # The checked information and noise model of each information matrix seen lately, by
+        # its bytes and kernel: the final pass over the scans adds thousands of edges with
+        # two matrices (each checked by an eigen-decomposition, ~0.1 ms).
+        self._noise_models: dict[tuple[bytes, Kernel | None], tuple[FloatArray, Any]] = {}
         self._isam_current = True  # iSAM2 holds every factor (False after a batch solve)
         # Connected groups of nodes (union-find) and whether a prior anchors each.
         self._parent: dict[int, int] = {}
@@ -241,6 +253,24 @@ class Graph:
             "dcs": est.DCS,
         }[kernel.name].Create(float(kernel.scale))
         return nm.Robust.Create(robust, base)
+
+    def _checked_noise(self, information: Any, kernel: Kernel | None) -> tuple[FloatArray, Any]:
+        """``(_checked_information(information), self._noise(it, kernel))``, the same matrix
+        and model for the same bytes (a copy of the matrix each time: an edge keeps its own)."""
+        key = (as_matrix(information, "information", (self.dof, self.dof)).tobytes(), kernel)
+        known = self._noise_models.get(key)
+        if known is None:
+            info = _checked_information(information, self.dof)
+            known = (info, self._noise(info, kernel))
+            if len(self._noise_models) >= _NOISE_MODELS_KEPT:
+                self._noise_models.clear()
+            self._noise_models[key] = known
+        return known[0].copy(), known[1]
+
+    def _changed(self) -> None:
+        """Forget what was read off the graph as it was (marginals, covariances)."""
+        self._marginals = None
+        self._covariances.clear()
 
     def _key(self, key: Any, name: str) -> int:
         if isinstance(key, bool) or not isinstance(key, (int, np.integer)) or key < 0:
@@ -291,9 +321,9 @@ class Graph:
         """Anchor ``T_world_key`` at ``pose`` with ``information`` (scanreg ordering)."""
         k = self._require(key, "key")
         p = self._pose(pose, "pose")
-        info = _checked_information(information, self.dof)
+        info, noise = self._checked_noise(information, None)
         factor_cls = self._g.PriorFactorPose2 if self.dim == 2 else self._g.PriorFactorPose3
-        self._push(factor_cls(k, self._to_gtsam(p), self._noise(info, None)))
+        self._push(factor_cls(k, self._to_gtsam(p), noise))
         self._edges.append(Edge("prior", k, k, p, info))
         self._has_prior.add(self._root(k))
 
@@ -318,9 +348,9 @@ class Graph:
         if kernel is not None and not isinstance(kernel, Kernel):
             raise TypeError(f"kernel: expected Kernel or None, got {type(kernel).__name__}")
         m = self._pose(measurement, "measurement")
-        info = _checked_information(information, self.dof)
+        info, noise = self._checked_noise(information, kernel)
         factor_cls = self._g.BetweenFactorPose2 if self.dim == 2 else self._g.BetweenFactorPose3
-        self._push(factor_cls(a, b, self._to_gtsam(m), self._noise(info, kernel)))
+        self._push(factor_cls(a, b, self._to_gtsam(m), noise))
         self._edges.append(Edge(kind, a, b, m, info, kernel))
         self._join(a, b)
 
@@ -341,7 +371,7 @@ class Graph:
         self._all_factors = factors
         self._new_factors = self._g.NonlinearFactorGraph()
         self._isam_current = False
-        self._marginals = None
+        self._changed()
 
     def _require(self, key: Any, name: str) -> int:
         k = self._key(key, name)
@@ -357,6 +387,7 @@ class Graph:
     def update(self, extra_iterations: int = 0) -> None:
         """One iSAM2 update with the nodes and edges added since the last one (plus
         ``extra_iterations`` more relinearisation steps, e.g. after a loop closure)."""
+        self._covariances.clear()  # (iSAM2 may change even where it then fails)
         self._anchor_free_groups()
         try:
             if not self._isam_current:
@@ -374,7 +405,7 @@ class Graph:
         self._new_factors = self._g.NonlinearFactorGraph()
         self._new_values = self._g.Values()
         self._estimate = self._isam.calculateEstimate()
-        self._marginals = None
+        self._changed()
 
     def _solve_in_batch(self, cause: Exception) -> None:
         """Levenberg–Marquardt over everything from the last good estimate; iSAM2 restarts
@@ -386,6 +417,7 @@ class Graph:
         except RuntimeError as exc:
             self._estimate = before
             self._isam_current = False
+            self._covariances.clear()
             message = str(exc).strip().splitlines()[0]
             raise GraphSolveError(
                 f"graph: gtsam could not solve it, incrementally ({str(cause).strip()}) "
@@ -419,7 +451,7 @@ class Graph:
         self._new_values = self._g.Values()
         self._new_factors = self._g.NonlinearFactorGraph()
         self._isam_current = False
-        self._marginals = None
+        self._changed()
         return int(optimizer.iterations())
 
     def move_gauge(self, key: int, pose: SE2 | SE3) -> None:
@@ -435,7 +467,7 @@ class Graph:
             moved.insert(n, self._to_gtsam(correction @ self.pose(int(n))))  # type: ignore[operator]
         self._estimate = moved
         self._isam_current = False  # iSAM2 restarts from the moved estimate at its next update
-        self._marginals = None
+        self._changed()
 
     # -- reading -------------------------------------------------------------------------
     @property
@@ -486,14 +518,18 @@ class Graph:
     def marginal_covariance(self, key: int) -> FloatArray:
         """Marginal covariance of ``T_world_key`` (scanreg ordering, right perturbation)."""
         k = self._solved(key)
-        try:
-            if self._isam_current:
-                cov = self._isam.marginalCovariance(k)
-            else:
-                cov = self._batch_marginals().marginalCovariance(k)
-        except RuntimeError as exc:
-            raise _marginal_error(exc) from exc
-        return from_gtsam_order(np.asarray(cov), self.dim)
+        known = self._covariances.get((k,))
+        if known is None:
+            try:
+                if self._isam_current:
+                    cov = self._isam.marginalCovariance(k)
+                else:
+                    cov = self._batch_marginals().marginalCovariance(k)
+            except RuntimeError as exc:
+                raise _marginal_error(exc) from exc
+            known = from_gtsam_order(np.asarray(cov), self.dim)
+            self._covariances[(k,)] = known
+        return known.copy()
 
     def _batch_marginals(self) -> Any:
         if self._marginals is None:
@@ -508,6 +544,13 @@ class Graph:
         ``Σ_ij = A Σ_joint Aᵀ`` with ``A = [−Ad(T_j_i), I]``.
         """
         a, b = self._solved(i), self._solved(j)
+        known = self._covariances.get((a, b))
+        if known is None:
+            known = self._relative_covariance(a, b)
+            self._covariances[(a, b)] = known
+        return known.copy()
+
+    def _relative_covariance(self, a: int, b: int) -> FloatArray:
         keys = self._g.KeyVector([a, b])
         try:
             if self._isam_current:

@@ -28,7 +28,6 @@ part.
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -138,9 +137,14 @@ class WheelOdometry:
         self._scanned = 0.0  # the scans' distance along the wheels' direction, faded
         self._rolled = 0.0  # the wheels' distance, faded alike
         self._behind = 0.0  # metres of observed steps in all
-        # The noise calibration: each observed step's residual against the wheels, the model's
-        # variances for it, and whether it directly follows the previous observed step.
-        self._steps: deque[tuple[FloatArray, FloatArray, bool]] = deque(maxlen=_NOISE_STEPS)
+        # The noise calibration: the last _NOISE_STEPS observed steps' residuals against the
+        # wheels, the model's variances for them, and whether each directly follows the
+        # previous observed step; rings (step number k at row k % _NOISE_STEPS), read in
+        # order by _calibrate without a Python loop over them.
+        self._residuals = np.zeros((_NOISE_STEPS, 3))
+        self._variances = np.zeros((_NOISE_STEPS, 3))
+        self._follows = np.zeros(_NOISE_STEPS, dtype=bool)
+        self._observed = 0  # steps put in the rings in all
         self._linked = False
         self._since = 0
         self._factor = np.ones(3)
@@ -231,9 +235,11 @@ class WheelOdometry:
         else:
             motion, _ = self.prior(wheel)
             cov = self.noise.covariance(motion)
-        residual = (motion.inverse() @ scan).log()
-        model = np.diag(cov)
-        self._steps.append((residual, model, self._linked))
+        row = self._observed % _NOISE_STEPS
+        self._residuals[row] = (motion.inverse() @ scan).log()
+        self._variances[row] = np.diag(cov)
+        self._follows[row] = self._linked
+        self._observed += 1
         self._linked = True
         self._since += 1
         if self._since >= _NOISE_EVERY:
@@ -244,13 +250,15 @@ class WheelOdometry:
         """The model's per-axis factors from the recent steps (module docstring): the
         prediction's variance (the residuals' second moment less the scans' own variance,
         floored at what a run can resolve) over the model's mean variance."""
-        steps = list(self._steps)
-        linked = [k for k in range(1, len(steps)) if steps[k][2]]
+        count = min(self._observed, _NOISE_STEPS)
+        rows = (np.arange(count) + (self._observed - count)) % _NOISE_STEPS  # oldest first
+        # The steps (by age) that directly follow the one before them.
+        linked = np.flatnonzero(self._follows[rows[1:]]) + 1
         if len(linked) < MIN_PAIRS:
             return
-        here = np.array([steps[k][0] for k in linked])
-        before = np.array([steps[k - 1][0] for k in linked])
-        model = np.array([steps[k][1] for k in linked])
+        here = self._residuals[rows[linked]]
+        before = self._residuals[rows[linked - 1]]
+        model = self._variances[rows[linked]]
         moments = residual_moments(here, before)
         predicted = moments.variance + moments.mean**2 - moments.scan_variance
         predicted = np.maximum(predicted, NOISE_FLOOR**2)
