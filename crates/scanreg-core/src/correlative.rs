@@ -683,6 +683,13 @@ fn repooled(prev: &Level, old: &Level, half: i64, changed: &Previous) -> Level {
     }
 }
 
+/// An updated grid of more cells than this pools its levels from the old grid's
+/// ([`repooled`]); a smaller one pools them from scratch, which costs less there (its rows in
+/// cache, vectorised): measured on the Freiburg logs' local maps, the odometry over Intel's
+/// first 4000 scans (190 k cells) took 10.3-12.2 s CPU repooled against 10.0-10.4 s, over
+/// the hospital's first 1500 (1.2 M cells) 15.3 s against 20.4 s.
+const REPOOL_MIN_CELLS: usize = 1 << 19;
+
 /// Largest disc [`stamped`] lays (offsets held in memory): a blur hundreds of cells wide
 /// takes the distance transform instead.
 const MAX_STAMP_OFFSETS: usize = 1 << 20;
@@ -1060,6 +1067,12 @@ impl LikelihoodGrid {
     /// lower a minimum). A local map that gains a keyframe and drops its oldest changes a few
     /// hundred of its thousands of occupied cells. The pooled levels are pooled on first use.
     pub fn updated(&self, reference: &[f64]) -> Result<Self> {
+        self.updated_with(reference, REPOOL_MIN_CELLS)
+    }
+
+    /// [`LikelihoodGrid::updated`], its levels pooled from the old grid's ([`repooled`]) when
+    /// it has more than `repool_min_cells` cells.
+    fn updated_with(&self, reference: &[f64], repool_min_cells: usize) -> Result<Self> {
         check_points(reference, "reference")?;
         let (resolution, sigma) = (self.resolution, self.sigma);
         let lattice = Lattice::of(reference, resolution, sigma)?;
@@ -1142,7 +1155,9 @@ impl LikelihoodGrid {
             let (cx, cy) = local(c);
             dirty.mark_blocks_near(cx, cy, reach);
         }
-        if self.pooled.first().is_some_and(|l| l.get().is_some()) {
+        let repool = width * height > repool_min_cells
+            && self.pooled.first().is_some_and(|l| l.get().is_some());
+        if repool {
             // Re-stamped cells mostly get their old value back: only blocks that changed count.
             keep_changed_blocks(
                 &mut dirty,
@@ -1163,23 +1178,19 @@ impl LikelihoodGrid {
         // The levels the old grid had pooled are pooled again, on first use, only where they
         // can have changed (the same maxima, so the same bits as pooling the whole base); the
         // others from scratch, as after a build.
-        let previous = self
-            .pooled
-            .first()
-            .is_some_and(|l| l.get().is_some())
-            .then(|| {
-                Arc::new(Previous {
-                    levels: self.pooled.iter().map(|l| l.get().cloned()).collect(),
-                    blocks: dirty.blocks,
-                    blocks_x: dirty.blocks_x,
-                    offset: [
-                        lattice.offset[0] - self.offset[0],
-                        lattice.offset[1] - self.offset[1],
-                    ],
-                    old_size: [self.width as i64, self.height as i64],
-                    size: [w, h],
-                })
-            });
+        let previous = repool.then(|| {
+            Arc::new(Previous {
+                levels: self.pooled.iter().map(|l| l.get().cloned()).collect(),
+                blocks: dirty.blocks,
+                blocks_x: dirty.blocks_x,
+                offset: [
+                    lattice.offset[0] - self.offset[0],
+                    lattice.offset[1] - self.offset[1],
+                ],
+                old_size: [self.width as i64, self.height as i64],
+                size: [w, h],
+            })
+        });
         Ok(LikelihoodGrid {
             origin: lattice.origin,
             resolution,
@@ -1860,7 +1871,10 @@ mod tests {
             let built = LikelihoodGrid::build(&reference, 0.05, 0.05, 5).unwrap();
             let next = match &grid {
                 None => built.clone(),
-                Some(g) => g.updated(&reference).unwrap(),
+                // Every other step its levels pooled from the old grid's (as a large grid's).
+                Some(g) => g
+                    .updated_with(&reference, [usize::MAX, 0][end % 2])
+                    .unwrap(),
             };
             assert_same_grid(&next, &built, &format!("window ending at {end}"));
             let w = Window {
@@ -1923,7 +1937,7 @@ mod tests {
                 None => built.clone(),
                 Some(g) => {
                     let _ = g.level(2);
-                    g.updated(&reference).unwrap()
+                    g.updated_with(&reference, 0).unwrap()
                 }
             };
             if grid.is_some() {
