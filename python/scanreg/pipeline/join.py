@@ -49,8 +49,15 @@ from ..io.g2o import PoseGraph, PoseGraphEdge
 from ..io.occupancy import occupancy_grid
 from ..saved_map import SavedMap
 from ..transform import SE2, SE3
-from .loops import AgreementTolerances, LoopMatch, LoopSettings, loops_agree, match_loop
-from .mapping import _MAX_DRIFT, MappingConfig
+from .loops import (
+    MAX_DRIFT_PER_METRE,
+    AgreementTolerances,
+    LoopMatch,
+    LoopSettings,
+    loops_agree,
+    match_loop,
+)
+from .mapping import MappingConfig
 from .mapping3d import MappingConfig3D
 
 #: Why an accepted inter-session match was left out of the graph.
@@ -191,7 +198,7 @@ def _match_from_fix(
     of the session's path ago.
 
     The fix is only as good as the session's own map over that path: once the most it could
-    have drifted there (``_MAX_DRIFT`` per metre, as the mapping's wide search allows) exceeds
+    have drifted there (``MAX_DRIFT_PER_METRE``, as the mapping's wide search allows) exceeds
     the window, a node the window does not find is searched again over that bound, with the
     prior grown alike (on ACES' halves the fix turned 2.5° over 45 m without a match and the
     next place lay 1.4 m off, at the fixed window's edge). What is found so has only the drift
@@ -201,7 +208,7 @@ def _match_from_fix(
     from the start let a look-alike 1.3 m off outscore the true place 4 m after a fix."""
     prior = np.diag([prior_sigma[0] ** 2, prior_sigma[0] ** 2, prior_sigma[1] ** 2])
     match = match_loop(points, node, submap, predicted, prior, settings, window=window)
-    drift = _MAX_DRIFT * since_fix
+    drift = MAX_DRIFT_PER_METRE * since_fix
     if match.accepted or drift <= window[0]:
         return match
     sigma = prior_sigma[0] + drift / settings.window_sigmas

@@ -243,6 +243,12 @@ class LoopSettings:
             raise ValueError(f"min_agreeing: must be an int >= 2, got {self.min_agreeing!r}")
 
 
+#: The most a 2D odometry drifts per metre of path (a wrong wheel scale of several percent
+#: and a heading off by degrees): the mapping's wide search looks no farther than this times
+#: the path between the two nodes, plus the least loop window, and a merge's second search
+#: no farther than this times the path since its fix (:mod:`scanreg.pipeline.join`).
+MAX_DRIFT_PER_METRE = 0.1
+
 #: A loop is what the map bets on: every match the verdict accepts is probed for other basins.
 #: The screen's cheap evidence (``VerdictThresholds.basin_screen``) is tuned for odometry steps
 #: and misses along-corridor look-alikes: on ACES it let 16 loops through whose scan a pose

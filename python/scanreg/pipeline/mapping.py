@@ -62,6 +62,7 @@ from ..io.scan_log import ScanLog
 from ..preprocess import voxel_downsample
 from ..transform import SE2, SE3, as_pose
 from .loops import (
+    MAX_DRIFT_PER_METRE,
     LoopMatch,
     LoopSettings,
     Submap2D,
@@ -823,7 +824,7 @@ class Mapper:
                 # from another heading sees little of a few nodes' points), measured against
                 # the usual one.
                 between = travel - self._node_travel[n]
-                half = min(wide[0], cfg.loops.min_window[0] + _MAX_DRIFT * between)
+                half = min(wide[0], cfg.loops.min_window[0] + MAX_DRIFT_PER_METRE * between)
                 record, _ = self._match(n, node, (half, wide[1]), wide_submap=True)
                 records.append(record)
                 if record.accepted:
@@ -1184,10 +1185,6 @@ _UNCHECKED = "found by the wide search: waits for another loop to agree"
 #: Joint-marginal tests of candidates beyond ``loop_max_range``, per candidate wanted.
 _GATE_TESTS_PER_CANDIDATE = 2
 
-#: The most a 2D odometry drifts per metre of path (a wrong wheel scale of several percent
-#: and a heading off by degrees): the wide search's window is no wider than this times the
-#: path between the two nodes, plus the least loop window.
-_MAX_DRIFT = 0.1
 
 #: How many scans the odometry thread may run ahead of the graph.
 _TRACK_AHEAD = 4
