@@ -41,6 +41,7 @@ os.environ.setdefault("RAYON_NUM_THREADS", "2")
 import numpy as np
 import scanreg
 from scanreg.quality import covariance_upper_bound
+from scanreg.slide import refined_objective
 
 sys.path.insert(0, os.path.dirname(__file__))
 import cloud_covariance as clouds
@@ -72,7 +73,7 @@ def _one(src: np.ndarray, target: object, truth: scanreg.SE2) -> dict | None:
     res = scanreg.register(src, target, method="point_to_line")
     if res.verdict is None or not res.verdict.accepted:
         return None
-    gate = res.settings.max_correspondence_distance
+    narrow_gate, (kernel, scale) = refined_objective(res.settings.max_correspondence_distance)
     # The refinement's objective at the returned pose, without moving.
     narrow = scanreg.register(
         src,
@@ -82,9 +83,9 @@ def _one(src: np.ndarray, target: object, truth: scanreg.SE2) -> dict | None:
         max_iterations=1,
         step_projector=np.zeros((3, 3)),
         never_worse_than_start=False,
-        max_correspondence_distance=0.3 * gate,
-        kernel="cauchy",
-        kernel_scale=0.1 * gate,
+        max_correspondence_distance=narrow_gate,
+        kernel=kernel,
+        kernel_scale=scale,
     )
     cov, ncov = res.covariances, narrow.covariances
     err = (res.pose.inverse() @ truth).log()  # type: ignore[operator]
