@@ -230,6 +230,14 @@ def test_a_return_driven_the_other_way_closes_on_the_submap_its_scan_sees() -> N
     assert wide_submap_span(anchor, positions, graph_pose.translation, capped) == (34, 54)
     with pytest.raises(ValueError, match=r"^anchor: 91 is not one of the 91 positions"):
         wide_submap_span(91, positions, graph_pose.translation, settings)
+    nan = positions.copy()
+    nan[3, 0] = math.nan
+    with pytest.raises(ValueError, match=r"^positions: "):
+        wide_submap_span(anchor, nan, graph_pose.translation, settings)
+    with pytest.raises(ValueError, match=r"^positions: "):
+        wide_submap_span(0, positions[:, 0], graph_pose.translation, settings)
+    with pytest.raises(ValueError, match=r"^here: "):
+        wide_submap_span(anchor, positions, [0.0, 0.0, 0.0], settings)
     with pytest.raises(ValueError, match=r"^wide_submap_max_half_size: must be an int >= "):
         LoopSettings(wide_submap_max_half_size=4)
     with pytest.raises(ValueError, match=r"^wide_submap_radius: must be finite and >= 0"):

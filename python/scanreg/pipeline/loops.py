@@ -26,7 +26,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .._validate import FloatArray
+from .._validate import FloatArray, as_matrix
 from ..correlative import CorrelativeGrid, find_correlative, prepare_correlative
 from ..graph import project_information
 from ..preprocess import voxel_downsample
@@ -123,7 +123,8 @@ def wide_submap_span(
     last = len(positions) - 1
     if not 0 <= anchor <= last:
         raise ValueError(f"anchor: {anchor} is not one of the {len(positions)} positions")
-    reach = np.linalg.norm(np.asarray(positions)[:, :2] - np.asarray(here)[:2], axis=1)
+    xy = as_matrix(positions, "positions", (len(positions), 2))
+    reach = np.linalg.norm(xy - as_matrix(here, "here", (2,)), axis=1)
     near = reach <= s.wide_submap_radius
     lo = max(anchor - s.wide_submap_half_size, 0)
     hi = min(anchor + s.wide_submap_half_size, last)
