@@ -184,6 +184,20 @@ def sweep_grids(
     coarse_voxel: float,
     coarse_covariances: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int, NDArray[np.float64] | None]: ...
+def sweep_residual_sums(
+    source: NDArray[np.float64],
+    nearest: NDArray[np.int64],
+    target_points: NDArray[np.float64],
+    target_normals: NDArray[np.float64],
+    pose_matrix: NDArray[np.float64],
+    source_fractions: NDArray[np.float64] | None = None,
+    target_slots: NDArray[np.int64] | None = None,
+    target_fractions: NDArray[np.float64] | None = None,
+    node_poses: NDArray[np.float64] | None = None,
+    mean_fractions: NDArray[np.float64] | None = None,
+) -> (
+    tuple[int, NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64] | None] | None
+): ...
 def random_subsample_indices(n: int, count: int, seed: int) -> NDArray[np.int64]: ...
 def crop_range(
     points_array: NDArray[np.float64], min_distance: float, max_distance: float

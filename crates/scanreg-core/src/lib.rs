@@ -41,6 +41,7 @@ pub mod points;
 pub mod reduce;
 pub mod simulate;
 pub mod sweep;
+pub mod sweep_residual;
 pub mod symeig;
 pub mod symmetry;
 pub mod threads;

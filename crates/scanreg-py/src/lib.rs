@@ -24,6 +24,7 @@ mod preprocess;
 mod register;
 mod simulate;
 mod sweep;
+mod sweep_residual;
 mod threads;
 mod trust;
 
@@ -41,6 +42,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     preprocess::register(m)?;
     simulate::register(m)?;
     sweep::register(m)?;
+    sweep_residual::register(m)?;
     io::register(m)?;
     register::register(m)?;
     censi::register(m)?;

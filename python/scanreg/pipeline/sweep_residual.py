@@ -23,6 +23,9 @@ errors, one ``A⁻¹ C_n Σ_n C_nᵀ A⁻¹`` per node. The anchor's pose is the
 rigid part moves the whole submap, ``s̄_a² Σ_a`` carried to the loop's right perturbation
 (on the simulated room tour, a corner's anchor 47 mrad off turned every loop into it).
 
+The sums over the points (``A``, ``B``, each ``C_n``) are the core's
+(``_core.sweep_residual_sums``); the 3×3 algebra on them is here.
+
 A single scan's 720 beams at 2 cm pin a match to millimetres; the deskew's error at a corner
 is tens of mrad, centimetres at a few metres.
 """
@@ -33,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import _core
 from .._validate import FloatArray
 from ..preprocess import IndexArray
 from ..target import PreparedTarget
@@ -122,12 +126,6 @@ def submap_sweeps(
     )
 
 
-def _jacobian(normals: FloatArray, points: FloatArray) -> FloatArray:
-    """Rows ``[n_x, n_y, n · p^⊥]``: a point-to-line residual over the right perturbation of
-    the frame ``points`` are in (``normals`` in that frame)."""
-    return np.column_stack([normals, normals[:, 1] * points[:, 0] - normals[:, 0] * points[:, 1]])
-
-
 def sweep_covariance(
     source: FloatArray,
     source_sweep: DeskewedSweep | None,
@@ -143,42 +141,35 @@ def sweep_covariance(
     if (source_sweep is None and target_sweeps is None) or target.normals is None:
         return None
     idx, _ = target.index.nearest(np.ascontiguousarray(pose.apply(source)), gate)
-    idx = np.asarray(idx)
-    normals = np.asarray(target.normals)
-    matched = idx >= 0
-    matched[matched] = np.abs(normals[idx[matched]]).sum(axis=1) > 0
-    if int(matched.sum()) < 3:
+    sweeps = target_sweeps
+    sums = _core.sweep_residual_sums(
+        np.ascontiguousarray(source, dtype=np.float64),
+        np.asarray(idx, dtype=np.int64),
+        np.asarray(target.points),
+        np.asarray(target.normals),
+        pose.as_matrix(),
+        None if source_sweep is None else source_sweep.fractions,
+        None if sweeps is None else sweeps.slots,
+        None if sweeps is None else sweeps.fractions,
+        None if sweeps is None else np.array([p.as_matrix() for p in sweeps.poses]),
+        None if sweeps is None else sweeps.mean_fractions,
+    )
+    if sums is None:
         return None
-    j = idx[matched]
-    n = normals[j]
-    rotation = pose.rotation
-    jac = _jacobian(n @ rotation, source[matched])  # (Rᵀ n: the normal in the source frame)
-    vals, vecs = np.linalg.eigh(jac.T @ jac)
+    _, information, source_sum, node_sums = sums
+    vals, vecs = np.linalg.eigh(information)
     keep = vals > _WEAK * vals[-1]
     a_inv = (vecs[:, keep] / vals[keep]) @ vecs[:, keep].T
     spread = np.zeros((3, 3))
-    if source_sweep is not None:
-        s = source_sweep.fractions[matched]
-        b = (jac * s[:, None]).T @ jac
-        spread += b @ source_sweep.covariance @ b.T
-    if target_sweeps is not None:
-        slots, s_t = target_sweeps.slots[j], target_sweeps.fractions[j]
-        q = np.asarray(target.points)[j]
-        for k, (node_pose, cov) in enumerate(
-            zip(target_sweeps.poses, target_sweeps.covariances, strict=True)
-        ):
-            mine = slots == k
-            if not mine.any():
-                continue
-            r = node_pose.rotation
-            local = (q[mine] - node_pose.translation) @ r  # the points in node k's frame
-            about_mean = s_t[mine] - target_sweeps.mean_fractions[k]
-            c = (jac[mine] * about_mean[:, None]).T @ _jacobian(n[mine] @ r, local)
+    if source_sweep is not None and source_sum is not None:
+        spread += source_sum @ source_sweep.covariance @ source_sum.T
+    if sweeps is not None and node_sums is not None:
+        for c, cov in zip(node_sums, sweeps.covariances, strict=True):
             spread += c @ cov @ c.T
     out: FloatArray = a_inv @ spread @ a_inv
-    if target_sweeps is not None and target_sweeps.anchor >= 0:
-        a = target_sweeps.anchor
-        frame = target_sweeps.mean_fractions[a] ** 2 * target_sweeps.covariances[a]
+    if sweeps is not None and sweeps.anchor >= 0:
+        a = sweeps.anchor
+        frame = sweeps.mean_fractions[a] ** 2 * sweeps.covariances[a]
         ad = pose.inverse().adjoint()  # (the anchor's frame moved: a left perturbation)
         out = out + ad @ frame @ ad.T
     return 0.5 * (out + out.T)
