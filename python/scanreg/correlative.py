@@ -518,7 +518,7 @@ def _native_search(
     )
 
 
-def _best_pose(
+def best_correlative_pose(
     source: FloatArray,
     grid: CorrelativeGrid,
     init: SE2,
@@ -555,6 +555,7 @@ __all__ = [
     "CorrelativeGrid",
     "CorrelativeResult",
     "CorrelativeTiming",
+    "best_correlative_pose",
     "default_angular_resolution",
     "find_correlative",
     "match_correlative",

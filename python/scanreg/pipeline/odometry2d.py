@@ -38,7 +38,12 @@ import numpy as np
 
 from .. import _core
 from .._validate import FloatArray, as_covariance, as_matrix, as_points, frozen
-from ..correlative import CorrelativeGrid, _best_pose, match_correlative, prepare_correlative
+from ..correlative import (
+    CorrelativeGrid,
+    best_correlative_pose,
+    match_correlative,
+    prepare_correlative,
+)
 from ..deskew import deskew, velocity_from_motion
 from ..preprocess import DEFAULT_K, voxel_downsample
 from ..register import RegistrationResult, register
@@ -451,7 +456,7 @@ class Odometry2D:
             # Only the pose is read (the refinement gives the frame's covariance): neither
             # Olson's covariance nor the result's statistics are computed.
             window = _search_window(cfg.correlative_window, motion, self._velocity)
-            start = _best_pose(pts, grid, predicted, window, search_cov)
+            start = best_correlative_pose(pts, grid, predicted, window, search_cov)
         res = register(
             pts,
             self._target,
