@@ -187,6 +187,7 @@ def run(name: str, pairs: Iterator[Pair], dim: int, records: list[dict[str, Any]
                 ref_cov = np.diag([st**2] * dim + [sr**2] * (1 if dim == 2 else 3))
                 nees_ref = _nees(err, cov + ref_cov)
                 rot = abs(err[2]) if dim == 2 else float(np.linalg.norm(err[3:]))
+                fits = _fits(target, src, res.pose, ref) if dim == 2 else {}
                 records.append(
                     {
                         "dataset": name,
@@ -202,8 +203,37 @@ def run(name: str, pairs: Iterator[Pair], dim: int, records: list[dict[str, Any]
                         "reasons": list(verdict.reasons),
                         "seconds": seconds,
                         "fitness": res.fitness,
+                        "err": [float(x) for x in err],
+                        "covariance": cov.tolist(),
+                        **fits,
+                        "tight_fit": _tight_fit(res),
                     }
                 )
+
+
+#: The gates (m) at which a 2D result's fit is compared with the reference's: the fraction of
+#: the source with a target point within each, at the result and at the reference.
+FIT_GATES = (0.05, 0.1)
+
+
+def _fits(target: Any, src: np.ndarray, pose: Any, ref: Any) -> dict[str, list[float]]:
+    """``fit_result`` / ``fit_reference``: the fraction of ``src`` within each of
+    :data:`FIT_GATES` of ``target`` at the result and at the reference. A result that fits
+    the scans at least as well as the reference at every gate is one the scans cannot tell
+    from it: its error against the reference may be the reference's."""
+    n = float(len(src))
+    out: dict[str, list[float]] = {}
+    for key, pose_ in (("fit_result", pose), ("fit_reference", ref)):
+        matrix = np.asarray(pose_.as_matrix())
+        out[key] = [scanreg._core.count_within(target.index, src, matrix, g) / n for g in FIT_GATES]
+    return out
+
+
+def _tight_fit(res: Any) -> float | None:
+    """The fraction of the source within the tight gate at the pose returned, as the
+    never-worse-than-the-start check counted it (None when it did not run)."""
+    slide = getattr(res.quality, "slide", None)
+    return None if slide is None else float(slide.returned_fit)
 
 
 def _nees(err: np.ndarray, cov: np.ndarray) -> float:
