@@ -28,7 +28,7 @@ rejected-and-correct, and the median time of the call with its verdict read.
 
     .venv/bin/python benchmarks/wrong_start.py [--all]
         [--datasets intel,mbicp,kitti,outdoor,fr-intel,fr-aces,fr-clinic]
-        [--relations 100] [--jsonl out.jsonl] [--timing ROUNDS [--cpu] [--dim 3] [--default-only]]
+        [--relations 100] [--methods gicp] [--jsonl out.jsonl] [--timing ROUNDS [--cpu] [--dim 3] [--default-only]]
 
 Default: every 15th Intel pair, 40 MbICP scans, 5 KITTI pairs; ``--all``: every pair.
 ``--timing``: the default call with and without the wrong-basin probe, alternated in one
@@ -167,11 +167,19 @@ def _offset(dim: int, yaw_deg: float, trans: float, direction: float) -> Any:
     return SE3.from_vector([*t, 0.0, 0.0, 0.0, math.radians(yaw_deg)])
 
 
-def run(name: str, pairs: Iterator[Pair], dim: int, records: list[dict[str, Any]]) -> None:
+def run(
+    name: str,
+    pairs: Iterator[Pair],
+    dim: int,
+    records: list[dict[str, Any]],
+    methods: tuple[str, ...] | None = None,
+) -> None:
     rng = np.random.default_rng(1)
     for p, (src, tgt, ref) in enumerate(pairs):
         direction = float(rng.uniform(0, 2 * math.pi))
         for method in METHODS[dim]:
+            if methods is not None and method not in methods:
+                continue
             target = scanreg.prepare(tgt, normals=True, covariances=method == "gicp")
             for yaw, trans in OFFSETS[dim]:
                 start = ref @ _offset(dim, yaw, trans, direction)
@@ -286,6 +294,8 @@ def table(records: list[dict[str, Any]]) -> None:
         dim = 2 if name in DIM2 else 3
         for method in (*METHODS[dim], "all"):
             rs = [r for r in records if r["dataset"] == name and method in ("all", r["method"])]
+            if not rs:
+                continue
             n, c, ac, aw, ao, aor, rc = _counts(rs, dim)
             acc = ac + aw
             ms = 1e3 * float(np.median([r["seconds"] for r in rs]))
@@ -375,6 +385,9 @@ def main() -> None:
         "--datasets", default="intel,mbicp,kitti,outdoor,fr-intel,fr-aces,fr-clinic"
     )
     parser.add_argument("--relations", type=int, default=100, help="relations per Freiburg log")
+    parser.add_argument(
+        "--methods", help="only these methods, comma-separated (the same starts as a full run)"
+    )
     parser.add_argument("--jsonl", type=Path, help="write one record per registration")
     parser.add_argument("--timing", type=int, default=0, help="only the A/B timing, N rounds")
     parser.add_argument("--cpu", action="store_true", help="--timing in CPU time (all threads)")
@@ -402,7 +415,8 @@ def main() -> None:
         )
     for name in chosen:
         make, dim = sources[name]
-        run(name, make(), dim, records)
+        methods = None if args.methods is None else tuple(args.methods.split(","))
+        run(name, make(), dim, records, methods)
     if args.jsonl:
         with args.jsonl.open("w") as f:
             for r in records:

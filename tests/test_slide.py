@@ -98,6 +98,26 @@ def test_start_returned_and_rejected_when_the_resolve_slides_too() -> None:
     assert np.isfinite(res.covariance).all()
 
 
+def test_loose_fit_from_a_turned_start_is_rejected() -> None:
+    # ACES relation 26, point-to-point from the relation turned by -35° (wrong_start.py): the
+    # solve settles 1.4 m and 45° off with overlap and RMSE inside the 1 m gate and was
+    # accepted; 17 % of the scan lies within 0.1 m there (the relation: 80 %). Rejected, named.
+    source, target, relation = _relation_pair("aces", 26)
+    start = relation @ SE2.from_vector([0.0, 0.0, math.radians(-35.0)])
+    res = scanreg.register(source, target, method="point_to_point", init=start)
+    metres, degrees = _error(res.pose, relation)
+    assert metres > 1.0 and degrees > 40.0
+    assert res.slide is not None and res.slide.returned_fit < 0.2
+    assert res.verdict is not None and not res.verdict.accepted
+    assert res.verdict.reasons == (
+        f"loose fit: {res.slide.returned_fit:.0%} of the source within 0.1 < 20%",
+    )
+    # The same pair from its relation: well inside the floor, accepted.
+    res = scanreg.register(source, target, method="point_to_point", init=relation)
+    assert res.slide is not None and res.slide.returned_fit > 0.6
+    assert res.verdict is not None and res.verdict.accepted
+
+
 def test_degeneracy_aware_keeps_the_guard() -> None:
     # ACES 282 is a corridor: the aware solve would re-solve along the corridor from the start;
     # the start returned after the slide stays the start. Intel 15: the held re-solve runs at

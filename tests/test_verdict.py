@@ -9,6 +9,7 @@ import pytest
 import scanreg
 from scanreg import SE2, SE3
 from scanreg import simulate as sim
+from scanreg.slide import SlideCheck
 from scanreg.verdict import QualityReport, VerdictThresholds, assess, judge
 
 
@@ -103,6 +104,36 @@ def test_no_overlap_at_all_rejects_on_rmse_too() -> None:
     assert verdict.reasons == ("overlap 0.00 < 0.50", "inlier RMSE nan > 0.5")
 
 
+def test_loose_fit_is_rejected_with_the_measured_fraction() -> None:
+    # Overlap and RMSE inside the generous gate, but only 12 % of the source within the tight
+    # gate at the pose returned (as the never-worse-than-the-start check counted it).
+    def report(fit: float, outcome: str = "kept") -> QualityReport:
+        slide = SlideCheck(gate=0.1, start_fit=0.6, end_fit=fit, outcome=outcome)  # type: ignore[arg-type]
+        return QualityReport(
+            overlap=0.9,
+            gate=1.0,
+            num_source_points=100,
+            residual_mean=0.2,
+            residual_median=0.2,
+            residual_rmse=0.25,
+            residual_trimmed_rmse=0.2,
+            translation_from_init=0.0,
+            rotation_from_init=0.0,
+            converged=True,
+            stop_reason="converged",
+            conditioning=scanreg.quality.conditioning(np.eye(3), 2, 1.0),
+            slide=slide,
+        )
+
+    th = VerdictThresholds()
+    assert judge(report(0.12), th).reasons == ("loose fit: 12% of the source within 0.1 < 20%",)
+    assert judge(report(0.2), th).accepted
+    assert judge(report(0.12), VerdictThresholds(min_tight_fit=0.0)).accepted
+    # A start returned after a slide is rejected for that alone (its fit is the start's).
+    slid = judge(report(0.12, "start"), th).reasons
+    assert len(slid) == 1 and slid[0].startswith("slid from a start that fitted better")
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -112,6 +143,8 @@ def test_no_overlap_at_all_rejects_on_rmse_too() -> None:
         ({"max_inlier_rmse": -1.0}, "max_inlier_rmse: must be >= 0"),
         ({"weak_ratio": 0.0}, "weak_ratio: must be in"),
         ({"max_translation": math.nan}, "max_translation: must be >= 0"),
+        ({"min_tight_fit": 1.5}, "min_tight_fit: must be in"),
+        ({"min_tight_fit": math.nan}, "min_tight_fit: must be in"),
     ],
 )
 def test_thresholds_are_validated(kwargs: dict[str, float], match: str) -> None:
