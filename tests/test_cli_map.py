@@ -59,8 +59,14 @@ def test_map_end_to_end(
     check = result["self_check"]
     assert not check["consistent"] and check["contradictions"] > 0, check
     assert "scanreg map: WARNING: the map is inconsistent: contradictions:" in captured.err
+    # ... and where to look: the worst square and the scans whose returns it contradicts (the
+    # half turned by 0.5 rad is the second one, from scan n // 2 on).
+    worst = check["regions"][0]
+    assert f"scanreg map: contradicted: {worst['contradictions']} of" in captured.err
+    assert any(b >= n // 2 for _, b, _ in worst["passes"]), worst
     assert json.loads((out / "summary.json").read_text())["self_check"] == check
-    assert "Self-check" in (out / "report.html").read_text(encoding="utf-8")
+    report = (out / "report.html").read_text(encoding="utf-8")
+    assert "Self-check" in report and "whose they are" in report
     assert result["num_nodes"] > 20
     assert result["timing"]["total"] > 0 and result["scans_per_second"] > 0
     for key in ("poses_kitti", "poses_tum", "graph", "loops", "map_pgm", "map_yaml", "map_png"):

@@ -22,6 +22,7 @@ from scanreg.pipeline.map_check import (
     MapCheck,
     MapCheckSettings,
     check_map,
+    describe_region,
     kernel_weight,
     loop_residual,
 )
@@ -91,6 +92,14 @@ def test_a_local_break_is_flagged_where_the_whole_map_would_pass() -> None:
     assert [r.split(":")[0] for r in bad.reasons] == ["contradictions gather"], bad.reasons
     worst = bad.regions[0]
     assert worst.contradictions > 0.5 * worst.returns
+    # And whose returns they are: the moved tail's (scans from 0.9 of the run on). Measured:
+    # all 38 from scans 306-324 of 334.
+    moved = int(0.9 * res.num_scans)
+    ((first, last, count),) = worst.passes
+    assert moved <= first <= last < res.num_scans and count == worst.contradictions
+    assert describe_region(bad.as_dict()["regions"][0]).endswith(
+        f"from scans {first}-{last} ({count})"
+    )
     # Without the square's limit (a share no square can reach), the same map passes.
     lenient = dataclasses.replace(settings, min_region_share=1.0)
     assert check_map(res, broken, lenient).consistent
@@ -122,6 +131,14 @@ def test_summary_is_json_ready_and_states_its_thresholds() -> None:
     assert record["loops"] == sum(e.kind == "loop" for e in res.graph.edges)
     assert record["thresholds"]["max_contradiction_fraction"] == 0.10
     assert len(check.contradiction_points) == check.contradictions
+    # Each region of a broken map names the passes whose returns it holds contradicted,
+    # summing to its count.
+    broken = check_map(res, _broken(tuple(_truth(run)), 100, SE2.from_vector([0.3, 0.0, 0.05])))
+    regions = json.loads(json.dumps(broken.as_dict()))["regions"]
+    assert len(regions) >= 3  # (measured: 4)
+    for region in regions:
+        assert sum(n for _, _, n in region["passes"]) == region["contradictions"] > 0
+        assert all(0 <= a <= b < res.num_scans for a, b, _ in region["passes"])
 
 
 def test_write_outputs_writes_the_check(tmp_path: Any) -> None:

@@ -662,8 +662,12 @@ def _warn_inconsistent(command: str, result: dict[str, Any]) -> None:
     """The map's self-check on stderr when it failed: never silent, ``--json`` or not."""
     check = result.get("self_check")
     if check is not None and not check["consistent"]:
+        from .pipeline.map_check import describe_region
+
         for reason in check["reasons"]:
             print(f"scanreg {command}: WARNING: the map is inconsistent: {reason}", file=sys.stderr)
+        for region in check.get("regions", [])[:3]:
+            print(f"scanreg {command}: contradicted: {describe_region(region)}", file=sys.stderr)
 
 
 def _localize(args: argparse.Namespace) -> dict[str, Any]:

@@ -625,6 +625,16 @@ def _self_check_text(check: dict[str, Any]) -> str:
         f"{check.get('loops_downweighted', 0)} down-weighted by the back end.</p>"
     ]
     lines += [f"<p>{html.escape(str(r))}</p>" for r in check.get("reasons", [])]
+    regions = check.get("regions", [])
+    if regions:
+        from .pipeline.map_check import describe_region
+
+        items = "".join(
+            f"<li>#{k + 1}: {html.escape(describe_region(r))}</li>" for k, r in enumerate(regions)
+        )
+        lines.append(
+            f"<p>Where the contradicted returns gather, and whose they are:</p><ul>{items}</ul>"
+        )
     return "".join(lines)
 
 

@@ -108,13 +108,17 @@ class MapCheckSettings:
 
 @dataclass(frozen=True)
 class ContradictionRegion:
-    """A square of the map (``size`` m, centred at ``x``, ``y``) and its contradicted returns."""
+    """A square of the map (``size`` m, centred at ``x``, ``y``) and its contradicted returns;
+    ``passes``: whose they are, where in the run to look — ``(first_scan, last_scan,
+    contradicted)`` per pass of the robot through the square (scans of the log, in order;
+    passes split where their nodes lie more than ``min_gap // 2`` apart)."""
 
     x: float
     y: float
     size: float
     contradictions: int
     returns: int
+    passes: tuple[tuple[int, int, int], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -181,6 +185,7 @@ class MapCheck:
                     "size": r.size,
                     "contradictions": r.contradictions,
                     "returns": r.returns,
+                    "passes": [list(p) for p in r.passes],
                 }
                 for r in self.regions
             ],
@@ -228,8 +233,36 @@ def loop_residual(edge: Edge, pose_i: SE2, pose_j: SE2) -> LoopResidual:
     return LoopResidual(edge.i, edge.j, chi2, dof, CHI2_999[dof], kernel_weight(edge.kernel, chi2))
 
 
+def describe_region(region: dict[str, Any]) -> str:
+    """One line for a region of :meth:`MapCheck.as_dict`: where on the map, and the scans
+    whose returns are contradicted there (where in the run)."""
+    passes = ", ".join(f"{a}-{b} ({n})" for a, b, n in region.get("passes", []))
+    return (
+        f"{region['contradictions']} of {region['returns']} returns in the {region['size']:g} m "
+        f"square at ({region['x']:.1f}, {region['y']:.1f})"
+        + (f", from scans {passes}" if passes else "")
+    )
+
+
+def _passes(
+    owners: np.ndarray[Any, Any], node_scans: Sequence[int], split: int
+) -> tuple[tuple[int, int, int], ...]:
+    """``(first_scan, last_scan, count)`` of the returns owned by nodes ``owners``, one per run
+    of nodes no more than ``split`` apart."""
+    nodes, counts = np.unique(owners, return_counts=True)
+    breaks = np.flatnonzero(np.diff(nodes) > split) + 1
+    return tuple(
+        (int(node_scans[run[0]]), int(node_scans[run[-1]]), int(c.sum()))
+        for run, c in zip(np.split(nodes, breaks), np.split(counts, breaks), strict=True)
+    )
+
+
 def _regions(
-    world: FloatArray, contradicted: np.ndarray[Any, Any], s: MapCheckSettings
+    world: FloatArray,
+    contradicted: np.ndarray[Any, Any],
+    owners: np.ndarray[Any, Any],
+    node_scans: Sequence[int],
+    s: MapCheckSettings,
 ) -> tuple[ContradictionRegion, ...]:
     if not contradicted.any():
         return ()
@@ -237,8 +270,13 @@ def _regions(
     ij = np.floor((world - lo) / s.region_size).astype(np.int64)
     key = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
     keys, first, total = np.unique(key, return_index=True, return_counts=True)
-    bad = np.bincount(np.searchsorted(keys, key[contradicted]), minlength=len(keys))
+    slot = np.searchsorted(keys, key)
+    bad = np.bincount(slot[contradicted], minlength=len(keys))
     order = np.lexsort((-total, -bad))
+    # The contradicted returns' owners grouped by square (one sort, not a pass per square).
+    by_slot = np.argsort(slot[contradicted], kind="stable")
+    mine = np.split(owners[contradicted][by_slot], np.cumsum(bad)[:-1])
+    split = max(1, s.min_gap // 2)
     return tuple(
         ContradictionRegion(
             x=float(lo[0] + (ij[first[k], 0] + 0.5) * s.region_size),
@@ -246,6 +284,7 @@ def _regions(
             size=s.region_size,
             contradictions=int(bad[k]),
             returns=int(total[k]),
+            passes=_passes(mine[k], node_scans, split),
         )
         for k in order
         if bad[k] > 0
@@ -293,7 +332,7 @@ def check_map(
         if not all(isinstance(p, SE2) for p in poses):
             raise TypeError("poses: expected SE2 poses")
         nodes = [poses[k] for k in node_scans]
-    return _check(nodes, node_points, edges, s, sessions)
+    return _check(nodes, node_points, node_scans, edges, s, sessions)
 
 
 def _saved_parts(
@@ -325,6 +364,7 @@ def _saved_parts(
 def _check(
     nodes: Sequence[SE2],
     points: Sequence[FloatArray],
+    node_scans: Sequence[int],
     edges: Sequence[Edge],
     s: MapCheckSettings,
     sessions: np.ndarray[Any, np.dtype[np.uint32]] | None = None,
@@ -350,7 +390,11 @@ def _check(
     where = world[judged]
     loops = tuple(loop_residual(e, nodes[e.i], nodes[e.j]) for e in edges if e.kind == "loop")
     returns, bad = int(seen_enough.sum()), int(contradicted.sum())
-    regions = _regions(where[seen_enough], contradicted[seen_enough], s)
+    # Each judged return's node: whose returns a region's are.
+    owners = np.searchsorted(offsets, np.asarray(judged), side="right") - 1
+    regions = _regions(
+        where[seen_enough], contradicted[seen_enough], owners[seen_enough], node_scans, s
+    )
     reasons = []
     if returns and bad / returns > s.max_contradiction_fraction:
         reasons.append(
