@@ -94,6 +94,18 @@ def test_map_server_map_round_trip(tmp_path: Path) -> None:
     assert np.min(np.linalg.norm(points - expected, axis=1)) < 1e-9
     loc = Localizer2D.from_map_server(tmp_path / "map.yaml")
     assert len(loc.map_points) == len(points)
+    # The grid's cell is the map's spacing, and every located pose carries its variance
+    # (a wall is known to within its cell): res² / 12 per axis of the translation at least.
+    assert loc.map_spacing == pytest.approx(res, rel=1e-9)
+    inside = np.array([1.0 - 1.5, -2.0 + 1.0])  # the room's middle, in the map frame
+    truth = SE2.from_vector([inside[0], inside[1], 0.3])
+    scan = truth.inverse().apply(points)
+    frame = Localizer2D.from_map_server(tmp_path / "map.yaml", initial_pose=truth).step(scan)
+    assert frame.verdict.accepted, frame.verdict.reasons
+    floor = res**2 / 12.0
+    assert np.linalg.eigvalsh(np.asarray(frame.covariance)[:2, :2])[0] >= floor
+    bare = np.asarray(frame.registration.covariance)[:2, :2]
+    np.testing.assert_allclose(np.asarray(frame.covariance)[:2, :2], bare + floor * np.eye(2))
     (tmp_path / "bad.yaml").write_text("image: map.pgm\n")
     with pytest.raises(ValueError, match="lacks resolution, origin"):
         read_map_server(tmp_path / "bad.yaml")

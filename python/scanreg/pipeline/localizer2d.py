@@ -16,7 +16,10 @@ with the :class:`~scanreg.pipeline.Odometry2D` signature and its :class:`Frame2D
    ``init_covariance``, so a step that slides along a corridor beyond it is rejected by the
    verdict, and along directions the map does not constrain the scan is held to the
    prediction (:func:`~scanreg.pipeline.odometry2d.hold_to_prediction`); the verdict and
-   covariance are always those of the returned pose;
+   covariance are always those of the returned pose, the covariance with the map's own
+   discretization added (:attr:`Localizer2D.map_spacing`: on the Intel log, 10.4 % of the
+   accepted poses lay outside their covariance without it, and tracks whose next step moved
+   2 cm were rejected as slid and lost to a global search);
 3. **relocalize** — when there is no fix yet, or ``lost_after`` consecutive scans were
    rejected: :func:`scanreg.match_correlative` by branch and bound over the whole map (every
    position, every heading) on a coarse grid, the best refined by point-to-line and judged.
@@ -140,6 +143,11 @@ class Localizer2D:
         pts = as_points(map_points, "map_points", dim=2, min_points=DEFAULT_K)
         self.map_points = frozen(np.array(pts))
         self._target: PreparedTarget = prepare(self.map_points, normals=True)
+        #: The map's point spacing (m): an occupancy grid's cell. A wall is known only to
+        #: within it, by every one of its points alike, which the registration (the map's
+        #: points taken as exact) does not see; each pose's covariance carries its variance,
+        #: spacing² / 12 per axis of the translation (uniform over a cell).
+        self.map_spacing = _spacing(self._target)
         self._grid: CorrelativeGrid | None = None  # the whole-map grid, built on first need
         self._pose: SE2 | None = (
             None if initial_pose is None else _se2(as_pose(initial_pose, "initial_pose", 2))
@@ -336,6 +344,12 @@ class Localizer2D:
             thresholds=_without_default_probe(cfg.thresholds),
         )
 
+    def _with_map_spacing(self, covariance: Any) -> FloatArray:
+        """``covariance`` plus the map's own discretization (:attr:`map_spacing`)."""
+        out = np.array(covariance, dtype=np.float64)
+        out[:2, :2] += np.eye(2) * self.map_spacing**2 / 12.0
+        return out
+
     def _judged(
         self,
         pts: FloatArray,
@@ -367,7 +381,7 @@ class Localizer2D:
             motion=previous.inverse() @ pose,
             prediction=predicted,
             prediction_source=how,
-            covariance=frozen(np.array(res.covariance, dtype=np.float64)),
+            covariance=frozen(self._with_map_spacing(res.covariance)),
             verdict=out.verdict,
             quality=out.report,
             registration=res,
@@ -379,6 +393,14 @@ class Localizer2D:
             ),
             held_directions=held_directions,
         )
+
+
+def _spacing(target: PreparedTarget, sample: int = 2000) -> float:
+    """The median distance from a map point to its nearest other point (over at most
+    ``sample`` points spread through the map)."""
+    pts = np.ascontiguousarray(target.points[:: max(1, len(target) // sample)])
+    d2 = np.asarray(target.knn(pts, 2).squared_distances)[:, 1]
+    return float(np.sqrt(np.median(d2)))
 
 
 def _se2(pose: Any) -> SE2:
