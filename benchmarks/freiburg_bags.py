@@ -10,15 +10,17 @@ measured when the odometry is stale) and mapped with ``run_mapping`` (default
 translation m / rotation deg over all relations), the latency applied, the wall time of
 reading (with the pairing) and of mapping, and the CPU time of mapping (this process's, both
 threads: less moved by other work on the machine than the wall time), log and bag side by
-side.
+side. ``--float32-log`` adds the log mapped with its ranges rounded to float32, as a LaserScan
+stores them (row ``log f32``): how far that rounding alone moves the mapper.
 
 Run: ``.venv/bin/python benchmarks/freiburg_bags.py [--data ../shared/data] [--logs intel
-aces fr-clinic] [--max-scans N] [--storage mcap|sqlite3|ros1]``.
+aces fr-clinic] [--max-scans N] [--storage mcap|sqlite3|ros1] [--float32-log]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import tempfile
@@ -27,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 from scanreg.eval.relations import read_relations, relation_error
-from scanreg.io import read_laserscan_bag, read_scans
+from scanreg.io import ScanLog, read_laserscan_bag, read_scans
 from scanreg.io.trajectory import Trajectory
 from scanreg.pipeline import MappingConfig, run_mapping, scan_log
 
@@ -43,6 +45,16 @@ LOGS = {
 }
 
 
+def float32_ranges(scans: ScanLog) -> ScanLog:
+    """``scans`` with every range rounded to float32, as a LaserScan message stores it (the
+    bag's only other difference, its float32 beam angles, is ~1e-7 rad)."""
+    rounded = tuple(
+        dataclasses.replace(s, ranges=np.asarray(s.ranges, dtype=np.float32).astype(np.float64))
+        for s in scans.scans
+    )
+    return dataclasses.replace(scans, scans=rounded)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     default = Path(os.environ.get("SCANREG_DATA", HERE.parent / "shared" / "data"))
@@ -50,6 +62,11 @@ def main() -> None:
     parser.add_argument("--logs", nargs="+", default=["intel"], choices=sorted(LOGS))
     parser.add_argument("--max-scans", type=int, default=None)
     parser.add_argument("--storage", choices=["mcap", "sqlite3", "ros1"], default="mcap")
+    parser.add_argument(
+        "--float32-log",
+        action="store_true",
+        help="also map the log with its ranges rounded to float32 (row 'log f32')",
+    )
     args = parser.parse_args()
     folder = args.data / "freiburg-slam-benchmark"
     print(
@@ -76,7 +93,10 @@ def main() -> None:
             t0 = time.perf_counter()
             bag = scan_log(read_laserscan_bag(path))
             read_bag = time.perf_counter() - t0
-        for source, run, seconds in (("log", scans, read_log), (args.storage, bag, read_bag)):
+        runs = [("log", scans, read_log), (args.storage, bag, read_bag)]
+        if args.float32_log:
+            runs.insert(1, ("log f32", float32_ranges(scans), read_log))
+        for source, run, seconds in runs:
             t0, c0 = time.perf_counter(), time.process_time()
             res = run_mapping(run, MappingConfig())
             mapped, cpu = time.perf_counter() - t0, time.process_time() - c0
