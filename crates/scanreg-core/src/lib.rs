@@ -15,6 +15,7 @@
 pub mod basin;
 pub mod censi;
 pub mod correlative;
+pub mod denoise;
 pub mod deskew;
 pub mod downsample;
 pub mod error;

@@ -1,5 +1,5 @@
 //! Bindings for neighbour search and per-point local geometry (`scanreg_core::{knn, normals,
-//! outliers}`).
+//! outliers, denoise}`).
 //!
 //! `KdTree` is a frozen (immutable) pyclass: safe to share between Python
 //! threads; every query releases the GIL. Other bindings (registration) reach the Rust index
@@ -10,6 +10,7 @@ use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2,
 };
 use pyo3::prelude::*;
+use scanreg_core::denoise;
 use scanreg_core::knn;
 use scanreg_core::normals::{self, Regularization};
 use scanreg_core::outliers;
@@ -204,6 +205,20 @@ impl KdTree {
             r.mean_distance.into_pyarray(py).unbind(),
             r.threshold,
         ))
+    }
+
+    /// Every point projected onto the plane (line in 2D) of its at most `k` nearest points
+    /// within `radius`: `(N, D)` in input order (`scanreg_core::denoise`).
+    fn project_to_local_planes(
+        &self,
+        py: Python<'_>,
+        k: usize,
+        radius: f64,
+    ) -> PyResult<Rows<f64>> {
+        let out = py
+            .detach(|| denoise::project_to_local_planes(&self.inner, k, radius))
+            .map_err(core_err)?;
+        rows(py, out, self.inner.dim())
     }
 
     /// Radius outlier removal: kept indices.
