@@ -376,6 +376,34 @@ def test_covariances_read_again_are_the_same_until_the_solve_changes() -> None:
     assert chain.marginal_covariance(2)[0, 0] == pytest.approx(marginal[0, 0], rel=1e-6)
 
 
+def test_pose_vectors_follow_every_change_of_the_estimate() -> None:
+    # pose_vectors is kept between solves: read-only, and each solve's own after an update,
+    # a batch solve, a gauge move (the loop's 2.2 m, as certain as the chain's two edges
+    # together, pulls node 2 from 2.0 m to their weighted mean, 3.2 / 1.5 m).
+    g = G.Graph(2)
+    for k in range(3):
+        g.add_node(k, SE2.from_vector([float(k), 0, 0]))
+    g.add_prior(0, SE2.identity(), np.eye(3) * 1e12)
+    for k in range(2):
+        g.add_edge(k, k + 1, SE2.from_vector([1.0, 0, 0]), _info(2))
+    g.update()
+    keys, rows = g.pose_vectors()
+    assert keys == [0, 1, 2] and rows[2, 0] == pytest.approx(2.0)
+    with pytest.raises(ValueError, match="read-only"):
+        rows[0, 0] = 5.0
+    keys.append(7)  # the caller's own list
+    assert g.pose_vectors()[0] == [0, 1, 2]
+    g.add_edge(0, 2, SE2.from_vector([2.2, 0, 0]), _info(2), kind="loop")
+    assert g.pose_vectors()[1][2, 0] == pytest.approx(2.0)  # not solved yet
+    g.update(extra_iterations=2)
+    solved = g.pose_vectors()[1]
+    assert solved[2, 0] == pytest.approx(3.2 / 1.5, rel=1e-6)
+    g.move_gauge(0, SE2.from_vector([0.0, 1.0, 0.0]))
+    assert g.pose_vectors()[1][:, 1] == pytest.approx([1.0, 1.0, 1.0])
+    g.optimize()
+    assert np.array_equal(g.pose_vectors()[1], np.array([g.pose(k).as_vector() for k in range(3)]))
+
+
 def test_edges_with_the_same_information_each_keep_their_own_copy() -> None:
     g = G.Graph(2)
     for k in range(3):

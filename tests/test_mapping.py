@@ -129,7 +129,10 @@ def test_corridor_loop_has_no_information_along_the_corridor() -> None:
     truth = poses[2].inverse() @ here
     # The graph believes it is 0.4 m further along and 0.2 m to the side.
     predicted = truth @ SE2.from_vector([0.4, 0.2, 0.0])
+    # The submap's ICP target is prepared by the first match that refines on it, once.
+    assert "target" not in vars(sub)
     match = match_loop(points, 9, sub, predicted, np.diag([0.2, 0.2, 0.01]), LoopSettings())
+    assert vars(sub)["target"] is sub.target and len(sub.target.points) == len(sub.points)
     assert any("translation along (1.00" in d for d in match.degenerate_directions)
     info = match.information
     weak = match.weak_vectors[:, 0]

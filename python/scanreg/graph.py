@@ -41,7 +41,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ._validate import FloatArray, as_matrix
+from ._validate import FloatArray, as_matrix, readonly
 from .transform import SE2, SE3
 
 #: Added to every eigenvalue of an edge's information before gtsam sees it (1/m², 1/rad²).
@@ -211,6 +211,10 @@ class Graph:
         # (iSAM2's, the estimate or the batch marginals) changes; new nodes and edges change
         # nothing read until the next update.
         self._covariances: dict[tuple[int, ...], FloatArray] = {}
+        # pose_vectors of the current estimate: a loop search reads every node's pose up to
+        # three times between two solves (its candidates, the wide search's candidates and
+        # submap), each a copy of the whole estimate. Emptied where the estimate changes.
+        self._pose_rows: tuple[list[int], FloatArray] | None = None
         # The checked information and noise model of each information matrix seen lately, by
         # its bytes and kernel: the final pass over the scans adds thousands of edges with
         # two matrices (each checked by an eigen-decomposition, ~0.1 ms).
@@ -271,6 +275,7 @@ class Graph:
         """Forget what was read off the graph as it was (marginals, covariances)."""
         self._marginals = None
         self._covariances.clear()
+        self._pose_rows = None
 
     def _key(self, key: Any, name: str) -> int:
         if isinstance(key, bool) or not isinstance(key, (int, np.integer)) or key < 0:
@@ -418,6 +423,7 @@ class Graph:
             self._estimate = before
             self._isam_current = False
             self._covariances.clear()
+            self._pose_rows = None
             message = str(exc).strip().splitlines()[0]
             raise GraphSolveError(
                 f"graph: gtsam could not solve it, incrementally ({str(cause).strip()}) "
@@ -493,15 +499,19 @@ class Graph:
         return {k: self.pose(k) for k in self.keys}
 
     def pose_vectors(self) -> tuple[list[int], FloatArray]:
-        """2D only: the solved keys (ascending) and their ``[x, y, θ]`` rows, in one call
-        (no per-node conversion: what a candidate search over every node needs)."""
+        """2D only: the solved keys (ascending) and their ``[x, y, θ]`` rows (read-only), in one
+        call (no per-node conversion: what a candidate search over every node needs); kept until
+        the estimate changes."""
         if self.dim != 2:
             raise ValueError("pose_vectors: 2D graphs only")
-        keys = [int(k) for k in self._estimate.keys()]  # noqa: SIM118 (gtsam.Values)
-        if not keys:
-            return [], np.zeros((0, 3))
-        rows = np.asarray(self._g.utilities.extractPose2(self._estimate), dtype=np.float64)
-        return keys, rows.reshape(-1, 3)
+        if self._pose_rows is None:
+            keys = [int(k) for k in self._estimate.keys()]  # noqa: SIM118 (gtsam.Values)
+            rows = np.zeros((0, 3))
+            if keys:
+                rows = np.array(self._g.utilities.extractPose2(self._estimate), dtype=np.float64)
+            self._pose_rows = (keys, readonly(rows.reshape(-1, 3)))
+        keys, rows = self._pose_rows
+        return list(keys), rows
 
     def error(self) -> float:
         """The total (robust) cost ``½ Σ ‖e‖²`` of the current estimate."""
