@@ -463,3 +463,23 @@ def test_an_updated_grid_is_the_grid_built_from_scratch() -> None:
     assert grid is not None
     with pytest.raises(ValueError, match="points"):
         grid.updated(np.array([[0.0, np.nan]]))
+
+
+def test_best_correlative_pose_matches_the_full_search_and_names_bad_input() -> None:
+    from scanreg.correlative import best_correlative_pose
+
+    rng = np.random.default_rng(5)
+    walls = rng.uniform(-3.0, 3.0, (400, 2))
+    grid = scanreg.prepare_correlative(walls, resolution=0.05)
+    truth = SE2.from_vector([0.12, -0.07, 0.05])
+    source = np.ascontiguousarray(truth.inverse().apply(walls[::2]))
+    window = (0.3, 0.3, 0.2)
+    full = scanreg.match_correlative(source, grid, init=SE2.identity(), window=window)
+    pose = best_correlative_pose(source, grid, SE2.identity(), window)
+    np.testing.assert_array_equal(pose.as_vector(), full.pose.as_vector())
+    with pytest.raises(ValueError, match="source: is empty"):
+        best_correlative_pose(np.zeros((0, 2)), grid, SE2.identity(), window)
+    with pytest.raises(ValueError, match="source: point 1 has a non-finite"):
+        best_correlative_pose(np.array([[0.0, 1.0], [np.nan, 0.0]]), grid, SE2.identity(), window)
+    with pytest.raises(ValueError, match="source: expected shape"):
+        best_correlative_pose(np.zeros((4, 3)), grid, SE2.identity(), window)

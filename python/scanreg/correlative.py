@@ -529,7 +529,8 @@ def best_correlative_pose(
     init_covariance=init_covariance).pose`` (branch and bound, the default angular step) and
     nothing else: no covariance, statistics or result to assemble, for a caller that reads
     only the pose (:class:`scanreg.pipeline.Odometry2D`'s search before its refinement, once
-    a scan). Arguments as validated there (``source`` ``(N, 2)`` float64 C-contiguous)."""
+    a scan). Arguments as validated there."""
+    source = as_points(source, "source", dim=2, min_points=1)
     dx, dy, dtheta = _window(window)
     r = grid.resolution
     dth = default_angular_resolution(source, r)

@@ -147,7 +147,7 @@ class Localizer2D:
         #: within it, by every one of its points alike, which the registration (the map's
         #: points taken as exact) does not see; each pose's covariance carries its variance,
         #: spacing² / 12 per axis of the translation (uniform over a cell).
-        self.map_spacing = _spacing(self._target)
+        self.map_spacing = self._target.spacing
         self._grid: CorrelativeGrid | None = None  # the whole-map grid, built on first need
         self._pose: SE2 | None = (
             None if initial_pose is None else _se2(as_pose(initial_pose, "initial_pose", 2))
@@ -393,14 +393,6 @@ class Localizer2D:
             ),
             held_directions=held_directions,
         )
-
-
-def _spacing(target: PreparedTarget, sample: int = 2000) -> float:
-    """The median distance from a map point to its nearest other point (over at most
-    ``sample`` points spread through the map)."""
-    pts = np.ascontiguousarray(target.points[:: max(1, len(target) // sample)])
-    d2 = np.asarray(target.knn(pts, 2).squared_distances)[:, 1]
-    return float(np.sqrt(np.median(d2)))
 
 
 def _se2(pose: Any) -> SE2:
