@@ -22,6 +22,7 @@ pytest.importorskip("gtsam")
 from scanreg.graph import Graph
 from scanreg.pipeline.loops import LoopSettings, build_submap, match_loop, wide_submap_span
 from scanreg.pipeline.mapping import Mapper, MappingConfig, MappingResult
+from scanreg.pipeline.mapping_output import summary
 
 RATE = 5.0  # scans per second
 
@@ -750,3 +751,29 @@ def test_odometry_edge_covariance_is_conditioned() -> None:
     np.testing.assert_allclose(
         odometry_edge_covariance(0.5, small, cfg, 2), np.diag([st**2, st**2, sr**2]) + small
     )
+
+
+def test_scans_the_odometry_rejected_are_recorded() -> None:
+    # Wheels that report no motion while the robot drives 12 m pin the odometry to the start
+    # (the scans constrain the drive only weakly here, and the wheels' σ is a millimetre):
+    # the run cannot follow, but it says so: most frames are rejected (refinement ran off,
+    # degenerate), and the summary counts them.
+    start = SE2.from_vector([2.0, 0.0, 0.0])
+    traj = sim.Trajectory.constant_velocity(start, [1.0, 0.0], 0.0, duration=12.0)
+    run = sim.simulate_run(
+        sim.floor_plan(seed=2, num_people=0),
+        sim.LaserModel.preset("sick_lms200"),
+        traj,
+        num_scans=60,
+        scan_rate=RATE,
+        seed=3,
+    )
+    mapper = Mapper(MappingConfig())
+    for k, scan in enumerate(run.scans):
+        prior = None if k == 0 else SE2.identity()
+        mapper.step(scan.points, prior=prior, stamp=k / RATE)
+    res = mapper.finish()
+    assert len(res.rejected) == 49  # measured: 46 degenerate, 3 ran off
+    assert summary(res)["odometry_rejected_scans"] == 49
+    _, clean = _ring_run()
+    assert len(clean.rejected) <= 0.05 * clean.num_scans

@@ -55,6 +55,25 @@ def test_step_noise_is_identified_from_the_run() -> None:
     np.testing.assert_allclose(noise.wheel, wheel, rtol=0.15)
 
 
+def test_a_wheel_bias_counts_as_wheel_error() -> None:
+    # The residuals' mean is the wheels' (the scans' step error has none): a heading bias of
+    # 0.004 rad a step on 0.003 of noise is 0.005 of error; wheels that report no motion
+    # while the robot drives 5 cm a step are 5 cm off on every step. Identified around the
+    # mean alone, both read as their noise (0.003 rad; the floor, 1 mm), and the final pass
+    # trusted stalled wheels over the scans.
+    scan = np.array([0.002, 0.002, 0.001])
+    truth, odometry, wheels = _run(scan, np.array([0.004, 0.004, 0.003]), n=3000)
+    biased = [None if w is None else w @ SE2.exp([0.0, 0.0, 0.004]) for w in wheels]
+    noise = identify_step_noise(_steps(odometry), biased)
+    assert noise is not None
+    assert noise.wheel[2] == pytest.approx(0.005, rel=0.1)
+    stalled: list[SE2 | None] = [None] + [SE2.identity()] * (len(truth) - 1)
+    noise = identify_step_noise(_steps(odometry), stalled)
+    assert noise is not None
+    assert noise.scale == 1.0  # (no wheel distance to compare)
+    assert noise.wheel[0] == pytest.approx(0.05, rel=0.05)
+
+
 def test_identification_needs_enough_steps_and_matching_lengths() -> None:
     _, odometry, wheels = _run(np.full(3, 1e-3), np.full(3, 1e-3), n=40)
     assert identify_step_noise(_steps(odometry), wheels) is None

@@ -358,3 +358,45 @@ def test_motion_cost_keeps_the_predicted_basin_in_a_repeating_corridor() -> None
         worst[cost] = max(errors)
     assert worst[False] > 0.3  # measured 1.46 m: the scan alone takes twins
     assert worst[True] < 0.1  # measured 0.08 m
+
+
+def test_a_kept_start_is_not_reported_as_the_accepted_registration() -> None:
+    # The wheels report no motion (σ 1 mm, as the mapper's motion cost has it for a robot
+    # standing) while the robot drives 1 m/s through a room whose scans pin the motion only
+    # weakly (at 0.2 m a scan scores 0.64 against 0.60 at the wheels' pose). The motion cost
+    # keeps the correlative start at the stalled wheels; the refinement runs off it towards
+    # the real motion and the start is kept. Before, such a frame reported the refinement's
+    # verdict (accepted) beside a pose that was not the refinement's.
+    start = SE2.from_vector([2.0, 0.0, 0.0])
+    traj = sim.Trajectory.constant_velocity(start, [1.0, 0.0], 0.0, duration=3.0)
+    run = sim.simulate_run(
+        sim.floor_plan(seed=2, num_people=0),
+        sim.LaserModel.preset("sick_lms200"),
+        traj,
+        num_scans=15,
+        scan_rate=5.0,
+        seed=3,
+    )
+    odo = Odometry2D(  # the mapper's front end
+        OdometryConfig2D(
+            front_end="correlative",
+            kernel="cauchy",
+            max_keyframes=50,
+            prior_covariance_use="search",
+        )
+    )
+    stalled = np.diag([1e-6, 1e-6, 1e-8])
+    ran_off = 0
+    for k, scan in enumerate(run.scans):
+        prior = None if k == 0 else SE2.identity()
+        cov = None if k == 0 else stalled
+        frame = odo.step(scan.points, prior=prior, prior_covariance=cov, stamp=k / 5.0)
+        if frame.registration is None:
+            continue
+        own = np.allclose(frame.pose.as_vector(), frame.registration.pose.as_vector())
+        if frame.verdict.accepted:
+            assert own, (k, frame.verdict)
+        if not own:
+            ran_off += 1
+            assert frame.verdict.reasons[-1].startswith("refinement ran off: ")
+    assert ran_off == 2  # scans 1 and 2 (measured); later ones are rejected as degenerate

@@ -325,6 +325,10 @@ class MappingResult(Generic[PoseT]):
     #: ``None`` for a finished run; otherwise why this is a partial result (an interrupted
     #: run, a checkpoint): the poses are the graph's at that moment, with no final pass.
     partial: str | None = None
+    #: Scans whose odometry registration its verdict rejected (2D): their poses are the
+    #: odometry's best guess (a corridor's axis held to the wheels, a start kept where the
+    #: refinement ran off), unconfirmed by the scan alone.
+    rejected: tuple[int, ...] = ()
 
     @property
     def accepted_loops(self) -> tuple[LoopRecord[Any], ...]:
@@ -386,6 +390,7 @@ class Mapper:
         self._last_closed = -math.inf
         self._last_wide = -math.inf
         self._skipped: list[int] = []
+        self._rejected: list[int] = []  # scans whose odometry verdict rejected them
         self._pending = SE2.identity()  # motion prior accumulated over skipped scans
         self._timed_stamp: float | None = None  # the last stamp a deskewed scan had
         self._last_pose: SE2 | None = None
@@ -505,6 +510,8 @@ class Mapper:
             frame = self._odometry.step(pts, prior=wheel, **timed)
         if timed:
             self._timed_stamp = timed["stamp"]
+        if not frame.verdict.accepted:
+            self._rejected.append(index)
         self._pending = SE2.identity()
         if self._last_pose is None:
             pose = frame.pose
@@ -1028,6 +1035,7 @@ class Mapper:
             node_scans=tuple(self._node_scans),
             loops=tuple(self._loops),
             skipped=tuple(k for k in self._skipped if k < num_scans),
+            rejected=tuple(k for k in self._rejected if k < num_scans),
             node_points=tuple(self._node_points[n] for n in range(self.num_nodes)),
             graph=g,
             timing=dataclasses.replace(self._timing),

@@ -457,19 +457,24 @@ class Odometry2D:
             # Olson's covariance nor the result's statistics are computed.
             window = _search_window(cfg.correlative_window, motion, self._velocity)
             start = best_correlative_pose(pts, grid, predicted, window, search_cov)
-        res = register(
-            pts,
-            self._target,
-            method="point_to_line",
-            init=start,
-            max_correspondence_distance=cfg.max_correspondence_distance,
-            kernel=cfg.kernel,
-            max_iterations=cfg.max_iterations,
-            thresholds=self._register_thresholds,
-            never_worse_than_start=_NEVER_WORSE,
-            sweep_motion=sweep,
-            **self._map_sweep(),
-        )
+        target, map_sweep = self._target, self._map_sweep()
+
+        def refine(init: SE2) -> RegistrationResult:
+            return register(
+                pts,
+                target,
+                method="point_to_line",
+                init=init,
+                max_correspondence_distance=cfg.max_correspondence_distance,
+                kernel=cfg.kernel,
+                max_iterations=cfg.max_iterations,
+                thresholds=self._register_thresholds,
+                never_worse_than_start=_NEVER_WORSE,
+                sweep_motion=sweep,
+                **map_sweep,
+            )
+
+        res = refine(start)
         fallback = False
         probe = None if res.quality is None else res.quality.basin
         reasons = () if res.verdict is None else res.verdict.reasons
@@ -493,19 +498,7 @@ class Odometry2D:
                     search="branch_and_bound",
                 ).pose
             fallback = True
-            res = register(
-                pts,
-                self._target,
-                method="point_to_line",
-                init=start,
-                max_correspondence_distance=cfg.max_correspondence_distance,
-                kernel=cfg.kernel,
-                max_iterations=cfg.max_iterations,
-                thresholds=self._register_thresholds,
-                never_worse_than_start=_NEVER_WORSE,
-                sweep_motion=sweep,
-                **self._map_sweep(),
-            )
+            res = refine(start)
         held: tuple[str, ...] = ()
         if prior_cov is not None and motion is not None and res.stop_reason not in _FAILED:
             predicted_cov = predicted_covariance(self._covariance, motion, prior_cov)
@@ -532,6 +525,15 @@ class Odometry2D:
             if held:
                 th = dataclasses.replace(th, reject_degenerate=False)
             out = assess(res, pts, self._target, init=predicted, thresholds=th)
+        ran_off = _ran_off(res, pose)
+        if ran_off:
+            # The verdict judged the registration's pose, which is not the one kept: the kept
+            # start is not confirmed by the scan's refinement (wheels that stalled while the
+            # robot moved pin the correlative start; the refinement finds the motion).
+            out = Assessment(
+                report=out.report,
+                verdict=Verdict(accepted=False, reasons=(*out.verdict.reasons, ran_off)),
+            )
         t_judge = time.perf_counter() - t0
 
         # 4. update
@@ -735,18 +737,41 @@ def _without_default_probe(thresholds: VerdictThresholds) -> VerdictThresholds:
     return thresholds
 
 
+def _ran_off(res: RegistrationResult, kept: SE2) -> str:
+    """Why the pose ``kept`` is not ``res``'s (:func:`_accepted_pose` kept the start of a
+    refinement that ran off), or ``""`` when it is ``res``'s or the refinement failed (its
+    own verdict says so)."""
+    pose = res.pose
+    if kept is pose or res.stop_reason in _FAILED:
+        return ""
+    assert isinstance(pose, SE2)
+    step = kept.inverse() @ pose
+    return (
+        f"refinement ran off: {float(np.linalg.norm(step.translation)):.2f} m, "
+        f"{math.degrees(abs(float(step.angle))):.1f}° from its start, which is kept unconfirmed"
+    )
+
+
+def _refinement_bound(cfg: OdometryConfig2D) -> float:
+    """How far (m) a refinement may move from its start (``max_refinement_step``)."""
+    bound = cfg.max_refinement_step
+    if bound is None:
+        return 0.15 if cfg.front_end == "correlative" else math.inf
+    return bound
+
+
+def _within_bound(a: SE2, b: SE2, cfg: OdometryConfig2D) -> bool:
+    """Whether ``a`` and ``b`` are within the refinement's bound of each other."""
+    bound = _refinement_bound(cfg)
+    if bound == math.inf:
+        return True  # no step is longer than that: no need to measure it
+    return float(np.linalg.norm((a.inverse() @ b).translation)) <= bound
+
+
 def _accepted_pose(res: RegistrationResult, start: SE2, cfg: OdometryConfig2D) -> SE2:
     """The registered pose, or ``start`` when the refinement failed or ran off."""
-    if res.stop_reason in ("diverged", "too_few_correspondences"):
+    if res.stop_reason in _FAILED:
         return start
     pose = res.pose
     assert isinstance(pose, SE2)
-    bound = cfg.max_refinement_step
-    if bound is None:
-        bound = 0.15 if cfg.front_end == "correlative" else math.inf
-    if bound == math.inf:
-        return pose  # no step is longer than that: no need to measure it
-    step = start.inverse() @ pose
-    if float(np.linalg.norm(step.translation)) > bound:
-        return start
-    return pose
+    return pose if _within_bound(start, pose, cfg) else start

@@ -16,7 +16,10 @@ so. The run says so:
   scan's error against the local map (the map changes slowly, so consecutive steps share it);
 * the wheels' errors are independent from step to step and the scans' step errors are
   differences, hence ``cov(r_k, r_{k−1}) = −var(ε)`` and ``var(r) = var(w) + 2 var(ε)``:
-  both variances from the run's residuals alone (:func:`identify_step_noise`).
+  both variances from the run's residuals alone (:func:`identify_step_noise`);
+* the scans' step errors have no mean, so the residuals' mean is the wheels' (a bias the
+  scale does not take out; all of their error when they report no motion while the robot
+  drives): the wheels' weight is their mean square error, ``var(w) + mean(r)²``.
 
 :func:`smooth_scan_poses` then solves a pose graph over every scan — the scans' steps with
 covariance ``2 var(ε)``, the wheels' with ``var(w)`` — with each node's scan held where the
@@ -175,7 +178,10 @@ def identify_step_noise(
     if len(pairs) < MIN_PAIRS:
         return None
     moments = residual_moments(np.array([a for a, _ in pairs]), np.array([b for _, b in pairs]))
-    var_wheel = np.maximum(moments.variance - 2.0 * moments.scan_variance, 0.0)
+    # The residuals' mean is the wheels' too (the scans' step error has none): a bias the
+    # scale does not explain, at worst wheels that report no motion while the scans move,
+    # is error the final pass must not trust them with.
+    var_wheel = np.maximum(moments.variance + moments.mean**2 - 2.0 * moments.scan_variance, 0.0)
     return StepNoise(
         scale=float(scale),
         scan=np.maximum(np.sqrt(moments.scan_variance), NOISE_FLOOR),
