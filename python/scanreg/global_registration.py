@@ -186,7 +186,8 @@ class GlobalHypothesis:
     close_fraction: float = 0.0
     #: Reasons found outside the refinement's verdict (a small clique, a low overlap at the
     #: solve, a clique too small beside an accepted one's to be a rival, a refinement that
-    #: moved too far): any of the first three means not refined.
+    #: moved too far or read a weak direction on noisy normals with no other clique's
+    #: refinement at its pose): any of the first three means not refined.
     checks: tuple[str, ...] = ()
     #: ``Ad(Tr(c))``: moves the refinement's covariance (tangent at ``pose·Tr(c)``) to the
     #: tangent at ``pose``.
