@@ -546,6 +546,14 @@ class Odometry2D:
             or abs(float(since.angle)) > cfg.keyframe_angle
         )
         keyframe = moved and not failed and out.report.overlap >= cfg.thresholds.min_overlap
+        if moved and not keyframe:
+            # The map is left behind: a robot that drove on while no scan overlapped the map
+            # enough to join it would never be registered again (a map that no longer
+            # changes, every later scan failing against it: the hospital lost its map at
+            # scan 2722 and ran its last 4 200 scans on the wheels). Past three keyframe
+            # spacings without a keyframe the scan joins it at its best-guess pose.
+            far = float(np.linalg.norm(since.translation)) > _LEFT_BEHIND * cfg.keyframe_distance
+            keyframe = far or abs(float(since.angle)) > _LEFT_BEHIND * cfg.keyframe_angle
         if keyframe:
             self._add_keyframe(pts, pose)
             self._keyframe_sweep = sweep
@@ -601,6 +609,9 @@ class Odometry2D:
 
 
 _FAILED = ("diverged", "too_few_correspondences")
+#: Keyframe spacings a robot may move without a keyframe before its scan joins the map
+#: regardless of its verdict (:meth:`Odometry2D.step`, "the map is left behind").
+_LEFT_BEHIND = 3.0
 
 
 def _search_window(
