@@ -232,6 +232,11 @@ def test_a_return_driven_the_other_way_closes_on_the_submap_its_scan_sees() -> N
     assert wide_submap_span(0, positions[:5], positions[0], settings) == (0, 4)
     capped = dataclasses.replace(settings, wide_submap_max_half_size=10)
     assert wide_submap_span(anchor, positions, graph_pose.translation, capped) == (34, 54)
+    # A window 2 m wide a side: the pass 2 m farther each way (within 18 m of 23 m).
+    at = graph_pose.translation
+    assert wide_submap_span(anchor, positions, at, settings, margin=2.0) == (9, 79)
+    with pytest.raises(ValueError, match=r"^margin: must be finite and >= 0"):
+        wide_submap_span(anchor, positions, at, settings, margin=-1.0)
     with pytest.raises(ValueError, match=r"^anchor: 91 is not one of the 91 positions"):
         wide_submap_span(91, positions, graph_pose.translation, settings)
     nan = positions.copy()
@@ -675,12 +680,11 @@ def test_aces_odometry_at_scan_time_and_latency() -> None:
     assert timed[0] < 0.034 and timed[1] < 0.5
 
 
-def test_loop_closes_when_the_drift_exceeds_what_the_graph_believes() -> None:
-    # The odometry's heading is biased by 30° over the lap (a gyro-like drift its covariance
-    # knows nothing of: the graph's heading σ at the revisit is ~5°): the revisit is 2 m and
-    # 29° from where the graph predicts it. The windows the graph's uncertainty sizes miss it
-    # and the χ² test vetoes it (main before this: 0 loops, end error 2.0 m / 29°); the wide
-    # search finds it, and loops that agree with each other close it.
+def _biased_lap(config: MappingConfig, *, guided: bool = True) -> tuple[Any, MappingResult]:
+    """The lap with the odometry's heading biased by 30° over it (a gyro-like drift its
+    covariance knows nothing of: the graph's heading σ at the revisit is ~5°), the revisit 2 m
+    and 29° from where the graph predicts it. ``guided=False``: no search where held loops
+    put the nodes (``Mapper._guided``)."""
     laser = dataclasses.replace(
         sim.LaserModel.preset("laser_360"),
         max_range=10.0,
@@ -691,7 +695,7 @@ def test_loop_closes_when_the_drift_exceeds_what_the_graph_believes() -> None:
     run = sim.simulate_run(
         _ring(), laser, traj, num_scans=int(traj.end_time * RATE), scan_rate=RATE, seed=1
     )
-    mapper = Mapper(MappingConfig())
+    mapper = Mapper(config)
     inner = mapper._odometry.step
     bias = SE2.from_vector([0.0, 0.0, math.radians(30.0) / len(run.scans)])
 
@@ -700,9 +704,18 @@ def test_loop_closes_when_the_drift_exceeds_what_the_graph_believes() -> None:
         return dataclasses.replace(frame, motion=frame.motion @ bias)
 
     mapper._odometry.step = biased  # type: ignore[method-assign]
+    if not guided:
+        mapper._guided = lambda node: []  # type: ignore[method-assign]
     for k, scan in enumerate(run.scans):
         mapper.step(scan.points, stamp=k / RATE)
-    res = mapper.finish()
+    return run, mapper.finish()
+
+
+def test_loop_closes_when_the_drift_exceeds_what_the_graph_believes() -> None:
+    # The windows the graph's uncertainty sizes miss the revisit and the χ² test vetoes it
+    # (main before the wide search: 0 loops, end error 2.0 m / 29°); the wide search finds
+    # it, and loops that agree with each other close it.
+    run, res = _biased_lap(MappingConfig())
     odo_t, odo_r = _end_error(run, res.odometry_poses)
     map_t, map_r = _end_error(run, res.poses)
     # Measured: odometry 2.00 m / 28.9° off at the end; after closure 0.16 m / 1.9°.
@@ -720,10 +733,33 @@ def test_loop_closes_when_the_drift_exceeds_what_the_graph_believes() -> None:
     steps = [np.linalg.norm((a.inverse() @ b).translation) for a, b in itertools.pairwise(truth)]
     travel = np.concatenate([[0.0], np.cumsum(steps)])
     wide = [r for r in res.loops if r.match.window[0] > 3.0]
-    assert wide
+    assert wide and all(r.match.search == "wide" for r in wide)
     for record in wide:
         between = travel[record.scan] - travel[record.submap_scan]
         assert record.match.window[0] <= 0.5 + 0.1 * 1.05 * between, record.as_dict()
+
+
+def test_a_held_loop_is_confirmed_where_it_puts_the_next_nodes() -> None:
+    # The biased lap with held loops waiting only 1.5 m of path, less than the wide search's
+    # spacing (2 m): another wide search never comes in time. Measured without the guided
+    # search: five wide-search loops held (scores 0.77-0.97), none confirmed, end error as the
+    # odometry's (2.0 m / 29°). With it, the next node is searched where the first held loop
+    # puts it (score 0.83), the two agree and close the lap.
+    config = MappingConfig(loops=LoopSettings(hypothesis_horizon=1.5))
+    run, res = _biased_lap(config)
+    map_t, map_r = _end_error(run, res.poses)
+    assert map_t < 0.3 and map_r < 3.0
+    guided = [r for r in res.accepted_loops if r.match.search == "guided"]
+    assert guided and all(r.match.evidence == "loops" for r in guided)
+    assert all(r.as_dict()["search"] in ("graph", "wide", "guided") for r in res.loops)
+    truth = [run.poses[0].inverse() @ p for p in run.poses]
+    for record in res.accepted_loops:
+        rel = truth[record.submap_scan].inverse() @ truth[record.scan]
+        err = rel.inverse() @ record.match.measured
+        assert np.linalg.norm(err.translation) < 0.1, record.as_dict()
+    run, alone = _biased_lap(config, guided=False)
+    assert not any(r.match.evidence == "loops" for r in alone.accepted_loops)
+    assert _end_error(run, alone.poses)[1] > 25
 
 
 def test_odometry_edge_covariance_is_conditioned() -> None:

@@ -116,7 +116,12 @@ def build_submap(
 
 
 def wide_submap_span(
-    anchor: int, positions: FloatArray, here: FloatArray, settings: LoopSettings
+    anchor: int,
+    positions: FloatArray,
+    here: FloatArray,
+    settings: LoopSettings,
+    *,
+    margin: float = 0.0,
 ) -> tuple[int, int]:
     """First and last node ``(lo, hi)`` of the wide search's submap around ``anchor``:
     ``anchor ± wide_submap_half_size``, grown along the anchor's own pass (consecutive nodes,
@@ -124,14 +129,19 @@ def wide_submap_span(
     (``positions[k]``, ``(N, 2)``, the old nodes only) lies within ``wide_submap_radius`` of
     ``here`` (where the graph puts the searching node), at most ``wide_submap_max_half_size``
     nodes a side. A scan that passes the place the other way sees what lay behind the earlier
-    pass, far down the corridor, where an index-centred submap holds nothing."""
+    pass, far down the corridor, where an index-centred submap holds nothing. ``margin``
+    (m): added to the radius — the search window's half-width, so that the submap holds
+    the pass wherever in the window the scan may be (the graph's ``here`` is as wrong as
+    the window is wide)."""
     s = settings
+    if not (math.isfinite(margin) and margin >= 0):
+        raise ValueError(f"margin: must be finite and >= 0, got {margin!r}")
     last = len(positions) - 1
     if not 0 <= anchor <= last:
         raise ValueError(f"anchor: {anchor} is not one of the {len(positions)} positions")
     xy = as_matrix(positions, "positions", (len(positions), 2))
     reach = np.linalg.norm(xy - as_matrix(here, "here", (2,)), axis=1)
-    near = reach <= s.wide_submap_radius
+    near = reach <= s.wide_submap_radius + margin
     lo = max(anchor - s.wide_submap_half_size, 0)
     hi = min(anchor + s.wide_submap_half_size, last)
     while lo > 0 and anchor - lo < s.wide_submap_max_half_size and near[lo - 1]:
@@ -191,6 +201,9 @@ class LoopSettings:
     #: the other way sees lies behind the earlier pass, metres down the corridor. On the
     #: Freiburg hospital's return to its start (scans 6651-6674) the true pose scored
     #: 0.30-0.39 against 9-15 such nodes (4 m), 0.48-0.54 (10 m) and 0.50-0.61 (16 m).
+    #: The wide search adds its window's half-width to this radius: where the graph puts the
+    #: scan is as wrong as the window is wide (the hospital's return 13-20 m off: the pass it
+    #: sees ended a few nodes short of the submap grown within 16 m of the wrong place).
     wide_submap_radius: float = 16.0
     wide_submap_max_half_size: int = 40
     #: ... at most once per this much path (m), and only after this much path without a
@@ -200,7 +213,8 @@ class LoopSettings:
     #: graph may be the one that is wrong. It needs at least this correlative score ...
     hypothesis_min_score: float = 0.6
     #: ... and becomes a loop once this many hypotheses from different nodes agree with each
-    #: other (:func:`loops_agree`).
+    #: other (:func:`loops_agree`); while it waits, the next nodes are searched where it puts
+    #: them (``Mapper._guided``), and those matches are such hypotheses.
     min_agreeing: int = 2
     #: Hypotheses agree when the cycle through both closes within this (m, rad) plus
     #: ``agreement_per_metre`` × the path the cycle spans (the graph's own segments drift).
@@ -295,6 +309,10 @@ class LoopMatch:
     #: Its own evidence is good and only the χ² test failed: held as a hypothesis until other
     #: loops agree with it (:func:`loops_agree`).
     hypothesis: bool = False
+    #: Which search found it (:class:`~scanreg.pipeline.Mapper`): ``"graph"`` (the window
+    #: the graph's uncertainty sized), ``"wide"`` (the drift-independent window) or
+    #: ``"guided"`` (where a held loop puts the node).
+    search: str = "graph"
 
 
 def search_window(relative_covariance: FloatArray, settings: LoopSettings) -> tuple[float, float]:

@@ -23,7 +23,10 @@ One :meth:`Mapper.step` per scan, in five stages:
    (``LoopSettings.wide_window``: up to ±20 m, as wide as the path between the two could have
    drifted); such a loop, and a match that is sound on its own evidence (and not degenerate)
    but fails only the χ² test, is held until another loop agrees with it (both are then
-   closed: the graph, not the loops, was wrong; :func:`~scanreg.pipeline.loops.loops_agree`);
+   closed: the graph, not the loops, was wrong; :func:`~scanreg.pipeline.loops.loops_agree`).
+   While a loop is held, each new node is also searched where that loop puts it (the
+   old node nearest there, over the least window): a true loop's successors lie where it
+   says, and their matches confirm it;
 5. **close** — an accepted loop becomes an edge with information = inverse calibrated
    covariance (nothing along its degenerate directions) and a robust kernel, and iSAM2
    re-solves.
@@ -225,6 +228,8 @@ class LoopRecord(Generic[MatchT]):
         }
         if isinstance(m, LoopMatch3D):
             out["origin"] = m.origin  # "graph" or "place"
+        else:
+            out["search"] = m.search  # "graph", "wide" or "guided"
         return out
 
 
@@ -659,14 +664,23 @@ class Mapper:
                     self._submap_bytes -= _submap_bytes(old)
         return sub
 
-    def _wide_submap(self, anchor: int, node: int, before: int) -> Submap2D:
+    def _wide_submap(
+        self,
+        anchor: int,
+        node: int,
+        before: int,
+        *,
+        here: FloatArray | None = None,
+        margin: float = 0.0,
+    ) -> Submap2D:
         """The wide search's submap around ``anchor``: nodes ``anchor ± wide_submap_half_size``,
         grown along the anchor's own pass (consecutive nodes, whose odometry poses agree with
         each other) while the next node lies within ``wide_submap_radius`` of where the graph
         puts ``node``, up to ``wide_submap_max_half_size`` a side; none from ``before`` on. A
         scan that passes the place the other way sees what lay behind the earlier pass."""
         _, rows = self._graph.pose_vectors()
-        lo, hi = wide_submap_span(anchor, rows[:before, :2], rows[node, :2], self.config.loops)
+        at = rows[node, :2] if here is None else here
+        lo, hi = wide_submap_span(anchor, rows[:before, :2], at, self.config.loops, margin=margin)
         return self._submap_of(anchor, lo, hi, before)
 
     def _candidates(
@@ -808,6 +822,11 @@ class Mapper:
         travel = self._node_travel[node]
         if any(r.accepted for r in records):
             self._last_closed = travel
+        # A held loop says where this node is, if it is true: look there (see _guided).
+        if not any(r.accepted for r in records):
+            records.extend(self._guided(node))
+            if any(r.accepted for r in records):
+                self._last_closed = travel
         # The drift-independent search: when the windows the graph's uncertainty sized have
         # found nothing for a while, the nearest candidate the scan could have seen is
         # searched over a fixed wide window (the graph may have drifted more than it knows).
@@ -832,10 +851,92 @@ class Mapper:
                 # the usual one.
                 between = travel - self._node_travel[n]
                 half = min(wide[0], cfg.loops.min_window[0] + MAX_DRIFT_PER_METRE * between)
-                record, _ = self._match(n, node, (half, wide[1]), wide_submap=True)
+                record, _ = self._match(n, node, (half, wide[1]), wide_submap=True, margin=half)
                 records.append(record)
                 if record.accepted:
                     self._last_closed = travel
+
+    def _guided(self, node: int) -> list[LoopRecord[LoopMatch]]:
+        """Matches of ``node`` where the held loops put it.
+
+        A held loop ``T_a_n`` (:meth:`_hypothesize`) and the graph's short leg ``n → node``
+        predict ``node``'s pose in ``a``'s frame whatever the graph's drift; the old node
+        nearest that prediction is searched around it over the least loop window (in the
+        wide search's grown submap, as the held loop was found). A true loop's successors
+        lie where it says, and their matches agree with it (:func:`loops_agree`): held the
+        same way, they confirm it. Without this, a held loop waited for another wide search
+        (one per ``wide_spacing`` m, around the graph's wrong prediction) to find a partner
+        within ``hypothesis_horizon``: the Freiburg hospital's return to its start, 13-20 m
+        off after 1 km, was found by the wide search twice, 330 scans apart, and never
+        confirmed. At most ``_GUIDED_PER_NODE`` held loops (the latest) guide a node."""
+        cfg = self.config
+        travel = self._node_travel
+        horizon = cfg.loops.hypothesis_horizon
+        num_old = self._num_old(node)
+        guides = [
+            h
+            for h in self._held
+            if h.match.node != node
+            and travel[node] - travel[h.match.node] <= horizon
+            and not h.match.degenerate_directions
+        ][-_GUIDED_PER_NODE:]
+        if not guides or num_old == 0:
+            return []
+        g = self._graph
+        _, rows = g.pose_vectors()
+        records: list[LoopRecord[LoopMatch]] = []
+        tried: set[int] = set()
+        for h in reversed(guides):
+            a, n = h.match.submap_node, h.match.node
+            # T_a_node under the held loop, and where that puts node among the old ones.
+            in_a = h.match.measured @ (g.pose(n).inverse() @ g.pose(node))  # type: ignore[operator]
+            world = g.pose(a) @ in_a  # type: ignore[operator]
+            assert isinstance(world, SE2)
+            xy = np.asarray(world.translation)
+            d = np.linalg.norm(rows[:num_old, :2] - xy, axis=1)
+            c = int(np.argmin(d))
+            if d[c] > cfg.loop_max_range or c in tried:
+                continue
+            tried.add(c)
+            predicted = g.pose(c).inverse() @ world  # type: ignore[operator]
+            assert isinstance(predicted, SE2)
+            record = self._guided_match(c, node, predicted, world)
+            records.append(record)
+            if record.accepted:
+                break
+        return records
+
+    def _guided_match(self, c: int, node: int, predicted: SE2, world: SE2) -> LoopRecord[LoopMatch]:
+        """Match ``node`` against ``c`` around ``predicted`` (a held loop's) over the least
+        loop window; the match, if its own evidence is good, is held with the others
+        (:meth:`_hypothesize`) and closes with the loop that guided it when the two agree."""
+        cfg = self.config
+        t_m = _clock()
+        before = self._num_old(node)
+        window = cfg.loops.min_window
+        # Its χ² is against the guiding loop's prediction: as far as loops_agree lets it be.
+        tol = cfg.loops.agreement
+        cov = np.diag([tol[0] ** 2, tol[0] ** 2, tol[1] ** 2])
+        match = match_loop(
+            self._node_points[node],
+            node,
+            self._submap(c, before),
+            predicted,
+            cov,
+            cfg.loops,
+            window=window,
+            search_submap=self._wide_submap(c, node, before, here=world.translation),
+            sweep=self._node_sweep.get(node),
+        )
+        self._timing.add("matching", t_m)
+        match = dataclasses.replace(match, search="guided")
+        good = match.accepted or match.hypothesis
+        if not good or match.degenerate_directions or match.score < cfg.loops.hypothesis_min_score:
+            return LoopRecord(match, self._node_scans[c], self._node_scans[node])
+        held = dataclasses.replace(
+            match, accepted=False, evidence="", hypothesis=True, reasons=(_GUIDED,)
+        )
+        return self._hypothesize(LoopRecord(held, self._node_scans[c], self._node_scans[node]))
 
     def _match(
         self,
@@ -844,6 +945,7 @@ class Mapper:
         window: tuple[float, float] | None,
         *,
         wide_submap: bool = False,
+        margin: float = 0.0,
     ) -> tuple[LoopRecord[LoopMatch], tuple[float, float]]:
         """Match ``node``'s scan against submap ``n``; close the loop, or hold it as a
         hypothesis (see :meth:`_hypothesize`). ``wide_submap``: the correlative search runs
@@ -856,6 +958,7 @@ class Mapper:
         assert isinstance(predicted, SE2)
         rel_cov = g.relative_covariance(n, node)
         before = self._num_old(node)
+        search = self._wide_submap(n, node, before, margin=margin) if wide_submap else None
         match = match_loop(
             self._node_points[node],
             node,
@@ -864,10 +967,12 @@ class Mapper:
             rel_cov,
             cfg.loops,
             window=window,
-            search_submap=self._wide_submap(n, node, before) if wide_submap else None,
+            search_submap=search,
             sweep=self._node_sweep.get(node),
         )
         self._timing.add("matching", t_m)
+        if wide_submap:
+            match = dataclasses.replace(match, search="wide")
         record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
         if match.accepted and wide_submap and not match.degenerate_directions:
             # The wide search's window is as wide as the drift could be, and the graph that
@@ -1189,6 +1294,12 @@ def _submap_bytes(sub: Submap2D) -> int:
 
 #: Why a loop the wide search found waits (:meth:`Mapper._match`).
 _UNCHECKED = "found by the wide search: waits for another loop to agree"
+
+#: Why a match a held loop guided waits (:meth:`Mapper._guided`).
+_GUIDED = "found where a held loop puts the node: waits for it to agree"
+
+#: How many held loops guide one node's search (:meth:`Mapper._guided`), the latest first.
+_GUIDED_PER_NODE = 2
 
 #: Joint-marginal tests of candidates beyond ``loop_max_range``, per candidate wanted.
 _GATE_TESTS_PER_CANDIDATE = 2
