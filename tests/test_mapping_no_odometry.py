@@ -44,9 +44,12 @@ def test_a_run_without_odometry_keeps_track_through_corners(
     assert ate(res.poses, truth) < 0.1  # type: ignore[arg-type]
     assert check_map(res).consistent
     # The fixed ±10° window: a corner turning 17° a scan is outside it around the straight
-    # before, and the run is lost (measured 6.0 m), which its self-check says.
+    # before, and the run is lost, which its self-check says: once by the returns later passes
+    # see through (the odometry stood at the corner), now that the odometry goes on from its
+    # best guess there (its map reseeded 8 times from scan 89; 37.8 m ATE) by that.
     monkeypatch.setattr(odometry2d, "_search_window", lambda window, prior, velocity: window)
     lost = run_mapping(log, MappingConfig())
     assert ate(lost.poses, truth) > 1.0  # type: ignore[arg-type]
     check = check_map(lost)
-    assert not check.consistent and check.contradiction_fraction > 0.3, check.as_dict()
+    assert not check.consistent and check.reseeded, check.as_dict()
+    assert any(r.startswith("odometry: lost its map") for r in check.reasons)

@@ -426,6 +426,7 @@ def test_a_map_left_behind_is_reseeded() -> None:
         if k == glitch:
             prior = prior @ SE2.from_vector([0.0, 3.0, 0.0])
         frame = odo.step(scan.points, prior=prior)
+        assert frame.map_reseeded == (k == glitch), k
         if k > glitch + 1:
             accepted_after += frame.verdict.accepted
         if k == glitch + 5:

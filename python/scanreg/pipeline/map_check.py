@@ -28,6 +28,7 @@ ACES logs and the simulated tours (``benchmarks/freiburg_mapping.py --self-check
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -156,6 +157,9 @@ class MapCheck:
     contradiction_points: FloatArray = field(repr=False)
     loops: tuple[LoopResidual, ...]
     settings: MapCheckSettings
+    #: Scans where the run's odometry had lost its map and went on from its best guess
+    #: (:attr:`~scanreg.pipeline.MappingResult.reseeded`; none for a saved map).
+    reseeded: tuple[int, ...] = ()
 
     @property
     def contradiction_fraction(self) -> float:
@@ -189,6 +193,7 @@ class MapCheck:
                 }
                 for r in self.regions
             ],
+            "reseeded": list(self.reseeded),
             "loops": len(self.loops),
             "loops_over_bound": self.loops_over_bound,
             "loops_downweighted": self.loops_downweighted,
@@ -332,7 +337,24 @@ def check_map(
         if not all(isinstance(p, SE2) for p in poses):
             raise TypeError("poses: expected SE2 poses")
         nodes = [poses[k] for k in node_scans]
-    return _check(nodes, node_points, node_scans, edges, s, sessions)
+    check = _check(nodes, node_points, node_scans, edges, s, sessions)
+    if isinstance(result, MappingResult) and result.reseeded:
+        check = _with_reseeds(check, result.reseeded)
+    return check
+
+
+def _with_reseeds(check: MapCheck, reseeded: Sequence[int]) -> MapCheck:
+    """``check`` flagged where the odometry lost its map: it went on from its best guess, and
+    a map bent there holds no revisit for the returns to judge (a corner the front end missed:
+    the rest of the run drawn at the wrong heading, consistent with itself)."""
+    shown = ", ".join(str(k) for k in reseeded[:5]) + (" ..." if len(reseeded) > 5 else "")
+    reason = (
+        f"odometry: lost its map {len(reseeded)} time(s) and went on from its best guess "
+        f"(scans {shown}); the map is unconfirmed there"
+    )
+    return dataclasses.replace(
+        check, reseeded=tuple(reseeded), reasons=(*check.reasons, reason), consistent=False
+    )
 
 
 def _saved_parts(

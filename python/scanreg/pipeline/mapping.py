@@ -334,6 +334,9 @@ class MappingResult(Generic[PoseT]):
     #: odometry's best guess (a corridor's axis held to the wheels, a start kept where the
     #: refinement ran off), unconfirmed by the scan alone.
     rejected: tuple[int, ...] = ()
+    #: Scans where the odometry had lost its map and went on from its best guess (2D,
+    #: :attr:`~scanreg.pipeline.Frame2D.map_reseeded`): the map is unconfirmed there.
+    reseeded: tuple[int, ...] = ()
 
     @property
     def accepted_loops(self) -> tuple[LoopRecord[Any], ...]:
@@ -396,6 +399,7 @@ class Mapper:
         self._last_wide = -math.inf
         self._skipped: list[int] = []
         self._rejected: list[int] = []  # scans whose odometry verdict rejected them
+        self._reseeded: list[int] = []  # scans where the odometry's map was left behind
         self._pending = SE2.identity()  # motion prior accumulated over skipped scans
         self._timed_stamp: float | None = None  # the last stamp a deskewed scan had
         self._last_pose: SE2 | None = None
@@ -517,6 +521,8 @@ class Mapper:
             self._timed_stamp = timed["stamp"]
         if not frame.verdict.accepted:
             self._rejected.append(index)
+        if frame.map_reseeded:
+            self._reseeded.append(index)
         self._pending = SE2.identity()
         if self._last_pose is None:
             pose = frame.pose
@@ -1141,6 +1147,7 @@ class Mapper:
             loops=tuple(self._loops),
             skipped=tuple(k for k in self._skipped if k < num_scans),
             rejected=tuple(k for k in self._rejected if k < num_scans),
+            reseeded=tuple(k for k in self._reseeded if k < num_scans),
             node_points=tuple(self._node_points[n] for n in range(self.num_nodes)),
             graph=g,
             timing=dataclasses.replace(self._timing),

@@ -8,10 +8,14 @@ One :meth:`Odometry2D.step` per scan, in four stages:
 2. **align** — against the local map: ``"icp"`` is point-to-line :func:`scanreg.register` from
    the prediction; ``"correlative"`` is :func:`scanreg.match_correlative` (branch and bound over
    a window around the prediction) followed by the same point-to-line refinement;
-3. **judge** — :func:`scanreg.verdict.assess` of the point-to-line result against the map;
+3. **judge** — :func:`scanreg.verdict.assess` of the point-to-line result against the map
+   (a frame whose refinement ran off its correlative start keeps that start, and is rejected:
+   the verdict was the refinement's);
 4. **update** — the scan becomes a keyframe (its points, in the world frame, join the map) when
    it has moved more than ``keyframe_distance`` or turned more than ``keyframe_angle`` since the
-   last keyframe and its alignment was not a failure. The map holds the last ``max_keyframes``
+   last keyframe and its alignment was not a failure and overlapped the map — or, whatever its
+   verdict, once it has moved three times that far without one: a map left behind would never
+   be overlapped again (a lost robot would stay lost). The map holds the last ``max_keyframes``
    keyframes, voxel-downsampled to ``map_voxel_size``. A keyframe updates it in the core
    (:class:`scanreg._core.KeyframeMap`): only the voxels the new keyframe and the evicted one
    touch get a new centroid, and only normals whose neighbourhood holds a changed point are
@@ -224,6 +228,9 @@ class Frame2D:
     #: registered again from the probe's better pose or a correlative search over every
     #: heading (:mod:`scanreg.basin`).
     basin_fallback: bool = False
+    #: The map had been left behind (no keyframe for three keyframe spacings) and this scan
+    #: joined it whatever its verdict: the odometry went on from its best guess here.
+    map_reseeded: bool = False
     #: The scan's points re-expressed at ``stamp`` (``step``'s ``timestamps``: deskewed, before
     #: ``scan_voxel_size``); ``None`` when the scan came without per-point times.
     deskewed: FloatArray | None = field(default=None, repr=False)
@@ -546,6 +553,7 @@ class Odometry2D:
             or abs(float(since.angle)) > cfg.keyframe_angle
         )
         keyframe = moved and not failed and out.report.overlap >= cfg.thresholds.min_overlap
+        reseeded = False
         if moved and not keyframe:
             # The map is left behind: a robot that drove on while no scan overlapped the map
             # enough to join it would never be registered again (a map that no longer
@@ -554,6 +562,7 @@ class Odometry2D:
             # spacings without a keyframe the scan joins it at its best-guess pose.
             far = float(np.linalg.norm(since.translation)) > _LEFT_BEHIND * cfg.keyframe_distance
             keyframe = far or abs(float(since.angle)) > _LEFT_BEHIND * cfg.keyframe_angle
+            reseeded = keyframe
         if keyframe:
             self._add_keyframe(pts, pose)
             self._keyframe_sweep = sweep
@@ -586,6 +595,7 @@ class Odometry2D:
                 align=t_align, judge=t_judge, map_update=t_map, total=time.perf_counter() - t_start
             ),
             basin_fallback=fallback,
+            map_reseeded=reseeded,
             held_directions=held,
             deskewed=deskewed,
         )
