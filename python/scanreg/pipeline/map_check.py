@@ -19,11 +19,16 @@ the odometry alone) on two kinds of evidence a user can trust without ground tru
   against the 99.9 % bound of its rank, and the weight the back end's robust kernel gives it
   there: a loop the back end down-weighted is one the rest of the graph disagrees with.
 
+A mapping run also says where its odometry lost its map and went on from its best guess
+(:attr:`~scanreg.pipeline.MappingResult.reseeded`): a map bent there can be consistent with
+itself, with no revisit left to contradict it, so any such place is a reason too.
+
 The verdict ``consistent`` holds when the contradicted fraction (over the map and in its worst
 square) and the fraction of loop edges over their bound are under :class:`MapCheckSettings`'
-limits; ``reasons`` names each limit exceeded. The limits were chosen on the Freiburg Intel and
-ACES logs and the simulated tours (``benchmarks/freiburg_mapping.py --self-check``,
-``benchmarks/simulated_buildings.py``; the figures are in ``benchmarks/README.md``).
+limits and the odometry never lost its map; ``reasons`` names each limit exceeded. The limits
+were chosen on the Freiburg Intel and ACES logs and the simulated tours
+(``benchmarks/freiburg_mapping.py --self-check``, ``benchmarks/simulated_buildings.py``; the
+figures are in ``benchmarks/README.md``).
 """
 
 from __future__ import annotations
