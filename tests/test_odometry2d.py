@@ -360,6 +360,20 @@ def test_motion_cost_keeps_the_predicted_basin_in_a_repeating_corridor() -> None
     assert worst[True] < 0.1  # measured 0.08 m
 
 
+def _straight_drive(num_scans: int, seed: int) -> sim.SimulatedRun:
+    """A SICK-like laser driven straight at 1 m/s through a floor plan, 5 scans a second."""
+    start = SE2.from_vector([2.0, 0.0, 0.0])
+    traj = sim.Trajectory.constant_velocity(start, [1.0, 0.0], 0.0, duration=num_scans / 5.0)
+    return sim.simulate_run(
+        sim.floor_plan(seed=2, num_people=0),
+        sim.LaserModel.preset("sick_lms200"),
+        traj,
+        num_scans=num_scans,
+        scan_rate=5.0,
+        seed=seed,
+    )
+
+
 def test_a_kept_start_is_not_reported_as_the_accepted_registration() -> None:
     # The wheels report no motion (σ 1 mm, as the mapper's motion cost has it for a robot
     # standing) while the robot drives 1 m/s through a room whose scans pin the motion only
@@ -367,16 +381,7 @@ def test_a_kept_start_is_not_reported_as_the_accepted_registration() -> None:
     # keeps the correlative start at the stalled wheels; the refinement runs off it towards
     # the real motion and the start is kept. Before, such a frame reported the refinement's
     # verdict (accepted) beside a pose that was not the refinement's.
-    start = SE2.from_vector([2.0, 0.0, 0.0])
-    traj = sim.Trajectory.constant_velocity(start, [1.0, 0.0], 0.0, duration=3.0)
-    run = sim.simulate_run(
-        sim.floor_plan(seed=2, num_people=0),
-        sim.LaserModel.preset("sick_lms200"),
-        traj,
-        num_scans=15,
-        scan_rate=5.0,
-        seed=3,
-    )
+    run = _straight_drive(num_scans=15, seed=3)
     odo = Odometry2D(  # the mapper's front end
         OdometryConfig2D(
             front_end="correlative",
@@ -408,16 +413,7 @@ def test_a_map_left_behind_is_reseeded() -> None:
     # (the hospital lost its map so at scan 2722 and ran its last 4 200 scans on the wheels).
     # Past three keyframe spacings without a keyframe the scan now joins the map at its
     # best-guess pose, and the odometry tracks again (3 m off, as the glitch put it).
-    start = SE2.from_vector([2.0, 0.0, 0.0])
-    traj = sim.Trajectory.constant_velocity(start, [1.0, 0.0], 0.0, duration=8.0)
-    run = sim.simulate_run(
-        sim.floor_plan(seed=2, num_people=0),
-        sim.LaserModel.preset("sick_lms200"),
-        traj,
-        num_scans=40,
-        scan_rate=5.0,
-        seed=4,
-    )
+    run = _straight_drive(num_scans=40, seed=4)
     odo = Odometry2D(OdometryConfig2D(front_end="correlative", kernel="cauchy"))
     glitch = 10
     accepted_after = 0
