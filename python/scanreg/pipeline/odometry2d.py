@@ -773,26 +773,16 @@ def _ran_off(res: RegistrationResult, kept: SE2) -> str:
     )
 
 
-def _refinement_bound(cfg: OdometryConfig2D) -> float:
-    """How far (m) a refinement may move from its start (``max_refinement_step``)."""
-    bound = cfg.max_refinement_step
-    if bound is None:
-        return 0.15 if cfg.front_end == "correlative" else math.inf
-    return bound
-
-
-def _within_bound(a: SE2, b: SE2, cfg: OdometryConfig2D) -> bool:
-    """Whether ``a`` and ``b`` are within the refinement's bound of each other."""
-    bound = _refinement_bound(cfg)
-    if bound == math.inf:
-        return True  # no step is longer than that: no need to measure it
-    return float(np.linalg.norm((a.inverse() @ b).translation)) <= bound
-
-
 def _accepted_pose(res: RegistrationResult, start: SE2, cfg: OdometryConfig2D) -> SE2:
     """The registered pose, or ``start`` when the refinement failed or ran off."""
     if res.stop_reason in _FAILED:
         return start
     pose = res.pose
     assert isinstance(pose, SE2)
-    return pose if _within_bound(start, pose, cfg) else start
+    bound = cfg.max_refinement_step
+    if bound is None:
+        bound = 0.15 if cfg.front_end == "correlative" else math.inf
+    if bound == math.inf:
+        return pose  # no step is longer than that: no need to measure it
+    step = start.inverse() @ pose
+    return start if float(np.linalg.norm(step.translation)) > bound else pose
