@@ -181,6 +181,56 @@ def test_a_degenerate_loop_is_no_hypothesis_and_the_search_submap_shares_the_anc
         match_loop(points, 30, sub, predicted, certain, LoopSettings(), search_submap=wide.grid)  # type: ignore[arg-type]
 
 
+def _niched_corridor(starts: Any) -> Any:
+    """A corridor 2 m wide along x with a niche in each wall at every ``starts`` (0.8 m wide
+    and 0.4 m deep above, 1.2 m and 0.3 m below, 1 m further on: no symmetry by a turn)."""
+    b = sim.SceneBuilder(2)
+    for y, depth, offset, width in ((1.0, 0.4, 0.0, 0.8), (-1.0, -0.3, 1.0, 1.2)):
+        wall = [(0.0, y)]
+        for x in np.asarray(starts) + offset:
+            wall += [(x, y), (x, y + depth), (x + width, y + depth), (x + width, y)]
+        b.polyline([*wall, (60.0, y)])
+    return b.build()
+
+
+@pytest.mark.parametrize("periodic", [True, False])
+def test_a_held_match_with_a_rival_as_good_is_refused_as_ambiguous(periodic: bool) -> None:
+    # ACES: a corridor with doors every few metres, where the wide search found a pose 2.6 m
+    # along it (score 0.72, the truth 0.67) and the next node, searched where it put it,
+    # agreed. Here niches every 2.5 m: the pose one period along fits almost as well (only
+    # the ends of the 6 m view differ), and a match the caller would hold unchecked is
+    # refused, naming the rival. With niches at irregular places, the same match is kept.
+    rng = np.random.default_rng(0)
+    starts = np.arange(2.0, 58.0, 2.5) if periodic else np.cumsum(rng.uniform(1.5, 3.5, 25))
+    scene = _niched_corridor(starts)
+    laser = dataclasses.replace(sim.LaserModel.preset("laser_360"), max_range=6.0)
+    poses = {n: SE2.from_vector([20.0 + 0.5 * n, 0.1 * (n % 2), 0.0]) for n in range(9)}
+    scans = {n: sim.simulate_scan(scene, laser, p, seed=n).points for n, p in poses.items()}
+    sub = build_submap(4, list(range(9)), scans, poses, resolution=0.05, voxel_size=0.05)
+    here = SE2.from_vector([22.3, -0.2, 0.05])
+    points = sim.simulate_scan(scene, laser, here, seed=11).points
+    truth = poses[4].inverse() @ here
+    predicted = truth @ SE2.from_vector([1.0, 0.1, 0.02])
+    loose = np.diag([4.0, 4.0, 0.05])
+    window = (3.0, math.radians(20.0))
+    settings = LoopSettings()
+    held = match_loop(points, 99, sub, predicted, loose, settings, window=window, unchecked=True)
+    error = truth.inverse() @ held.measured
+    assert np.linalg.norm(error.translation) < 0.02 and not held.degenerate_directions
+    if periodic:
+        # Measured: the rival one period along scores 0.91 of the match.
+        assert not held.accepted and not held.hypothesis
+        assert 0.9 <= held.rival < 0.95, held.rival
+        assert held.reasons[-1].startswith("ambiguous: a pose 2.4"), held.reasons
+        # The same match under the graph's own check is not searched for rivals.
+        checked = match_loop(points, 99, sub, predicted, loose, settings, window=window)
+        assert checked.accepted and math.isnan(checked.rival)
+    else:
+        assert held.accepted and held.rival == 0.0, held.reasons
+    with pytest.raises(ValueError, match=r"^ambiguity_ratio: must be > 0"):
+        LoopSettings(ambiguity_ratio=0.0)
+
+
 def test_a_return_driven_the_other_way_closes_on_the_submap_its_scan_sees() -> None:
     # An office corridor driven east with a 180° laser (a node every 0.5 m), then passed the
     # other way, facing west, where a drifted graph puts the scan 3 m further east than it

@@ -19,6 +19,7 @@ nothing along a direction the match names degenerate (:func:`scanreg.graph.proje
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Mapping
@@ -222,6 +223,10 @@ class LoopSettings:
     agreement_per_metre: tuple[float, float] = (0.02, math.radians(0.15))
     #: A hypothesis waits for agreement over at most this much path (m).
     hypothesis_horizon: float = 20.0
+    #: A match held without the graph's check (a hypothesis, or one the wide search found)
+    #: is refused as ambiguous when another pose of its window, outside ``min_window`` of
+    #: it, scores at least this fraction of its correlative score (:func:`rival_search`).
+    ambiguity_ratio: float = 0.9
 
     def __post_init__(self) -> None:
         for name in ("wide_window", "agreement", "agreement_per_metre"):
@@ -240,6 +245,8 @@ class LoopSettings:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: must be finite and >= 0, got {value!r}")
+        if not self.ambiguity_ratio > 0.0:
+            raise ValueError(f"ambiguity_ratio: must be > 0, got {self.ambiguity_ratio!r}")
         if not 0.0 <= self.hypothesis_min_score <= 1.0:
             raise ValueError(
                 f"hypothesis_min_score: must be in [0, 1], got {self.hypothesis_min_score!r}"
@@ -313,6 +320,10 @@ class LoopMatch:
     #: the graph's uncertainty sized), ``"wide"`` (the drift-independent window) or
     #: ``"guided"`` (where a held loop puts the node).
     search: str = "graph"
+    #: The best correlative score elsewhere in the window (outside ``min_window`` of the
+    #: match) over the match's own when it reaches ``ambiguity_ratio`` (the match is then
+    #: refused), 0 when none does, NaN when not searched (:func:`rival_search`).
+    rival: float = math.nan
 
 
 def search_window(relative_covariance: FloatArray, settings: LoopSettings) -> tuple[float, float]:
@@ -364,6 +375,7 @@ def match_loop(
     window: tuple[float, float] | None = None,
     search_submap: Submap2D | None = None,
     sweep: DeskewedSweep | None = None,
+    unchecked: bool = False,
 ) -> LoopMatch:
     """Match ``points`` (keyframe ``node``'s scan, own frame) against ``submap`` from the
     graph's ``predicted`` ``T_submap_node`` with its ``relative_covariance``.
@@ -375,7 +387,15 @@ def match_loop(
     heading may see little of ``submap``). ``sweep``: how ``points`` were deskewed; the loop's
     covariance then covers what that deskew and the submap's (:attr:`Submap2D.sweeps`) leave.
     The χ² test against ``relative_covariance`` never stops a match whose own evidence is
-    good: it is then returned as a ``hypothesis``."""
+    good: it is then returned as a ``hypothesis``. ``unchecked``: the caller holds an
+    accepted match until other loops agree, as it holds a hypothesis (the wide search's).
+
+    A match so held has not passed the graph's test, and the loops that may confirm it are
+    searched where it puts the next nodes: it must not be one of two fits. It is refused as
+    ambiguous when a pose elsewhere in its window scores ``ambiguity_ratio`` of its score
+    (:func:`rival_search`). On ACES, a corridor with doors every few metres, the wide search
+    found a pose 2.6 m along it that scored 0.72, the true one (found by the next node's
+    usual search) 0.67; the next node, searched where it put it, agreed and the two closed."""
     s = settings
     if search_submap is not None:
         if not isinstance(search_submap, Submap2D):
@@ -411,8 +431,102 @@ def match_loop(
             points, node, search_submap, coarse, predicted, relative_covariance, (dt, dr), s, sweep
         )
         if wide.accepted or wide.hypothesis:
-            return wide
+            match = wide
+    if match.hypothesis or (unchecked and match.accepted):
+        grid = submap.grid if search_submap is None else search_submap.grid
+        match = _unless_ambiguous(match, points, grid, coarse, (dt, dr), s)
     return match
+
+
+def _unless_ambiguous(
+    match: LoopMatch,
+    points: FloatArray,
+    grid: CorrelativeGrid,
+    coarse: Any,
+    window: tuple[float, float],
+    s: LoopSettings,
+) -> LoopMatch:
+    """``match`` with the rival search's ratio; refused when a rival scores as much."""
+    rival = rival_search(
+        points,
+        grid,
+        match.predicted,
+        window,
+        coarse.pose,
+        min_score=s.ambiguity_ratio * coarse.score,
+        exclusion=s.min_window,
+        angular_resolution=s.angular_resolution,
+    )
+    ratio = 0.0 if rival is None else rival.score / coarse.score
+    match = dataclasses.replace(match, rival=ratio)
+    if rival is None or ratio < s.ambiguity_ratio:
+        return match
+    gap = match.measured.inverse() @ rival.pose
+    reason = (
+        f"ambiguous: a pose {np.linalg.norm(gap.translation):.2f} m and "
+        f"{math.degrees(abs(gap.angle)):.1f} deg away scores {ratio:.2f} of its score"
+    )
+    return dataclasses.replace(
+        match,
+        accepted=False,
+        hypothesis=False,
+        evidence="",
+        reasons=(*match.reasons, reason),
+    )
+
+
+def rival_search(
+    points: FloatArray,
+    grid: CorrelativeGrid,
+    predicted: SE2,
+    window: tuple[float, float],
+    best: SE2,
+    *,
+    min_score: float,
+    exclusion: tuple[float, float],
+    angular_resolution: float | None,
+) -> Any:
+    """The best correlative candidate of the window ``predicted ± window`` (``(dx = dy, dθ)``,
+    pose-vector offsets as :func:`~scanreg.find_correlative` takes them) that lies outside
+    ``best ± exclusion``, if it scores at least ``min_score``; else None.
+
+    The window less the excluded box is cut into at most six boxes (below and above the
+    box in x; within its x-range, below and above in y; within its x- and y-range, below
+    and above in θ), each searched by branch and bound with the floor (most are pruned
+    whole)."""
+    p, b = predicted.as_vector(), best.as_vector()
+    half = np.array([window[0], window[0], window[1]])
+    lo, hi = p - half, p + half
+    # Angles as offsets from the prediction (the window is narrower than π).
+    b[2] = p[2] + math.remainder(b[2] - p[2], 2.0 * math.pi)
+    ex = np.array([exclusion[0], exclusion[0], exclusion[1]])
+    elo, ehi = np.maximum(b - ex, lo), np.minimum(b + ex, hi)
+    boxes: list[tuple[FloatArray, FloatArray]] = []
+    inner_lo, inner_hi = lo.copy(), hi.copy()
+    for axis in range(3):
+        below_hi, above_lo = inner_hi.copy(), inner_lo.copy()
+        below_hi[axis] = elo[axis]
+        above_lo[axis] = ehi[axis]
+        boxes.append((inner_lo.copy(), below_hi))
+        boxes.append((above_lo, inner_hi.copy()))
+        inner_lo[axis], inner_hi[axis] = elo[axis], ehi[axis]
+    found = None
+    floor = min_score
+    for a, z in boxes:
+        if not (z > a).all():
+            continue
+        centre, radius = 0.5 * (a + z), 0.5 * (z - a)
+        res = find_correlative(
+            points,
+            grid,
+            min_score=min(floor, 1.0),
+            init=SE2.from_vector(centre),
+            window=tuple(float(v) for v in radius),
+            angular_resolution=angular_resolution,
+        )
+        if res is not None and (found is None or res.score > found.score):
+            found, floor = res, res.score
+    return found
 
 
 def _measure(

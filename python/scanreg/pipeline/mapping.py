@@ -230,6 +230,7 @@ class LoopRecord(Generic[MatchT]):
             out["origin"] = m.origin  # "graph" or "place"
         else:
             out["search"] = m.search  # "graph", "wide" or "guided"
+            out["rival"] = _number(m.rival)  # null: no rival search
         return out
 
 
@@ -938,6 +939,11 @@ class Mapper:
         match = dataclasses.replace(match, search="guided")
         good = match.accepted or match.hypothesis
         if not good or match.degenerate_directions or match.score < cfg.loops.hypothesis_min_score:
+            # Never a loop of its own: its χ² was against the guiding loop's prediction.
+            why = () if not good else (_GUIDED_UNSOUND,)
+            match = dataclasses.replace(
+                match, accepted=False, evidence="", reasons=(*match.reasons, *why)
+            )
             return LoopRecord(match, self._node_scans[c], self._node_scans[node])
         held = dataclasses.replace(
             match, accepted=False, evidence="", hypothesis=True, reasons=(_GUIDED,)
@@ -975,6 +981,7 @@ class Mapper:
             window=window,
             search_submap=search,
             sweep=self._node_sweep.get(node),
+            unchecked=wide_submap,
         )
         self._timing.add("matching", t_m)
         if wide_submap:
@@ -1304,6 +1311,9 @@ _UNCHECKED = "found by the wide search: waits for another loop to agree"
 
 #: Why a match a held loop guided waits (:meth:`Mapper._guided`).
 _GUIDED = "found where a held loop puts the node: waits for it to agree"
+
+#: Why a match a held loop guided is dropped though it fits there.
+_GUIDED_UNSOUND = "found where a held loop puts the node, but degenerate or weak: cannot agree"
 
 #: How many held loops guide one node's search (:meth:`Mapper._guided`), the latest first.
 _GUIDED_PER_NODE = 2
