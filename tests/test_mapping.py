@@ -328,6 +328,14 @@ def test_intel_excerpt_relations_after_closure() -> None:
     assert after.translation.mean < 0.75 * before.translation.mean
     assert after.translation.max < 0.12
     assert after.rotation_deg.mean < 0.4
+    _assert_accepted_loops_are_the_edges(res)
+
+
+def _assert_accepted_loops_are_the_edges(res: MappingResult) -> None:
+    """Every loop recorded as accepted is a loop edge of the graph, and no other is (a guided
+    match too degenerate or weak to be held was once recorded as accepted, with no edge)."""
+    edges = sorted((e.i, e.j) for e in res.graph.edges if e.kind == "loop")
+    assert edges == sorted((r.match.submap_node, r.match.node) for r in res.accepted_loops)
 
 
 @pytest.mark.parametrize(
@@ -801,6 +809,7 @@ def test_a_held_loop_is_confirmed_where_it_puts_the_next_nodes() -> None:
     assert map_t < 0.3 and map_r < 3.0
     guided = [r for r in res.accepted_loops if r.match.search == "guided"]
     assert guided and all(r.match.evidence == "loops" for r in guided)
+    _assert_accepted_loops_are_the_edges(res)
     assert all(r.as_dict()["search"] in ("graph", "wide", "guided") for r in res.loops)
     truth = [run.poses[0].inverse() @ p for p in run.poses]
     for record in res.accepted_loops:
