@@ -10,11 +10,13 @@ measured when the odometry is stale) and mapped with ``run_mapping`` (default
 translation m / rotation deg over all relations), the latency applied, the wall time of
 reading (with the pairing) and of mapping, and the CPU time of mapping (this process's, both
 threads: less moved by other work on the machine than the wall time), log and bag side by
-side. ``--float32-log`` adds the log mapped with its ranges rounded to float32, as a LaserScan
-stores them (row ``log f32``): how far that rounding alone moves the mapper.
+side; with ``--repeat N`` the sources alternate N rounds and the times are medians, the last
+column the map CPU over the log's. ``--float32-log`` adds the log mapped with its ranges
+rounded to float32, as a LaserScan stores them (row ``log f32``): how far that rounding alone
+moves the mapper.
 
 Run: ``.venv/bin/python benchmarks/freiburg_bags.py [--data ../shared/data] [--logs intel
-aces fr-clinic] [--max-scans N] [--storage mcap|sqlite3|ros1] [--float32-log]``.
+aces fr-clinic] [--max-scans N] [--storage mcap|sqlite3|ros1] [--float32-log] [--repeat N]``.
 """
 
 from __future__ import annotations
@@ -63,6 +65,9 @@ def main() -> None:
     parser.add_argument("--max-scans", type=int, default=None)
     parser.add_argument("--storage", choices=["mcap", "sqlite3", "ros1"], default="mcap")
     parser.add_argument(
+        "--repeat", type=int, default=1, help="rounds of the sources, alternating (median times)"
+    )
+    parser.add_argument(
         "--float32-log",
         action="store_true",
         help="also map the log with its ranges rounded to float32 (row 'log f32')",
@@ -71,9 +76,9 @@ def main() -> None:
     folder = args.data / "freiburg-slam-benchmark"
     print(
         "| log | source | relations | translation (m) | rotation (deg) | latency (s) "
-        "| read (s) | map (s) | map CPU (s) |"
+        "| read (s) | map (s) | map CPU (s) | CPU / log's |"
     )
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name in args.logs:
         file, laser, mounting = LOGS[name]
         relations = read_relations(folder / f"{name}.relations")
@@ -96,18 +101,26 @@ def main() -> None:
         runs = [("log", scans, read_log), (args.storage, bag, read_bag)]
         if args.float32_log:
             runs.insert(1, ("log f32", float32_ranges(scans), read_log))
-        for source, run, seconds in runs:
-            t0, c0 = time.perf_counter(), time.process_time()
-            res = run_mapping(run, MappingConfig())
-            mapped, cpu = time.perf_counter() - t0, time.process_time() - c0
-            stamps = np.array(res.stamps, dtype=np.float64)
-            err = relation_error(Trajectory.from_poses(list(res.poses), stamps), relations)
-            print(
-                f"| {name} | {source} | {len(err.used)} | {err.translation.mean:.5f} | "
-                f"{err.rotation_deg.mean:.4f} | {run.laser_latency} | {seconds:.1f} | "
-                f"{mapped:.0f} | {cpu:.0f} |",
-                flush=True,
-            )
+        # The sources alternate, ``--repeat`` rounds: the machine's load then falls on each
+        # alike, and the map times are the median of each source's runs (the maps themselves
+        # are the same every round: the runs are deterministic).
+        times: dict[str, list[tuple[float, float]]] = {source: [] for source, _, _ in runs}
+        rows: dict[str, str] = {}
+        for _ in range(args.repeat):
+            for source, run, seconds in runs:
+                t0, c0 = time.perf_counter(), time.process_time()
+                res = run_mapping(run, MappingConfig())
+                times[source].append((time.perf_counter() - t0, time.process_time() - c0))
+                stamps = np.array(res.stamps, dtype=np.float64)
+                err = relation_error(Trajectory.from_poses(list(res.poses), stamps), relations)
+                rows[source] = (
+                    f"| {name} | {source} | {len(err.used)} | {err.translation.mean:.5f} | "
+                    f"{err.rotation_deg.mean:.4f} | {run.laser_latency} | {seconds:.1f}"
+                )
+        log_cpu = float(np.median([c for _, c in times["log"]]))
+        for source, _, _ in runs:
+            wall, cpu = (float(np.median(v)) for v in zip(*times[source], strict=True))
+            print(f"{rows[source]} | {wall:.0f} | {cpu:.0f} | {cpu / log_cpu:.2f} |", flush=True)
 
 
 if __name__ == "__main__":
