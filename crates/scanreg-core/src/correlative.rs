@@ -1087,14 +1087,16 @@ impl LikelihoodGrid {
         let disc = DiscRows::new(reach, &gauss);
         let on_canvas = |c: &[i64; 2]| (c[1] - canvas[0], c[0] - canvas[1]);
         let (removed, added) = differences(&self.occupied, &global);
-        // Around a cell that disappeared the nearest occupied cell may be another: cleared,
-        // then stamped again (below) by every occupied cell with a cleared cell within reach.
+        // A cell whose nearest occupied cell disappeared may have another: cleared, then
+        // stamped again (below) by every occupied cell with a cleared cell within reach. A
+        // cell nearer another occupied cell keeps its value (when that one disappeared too,
+        // the cell is cleared with its disc).
         for c in &removed {
             let (cx, cy) = on_canvas(c);
-            for (y, x0, x1, _) in disc.rows(cx, cy, new) {
+            for (y, x0, x1, k) in disc.rows(cx, cy, new) {
                 for x in x0..x1 {
                     let i = (y * cw + x) as usize;
-                    if mark[i] != generation {
+                    if mark[i] != generation && dist[i] >= disc.d[k + (x - x0) as usize] {
                         mark[i] = generation;
                         dirty[block(x, y)] = true;
                         cleared.push((i, like[i].to_bits()));
