@@ -438,7 +438,8 @@ def test_find_with_a_score_floor_is_the_full_answer_or_none() -> None:
 def test_an_updated_grid_is_the_grid_built_from_scratch() -> None:
     # A local map that slides along a path (the last 4 scans, world frame) as the 2D odometry's
     # does: each grid updated from the previous one equals a fresh build, cell for cell and bit
-    # for bit, and so does a match against it.
+    # for bit, and so does a match against it; every other step in place (the old grid's
+    # rasters changed where they change, its pooled levels pooled again there).
     scene, _ = _office_map()
     path = [SE2.from_vector([2.0 + 0.25 * k, 3.5 + 0.1 * k, 0.2 * k]) for k in range(10)]
     world = [
@@ -449,7 +450,7 @@ def test_an_updated_grid_is_the_grid_built_from_scratch() -> None:
     for end in range(1, len(world) + 1):
         points = _c(np.concatenate(world[max(0, end - 4) : end]))
         built = scanreg.prepare_correlative(points, resolution=0.05)
-        grid = built if grid is None else grid.updated(points)
+        grid = built if grid is None else grid.updated(points, in_place=end % 2 == 0)
         assert grid.origin == built.origin and grid.shape == built.shape
         assert grid.levels == built.levels and grid.num_points == built.num_points
         np.testing.assert_array_equal(grid.likelihood, built.likelihood)
@@ -463,6 +464,10 @@ def test_an_updated_grid_is_the_grid_built_from_scratch() -> None:
     assert grid is not None
     with pytest.raises(ValueError, match="points"):
         grid.updated(np.array([[0.0, np.nan]]))
+    with pytest.raises(ValueError, match="points"):
+        grid.updated(np.array([[0.0, np.nan]]), in_place=True)
+    with pytest.raises(TypeError, match="in_place"):
+        grid.updated(points, in_place=1)  # type: ignore[arg-type]
 
 
 def test_best_correlative_pose_matches_the_full_search_and_names_bad_input() -> None:

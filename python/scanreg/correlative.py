@@ -189,7 +189,7 @@ class CorrelativeGrid:
         """:func:`match_correlative` against this grid."""
         return match_correlative(source, self, **options)
 
-    def updated(self, points: Any) -> CorrelativeGrid:
+    def updated(self, points: Any, *, in_place: bool = False) -> CorrelativeGrid:
         """The grid of ``points``, computed from this one (equal to prepare_correlative's).
 
         The grid :func:`prepare_correlative` builds from ``points`` with this grid's
@@ -197,10 +197,21 @@ class CorrelativeGrid:
         depends only on the occupied cells within the blur's reach, so only the cells near an
         occupied cell that disappeared (and those the grid's extent gained) are rasterised
         again, and the discs of the cells that appeared are lowered in. For a local map that
-        gains a keyframe and drops its oldest (:class:`scanreg.pipeline.Odometry2D`)."""
+        gains a keyframe and drops its oldest (:class:`scanreg.pipeline.Odometry2D`).
+
+        ``in_place``: the new grid takes this one's rasters and changes them where they
+        change, instead of changing a copy (a long-range laser's local map spans a million
+        cells, and copying them cost more than the update); this grid must not be used
+        afterwards (it would read the new grid's rasters)."""
         ref = as_points(points, "points", dim=2)
+        if not isinstance(in_place, bool):
+            raise TypeError(f"in_place: expected a bool, got {type(in_place).__name__}")
         t0 = time.perf_counter()
-        native = self._native.updated(ref)
+        if in_place:
+            native = self._native
+            native.update(ref)
+        else:
+            native = self._native.updated(ref)
         return _grid(native, ref, self.resolution, self.sigma, self.levels, t0)
 
 

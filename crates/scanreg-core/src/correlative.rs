@@ -83,6 +83,12 @@ impl Level {
 }
 
 /// The rasterised reference: likelihood, squared distance and max-pooled levels.
+///
+/// The rasters cover a *canvas*: the lattice (`origin`, `width`, `height`: the cells the
+/// reference and the blur's margin span), or after [`LikelihoodGrid::update`] a rectangle
+/// around it, 0 (distance +∞) outside the lattice, so that a grid is updated without moving
+/// its cells. Every read goes through canvas cells (a search's cells are the lattice's,
+/// shifted by whole cells), and reads 0 (+∞) outside the lattice as outside the canvas.
 #[derive(Debug, Clone)]
 pub struct LikelihoodGrid {
     origin: [f64; 2],
@@ -90,17 +96,20 @@ pub struct LikelihoodGrid {
     sigma: f64,
     width: usize,
     height: usize,
-    /// Squared distance to the nearest occupied cell, in cells², row-major (y rows).
+    /// The global index of canvas cell `(0, 0)` and the canvas's `[width, height]` (cells).
+    canvas: [i64; 2],
+    canvas_size: [usize; 2],
+    /// Squared distance to the nearest occupied cell, in cells², row-major (y rows), canvas.
     dist2: Vec<f32>,
-    /// The likelihood itself (level 0).
+    /// The likelihood itself (level 0), canvas.
     base: Level,
-    /// `pooled[h − 1]` pools `2^h × 2^h` windows of level `h − 1`. Built on first use: a search
-    /// needs only as many levels as its window is wide (an odometry window of ±6 cells uses
-    /// 4 of the default 7), and each costs about a third of the base grid's build.
+    /// `pooled[h − 1]` pools `2^h × 2^h` windows of level `h − 1` (over the canvas). Built on
+    /// first use: a search needs only as many levels as its window is wide (an odometry
+    /// window of ±6 cells uses 4 of the default 7), and each costs about a third of the base
+    /// grid's build; an update pools again, in place, those built so far.
     pooled: Vec<OnceLock<Arc<Level>>>,
-    /// After [`LikelihoodGrid::updated`]: the old grid's pooled levels and where the base
-    /// changed, to pool this grid's levels from on first use ([`repooled`]).
-    previous: Option<Arc<Previous>>,
+    /// [`LikelihoodGrid::update`]'s scratch.
+    marks: Marks,
     /// `origin / resolution`: the global index (a multiple of the resolution from 0) of cell
     /// `(0, 0)`, so that two grids of the same resolution place their cells alike.
     offset: [i64; 2],
@@ -518,63 +527,29 @@ fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64, sequential: bool) -> 
     }
 }
 
-/// What an updated grid keeps of the grid it was updated from, for [`repooled`]: that grid's
-/// pooled levels, the blocks of `DIRTY_BLOCK²` cells of the new lattice where the base may
-/// differ from its, and how the two lattices sit.
-#[derive(Debug)]
-struct Previous {
-    levels: Vec<Option<Arc<Level>>>,
-    blocks: Vec<bool>,
-    blocks_x: usize,
-    /// The new lattice's offset less the old one's (cells).
-    offset: [i64; 2],
-    /// `(width, height)` of the old and the new base (cells).
-    old_size: [i64; 2],
-    size: [i64; 2],
-}
-
-/// Unmark the blocks of `dirty` whose likelihood (`new`, on `dirty`'s lattice) is the old
-/// grid's (`old`, its base; 0 outside its lattice, which lies `offset` cells from the new one's
-/// origin) in every cell, to the bit.
-fn keep_changed_blocks(dirty: &mut Dirty, new: &[f32], old: &Level, offset: [i64; 2]) {
-    let b = DIRTY_BLOCK;
-    let width = dirty.width;
-    let height = new.len() / width.max(1);
-    let old_at = |x: usize, y: usize| -> f32 {
-        let (xo, yo) = (x as i64 + offset[0], y as i64 + offset[1]);
-        if xo < 0 || yo < 0 || xo >= old.width || yo >= old.height {
-            0.0
-        } else {
-            old.data[(yo * old.width + xo) as usize]
-        }
-    };
-    for by in 0..dirty.blocks.len() / dirty.blocks_x.max(1) {
-        for bx in 0..dirty.blocks_x {
-            let k = by * dirty.blocks_x + bx;
-            if !dirty.blocks[k] {
-                continue;
-            }
-            let same = (by * b..((by + 1) * b).min(height)).all(|y| {
-                (bx * b..((bx + 1) * b).min(width))
-                    .all(|x| new[y * width + x].to_bits() == old_at(x, y).to_bits())
-            });
-            if same {
-                dirty.blocks[k] = false;
-            }
-        }
-    }
-}
-
-/// Cells `[i0, i1)` of row `j` of the level pooled from `prev` with stride `half`, appended to
-/// `out`: each the maximum of prev's cells `(i − half | i, j − half | j)` that exist, 0 where
-/// none does ([`pool`]'s values: all are ≥ 0).
-fn pool_run(prev: &Level, half: i64, j: i64, i0: i64, i1: i64, out: &mut Vec<f32>) {
+/// Cells `[i0, i1)` of row `j` of the level pooled from `prev` with stride `half`, written to
+/// `out` (`i1 − i0` values): each the maximum of prev's cells `(i − half | i, j − half | j)`
+/// that exist, 0 where none does ([`pool`]'s values: all are ≥ 0, and a maximum is exact
+/// whatever the order in which it is taken).
+fn pool_run(prev: &Level, half: i64, j: i64, i0: i64, i1: i64, out: &mut [f32]) {
     let (pw, ph) = (prev.width, prev.height);
     let row = |jp: i64| {
         (jp >= 0 && jp < ph).then(|| &prev.data[(jp * pw) as usize..((jp + 1) * pw) as usize])
     };
     let rows = [row(j - half), row(j)];
-    for i in i0..i1 {
+    if i0 >= half && i1 <= pw {
+        // Both columns of every cell exist (all but the level's edges): a loop without
+        // bounds tests, which vectorises.
+        let (a, b, n) = ((i0 - half) as usize, i0 as usize, (i1 - i0) as usize);
+        out.fill(0.0);
+        for r in rows.iter().flatten() {
+            for ((o, x), y) in out.iter_mut().zip(&r[b..b + n]).zip(&r[a..a + n]) {
+                *o = o.max(x.max(*y));
+            }
+        }
+        return;
+    }
+    for (o, i) in out.iter_mut().zip(i0..i1) {
         let mut v = 0.0f32;
         for r in rows.iter().flatten() {
             if i < pw {
@@ -585,110 +560,63 @@ fn pool_run(prev: &Level, half: i64, j: i64, i0: i64, i1: i64, out: &mut Vec<f32
                 v = v.max(r[k as usize]);
             }
         }
-        out.push(v);
+        *o = v;
     }
 }
 
-/// Level `h` of an updated grid (stride `half = 2^(h−1)`) from its level `h − 1` (`prev`) and
-/// the old grid's level `h` (`old`): the cells whose `2^h × 2^h` window holds no cell that may
-/// have changed ([`Previous`]) are the old level's, copied; the others are pooled from `prev` as
-/// [`pool`] pools them. A maximum is exact, so the level is [`pool`]'s to the bit (tested).
-/// A keyframe changes a few per cent of a long-range laser's local map (the Freiburg
-/// hospital's: 1 % of 1.2 M cells, in 5 % of the blocks).
-fn repooled(prev: &Level, old: &Level, half: i64, changed: &Previous) -> Level {
+/// Pool again, in place, the cells of `level` (stride `half`, from `prev`, its level below,
+/// already up to date) whose window holds a cell of a base block marked in `changed`
+/// (`blocks_x` blocks a row, of `DIRTY_BLOCK²` cells, on the canvas): every other cell holds
+/// the maximum it held. A keyframe changes a few per cent of a long-range laser's local map
+/// (the Freiburg hospital's: 1 % of 1.2 M cells, in 5 % of the blocks). The same bits as
+/// [`pool`] (tested).
+fn repool_in_place(prev: &Level, level: &mut Level, half: i64, changed: &[bool], blocks_x: usize) {
     let b = DIRTY_BLOCK as i64;
-    let w = 2 * half;
-    let shift = w - 1;
-    let [base_w, base_h] = changed.size;
-    let (width, height) = (base_w + shift, base_h + shift);
-    // Level cell i (x or y) pools the base cells [i − shift, i]: a changed base block k makes
-    // level blocks k ..= k + reach stale.
-    let reach = (b + w - 2) / b;
-    let (lbx, lby) = (
-        (width as usize).div_ceil(DIRTY_BLOCK),
-        (height as usize).div_ceil(DIRTY_BLOCK),
-    );
-    let mut stale = vec![false; lbx * lby];
-    let base_rows = changed.blocks.len() / changed.blocks_x.max(1);
-    for by in 0..base_rows {
-        for bx in 0..changed.blocks_x {
-            if changed.blocks[by * changed.blocks_x + bx] {
-                for y in by..=(by + reach as usize).min(lby - 1) {
-                    for x in bx..=(bx + reach as usize).min(lbx - 1) {
-                        stale[y * lbx + x] = true;
-                    }
-                }
-            }
-        }
-    }
-    // Where the new lattice lost cells of the old one, the windows that reach past its edge
-    // held them: the level's first (last) `shift` columns or rows, stale.
-    let [dx, dy] = changed.offset;
-    let [old_w, old_h] = changed.old_size;
-    let strips = [
-        (dx > 0, 0, shift - 1),
-        (dx + base_w < old_w, base_w, width - 1),
-    ];
-    for &(lost, lo, hi) in &strips {
-        if lost {
-            for y in 0..lby {
-                for x in (lo / b) as usize..=((hi / b) as usize).min(lbx - 1) {
-                    stale[y * lbx + x] = true;
-                }
-            }
-        }
-    }
-    let strips = [
-        (dy > 0, 0, shift - 1),
-        (dy + base_h < old_h, base_h, height - 1),
-    ];
-    for &(lost, lo, hi) in &strips {
-        if lost {
-            for y in (lo / b) as usize..=((hi / b) as usize).min(lby - 1) {
-                for x in 0..lbx {
-                    stale[y * lbx + x] = true;
-                }
-            }
-        }
-    }
-    // (Cell (i, j) of this level pools prev's cells (i − half | i, j − half | j): prev's index
-    // is this one's less the difference of their shifts, `half`.)
-    let mut data = Vec::with_capacity((width * height) as usize);
+    let shift = 2 * half - 1;
+    let (width, height) = (level.width, level.height);
+    // The changed blocks' columns, by block row.
+    let by_row: Vec<Vec<i64>> = changed
+        .chunks(blocks_x)
+        .map(|row| (0..row.len() as i64).filter(|&x| row[x as usize]).collect())
+        .collect();
+    let mut runs: Vec<(i64, i64)> = Vec::new();
     for j in 0..height {
-        let jo = j + dy; // the old level's row of the same global window
-        let row_known = jo >= 0 && jo < old.height;
-        let by = (j / b) as usize;
-        let mut i = 0;
-        while i < width {
-            let end = (i + b).min(width);
-            let io = i + dx;
-            if row_known
-                && !stale[by * lbx + (i / b) as usize]
-                && io >= 0
-                && io + (end - i) <= old.width
-            {
-                let o = (jo * old.width + io) as usize;
-                data.extend_from_slice(&old.data[o..o + (end - i) as usize]);
-            } else {
-                pool_run(prev, half, j, i, end, &mut data);
-            }
-            i = end;
+        // Level cell (i, j) pools the base cells [i − shift, i] × [j − shift, j]: row j meets
+        // the block rows from (j − shift) / b to j / b, and a changed block of column bx
+        // makes its cells [bx·b, bx·b + b − 1 + shift] stale.
+        let (lo, hi) = ((j - shift).max(0) / b, (j / b).min(by_row.len() as i64 - 1));
+        runs.clear();
+        for row in by_row
+            .iter()
+            .take((hi + 1).max(0) as usize)
+            .skip(lo as usize)
+        {
+            runs.extend(
+                row.iter()
+                    .map(|&bx| (bx * b, (bx * b + b + shift).min(width))),
+            );
         }
-    }
-    Level {
-        shift,
-        width,
-        height,
-        data,
+        if runs.is_empty() {
+            continue;
+        }
+        runs.sort_unstable();
+        let o = (j * width) as usize;
+        let mut pool_cells = |i0: i64, i1: i64| {
+            let out = &mut level.data[o + i0 as usize..o + i1 as usize];
+            pool_run(prev, half, j, i0, i1, out);
+        };
+        let (mut i0, mut i1) = runs[0];
+        for &(s0, s1) in &runs[1..] {
+            if s0 <= i1 {
+                i1 = i1.max(s1);
+            } else {
+                pool_cells(i0, i1);
+                (i0, i1) = (s0, s1);
+            }
+        }
+        pool_cells(i0, i1);
     }
 }
-
-/// An updated grid of more cells than this pools its levels from the old grid's
-/// ([`repooled`]); a smaller one pools them from scratch, which costs less there (its rows in
-/// cache, vectorised): measured on the Freiburg logs' local maps, the odometry over Intel's
-/// first 4000 scans (190 k cells) took 10.3-12.2 s CPU repooled against 10.0-10.4 s, over
-/// the hospital's first 1500 (1.2 M cells) 15.3 s against 20.4 s.
-const REPOOL_MIN_CELLS: usize = 1 << 19;
 
 /// Largest disc [`stamped`] lays (offsets held in memory): a blur hundreds of cells wide
 /// takes the distance transform instead.
@@ -789,6 +717,46 @@ fn disc_stamps(reach: i64, gauss: &Gaussian) -> Vec<(i64, i64, f32, f32)> {
         .collect()
 }
 
+/// [`disc_stamps`] by rows, each row's squared distances and likelihoods in runs of `dx`.
+struct DiscRows {
+    reach: i64,
+    /// Half-width of the row `dy = r − reach` and where its values start.
+    rows: Vec<(i64, usize)>,
+    d: Vec<f32>,
+    g: Vec<f32>,
+}
+
+impl DiscRows {
+    fn new(reach: i64, gauss: &Gaussian) -> Self {
+        let (mut rows, mut d, mut g) = (Vec::new(), Vec::new(), Vec::new());
+        for row in disc_stamps(reach, gauss).chunk_by(|a, b| a.1 == b.1) {
+            rows.push((-row[0].0, d.len()));
+            d.extend(row.iter().map(|s| s.2));
+            g.extend(row.iter().map(|s| s.3));
+        }
+        DiscRows { reach, rows, d, g }
+    }
+
+    /// The disc around `(cx, cy)` clipped to `view` (`[x0, y0, x1, y1]`): per row its `y`, the
+    /// cells `[x0, x1)` and where their values start in `d` and `g`.
+    fn rows(
+        &self,
+        cx: i64,
+        cy: i64,
+        view: [i64; 4],
+    ) -> impl Iterator<Item = (i64, i64, i64, usize)> + '_ {
+        self.rows
+            .iter()
+            .enumerate()
+            .filter_map(move |(r, &(half, start))| {
+                let y = cy + r as i64 - self.reach;
+                let (x0, x1) = ((cx - half).max(view[0]), (cx + half + 1).min(view[2]));
+                (y >= view[1] && y < view[3] && x0 < x1)
+                    .then(|| (y, x0, x1, start + (x0 - (cx - half)) as usize))
+            })
+    }
+}
+
 /// The cells of sorted, deduplicated `old` not in `new` and of `new` not in `old`.
 fn differences(old: &[[i64; 2]], new: &[[i64; 2]]) -> (Vec<[i64; 2]>, Vec<[i64; 2]>) {
     let (mut i, mut j) = (0, 0);
@@ -814,97 +782,47 @@ fn differences(old: &[[i64; 2]], new: &[[i64; 2]]) -> (Vec<[i64; 2]>, Vec<[i64; 
     (removed, added)
 }
 
-/// Side of the blocks [`Dirty`] also marks (cells).
+/// Side of the blocks an update marks (cells).
 const DIRTY_BLOCK: usize = 16;
 
-/// The cells of a grid being updated that are stamped again, and the `16 × 16` blocks that
-/// hold one: whether an occupied cell has a dirty cell within reach is a look at a few blocks.
-struct Dirty {
-    width: usize,
-    cells: Vec<bool>,
-    blocks_x: usize,
-    blocks: Vec<bool>,
-    count: usize,
+/// The scratch of [`LikelihoodGrid::update`]: a mark per canvas cell, the cell stamped again
+/// in this update when its mark is the update's generation, kept from update to update so
+/// that a large canvas is not cleared each time. Not part of the grid's value: a clone starts
+/// afresh.
+#[derive(Debug, Default)]
+struct Marks {
+    mark: Vec<u32>,
+    generation: u32,
 }
 
-impl Dirty {
-    fn new(width: usize, height: usize) -> Self {
-        let blocks_x = width.div_ceil(DIRTY_BLOCK);
-        Dirty {
-            width,
-            cells: vec![false; width * height],
-            blocks_x,
-            blocks: vec![false; blocks_x * height.div_ceil(DIRTY_BLOCK)],
-            count: 0,
-        }
+impl Clone for Marks {
+    fn clone(&self) -> Self {
+        Marks::default()
     }
+}
 
-    /// Mark `(x, y)`; whether it was not marked before.
-    fn mark(&mut self, x: usize, y: usize) -> bool {
-        let cell = &mut self.cells[y * self.width + x];
-        if *cell {
-            return false;
-        }
-        *cell = true;
-        self.blocks[(y / DIRTY_BLOCK) * self.blocks_x + x / DIRTY_BLOCK] = true;
-        self.count += 1;
-        true
-    }
+/// Whether a block of `blocks` (`blocks_x` a row) within `reach` (Chebyshev) of canvas cell
+/// `(x, y)` is marked: a superset of the cells that may have a marked cell within reach.
+fn near_marked(blocks: &[bool], blocks_x: usize, x: i64, y: i64, reach: i64) -> bool {
+    let b = DIRTY_BLOCK as i64;
+    let rows = blocks.len() / blocks_x;
+    let (bx0, bx1) = (
+        ((x - reach).max(0) / b) as usize,
+        (((x + reach).max(0) / b) as usize).min(blocks_x - 1),
+    );
+    let (by0, by1) = (
+        ((y - reach).max(0) / b) as usize,
+        (((y + reach).max(0) / b) as usize).min(rows - 1),
+    );
+    (by0..=by1).any(|by| blocks[by * blocks_x + bx0..=by * blocks_x + bx1].contains(&true))
+}
 
-    /// Mark the cells `[x0, x1)` of row `y`.
-    fn mark_run(&mut self, y: usize, x0: usize, x1: usize) {
-        for x in x0..x1 {
-            self.mark(x, y);
-        }
+/// The parts `[x0, x1)` of `[a0, a1)` outside `[b0, b1)` (empty ranges where there is none).
+fn outside(a0: i64, a1: i64, b0: i64, b1: i64) -> [(i64, i64); 2] {
+    if b1 <= a0 || b0 >= a1 || b0 >= b1 {
+        return [(a0, a1), (0, 0)];
     }
-
-    fn is(&self, x: usize, y: usize) -> bool {
-        self.cells[y * self.width + x]
-    }
-
-    fn any(&self) -> bool {
-        self.count > 0
-    }
-
-    /// Mark the blocks of the square `[x − reach, x + reach]²` (clipped to the grid) without
-    /// marking its cells: the footprint of a disc stamped after [`Dirty::near`] is last read.
-    fn mark_blocks_near(&mut self, x: i64, y: i64, reach: i64) {
-        let b = DIRTY_BLOCK as i64;
-        let rows = (self.blocks.len() / self.blocks_x) as i64;
-        let width = self.width as i64;
-        let height = self.cells.len() as i64 / width.max(1);
-        if x + reach < 0 || y + reach < 0 || x - reach >= width || y - reach >= height {
-            return;
-        }
-        let (bx0, bx1) = (
-            (x - reach).max(0) / b,
-            ((x + reach) / b).min(self.blocks_x as i64 - 1),
-        );
-        let (by0, by1) = ((y - reach).max(0) / b, ((y + reach) / b).min(rows - 1));
-        for by in by0..=by1 {
-            for bx in bx0..=bx1 {
-                self.blocks[(by * self.blocks_x as i64 + bx) as usize] = true;
-            }
-        }
-    }
-
-    /// Whether a block within `reach` (Chebyshev) of `(x, y)` holds a dirty cell: a superset
-    /// of the cells that may have one within reach.
-    fn near(&self, x: i64, y: i64, reach: i64) -> bool {
-        let b = DIRTY_BLOCK as i64;
-        let rows = self.blocks.len() / self.blocks_x;
-        let (bx0, bx1) = (
-            ((x - reach).max(0) / b) as usize,
-            ((x + reach) / b) as usize,
-        );
-        let (by0, by1) = (
-            ((y - reach).max(0) / b) as usize,
-            ((y + reach) / b) as usize,
-        );
-        (by0..=by1.min(rows - 1)).any(|by| {
-            (bx0..=bx1.min(self.blocks_x - 1)).any(|bx| self.blocks[by * self.blocks_x + bx])
-        })
-    }
+    [(a0, b0.min(a1)), (b1.max(a0), a1)]
 }
 
 fn check_settings(resolution: f64, sigma: f64, levels: usize) -> Result<()> {
@@ -1051,28 +969,38 @@ impl LikelihoodGrid {
             height,
             dist2,
             base,
+            canvas: lattice.offset,
+            canvas_size: [width, height],
             pooled: (0..levels).map(|_| OnceLock::new()).collect(),
-            previous: None,
+            marks: Marks::default(),
             offset: lattice.offset,
             occupied: global,
         }
     }
 
     /// The grid of `reference` — what [`LikelihoodGrid::build`] gives with this grid's
-    /// resolution, blur and levels, to the bit — computed from this one. A cell's likelihood
-    /// and distance are those of the nearest occupied cell within the blur's support
-    /// ([`Gaussian::reach`]), so: a cell near an occupied cell that disappeared, or one the
-    /// lattice gained, is stamped again from the occupied cells near it; any other keeps its
-    /// value, lowered by the discs of the occupied cells that appeared (a nearer cell can only
-    /// lower a minimum). A local map that gains a keyframe and drops its oldest changes a few
-    /// hundred of its thousands of occupied cells. The pooled levels are pooled on first use.
+    /// resolution, blur and levels, to the bit — computed from this one
+    /// ([`LikelihoodGrid::update`] of a copy).
     pub fn updated(&self, reference: &[f64]) -> Result<Self> {
-        self.updated_with(reference, REPOOL_MIN_CELLS)
+        let mut grid = self.clone();
+        grid.update(reference)?;
+        Ok(grid)
     }
 
-    /// [`LikelihoodGrid::updated`], its levels pooled from the old grid's ([`repooled`]) when
-    /// it has more than `repool_min_cells` cells.
-    fn updated_with(&self, reference: &[f64], repool_min_cells: usize) -> Result<Self> {
+    /// This grid made the grid of `reference` (what [`LikelihoodGrid::build`] gives with its
+    /// resolution, blur and levels, to the bit), in place; unchanged on an error. A cell's
+    /// likelihood and distance are those of the nearest occupied cell within the blur's
+    /// support ([`Gaussian::reach`]), so: a cell near an occupied cell that disappeared, or one
+    /// the lattice gained, is stamped again from the occupied cells near it; any other keeps
+    /// its value, lowered by the discs of the occupied cells that appeared (a nearer cell can
+    /// only lower a minimum); the pooled levels are pooled again where their window holds a
+    /// base cell that changed. A local map that gains a keyframe and drops its oldest changes
+    /// a few hundred of its thousands of occupied cells.
+    ///
+    /// The rasters live on a canvas a margin wider than the lattice, 0 (distance +∞) outside
+    /// it, so that a lattice that moves or resizes within the canvas moves no cell: only a
+    /// lattice that leaves it lays a new canvas (and pools its levels again on first use).
+    pub fn update(&mut self, reference: &[f64]) -> Result<()> {
         check_points(reference, "reference")?;
         let (resolution, sigma) = (self.resolution, self.sigma);
         let lattice = Lattice::of(reference, resolution, sigma)?;
@@ -1081,129 +1009,231 @@ impl LikelihoodGrid {
         let global = lattice.global(&occupied);
         let gauss = Gaussian::new((sigma / resolution).powi(2), width * height);
         let reach = gauss.reach();
-        let mut likelihood = vec![0.0f32; width * height];
-        let mut dist2 = vec![f32::INFINITY; width * height];
-        let mut dirty = Dirty::new(width, height);
-        // The old grid's cells where the lattices overlap; the cells it did not have, dirty.
-        let shift = [
-            self.offset[0] - lattice.offset[0],
-            self.offset[1] - lattice.offset[1],
-        ];
-        let (x0, x1) = (
-            shift[0].clamp(0, width as i64) as usize,
-            (shift[0] + self.width as i64).clamp(0, width as i64) as usize,
-        );
-        for y in 0..height {
-            let old_y = y as i64 - shift[1];
-            if old_y < 0 || old_y >= self.height as i64 || x0 >= x1 {
-                dirty.mark_run(y, 0, width);
-                continue;
-            }
-            let (row, old_row) = (y * width, old_y as usize * self.width);
-            let old_x0 = (x0 as i64 - shift[0]) as usize;
-            let old = old_row + old_x0..old_row + old_x0 + (x1 - x0);
-            likelihood[row + x0..row + x1].copy_from_slice(&self.base.data[old.clone()]);
-            dist2[row + x0..row + x1].copy_from_slice(&self.dist2[old]);
-            dirty.mark_run(y, 0, x0);
-            dirty.mark_run(y, x1, width);
+        let fits = lattice.offset[0] >= self.canvas[0]
+            && lattice.offset[1] >= self.canvas[1]
+            && lattice.offset[0] + width as i64 <= self.canvas[0] + self.canvas_size[0] as i64
+            && lattice.offset[1] + height as i64 <= self.canvas[1] + self.canvas_size[1] as i64;
+        if !fits {
+            self.recanvas(&lattice);
         }
-        let stamps = disc_stamps(reach, &gauss);
-        let (w, h) = (width as i64, height as i64);
-        let local = |c: &[i64; 2]| (c[1] - lattice.offset[0], c[0] - lattice.offset[1]);
-        let (removed, added) = differences(&self.occupied, &global);
-        // Around a cell that disappeared the nearest occupied cell may be another: cleared,
-        // then stamped again (below) by every occupied cell with a cleared cell within reach.
-        for c in &removed {
-            let (cx, cy) = local(c);
-            for &(dx, dy, _, _) in &stamps {
-                let (x, y) = (cx + dx, cy + dy);
-                if x >= 0 && y >= 0 && x < w && y < h && dirty.mark(x as usize, y as usize) {
-                    let i = (y * w + x) as usize;
-                    likelihood[i] = 0.0;
-                    dist2[i] = f32::INFINITY;
+        // The old and the new lattice on the canvas, [x0, y0, x1, y1].
+        let old = self.view();
+        self.origin = lattice.origin;
+        self.offset = lattice.offset;
+        self.width = width;
+        self.height = height;
+        let new = self.view();
+        let canvas = self.canvas;
+        let [cw, ch] = self.canvas_size;
+        let blocks_x = cw.div_ceil(DIRTY_BLOCK);
+        let blocks = blocks_x * ch.div_ceil(DIRTY_BLOCK);
+        let block =
+            |x: i64, y: i64| (y as usize / DIRTY_BLOCK) * blocks_x + x as usize / DIRTY_BLOCK;
+        // Blocks holding a cell stamped again, and blocks whose likelihood changed.
+        let mut dirty = vec![false; blocks];
+        let mut changed = vec![false; blocks];
+        if self.marks.mark.len() != cw * ch {
+            self.marks = Marks {
+                mark: vec![0; cw * ch],
+                generation: 0,
+            };
+        }
+        self.marks.generation = self.marks.generation.wrapping_add(1);
+        if self.marks.generation == 0 {
+            self.marks.mark.fill(0);
+            self.marks.generation = 1;
+        }
+        let generation = self.marks.generation;
+        let mark = &mut self.marks.mark;
+        let like = &mut self.base.data;
+        let dist = &mut self.dist2;
+        let cw = cw as i64;
+        // The cells stamped again, with their likelihood before (bits).
+        let mut cleared: Vec<(usize, u32)> = Vec::new();
+        // The cells the lattice lost: 0 and +∞, as the canvas is outside the lattice.
+        for y in old[1]..old[3] {
+            let parts = if y >= new[1] && y < new[3] {
+                outside(old[0], old[2], new[0], new[2])
+            } else {
+                [(old[0], old[2]), (0, 0)]
+            };
+            for (x0, x1) in parts {
+                for x in x0..x1 {
+                    let i = (y * cw + x) as usize;
+                    if like[i].to_bits() != 0 {
+                        changed[block(x, y)] = true;
+                    }
+                    like[i] = 0.0;
+                    dist[i] = f32::INFINITY;
                 }
             }
         }
-        let stamp = |cx: i64, cy: i64, only_dirty: bool, l: &mut [f32], e: &mut [f32]| {
-            for &(dx, dy, d, g) in &stamps {
-                let (x, y) = (cx + dx, cy + dy);
-                if x < 0 || y < 0 || x >= w || y >= h {
+        // The cells it gained (0 and +∞ until stamped): stamped again.
+        for y in new[1]..new[3] {
+            let parts = if y >= old[1] && y < old[3] {
+                outside(new[0], new[2], old[0], old[2])
+            } else {
+                [(new[0], new[2]), (0, 0)]
+            };
+            for (x0, x1) in parts {
+                for x in x0..x1 {
+                    let i = (y * cw + x) as usize;
+                    mark[i] = generation;
+                    dirty[block(x, y)] = true;
+                    cleared.push((i, like[i].to_bits()));
+                }
+            }
+        }
+        let disc = DiscRows::new(reach, &gauss);
+        let on_canvas = |c: &[i64; 2]| (c[1] - canvas[0], c[0] - canvas[1]);
+        let (removed, added) = differences(&self.occupied, &global);
+        // A cell whose nearest occupied cell disappeared may have another: cleared, then
+        // stamped again (below) by every occupied cell with a cleared cell within reach. A
+        // cell nearer another occupied cell keeps its value (when that one disappeared too,
+        // the cell is cleared with its disc).
+        for c in &removed {
+            let (cx, cy) = on_canvas(c);
+            for (y, x0, x1, k) in disc.rows(cx, cy, new) {
+                for x in x0..x1 {
+                    let i = (y * cw + x) as usize;
+                    if mark[i] != generation && dist[i] >= disc.d[k + (x - x0) as usize] {
+                        mark[i] = generation;
+                        dirty[block(x, y)] = true;
+                        cleared.push((i, like[i].to_bits()));
+                        like[i] = 0.0;
+                        dist[i] = f32::INFINITY;
+                    }
+                }
+            }
+        }
+        if !cleared.is_empty() {
+            for c in &global {
+                let (cx, cy) = on_canvas(c);
+                if !near_marked(&dirty, blocks_x, cx, cy, reach) {
                     continue;
                 }
-                let i = (y * w + x) as usize;
-                if d < e[i] && (!only_dirty || dirty.is(x as usize, y as usize)) {
-                    e[i] = d;
-                    l[i] = g;
-                }
-            }
-        };
-        if dirty.any() {
-            for &c in &occupied {
-                let (cx, cy) = ((c % width) as i64, (c / width) as i64);
-                if dirty.near(cx, cy, reach) {
-                    stamp(cx, cy, true, &mut likelihood, &mut dist2);
+                for (y, x0, x1, k) in disc.rows(cx, cy, new) {
+                    // A row whose blocks hold no cleared cell is skipped whole (the discs that
+                    // reach a cleared cell mostly lie beside it).
+                    let by = y as usize / DIRTY_BLOCK * blocks_x;
+                    let (b0, b1) = (x0 as usize / DIRTY_BLOCK, (x1 - 1) as usize / DIRTY_BLOCK);
+                    if !dirty[by + b0..=by + b1].contains(&true) {
+                        continue;
+                    }
+                    let cells = (y * cw + x0) as usize..(y * cw + x1) as usize;
+                    let n = cells.len();
+                    let stamp = disc.d[k..k + n].iter().zip(&disc.g[k..k + n]);
+                    for (((e, l), m), (&d, &g)) in dist[cells.clone()]
+                        .iter_mut()
+                        .zip(&mut like[cells.clone()])
+                        .zip(&mark[cells])
+                        .zip(stamp)
+                    {
+                        if d < *e && *m == generation {
+                            *e = d;
+                            *l = g;
+                        }
+                    }
                 }
             }
         }
         for c in &added {
-            let (cx, cy) = local(c);
-            stamp(cx, cy, false, &mut likelihood, &mut dist2);
+            let (cx, cy) = on_canvas(c);
+            for (y, x0, x1, k) in disc.rows(cx, cy, new) {
+                for x in x0..x1 {
+                    let i = (y * cw + x) as usize;
+                    let (d, g) = (disc.d[k + (x - x0) as usize], disc.g[k + (x - x0) as usize]);
+                    if d < dist[i] {
+                        if mark[i] != generation && like[i].to_bits() != g.to_bits() {
+                            changed[block(x, y)] = true;
+                        }
+                        dist[i] = d;
+                        like[i] = g;
+                    }
+                }
+            }
         }
-        // Every cell whose value may differ from the old grid's (outside its lattice: 0) lies
-        // in a dirty block or under an added disc.
-        for c in &added {
-            let (cx, cy) = local(c);
-            dirty.mark_blocks_near(cx, cy, reach);
+        // Stamped again: mostly their old value back; only the blocks that changed count.
+        for &(i, before) in &cleared {
+            if like[i].to_bits() != before {
+                let (x, y) = ((i as i64) % cw, (i as i64) / cw);
+                changed[block(x, y)] = true;
+            }
         }
-        let repool = width * height > repool_min_cells
-            && self.pooled.first().is_some_and(|l| l.get().is_some());
-        if repool {
-            // Re-stamped cells mostly get their old value back: only blocks that changed count.
-            keep_changed_blocks(
-                &mut dirty,
-                &likelihood,
-                &self.base,
-                [
-                    lattice.offset[0] - self.offset[0],
-                    lattice.offset[1] - self.offset[1],
-                ],
-            );
+        self.occupied = global;
+        // The levels pooled so far, again where they can have changed (each from the one
+        // below, already up to date); the others are pooled on first use.
+        let base = &self.base;
+        let pooled = &mut self.pooled;
+        for h in 1..=pooled.len() {
+            let (below, here) = pooled.split_at_mut(h - 1);
+            let Some(level) = here[0].get_mut() else {
+                break; // (levels are pooled from the bottom: none above is either)
+            };
+            let prev: &Level = if h == 1 {
+                base
+            } else {
+                below[h - 2].get().expect("the level below is pooled")
+            };
+            let half = 1i64 << (h - 1);
+            repool_in_place(prev, Arc::make_mut(level), half, &changed, blocks_x);
         }
-        let base = Level {
+        Ok(())
+    }
+
+    /// The lattice on the canvas: `[x0, y0, x1, y1]` (cells).
+    fn view(&self) -> [i64; 4] {
+        let x0 = self.offset[0] - self.canvas[0];
+        let y0 = self.offset[1] - self.canvas[1];
+        [x0, y0, x0 + self.width as i64, y0 + self.height as i64]
+    }
+
+    /// A new canvas around `lattice` (a margin of an eighth of its size, at least 32 cells,
+    /// on every side), holding the current lattice's cells where the two overlap; the levels
+    /// are pooled again on first use. The lattice's fields are left to the caller (the
+    /// current lattice, on the new canvas, is what [`LikelihoodGrid::view`] then gives).
+    fn recanvas(&mut self, lattice: &Lattice) {
+        let margin = |n: usize| (n / 8).max(32);
+        let (mut mx, mut my) = (margin(lattice.width), margin(lattice.height));
+        if (lattice.width + 2 * mx) * (lattice.height + 2 * my) > MAX_CELLS {
+            (mx, my) = (0, 0); // (the lattice itself is within the limit)
+        }
+        let canvas = [lattice.offset[0] - mx as i64, lattice.offset[1] - my as i64];
+        let (cw, ch) = (lattice.width + 2 * mx, lattice.height + 2 * my);
+        let mut like = vec![0.0f32; cw * ch];
+        let mut dist = vec![f32::INFINITY; cw * ch];
+        // The current lattice's cells that are on the new canvas (global x0, y0, x1, y1).
+        let x0 = self.offset[0].max(canvas[0]);
+        let x1 = (self.offset[0] + self.width as i64).min(canvas[0] + cw as i64);
+        let y0 = self.offset[1].max(canvas[1]);
+        let y1 = (self.offset[1] + self.height as i64).min(canvas[1] + ch as i64);
+        let old_w = self.canvas_size[0] as i64;
+        for y in y0..y1.max(y0) {
+            if x0 >= x1 {
+                break;
+            }
+            let from = ((y - self.canvas[1]) * old_w + x0 - self.canvas[0]) as usize;
+            let to = ((y - canvas[1]) * cw as i64 + x0 - canvas[0]) as usize;
+            let n = (x1 - x0) as usize;
+            like[to..to + n].copy_from_slice(&self.base.data[from..from + n]);
+            dist[to..to + n].copy_from_slice(&self.dist2[from..from + n]);
+        }
+        self.base = Level {
             shift: 0,
-            width: w,
-            height: h,
-            data: likelihood,
+            width: cw as i64,
+            height: ch as i64,
+            data: like,
         };
-        // The levels the old grid had pooled are pooled again, on first use, only where they
-        // can have changed (the same maxima, so the same bits as pooling the whole base); the
-        // others from scratch, as after a build.
-        let previous = repool.then(|| {
-            Arc::new(Previous {
-                levels: self.pooled.iter().map(|l| l.get().cloned()).collect(),
-                blocks: dirty.blocks,
-                blocks_x: dirty.blocks_x,
-                offset: [
-                    lattice.offset[0] - self.offset[0],
-                    lattice.offset[1] - self.offset[1],
-                ],
-                old_size: [self.width as i64, self.height as i64],
-                size: [w, h],
-            })
-        });
-        Ok(LikelihoodGrid {
-            origin: lattice.origin,
-            resolution,
-            sigma,
-            width,
-            height,
-            dist2,
-            base,
-            pooled: (0..self.pooled.len()).map(|_| OnceLock::new()).collect(),
-            previous,
-            offset: lattice.offset,
-            occupied: global,
-        })
+        self.dist2 = dist;
+        // The lattice's cells that are not on the new canvas are dropped: the view becomes
+        // their intersection (its cells outside it are 0, as the canvas outside a lattice).
+        let (nx0, ny0) = (x0.min(x1), y0.min(y1));
+        self.offset = [nx0, ny0];
+        self.width = (x1 - nx0).max(0) as usize;
+        self.height = (y1 - ny0).max(0) as usize;
+        self.canvas = canvas;
+        self.canvas_size = [cw, ch];
+        self.pooled = (0..self.pooled.len()).map(|_| OnceLock::new()).collect();
     }
 
     /// Level `h` (`0`: the likelihood), pooling it on first use.
@@ -1214,20 +1244,14 @@ impl LikelihoodGrid {
         self.pooled[h - 1].get_or_init(|| {
             let half = 1i64 << (h - 1);
             let prev = self.level(h - 1);
-            let old = self
-                .previous
-                .as_ref()
-                .and_then(|p| Some((p, p.levels[h - 1].as_ref()?)));
-            Arc::new(match old {
-                Some((previous, old)) => repooled(prev, old, half, previous),
-                None => pool(
-                    prev,
-                    half,
-                    self.width as i64,
-                    self.height as i64,
-                    self.width * self.height <= SEQUENTIAL_CELLS,
-                ),
-            })
+            let [w, h] = self.canvas_size;
+            Arc::new(pool(
+                prev,
+                half,
+                w as i64,
+                h as i64,
+                w * h <= SEQUENTIAL_CELLS,
+            ))
         })
     }
 
@@ -1249,32 +1273,47 @@ impl LikelihoodGrid {
         self.pooled.len()
     }
     /// The likelihood, row-major `height × width` (row = y).
-    pub fn likelihood(&self) -> &[f32] {
-        &self.base.data
+    pub fn likelihood(&self) -> Vec<f32> {
+        self.on_lattice(&self.base.data)
     }
     /// Squared distance to the nearest occupied cell (cells²), row-major `height × width`.
-    pub fn dist2(&self) -> &[f32] {
-        &self.dist2
+    pub fn dist2(&self) -> Vec<f32> {
+        self.on_lattice(&self.dist2)
     }
 
+    /// The lattice's cells of a canvas raster.
+    fn on_lattice(&self, raster: &[f32]) -> Vec<f32> {
+        let [x0, y0, x1, y1] = self.view();
+        let cw = self.canvas_size[0] as i64;
+        let mut out = Vec::with_capacity(self.width * self.height);
+        for y in y0..y1 {
+            out.extend_from_slice(&raster[(y * cw + x0) as usize..(y * cw + x1) as usize]);
+        }
+        out
+    }
+
+    /// Canvas cell `(x, y)`'s squared distance (+∞ off the canvas).
     fn dist2_at(&self, x: i64, y: i64) -> f32 {
-        if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
+        let [w, h] = self.canvas_size;
+        if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
             return f32::INFINITY;
         }
-        self.dist2[y as usize * self.width + x as usize]
+        self.dist2[y as usize * w + x as usize]
     }
 
     fn slice(&self, source: &[f64], center: [f64; 3], theta: f64) -> Slice {
         let (s, c) = theta.sin_cos();
         let inv = 1.0 / self.resolution;
+        // The lattice's cells (from its origin, as a build places them), on the canvas.
+        let [dx, dy, _, _] = self.view();
         let cells = source
             .chunks_exact(2)
             .map(|p| {
                 let x = c * p[0] - s * p[1] + center[0];
                 let y = s * p[0] + c * p[1] + center[1];
                 [
-                    ((x - self.origin[0]) * inv).floor() as i64,
-                    ((y - self.origin[1]) * inv).floor() as i64,
+                    ((x - self.origin[0]) * inv).floor() as i64 + dx,
+                    ((y - self.origin[1]) * inv).floor() as i64 + dy,
                 ]
             })
             .collect();
@@ -1828,18 +1867,39 @@ mod tests {
         assert_eq!(a.occupied, b.occupied, "{what}: occupied cells");
         assert_eq!(a.levels(), b.levels(), "{what}: levels");
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        assert_eq!(bits(a.dist2()), bits(b.dist2()), "{what}: distance");
+        assert_eq!(bits(&a.dist2()), bits(&b.dist2()), "{what}: distance");
         assert_eq!(
-            bits(a.likelihood()),
-            bits(b.likelihood()),
+            bits(&a.likelihood()),
+            bits(&b.likelihood()),
             "{what}: likelihood"
         );
-        for h in 1..=a.levels() {
-            assert_eq!(
-                bits(&a.level(h).data),
-                bits(&b.level(h).data),
-                "{what}: level {h}"
-            );
+        // Off the lattice a canvas reads 0 and +∞, as off the canvas.
+        for g in [a, b] {
+            let [x0, y0, x1, y1] = g.view();
+            let cw = g.canvas_size[0] as i64;
+            for (i, (l, d)) in g.base.data.iter().zip(&g.dist2).enumerate() {
+                let (x, y) = (i as i64 % cw, i as i64 / cw);
+                if x < x0 || x >= x1 || y < y0 || y >= y1 {
+                    assert!(
+                        l.to_bits() == 0 && d.is_infinite(),
+                        "{what}: canvas at {x},{y}"
+                    );
+                }
+            }
+        }
+        // Every level cell whose window touches the lattice, and a margin around them.
+        let (w, h) = (a.width as i64, a.height as i64);
+        for lvl in 1..=a.levels() {
+            let pad = (1i64 << lvl) + 2;
+            let at = |g: &LikelihoodGrid, x: i64, y: i64| {
+                let [dx, dy, _, _] = g.view();
+                g.level(lvl).at(x + dx, y + dy).to_bits()
+            };
+            for y in -pad..h + pad {
+                for x in -pad..w + pad {
+                    assert_eq!(at(a, x, y), at(b, x, y), "{what}: level {lvl} at {x},{y}");
+                }
+            }
         }
     }
 
@@ -1871,10 +1931,14 @@ mod tests {
             let built = LikelihoodGrid::build(&reference, 0.05, 0.05, 5).unwrap();
             let next = match &grid {
                 None => built.clone(),
-                // Every other step its levels pooled from the old grid's (as a large grid's).
-                Some(g) => g
-                    .updated_with(&reference, [usize::MAX, 0][end % 2])
-                    .unwrap(),
+                // Every other step in place, its levels pooled before (pooled again there).
+                Some(g) if end % 2 == 0 => {
+                    let mut g = g.clone();
+                    let _ = g.level(g.levels());
+                    g.update(&reference).unwrap();
+                    g
+                }
+                Some(g) => g.updated(&reference).unwrap(),
             };
             assert_same_grid(&next, &built, &format!("window ending at {end}"));
             let w = Window {
@@ -1907,16 +1971,20 @@ mod tests {
             &LikelihoodGrid::build(&room, 0.05, 0.05, 5).unwrap(),
             "back",
         );
-        // Bad input is refused as build refuses it.
+        // Bad input is refused as build refuses it, and leaves the grid as it was.
         assert!(g.updated(&[]).is_err());
         assert!(g.updated(&[0.0, f64::NAN]).is_err());
+        let mut same = g.clone();
+        assert!(same.update(&[1.0, f64::INFINITY]).is_err());
+        assert_eq!(same.occupied, g.occupied);
+        assert_eq!(same.likelihood(), g.likelihood());
     }
 
     #[test]
-    fn an_update_repools_the_levels_the_old_grid_had_and_only_those() {
-        // The old grid with its first two of five levels pooled: the update keeps exactly
-        // those to re-pool from where the base changed (equal to pooling the built grid's),
-        // the others are pooled from scratch; all on first use; on lattices that grow, shrink, shift and stay.
+    fn an_update_repools_the_levels_the_grid_had_and_only_those() {
+        // The grid with its first two of five levels pooled: an update pools those two again
+        // where the base changed (equal to pooling the built grid's) and leaves the others to
+        // be pooled on first use; on lattices that grow, shrink, shift and stay.
         let room = room();
         let poses = [
             [0.0, 0.0, 0.0],
@@ -1927,32 +1995,36 @@ mod tests {
             [-1.5, 2.0, -0.4], // farther
         ];
         let mut grid: Option<LikelihoodGrid> = None;
+        let mut in_place = 0;
         for (k, pose) in poses.iter().enumerate() {
             let mut reference = transform(&room, *pose);
             if k == 4 {
                 reference.truncate(reference.len() / 2); // half the room: the lattice shrinks
             }
             let built = LikelihoodGrid::build(&reference, 0.05, 0.05, 5).unwrap();
-            let next = match &grid {
+            let next = match grid {
                 None => built.clone(),
-                Some(g) => {
+                Some(mut g) => {
                     let _ = g.level(2);
-                    g.updated_with(&reference, 0).unwrap()
+                    let canvas = (g.canvas, g.canvas_size);
+                    g.update(&reference).unwrap();
+                    let kept: Vec<bool> = g.pooled.iter().map(|l| l.get().is_some()).collect();
+                    // (A lattice that left the canvas lays a new one: pooled on first use.)
+                    let expected = if (g.canvas, g.canvas_size) == canvas {
+                        in_place += 1;
+                        [true, true, false, false, false]
+                    } else {
+                        [false; 5]
+                    };
+                    assert_eq!(kept, expected, "step {k}");
+                    g
                 }
             };
-            if grid.is_some() {
-                let previous = next.previous.as_ref().expect("the old grid had levels");
-                let carried: Vec<bool> = previous.levels.iter().map(Option::is_some).collect();
-                assert_eq!(carried, [true, true, false, false, false], "step {k}");
-                assert!(
-                    next.pooled.iter().all(|l| l.get().is_none()),
-                    "pooled on first use"
-                );
-            }
             // (On a copy: comparing pools every level.)
             assert_same_grid(&next.clone(), &built, &format!("step {k}"));
             grid = Some(next);
         }
+        assert!(in_place >= 3, "{in_place} updates kept their canvas");
     }
 
     #[test]

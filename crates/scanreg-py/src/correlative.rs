@@ -7,7 +7,8 @@ use pyo3::prelude::*;
 use scanreg_core::correlative::{self, LikelihoodGrid, Window};
 
 /// A reference scan or map rasterised once (likelihood, distance, max-pooled levels).
-#[pyclass(frozen, module = "scanreg._core")]
+/// Not frozen: [`CorrelativeGrid::update`] changes it in place.
+#[pyclass(module = "scanreg._core")]
 pub struct CorrelativeGrid {
     inner: LikelihoodGrid,
 }
@@ -79,6 +80,14 @@ impl CorrelativeGrid {
         Ok(CorrelativeGrid { inner })
     }
 
+    /// This grid made the grid of `reference` in place (what `updated` returns, without
+    /// copying the rasters first); unchanged on an error.
+    fn update(&mut self, py: Python<'_>, reference: PyReadonlyArray2<'_, f64>) -> PyResult<()> {
+        let data = points_dim(&reference, "reference", 2)?;
+        let inner = &mut self.inner;
+        py.detach(|| inner.update(data)).map_err(core_err)
+    }
+
     #[getter]
     fn origin(&self) -> (f64, f64) {
         let o = self.inner.origin();
@@ -104,13 +113,13 @@ impl CorrelativeGrid {
     /// The likelihood, `(height, width)` float32 (row = y).
     #[getter]
     fn likelihood(&self, py: Python<'_>) -> PyResult<Py<PyArray2<f32>>> {
-        grid_array(py, self.inner.likelihood().to_vec(), self.inner.shape())
+        grid_array(py, self.inner.likelihood(), self.inner.shape())
     }
     /// Squared distance to the nearest occupied cell, cells², `(height, width)` float32; +inf
     /// beyond the likelihood's support (where it is 0 in float32: about 14σ).
     #[getter]
     fn distance_squared(&self, py: Python<'_>) -> PyResult<Py<PyArray2<f32>>> {
-        grid_array(py, self.inner.dist2().to_vec(), self.inner.shape())
+        grid_array(py, self.inner.dist2(), self.inner.shape())
     }
 
     /// Search `(2nx+1)(2ny+1)(2ntheta+1)` candidates around `center` = `[x, y, θ]`;

@@ -22,10 +22,10 @@ One :meth:`Odometry2D.step` per scan, in four stages:
    computed again — the same map, normals, normal noise and point spacing as downsampling and
    :func:`scanreg.prepare` of the window from scratch, at about half the cost on the Intel log
    (the k-d tree is rebuilt).
-   The correlative grid is brought up to date when next needed
+   The correlative grid is brought up to date, in place, when next needed
    (:meth:`scanreg.CorrelativeGrid.updated`): only the cells near the occupied cells the
-   keyframe added or the evicted one took away are rasterised again — the grid a build from
-   scratch gives, to the bit.
+   keyframe added or the evicted one took away are rasterised again, and its pooled levels
+   pooled again only where those changed — the grid a build from scratch gives, to the bit.
 
 Poses are ``T_world_scan`` with the world frame that of the first scan.
 """
@@ -309,7 +309,8 @@ class Odometry2D:
                 self._map_points, resolution=self.config.correlative_resolution
             )
         elif self._grid_stale:
-            self._grid = self._grid.updated(self._map_points)
+            # In place: no one else holds the odometry's grid.
+            self._grid = self._grid.updated(self._map_points, in_place=True)
         self._grid_stale = False
         return self._grid
 
