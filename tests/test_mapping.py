@@ -20,7 +20,13 @@ from scanreg import simulate as sim
 pytest.importorskip("gtsam")
 
 from scanreg.graph import Graph
-from scanreg.pipeline.loops import LoopSettings, build_submap, match_loop, wide_submap_span
+from scanreg.pipeline.loops import (
+    LoopSettings,
+    build_submap,
+    match_loop,
+    rival_search,
+    wide_submap_span,
+)
 from scanreg.pipeline.mapping import Mapper, MappingConfig, MappingResult
 from scanreg.pipeline.mapping_output import summary
 
@@ -229,6 +235,16 @@ def test_a_held_match_with_a_rival_as_good_is_refused_as_ambiguous(periodic: boo
         assert held.accepted and held.rival == 0.0, held.reasons
     with pytest.raises(ValueError, match=r"^ambiguity_ratio: must be > 0"):
         LoopSettings(ambiguity_ratio=0.0)
+    args = (points, sub.grid, predicted, window, held.measured)
+    kwargs: dict[str, Any] = {"min_score": 0.5, "angular_resolution": None}
+    with pytest.raises(ValueError, match=r"^exclusion: expected \(dx = dy, dθ\)"):
+        rival_search(*args, exclusion=(math.nan, 0.1), **kwargs)
+    with pytest.raises(ValueError, match=r"^window: expected \(dx = dy, dθ\)"):
+        rival_search(
+            points, sub.grid, predicted, (1.0,), held.measured, exclusion=(0.5, 0.1), **kwargs
+        )  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match=r"^grid: expected a CorrelativeGrid, got Submap2D"):
+        rival_search(points, sub, predicted, window, held.measured, exclusion=(0.5, 0.1), **kwargs)  # type: ignore[arg-type]
 
 
 def test_a_return_driven_the_other_way_closes_on_the_submap_its_scan_sees() -> None:

@@ -494,6 +494,13 @@ def rival_search(
     box in x; within its x-range, below and above in y; within its x- and y-range, below
     and above in θ), each searched by branch and bound with the floor (most are pruned
     whole)."""
+    if not isinstance(grid, CorrelativeGrid):
+        raise TypeError(f"grid: expected a CorrelativeGrid, got {type(grid).__name__}")
+    for name, pair in (("window", window), ("exclusion", exclusion)):
+        if not (len(pair) == 2 and all(math.isfinite(float(v)) and float(v) >= 0 for v in pair)):
+            raise ValueError(
+                f"{name}: expected (dx = dy, dθ), two finite numbers >= 0, got {pair!r}"
+            )
     p, b = predicted.as_vector(), best.as_vector()
     half = np.array([window[0], window[0], window[1]])
     lo, hi = p - half, p + half
