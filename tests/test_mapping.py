@@ -604,6 +604,24 @@ def test_scan_odometry_is_read_at_the_scan_time() -> None:
         assert p is not None and p.is_close(SE2.from_vector(s.odometry_pose))
 
 
+def test_scans_keep_their_own_odometry_when_the_stamps_cannot_place_them() -> None:
+    # Radish's belgioioso log: scan stamps truncated (repeats, "coarse"), its ODOM stream
+    # the raw wheels. Interpolated at a handful of instants, every scan read the same pose
+    # (a standing robot over 219 m, measured: max step 0 m). Now each keeps the fields the
+    # logger paired it with.
+    from scanreg.io import read_scans
+    from scanreg.pipeline.mapping import scan_odometry
+
+    log = read_scans(data_dir("carmen-radish-corrected", "belgioioso-corrected.log.gz"))
+    assert log.time_status == "coarse"
+    flaser = [k for k, s in enumerate(log.scans) if s.kind == "FLASER"]
+    poses = scan_odometry(log, flaser)
+    for k, p in zip(flaser, poses, strict=True):
+        assert p is not None and p.is_close(SE2.from_vector(log.scans[k].odometry_pose))
+    steps = [np.linalg.norm((a.inverse() @ b).translation) for a, b in itertools.pairwise(poses)]  # type: ignore[union-attr,operator]
+    assert 200.0 < sum(steps) < 240.0  # the README's 219 m
+
+
 def test_wheel_prior_holds_the_corridor_axis_only() -> None:
     # A featureless corridor along x (its ends out of range): the scan pins y and θ, not x.
     # With the wheels' noise model the odometry holds x to the wheels' step and takes y and

@@ -1236,7 +1236,9 @@ def scan_odometry(
     max_range]``, only when the odometry is stale; ACES: 0.07 s). A scan keeps its own
     fields when the log is synchronous, when no two ``ODOM`` messages at most 1 s apart
     bracket that time, or when its fields match no ``ODOM`` message (its lag is then
-    unknown). ``None`` for a scan without odometry.
+    unknown), and every scan keeps them when the log's stamps cannot place it in the stream
+    (:attr:`~scanreg.io.CarmenLog.time_status` ``"coarse"`` or ``"all_zero"``). ``None`` for a
+    scan without odometry.
     """
     return _scan_odometry(log, indices, latency, min_range, max_range)[0]
 
@@ -1253,6 +1255,12 @@ def _scan_odometry(
     own = [s.odometry_se2 for s in scans]
     odom = log.odometry
     t_odom, p_odom = np.asarray(odom.timestamps), np.asarray(odom.poses)
+    if log.time_status in ("coarse", "all_zero"):
+        # Stamps that repeat or are all zero place no scan in the ODOM stream: each scan
+        # keeps the fields the logger paired it with. (Radish's belgioioso and csail logs,
+        # stamps truncated to 1e5 s: every scan interpolated at a handful of instants read
+        # a standing robot over their 219 and 380 m.)
+        return own, None
     message = {tuple(p): k for k, p in enumerate(p_odom.tolist())}
     lags = [
         s.timestamp - t_odom[message[tuple(s.odometry_pose.tolist())]]
