@@ -243,6 +243,10 @@ def test_a_held_match_with_a_rival_as_good_is_refused_as_ambiguous(periodic: boo
         rival_search(
             points, sub.grid, predicted, (1.0,), held.measured, exclusion=(0.5, 0.1), **kwargs
         )  # type: ignore[arg-type]
+    nan = points.copy()
+    nan[0, 0] = math.nan
+    with pytest.raises(ValueError, match=r"^points: point 0 has a non-finite coordinate"):
+        rival_search(nan, *args[1:], exclusion=(0.5, 0.1), **kwargs)
     with pytest.raises(TypeError, match=r"^grid: expected a CorrelativeGrid, got Submap2D"):
         rival_search(points, sub, predicted, window, held.measured, exclusion=(0.5, 0.1), **kwargs)  # type: ignore[arg-type]
 

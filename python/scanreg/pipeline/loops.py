@@ -28,7 +28,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .._validate import FloatArray, as_matrix
+from .._validate import FloatArray, as_matrix, as_points
 from ..correlative import CorrelativeGrid, find_correlative, prepare_correlative
 from ..graph import project_information
 from ..preprocess import voxel_downsample
@@ -494,6 +494,7 @@ def rival_search(
     box in x; within its x-range, below and above in y; within its x- and y-range, below
     and above in θ), each searched by branch and bound with the floor (most are pruned
     whole)."""
+    points = as_points(points, "points", dim=2)
     if not isinstance(grid, CorrelativeGrid):
         raise TypeError(f"grid: expected a CorrelativeGrid, got {type(grid).__name__}")
     for name, pair in (("window", window), ("exclusion", exclusion)):
