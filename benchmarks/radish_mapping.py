@@ -109,7 +109,8 @@ def main() -> None:
         "| CPU (s) |"
     )
     print("|---|---:|---:|---|---|---|---|---:|---:|---|---|---:|")
-    for seed, name in enumerate(args.logs):
+    for name in args.logs:
+        seed = LOGS.index(name)  # the same wheels whichever logs are run
         run, reference, stamps = prepared(name, folder, seed)
         c0 = time.process_time()
         res = run_mapping(run, MappingConfig())
