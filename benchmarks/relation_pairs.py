@@ -27,6 +27,12 @@ comparison (Karto is single-threaded).
 
 ``--list``: every pair some contender gets wrong, with each contender's error.
 
+``--logs radish-NAME,...``: logs the defaults were never chosen on, with no relations: the
+consecutive scans of a Radish "corrected" log (``radish_mapping.py``; 180–361-beam 180°
+lasers, scans 0.5–1 m and up to ~30° apart), the reference GMapping's relative pose between
+them (cm-level, not ground truth: both matchers' errors include its own), the start
+``radish_mapping.noisy_odometry``'s simulated wheels (seeded by the log).
+
 ``--front-end``: also the ``Odometry2D`` front end as ``scanreg map`` runs it (scan to local map,
 the wheel prior, loop closure off: ``run_mapping`` with ``max_candidates=0``) over the whole log,
 read at the same pairs (its relative pose between the two scans' stamps, in the robot's frame as
@@ -169,8 +175,31 @@ def front_end_rows(name: str, pairs: list[tuple[int, SE2]]) -> tuple[list[dict[s
     return rows, ms
 
 
+def radish_scans(name: str, count: int) -> list[tuple[int, Any, Any, SE2, SE2]]:
+    """:func:`relation_scans` for a Radish corrected log ``radish-NAME``: ``(k, scan k, scan
+    k+1, GMapping's relative pose, the simulated wheels')`` for the first ``count`` steps."""
+    from radish_mapping import LOGS, noisy_odometry
+    from relation_slide import DATA
+    from scanreg.io import read_scans
+
+    log_name = name.removeprefix("radish-")
+    path = DATA / "carmen-radish-corrected" / f"{log_name}-corrected.log.gz"
+    scans = read_scans(path).laser("FLASER")
+    # The corrected pose is each FLASER line's own, the laser's (radish_mapping.py).
+    reference = [SE2.from_vector(s.odometry_pose) for s in scans]
+    wheels = noisy_odometry(reference, LOGS.index(log_name))
+    out = []
+    for k in range(min(count, len(scans) - 1)):
+        relation = reference[k].inverse() @ reference[k + 1]
+        out.append((k, scans[k], scans[k + 1], relation, wheels[k].inverse() @ wheels[k + 1]))
+    return out
+
+
 def run(name: str, count: int, rounds: int, listing: bool, front_end: bool = False) -> None:
-    pairs = relation_scans(name, count)
+    radish = name.startswith("radish-")
+    if radish and front_end:
+        raise SystemExit("--front-end reads Freiburg logs only (radish_mapping.py maps Radish)")
+    pairs = radish_scans(name, count) if radish else relation_scans(name, count)
     rows: dict[str, list[dict[str, Any]]] = {c: [] for c in CONTENDERS}
     for k, scan1, scan2, relation, odometry in pairs:
         for label, call in CONTENDERS.items():
@@ -192,7 +221,8 @@ def run(name: str, count: int, rounds: int, listing: bool, front_end: bool = Fal
                 }
             )
     karto_ms = 1e3 * float(np.median([r["seconds"] for r in rows["karto"]]))
-    print(f"\n{name}: {len(pairs)} relations under {MAX_SECONDS:g} s, from the wheel odometry")
+    what = "consecutive scans" if radish else f"relations under {MAX_SECONDS:g} s"
+    print(f"\n{name}: {len(pairs)} {what}, from the wheel odometry")
     print("| contender | median error (cm) | wrong | accepted and wrong | ms per pair | ÷ Karto |")
     print("|---|---|---|---|---|---|")
     for label, rs in rows.items():
