@@ -175,6 +175,31 @@ def front_end_rows(name: str, pairs: list[tuple[int, SE2]]) -> tuple[list[dict[s
     return rows, ms
 
 
+def radish_front_end_rows(
+    name: str, pairs: list[tuple[int, SE2]]
+) -> tuple[list[dict[str, Any]], float]:
+    """:func:`front_end_rows` for ``radish-NAME``: the front end over the log with the
+    simulated wheels (``radish_mapping.prepared``), read between scans k and k+1."""
+    import dataclasses
+
+    from radish_mapping import LOGS, prepared
+    from relation_slide import DATA
+    from scanreg.pipeline.mapping import MappingConfig, run_mapping
+
+    log_name = name.removeprefix("radish-")
+    run_log, _, _ = prepared(log_name, DATA / "carmen-radish-corrected", LOGS.index(log_name))
+    t0 = time.process_time()
+    res = run_mapping(run_log, dataclasses.replace(MappingConfig(), max_candidates=0))
+    ms = 1e3 * (time.process_time() - t0) / res.num_scans
+    poses = res.odometry_poses
+    rows = []
+    for k, relation in pairs:
+        err = ((poses[k].inverse() @ poses[k + 1]).inverse() @ relation).log()
+        m, deg = float(np.hypot(err[0], err[1])), math.degrees(abs(float(err[2])))
+        rows.append({"k": k, "m": m, "deg": deg, "wrong": m > WRONG_M or deg > WRONG_DEG})
+    return rows, ms
+
+
 def radish_scans(name: str, count: int) -> list[tuple[int, Any, Any, SE2, SE2]]:
     """:func:`relation_scans` for a Radish corrected log ``radish-NAME``: ``(k, scan k, scan
     k+1, GMapping's relative pose, the simulated wheels')`` for the first ``count`` steps."""
@@ -197,8 +222,6 @@ def radish_scans(name: str, count: int) -> list[tuple[int, Any, Any, SE2, SE2]]:
 
 def run(name: str, count: int, rounds: int, listing: bool, front_end: bool = False) -> None:
     radish = name.startswith("radish-")
-    if radish and front_end:
-        raise SystemExit("--front-end reads Freiburg logs only (radish_mapping.py maps Radish)")
     pairs = radish_scans(name, count) if radish else relation_scans(name, count)
     rows: dict[str, list[dict[str, Any]]] = {c: [] for c in CONTENDERS}
     for k, scan1, scan2, relation, odometry in pairs:
@@ -233,8 +256,8 @@ def run(name: str, count: int, rounds: int, listing: bool, front_end: bool = Fal
             f"{ms:.2f} | {ms / karto_ms:.2f} |"
         )
     if front_end:
-        fe = front_end_rows(name, [(r["k"], rel) for r, (_, _, _, rel, _) in zip(
-            rows["karto"], pairs, strict=True)])  # fmt: skip
+        rows_at = [(r["k"], rel) for r, (_, _, _, rel, _) in zip(rows["karto"], pairs, strict=True)]
+        fe = radish_front_end_rows(name, rows_at) if radish else front_end_rows(name, rows_at)
         print(
             f"| Odometry2D front end (run over the log) | "
             f"{100 * np.median([r['m'] for r in fe[0]]):.3f} | "
