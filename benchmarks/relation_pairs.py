@@ -6,6 +6,10 @@ to scan t1 (target) from the wheel odometry's relative pose, by
 
 * ``register``: scanreg's default 2D call, ``scanreg.register(src, scanreg.prepare(tgt,
   normals=True), method="point_to_line", init=odometry)``, its verdict read;
+* ``register, init_covariance``: the same with the start's covariance stated, as a caller
+  with odometry has it (Freiburg: the default ``WheelNoise`` model of the step; Radish: the
+  simulated wheels' own model): a window wider than the solve's basin is searched first
+  (``RegistrationSettings.search_start``, :mod:`scanreg.start_search`);
 * ``register, refine_in_basin=False``: the same without the refinement in the basin
   (:func:`scanreg.slide.refine_in_basin`), the default call before it;
 * ``correlative + register``: the README's 2D log recipe, correlative branch and bound at 5 cm
@@ -66,6 +70,42 @@ def scanreg_default(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
     target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
     res = scanreg.register(
         scan2.to_points(MIN_RANGE, MAX_RANGE), target, method="point_to_line", init=start
+    )
+    return res.pose, bool(res.verdict.accepted)
+
+
+#: The start's stated covariance for the ``register, init_covariance`` contender, per pair:
+#: the library's default wheel model on the Freiburg logs' real odometry, the simulation's own
+#: noise model on the Radish logs (set by :func:`run`).
+_STATED: list[Callable[[SE2], np.ndarray]] = []
+
+
+def wheel_covariance(step: SE2) -> np.ndarray:
+    """The default :class:`~scanreg.pipeline.WheelNoise` model's covariance of ``step``."""
+    from scanreg.pipeline.wheel import WheelNoise
+
+    return WheelNoise().covariance(step)
+
+
+def simulated_covariance(step: SE2) -> np.ndarray:
+    """``radish_mapping.noisy_odometry``'s own noise model for ``step`` (robot frame)."""
+    from radish_mapping import ACROSS, ALONG, TURN, TURN_PER_METRE
+
+    d = float(np.linalg.norm(step.translation))
+    sigma = [ALONG * d + 1e-3, ACROSS * d + 1e-3, TURN + TURN_PER_METRE * d]
+    return np.diag(np.square(sigma))
+
+
+def scanreg_stated(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
+    """The default call with the start's covariance stated (``init_covariance``): a window
+    wider than the solve's basin is searched first (``RegistrationSettings.search_start``)."""
+    target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
+    res = scanreg.register(
+        scan2.to_points(MIN_RANGE, MAX_RANGE),
+        target,
+        method="point_to_line",
+        init=start,
+        init_covariance=_STATED[0](start),
     )
     return res.pose, bool(res.verdict.accepted)
 
@@ -138,6 +178,7 @@ def karto_match(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
 
 CONTENDERS: dict[str, Callable[[Any, Any, SE2], tuple[SE2, bool]]] = {
     "register": scanreg_default,
+    "register, init_covariance": scanreg_stated,
     "register, refine_in_basin=False": scanreg_unrefined,
     "correlative + register": scanreg_correlative,
     "karto": karto_match,
@@ -223,6 +264,7 @@ def radish_scans(name: str, count: int) -> list[tuple[int, Any, Any, SE2, SE2]]:
 def run(name: str, count: int, rounds: int, listing: bool, front_end: bool = False) -> None:
     radish = name.startswith("radish-")
     pairs = radish_scans(name, count) if radish else relation_scans(name, count)
+    _STATED[:] = [simulated_covariance if radish else wheel_covariance]
     rows: dict[str, list[dict[str, Any]]] = {c: [] for c in CONTENDERS}
     for k, scan1, scan2, relation, odometry in pairs:
         for label, call in CONTENDERS.items():

@@ -51,6 +51,7 @@ from .quality import (
 )
 from .robust import check_kernel
 from .slide import SlideCheck, guard_start, refine_in_basin, refined_objective
+from .start_search import searched_start
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose, pose_class
 from .trust import (
@@ -195,6 +196,17 @@ class RegistrationSettings:
     #: wrong results 22 → 6 (Intel), 15 → 7 (ACES), 137 → 53 (hospital), Karto's 6 / 7 / 58,
     #: for about 0.4 ms more a call. ``False``: the solve (and guard) alone.
     refine_in_basin: bool = True
+    #: 2D, with a stated ``init_covariance`` whose 3σ reaches beyond half the gate (in
+    #: translation, or in heading times the source's RMS radius): search that window first
+    #: (capped at one gate and 30°) by correlative branch and bound on a grid of a tenth of
+    #: the gate, penalised by the covariance as Karto's matcher penalises its own, and solve
+    #: from its answer unless it lies on the window's edge (:mod:`scanreg.start_search`); the
+    #: verdict still measures the motion from ``init``. Not with ``degeneracy_aware`` (which
+    #: keeps ``init`` along the weak directions) or a ``step_projector``. Consecutive Radish
+    #: scans from simulated wheels with their noise model stated
+    #: (``benchmarks/relation_pairs.py``): see benchmarks/README.md. ``False``: solve from
+    #: ``init``.
+    search_start: bool = True
 
     def __post_init__(self) -> None:
         _positive_float(
@@ -231,6 +243,7 @@ class RegistrationSettings:
             "extrapolate",
             "never_worse_than_start",
             "refine_in_basin",
+            "search_start",
         ):
             value = getattr(self, name)
             if not isinstance(value, bool):
@@ -612,7 +625,8 @@ def register(
         the variance along degenerate directions. ``None``: a gate-wide prior,
         ``diag(δ², …, (δ/L_a)², …) / 3`` with ``δ = max_correspondence_distance`` and ``L_a``
         the rotation levers (ICP only converges from within about a gate of the truth: an
-        error uniform within ``±δ``).
+        error uniform within ``±δ``). In 2D a stated covariance whose 3σ reaches beyond half
+        the gate also has its window searched before the solve (``search_start``).
     thresholds
         :class:`~scanreg.VerdictThresholds` for ``result.verdict``; default thresholds if
         ``None``.
@@ -700,6 +714,25 @@ def register(
         given_prior = _checked_init_covariance(init_covariance, dof)
     if thresholds is not None and not isinstance(thresholds, VerdictThresholds):
         raise TypeError(f"thresholds: expected VerdictThresholds, got {type(thresholds).__name__}")
+    # Where the solve starts: ``init``, or the best pose of its stated window when that reaches
+    # beyond the solve's basin (scanreg.start_search). The verdict measures motion from init.
+    solve_start = pose0
+    if (
+        s.search_start
+        and dim == 2
+        and given_prior is not None
+        # A held solve keeps init along what it holds; so does the degeneracy-aware one.
+        and step_projector is None
+        and not s.degeneracy_aware
+        and isinstance(prepared, PreparedTarget)
+        and len(prepared.points)
+    ):
+        assert isinstance(pose0, SE2)
+        searched = searched_start(
+            src, prepared._start_grid, pose0, given_prior, s.max_correspondence_distance
+        )
+        if searched is not None:
+            solve_start = searched
 
     # A LocalMap carries its own normals/covariances (the core reads them under its lock); the
     # correspondence analysis reads the same id-indexed storage. A PreparedTarget passes its
@@ -742,7 +775,7 @@ def register(
 
     def run(
         projector: FloatArray | None,
-        start: SE2 | SE3 | FloatArray = pose0,
+        start: SE2 | SE3 | FloatArray = solve_start,
         method: str = method_eff,
         max_iterations: int = s.max_iterations,
         gate: float = s.max_correspondence_distance,
@@ -789,7 +822,7 @@ def register(
             out,
             index=index,
             source=src,
-            start=pose0,
+            start=solve_start,
             gate=s.max_correspondence_distance,
             target_points=t_points,
             solve_from_start=lambda gate: run(projector0, gate=gate),
@@ -803,7 +836,7 @@ def register(
                 slide,
                 index=index,
                 source=src,
-                start=pose0,
+                start=solve_start,
                 gate=s.max_correspondence_distance,
                 solve_narrow=lambda start, gate: run(
                     projector0, start, gate=gate, kernel=("cauchy", gate / 3.0)
@@ -866,6 +899,7 @@ def register(
         "components": components,
         "init_covariance": given_prior,
         "start": pose0,
+        "solve_start": solve_start,
         "slide": slide,
         "thresholds": th,
         "plane_solve": (

@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +19,9 @@ from . import _core, budget
 from ._validate import FloatArray, as_points, build, check_flag
 from ._validate import readonly as _readonly
 from .degeneracy import normal_noise
+
+if TYPE_CHECKING:
+    from .correlative import CorrelativeGrid
 from .preprocess import (
     DEFAULT_K,
     BoolArray,
@@ -170,9 +173,22 @@ class PreparedTarget:
             grid = grids[resolution] = _core.CorrelativeGrid(self.points, resolution, resolution, 6)
         return grid
 
+    def _start_grid(self, resolution: float) -> CorrelativeGrid:
+        """2D: the correlative grid a stated start's window is searched on
+        (:mod:`scanreg.start_search`), built on first use and kept for every registration
+        against this target with the same gate. Not pickled: rebuilt on demand."""
+        from .correlative import prepare_correlative
+
+        grids: dict[float, CorrelativeGrid] = self.__dict__.setdefault("_start_grids", {})
+        grid = grids.get(resolution)
+        if grid is None:
+            grid = grids[resolution] = prepare_correlative(self.points, resolution=resolution)
+        return grid
+
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
         state.pop("_grids", None)  # the core's grids do not pickle; rebuilt when read
+        state.pop("_start_grids", None)
         return state
 
     def nearest(self, query_points: FloatArray, max_distance: float = math.inf) -> Nearest:

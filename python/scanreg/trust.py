@@ -155,8 +155,12 @@ class TrustInputs:
     components: int
     #: Checked (and copied) ``init_covariance``, or None for the gate-wide prior.
     init_covariance: FloatArray | None
+    #: The caller's ``init``: the verdict measures the result's motion from it.
     start: SE2 | SE3
     thresholds: VerdictThresholds
+    #: Where the solve started (:mod:`scanreg.start_search`: the best pose of ``start``'s
+    #: stated window, when searched), the start the never-worse check compared; None: ``start``.
+    solve_start: SE2 | SE3 | None = None
     #: Point-to-point with target normals: ``solve(pose)``, the core's point-to-plane/line
     #: registration from ``pose`` (held along the weak directions where the solve was), for
     #: ``calibrated`` (:func:`_via_plane_reference`); None otherwise.
@@ -639,7 +643,8 @@ def _trust(
             else np.zeros((dof, dof))
         )
     slide = ctx.slide
-    grown = start_cover(slide, pose, ctx.start, chosen, gate, th.basin_ambiguous_ratio)
+    solve_start = ctx.start if ctx.solve_start is None else ctx.solve_start
+    grown = start_cover(slide, pose, solve_start, chosen, gate, th.basin_ambiguous_ratio)
     if grown is not None:
         # A re-solve from a start that explains about as much: the covariance covers both.
         chosen = _readonly(_psd(grown))

@@ -336,6 +336,9 @@ class Localizer2D:
             # The prediction's own spread, when known: the verdict's motion check rejects a
             # step that slid beyond it (else the gate-wide prior).
             init_covariance=start_covariance,
+            # Its own correlative search recovers a lost track (global fixes, the ambiguity
+            # test); a grid of the whole map per target would not pay here.
+            search_start=False,
             max_correspondence_distance=cfg.max_correspondence_distance,
             kernel=cfg.kernel,
             max_iterations=cfg.max_iterations,
