@@ -6,6 +6,8 @@ to scan t1 (target) from the wheel odometry's relative pose, by
 
 * ``register``: scanreg's default 2D call, ``scanreg.register(src, scanreg.prepare(tgt,
   normals=True), method="point_to_line", init=odometry)``, its verdict read;
+* ``register, hold_degenerate=False``: the same without holding a degenerate refined result
+  at the start along its weak directions (``RegistrationSettings.hold_degenerate``);
 * ``register, refine_in_basin=False``: the same without the refinement in the basin
   (:func:`scanreg.slide.refine_in_basin`), the default call before it;
 * ``correlative + register``: the README's 2D log recipe, correlative branch and bound at 5 cm
@@ -60,6 +62,20 @@ def scanreg_default(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
     target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
     res = scanreg.register(
         scan2.to_points(MIN_RANGE, MAX_RANGE), target, method="point_to_line", init=start
+    )
+    return res.pose, bool(res.verdict.accepted)
+
+
+def scanreg_unheld(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
+    """The default call without holding a degenerate result at the start
+    (``hold_degenerate=False``)."""
+    target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
+    res = scanreg.register(
+        scan2.to_points(MIN_RANGE, MAX_RANGE),
+        target,
+        method="point_to_line",
+        init=start,
+        hold_degenerate=False,
     )
     return res.pose, bool(res.verdict.accepted)
 
@@ -132,6 +148,7 @@ def karto_match(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
 
 CONTENDERS: dict[str, Callable[[Any, Any, SE2], tuple[SE2, bool]]] = {
     "register": scanreg_default,
+    "register, hold_degenerate=False": scanreg_unheld,
     "register, refine_in_basin=False": scanreg_unrefined,
     "correlative + register": scanreg_correlative,
     "karto": karto_match,
