@@ -10,6 +10,8 @@ to scan t1 (target) from the wheel odometry's relative pose, by
   with odometry has it (Freiburg: the default ``WheelNoise`` model of the step; Radish: the
   simulated wheels' own model): a window wider than the solve's basin is searched first
   (``RegistrationSettings.search_start``, :mod:`scanreg.start_search`);
+* ``register, hold_degenerate=False``: the same without holding a degenerate refined result
+  at the start along its weak directions (``RegistrationSettings.hold_degenerate``);
 * ``register, refine_in_basin=False``: the same without the refinement in the basin
   (:func:`scanreg.slide.refine_in_basin`), the default call before it;
 * ``correlative + register``: the README's 2D log recipe, correlative branch and bound at 5 cm
@@ -110,6 +112,20 @@ def scanreg_stated(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
     return res.pose, bool(res.verdict.accepted)
 
 
+def scanreg_unheld(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
+    """The default call without holding a degenerate result at the start
+    (``hold_degenerate=False``)."""
+    target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
+    res = scanreg.register(
+        scan2.to_points(MIN_RANGE, MAX_RANGE),
+        target,
+        method="point_to_line",
+        init=start,
+        hold_degenerate=False,
+    )
+    return res.pose, bool(res.verdict.accepted)
+
+
 def scanreg_unrefined(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
     """The default call without the refinement in the basin (``refine_in_basin=False``)."""
     target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
@@ -179,6 +195,7 @@ def karto_match(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
 CONTENDERS: dict[str, Callable[[Any, Any, SE2], tuple[SE2, bool]]] = {
     "register": scanreg_default,
     "register, init_covariance": scanreg_stated,
+    "register, hold_degenerate=False": scanreg_unheld,
     "register, refine_in_basin=False": scanreg_unrefined,
     "correlative + register": scanreg_correlative,
     "karto": karto_match,

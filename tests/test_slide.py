@@ -287,6 +287,8 @@ def test_clearly_worse_needs_both_the_ratio_and_the_drop() -> None:
 def test_setting_is_checked() -> None:
     with pytest.raises(TypeError, match="never_worse_than_start: expected a bool, got int"):
         scanreg.RegistrationSettings(never_worse_than_start=1)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="hold_degenerate: expected a bool, got int"):
+        scanreg.RegistrationSettings(hold_degenerate=1)  # type: ignore[arg-type]
 
 
 # Intel relations (the first 400 under 10 s apart) matched from the wheel odometry's relative
@@ -311,3 +313,27 @@ def test_intel_pair_from_its_odometry_lands_on_the_relation(k: int) -> None:
         source, target, method="point_to_line", init=a.inverse() @ b, refine_in_basin=False
     )
     assert _error(plain.pose, relation)[0] > WRONG_M  # what the refinement mends
+
+
+# Intel relations (the first 400 under 10 s apart) from the wheel odometry where the refined
+# result is degenerate (a corridor) and drifted 0.15-0.23 m along its axis
+# (benchmarks/relation_pairs.py); held at the odometry along it (``hold_degenerate``):
+# 1.1-4.1 cm. Both rejected as degenerate: the verdict is the same, the pose is the start's.
+INTEL_CORRIDORS = (187, 228, 261, 275, 289)
+
+
+@pytest.mark.parametrize("k", INTEL_CORRIDORS)
+def test_intel_corridor_from_its_odometry_is_held_there(k: int) -> None:
+    log, relations, stamps = _relation_log("intel")
+    a = log.scans[stamps[float(relations.t1[k])]].laser_se2
+    b = log.scans[stamps[float(relations.t2[k])]].laser_se2
+    assert a is not None and b is not None
+    source, target, relation = _relation_pair("intel", k)
+    res = scanreg.register(source, target, method="point_to_line", init=a.inverse() @ b)
+    assert res.degeneracy is not None and res.degeneracy.degenerate
+    assert _error(res.pose, relation)[0] < 0.05
+    assert res.verdict is not None and not res.verdict.accepted
+    free = scanreg.register(
+        source, target, method="point_to_line", init=a.inverse() @ b, hold_degenerate=False
+    )
+    assert _error(free.pose, relation)[0] > WRONG_M

@@ -89,7 +89,10 @@ def test_degeneracy_aware_solve_keeps_the_prior_along_the_axis() -> None:
         degeneracy_aware=True,
         max_correspondence_distance=1.0,
     )
-    plain = scanreg.register(src, tgt, init=init, max_correspondence_distance=1.0)
+    # (The default holds a degenerate refined result too: hold_degenerate, below.)
+    plain = scanreg.register(
+        src, tgt, init=init, max_correspondence_distance=1.0, hold_degenerate=False
+    )
     moved_aware = (init.inverse() @ aware.pose).log()
     moved_plain = (init.inverse() @ plain.pose).log()
     assert abs(moved_aware[0]) < 1e-3  # kept the initial guess along x ...
@@ -266,9 +269,10 @@ def test_weak_variance_is_the_prior_plus_the_solves_own_move_along_the_axis() ->
     # From the identity the plain solve moves along the corridor by what the data do not fix
     # (up to 0.1 m here): the variance there is the prior's plus that move squared, counted
     # once (it was the prior's counted twice: 0.67 m² instead of ~0.35).
+    # (hold_degenerate=False: the default holds the start along the axis, below.)
     pose = CORRIDOR_POSE @ SE2.from_vector(_jitter(1))
     src, tgt = _pair(CORRIDOR, pose, 1)
-    res = scanreg.register(src, tgt, max_correspondence_distance=1.0)
+    res = scanreg.register(src, tgt, max_correspondence_distance=1.0, hold_degenerate=False)
     deg = res.degeneracy
     assert deg is not None and deg.degenerate and res.covariances is not None
     s_inv = deg.scaling()
@@ -279,6 +283,26 @@ def test_weak_variance_is_the_prior_plus_the_solves_own_move_along_the_axis() ->
     assert prior == pytest.approx(1.0 / 3.0, rel=0.02)  # the gate's, 1 m: uniform within ±1 m
     cov = np.asarray(res.covariances.calibrated) / np.outer(s_inv, s_inv)
     assert float(w @ cov @ w) == pytest.approx(prior + moved**2, rel=1e-6)
+
+
+def test_hold_degenerate_keeps_the_start_along_the_axis() -> None:
+    # The refined 2D result held along its weak directions (hold_degenerate, the default): in
+    # the corridor the solve drifted 0.11 m along the axis from a start 0.2 m off (error
+    # 0.31 m); held, the estimate keeps the start there (the error is the start's, inside the
+    # gate-wide prior's σ 0.58 m the covariance reports) and still solves across it.
+    src, tgt = _pair(CORRIDOR, CORRIDOR_POSE, 2)
+    truth = STEP2.inverse()
+    init = truth @ SE2.from_vector([0.2, 0.05, 0.01])
+    held = scanreg.register(src, tgt, init=init, max_correspondence_distance=1.0)
+    free = scanreg.register(
+        src, tgt, init=init, max_correspondence_distance=1.0, hold_degenerate=False
+    )
+    assert abs((init.inverse() @ held.pose).log()[0]) < 1e-3
+    assert abs((init.inverse() @ free.pose).log()[0]) > 0.05
+    err = (held.pose.inverse() @ truth).log()
+    assert abs(err[1]) < 0.002 and abs(err[2]) < 0.001  # measured 0.3 mm, 0.1 mrad
+    assert held.covariance[0, 0] == pytest.approx(1.0 / 3.0, rel=0.01)  # the gate-wide prior
+    assert held.verdict is not None and not held.verdict.accepted  # still degenerate
 
 
 def test_hessian_covariance_is_overconfident_in_the_corridor() -> None:
@@ -817,3 +841,50 @@ def test_real_split_beam_pairs_are_covered_in_translation_too() -> None:
     mean = float(np.mean(nees))
     assert 0.5 * 3 <= mean <= 1.6 * 3, (mean, nees)
     assert max(nees) < 16.27, nees  # none outside χ²(3) at 99.9 %
+
+
+def test_held_steps_are_the_weak_directions_about_the_centroid() -> None:
+    # The hold's weak directions (scanreg.degeneracy.held_steps_2d): the closed-form smallest
+    # eigenvalue against numpy's, and the projector the same motion in any frame.
+    from scanreg.degeneracy import (
+        _smallest_eigenvalue_3,
+        held_steps_2d,
+        weakest_about_centroid_2d,
+    )
+
+    rng = np.random.default_rng(3)
+    for t in range(300):
+        a = rng.normal(size=(3, 3)) * rng.uniform(0.01, 100.0)
+        g = a @ a.T
+        if t % 3 == 0:  # nearly degenerate along x
+            g[0, :] *= 1e-3
+            g[:, 0] *= 1e-3
+        want = np.linalg.eigvalsh(g)
+        assert _smallest_eigenvalue_3(g) == pytest.approx(want[0], abs=1e-9 * want[-1])
+    # A corridor along x: normals ±y, the source 3-8 m ahead of its origin.
+    src = np.column_stack([rng.uniform(3.0, 8.0, 200), rng.choice([-1.0, 1.0], 200)])
+    normals = np.column_stack([np.zeros(200), src[:, 1]])
+    jac = np.column_stack([normals, normals[:, 0] * -src[:, 1] + normals[:, 1] * src[:, 0]])
+    h = jac.T @ jac
+    held = held_steps_2d(h, src, 200)
+    assert held is not None
+    steps = held.projector
+    np.testing.assert_allclose(steps @ np.array([1.0, 0.0, 0.0]), 0.0, atol=1e-12)  # x held
+    np.testing.assert_allclose(steps @ np.array([0.0, 1.0, 0.0]), [0.0, 1.0, 0.0], atol=1e-12)
+    # The same scene 1 km away (points and origin moved): the same motion held.
+    shift = np.array([1000.0, -700.0])
+    ad = np.array([[1.0, 0.0, shift[1]], [0.0, 1.0, -shift[0]], [0.0, 0.0, 1.0]])
+    far = held_steps_2d(np.linalg.inv(ad).T @ h @ np.linalg.inv(ad), src + shift, 200)
+    assert far is not None
+    np.testing.assert_allclose(far.projector, ad @ steps @ np.linalg.inv(ad), atol=1e-6)
+    np.testing.assert_allclose(far.centred, held.centred, atol=1e-9)
+    # The screen's plain-float eigenvalue: held_steps_2d's, below its floor and above.
+    c = src.mean(axis=0)
+    spread = float(np.sqrt(np.mean(np.sum((src - c) ** 2, axis=1))))
+    nearly = h + np.diag([0.4, 0.0, 0.0])  # a few pairs facing x
+    weakest = weakest_about_centroid_2d(nearly, (float(c[0]), float(c[1])), spread, 200)
+    assert 0.0 < weakest < 0.03
+    assert held_steps_2d(nearly, src, 200, floor=weakest * 1.001) is not None
+    assert held_steps_2d(nearly, src, 200, floor=weakest * 0.999) is None
+    assert held_steps_2d(h + np.diag([50.0, 0.0, 0.0]), src, 200) is None  # x faced: none
+    assert held_steps_2d(h, src, 0) is None
