@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,10 +18,8 @@ from numpy.typing import NDArray
 from . import _core, budget
 from ._validate import FloatArray, as_points, build, check_flag
 from ._validate import readonly as _readonly
+from .correlative import CorrelativeGrid, prepare_correlative
 from .degeneracy import normal_noise
-
-if TYPE_CHECKING:
-    from .correlative import CorrelativeGrid
 from .preprocess import (
     DEFAULT_K,
     BoolArray,
@@ -177,8 +175,6 @@ class PreparedTarget:
         """2D: the correlative grid a stated start's window is searched on
         (:mod:`scanreg.start_search`), built on first use and kept for every registration
         against this target with the same gate. Not pickled: rebuilt on demand."""
-        from .correlative import prepare_correlative
-
         grids: dict[float, CorrelativeGrid] = self.__dict__.setdefault("_start_grids", {})
         grid = grids.get(resolution)
         if grid is None:
