@@ -10,6 +10,7 @@ result to the bit.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ import scanreg
 from conftest import data_dir
 from scanreg import SE2
 from scanreg import simulate as sim
-from scanreg.start_search import MAX_TURN, search_window
+from scanreg.start_search import MAX_TURN, search_window, searched_start
 
 LASER = sim.LaserModel.preset("sick_lms200")
 
@@ -132,3 +133,27 @@ def test_a_real_pair_from_simulated_wheels_lands_on_the_reference() -> None:
     m, deg = _error(searched, ref)
     assert m < 0.06 and deg < 0.2, (m, deg)  # measured 0.031 m, 0.05°
     assert searched.verdict is not None and searched.verdict.accepted
+
+
+@pytest.mark.parametrize(
+    ("call", "error", "match"),
+    [
+        (
+            lambda: search_window(np.diag([np.nan, 1.0, 1.0]), np.ones((5, 2)), 1.0),
+            ValueError,
+            "prior",
+        ),
+        (lambda: search_window(np.eye(2), np.ones((5, 2)), 1.0), ValueError, "prior"),
+        (lambda: search_window(np.eye(3), np.zeros((0, 2)), 1.0), ValueError, "source: is empty"),
+        (lambda: search_window(np.eye(3), np.ones((5, 3)), 1.0), ValueError, "source"),
+        (lambda: search_window(np.eye(3), np.ones((5, 2)), math.nan), ValueError, "gate"),
+        (
+            lambda: searched_start(np.ones((5, 2)), None, np.eye(3), np.eye(3), 1.0),
+            TypeError,
+            "start",
+        ),
+    ],
+)
+def test_bad_input_is_refused_by_name(call: Any, error: type, match: str) -> None:
+    with pytest.raises(error, match=match):
+        call()

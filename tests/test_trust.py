@@ -888,3 +888,25 @@ def test_held_steps_are_the_weak_directions_about_the_centroid() -> None:
     assert held_steps_2d(nearly, src, 200, floor=weakest * 0.999) is None
     assert held_steps_2d(h + np.diag([50.0, 0.0, 0.0]), src, 200) is None  # x faced: none
     assert held_steps_2d(h, src, 0) is None
+
+
+def test_held_steps_refuse_bad_input_by_name() -> None:
+    from scanreg.degeneracy import held_steps_2d, weakest_about_centroid_2d
+
+    src = np.ones((5, 2))
+    with pytest.raises(ValueError, match="hessian: contains NaN"):
+        held_steps_2d(np.full((3, 3), np.nan), src, 10)
+    with pytest.raises(ValueError, match=r"hessian: expected shape \(3, 3\)"):
+        held_steps_2d(np.eye(2), src, 10)
+    with pytest.raises(ValueError, match="source"):
+        held_steps_2d(np.eye(3), np.ones((5, 3)), 10)
+    with pytest.raises(ValueError, match="count"):
+        held_steps_2d(np.eye(3), src, -1)
+    with pytest.raises(ValueError, match="hessian: contains NaN"):
+        weakest_about_centroid_2d(np.full((3, 3), np.nan), (0.0, 0.0), 1.0, 10)
+    with pytest.raises(ValueError, match="centroid"):
+        weakest_about_centroid_2d(np.eye(3), (0.0, np.inf), 1.0, 10)
+    with pytest.raises(ValueError, match="spread"):
+        weakest_about_centroid_2d(np.eye(3), (0.0, 0.0), np.nan, 10)
+    with pytest.raises(ValueError, match="count"):
+        weakest_about_centroid_2d(np.eye(3), (0.0, 0.0), 1.0, 0)

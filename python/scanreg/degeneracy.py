@@ -61,7 +61,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from . import _core
-from ._validate import FloatArray, LazyFields
+from ._validate import FloatArray, LazyFields, as_matrix, as_points
 from .quality import WeakDirection
 
 
@@ -197,8 +197,11 @@ def held_steps_2d(
     finds weak the analysis finds degenerate (Intel 75 of 76, ACES 104 of 104, hospital 17
     of 23). :class:`HeldSteps` has it over the registration's tangent and about the
     centroid."""
-    if count <= 0:
+    _check_count(count)
+    if count == 0:
         return None
+    hessian = as_matrix(hessian, "hessian", (3, 3))
+    source = as_points(source, "source", dim=2, min_points=0, finite=False)
     pts = source[np.isfinite(source).all(axis=1)] if not np.isfinite(source).all() else source
     if len(pts) == 0:
         return None
@@ -225,7 +228,26 @@ def held_steps_2d(
     )
 
 
+def _check_count(count: Any) -> None:
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
+        raise ValueError(f"count: expected an int >= 0, got {count!r}")
+
+
 def weakest_about_centroid_2d(
+    hessian: FloatArray, centroid: tuple[float, float], spread: float, count: int
+) -> float:
+    """:func:`_weakest_about_centroid_2d` with its arguments checked (naming the bad one)."""
+    h = as_matrix(hessian, "hessian", (3, 3))
+    c = as_matrix(centroid, "centroid", (2,))
+    if not (math.isfinite(spread) and spread >= 0):
+        raise ValueError(f"spread: must be finite and >= 0, got {spread!r}")
+    _check_count(count)
+    if count == 0:
+        raise ValueError("count: must be > 0 (no correspondences: no information)")
+    return _weakest_about_centroid_2d(h, (float(c[0]), float(c[1])), float(spread), int(count))
+
+
+def _weakest_about_centroid_2d(
     hessian: FloatArray, centroid: tuple[float, float], spread: float, count: int
 ) -> float:
     """The smallest eigenvalue :func:`held_steps_2d` compares with its floor, from a 2D

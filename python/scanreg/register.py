@@ -45,8 +45,8 @@ from .degeneracy import (
     MIN_CONSTRAINT_2D,
     Degeneracy,
     HeldSteps,
+    _weakest_about_centroid_2d,
     held_steps_2d,
-    weakest_about_centroid_2d,
 )
 from .local_map import LocalMap
 from .preprocess import DEFAULT_K, _voxel_centroids, check_k, positive_int
@@ -934,7 +934,7 @@ def register(
         screened = (
             math.hypot(cx, cy) <= HOLD_SCREEN_REACH * spread
             and out.num_correspondences > 0
-            and weakest_about_centroid_2d(out.hessian, (cx, cy), spread, out.num_correspondences)
+            and _weakest_about_centroid_2d(out.hessian, (cx, cy), spread, out.num_correspondences)
             >= HOLD_SCREEN * MIN_CONSTRAINT_2D
         )
         if len(finite) and not screened:

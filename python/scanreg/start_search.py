@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validate import FloatArray
+from ._validate import FloatArray, as_covariance, as_points
 from .correlative import CorrelativeGrid, match_correlative
 from .transform import SE2
 
@@ -45,12 +45,17 @@ def search_window(
     """The window ``(dx, dy, dθ)`` to search around a start with covariance ``prior``
     (``[x, y, θ]`` over the tangent), or ``None`` when it lies inside the solve's basin (or the
     gate is infinite: no basin to speak of)."""
-    if not math.isfinite(gate) or gate <= 0.0:
+    prior = as_covariance(prior, "prior", 3)
+    source = as_points(source, "source", dim=2)
+    gate = float(gate)
+    if not gate > 0.0:
+        raise ValueError(f"gate: must be > 0 (inf for no limit), got {gate!r}")
+    if not math.isfinite(gate):
         return None
     sigma = np.sqrt(np.clip(np.diag(prior), 0.0, None))
     reach = WINDOW_SIGMAS * float(max(sigma[0], sigma[1]))
     turn = WINDOW_SIGMAS * float(sigma[2])
-    radius = float(np.sqrt((source**2).sum(axis=1).mean())) if len(source) else 0.0
+    radius = float(np.sqrt((source**2).sum(axis=1).mean()))
     if max(reach, turn * radius) < BASIN_FRACTION * gate:
         return None
     reach = min(reach, gate)
@@ -68,6 +73,8 @@ def searched_start(
     ``prior``; ``None`` when the window needs no search or its best lies on its edge.
     ``grid_of(resolution)``: the target's
     :class:`~scanreg.CorrelativeGrid` at that resolution (kept by a prepared target)."""
+    if not isinstance(start, SE2):
+        raise TypeError(f"start: expected an SE2, got {type(start).__name__}")
     window = search_window(prior, source, gate)
     if window is None:
         return None
