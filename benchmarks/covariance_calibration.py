@@ -66,7 +66,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-from collections.abc import Callable
+import sys
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 os.environ.setdefault("RAYON_NUM_THREADS", "2")
@@ -76,6 +77,9 @@ import scanreg
 from scanreg import SE2, SE3
 from scanreg import simulate as sim
 from scanreg.quality import nees_band
+
+sys.path.insert(0, os.path.dirname(__file__))
+from radish_mapping import LOGS as RADISH  # the same 13 logs
 
 KINDS = ("hessian", "censi", "block", "calibrated")
 
@@ -390,21 +394,6 @@ SPLIT_BEAM_2D = {
 }
 #: Buildings and lasers the defaults were never chosen on: the 13 Radish "corrected" logs
 #: (180-, 181-, 360- and 361-beam 180° lasers; ``radish_mapping.py``).
-RADISH = [
-    "acapulco",
-    "aces",
-    "belgioioso",
-    "csail",
-    "edmonton",
-    "fhw",
-    "freiburg-079",
-    "freiburg-101",
-    "freiburg-campus",
-    "infinite-corridor",
-    "intel",
-    "orebro",
-    "seattle",
-]
 SPLIT_BEAM_2D.update(
     {f"radish-{n}": (f"carmen-radish-corrected/{n}-corrected.log.gz", "FLASER") for n in RADISH}
 )
@@ -422,9 +411,11 @@ def _halves(n: int, halves: str) -> np.ndarray:
     return first
 
 
-def _split_beam_2d(
-    name: str, count: int, rng: np.random.Generator, halves: str = "parity"
-) -> list[tuple]:
+def _halved_scans(
+    name: str, count: int, halves: str
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """``(ranges, angles, target half, source half)`` of ``count`` scans spread over a 2D
+    set, the halves as beam masks (valid returns only, at least 40 each)."""
     from scanreg.io import read_scans
 
     data = os.environ.get(
@@ -433,15 +424,21 @@ def _split_beam_2d(
     path, kind = SPLIT_BEAM_2D[name]
     log = read_scans(os.path.join(data, path))
     scans = log.scans if kind is None else log.laser(kind)
-    out = []
     for i in np.linspace(0, len(scans) - 1, count).round().astype(int):
         scan = scans[int(i)]
         valid = scan.valid(min_range=0.1, max_range=40.0)
         r, a = scan.ranges, scan.angles
         first = _halves(len(r), halves)
         even, odd = valid & first, valid & ~first
-        if even.sum() < 40 or odd.sum() < 40:
-            continue
+        if even.sum() >= 40 and odd.sum() >= 40:
+            yield r, a, even, odd
+
+
+def _split_beam_2d(
+    name: str, count: int, rng: np.random.Generator, halves: str = "parity"
+) -> list[tuple]:
+    out = []
+    for r, a, even, odd in _halved_scans(name, count, halves):
         tgt = np.c_[r[even] * np.cos(a[even]), r[even] * np.sin(a[even])]
         ro = r[odd] + rng.normal(0.0, 0.01, int(odd.sum()))
         pts = np.c_[ro * np.cos(a[odd]), ro * np.sin(a[odd])]
@@ -507,24 +504,9 @@ def halves_offset(name: str, count: int, halves: str = "parity") -> np.ndarray:
     (consecutive beams less than 0.3 m apart, densely interpolated). Where the halves are
     one scene sampled twice the answer is 0 within the grid: the estimator's own bias on
     interleaved samples does not enter."""
-    from scanreg.io import read_scans
-
-    data = os.environ.get(
-        "SCANREG_DATA", os.path.join(os.path.dirname(__file__), "../../shared/data")
-    )
-    path, kind = SPLIT_BEAM_2D[name]
-    log = read_scans(os.path.join(data, path))
-    scans = log.scans if kind is None else log.laser(kind)
     grid = np.radians(np.arange(-1.0, 1.0 + 1e-9, 1.0 / 16.0))
     out = []
-    for i in np.linspace(0, len(scans) - 1, count).round().astype(int):
-        scan = scans[int(i)]
-        valid = scan.valid(min_range=0.1, max_range=40.0)
-        r, a = scan.ranges, scan.angles
-        first = _halves(len(r), halves)
-        even, odd = valid & first, valid & ~first
-        if even.sum() < 40 or odd.sum() < 40:
-            continue
+    for r, a, even, odd in _halved_scans(name, count, halves):
         tgt = np.c_[r[even] * np.cos(a[even]), r[even] * np.sin(a[even])]
         gaps = np.linalg.norm(np.diff(tgt, axis=0), axis=1) < 0.3
         if gaps.sum() < 20:

@@ -67,13 +67,22 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from relation_slide import MAX_RANGE, MAX_SECONDS, MIN_RANGE, WRONG_DEG, WRONG_M, relation_scans
 
 
-def scanreg_default(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
-    """The default 2D call, from the raw scans."""
+def _default_call(scan1: Any, scan2: Any, start: SE2, **settings: Any) -> tuple[SE2, bool]:
+    """The default 2D call from the raw scans (``settings``: the contender's one change)."""
     target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
     res = scanreg.register(
-        scan2.to_points(MIN_RANGE, MAX_RANGE), target, method="point_to_line", init=start
+        scan2.to_points(MIN_RANGE, MAX_RANGE),
+        target,
+        method="point_to_line",
+        init=start,
+        **settings,
     )
     return res.pose, bool(res.verdict.accepted)
+
+
+def scanreg_default(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
+    """The default 2D call, from the raw scans."""
+    return _default_call(scan1, scan2, start)
 
 
 #: The start's stated covariance for the ``register, init_covariance`` contender, per pair:
@@ -101,42 +110,18 @@ def simulated_covariance(step: SE2) -> np.ndarray:
 def scanreg_stated(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
     """The default call with the start's covariance stated (``init_covariance``): a window
     wider than the solve's basin is searched first (``RegistrationSettings.search_start``)."""
-    target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
-    res = scanreg.register(
-        scan2.to_points(MIN_RANGE, MAX_RANGE),
-        target,
-        method="point_to_line",
-        init=start,
-        init_covariance=_STATED[0](start),
-    )
-    return res.pose, bool(res.verdict.accepted)
+    return _default_call(scan1, scan2, start, init_covariance=_STATED[0](start))
 
 
 def scanreg_unheld(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
     """The default call without holding a degenerate result at the start
     (``hold_degenerate=False``)."""
-    target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
-    res = scanreg.register(
-        scan2.to_points(MIN_RANGE, MAX_RANGE),
-        target,
-        method="point_to_line",
-        init=start,
-        hold_degenerate=False,
-    )
-    return res.pose, bool(res.verdict.accepted)
+    return _default_call(scan1, scan2, start, hold_degenerate=False)
 
 
 def scanreg_unrefined(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
     """The default call without the refinement in the basin (``refine_in_basin=False``)."""
-    target = scanreg.prepare(scan1.to_points(MIN_RANGE, MAX_RANGE), normals=True)
-    res = scanreg.register(
-        scan2.to_points(MIN_RANGE, MAX_RANGE),
-        target,
-        method="point_to_line",
-        init=start,
-        refine_in_basin=False,
-    )
-    return res.pose, bool(res.verdict.accepted)
+    return _default_call(scan1, scan2, start, refine_in_basin=False)
 
 
 def scanreg_correlative(scan1: Any, scan2: Any, start: SE2) -> tuple[SE2, bool]:
