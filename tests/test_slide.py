@@ -291,6 +291,17 @@ def test_setting_is_checked() -> None:
         scanreg.RegistrationSettings(hold_degenerate=1)  # type: ignore[arg-type]
 
 
+def _intel_pair_from_odometry(k: int) -> tuple[Any, Any, SE2, SE2]:
+    """Intel relation ``k``'s pair (source, prepared target, relation) and the wheel
+    odometry's relative pose between its two scans, the start a mapping front end has."""
+    log, relations, stamps = _relation_log("intel")
+    a = log.scans[stamps[float(relations.t1[k])]].laser_se2
+    b = log.scans[stamps[float(relations.t2[k])]].laser_se2
+    assert a is not None and b is not None
+    source, target, relation = _relation_pair("intel", k)
+    return source, target, relation, a.inverse() @ b
+
+
 # Intel relations (the first 400 under 10 s apart) matched from the wheel odometry's relative
 # pose, where the default call slid 0.20-0.21 m and 2.2-2.6° and was accepted before the
 # refinement in the basin (benchmarks/relation_pairs.py); with it: 0.2-1.6 cm, 0.15-0.29°.
@@ -299,18 +310,14 @@ INTEL_ODOMETRY_SLIDES = (15, 16, 208)
 
 @pytest.mark.parametrize("k", INTEL_ODOMETRY_SLIDES)
 def test_intel_pair_from_its_odometry_lands_on_the_relation(k: int) -> None:
-    log, relations, stamps = _relation_log("intel")
-    a = log.scans[stamps[float(relations.t1[k])]].laser_se2
-    b = log.scans[stamps[float(relations.t2[k])]].laser_se2
-    assert a is not None and b is not None
-    source, target, relation = _relation_pair("intel", k)
-    res = scanreg.register(source, target, method="point_to_line", init=a.inverse() @ b)
+    source, target, relation, odometry = _intel_pair_from_odometry(k)
+    res = scanreg.register(source, target, method="point_to_line", init=odometry)
     metres, degrees = _error(res.pose, relation)
     assert metres < 0.02 and degrees < 0.5
     assert res.verdict is not None and res.verdict.accepted
     assert res.slide is not None and res.slide.returned_fit == res.slide.refined_fit
     plain = scanreg.register(
-        source, target, method="point_to_line", init=a.inverse() @ b, refine_in_basin=False
+        source, target, method="point_to_line", init=odometry, refine_in_basin=False
     )
     assert _error(plain.pose, relation)[0] > WRONG_M  # what the refinement mends
 
@@ -324,16 +331,12 @@ INTEL_CORRIDORS = (187, 228, 261, 275, 289)
 
 @pytest.mark.parametrize("k", INTEL_CORRIDORS)
 def test_intel_corridor_from_its_odometry_is_held_there(k: int) -> None:
-    log, relations, stamps = _relation_log("intel")
-    a = log.scans[stamps[float(relations.t1[k])]].laser_se2
-    b = log.scans[stamps[float(relations.t2[k])]].laser_se2
-    assert a is not None and b is not None
-    source, target, relation = _relation_pair("intel", k)
-    res = scanreg.register(source, target, method="point_to_line", init=a.inverse() @ b)
+    source, target, relation, odometry = _intel_pair_from_odometry(k)
+    res = scanreg.register(source, target, method="point_to_line", init=odometry)
     assert res.degeneracy is not None and res.degeneracy.degenerate
     assert _error(res.pose, relation)[0] < 0.05
     assert res.verdict is not None and not res.verdict.accepted
     free = scanreg.register(
-        source, target, method="point_to_line", init=a.inverse() @ b, hold_degenerate=False
+        source, target, method="point_to_line", init=odometry, hold_degenerate=False
     )
     assert _error(free.pose, relation)[0] > WRONG_M
