@@ -55,7 +55,7 @@ from .quality import (
 )
 from .robust import check_kernel
 from .slide import SlideCheck, guard_start, refine_in_basin, refined_objective
-from .start_search import searched_start
+from .start_search import _searched_start
 from .target import PreparedTarget, prepare
 from .transform import SE2, SE3, as_pose, pose_class
 from .trust import (
@@ -780,7 +780,7 @@ def register(
         and len(prepared.points)
     ):
         assert isinstance(pose0, SE2)
-        searched = searched_start(
+        searched = _searched_start(
             src, prepared._start_grid, pose0, given_prior, s.max_correspondence_distance
         )
         if searched is not None:

@@ -44,12 +44,20 @@ def search_window(
 ) -> tuple[float, float, float] | None:
     """The window ``(dx, dy, dθ)`` to search around a start with covariance ``prior``
     (``[x, y, θ]`` over the tangent), or ``None`` when it lies inside the solve's basin (or the
-    gate is infinite: no basin to speak of)."""
+    gate is infinite: no basin to speak of). Bad input is refused naming the argument."""
     prior = as_covariance(prior, "prior", 3)
     source = as_points(source, "source", dim=2)
     gate = float(gate)
     if not gate > 0.0:
         raise ValueError(f"gate: must be > 0 (inf for no limit), got {gate!r}")
+    return _search_window(prior, source, gate)
+
+
+def _search_window(
+    prior: FloatArray, source: FloatArray, gate: float
+) -> tuple[float, float, float] | None:
+    # Inputs checked by the caller (register checked them once: this runs on every 2D call
+    # with a stated covariance).
     if not math.isfinite(gate):
         return None
     sigma = np.sqrt(np.clip(np.diag(prior), 0.0, None))
@@ -76,8 +84,25 @@ def searched_start(
     if not isinstance(start, SE2):
         raise TypeError(f"start: expected an SE2, got {type(start).__name__}")
     window = search_window(prior, source, gate)
-    if window is None:
-        return None
+    return None if window is None else _search(source, grid_of, start, prior, gate, window)
+
+
+def _searched_start(
+    source: FloatArray, grid_of: Any, start: SE2, prior: FloatArray, gate: float
+) -> SE2 | None:
+    """:func:`searched_start` on inputs :func:`scanreg.register` has checked."""
+    window = _search_window(prior, source, gate)
+    return None if window is None else _search(source, grid_of, start, prior, gate, window)
+
+
+def _search(
+    source: FloatArray,
+    grid_of: Any,
+    start: SE2,
+    prior: FloatArray,
+    gate: float,
+    window: tuple[float, float, float],
+) -> SE2 | None:
     grid: CorrelativeGrid = grid_of(CELL_FRACTION * gate)
     found = match_correlative(source, grid, init=start, window=window, init_covariance=prior)
     # An optimum on the window's edge is no answer: the place may lie beyond it, or the
