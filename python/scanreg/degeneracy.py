@@ -202,12 +202,10 @@ def held_steps_2d(
         return None
     hessian = as_matrix(hessian, "hessian", (3, 3))
     source = as_points(source, "source", dim=2, min_points=0, finite=False)
-    pts = source[np.isfinite(source).all(axis=1)] if not np.isfinite(source).all() else source
+    pts, (cx, cy), spread = _centroid_and_spread_2d(source)
     if len(pts) == 0:
         return None
-    cx, cy = (float(v) for v in pts.mean(axis=0))
-    q = pts - np.array([cx, cy])
-    lever = max(math.sqrt(float(np.einsum("ij,ij->", q, q)) / len(q)), 1e-9)
+    lever = max(spread, 1e-9)
     # δ about the origin -> about the centroid: the translation u = v + ω c⊥, c⊥ = (−c_y, c_x).
     to_centroid = np.array([[1.0, 0.0, -cy], [0.0, 1.0, cx], [0.0, 0.0, 1.0]])
     from_centroid = np.array([[1.0, 0.0, cy], [0.0, 1.0, -cx], [0.0, 0.0, 1.0]])
@@ -226,6 +224,20 @@ def held_steps_2d(
         centroid=np.array([cx, cy]),
         centred=np.ascontiguousarray(np.eye(3) - weak_centroid),
     )
+
+
+def _centroid_and_spread_2d(
+    source: FloatArray,
+) -> tuple[FloatArray, tuple[float, float], float]:
+    """The finite rows of a 2D ``source``, their centroid and their RMS distance from it (the
+    lever :func:`held_steps_2d` and the registration's screen take the rotation with);
+    ``(0, 0)`` and 0 when no row is finite."""
+    pts = source if np.isfinite(source).all() else source[np.isfinite(source).all(axis=1)]
+    if len(pts) == 0:
+        return pts, (0.0, 0.0), 0.0
+    cx, cy = (float(v) for v in pts.mean(axis=0))
+    q = pts - np.array([cx, cy])
+    return pts, (cx, cy), math.sqrt(float(np.einsum("ij,ij->", q, q)) / len(q))
 
 
 def _check_count(count: Any) -> None:

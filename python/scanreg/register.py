@@ -45,6 +45,7 @@ from .degeneracy import (
     MIN_CONSTRAINT_2D,
     Degeneracy,
     HeldSteps,
+    _centroid_and_spread_2d,
     _weakest_about_centroid_2d,
     held_steps_2d,
 )
@@ -924,10 +925,7 @@ def register(
         # 1e7 m away the held poses were 1-4 µm apart; tests/test_frames.py asks 1e-6 m);
         # held only where the analysis finds the result degenerate too, so the covariance
         # reports the prior's variance along what is held.
-        finite = src if np.isfinite(src).all() else src[np.isfinite(src).all(axis=1)]
-        cx, cy = (float(v) for v in finite.mean(axis=0)) if len(finite) else (0.0, 0.0)
-        spread2 = float(np.einsum("ij,ij->", finite, finite)) / max(len(finite), 1)
-        spread = math.sqrt(max(spread2 - cx * cx - cy * cy, 0.0))
+        finite, (cx, cy), spread = _centroid_and_spread_2d(src)
         centroid = np.array([cx, cy])
         # Screened first on the solve's own Hessian (exact enough while the points lie within
         # a hundred spreads of their origin): clearly not weak there, not weak at all.
