@@ -379,18 +379,24 @@ def test_a_noisy_20_cm_figurine_registers_from_a_120_degree_turn(seed: int) -> N
     assert degeneracy is not None and degeneracy.threshold < 0.02  # denoised normals
 
 
-def test_an_object_seen_from_opposite_sides_is_not_answered_wrong() -> None:
-    # Views 150° apart share a sliver: refused, or right; never a confident wrong pose.
-    shape = sim.figurine(size=0.2)
-    for seed in (3, 4):
-        src, tgt, truth = _object_pair(shape, 30_000, 0.002, 150.0, seed=seed)
-        res = register_global(src, tgt)
-        if res.accepted:
-            assert res.pose is not None
-            assert _errors(res.pose, truth)[0] < 2.0, seed
-            assert _centre_error(res.pose, truth, src) < 0.002, seed
-        else:
-            assert res.reasons[0] == NO_ALIGNMENT
+@pytest.mark.parametrize(
+    ("make", "size", "seed"),
+    [(sim.figurine, 0.2, 3), (sim.figurine, 0.2, 4), (sim.trefoil_knot, 0.1, 0)],
+)
+def test_an_object_seen_from_opposite_sides_is_not_answered_wrong(make, size, seed) -> None:  # type: ignore[no-untyped-def]
+    # Views 150° apart share a sliver: refused, or right; never a confident wrong pose. The
+    # figurine of seed 3 and the knot are the pairs whose back view turned by ~180° onto the
+    # front is found by two disjoint cliques once the descriptors resolve the surface better
+    # (normals over 60 keypoints instead of 30 on noisy clouds, or FPFH of the denoised
+    # clouds): both were then accepted 176-180° off (benchmarks/README.md, global_objects.py).
+    src, tgt, truth = _object_pair(make(size=size), 30_000, 0.002, 150.0, seed=seed)
+    res = register_global(src, tgt)
+    if res.accepted:
+        assert res.pose is not None
+        assert _errors(res.pose, truth)[0] < 2.0
+        assert _centre_error(res.pose, truth, src) < 0.01 * size
+    else:
+        assert res.reasons[0] == NO_ALIGNMENT
 
 
 def test_the_voxel_is_at_least_three_point_spacings() -> None:
