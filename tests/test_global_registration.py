@@ -4,6 +4,8 @@ and the refusals."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -383,7 +385,9 @@ def test_a_noisy_20_cm_figurine_registers_from_a_120_degree_turn(seed: int) -> N
     ("make", "size", "seed"),
     [(sim.figurine, 0.2, 3), (sim.figurine, 0.2, 4), (sim.trefoil_knot, 0.1, 0)],
 )
-def test_an_object_seen_from_opposite_sides_is_not_answered_wrong(make, size, seed) -> None:  # type: ignore[no-untyped-def]
+def test_an_object_seen_from_opposite_sides_is_not_answered_wrong(
+    make: Callable[..., Any], size: float, seed: int
+) -> None:
     # Views 150° apart share a sliver: refused, or right; never a confident wrong pose. The
     # figurine of seed 3 and the knot are the pairs whose back view turned by ~180° onto the
     # front is found by two disjoint cliques once the descriptors resolve the surface better
