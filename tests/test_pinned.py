@@ -47,23 +47,27 @@ def _error(pose: Any, truth: SE2) -> tuple[float, float]:
 
 
 # Corridor pairs of benchmarks/wrong_start.py (--datasets fr-intel), started 0.6 m off the
-# relation (its offset for the pair): the analysis reads a weak translation (constraint below
-# 0.03), yet the few points facing it brought the result back within 2.2 cm; rejected as
-# degenerate before the scan's own test.
-PINNED = {62: (-0.3656, -0.4758), 64: (0.3073, -0.5153), 65: (-0.1194, 0.588)}
+# relation (the pair's offset there): the analysis reads a weak translation (constraint below
+# 0.03), yet the result came back within 2 cm, and moved along the corridor it loses 3.3-5 % of
+# the scan from the tight gate where the target samples finely; rejected as degenerate before.
+PINNED = {
+    (67, "point_to_point"): (-0.3844, -0.4607),
+    (68, "point_to_line"): (0.2034, -0.5645),
+    (69, "point_to_point"): (0.5844, -0.1358),
+}
 
 
-@pytest.mark.parametrize("k", sorted(PINNED))
-def test_corridor_result_pinned_by_the_scan_is_accepted(k: int) -> None:
+@pytest.mark.parametrize(("k", "method"), sorted(PINNED))
+def test_corridor_result_pinned_by_the_scan_is_accepted(k: int, method: str) -> None:
     source, target, relation = _pair(k)
-    start = relation @ SE2.from_vector([*PINNED[k], 0.0])
-    res = scanreg.register(source, target, method="point_to_line", init=start)
+    start = relation @ SE2.from_vector([*PINNED[k, method], 0.0])
+    res = scanreg.register(source, target, method=method, init=start)  # type: ignore[arg-type]
     assert res.verdict is not None and res.degeneracy is not None
     assert res.degeneracy.degenerate  # the analysis still finds the direction weak
     dm, dd = _error(res.pose, relation)
-    assert dm < 0.03 and dd < 0.3
+    assert dm < 0.02 and dd < 0.6
     loss = res.quality.weak_fit_loss
-    assert loss is not None and min(loss) >= res.degeneracy.threshold
+    assert loss is not None and 0.03 <= min(loss) <= 0.05
     assert res.verdict.accepted, res.verdict.reasons
 
 
@@ -81,7 +85,7 @@ def test_corridor_result_left_off_along_it_stays_rejected(k: int) -> None:
     dm, _ = _error(res.pose, relation)
     assert dm > 0.5
     loss = res.quality.weak_fit_loss
-    assert loss is not None and max(loss) < 0.0
+    assert loss is not None and max(loss) < -0.05
     assert not res.verdict.accepted
     assert any(r.startswith("degenerate:") for r in res.verdict.reasons)
 
@@ -108,7 +112,7 @@ def test_weak_fit_loss_tells_a_bare_corridor_from_one_with_doors() -> None:
         res = scanreg.register(source, target, method="point_to_line")
         deg = res.degeneracy
         assert deg is not None and deg.degenerate, (door, deg.eigenvalues)
-        loss = weak_fit_loss(target.index, source, res.pose, deg, 1.0)
+        loss = weak_fit_loss(target, source, res.pose, deg, 1.0)
         assert loss is not None
         losses[door] = min(loss)
         assert pinned(loss, deg) == (door,)
@@ -126,14 +130,18 @@ def test_bad_input_names_the_argument() -> None:
     res = scanreg.register(points, target, method="point_to_line")
     deg = res.degeneracy
     assert deg is not None
+    with pytest.raises(TypeError, match="target: expected PreparedTarget"):
+        weak_fit_loss(target.index, points, res.pose, deg, 1.0)  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="pose: expected SE2"):
-        weak_fit_loss(target.index, points, res.pose.as_matrix(), deg, 1.0)  # type: ignore[arg-type]
+        weak_fit_loss(target, points, res.pose.as_matrix(), deg, 1.0)  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="degeneracy: expected Degeneracy"):
-        weak_fit_loss(target.index, points, res.pose, None, 1.0)  # type: ignore[arg-type]
+        weak_fit_loss(target, points, res.pose, None, 1.0)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="gate: must be > 0, got nan"):
-        weak_fit_loss(target.index, points, res.pose, deg, math.nan)
+        weak_fit_loss(target, points, res.pose, deg, math.nan)
     with pytest.raises(ValueError, match="source"):
-        weak_fit_loss(target.index, np.zeros((5, 3)), res.pose, deg, 1.0)
+        weak_fit_loss(target, np.zeros((5, 3)), res.pose, deg, 1.0)
+    with pytest.raises(ValueError, match="target: must be 2D"):
+        weak_fit_loss(scanreg.prepare(np.c_[points, points[:, :1]]), points, res.pose, deg, 1.0)
     with pytest.raises(ValueError, match="loss: expected 1 values"):
         pinned((0.1, 0.2), deg)
-    assert weak_fit_loss(target.index, points, res.pose, deg, math.inf) is None
+    assert weak_fit_loss(target, points, res.pose, deg, math.inf) is None

@@ -325,11 +325,8 @@ def test_intel_pair_from_its_odometry_lands_on_the_relation(k: int) -> None:
 # Intel relations (the first 400 under 10 s apart) from the wheel odometry where the refined
 # result is degenerate (a corridor) and drifted 0.15-0.23 m along its axis
 # (benchmarks/relation_pairs.py); held at the odometry along it (``hold_degenerate``):
-# 0.6-4.1 cm. The verdict names the weak direction unless the scan itself pins the held pose
-# along it (:mod:`scanreg.pinned`: 261 and 289 lose 4.9 and 3.9 % of the scan moved along it,
-# accepted inside their covariance, NEES 2.5 and 12.7); the other three fit better off it.
+# 1.1-4.1 cm. Both rejected as degenerate: the verdict is the same, the pose is the start's.
 INTEL_CORRIDORS = (187, 228, 261, 275, 289)
-INTEL_CORRIDORS_PINNED = (261, 289)
 
 
 @pytest.mark.parametrize("k", INTEL_CORRIDORS)
@@ -338,12 +335,10 @@ def test_intel_corridor_from_its_odometry_is_held_there(k: int) -> None:
     res = scanreg.register(source, target, method="point_to_line", init=odometry)
     assert res.degeneracy is not None and res.degeneracy.degenerate
     assert _error(res.pose, relation)[0] < 0.05
-    assert res.verdict is not None and res.verdict.accepted == (k in INTEL_CORRIDORS_PINNED)
+    assert res.verdict is not None and not res.verdict.accepted
+    # Nor does the scan pin it along the corridor (scanreg.pinned): -0.07 to 0.02 of it lost.
     loss = res.quality.weak_fit_loss
-    assert loss is not None and (min(loss) >= res.degeneracy.threshold) == res.verdict.accepted
-    if res.verdict.accepted:
-        err = (res.pose.inverse() @ relation).log()
-        assert float(err @ np.linalg.solve(np.asarray(res.covariance), err)) < 16.27
+    assert loss is not None and max(loss) < res.degeneracy.threshold
     free = scanreg.register(
         source, target, method="point_to_line", init=odometry, hold_degenerate=False
     )
@@ -355,8 +350,7 @@ def test_held_result_reports_its_own_fit() -> None:
     loose-fit check and the basin screen read is the held pose's, not the refinement's.
     Consecutive Intel scans 164 → 165 (carmen-intel subset, GMapping poses), started turned by
     70°: refined to 92 % of the scan within 0.1 m, held at 23 % and 63° off; before, read as
-    92 %, the screen let it pass (rejected then only as degenerate, which the scan's own pin of
-    the weak direction, :mod:`scanreg.pinned`, lifts)."""
+    92 %, the screen let it pass (rejected then only as degenerate)."""
     from scanreg.io import read_carmen
 
     log = read_carmen(data_dir("carmen-intel") / "intel_gfs_subset_clf_timestamps.clf")

@@ -358,7 +358,7 @@ def _assess_checked(
             # Does the scan itself hold a weak result there? Measured when read: the verdict
             # reads it only for a result no other check rejects.
             "weak_fit_loss": lambda: (
-                _weak_fit_loss(index, source, pose, degeneracy, gate)  # type: ignore[arg-type]
+                _weak_fit_loss(target, source, pose, degeneracy, gate)  # type: ignore[arg-type]
                 if weak and degeneracy is not None
                 else None
             ),
