@@ -219,6 +219,7 @@ def run(
                         "covariance": cov.tolist(),
                         **fits,
                         "tight_fit": _tight_fit(res),
+                        "weak_fit_loss": _weak_fit_loss(res),
                     }
                 )
 
@@ -255,6 +256,13 @@ def _tight_fit(res: Any) -> float | None:
     never-worse-than-the-start check counted it (None when it did not run)."""
     slide = getattr(res.quality, "slide", None)
     return None if slide is None else float(slide.returned_fit)
+
+
+def _weak_fit_loss(res: Any) -> list[float] | None:
+    """2D: the fraction of the source each weak direction's shifts lose from the tight gate
+    (``QualityReport.weak_fit_loss``; None when no direction is weak)."""
+    loss = getattr(res.quality, "weak_fit_loss", None)
+    return None if loss is None else [float(x) for x in loss]
 
 
 def _nees(err: np.ndarray, cov: np.ndarray) -> float:

@@ -35,6 +35,7 @@ MODULES: tuple[tuple[str, str], ...] = (
     ("scanreg.budget", "a memory budget for large clouds"),
     ("scanreg.quality", "covariance, conditioning, residual statistics"),
     ("scanreg.degeneracy", "weak directions named in pose coordinates"),
+    ("scanreg.pinned", "whether the scan itself pins a 2D result along a weak direction"),
     ("scanreg.verdict", "accept or reject a registration, with reasons"),
     ("scanreg.deskew", "motion compensation of a sweep"),
     ("scanreg.robust", "robust kernels"),

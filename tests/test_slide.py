@@ -336,7 +336,34 @@ def test_intel_corridor_from_its_odometry_is_held_there(k: int) -> None:
     assert res.degeneracy is not None and res.degeneracy.degenerate
     assert _error(res.pose, relation)[0] < 0.05
     assert res.verdict is not None and not res.verdict.accepted
+    # Nor does the scan pin it along the corridor (scanreg.pinned): -0.07 to 0.02 of it lost.
+    loss = res.quality.weak_fit_loss
+    assert loss is not None and max(loss) < res.degeneracy.threshold
     free = scanreg.register(
         source, target, method="point_to_line", init=odometry, hold_degenerate=False
     )
     assert _error(free.pose, relation)[0] > WRONG_M
+
+
+def test_held_result_reports_its_own_fit() -> None:
+    """The hold of a degenerate refined result re-solves from the start: the fit the verdict's
+    loose-fit check and the basin screen read is the held pose's, not the refinement's.
+    Consecutive Intel scans 164 → 165 (carmen-intel subset, GMapping poses), started turned by
+    70°: refined to 92 % of the scan within 0.1 m, held at 23 % and 63° off; before, read as
+    92 %, the screen let it pass (rejected then only as degenerate)."""
+    from scanreg.io import read_carmen
+
+    log = read_carmen(data_dir("carmen-intel") / "intel_gfs_subset_clf_timestamps.clf")
+    a, b = log.scans[164].laser_se2, log.scans[165].laser_se2
+    assert a is not None and b is not None
+    reference = a.inverse() @ b
+    source = log.scans[165].to_points(0.1, 40.0)
+    target = scanreg.prepare(log.scans[164].to_points(0.1, 40.0), normals=True)
+    start = reference @ SE2.from_vector([0.0, 0.0, math.radians(70.0)])
+    res = scanreg.register(source, target, method="point_to_line", init=start)
+    assert res.slide is not None and res.slide.refined_fit > 0.9
+    assert 0.2 < res.slide.held_fit < 0.3
+    assert res.slide.returned_fit == res.slide.held_fit
+    assert _error(res.pose, reference)[1] > 60.0
+    assert res.verdict is not None and not res.verdict.accepted
+    assert any(r.startswith("wrong basin: ") for r in res.verdict.reasons), res.verdict.reasons

@@ -106,11 +106,17 @@ class SlideCheck:
     refined_fit: float = math.nan
     #: The refinement's iterations (0 when it did not run or returned the start).
     refined_iterations: int = 0
+    #: The fit of the pose returned after the hold of a degenerate refined result
+    #: (``RegistrationSettings.hold_degenerate``), which re-solves from the start and replaces
+    #: the refinement's pose; NaN when it did not run.
+    held_fit: float = math.nan
 
     @property
     def returned_fit(self) -> float:
-        """The fit of the pose returned (``refined_fit`` when the refinement ran, else
-        ``end_fit``, ``resolved_fit`` or ``start_fit`` by the outcome)."""
+        """The fit of the pose returned (``held_fit`` after a hold, ``refined_fit`` when the
+        refinement ran, else ``end_fit``, ``resolved_fit`` or ``start_fit`` by the outcome)."""
+        if not math.isnan(self.held_fit):
+            return self.held_fit
         if self.refined != "off":
             return self.refined_fit
         if self.outcome == "resolved":

@@ -38,6 +38,7 @@ from ._validate import FloatArray, LazyFields, as_points, build, build_lazy
 from .basin import BasinProbe
 from .degeneracy import Degeneracy
 from .local_map import LocalMap
+from .pinned import _weak_fit_loss, pinned
 from .quality import DEFAULT_WEAK_RATIO, Conditioning, conditioning
 from .slide import SlideCheck
 from .target import PreparedTarget, prepare
@@ -190,6 +191,12 @@ class QualityReport(LazyFields):
     #: The registration's never-worse-than-the-start check (:mod:`scanreg.slide`), when it
     #: ran: a result that returned its start after a slide is rejected, naming both fits.
     slide: SlideCheck | None = None
+    #: 2D: for each weak direction of ``degeneracy``, the least fraction of the source lost
+    #: from the tight gate when the pose moves along it (:func:`scanreg.pinned.weak_fit_loss`,
+    #: measured when read; None without a weak direction). When no other check rejects the
+    #: result, a direction whose loss reaches the analysis's threshold is not named degenerate.
+    #: (A default factory: a plain default would sit on the class and hide the lazy value.)
+    weak_fit_loss: tuple[float, ...] | None = field(default_factory=lambda: None)
 
 
 @dataclass(frozen=True)
@@ -322,6 +329,11 @@ def _assess_checked(
             motion_nees = float(t @ np.linalg.solve(block, t))
         except np.linalg.LinAlgError:
             motion_nees = None
+    weak = (
+        degeneracy is not None
+        and pose.DIM == 2
+        and any(lam < degeneracy.threshold for lam in np.asarray(degeneracy.eigenvalues).tolist())
+    )
     # Built without the dataclass __init__ (every field is checked here already); the motion
     # from the start is measured when read (the verdict reads it only under a finite bound).
     report = build_lazy(
@@ -343,6 +355,13 @@ def _assess_checked(
             "slide": slide,
         },
         {
+            # Does the scan itself hold a weak result there? Measured when read: the verdict
+            # reads it only for a result no other check rejects.
+            "weak_fit_loss": lambda: (
+                _weak_fit_loss(target, source, pose, degeneracy, gate)  # type: ignore[arg-type]
+                if weak and degeneracy is not None
+                else None
+            ),
             "translation_from_init": lambda: float(np.linalg.norm(moved.translation)),
             "rotation_from_init": lambda: (
                 float(moved.angle) if pose.DIM == 3 else abs(float(moved.angle))
@@ -372,18 +391,16 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
     max_rmse = 0.5 * report.gate if th.max_inlier_rmse is None else th.max_inlier_rmse
     if not report.residual_rmse <= max_rmse:  # also rejects nan (no overlap at all)
         reasons.append(f"inlier RMSE {report.residual_rmse:.3g} > {max_rmse:.3g}")
+    # Weak directions of the analysis, named after the other checks (below) unless the scan
+    # pins them (:mod:`scanreg.pinned`), at this place in the list.
+    weak_at, weak_deg = len(reasons), None
     if th.reject_degenerate:
         deg = report.degeneracy
         if deg is not None:
             # Its directions (built on first read) only where one is below the threshold.
             threshold = deg.threshold
             if any(lam < threshold for lam in np.asarray(deg.eigenvalues).tolist()):
-                for weak, lam in zip(deg.directions, deg.eigenvalues, strict=True):
-                    if lam < deg.threshold:
-                        reasons.append(
-                            f"degenerate: {weak.description} "
-                            f"(constraint {lam:.2g} < {deg.threshold:.2g})"
-                        )
+                weak_deg = deg
         elif report.conditioning.weakest.ratio < th.weak_ratio:
             # No Degeneracy analysis behind this result: the one number that stands in for it.
             weak = report.conditioning.weakest
@@ -407,6 +424,18 @@ def judge(report: QualityReport, thresholds: VerdictThresholds) -> Verdict:
                 f"slid beyond the uncertainty of its start: translation χ² "
                 f"{report.motion_nees:.3g} > {bound:.3g}"
             )
+    if weak_deg is not None:
+        # The pin is measured only for a result nothing else rejects (15 nearest-neighbour
+        # passes a weak direction): otherwise the analysis's word stands.
+        held = pinned(None if reasons else report.weak_fit_loss, weak_deg)
+        named = [
+            f"degenerate: {w.description} (constraint {lam:.2g} < {weak_deg.threshold:.2g})"
+            for i, (w, lam) in enumerate(
+                zip(weak_deg.directions, weak_deg.eigenvalues.tolist(), strict=True)
+            )
+            if lam < weak_deg.threshold and not held[i]
+        ]
+        reasons[weak_at:weak_at] = named
     probe = report.basin
     if probe is not None and probe.alternative is not None:
         ratio = probe.ratio

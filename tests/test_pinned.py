@@ -1,0 +1,147 @@
+"""A direction the degeneracy analysis finds weak but the scan itself pins
+(:mod:`scanreg.pinned`): the verdict does not reject for it; a result left off along a bare
+corridor stays rejected as degenerate."""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+from typing import Any
+
+import numpy as np
+import pytest
+import scanreg
+from conftest import data_dir
+from scanreg import SE2
+from scanreg.eval.relations import read_relations
+from scanreg.io import read_scans
+from scanreg.pinned import PIN_SHIFTS_GATES, pinned, weak_fit_loss
+
+WRONG_M, WRONG_DEG = 0.15, 2.0
+
+
+@cache
+def _intel() -> tuple[Any, Any, dict[float, int]]:
+    folder = data_dir("freiburg-slam-benchmark")
+    log = read_scans(folder / "intel.clf.bz2")
+    relations = read_relations(folder / "intel.relations")
+    stamps = {s.timestamp: i for i, s in enumerate(log.scans) if s.kind == "FLASER"}
+    return log, relations, stamps
+
+
+def _pair(k: int) -> tuple[np.ndarray, Any, SE2]:
+    """Freiburg Intel relation ``k``: scan t2 (source), scan t1 prepared (target), the
+    relation (the laser sits at the robot's centre)."""
+    log, relations, stamps = _intel()
+    i1, i2 = stamps[float(relations.t1[k])], stamps[float(relations.t2[k])]
+    m = relations.poses[k]
+    relation = SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
+    source = log.scans[i2].to_points(0.1, 40.0)
+    target = scanreg.prepare(log.scans[i1].to_points(0.1, 40.0), normals=True)
+    return source, target, relation
+
+
+def _error(pose: Any, truth: SE2) -> tuple[float, float]:
+    err = (pose.inverse() @ truth).log()
+    return float(np.hypot(err[0], err[1])), math.degrees(abs(float(err[2])))
+
+
+# Corridor pairs of benchmarks/wrong_start.py (--datasets fr-intel), started 0.6 m off the
+# relation (the pair's offset there): the analysis reads a weak translation (constraint below
+# 0.03), yet the result came back within 2 cm, and moved along the corridor it loses 3.3-5 % of
+# the scan from the tight gate where the target samples finely; rejected as degenerate before.
+PINNED = {
+    (67, "point_to_point"): (-0.3844, -0.4607),
+    (68, "point_to_line"): (0.2034, -0.5645),
+    (69, "point_to_point"): (0.5844, -0.1358),
+}
+
+
+@pytest.mark.parametrize(("k", "method"), sorted(PINNED))
+def test_corridor_result_pinned_by_the_scan_is_accepted(k: int, method: str) -> None:
+    source, target, relation = _pair(k)
+    start = relation @ SE2.from_vector([*PINNED[k, method], 0.0])
+    res = scanreg.register(source, target, method=method, init=start)  # type: ignore[arg-type]
+    assert res.verdict is not None and res.degeneracy is not None
+    assert res.degeneracy.degenerate  # the analysis still finds the direction weak
+    dm, dd = _error(res.pose, relation)
+    assert dm < 0.02 and dd < 0.6
+    loss = res.quality.weak_fit_loss
+    assert loss is not None and 0.03 <= min(loss) <= 0.05
+    assert res.verdict.accepted, res.verdict.reasons
+
+
+# Pairs left 0.6 m off along the corridor (the start's offset kept): a pose nearer the relation
+# explains more of the scan (negative loss), the verdict still names the weak direction.
+STUCK = {11: (-0.5829, -0.1424), 59: (-0.5907, 0.1053)}
+
+
+@pytest.mark.parametrize("k", sorted(STUCK))
+def test_corridor_result_left_off_along_it_stays_rejected(k: int) -> None:
+    source, target, relation = _pair(k)
+    start = relation @ SE2.from_vector([*STUCK[k], 0.0])
+    res = scanreg.register(source, target, method="point_to_line", init=start)
+    assert res.verdict is not None
+    dm, _ = _error(res.pose, relation)
+    assert dm > 0.5
+    loss = res.quality.weak_fit_loss
+    assert loss is not None and max(loss) < -0.05
+    assert not res.verdict.accepted
+    assert any(r.startswith("degenerate:") for r in res.verdict.reasons)
+
+
+def _corridor(door: bool) -> np.ndarray:
+    """Two walls 2 m apart along x (5 cm spacing), and with ``door`` two slanted door reveals
+    (0.5 m at 53° to the corridor: ``|n·x| = 0.8``) leaving them at x = ±3 m."""
+    x = np.arange(-8.0, 8.0, 0.05)
+    pts = [np.c_[x, np.full_like(x, 1.0)], np.c_[x, np.full_like(x, -1.0)]]
+    if door:
+        s = np.arange(0.04, 0.5, 0.04)[:, None]
+        pts.append(np.array([-3.0, 1.0]) + s * np.array([0.6, -0.8]))
+        pts.append(np.array([3.0, -1.0]) + s * np.array([-0.6, 0.8]))
+    return np.ascontiguousarray(np.vstack(pts))
+
+
+def test_weak_fit_loss_tells_a_bare_corridor_from_one_with_doors() -> None:
+    rng = np.random.default_rng(0)
+    losses = {}
+    for door in (False, True):
+        target_points = _corridor(door)
+        source = target_points + rng.normal(0.0, 0.005, target_points.shape)
+        target = scanreg.prepare(target_points, normals=True)
+        res = scanreg.register(source, target, method="point_to_line")
+        deg = res.degeneracy
+        assert deg is not None and deg.degenerate, (door, deg.eigenvalues)
+        loss = weak_fit_loss(target, source, res.pose, deg, 1.0)
+        assert loss is not None
+        losses[door] = min(loss)
+        assert pinned(loss, deg) == (door,)
+    # The bare corridor loses only points past the other wall's end (0.005); the reveals' 24 of
+    # 664 points (0.036) leave the tight gate at every shift, while their share of the normals'
+    # constraint (0.026) stays under the analysis's 0.03.
+    assert losses[False] < 0.01
+    assert 0.03 < losses[True] < 0.04
+    assert PIN_SHIFTS_GATES[0] > 0.1  # past the tight gate: the facing points have left it
+
+
+def test_bad_input_names_the_argument() -> None:
+    points = _corridor(False)
+    target = scanreg.prepare(points, normals=True)
+    res = scanreg.register(points, target, method="point_to_line")
+    deg = res.degeneracy
+    assert deg is not None
+    with pytest.raises(TypeError, match="target: expected PreparedTarget"):
+        weak_fit_loss(target.index, points, res.pose, deg, 1.0)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="pose: expected SE2"):
+        weak_fit_loss(target, points, res.pose.as_matrix(), deg, 1.0)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="degeneracy: expected Degeneracy"):
+        weak_fit_loss(target, points, res.pose, None, 1.0)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="gate: must be > 0, got nan"):
+        weak_fit_loss(target, points, res.pose, deg, math.nan)
+    with pytest.raises(ValueError, match="source"):
+        weak_fit_loss(target, np.zeros((5, 3)), res.pose, deg, 1.0)
+    with pytest.raises(ValueError, match="target: must be 2D"):
+        weak_fit_loss(scanreg.prepare(np.c_[points, points[:, :1]]), points, res.pose, deg, 1.0)
+    with pytest.raises(ValueError, match="loss: expected 1 values"):
+        pinned((0.1, 0.2), deg)
+    assert weak_fit_loss(target, points, res.pose, deg, math.inf) is None
