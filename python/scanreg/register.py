@@ -41,6 +41,7 @@ from . import _core, budget
 from ._validate import FloatArray, as_covariance, as_matrix, as_points, check_finite_points
 from ._validate import build as _build
 from ._validate import frozen as _frozen
+from ._validate import replaced as _replaced
 from .degeneracy import (
     MIN_CONSTRAINT_2D,
     Degeneracy,
@@ -1050,7 +1051,7 @@ def register(
                             slide,
                             held_fit=_fit(index, src, np.asarray(again.pose), slide.gate),
                         )
-                        ctx.__dict__["slide"] = slide  # frozen: built above with the old one
+                        ctx = _replaced(ctx, slide=slide)  # built above with the old one
                 out = again
                 first = correspondence_analysis(ctx, out, held=first.degeneracy, valley=valley)
 
