@@ -11,6 +11,10 @@ the first pass with its own poses) at our relative pose ``T_a_b`` and at GMappin
 * **our own matching of the view**: the best correlative score (the loop search's, 5 cm cells)
   of scan ``b`` on the first pass within ±1.5 m / ±10° of our relation, refined by
   point-to-line ICP; the refined pose's distance to GMapping's relation (median);
+* **free space**: the fraction of scan ``b``'s returns that A's scans (within 20 m) saw and most
+  of them saw through (the self-check's test) at our relation, GMapping's, our own match, and
+  ours moved 1 m (mean of four directions) — a wrong relation puts walls in the other pass's
+  free space;
 * **what the loop search did**: the loop records between the two passes (by search, accepted,
   reasons) — none means no candidate was ever proposed there;
 * **every view, found without the reference**: each scan ``b`` and the scan ``a`` nearest it by
@@ -40,7 +44,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scanreg import SE2
+from scanreg import SE2, _core
 from scanreg.correlative import find_correlative, prepare_correlative
 from scanreg.graph import Kernel
 from scanreg.pipeline import MappingConfig, run_mapping
@@ -62,6 +66,11 @@ MIN_PATH, VIEW_RANGE = 30.0, 15.0
 #: ... laid on it and this many scans each side; a view ends where the earlier scan jumps
 #: by more than this many scans, and is shown with at least this many scans.
 VIEW_HALF, VIEW_JUMP, VIEW_MIN = 2, 15, 3
+#: Free space: A's scans judge b's returns within this range (m), a return seen through when
+#: most of those that saw it have their beams end more than ``THROUGH_MARGIN`` m beyond it
+#: (the self-check's test, ``scanreg.pipeline.map_check``); the wrong poses it is asked about.
+THROUGH_RANGE, THROUGH_MARGIN = 20.0, 0.3
+SHIFTS = tuple(SE2.from_vector(v) for v in ([1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0]))
 #: The injected loop edges' σ (m, rad).
 SIGMA = (0.1, math.radians(1.0))
 
@@ -78,6 +87,21 @@ def _nearest(query: np.ndarray, target: np.ndarray) -> np.ndarray:
 def _error(reference: SE2, estimate: SE2) -> tuple[float, float]:
     e = reference.inverse() @ estimate
     return float(np.linalg.norm(e.translation)), abs(math.degrees(e.angle))
+
+
+def _seen_through(laid: list[SE2], old: list[np.ndarray], pose: SE2, points: np.ndarray) -> float:
+    """The fraction of ``points`` (a scan at ``pose``) that the scans ``old`` (at ``laid``, the
+    same frame) saw, and most of those saw through — a wall where the other pass saw free space."""
+    rows = np.ascontiguousarray([p.as_vector() for p in [*laid, pose]], dtype=np.float64)
+    counts = [len(p) for p in [*old, points]]
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    sessions = np.array([0] * len(old) + [1], dtype=np.uint32)  # only the other pass judges
+    _, judged, seen, through = _core.see_through(
+        rows, np.ascontiguousarray(np.vstack([*old, points])), offsets, bins=360,
+        margin=THROUGH_MARGIN, max_range=THROUGH_RANGE, min_gap=len(counts), sessions=sessions,
+    )  # fmt: skip
+    mine = (np.asarray(judged) >= offsets[-2]) & (seen >= 1)
+    return float(np.mean(2 * through[mine] > seen[mine])) if mine.any() else math.nan
 
 
 def _span(text: str) -> tuple[int, int]:
@@ -187,9 +211,10 @@ def main() -> None:
             "\n| passes A : B | relation error (m / deg) | within 5 cm ours / GMapping "
             "| within 10 cm ours / GMapping | best score (median) "
             "| refined − GMapping (median m) | loop records A↔B "
-            "| ATE, self-check with the view closed |"
+            "| ATE, self-check with the view closed "
+            "| seen through: ours / GMapping / our match / ours 1 m off |"
         )
-        print("|---|---|---|---|---:|---:|---|---|")
+        print("|---|---|---|---|---:|---:|---|---|---|")
     for (alo, ahi), (blo, bhi) in pairs:
         a = (alo + ahi) // 2
         passes = {
@@ -198,6 +223,12 @@ def main() -> None:
         }
         grid = prepare_correlative(passes["ours"], resolution=0.05)
         rel_err, fit5, fit10, scores, refined_err, edges = [], [], [], [], [], []
+        laid = {
+            label: [poses[a].inverse() @ poses[k] for k in range(alo, ahi + 1)]
+            for label, poses in (("ours", ours), ("ref", ref))
+        }
+        old = [pts[k] for k in range(alo, ahi + 1)]
+        through = []
         for b in range(blo, bhi + 1):
             t_ours, t_ref = ours[a].inverse() @ ours[b], ref[a].inverse() @ ref[b]
             rel_err.append(_error(t_ref, t_ours))
@@ -216,6 +247,16 @@ def main() -> None:
                 max_correspondence_distance=0.3, kernel="cauchy",
             )  # fmt: skip
             refined_err.append(_error(t_ref, fit.pose)[0])
+            through.append(
+                (
+                    _seen_through(laid["ours"], old, t_ours, pts[b]),
+                    _seen_through(laid["ref"], old, t_ref, pts[b]),
+                    _seen_through(laid["ours"], old, fit.pose, pts[b]),
+                    np.nanmean(
+                        [_seen_through(laid["ours"], old, t_ours @ d, pts[b]) for d in SHIFTS]
+                    ),
+                )
+            )
             if a in node_of and b in node_of:
                 edges.append((node_of[a], node_of[b], fit.pose))
         records = [
@@ -240,7 +281,9 @@ def main() -> None:
         print(
             f"| {alo}–{ahi} : {blo}–{bhi} | {r[0]:.3f} / {r[1]:.2f} | {f5[0]:.2f} / {f5[1]:.2f} "
             f"| {f10[0]:.2f} / {f10[1]:.2f} | {np.median(scores):.2f} | "
-            f"{np.median(refined_err):.2f} | {said} | {after[0]:.3f} m, {after[1]:.1%} |",
+            f"{np.median(refined_err):.2f} | {said} | {after[0]:.3f} m, {after[1]:.1%} | "
+            + " / ".join(f"{v:.2f}" for v in np.nanmean(through, axis=0))
+            + " |",
             flush=True,
         )
 
