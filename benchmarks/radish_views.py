@@ -56,7 +56,7 @@ from radish_mapping import LOGS, errors, prepared
 
 DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
 #: Edmonton's passes (the default pairs of ``--log edmonton``, none for another log): the
-#: view across the hall (scans 147-158 facing scans 55-75 from 9-15 m, headings 110-170°
+#: view across open space (scans 147-158 facing scans 55-75 from 9-15 m, headings 110-170°
 #: apart) and two revisits the loop search closed or came near (controls).
 DEFAULT_PAIRS = ("55-75:147-158", "158-172:205-224", "283-297:308-326")
 MIN_RANGE, MAX_RANGE = 0.1, 40.0
