@@ -96,6 +96,11 @@ def _positive_float(value: Any, name: str, *, allow_inf: bool = False) -> float:
     return v
 
 
+#: One sweep of a target map: its sweep motion ``(vx, vy, ω)·T`` and its sensor's pose
+#: ``(x, y, θ)`` in the target's frame (:attr:`RegistrationSettings.target_sweeps`).
+SweptBy = tuple[tuple[float, float, float], tuple[float, float, float]]
+
+
 @dataclass(frozen=True)
 class RegistrationSettings:
     """How :func:`register` runs. Frozen; validated on construction (errors name the field).
@@ -187,9 +192,15 @@ class RegistrationSettings:
     #: Where the target's sensor was when it swept, ``(x, y, θ)`` in the target's frame (its
     #: bearings, hence its beams' times, are read from there, and its ``target_sweep_motion``
     #: is in that sensor's frame). ``None``: the target frame's origin (a scan in its own
-    #: frame). For a map: the pose of the scan that added to it last (what ``Odometry2D``
-    #: passes: its map's freshest points, the ones that overlap the new scan most).
+    #: frame). For a map of several sweeps: ``target_sweeps``.
     target_sweep_origin: tuple[float, float, float] | None = None
+    #: The target is a map that blends several sweeps (a local map's keyframes, each swept at
+    #: its own rate and heading): ``((motion, origin), ...)``, each sweep's
+    #: ``target_sweep_motion`` and ``target_sweep_origin``. Which of them laid the matched
+    #: points is not known, so ``calibrated`` takes the mean of their distortion terms
+    #: (``docs/calibration.md``); ``Odometry2D`` passes its window's keyframes. Not with
+    #: ``target_sweep_motion`` (one sweep: pass it alone).
+    target_sweeps: tuple[SweptBy, ...] | None = None
     #: 2D point-to-line with ``never_worse_than_start``, from an ``init`` that explains at least
     #: a fifth of the source within a tenth of the gate: refine inside the basin the solve
     #: chose (:func:`scanreg.slide.refine_in_basin`): two more solves with 0.3 of the gate and
@@ -274,6 +285,33 @@ class RegistrationSettings:
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, _sweep_motion(value, name))
+        if self.target_sweeps is not None:
+            object.__setattr__(self, "target_sweeps", _target_sweeps(self.target_sweeps))
+            if self.target_sweep_motion is not None or self.target_sweep_origin is not None:
+                raise ValueError(
+                    "target_sweeps: not with target_sweep_motion / target_sweep_origin "
+                    "(one sweep: pass it alone)"
+                )
+
+
+def _target_sweeps(value: Any) -> tuple[SweptBy, ...]:
+    """``value`` as a non-empty tuple of ``(motion, origin)`` pairs, or an error naming
+    ``target_sweeps``."""
+    if isinstance(value, str | bytes) or not hasattr(value, "__len__"):
+        raise TypeError(f"target_sweeps: expected (motion, origin) pairs, got {value!r}")
+    if len(value) == 0:
+        raise ValueError("target_sweeps: expected at least one (motion, origin) pair")
+    out = []
+    for i, pair in enumerate(value):
+        if isinstance(pair, str | bytes) or not hasattr(pair, "__len__") or len(pair) != 2:
+            raise TypeError(f"target_sweeps[{i}]: expected a (motion, origin) pair, got {pair!r}")
+        out.append(
+            (
+                _sweep_motion(pair[0], f"target_sweeps[{i}] motion"),
+                _sweep_motion(pair[1], f"target_sweeps[{i}] origin"),
+            )
+        )
+    return tuple(out)
 
 
 def _sweep_motion(value: Any, name: str) -> tuple[float, float, float]:
@@ -758,9 +796,10 @@ def register(
     if k_scale != k_scale:  # NaN: see _Plan
         raise ValueError("kernel_scale: required with an infinite max_correspondence_distance")
 
-    if dim != 2 and (s.sweep_motion is not None or s.target_sweep_motion is not None):
+    target_swept = s.target_sweep_motion is not None or s.target_sweeps is not None
+    if dim != 2 and (s.sweep_motion is not None or target_swept):
         raise ValueError("sweep_motion: only 2D scans are modelled (deskew a 3D sweep instead)")
-    if s.target_sweep_motion is not None and isinstance(prepared, LocalMap):
+    if target_swept and isinstance(prepared, LocalMap):
         raise ValueError("target_sweep_motion: the target is a LocalMap, not one scan")
 
     given_prior = None

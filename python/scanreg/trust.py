@@ -494,12 +494,7 @@ def correspondence_analysis(
         # A sweep's motion distortion (2D scans without per-beam time): its shift's outer
         # product joins ``calibrated``.
         sweep_motion=None if s.sweep_motion is None else np.asarray(s.sweep_motion),
-        target_sweep_motion=None
-        if s.target_sweep_motion is None
-        else np.asarray(s.target_sweep_motion),
-        target_sweep_origin=None
-        if s.target_sweep_origin is None
-        else SE2.from_vector(s.target_sweep_origin).as_matrix(),
+        **_target_sweeps(s),
     )
     if fold_scene:
         ctx.__dict__["_scene"] = num.scene
@@ -528,6 +523,23 @@ def correspondence_analysis(
             "overlap": num.overlap,
         },
     )
+
+
+def _target_sweeps(s: RegistrationSettings) -> dict[str, FloatArray | None]:
+    """The binding's target sweeps: one row each of motion and ``[x, y, θ]`` origin (a scan's
+    one sweep, or a map's ``target_sweeps``); nothing when the target was not swept."""
+    if s.target_sweeps is not None:
+        motions = [m for m, _ in s.target_sweeps]
+        origins: list[tuple[float, float, float]] | None = [o for _, o in s.target_sweeps]
+    elif s.target_sweep_motion is not None:
+        motions = [s.target_sweep_motion]
+        origins = None if s.target_sweep_origin is None else [s.target_sweep_origin]
+    else:
+        return {"target_sweep_motion": None, "target_sweep_origin": None}
+    return {
+        "target_sweep_motion": np.array(motions, dtype=np.float64),
+        "target_sweep_origin": None if origins is None else np.array(origins, dtype=np.float64),
+    }
 
 
 def _degeneracy(

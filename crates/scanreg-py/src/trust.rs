@@ -396,7 +396,7 @@ fn trust_analysis(
     outcome: Option<&Bound<'_, IcpOutcome>>,
     scene_gate: Option<f64>,
     sweep_motion: Option<PyReadonlyArray1<'_, f64>>,
-    target_sweep_motion: Option<PyReadonlyArray1<'_, f64>>,
+    target_sweep_motion: Option<PyReadonlyArray2<'_, f64>>,
     target_sweep_origin: Option<PyReadonlyArray2<'_, f64>>,
 ) -> PyResult<TrustNumbers> {
     let (src, dim) = points(&source, "source")?;
@@ -444,19 +444,44 @@ fn trust_analysis(
         }
     };
     let source_sweep = sweep(&sweep_motion, "sweep_motion")?;
-    let target_sweep = match (sweep(&target_sweep_motion, "target_sweep_motion")?, dim) {
-        (None, _) => None,
-        (Some(motion), 2) => {
-            let origin = match &target_sweep_origin {
-                None => [1.0, 0.0, 0.0, 0.0],
+    // The target's sweeps (one row each: a scan, or the keyframes of a map), `[x, y, θ]`
+    // of each sweep's sensor in the target's frame (none: the target frame's origin).
+    let target_sweeps = match &target_sweep_motion {
+        None => Vec::new(),
+        Some(_) if dim != 2 => {
+            return Err(PyValueError::new_err("target_sweep_motion: 2D scans only"))
+        }
+        Some(motions) => {
+            let shape = motions.shape();
+            let mv = c_slice(motions, "target_sweep_motion")?;
+            if shape[1] != 3 || mv.iter().any(|x| !x.is_finite()) {
+                return Err(PyValueError::new_err(format!(
+                    "target_sweep_motion: expected rows of 3 finite values [vx, vy, ω]·T, \
+                     got shape {shape:?}"
+                )));
+            }
+            let origins = match &target_sweep_origin {
+                None => vec![0.0; mv.len()],
                 Some(o) => {
-                    let m = pose(o, "target_sweep_origin", 2)?;
-                    [m[0], m[3], m[2], m[5]]
+                    let ov = c_slice(o, "target_sweep_origin")?;
+                    if o.shape() != shape || ov.iter().any(|x| !x.is_finite()) {
+                        return Err(PyValueError::new_err(format!(
+                            "target_sweep_origin: expected one finite [x, y, θ] per sweep \
+                             (shape {shape:?}), got shape {:?}",
+                            o.shape()
+                        )));
+                    }
+                    ov.to_vec()
                 }
             };
-            Some(distortion::TargetSweep { motion, origin })
+            mv.chunks_exact(3)
+                .zip(origins.chunks_exact(3))
+                .map(|(m, o)| distortion::TargetSweep {
+                    motion: [m[0], m[1], m[2]],
+                    origin: [o[2].cos(), o[2].sin(), o[0], o[1]],
+                })
+                .collect()
         }
-        (Some(_), _) => None,
     };
     let tn = target_normals
         .as_ref()
@@ -683,7 +708,7 @@ fn trust_analysis(
                 corr,
                 &rot,
                 source_sweep,
-                target_sweep,
+                &target_sweeps,
                 normal_2d,
             )
         } else {

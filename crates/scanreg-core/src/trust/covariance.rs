@@ -102,18 +102,20 @@ pub fn sampling(h: &Mat, m: &Mat, deg: &super::degeneracy::Degeneracy) -> Option
     all_finite(&out).then_some(out)
 }
 
-/// The sweep-distortion term of `calibrated` (2D): `b bᵀ` for the estimate's first-order
-/// shift `b = T A⁻¹ Tᵀ g`, `A = Tᵀ H T`, from the distortion system `(H, g)`
-/// ([`super::distortion::distortion_system`]) on the well-constrained subspace (along weak
-/// directions the covariance is the prior's). None when `A` is singular or `b` not finite.
-pub fn distortion(h: &Mat, g: &Vector, deg: &super::degeneracy::Degeneracy) -> Option<Mat> {
+/// The sweep-distortion term of `calibrated` (2D): `E[b bᵀ] = K M Kᵀ` for the estimate's
+/// first-order shift `b = K g`, `K = T A⁻¹ Tᵀ`, `A = Tᵀ H T`, from the distortion system
+/// `(H, M)`, `M = E[g gᵀ]` ([`super::distortion::distortion_system`]: `g gᵀ` for one known
+/// sweep, the mean over the sweeps that may have laid a map's points) on the
+/// well-constrained subspace (along weak directions the covariance is the prior's). None
+/// when `A` is singular or the term not finite.
+pub fn distortion(h: &Mat, m: &Mat, deg: &super::degeneracy::Degeneracy) -> Option<Mat> {
     let dof = h.nrows();
     let s_inv = deg.scaling();
     let u = deg.strong_basis();
     let t = Mat::from_fn(dof, u.ncols(), |i, j| s_inv[i] * u[(i, j)]);
     let a_inv = inverse(&(t.transpose() * h * &t))?;
-    let b = &t * (a_inv * (t.transpose() * g));
-    let out = &b * b.transpose();
+    let k = &t * a_inv * t.transpose();
+    let out = sym(&(&k * m * k.transpose()));
     all_finite(&out).then_some(out)
 }
 

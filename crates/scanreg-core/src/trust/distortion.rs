@@ -10,7 +10,9 @@
 //! estimate moves by `−A⁻¹ Σ J_i r_i` with `r_i = m_i · d_i − n_j · d'_j` (`J_i`, `m_i` as
 //! in [`super::scene::sampling_system`]; `d'_j` the target point's own shift when the target
 //! was swept too, `n_j` its normal). Which way the beams were swept only flips the sign of
-//! the shift, not its outer product, which is what the covariance takes.
+//! the shift, not its outer product, which is what the covariance takes. A map blends the
+//! sweeps of several scans, each at its own rate and heading: which of them laid the matched
+//! points is not known, so the covariance takes the mean of the outer products over them.
 
 use std::f64::consts::TAU;
 
@@ -62,40 +64,49 @@ pub struct TargetSweep {
     pub origin: [f64; 4],
 }
 
-/// `(H, g)`: `H = Σ J_i J_iᵀ` (3 × 3 row-major) and `g = Σ J_i r_i` over the matched source
-/// points whose target has a normal (see the module docs). `source_sweep`: the source's
-/// sweep motion `[vx, vy, ω] · T`; `target_sweep`: the target's, when it is one scan in its
-/// own frame swept alike (None: undistorted, a map). `rotation`: the pose's `R`, row-major.
-/// None with fewer than 3 matched points, nothing swept, or mismatched lengths.
+/// `(H, M)`: `H = Σ J_i J_iᵀ` (3 × 3 row-major) and `M = mean_k g_k g_kᵀ` (3 × 3
+/// row-major), `g_k = Σ J_i r_i` over the matched source points whose target has a normal
+/// (see the module docs) with the target taken as swept by `target_sweeps[k]`. `source_sweep`:
+/// the source's sweep motion `[vx, vy, ω] · T`; `target_sweeps`: how the target may have
+/// been swept — one scan in its own frame (one entry), a map whose points came from several
+/// sweeps, any of which laid the matched points (one entry each: their shifts' outer
+/// products are averaged, since which one did is not known), or none (undistorted).
+/// `rotation`: the pose's `R`, row-major. None with fewer than 3 matched points, nothing
+/// swept, or mismatched lengths.
 pub fn distortion_system(
     source: &[f64],
     target: &[f64],
     correspondences: &[i64],
     rotation: &[f64],
     source_sweep: Option<[f64; 3]>,
-    target_sweep: Option<TargetSweep>,
+    target_sweeps: &[TargetSweep],
     normal_of: impl Fn(usize) -> Option<[f64; 2]>,
-) -> Option<([f64; 9], [f64; 3])> {
+) -> Option<([f64; 9], [f64; 9])> {
     let n = source.len() / 2;
     if correspondences.len() != n || rotation.len() < 4 {
         return None;
     }
-    if source_sweep.is_none() && target_sweep.is_none() {
+    if source_sweep.is_none() && target_sweeps.is_empty() {
         return None;
     }
     let u_src = source_sweep.map(|_| sweep_fractions(source));
-    // The target in its sensor's frame: `Rᵀ (q − t)`.
+    // The target in each sweep's sensor frame, `Rᵀ (q − t)`, and its beams' times there.
     let in_sensor = |o: &[f64; 4], j: usize| {
         let (x, y) = (target[2 * j] - o[2], target[2 * j + 1] - o[3]);
         [o[0] * x + o[1] * y, -o[1] * x + o[0] * y]
     };
-    let local: Option<Vec<f64>> = target_sweep.map(|ts| {
-        (0..target.len() / 2)
-            .flat_map(|j| in_sensor(&ts.origin, j))
-            .collect()
-    });
-    let u_tgt = local.as_deref().map(sweep_fractions);
-    let (mut h, mut g) = ([0.0; 9], [0.0; 3]);
+    let local: Vec<Vec<f64>> = target_sweeps
+        .iter()
+        .map(|ts| {
+            (0..target.len() / 2)
+                .flat_map(|j| in_sensor(&ts.origin, j))
+                .collect()
+        })
+        .collect();
+    let u_tgt: Vec<Vec<f64>> = local.iter().map(|q| sweep_fractions(q)).collect();
+    let alternatives = target_sweeps.len().max(1);
+    let mut h = [0.0; 9];
+    let mut g = vec![[0.0; 3]; alternatives];
     let mut count = 0usize;
     for i in 0..n {
         let Ok(j) = usize::try_from(correspondences[i]) else {
@@ -113,28 +124,42 @@ pub fn distortion_system(
         let mx = rotation[0] * nt[0] + rotation[2] * nt[1];
         let my = rotation[1] * nt[0] + rotation[3] * nt[1];
         let p = [source[2 * i], source[2 * i + 1]];
-        let mut r = 0.0;
+        let mut r_source = 0.0;
         if let (Some(sw), Some(u)) = (&source_sweep, &u_src) {
             let d = shift(p, u[i], sw);
-            r += mx * d[0] + my * d[1];
-        }
-        if let (Some(ts), Some(u), Some(q)) = (&target_sweep, &u_tgt, &local) {
-            // The shift in the sensor's frame, turned back into the target's.
-            let d = shift([q[2 * j], q[2 * j + 1]], u[j], &ts.motion);
-            let o = &ts.origin;
-            let d = [o[0] * d[0] - o[1] * d[1], o[1] * d[0] + o[0] * d[1]];
-            r -= nt[0] * d[0] + nt[1] * d[1];
+            r_source = mx * d[0] + my * d[1];
         }
         let jac = [mx, my, -mx * p[1] + my * p[0]];
+        for k in 0..alternatives {
+            let mut r = r_source;
+            if let Some(ts) = target_sweeps.get(k) {
+                // The shift in the sensor's frame, turned back into the target's.
+                let q = &local[k];
+                let d = shift([q[2 * j], q[2 * j + 1]], u_tgt[k][j], &ts.motion);
+                let o = &ts.origin;
+                let d = [o[0] * d[0] - o[1] * d[1], o[1] * d[0] + o[0] * d[1]];
+                r -= nt[0] * d[0] + nt[1] * d[1];
+            }
+            for a in 0..3 {
+                g[k][a] += jac[a] * r;
+            }
+        }
         for a in 0..3 {
-            g[a] += jac[a] * r;
             for b in 0..3 {
                 h[3 * a + b] += jac[a] * jac[b];
             }
         }
         count += 1;
     }
-    (count >= 3).then_some((h, g))
+    let mut m = [0.0; 9];
+    for gk in &g {
+        for a in 0..3 {
+            for b in 0..3 {
+                m[3 * a + b] += gk[a] * gk[b] / alternatives as f64;
+            }
+        }
+    }
+    (count >= 3).then_some((h, m))
 }
 
 #[cfg(test)]
@@ -175,28 +200,36 @@ mod tests {
         let eye = [1.0, 0.0, 0.0, 1.0];
         let nrm = |j: usize| Some(normals[j]);
         let sweep = [0.0, 0.0, 0.1];
-        let (_, g) = distortion_system(&pts, &pts, &corr, &eye, Some(sweep), None, nrm).unwrap();
-        assert!(g.iter().map(|v| v.abs()).sum::<f64>() > 1e-3, "{g:?}");
+        let sum = |m: [f64; 9]| m.iter().map(|v| v.abs()).sum::<f64>();
+        let (_, m) = distortion_system(&pts, &pts, &corr, &eye, Some(sweep), &[], nrm).unwrap();
+        assert!(sum(m) > 1e-6, "{m:?}");
         // Both swept alike from the same pose: the same point shifts alike, nothing moves.
         let alike = TargetSweep {
             motion: sweep,
             origin: [1.0, 0.0, 0.0, 0.0],
         };
-        let (_, g) =
-            distortion_system(&pts, &pts, &corr, &eye, Some(sweep), Some(alike), nrm).unwrap();
-        assert!(g.iter().all(|v| v.abs() < 1e-12), "{g:?}");
+        let (_, m) =
+            distortion_system(&pts, &pts, &corr, &eye, Some(sweep), &[alike], nrm).unwrap();
+        assert!(sum(m) < 1e-20, "{m:?}");
         // The target's sensor elsewhere (0.5 m off the centre): its beams' times, read from
         // there, are no longer the source's.
         let moved = TargetSweep {
             motion: sweep,
             origin: [1.0, 0.0, 0.5, 0.0],
         };
-        let (_, g) =
-            distortion_system(&pts, &pts, &corr, &eye, Some(sweep), Some(moved), nrm).unwrap();
-        assert!(g.iter().map(|v| v.abs()).sum::<f64>() > 1e-3, "{g:?}");
+        let (_, m_moved) =
+            distortion_system(&pts, &pts, &corr, &eye, Some(sweep), &[moved], nrm).unwrap();
+        assert!(sum(m_moved) > 1e-6, "{m_moved:?}");
+        // A map of both sweeps, either of which may have laid the matched points: the mean of
+        // the two outer products (the alike one's is zero), so half the moved one's.
+        let (_, m_both) =
+            distortion_system(&pts, &pts, &corr, &eye, Some(sweep), &[alike, moved], nrm).unwrap();
+        for (both, one) in m_both.iter().zip(&m_moved) {
+            assert!((both - 0.5 * one).abs() < 1e-15, "{m_both:?} {m_moved:?}");
+        }
         let still = [0.0; 3];
-        let (_, g) = distortion_system(&pts, &pts, &corr, &eye, Some(still), None, nrm).unwrap();
-        assert!(g.iter().all(|v| *v == 0.0));
-        assert!(distortion_system(&pts, &pts, &corr, &eye, None, None, nrm).is_none());
+        let (_, m) = distortion_system(&pts, &pts, &corr, &eye, Some(still), &[], nrm).unwrap();
+        assert!(m.iter().all(|v| *v == 0.0));
+        assert!(distortion_system(&pts, &pts, &corr, &eye, None, &[], nrm).is_none());
     }
 }

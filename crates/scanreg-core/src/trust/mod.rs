@@ -103,9 +103,9 @@ pub struct Input<'a> {
     /// hides from the residuals ([`association::hidden_noise_variance`]), added to the
     /// residuals' own; 0 elsewhere.
     pub hidden_noise_variance: f64,
-    /// 2D: the distortion system `(H, g)` of a sweep's motion, row-major `H` and `g`
-    /// ([`distortion::distortion_system`], [`covariance::distortion`]): its `b bᵀ` is added
-    /// to `calibrated`. None: the scans are taken as instantaneous (or deskewed).
+    /// 2D: the distortion system `(H, M)` of a sweep's motion, row-major `H` and `M = E[g gᵀ]`
+    /// ([`distortion::distortion_system`], [`covariance::distortion`]): its `E[b bᵀ]` is
+    /// added to `calibrated`. None: the scans are taken as instantaneous (or deskewed).
     pub distortion_system: Option<(&'a [f64], &'a [f64])>,
     pub length_scale: f64,
     pub chosen: Kind,
@@ -247,9 +247,9 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
         check_len("sampling_system", hs.len(), nn)?;
         check_len("sampling_system", ms.len(), nn)?;
     }
-    if let Some((hd, gd)) = input.distortion_system {
+    if let Some((hd, md)) = input.distortion_system {
         check_len("distortion_system", hd.len(), nn)?;
-        check_len("distortion_system", gd.len(), dof)?;
+        check_len("distortion_system", md.len(), nn)?;
     }
     if let Some(h) = input.held {
         check_len("held", h.information.len(), nn)?;
@@ -371,9 +371,9 @@ pub fn analyse(input: &Input<'_>) -> Result<Outcome> {
             None if input.sampling > 0.0 => calibrated[(2, 2)] += input.sampling,
             None => {}
         }
-        if let Some((hd, gd)) = input.distortion_system {
-            let g = Vector::from_column_slice(gd);
-            if let Some(term) = covariance::distortion(&from_rows(dof, hd), &g, &deg) {
+        if let Some((hd, md)) = input.distortion_system {
+            let m = from_rows(dof, md);
+            if let Some(term) = covariance::distortion(&from_rows(dof, hd), &m, &deg) {
                 calibrated += term;
             }
         }
