@@ -10,13 +10,15 @@ One :meth:`Odometry2D.step` per scan, in four stages:
    a window around the prediction) followed by the same point-to-line refinement;
 3. **judge** — :func:`scanreg.verdict.assess` of the point-to-line result against the map
    (a frame whose refinement ran off its correlative start keeps that start, and is rejected:
-   the verdict was the refinement's);
+   the verdict was the refinement's; a frame rejected for sliding beyond the uncertainty of its
+   start keeps that start, as a failed alignment does);
 4. **update** — the scan becomes a keyframe (its points, in the world frame, join the map) when
    it has moved more than ``keyframe_distance`` or turned more than ``keyframe_angle`` since the
-   last keyframe and its alignment was not a failure and overlapped the map — or, whatever its
-   verdict, once it has moved three times that far without one: a map left behind would never
-   be overlapped again (a lost robot would stay lost). The map holds the last ``max_keyframes``
-   keyframes, voxel-downsampled to ``map_voxel_size``. A keyframe updates it in the core
+   last keyframe and its alignment was not a failure (nor a slide whose start was kept) and
+   overlapped the map — or, whatever its verdict, once it has moved three times that far
+   without one: a map left behind would never be overlapped again (a lost robot would stay
+   lost). The map holds the last ``max_keyframes`` keyframes, voxel-downsampled to
+   ``map_voxel_size``. A keyframe updates it in the core
    (:class:`scanreg._core.KeyframeMap`): only the voxels the new keyframe and the evicted one
    touch get a new centroid, and only normals whose neighbourhood holds a changed point are
    computed again — the same map, normals, normal noise and point spacing as downsampling and
