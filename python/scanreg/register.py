@@ -227,14 +227,16 @@ class RegistrationSettings:
     #: With the refinement in the basin (above): when the result is degenerate — weak by the
     #: solve's own information about the source's centroid, evaluated there
     #: (:func:`scanreg.degeneracy.held_steps_2d`: the same in any frame), and by the trust
-    #: analysis — solve again from ``init`` with the refinement's narrow objective and every
-    #: step held along the weak directions (a corridor's axis), as ``degeneracy_aware`` does
-    #: with the full objective. The estimate then keeps ``init`` where the scans do not fix
-    #: it, with the variance the covariance already reports there (the prior's), plus the
+    #: analysis — solve again with the refinement's narrow objective and every step held
+    #: along the weak directions (a corridor's axis), as ``degeneracy_aware`` does with the
+    #: full objective, from the refined pose with its coordinates along them set back to
+    #: ``init``'s (from ``init`` itself a wrong heading was kept too). The estimate then keeps
+    #: ``init`` where the scans do not fix it (the source's centroid along the axis), with the
+    #: variance the covariance already reports there (the prior's), plus the
     #: valley term (:func:`scanreg.trust.valley_moment`: two more held solves per weak
     #: direction); the analysis then runs within the call. On 400 Kümmerle relation pairs
     #: per log from the wheel odometry (``benchmarks/relation_pairs.py``): median error /
-    #: wrong Intel 1.61 cm / 6 → 1.43 / 1 (Karto's matcher 1.41 / 6), ACES 2.88 / 7 → 2.70 / 3
+    #: wrong Intel 1.61 cm / 6 → 1.42 / 1 (Karto's matcher 1.41 / 6), ACES 2.88 / 7 → 2.70 / 3
     #: (3.00 / 7), hospital 4.97 / 53 → 4.93 / 49 (6.50 / 58); 0.87 → 1.00 ms a pair on Intel
     #: (a screen on every call, ~15 µs; on a degenerate result the analysis within the call
     #: and three held solves, ~1.1 ms). ``False``: the refined result as it is.
@@ -648,6 +650,23 @@ HOLD_SCREEN = 2.0
 HOLD_SCREEN_REACH = 100.0
 
 
+def _held_start_2d(refined: FloatArray, start: FloatArray, centred: FloatArray) -> FloatArray:
+    """Where the hold's solve starts: the ``refined`` pose moved along the weak directions
+    only, as far as the ``start`` lies from it along them (both poses with the source about
+    its centroid; ``centred`` is the held steps' projector ``I − P_w`` there). The start is
+    read from the refined pose (its offset in the refined pose's axes, its turn), where the
+    weak directions were found. Solved from the start itself the hold kept a wrong heading
+    too: an Intel corridor pair started turned by 70° was refined to the reference's heading
+    (92 % of the scan within 0.1 m), then held from the start at 63° off and 23 %."""
+    rot = refined[:2, :2]
+    turn = math.atan2(
+        rot[0, 0] * start[1, 0] - rot[1, 0] * start[0, 0],
+        rot[0, 0] * start[0, 0] + rot[1, 0] * start[1, 0],
+    )
+    towards = np.array([*(rot.T @ (start[:2, 2] - refined[:2, 2])), turn])
+    return refined @ SE2.exp(towards - centred @ towards).as_matrix()
+
+
 def _checked_init_covariance(init_covariance: Any, dof: int) -> FloatArray | None:
     """``init_covariance`` checked, as a copy (the analysis may read it after the call)."""
     if init_covariance is None:
@@ -1052,7 +1071,9 @@ def register(
                 at = to_centroid @ SE2.from_vector([*hold_steps.centroid, 0.0]).as_matrix()
                 centred_held = run(
                     hold_steps.centred,
-                    solve_start.as_matrix() @ at,
+                    _held_start_2d(
+                        np.asarray(out.pose) @ at, solve_start.as_matrix() @ at, hold_steps.centred
+                    ),
                     gate=gate,
                     kernel=kernel,
                     source=np.ascontiguousarray(src - at[:2, 2]),
@@ -1085,7 +1106,7 @@ def register(
                     if slide is not None:
                         # The verdict's loose-fit check and the basin screen read the fit of
                         # the pose returned: the held one's, not the refinement's it replaced
-                        # (an Intel pair from a start turned by 70°: refined 92 %, held 23 %).
+                        # (a held solve may end worse than the refinement: tests/test_slide.py).
                         slide = dataclasses.replace(
                             slide,
                             held_fit=_fit(index, src, np.asarray(again.pose), slide.gate),

@@ -107,8 +107,9 @@ class SlideCheck:
     #: The refinement's iterations (0 when it did not run or returned the start).
     refined_iterations: int = 0
     #: The fit of the pose returned after the hold of a degenerate refined result
-    #: (``RegistrationSettings.hold_degenerate``), which re-solves from the start and replaces
-    #: the refinement's pose; NaN when it did not run.
+    #: (``RegistrationSettings.hold_degenerate``), which re-solves held along the weak
+    #: directions at the start's coordinates there and replaces the refinement's pose; NaN
+    #: when it did not run.
     held_fit: float = math.nan
 
     @property
