@@ -22,11 +22,12 @@ import argparse
 import math
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scanreg
 from scanreg import SE2
-from scanreg.eval.relations import read_relations
+from scanreg.eval.relations import Relations, read_relations
 from scanreg.io import read_scans, read_trajectory
 
 DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
@@ -41,27 +42,33 @@ MIN_RANGE, MAX_RANGE = 0.1, 40.0
 MARGIN, FACTOR = 0.10, 2.0
 
 
-def _se2(matrix: np.ndarray) -> SE2:
+def planar(matrix: np.ndarray) -> SE2:
     """The planar part of a 4×4 pose."""
     return SE2.from_vector([matrix[0, 3], matrix[1, 3], math.atan2(matrix[1, 0], matrix[0, 0])])
 
 
-def audit(name: str, poses_file: Path, within: float) -> None:
+def freiburg_log(name: str) -> tuple[list[Any], Relations, dict[float, int], SE2]:
+    """Log ``name``'s laser scans, its relations, each scan's index by its timestamp, and the
+    laser's mounting on the robot: relations and mapped poses are of the robot, the scans in
+    the laser's frame (the hospital's laser is 0.22 m ahead of the robot's centre; Intel's and
+    ACES' at it)."""
     log_file, relations_file = FILES[name]
     folder = DATA / "freiburg-slam-benchmark"
     log = read_scans(folder / log_file)
     relations = read_relations(folder / relations_file)
     lasers = [s for s in log.scans if s.kind in ("FLASER", "ROBOTLASER1")]
     index = {s.timestamp: k for k, s in enumerate(lasers)}
-    # Relations and mapped poses are of the robot; the scans are in the laser's frame (the
-    # hospital's laser is 0.22 m ahead of the robot's centre; Intel's and ACES' at it).
     first = lasers[0]
     assert first.odometry_se2 is not None and first.laser_se2 is not None
-    mount = first.odometry_se2.inverse() @ first.laser_se2
+    return lasers, relations, index, first.odometry_se2.inverse() @ first.laser_se2
+
+
+def audit(name: str, poses_file: Path, within: float) -> None:
+    lasers, relations, index, mount = freiburg_log(name)
     estimate = read_trajectory(poses_file, "tum")
     assert estimate.timestamps is not None
     mapped = {
-        float(t): _se2(np.asarray(p))
+        float(t): planar(np.asarray(p))
         for t, p in zip(estimate.timestamps, estimate.poses, strict=True)
     }
 
@@ -86,7 +93,7 @@ def audit(name: str, poses_file: Path, within: float) -> None:
         t1, t2 = float(relations.t1[k]), float(relations.t2[k])
         if t1 not in index or t2 not in index or t1 not in mapped or t2 not in mapped:
             continue
-        relation = _se2(relations.poses[k])
+        relation = planar(relations.poses[k])
         ours = mapped[t1].inverse() @ mapped[t2]
         errors.append(float(np.linalg.norm((relation.inverse() @ ours).translation)))
         a, b = index[t1], index[t2]

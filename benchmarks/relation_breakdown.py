@@ -31,21 +31,17 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
+import sys
 from pathlib import Path
 
 import numpy as np
 import scanreg
 from scanreg import SE2
-from scanreg.eval.relations import read_relations
-from scanreg.io import read_scans, read_trajectory
+from scanreg.io import read_trajectory
 
-DATA = Path(os.environ.get("SCANREG_DATA", Path(__file__).resolve().parents[2] / "shared/data"))
-FILES = {
-    "intel": ("intel.clf.bz2", "intel.relations"),
-    "aces": ("aces.clf.bz2", "aces.relations"),
-    "hospital": ("fr-clinic_robotlaser.clf.bz2", "fr-clinic.relations"),
-}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from relation_audit import FILES, freiburg_log, planar  # the same logs, read the same way
+
 #: Relations at least this far apart in time are revisits (s; the data's README: the
 #: hospital's 177 "between revisits more than 100 s apart").
 REVISIT_SECONDS = 100.0
@@ -55,11 +51,6 @@ STRETCH = 500
 MIN_RANGE, MAX_RANGE, FAR_RANGE, CAP, MIN_FAR = 0.1, 40.0, 8.0, 0.3, 20
 #: "Within" distance of the overlap fraction (m) and the far-return margin of "fits better".
 WITHIN, MARGIN = 0.03, 0.001
-
-
-def _se2(matrix: np.ndarray) -> SE2:
-    """The planar part of a 4×4 pose."""
-    return SE2.from_vector([matrix[0, 3], matrix[1, 3], math.atan2(matrix[1, 0], matrix[0, 0])])
 
 
 def _error(reference: SE2, estimate: SE2) -> tuple[float, float]:
@@ -104,21 +95,14 @@ def _scan_range(text: str) -> tuple[int, int]:
 def breakdown(
     name: str, poses: dict[str, Path], groups: dict[str, tuple[tuple[int, int], ...]]
 ) -> None:
-    log_file, relations_file = FILES[name]
-    folder = DATA / "freiburg-slam-benchmark"
-    log = read_scans(folder / log_file)
-    relations = read_relations(folder / relations_file)
-    lasers = [s for s in log.scans if s.kind in ("FLASER", "ROBOTLASER1")]
-    index = {s.timestamp: k for k, s in enumerate(lasers)}
-    first = lasers[0]
-    assert first.odometry_se2 is not None and first.laser_se2 is not None
-    judge = Judge(lasers, first.odometry_se2.inverse() @ first.laser_se2)
+    lasers, relations, index, mount = freiburg_log(name)
+    judge = Judge(lasers, mount)
     trajectories: dict[str, dict[float, SE2]] = {}
     for label, path in poses.items():
         est = read_trajectory(path, "tum")
         assert est.timestamps is not None
         trajectories[label] = {
-            float(t): _se2(np.asarray(p)) for t, p in zip(est.timestamps, est.poses, strict=True)
+            float(t): planar(np.asarray(p)) for t, p in zip(est.timestamps, est.poses, strict=True)
         }
     wheels = {s.timestamp: s.odometry_se2 for s in lasers if s.odometry_se2 is not None}
     trajectories["wheels (raw odometry)"] = wheels
@@ -131,7 +115,7 @@ def breakdown(
         if t1 not in index or any(t1 not in tr or t2 not in tr for tr in trajectories.values()):
             continue
         a, b = index[t1], index[t2]
-        relation = _se2(relations.poses[k])
+        relation = planar(relations.poses[k])
         rel = {lab: tr[t1].inverse() @ tr[t2] for lab, tr in trajectories.items()}
         local = t2 - t1 < REVISIT_SECONDS
         rows.append([a, b, local, *[v for lab in labels for v in _error(relation, rel[lab])]])

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 import scanreg
+from _turning import SWEEP, swept_laser, turning_run
 from scanreg import SE2
 from scanreg import simulate as sim
 from scanreg.pipeline import Odometry2D, OdometryConfig2D
@@ -88,14 +89,7 @@ def test_a_walled_room_with_an_obstacle_seen_from_both_sides_is_calibrated(spaci
 
 
 def _turning_pair(seed: int, rate_deg: float, sweep: float) -> tuple[np.ndarray, np.ndarray, SE2]:
-    laser = sim.LaserModel(
-        num_beams=361,
-        angle_min=-math.pi / 2,
-        angle_increment=math.radians(0.5),
-        max_range=40.0,
-        range_sigma=0.01,
-        time_increment=sweep / 360,
-    )
+    laser = swept_laser(sweep)
     scene = sim.floor_plan(seed=seed, num_people=0)
     rng = np.random.default_rng(seed)
     start = SE2.from_vector([rng.uniform(2, 8), rng.uniform(2, 6), rng.uniform(-3, 3)])
@@ -112,7 +106,7 @@ def _turning_pair(seed: int, rate_deg: float, sweep: float) -> tuple[np.ndarray,
 
 
 def test_a_fast_turning_pair_s_covariance_covers_its_error() -> None:
-    sweep = 0.0267
+    sweep = SWEEP
     before, after = [], []
     for seed in range(4):
         src, tgt, truth = _turning_pair(seed, 250.0, sweep)
@@ -193,15 +187,8 @@ def test_sweep_motion_is_checked() -> None:
 
 
 def test_odometry2d_passes_its_turn_rate_as_the_sweep() -> None:
-    sweep = 0.0267
-    laser = sim.LaserModel(
-        num_beams=361,
-        angle_min=-math.pi / 2,
-        angle_increment=math.radians(0.5),
-        max_range=40.0,
-        range_sigma=0.01,
-        time_increment=sweep / 360,
-    )
+    sweep = SWEEP
+    laser = swept_laser(sweep)
     scene = sim.floor_plan(seed=1, num_people=0)
     path = sim.Trajectory.from_speed_and_yaw_rate(
         0.3, math.radians(200.0), duration=0.8, start=SE2.from_vector([5.0, 4.0, 0.0])
@@ -242,31 +229,10 @@ def test_odometry2d_map_sweeps_cover_a_fast_turn() -> None:
     # headings. Their frame-to-frame errors against the frame's covariance (which leaves out
     # the previous frame's error: ideal 3-6) read mean NEES 7.9 with the last keyframe's
     # sweep alone and 3.1 with the mean of the window's.
-    sweep = 0.0267
-    laser = sim.LaserModel(
-        num_beams=361,
-        angle_min=-math.pi / 2,
-        angle_increment=math.radians(0.5),
-        max_range=40.0,
-        range_sigma=0.01,
-        time_increment=sweep / 360,
-    )
+    sweep = SWEEP
     nees: dict[type, list[float]] = {_LastKeyframeSwept: [], Odometry2D: []}
     for seed in range(3):
-        scene = sim.floor_plan(seed=seed, num_people=0)
-        rng = np.random.default_rng(seed)
-        start = SE2.from_vector([rng.uniform(3, 7), rng.uniform(3, 5), rng.uniform(-3, 3)])
-        path = sim.Trajectory.from_speed_and_yaw_rate(
-            0.3,
-            0.0,
-            duration=4.2,
-            start=start,
-            yaw_rate_amplitude=math.radians(250.0),
-            yaw_rate_period=4.0,
-        )
-        run = sim.simulate_run(
-            scene, laser, path, num_scans=40, scan_rate=10.0, seed=seed, reference="middle"
-        )
+        run = turning_run(seed, 250.0, num_scans=40, reference="middle")
         for cls, out in nees.items():
             odo = cls(OdometryConfig2D(sweep_duration=sweep))
             prev = None

@@ -5,45 +5,15 @@ corridor stays rejected as degenerate."""
 from __future__ import annotations
 
 import math
-from functools import cache
-from typing import Any
 
 import numpy as np
 import pytest
 import scanreg
-from conftest import data_dir
+from _relation_pairs import pose_error, relation_pair
 from scanreg import SE2
-from scanreg.eval.relations import read_relations
-from scanreg.io import read_scans
 from scanreg.pinned import PIN_SHIFTS_GATES, pinned, weak_fit_loss
 
 WRONG_M, WRONG_DEG = 0.15, 2.0
-
-
-@cache
-def _intel() -> tuple[Any, Any, dict[float, int]]:
-    folder = data_dir("freiburg-slam-benchmark")
-    log = read_scans(folder / "intel.clf.bz2")
-    relations = read_relations(folder / "intel.relations")
-    stamps = {s.timestamp: i for i, s in enumerate(log.scans) if s.kind == "FLASER"}
-    return log, relations, stamps
-
-
-def _pair(k: int) -> tuple[np.ndarray, Any, SE2]:
-    """Freiburg Intel relation ``k``: scan t2 (source), scan t1 prepared (target), the
-    relation (the laser sits at the robot's centre)."""
-    log, relations, stamps = _intel()
-    i1, i2 = stamps[float(relations.t1[k])], stamps[float(relations.t2[k])]
-    m = relations.poses[k]
-    relation = SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
-    source = log.scans[i2].to_points(0.1, 40.0)
-    target = scanreg.prepare(log.scans[i1].to_points(0.1, 40.0), normals=True)
-    return source, target, relation
-
-
-def _error(pose: Any, truth: SE2) -> tuple[float, float]:
-    err = (pose.inverse() @ truth).log()
-    return float(np.hypot(err[0], err[1])), math.degrees(abs(float(err[2])))
 
 
 # Corridor pairs of benchmarks/wrong_start.py (--datasets fr-intel), started 0.6 m off the
@@ -59,12 +29,12 @@ PINNED = {
 
 @pytest.mark.parametrize(("k", "method"), sorted(PINNED))
 def test_corridor_result_pinned_by_the_scan_is_accepted(k: int, method: str) -> None:
-    source, target, relation = _pair(k)
+    source, target, relation = relation_pair("intel", k)
     start = relation @ SE2.from_vector([*PINNED[k, method], 0.0])
     res = scanreg.register(source, target, method=method, init=start)  # type: ignore[arg-type]
     assert res.verdict is not None and res.degeneracy is not None
     assert res.degeneracy.degenerate  # the analysis still finds the direction weak
-    dm, dd = _error(res.pose, relation)
+    dm, dd = pose_error(res.pose, relation)
     assert dm < 0.02 and dd < 0.6
     loss = res.quality.weak_fit_loss
     assert loss is not None and 0.03 <= min(loss) <= 0.05
@@ -78,11 +48,11 @@ STUCK = {11: (-0.5829, -0.1424), 59: (-0.5907, 0.1053)}
 
 @pytest.mark.parametrize("k", sorted(STUCK))
 def test_corridor_result_left_off_along_it_stays_rejected(k: int) -> None:
-    source, target, relation = _pair(k)
+    source, target, relation = relation_pair("intel", k)
     start = relation @ SE2.from_vector([*STUCK[k], 0.0])
     res = scanreg.register(source, target, method="point_to_line", init=start)
     assert res.verdict is not None
-    dm, _ = _error(res.pose, relation)
+    dm, _ = pose_error(res.pose, relation)
     assert dm > 0.5
     loss = res.quality.weak_fit_loss
     assert loss is not None and max(loss) < -0.05

@@ -4,46 +4,19 @@ does not slide to a pose that explains the scan clearly worse and get accepted t
 from __future__ import annotations
 
 import math
-from functools import cache
 from typing import Any
 
 import numpy as np
 import pytest
 import scanreg
+from _relation_pairs import pose_error, relation_log, relation_pair
 from conftest import data_dir
 from scanreg import SE2
 from scanreg import simulate as sim
-from scanreg.eval.relations import read_relations
-from scanreg.io import read_scans
 from scanreg.slide import REFINE_MIN_START_FIT, clearly_worse
 from scanreg.verdict import assess
 
 WRONG_M, WRONG_DEG = 0.15, 2.0
-
-
-@cache
-def _relation_log(name: str) -> tuple[Any, Any, dict[float, int]]:
-    folder = data_dir("freiburg-slam-benchmark")
-    log = read_scans(folder / f"{name}.clf.bz2")
-    relations = read_relations(folder / f"{name}.relations")
-    stamps = {s.timestamp: i for i, s in enumerate(log.scans) if s.kind == "FLASER"}
-    return log, relations, stamps
-
-
-def _relation_pair(name: str, k: int) -> tuple[np.ndarray, Any, SE2]:
-    """Relation ``k``: scan t2 (source), scan t1 prepared (target), the relation pose."""
-    log, relations, stamps = _relation_log(name)
-    i1, i2 = stamps[float(relations.t1[k])], stamps[float(relations.t2[k])]
-    m = relations.poses[k]
-    relation = SE2.from_vector([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
-    source = log.scans[i2].to_points(0.1, 40.0)
-    target = scanreg.prepare(log.scans[i1].to_points(0.1, 40.0), normals=True)
-    return source, target, relation
-
-
-def _error(pose: Any, truth: SE2) -> tuple[float, float]:
-    err = (pose.inverse() @ truth).log()
-    return float(np.hypot(err[0], err[1])), math.degrees(abs(float(err[2])))
 
 
 # Intel relations (the first 400 under 10 s apart, scan t2 matched to scan t1 from the relation
@@ -55,10 +28,10 @@ INTEL_SLIDES = (15, 16, 241, 284)
 
 @pytest.mark.parametrize("k", INTEL_SLIDES)
 def test_intel_pair_started_at_its_relation_is_not_accepted_wrong(k: int) -> None:
-    source, target, relation = _relation_pair("intel", k)
+    source, target, relation = relation_pair("intel", k)
     res = scanreg.register(source, target, method="point_to_line", init=relation)
     assert res.verdict is not None
-    metres, degrees = _error(res.pose, relation)
+    metres, degrees = pose_error(res.pose, relation)
     assert not (res.verdict.accepted and (metres > WRONG_M or degrees > WRONG_DEG))
     # The re-solve from the start with a narrower gate lands on the relation (measured
     # 0.3-1.4 cm, 0.03-0.19°) and is accepted.
@@ -71,12 +44,12 @@ def test_intel_pair_started_at_its_relation_is_not_accepted_wrong(k: int) -> Non
 @pytest.mark.parametrize("k", INTEL_SLIDES)
 def test_intel_pairs_slide_without_the_guard(k: int) -> None:
     # The pairs above are ones the plain solve gets wrong, and accepts: what the guard prevents.
-    source, target, relation = _relation_pair("intel", k)
+    source, target, relation = relation_pair("intel", k)
     res = scanreg.register(
         source, target, method="point_to_line", init=relation, never_worse_than_start=False
     )
     assert res.slide is None
-    metres, degrees = _error(res.pose, relation)
+    metres, degrees = pose_error(res.pose, relation)
     assert metres > WRONG_M or degrees > WRONG_DEG
     assert res.verdict is not None and res.verdict.accepted
 
@@ -84,7 +57,7 @@ def test_intel_pairs_slide_without_the_guard(k: int) -> None:
 def test_start_returned_and_rejected_when_the_resolve_slides_too() -> None:
     # ACES relation 282 (a corridor): the solve slid 0.20 m (88 % -> 72 % of the scan within
     # 0.1 m) and so did the re-solve: the start is returned, evaluated there, and rejected.
-    source, target, relation = _relation_pair("aces", 282)
+    source, target, relation = relation_pair("aces", 282)
     res = scanreg.register(source, target, method="point_to_line", init=relation)
     assert res.slide is not None and res.slide.outcome == "start"
     assert res.stop_reason == "slid" and not res.converged
@@ -102,10 +75,10 @@ def test_loose_fit_from_a_turned_start_is_rejected() -> None:
     # ACES relation 26, point-to-point from the relation turned by -35° (wrong_start.py): the
     # solve settles 1.4 m and 45° off with overlap and RMSE inside the 1 m gate and was
     # accepted; 17 % of the scan lies within 0.1 m there (the relation: 80 %). Rejected, named.
-    source, target, relation = _relation_pair("aces", 26)
+    source, target, relation = relation_pair("aces", 26)
     start = relation @ SE2.from_vector([0.0, 0.0, math.radians(-35.0)])
     res = scanreg.register(source, target, method="point_to_point", init=start)
-    metres, degrees = _error(res.pose, relation)
+    metres, degrees = pose_error(res.pose, relation)
     assert metres > 1.0 and degrees > 40.0
     assert res.slide is not None and res.slide.returned_fit < 0.2
     assert res.verdict is not None and not res.verdict.accepted
@@ -122,25 +95,25 @@ def test_degeneracy_aware_keeps_the_guard() -> None:
     # ACES 282 is a corridor: the aware solve would re-solve along the corridor from the start;
     # the start returned after the slide stays the start. Intel 15: the held re-solve runs at
     # the re-solve's narrower gate and stays on the relation.
-    source, target, relation = _relation_pair("aces", 282)
+    source, target, relation = relation_pair("aces", 282)
     res = scanreg.register(
         source, target, method="point_to_line", init=relation, degeneracy_aware=True
     )
     assert res.stop_reason == "slid" and res.verdict is not None and not res.verdict.accepted
     np.testing.assert_allclose(res.pose.as_matrix(), relation.as_matrix(), atol=1e-12)
-    source, target, relation = _relation_pair("intel", 15)
+    source, target, relation = relation_pair("intel", 15)
     res = scanreg.register(
         source, target, method="point_to_line", init=relation, degeneracy_aware=True
     )
     assert res.slide is not None and res.slide.outcome == "resolved"
-    metres, degrees = _error(res.pose, relation)
+    metres, degrees = pose_error(res.pose, relation)
     assert metres < 0.02 and degrees < 0.5
 
 
 def test_assess_reads_the_guard_from_the_result() -> None:
     # The public assess() judges a result that returned its start after a slide as register's
     # own verdict does.
-    source, target, relation = _relation_pair("aces", 282)
+    source, target, relation = relation_pair("aces", 282)
     res = scanreg.register(source, target, method="point_to_line", init=relation)
     judged = assess(res, source, target, init=relation)
     assert res.verdict is not None
@@ -171,10 +144,10 @@ def test_simulated_pair_started_at_the_truth_stays_there() -> None:
     plain = scanreg.register(
         source, target, method="point_to_line", init=truth, never_worse_than_start=False
     )
-    metres, degrees = _error(plain.pose, truth)
+    metres, degrees = pose_error(plain.pose, truth)
     assert degrees > 5.0 and plain.verdict is not None and plain.verdict.accepted
     res = scanreg.register(source, target, method="point_to_line", init=truth)
-    metres, degrees = _error(res.pose, truth)
+    metres, degrees = pose_error(res.pose, truth)
     assert metres < 0.01 and degrees < 0.1  # measured 2 mm, 0.02°
     assert res.slide is not None and res.slide.outcome == "resolved"
     assert res.slide.end_fit < 0.5 * res.slide.start_fit  # measured 85 % -> 33 %
@@ -294,11 +267,11 @@ def test_setting_is_checked() -> None:
 def _intel_pair_from_odometry(k: int) -> tuple[Any, Any, SE2, SE2]:
     """Intel relation ``k``'s pair (source, prepared target, relation) and the wheel
     odometry's relative pose between its two scans, the start a mapping front end has."""
-    log, relations, stamps = _relation_log("intel")
+    log, relations, stamps = relation_log("intel")
     a = log.scans[stamps[float(relations.t1[k])]].laser_se2
     b = log.scans[stamps[float(relations.t2[k])]].laser_se2
     assert a is not None and b is not None
-    source, target, relation = _relation_pair("intel", k)
+    source, target, relation = relation_pair("intel", k)
     return source, target, relation, a.inverse() @ b
 
 
@@ -312,14 +285,14 @@ INTEL_ODOMETRY_SLIDES = (15, 16, 208)
 def test_intel_pair_from_its_odometry_lands_on_the_relation(k: int) -> None:
     source, target, relation, odometry = _intel_pair_from_odometry(k)
     res = scanreg.register(source, target, method="point_to_line", init=odometry)
-    metres, degrees = _error(res.pose, relation)
+    metres, degrees = pose_error(res.pose, relation)
     assert metres < 0.02 and degrees < 0.5
     assert res.verdict is not None and res.verdict.accepted
     assert res.slide is not None and res.slide.returned_fit == res.slide.refined_fit
     plain = scanreg.register(
         source, target, method="point_to_line", init=odometry, refine_in_basin=False
     )
-    assert _error(plain.pose, relation)[0] > WRONG_M  # what the refinement mends
+    assert pose_error(plain.pose, relation)[0] > WRONG_M  # what the refinement mends
 
 
 # Intel relations (the first 400 under 10 s apart) from the wheel odometry where the refined
@@ -334,7 +307,7 @@ def test_intel_corridor_from_its_odometry_is_held_there(k: int) -> None:
     source, target, relation, odometry = _intel_pair_from_odometry(k)
     res = scanreg.register(source, target, method="point_to_line", init=odometry)
     assert res.degeneracy is not None and res.degeneracy.degenerate
-    assert _error(res.pose, relation)[0] < 0.05
+    assert pose_error(res.pose, relation)[0] < 0.05
     assert res.verdict is not None and not res.verdict.accepted
     # Nor does the scan pin it along the corridor (scanreg.pinned): -0.07 to 0.02 of it lost.
     loss = res.quality.weak_fit_loss
@@ -342,7 +315,7 @@ def test_intel_corridor_from_its_odometry_is_held_there(k: int) -> None:
     free = scanreg.register(
         source, target, method="point_to_line", init=odometry, hold_degenerate=False
     )
-    assert _error(free.pose, relation)[0] > WRONG_M
+    assert pose_error(free.pose, relation)[0] > WRONG_M
 
 
 def test_held_result_keeps_the_refined_heading() -> None:
@@ -368,7 +341,7 @@ def test_held_result_keeps_the_refined_heading() -> None:
     assert res.slide is not None and res.slide.refined_fit > 0.9
     assert 0.85 < res.slide.held_fit < 0.9
     assert res.slide.returned_fit == res.slide.held_fit
-    assert _error(res.pose, reference)[1] < 0.1
+    assert pose_error(res.pose, reference)[1] < 0.1
     # Along the corridor (the reference's axis, in the target frame) the centroid stays at
     # the start's; across it, at the reference's.
     centroid = source.mean(axis=0, keepdims=True)

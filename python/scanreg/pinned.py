@@ -92,7 +92,7 @@ def _weak_fit_loss(
     tight = TIGHT_GATE_FRACTION * gate
     n = float(source.shape[0])
     matrix = pose.as_matrix()
-    fit = functools.partial(_dense_fit, target.index, source, _dense(target, tight), tight)
+    fit = functools.partial(_dense_fit, target.index, source, target._finely_sampled(tight), tight)
     here = fit(matrix)
     steps = degeneracy.weak_basis() * degeneracy.scaling()[:, None]
     out = []
@@ -103,19 +103,6 @@ def _weak_fit_loss(
                 best = max(best, fit(matrix @ _exp_matrix(sign * k * gate * steps[:, i])))
         out.append((here - best) / n)
     return tuple(out)
-
-
-def _dense(target: PreparedTarget, tight: float) -> npt.NDArray[np.bool_]:
-    """Which target points have another within ``tight`` (kept on the target per gate: one
-    search of its points, once)."""
-    key = f"_pin_dense_{tight!r}"
-    dense: npt.NDArray[np.bool_] | None = target.__dict__.get(key)
-    if dense is None:
-        _, d2 = target.index.knn(target.points, 2)  # the first is the point itself
-        gap = np.sqrt(np.asarray(d2, dtype=np.float64).reshape(len(target.points), -1)[:, -1])
-        dense = gap <= tight
-        target.__dict__[key] = dense
-    return dense
 
 
 def _dense_fit(
