@@ -114,4 +114,12 @@ def test_bad_input_names_the_argument() -> None:
         weak_fit_loss(scanreg.prepare(np.c_[points, points[:, :1]]), points, res.pose, deg, 1.0)
     with pytest.raises(ValueError, match="loss: expected 1 values"):
         pinned((0.1, 0.2), deg)
+    with pytest.raises(ValueError, match="loss: must be finite"):
+        pinned((math.nan,), deg)
+    with pytest.raises(TypeError, match="degeneracy: expected Degeneracy"):
+        pinned((0.1,), None)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="source: is empty"):
+        weak_fit_loss(target, np.zeros((0, 2)), res.pose, deg, 1.0)
+    with pytest.raises(ValueError, match="source: point 0 has a non-finite"):
+        weak_fit_loss(target, np.full((5, 2), math.nan), res.pose, deg, 1.0)
     assert weak_fit_loss(target, points, res.pose, deg, math.inf) is None

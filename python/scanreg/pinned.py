@@ -130,10 +130,14 @@ def pinned(loss: tuple[float, ...] | None, degeneracy: Degeneracy) -> tuple[bool
     """Which weak directions of ``degeneracy`` the scan pins (``loss``, from
     :func:`weak_fit_loss`, at least the analysis's threshold); all False when ``loss`` is None
     (not measured)."""
+    if not isinstance(degeneracy, Degeneracy):
+        raise TypeError(f"degeneracy: expected Degeneracy, got {type(degeneracy).__name__}")
     nw = len(degeneracy.weak_directions)
     if loss is None:
         return (False,) * nw
-    values = np.asarray(loss, dtype=np.float64).tolist()
+    values = np.asarray(loss, dtype=np.float64).reshape(-1).tolist()
     if len(values) != nw:
         raise ValueError(f"loss: expected {nw} values (one per weak direction), got {len(values)}")
+    if not all(math.isfinite(x) for x in values):
+        raise ValueError(f"loss: must be finite, got {tuple(values)}")
     return tuple(bool(x >= degeneracy.threshold) for x in values)
