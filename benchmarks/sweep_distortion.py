@@ -17,6 +17,7 @@ wrong (> 0.15 m or 2°), accepted, their mean NEES and how many lie outside χ²
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 
@@ -142,14 +143,9 @@ def odometry(rate_deg: float, sweep: float, seeds: int, modelled: bool) -> str:
 
 
 def _laser(sweep: float) -> sim.LaserModel:
-    return sim.LaserModel(
-        num_beams=361,
-        angle_min=-math.pi / 2,
-        angle_increment=math.radians(0.5),
-        max_range=40.0,
-        range_sigma=0.01,
-        time_increment=sweep / 360,
-    )
+    """The ``laser_361`` preset with its beams ``sweep`` apart end to end."""
+    laser = sim.LaserModel.preset("laser_361")
+    return dataclasses.replace(laser, time_increment=sweep / (laser.num_beams - 1))
 
 
 def main() -> None:

@@ -1,9 +1,11 @@
-"""Simulated turning drives shared by the sweep-distortion tests: a 361-beam 180° laser whose
-sweep is slow enough to distort (benchmarks/sweep_distortion.py draws the same rooms and
-drives), and the drive whose yaw rate swings ±peak with a 4 s period through a random office."""
+"""Simulated turning drives shared by the sweep-distortion tests: the ``laser_361`` preset (a
+361-beam 180° laser whose sweep is slow enough to distort; benchmarks/sweep_distortion.py draws
+the same rooms and drives), and the drive whose yaw rate swings ±peak with a 4 s period through a
+random office."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -11,21 +13,14 @@ from scanreg import SE2
 from scanreg import simulate as sim
 from scanreg.simulate.scan import Reference
 
-#: The laser's sweep (s): 26.7 ms, a 0.5° scan of a SICK-like mirror at 37.5 Hz.
+#: The preset's sweep (s): 26.7 ms, a 0.5° scan of a SICK-like mirror at 37.5 Hz.
 SWEEP = 0.0267
 
 
 def swept_laser(sweep: float = SWEEP) -> sim.LaserModel:
-    """361 beams at 0.5° over the front half-plane, 40 m, 1 cm noise, the beams ``sweep``
-    apart end to end."""
-    return sim.LaserModel(
-        num_beams=361,
-        angle_min=-math.pi / 2,
-        angle_increment=math.radians(0.5),
-        max_range=40.0,
-        range_sigma=0.01,
-        time_increment=sweep / 360,
-    )
+    """The ``laser_361`` preset with its beams ``sweep`` apart end to end."""
+    laser = sim.LaserModel.preset("laser_361")
+    return dataclasses.replace(laser, time_increment=sweep / (laser.num_beams - 1))
 
 
 def turning_run(

@@ -406,3 +406,12 @@ def test_demo_simulated_section_reports_consistent_statistics() -> None:
     assert abs(street.range_error_std / 0.02 - 1) < 0.02
     assert office.dynamic_fraction > 0 and street.max_distortion > 0.5
     assert dict(street.hits_by_label)["ground"] > 0
+
+
+def test_the_cli_offers_every_laser_preset() -> None:
+    from scanreg.pipeline.commands import SENSORS_2D
+
+    assert tuple(sim.LASER_PRESETS) == SENSORS_2D
+    laser = sim.LaserModel.preset("laser_361")
+    assert laser.num_beams == 361 and laser.field_of_view == pytest.approx(math.pi)
+    assert laser.scan_duration == pytest.approx(0.0267)

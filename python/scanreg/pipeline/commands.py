@@ -53,7 +53,7 @@ SCENES_2D = ("floor_plan", "corridor", "square_room")
 SCENES_3D = ("street", "tunnel", "corridor")
 
 
-SENSORS_2D = ("sick_lms200", "laser_360")
+SENSORS_2D = ("sick_lms200", "laser_360", "laser_361")
 
 
 SENSORS_3D = ("vlp16", "hdl32", "hdl64")

@@ -199,6 +199,9 @@ _DEG = math.pi / 180.0
 #: 2D lasers. ``sick_lms200``: 180 beams at 1° over the front half-plane, 80 m, as in the
 #: Intel Research Lab / CARMEN logs (the mirror turns at 75 Hz: 1° every 37 µs).
 #: ``laser_360``: a 360° laser, 720 beams at 0.5°, 30 m, 10 Hz.
+#: ``laser_361``: 361 beams at 0.5° over the front half-plane, 40 m, one 26.7 ms sweep (a SICK
+#: LMS at 0.5°, 37.5 Hz; many CARMEN/Radish logs): slow enough for a fast turn to distort it.
+#: The real LMS builds such a scan from two interlaced 1° passes; here the sweep is linear.
 LASER_PRESETS: dict[str, LaserModel] = {
     "sick_lms200": LaserModel(
         num_beams=180,
@@ -220,6 +223,15 @@ LASER_PRESETS: dict[str, LaserModel] = {
         dropout_probability=0.005,
         time_increment=0.1 / 720,
         name="laser_360",
+    ),
+    "laser_361": LaserModel(
+        num_beams=361,
+        angle_min=-90 * _DEG,
+        angle_increment=0.5 * _DEG,
+        max_range=40.0,
+        range_sigma=0.01,
+        time_increment=0.0267 / 360,
+        name="laser_361",
     ),
 }
 
