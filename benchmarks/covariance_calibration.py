@@ -65,10 +65,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 os.environ.setdefault("RAYON_NUM_THREADS", "2")
 
@@ -327,15 +329,24 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.halves_offset:
-        print("| set | halves | scans | median abs offset (deg) | within 0.125 deg |")
-        print("|---|---|---:|---:|---:|")
+        print(
+            "| set | halves | scans | median abs offset (deg) | within 0.125 deg "
+            "| correlation with the turn |"
+        )
+        print("|---|---|---:|---:|---:|---:|")
         for name in SPLIT_BEAM_2D:
             if args.sets and name not in args.sets:
                 continue
-            off = np.abs(halves_offset(name, args.pairs, args.halves))
+            off, turn = halves_offset(name, args.pairs, args.halves)
+            both = np.isfinite(turn)
+            corr = (
+                np.corrcoef(off[both], turn[both])[0, 1]
+                if both.sum() > 2 and np.std(off[both]) > 0 and np.std(turn[both]) > 0
+                else float("nan")
+            )
             print(
-                f"| {name} | {args.halves} | {len(off)} | {np.median(off):.3f} | "
-                f"{np.mean(off <= 0.125):.0%} |",
+                f"| {name} | {args.halves} | {len(off)} | {np.median(np.abs(off)):.3f} | "
+                f"{np.mean(np.abs(off) <= 0.125):.0%} | {corr:.2f} |",
                 flush=True,
             )
         return
@@ -413,9 +424,11 @@ def _halves(n: int, halves: str) -> np.ndarray:
 
 def _halved_scans(
     name: str, count: int, halves: str
-) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-    """``(ranges, angles, target half, source half)`` of ``count`` scans spread over a 2D
-    set, the halves as beam masks (valid returns only, at least 40 each)."""
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]]:
+    """``(ranges, angles, target half, source half, turn)`` of ``count`` scans spread over a
+    2D set, the halves as beam masks (valid returns only, at least 40 each); ``turn`` the
+    log's own heading change (deg) from the scan before to the scan after (NaN where the log
+    carries no poses)."""
     from scanreg.io import read_scans
 
     data = os.environ.get(
@@ -431,14 +444,23 @@ def _halved_scans(
         first = _halves(len(r), halves)
         even, odd = valid & first, valid & ~first
         if even.sum() >= 40 and odd.sum() >= 40:
-            yield r, a, even, odd
+            yield r, a, even, odd, _turn(scans, int(i))
+
+
+def _turn(scans: Sequence[Any], i: int) -> float:
+    """Heading change (deg) of the log's laser poses from scan ``i - 1`` to ``i + 1``."""
+    before, after = scans[max(i - 1, 0)], scans[min(i + 1, len(scans) - 1)]
+    if getattr(before, "laser_pose", None) is None or getattr(after, "laser_pose", None) is None:
+        return float("nan")
+    d = float(after.laser_pose[2] - before.laser_pose[2])
+    return math.degrees((d + math.pi) % (2 * math.pi) - math.pi)
 
 
 def _split_beam_2d(
     name: str, count: int, rng: np.random.Generator, halves: str = "parity"
 ) -> list[tuple]:
     out = []
-    for r, a, even, odd in _halved_scans(name, count, halves):
+    for r, a, even, odd, _ in _halved_scans(name, count, halves):
         tgt = np.c_[r[even] * np.cos(a[even]), r[even] * np.sin(a[even])]
         ro = r[odd] + rng.normal(0.0, 0.01, int(odd.sum()))
         pts = np.c_[ro * np.cos(a[odd]), ro * np.sin(a[odd])]
@@ -497,16 +519,17 @@ def _nees(err: np.ndarray, cov: np.ndarray) -> float:
     return float(np.sum(proj[~tiny] ** 2 / vals[~tiny]))
 
 
-def halves_offset(name: str, count: int, halves: str = "parity") -> np.ndarray:
+def halves_offset(name: str, count: int, halves: str = "parity") -> tuple[np.ndarray, np.ndarray]:
     """Per scan of a 2D set, the heading (deg) that best lays one half onto the other,
     found without our registration: the source half turned over a 1/16° grid within ±1°,
     scored by the mean squared distance (capped at 5 cm) to the target half's polyline
     (consecutive beams less than 0.3 m apart, densely interpolated). Where the halves are
     one scene sampled twice the answer is 0 within the grid: the estimator's own bias on
-    interleaved samples does not enter."""
+    interleaved samples does not enter. Returned beside each scan's turn (``_turn``): halves
+    swept at different times disagree in proportion to it."""
     grid = np.radians(np.arange(-1.0, 1.0 + 1e-9, 1.0 / 16.0))
-    out = []
-    for r, a, even, odd in _halved_scans(name, count, halves):
+    out, turns = [], []
+    for r, a, even, odd, turn in _halved_scans(name, count, halves):
         tgt = np.c_[r[even] * np.cos(a[even]), r[even] * np.sin(a[even])]
         gaps = np.linalg.norm(np.diff(tgt, axis=0), axis=1) < 0.3
         if gaps.sum() < 20:
@@ -520,7 +543,8 @@ def halves_offset(name: str, count: int, halves: str = "parity") -> np.ndarray:
             d2 = np.asarray(target.nearest(src).squared_distances)
             cost.append(float(np.mean(np.minimum(d2, 0.05**2))))
         out.append(float(np.degrees(grid[int(np.argmin(cost))])))
-    return np.array(out)
+        turns.append(turn)
+    return np.array(out), np.array(turns)
 
 
 def split_beam(
