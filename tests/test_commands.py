@@ -77,7 +77,6 @@ def test_bad_options_are_named(tmp_path: Path) -> None:
     ):
         with pytest.raises(ValueError, match=message):
             commands.run_mapping_to_folder(log, tmp_path / "map", **options)  # type: ignore[arg-type]
-    # 3D mapping has no checkpoints: refused (with --extend too), not ignored.
-    for extend in (None, tmp_path):
-        with pytest.raises(ValueError, match=r"--checkpoint: not available for 3D mapping runs"):
-            commands.run_mapping_to_folder("sim:loop", tmp_path / "m", checkpoint=5, extend=extend)
+    # A 3D --extend run keeps no checkpoint of its new run: refused, not ignored.
+    with pytest.raises(ValueError, match=r"--checkpoint: not available for 3D --extend runs"):
+        commands.run_mapping_to_folder("sim:loop", tmp_path / "m", checkpoint=5, extend=tmp_path)

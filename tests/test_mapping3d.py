@@ -18,7 +18,13 @@ pytest.importorskip("gtsam")
 from scanreg.cli import EXIT_BAD_INPUT, EXIT_OK, main
 from scanreg.io import read_points
 from scanreg.io.sequences import SimulatedSequence
-from scanreg.pipeline import MapLocalizer, Mapper3D, MappingConfig3D, OdometryConfig
+from scanreg.pipeline import (
+    MapLocalizer,
+    Mapper3D,
+    MappingConfig3D,
+    OdometryConfig,
+    run_mapping_3d,
+)
 from scanreg.pipeline.loops3d import LoopSettings3D
 from scanreg.pipeline.mapping_output import write_outputs
 
@@ -166,9 +172,59 @@ def test_cli_map_3d_bad_input(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     code = main(["map", "sim:loop,frames=5", "-o", str(tmp_path / "o"), "--config", str(config)])
     assert code == EXIT_BAD_INPUT
     assert "node_distanse" in capsys.readouterr().err
-    code = main(["map", "sim:loop,frames=5", "-o", str(tmp_path / "o"), "--checkpoint", "2"])
+    code = main(["map", "sim:loop,frames=5", "-o", str(tmp_path / "o"), "--checkpoint", "0"])
     assert code == EXIT_BAD_INPUT
-    assert "--checkpoint" in capsys.readouterr().err
+    assert "--checkpoint must be >= 1 scans, got 0" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="checkpoint_every: must be an int >= 1, got 0"):
+        run_mapping_3d(SimulatedSequence("loop", num_frames=3), checkpoint_every=0)
+
+
+def test_cli_map_3d_stopped_or_checkpointed_keeps_what_was_mapped(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C at the 12th sweep of a 3D run: the run stops, says so and leaves a readable
+    folder of what it had mapped (poses, graph, map cloud) — the newest node's sweep too, not
+    yet searched for loops; ``--checkpoint N`` writes the same every N sweeps, and the final
+    run overwrites it."""
+    from scanreg.cli import EXIT_INTERRUPTED
+    from scanreg.pipeline import mapping3d
+
+    spec = "sim:loop,lap_length=200,frames=20"
+    step = mapping3d.Mapper3D.step
+    seen: list[int] = []
+    snapshot = mapping3d.Mapper3D.snapshot
+
+    def spy(self: mapping3d.Mapper3D, reason: str) -> Any:
+        partial = snapshot(self, reason)
+        seen.append(partial.num_scans)
+        assert partial.partial == reason and len(partial.node_points) == self.num_nodes
+        return partial
+
+    monkeypatch.setattr(mapping3d.Mapper3D, "snapshot", spy)
+    done = tmp_path / "done"
+    argv = ["map", spec, "-o", str(done), "--quiet", "--no-plots", "--checkpoint", "8", "--json"]
+    assert main(argv) == EXIT_OK
+    result = json.loads(capsys.readouterr().out)
+    assert seen == [8, 16] and result["partial"] is None
+    assert np.loadtxt(done / "poses_tum.txt").shape == (20, 8)
+
+    def interrupted(self: mapping3d.Mapper3D, *args: Any, **kwargs: Any) -> Any:
+        if len(self._odom_poses) == 12:
+            raise KeyboardInterrupt
+        return step(self, *args, **kwargs)
+
+    monkeypatch.setattr(mapping3d.Mapper3D, "step", interrupted)
+    out = tmp_path / "stopped"
+    assert main(["map", spec, "-o", str(out), "--quiet", "--no-plots"]) == EXIT_INTERRUPTED
+    err = capsys.readouterr().err
+    assert "stopped at scan 12 of 20 (interrupted)" in err
+    assert f"what was mapped so far is written to {out}/ (12 scans" in err
+    tum = np.loadtxt(out / "poses_tum.txt")
+    assert tum.shape == (12, 8)
+    np.testing.assert_allclose(tum[:, 1:4], np.loadtxt(done / "poses_tum.txt")[:12, 1:4], atol=0.05)
+    nodes = sum(line.startswith("VERTEX_SE3") for line in (out / "graph.g2o").read_text().split())
+    assert nodes >= 2
+    assert len(read_points(out / "map.ply").points) > 1000
 
 
 def _room(rng: np.random.Generator, n: int = 3000) -> np.ndarray:

@@ -348,9 +348,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=None,
         metavar="N",
-        help="2D: write the outputs so far every N scans (a partial map; the final run "
-        "overwrites it). With --extend: the new run's map alone, in its own frame, to "
-        "OUT/new_run_checkpoint/ (also on a stop; removed once the joint map is written)",
+        help="write the outputs so far every N scans (a partial map; the final run "
+        "overwrites it). With --extend (2D only): the new run's map alone, in its own frame, "
+        "to OUT/new_run_checkpoint/ (also on a stop; removed once the joint map is written)",
     )
     mp.add_argument("--json", action="store_true", help="print JSON instead of text")
     mp.add_argument("--quiet", action="store_true", help="no progress bar on stderr")

@@ -960,19 +960,7 @@ def _map(args: SimpleNamespace) -> dict[str, Any]:
             checkpoint_every=args.checkpoint or 1000,
         )
     except MappingInterrupted as exc:
-        # Never lose work: what was mapped before the stop is written, and the run fails.
-        write_outputs(
-            args.output,
-            exc.partial,
-            resolution=args.resolution,
-            plot=False,
-            session=str(args.path),
-        )
-        raise MappingStopped(
-            f"{exc}; what was mapped so far is written to {args.output}/ "
-            f"({len(exc.partial.poses)} scans, {len(exc.partial.node_scans)} nodes)",
-            interrupted=isinstance(exc.__cause__, KeyboardInterrupt),
-        ) from exc
+        raise _stopped(args, exc, resolution=args.resolution) from exc
     # An inconsistent map is returned with its reasons (self_check); the CLI warns.
     check = check_map(res)
     paths = write_outputs(
@@ -998,6 +986,19 @@ def _map(args: SimpleNamespace) -> dict[str, Any]:
     result["scans"] = scans.describe()
     result["outputs"] = {k: str(v) for k, v in paths.items()}
     return result
+
+
+def _stopped(args: SimpleNamespace, exc: Any, **outputs: Any) -> MappingStopped:
+    """Never lose work: what a stopped run mapped (``exc.partial``) is written to the output
+    folder (``outputs``: write_outputs' map options), and the run fails saying so."""
+    from .mapping_output import write_outputs
+
+    write_outputs(args.output, exc.partial, plot=False, session=str(args.path), **outputs)
+    return MappingStopped(
+        f"{exc}; what was mapped so far is written to {args.output}/ "
+        f"({len(exc.partial.poses)} scans, {len(exc.partial.node_scans)} nodes)",
+        interrupted=isinstance(exc.__cause__, KeyboardInterrupt),
+    )
 
 
 #: Files of a map folder that describe one run and not an extended map: removed when an
@@ -1026,7 +1027,7 @@ def _extend(args: SimpleNamespace, three_d: bool) -> dict[str, Any]:
 
     _at_least_one(args.checkpoint, "checkpoint", " scans")
     if three_d:
-        _not_available(args, ("checkpoint",), "for 3D mapping runs (2D only)")
+        _not_available(args, ("checkpoint",), "for 3D --extend runs (2D only)")
     saved = SavedMap.load(args.extend)
     dim = 3 if three_d else 2
     if saved.dim != dim or saved.node_points is None:
@@ -1216,10 +1217,11 @@ def _map_3d(args: SimpleNamespace) -> dict[str, Any]:
     from ..config import load_config, write_config
     from ..io import open_sequence, write_poses
     from ..io.sequences import SimulatedSequence
+    from .mapping import MappingInterrupted
     from .mapping3d import MappingConfig3D, run_mapping_3d
     from .mapping_output import summary, write_outputs
 
-    _not_available(args, ("checkpoint",), "for 3D mapping runs (2D only)")
+    _at_least_one(args.checkpoint, "checkpoint", " scans")
     if not args.voxel_size >= 0:
         raise ValueError(f"--voxel-size must be >= 0, got {args.voxel_size}")
     if args.bag is not None:
@@ -1227,9 +1229,23 @@ def _map_3d(args: SimpleNamespace) -> dict[str, Any]:
     frames = _bag_settings(args)  # a bad bag path fails now, not after the run
     config = load_config(MappingConfig3D, args.config)
     seq = open_sequence(args.path, topic=args.topic)
-    res = run_mapping_3d(
-        seq, config, max_scans=args.max_scans, progress=not (args.quiet or args.json)
-    )
+
+    def checkpoint(partial: Any) -> None:
+        write_outputs(
+            args.output, partial, voxel_size=args.voxel_size, plot=False, session=str(args.path)
+        )
+
+    try:
+        res = run_mapping_3d(
+            seq,
+            config,
+            max_scans=args.max_scans,
+            progress=not (args.quiet or args.json),
+            checkpoint=None if args.checkpoint is None else checkpoint,
+            checkpoint_every=args.checkpoint or 1000,
+        )
+    except MappingInterrupted as exc:
+        raise _stopped(args, exc, voxel_size=args.voxel_size) from exc
     paths = write_outputs(
         args.output,
         res,

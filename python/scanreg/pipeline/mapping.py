@@ -1411,10 +1411,7 @@ def run_mapping(
     from .scan_source import scan_log
 
     cfg = MappingConfig() if config is None else config
-    if isinstance(checkpoint_every, bool) or not (
-        isinstance(checkpoint_every, int) and checkpoint_every >= 1
-    ):
-        raise ValueError(f"checkpoint_every: must be an int >= 1, got {checkpoint_every!r}")
+    _checked_checkpoint_every(checkpoint_every)
     scans = scan_log(
         log,
         kind=kind,
@@ -1468,15 +1465,24 @@ def run_mapping(
         return mapper.finish()
     except (KeyboardInterrupt, Exception) as exc:
         pool.shutdown(wait=True, cancel_futures=True)
-        stopped = _interrupted(mapper, exc, k, total)
+        stopped = _stopped_run(mapper, exc, k, total)
         if stopped is None:
             raise
         raise stopped from exc
 
 
-def _interrupted(mapper: Any, exc: BaseException, k: int, total: int) -> MappingInterrupted | None:
-    """The exception that carries what ``mapper`` mapped before ``exc`` stopped it at scan
-    ``k`` of ``total``; ``None`` when nothing was mapped (the cause is then raised as is)."""
+def _checked_checkpoint_every(checkpoint_every: object) -> None:
+    """Refuse a ``checkpoint_every`` that is not an int >= 1, by name."""
+    if isinstance(checkpoint_every, bool) or not (
+        isinstance(checkpoint_every, int) and checkpoint_every >= 1
+    ):
+        raise ValueError(f"checkpoint_every: must be an int >= 1, got {checkpoint_every!r}")
+
+
+def _stopped_run(mapper: Any, exc: BaseException, k: int, total: int) -> MappingInterrupted | None:
+    """The exception that carries what ``mapper`` (2D or 3D) mapped before ``exc`` stopped it
+    at scan ``k`` of ``total``; ``None`` when nothing was mapped (the cause is then raised as
+    is)."""
     if isinstance(exc, MappingInterrupted) or not mapper.num_nodes:
         return None
     why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"{type(exc).__name__}: {exc}"

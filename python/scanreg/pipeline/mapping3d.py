@@ -32,6 +32,7 @@ node: ``T_world_sensor = T_world_node @ inv(T_odom_node) @ T_odom_sensor``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -46,7 +47,15 @@ from ..place import PlaceCandidate, PlaceDatabase
 from ..preprocess import voxel_downsample
 from ..transform import SE3, as_pose
 from .loops3d import LoopMatch3D, LoopSettings3D, Submap3D, build_submap_3d, match_loop_3d
-from .mapping import LoopRecord, MappingResult, MappingStep, MappingTiming
+from .mapping import (
+    Checkpoint,
+    LoopRecord,
+    MappingResult,
+    MappingStep,
+    MappingTiming,
+    _checked_checkpoint_every,
+    _stopped_run,
+)
 from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph_fields
 from .odometry import Odometry, OdometryConfig
 from .odometry2d import _count
@@ -491,6 +500,23 @@ class Mapper3D:
             self._timing.total += dt
         # The map's frame is its first node's odometry pose, exactly (Graph.move_gauge).
         g.move_gauge(0, self._node_odom[0])
+        return self._result(self._node_points)
+
+    def snapshot(self, reason: str) -> MappingResult[SE3]:
+        """What is mapped so far, as the graph has it now (no batch pass): a checkpoint, or
+        what an interrupted run leaves. The mapper goes on unchanged. The newest node's sweep,
+        still waiting for the motion out of it, is deskewed with the motion into it only and
+        not searched for loops. ``reason`` becomes :attr:`MappingResult.partial`."""
+        if not self._node_scans:
+            raise ValueError("scans: no sweep was aligned yet; nothing was mapped")
+        points = dict(self._node_points)
+        if self._unfinished is not None:
+            node, pts, times, velocity_in = self._unfinished
+            points[node] = self._node_cloud(pts, times, velocity_in)
+        return dataclasses.replace(self._result(points), partial=str(reason))
+
+    def _result(self, node_points: dict[int, FloatArray]) -> MappingResult[SE3]:
+        g = self._graph
         node_poses = g.poses()
         poses: list[SE3] = []
         odometry: list[SE3] = []
@@ -509,7 +535,7 @@ class Mapper3D:
             node_scans=tuple(self._node_scans),
             loops=tuple(self._loops),
             skipped=tuple(self._skipped),
-            node_points=tuple(self._node_points[n] for n in range(self.num_nodes)),
+            node_points=tuple(node_points[n] for n in range(self.num_nodes)),
             graph=g,
             timing=self._timing,
             num_scans=len(self._odom_poses),
@@ -522,13 +548,25 @@ def run_mapping_3d(
     *,
     max_scans: int | None = None,
     progress: bool = False,
+    checkpoint: Checkpoint | None = None,
+    checkpoint_every: int = 1000,
 ) -> MappingResult[SE3]:
     """Map a 3D :class:`~scanreg.io.ScanSequence` (KITTI folder, folder of point files, ROS
     bag, ``sim:`` drive) in order, each sweep deskewed with its per-point times when it has
-    them. ``progress``: a progress line on stderr (scans/s, loops accepted and rejected)."""
+    them. ``progress``: a progress line on stderr (scans/s, loops accepted and rejected).
+    ``checkpoint``: called with :meth:`Mapper3D.snapshot` every ``checkpoint_every`` sweeps
+    (e.g. to write the outputs so far).
+
+    Raises
+    ------
+    MappingInterrupted
+        When Ctrl-C or an error stops the run before its last sweep, after a node was made;
+        it carries what was mapped so far and chains the cause.
+    """
     from .._progress import Progress
 
     cfg = MappingConfig3D() if config is None else config
+    _checked_checkpoint_every(checkpoint_every)
     total = len(sequence)
     if max_scans is not None:
         if max_scans < 1:
@@ -538,18 +576,27 @@ def run_mapping_3d(
         raise ValueError("sequence: holds no sweep")
     mapper = Mapper3D(cfg)
     bar = Progress(total, description="map", unit="scans", enabled=progress)
-    with bar:
-        for k in range(total):
-            frame = sequence[k]
-            step = mapper.step(frame.points, frame.timestamps, stamp=frame.stamp)
-            if step.loops or step.index % 10 == 0:
-                bar.set_counters(
-                    nodes=mapper.num_nodes,
-                    loops=sum(r.accepted for r in mapper.loops),
-                    rejected=sum(not r.accepted for r in mapper.loops),
-                )
-            bar.update()
-    return mapper.finish()
+    k = 0
+    try:
+        with bar:
+            for k in range(total):
+                frame = sequence[k]
+                step = mapper.step(frame.points, frame.timestamps, stamp=frame.stamp)
+                if step.loops or step.index % 10 == 0:
+                    bar.set_counters(
+                        nodes=mapper.num_nodes,
+                        loops=sum(r.accepted for r in mapper.loops),
+                        rejected=sum(not r.accepted for r in mapper.loops),
+                    )
+                bar.update()
+                if checkpoint is not None and (k + 1) % checkpoint_every == 0:
+                    checkpoint(mapper.snapshot(f"checkpoint after {k + 1} of {total} scans"))
+        return mapper.finish()
+    except (KeyboardInterrupt, Exception) as exc:
+        stopped = _stopped_run(mapper, exc, k, total)
+        if stopped is None:
+            raise
+        raise stopped from exc
 
 
 __all__ = ["Mapper3D", "MappingConfig3D", "run_mapping_3d"]
