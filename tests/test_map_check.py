@@ -224,3 +224,17 @@ def test_core_refuses_bad_arrays() -> None:
         _core.see_through(poses, points, np.array([0, 1]), **opts, stride=0)
     with pytest.raises(ValueError, match=r"sessions: expected one per scan \(1\), got 2"):
         _core.see_through(poses, points, np.array([0, 1]), **opts, sessions=np.zeros(2, np.uint32))
+    # The 3D judge: rows of [R row-major, t] and (N, 3) points, refused alike by name.
+    pose3 = np.r_[np.eye(3).ravel(), np.zeros(3)][None, :]
+    point3 = np.array([[1.0, 0.0, 0.0]])
+    opts3 = {**opts, "elevation_bins": 60}
+    world, judged, seen, through = _core.see_through_3d(pose3, point3, np.array([0, 1]), **opts3)
+    assert world.shape == (1, 3) and list(judged) == [0] and seen[0] == through[0] == 0
+    with pytest.raises(ValueError, match=r"poses: expected shape \(N, 12\)"):
+        _core.see_through_3d(poses, point3, np.array([0, 1]), **opts3)
+    with pytest.raises(ValueError, match=r"points: expected shape \(N, 3\)"):
+        _core.see_through_3d(pose3, points, np.array([0, 1]), **opts3)
+    with pytest.raises(ValueError, match="elevation_bins: must be at least 3"):
+        _core.see_through_3d(pose3, point3, np.array([0, 1]), **{**opts3, "elevation_bins": 2})
+    with pytest.raises(ValueError, match="poses: contains NaN"):
+        _core.see_through_3d(np.full((1, 12), np.nan), point3, np.array([0, 1]), **opts3)

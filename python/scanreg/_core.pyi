@@ -840,3 +840,16 @@ def see_through(
     stride: int = 1,
     sessions: NDArray[np.uint32] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.uint32], NDArray[np.uint32]]: ...
+def see_through_3d(
+    poses: NDArray[np.float64],
+    points: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    *,
+    bins: int,
+    elevation_bins: int,
+    margin: float,
+    max_range: float,
+    min_gap: int,
+    stride: int = 1,
+    sessions: NDArray[np.uint32] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.uint32], NDArray[np.uint32]]: ...

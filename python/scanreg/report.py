@@ -134,7 +134,8 @@ def _read_rows(path: Path) -> list[dict[str, Any]]:
 
 
 def _read_xy(path: Path) -> FloatArray:
-    """``x,y`` rows under a header line (none: an empty ``(0, 2)`` array)."""
+    """``x,y`` of the ``x,y`` (a 3D run's: ``x,y,z``) rows under a header line (none: an empty
+    ``(0, 2)`` array): what is drawn on the trajectory's plane."""
     text = path.read_text(encoding="utf-8")
     if len(text.splitlines()) < 2:
         return np.zeros((0, 2))
@@ -142,9 +143,9 @@ def _read_xy(path: Path) -> FloatArray:
         xy = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2)
     except ValueError as exc:
         raise FileFormatError(path, f"expected x,y rows: {exc}") from None
-    if xy.shape[1] != 2:
-        raise FileFormatError(path, f"expected 2 columns (x,y), got {xy.shape[1]}")
-    return np.asarray(xy, dtype=np.float64)
+    if xy.shape[1] not in (2, 3):
+        raise FileFormatError(path, f"expected 2 or 3 columns (x,y[,z]), got {xy.shape[1]}")
+    return np.asarray(xy[:, :2], dtype=np.float64)
 
 
 def _sessions(
@@ -210,7 +211,7 @@ class RunFolder:
         self.odometry = read_tum(odometry) if odometry.is_file() else None
         image = self.root / "map.png"  # a 2D mapping run's occupancy grid
         self.map_image = image if image.is_file() else None
-        contradictions = self.root / "contradictions.csv"  # a 2D mapping run's self-check
+        contradictions = self.root / "contradictions.csv"  # a mapping run's self-check
         self.contradictions = _read_xy(contradictions) if contradictions.is_file() else None
         self.sessions, self.scan_sessions = _sessions(self.root, len(self.estimate))
 

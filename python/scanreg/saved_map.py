@@ -88,8 +88,8 @@ FILE_DESCRIPTIONS: dict[str, str] = {
     "map.pcd": "3D map: the same as map.ply",
     "places.npz": "3D place database: nodes' poses and Scan Context descriptors",
     "trajectory.png": "odometry against the optimized trajectory, loop edges",
-    "summary.json": "the run's summary (and 2D self-check)",
-    "contradictions.csv": "2D self-check: returns the map contradicts (x,y)",
+    "summary.json": "the run's summary and self-check",
+    "contradictions.csv": "self-check: returns the map contradicts (x,y; 3D x,y,z)",
     "config.toml": "the mapping configuration the run used",
     "report.html": "the run's HTML report",
 }

@@ -179,8 +179,8 @@ def run_mapping_to_folder(
     bag; 3D: KITTI folder, folder of point files, bag, ``sim:loop``) into ``output`` (a
     :class:`scanreg.SavedMap` folder plus the run's summary, config, plot); returns the
     command's JSON. A run stopped by an error or Ctrl-C writes what it mapped and raises
-    :class:`MappingStopped`. A 2D map whose self-check finds it inconsistent is returned
-    with ``self_check["consistent"] == False`` and the reasons.
+    :class:`MappingStopped`. A map whose self-check finds it inconsistent is returned with
+    ``self_check["consistent"] == False`` and the reasons.
 
     ``extend``: a saved map's folder (of the run's dimension): the run is mapped, located
     in it from no initial pose, closed against it and joined into one graph
@@ -1217,6 +1217,7 @@ def _map_3d(args: SimpleNamespace) -> dict[str, Any]:
     from ..config import load_config, write_config
     from ..io import open_sequence, write_poses
     from ..io.sequences import SimulatedSequence
+    from .map_check import check_map
     from .mapping import MappingInterrupted
     from .mapping3d import MappingConfig3D, run_mapping_3d
     from .mapping_output import summary, write_outputs
@@ -1246,16 +1247,19 @@ def _map_3d(args: SimpleNamespace) -> dict[str, Any]:
         )
     except MappingInterrupted as exc:
         raise _stopped(args, exc, voxel_size=args.voxel_size) from exc
+    # An inconsistent map is returned with its reasons (self_check); the CLI warns.
+    check = check_map(res)
     paths = write_outputs(
         args.output,
         res,
         voxel_size=args.voxel_size,
         plot=not args.no_plots,
+        check=check,
         session=str(args.path),
     )
     paths["config"] = write_config(args.output / "config.toml", config)
     refresh_manifest(args.output)
-    result = summary(res)
+    result = summary(res, check)
     result["sequence"] = getattr(seq, "name", str(args.path))
     if isinstance(seq, SimulatedSequence):
         from ..eval import absolute_trajectory_error

@@ -11,8 +11,8 @@
 ``places.npz``         3D: the nodes' optimized poses and Scan Context descriptors (the
                        place database :class:`~scanreg.pipeline.MapLocalizer` relocalizes with)
 ``trajectory.png``     odometry against the optimized trajectory, loop edges drawn
-``summary.json``       :func:`summary`, with 2D runs' self-check (:mod:`.map_check`)
-``contradictions.csv`` 2D: ``x,y`` of every return the self-check found contradicted
+``summary.json``       :func:`summary`, with the run's self-check (:mod:`.map_check`)
+``contradictions.csv`` ``x,y`` (3D: ``x,y,z``) of every return the self-check found contradicted
 ``map_data.npz``       the exact state :class:`scanreg.SavedMap` reads (node scans included)
 ``manifest.json``      format version, sensor, frames, sessions, what each file is
 =====================  ==================================================================
@@ -145,7 +145,7 @@ def write_outputs(
     """Write every file of the table above into ``folder`` (created); returns their paths.
     ``resolution``: the 2D occupancy grid's cell (m); ``voxel_size``: the 3D map's voxel (m).
     ``plot=False`` skips ``trajectory.png`` (the only file that needs matplotlib).
-    ``check``: a 2D run's self-check if already made (else it is made here). ``session``:
+    ``check``: the run's self-check if already made (else it is made here). ``session``:
     the run's name in the manifest (e.g. the input's path). The map itself goes through
     :class:`scanreg.SavedMap` (``manifest.json``, ``map_data.npz``)."""
     if not isinstance(folder, (str, os.PathLike)):
@@ -167,15 +167,15 @@ def write_outputs(
         result, session=session, resolution=resolution, voxel_size=voxel_size
     )
     paths = saved.save(out)
-    if result.graph.dim == 2:
-        check = check_map(result) if check is None else check
-        paths["contradictions"] = out / "contradictions.csv"
-        points = check.contradiction_points
-        np.savetxt(paths["contradictions"], points, "%.3f", ",", header="x,y", comments="")
+    check = check_map(result) if check is None else check
+    paths["contradictions"] = out / "contradictions.csv"
+    header = "x,y" if result.graph.dim == 2 else "x,y,z"
+    points = check.contradiction_points
+    np.savetxt(paths["contradictions"], points, "%.3f", ",", header=header, comments="")
     if plot:
         paths["plot"] = plot_mapping(out / "trajectory.png", result)
     paths["summary"] = out / "summary.json"
-    headline = summary(result, check if result.graph.dim == 2 else None)
+    headline = summary(result, check)
     paths["summary"].write_text(json.dumps(headline, indent=2) + "\n", encoding="utf-8")
     refresh_manifest(out)
     return paths
