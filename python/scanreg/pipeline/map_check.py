@@ -27,7 +27,11 @@ A 3D run is judged alike, its node clouds' range images binned by azimuth and el
 (:data:`SETTINGS_3D`; regions are squares of the ground plane). On the simulated two-lap drive
 of ``tests/test_mapping3d.py`` the loop-closed map reads 0.04 % contradicted, the same run's
 nodes moved along a drift growing to 0.6 / 1 / 2 m at the revisit 1.2 / 17.9 / 23.1 %, turned by
-a heading drift growing to 2° / 4° 4.0 / 38.9 %.
+a heading drift growing to 2° / 4° 4.0 / 38.9 %. On ``benchmarks/mapping_3d.py``'s two-lap
+drives (default settings) the loop-closed maps read 0.01–0.39 % contradicted (the true poses
+0.00–0.37 %), the odometry alone of the drive with 25 m odometry (0.54 m RMS off) 1.79 %: a
+3D map is flagged by its contradictions from about a metre or a few degrees off, and by its
+loop edges below that.
 
 The verdict ``consistent`` holds when the contradicted fraction (over the map and in its worst
 square) and the fraction of loop edges over their bound are under :class:`MapCheckSettings`'
@@ -124,8 +128,14 @@ class MapCheckSettings:
 
 #: The settings a 3D run is judged with unless others are given: nodes are 2 m apart (a
 #: revisit is 25 nodes away, the loop search's 50 m), their clouds voxelized at 0.3 m and
-#: seen to 100 m, rings 0.4–2° apart.
-SETTINGS_3D = MapCheckSettings(margin=0.5, max_range=30.0, min_gap=25, region_size=10.0)
+#: seen to 100 m, rings 0.4–2° apart. Loop edges over their bound: at most 15 %, since at the
+#: true poses 6–11 % of the 3D loop edges exceed it on ``benchmarks/mapping_3d.py``'s three
+#: drives (their covariance's tail: loop NEES 5.5–7.4 against the ideal 6), the loop-closed
+#: maps 1–7 %, the same runs' odometry alone 22–100 % (each drive held out in turn, the
+#: other two leave the limit between 8–11 % and 22–35 %; 15 % judges the held-out one right).
+SETTINGS_3D = MapCheckSettings(
+    margin=0.5, max_range=30.0, min_gap=25, region_size=10.0, max_loops_over_bound=0.15
+)
 
 
 @dataclass(frozen=True)
