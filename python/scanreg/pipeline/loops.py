@@ -22,9 +22,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -271,10 +271,11 @@ class LoopSettings:
             raise ValueError(f"min_agreeing: must be an int >= 2, got {self.min_agreeing!r}")
 
 
-#: The most a 2D odometry drifts per metre of path (a wrong wheel scale of several percent
+#: The most an odometry drifts per metre of path (a wrong wheel scale of several percent
 #: and a heading off by degrees): the mapping's wide search looks no farther than this times
 #: the path between the two nodes, plus the least loop window, and a merge's second search
-#: no farther than this times the path since its fix (:mod:`scanreg.pipeline.join`).
+#: no farther than this times the path since its fix (:mod:`scanreg.pipeline.join`); the 3D
+#: mapper's drift-independent window is as wide (:func:`~scanreg.pipeline.loops3d.drift_window_3d`).
 MAX_DRIFT_PER_METRE = 0.1
 
 #: A loop is what the map bets on: every match the verdict accepts is probed for other basins.
@@ -712,3 +713,49 @@ def loops_agree(
         np.linalg.norm(cycle.translation) <= tol_t + per_t * span
         and abs(cycle.angle) <= tol_r + per_r * span
     )
+
+
+class _Held(Protocol):
+    """A loop record as :func:`agreeing_group` reads it (2D or 3D)."""
+
+    @property
+    def match(self) -> _Loop: ...
+
+
+HeldT = TypeVar("HeldT", bound=_Held)
+
+
+class AgreementSettings(AgreementTolerances, Protocol):
+    """:class:`AgreementTolerances` and how many nodes' loops must agree."""
+
+    @property
+    def min_agreeing(self) -> int: ...
+
+
+def agreeing_group(
+    record: HeldT,
+    held: Sequence[HeldT],
+    pose: Callable[[int], SE2 | SE3],
+    settings: AgreementSettings,
+    *,
+    support: Sequence[HeldT] = (),
+) -> list[HeldT] | None:
+    """``[record, *the held loops that agree with it]`` (:func:`loops_agree`, loops of other
+    nodes than ``record``'s) when they, with the ``support`` loops that agree with it, come
+    from at least ``settings.min_agreeing`` nodes; None otherwise (``record`` should then be
+    held too). ``pose(k)``: the graph's pose of node ``k``. The mappers hold a loop the graph
+    disagrees with this way (2D :class:`~scanreg.pipeline.Mapper`, 3D
+    :class:`~scanreg.pipeline.Mapper3D`): once loops of several nodes agree, the graph, not the
+    loops, was wrong."""
+    here = record.match.node
+    needed = {k for h in (*held, *support, record) for k in (h.match.node, h.match.submap_node)}
+    poses = {k: pose(k) for k in needed}
+
+    def agrees(h: HeldT) -> bool:
+        return h.match.node != here and loops_agree(h.match, record.match, poses, settings)
+
+    group = [record] + [h for h in held if agrees(h)]
+    backers = [h for h in support if agrees(h)]
+    if len({h.match.node for h in (*group, *backers)}) < settings.min_agreeing:
+        return None
+    return group

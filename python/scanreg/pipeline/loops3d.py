@@ -19,6 +19,14 @@ Then, for both:
    against ``Σ_graph + Σ_match`` (6 dof). A look-alike place a quarter lap away passes the
    geometry (it *is* the same geometry) and fails here.
 
+The graph's tests are only as good as the graph's idea of its own drift. A match that is
+sound on its own evidence (the verdict, not degenerate) and fails only them, landing within
+the drift-independent window (:func:`drift_window_3d`: the drift the path between the two
+nodes could hold, whatever the graph believes), is a **hypothesis**: the mapper holds it until
+a loop from another node agrees with it (:func:`~scanreg.pipeline.loops.loops_agree`), as the
+2D mapper does. Beyond that window (a look-alike a quarter lap around a repeated block is 90°
+off) it is rejected.
+
 The constraint's information is the inverse of the match's calibrated covariance with nothing
 along a direction the match names degenerate (:func:`scanreg.graph.project_information`).
 """
@@ -38,7 +46,7 @@ from ..register import register
 from ..target import PreparedTarget, prepare
 from ..transform import SE3
 from ..verdict import VerdictThresholds
-from .loops import _information, _well_posed
+from .loops import MAX_DRIFT_PER_METRE, _information, _well_posed
 
 LoopOrigin = Literal["graph", "place"]
 
@@ -168,6 +176,19 @@ class LoopSettings3D:
     #: block 0.56-0.80 and another block of the same shape (seed 3) 0.75-0.84, both passing
     #: the in-session 0.5.
     inter_session_min_overlap: float = 0.9
+    #: The drift-independent window (m, rad): a match may land this far from the graph's
+    #: prediction whatever the graph believes its uncertainty to be — no farther than the
+    #: drift the path between the two nodes could hold (``min_window`` +
+    #: ``MAX_DRIFT_PER_METRE`` × the path) and at most this (Cartographer searches ±7 m /
+    #: ±30°). Within it, a match sound on its own evidence that fails only the graph's σ
+    #: window or χ² test is a hypothesis (:func:`match_loop_3d`); Scan Context's places are
+    #: matched within it however small the graph's σ (:class:`~scanreg.pipeline.Mapper3D`).
+    drift_window: tuple[float, float] = (20.0, math.radians(30.0))
+    #: A hypothesis becomes a loop once this many from different nodes agree with each other
+    #: (:func:`~scanreg.pipeline.loops.loops_agree`) ...
+    min_agreeing: int = 2
+    #: ... within this much path (m): the leg between their nodes must be short to be trusted.
+    hypothesis_horizon: float = 20.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -191,7 +212,7 @@ class LoopSettings3D:
             w = getattr(self, name)
             if len(w) != 2 or not all(isinstance(v, int | float) and v > 0 for v in w):
                 raise ValueError(f"{name}: expected two values > 0, got {w!r}")
-        for name in ("agreement", "agreement_per_metre"):
+        for name in ("agreement", "agreement_per_metre", "drift_window"):
             pair = getattr(self, name)
             if not (
                 isinstance(pair, tuple)
@@ -199,6 +220,14 @@ class LoopSettings3D:
                 and all(isinstance(v, int | float) and math.isfinite(v) and v >= 0 for v in pair)
             ):
                 raise ValueError(f"{name}: expected two finite numbers >= 0, got {pair!r}")
+        if not (math.isfinite(self.hypothesis_horizon) and self.hypothesis_horizon >= 0):
+            raise ValueError(
+                f"hypothesis_horizon: must be finite and >= 0, got {self.hypothesis_horizon!r}"
+            )
+        if isinstance(self.min_agreeing, bool) or not (
+            isinstance(self.min_agreeing, int) and self.min_agreeing >= 2
+        ):
+            raise ValueError(f"min_agreeing: must be an int >= 2, got {self.min_agreeing!r}")
         if not 0 <= self.inter_session_min_overlap <= 1:
             raise ValueError(
                 "inter_session_min_overlap: must be in [0, 1], got "
@@ -241,6 +270,13 @@ class LoopMatch3D:
     #: ``"graph"`` (started from the graph's prediction) or ``"place"`` (Scan Context, then
     #: global registration).
     origin: LoopOrigin = "graph"
+    #: Sound on its own evidence, within the drift-independent window, and failing only the
+    #: graph's tests: held until another loop agrees with it (:class:`~scanreg.pipeline.Mapper3D`).
+    hypothesis: bool = False
+    #: Why it was accepted: ``"graph"`` (the graph's tests), ``"loops"`` (it disagreed with
+    #: the graph but agreed with other loops: the graph had drifted more than it knew), ``""``
+    #: while not accepted.
+    evidence: str = ""
 
 
 def search_window_3d(
@@ -255,6 +291,17 @@ def search_window_3d(
     dt = min(max(s.window_sigmas * sigma_t, s.min_window[0]), s.max_window[0])
     dr = min(max(s.window_sigmas * sigma_r, s.min_window[1]), s.max_window[1])
     return dt, dr
+
+
+def drift_window_3d(path: float, settings: LoopSettings3D) -> tuple[float, float]:
+    """Bounds ``(translation, rotation)`` on how far a revisit may lie from the graph's
+    prediction after ``path`` metres between the two nodes, whatever the graph's σ:
+    ``min_window`` + ``MAX_DRIFT_PER_METRE`` × ``path`` (m), capped by ``drift_window``."""
+    if not (math.isfinite(path) and path >= 0):
+        raise ValueError(f"path: must be finite and >= 0, got {path!r}")
+    s = settings
+    dt = min(s.min_window[0] + MAX_DRIFT_PER_METRE * path, s.drift_window[0])
+    return max(dt, s.min_window[0]), max(s.drift_window[1], s.min_window[1])
 
 
 def _rms_range(points: FloatArray) -> float:
@@ -277,6 +324,7 @@ def match_loop_3d(
     *,
     origin: LoopOrigin = "graph",
     score: float = math.nan,
+    drift_window: tuple[float, float] | None = None,
 ) -> LoopMatch3D:
     """Match ``points`` (keyframe ``node``'s cloud, own frame) against ``submap``; the graph
     predicts ``T_submap_node`` as ``predicted`` with ``relative_covariance`` (6×6).
@@ -284,10 +332,16 @@ def match_loop_3d(
     ``origin="graph"`` starts GICP from the prediction; ``"place"`` from
     :func:`scanreg.register_global` (the candidate is rejected with its reasons when that
     finds no reliable alignment). ``score``: the place recognition's distance, recorded.
+    ``drift_window``: ``(m, rad)`` the drift-independent window (:func:`drift_window_3d`);
+    a match landing within it, sound on its own evidence and failing only the graph's σ
+    window or χ² test, comes back as a ``hypothesis``; one beyond it is rejected. ``None``:
+    the graph's tests decide alone (no hypothesis).
     """
     s = settings
     window = search_window_3d(relative_covariance, s)
     reasons: list[str] = []
+    # The graph's own tests (σ window, χ²), which a drift beyond its belief fails.
+    graph_reasons: list[str] = []
     start = predicted
     if origin == "place":
         glob = register_global(points, submap.points, voxel_size=s.global_voxel_size)
@@ -316,11 +370,17 @@ def match_loop_3d(
     moved = float(np.linalg.norm(offset.translation))
     turned = _angle(offset)
     if moved > window[0]:
-        reasons.append(f"{moved:.2f} m from the graph's prediction > {window[0]:.2f} m")
+        graph_reasons.append(f"{moved:.2f} m from the graph's prediction > {window[0]:.2f} m")
     if turned > window[1]:
-        reasons.append(
+        graph_reasons.append(
             f"{math.degrees(turned):.1f} deg from the graph's prediction > "
             f"{math.degrees(window[1]):.1f} deg"
+        )
+    if drift_window is not None and (moved > drift_window[0] or turned > drift_window[1]):
+        reasons.append(
+            f"{moved:.2f} m, {math.degrees(turned):.1f} deg from the graph's prediction: "
+            f"beyond the drift the path allows ({drift_window[0]:.2f} m, "
+            f"{math.degrees(drift_window[1]):.1f} deg)"
         )
     st, sr = s.submap_sigma
     scale = _rms_range(points) / s.submap_sigma_range
@@ -334,10 +394,38 @@ def match_loop_3d(
         e = offset.log()
         chi2 = float(e @ np.linalg.solve(combined, e))
         if not chi2 <= s.chi2_threshold:
-            reasons.append(f"inconsistent with the graph: χ² {chi2:.1f} > {s.chi2_threshold:.1f}")
+            graph_reasons.append(
+                f"inconsistent with the graph: χ² {chi2:.1f} > {s.chi2_threshold:.1f}"
+            )
     else:
         info, weak, vectors, chi2 = np.zeros((6, 6)), (), np.zeros((6, 0)), math.nan
         reasons.append("covariance singular or not finite")
+    # The graph may be what is wrong (more drift than it knows): a match sound on its own
+    # evidence waits for another loop to agree. Not a degenerate one: where it cannot fix
+    # its own pose (a tunnel's axis), its look-alikes agree with each other as true ones do.
+    hypothesis = drift_window is not None and bool(graph_reasons) and not reasons and not weak
+    if hypothesis and origin == "graph":
+        # Held without the graph's check, the match must be the only fit: GICP from a wrong
+        # prediction settles in the nearest basin, and along a street of repeated façades
+        # that is a look-alike whose neighbours' matches agree with it as true ones do (the
+        # repeated block with the 25 m odometry's σ understated 30x: two loops 13 m along the
+        # street closed so). Global registration, which refuses an ambiguous scene, must
+        # find the same pose (a place candidate's start came from it already).
+        glob = register_global(points, submap.points, voxel_size=s.global_voxel_size)
+        if glob.pose is None:
+            hypothesis = False
+            reasons.extend(f"held, but global registration: {r}" for r in glob.reasons)
+        else:
+            gap = glob.pose.inverse() @ pose
+            assert isinstance(gap, SE3)
+            if np.linalg.norm(gap.translation) > s.min_window[0] or _angle(gap) > s.min_window[1]:
+                hypothesis = False
+                reasons.append(
+                    f"held, but global registration finds a pose "
+                    f"{np.linalg.norm(gap.translation):.2f} m, {math.degrees(_angle(gap)):.1f} "
+                    "deg away"
+                )
+    reasons.extend(graph_reasons)
     return LoopMatch3D(
         submap_node=submap.anchor,
         node=node,
@@ -354,4 +442,6 @@ def match_loop_3d(
         accepted=not reasons,
         reasons=tuple(reasons),
         origin=origin,
+        hypothesis=hypothesis,
+        evidence="" if reasons else "graph",
     )

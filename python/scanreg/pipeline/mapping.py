@@ -69,8 +69,8 @@ from .loops import (
     LoopMatch,
     LoopSettings,
     Submap2D,
+    agreeing_group,
     build_submap,
-    loops_agree,
     match_loop,
     wide_submap_span,
 )
@@ -1023,17 +1023,8 @@ class Mapper:
                     break
                 if r.accepted:
                     support.append(r)
-        needed = {
-            k for h in (*self._held, *support, record) for k in (h.match.node, h.match.submap_node)
-        }
-        poses = {k: self._graph.pose(k) for k in needed}
-
-        def agrees(h: LoopRecord[LoopMatch]) -> bool:
-            return h.match.node != here and loops_agree(h.match, record.match, poses, cfg.loops)
-
-        group = [record] + [h for h in self._held if agrees(h)]
-        backers = [h for h in support if agrees(h)]
-        if len({h.match.node for h in (*group, *backers)}) < cfg.loops.min_agreeing:
+        group = agreeing_group(record, self._held, self._graph.pose, cfg.loops, support=support)
+        if group is None:
             self._held.append(record)
             return record
         confirmed = [

@@ -18,13 +18,26 @@ result (:class:`~scanreg.pipeline.MappingResult`, :class:`~scanreg.pipeline.Loop
    nodes) are allowed for; the nearest ``max_candidates`` are matched by GICP from the graph's
    prediction against the candidate's submap (:func:`~scanreg.pipeline.loops3d.match_loop_3d`);
 4. **places** — when no graph candidate was accepted, Scan Context (:mod:`scanreg.place`)
-   retrieves look-alike keyframes beyond the recent past; one within the graph's reach (the
-   same Mahalanobis gate) is matched from :func:`scanreg.register_global`'s pose, then GICP:
-   the route for drift beyond GICP's basin. One beyond reach is logged as rejected, unmatched
-   — a repeated structure's look-alike a quarter lap away is what this stops first, and the χ²
-   test of every match second;
+   retrieves look-alike keyframes beyond the recent past; one within reach is matched from
+   :func:`scanreg.register_global`'s pose, then GICP: the route for drift beyond GICP's
+   basin. Within reach: the graph's Mahalanobis gate, *or* the drift-independent one (the
+   drift the path between the two could hold, :func:`~scanreg.pipeline.loops3d.drift_window_3d`,
+   however small the graph believes its σ to be). One beyond reach is logged as rejected,
+   unmatched — a repeated structure's look-alike a quarter lap away is what this stops first,
+   and every match's own tests second;
 5. **close** — an accepted loop becomes an edge with information = inverse calibrated
    covariance (nothing along its degenerate directions) and a robust kernel; iSAM2 re-solves.
+   Recall does not rest on the graph knowing its own drift: a match sound on its own evidence
+   that fails only the graph's σ window or χ² test is *held* (a hypothesis) until a match of
+   another node, within ``LoopSettings3D.hypothesis_horizon`` metres of path, agrees with it
+   (:func:`~scanreg.pipeline.loops.loops_agree`); the group is then closed, without a robust
+   kernel (the graph, not the loops, was wrong), and the graph re-solved in batch.
+   A match held so must be the only fit: one from the graph's prediction is held only if
+   :func:`scanreg.register_global` finds the same pose.
+
+Cost per node, bounded whatever the drift: ``max_candidates`` GICP matches from the graph's
+prediction (each held one also a global registration), and one place candidate (a global
+registration and GICP) every ``place_every`` nodes without an accepted loop.
 
 :meth:`Mapper3D.finish` runs a final batch Levenberg–Marquardt pass and lays every sweep on its
 node: ``T_world_sensor = T_world_node @ inv(T_odom_node) @ T_odom_sensor``.
@@ -46,7 +59,15 @@ from ..graph import Graph, Kernel
 from ..place import PlaceCandidate, PlaceDatabase
 from ..preprocess import voxel_downsample
 from ..transform import SE3, as_pose
-from .loops3d import LoopMatch3D, LoopSettings3D, Submap3D, build_submap_3d, match_loop_3d
+from .loops import agreeing_group
+from .loops3d import (
+    LoopMatch3D,
+    LoopSettings3D,
+    Submap3D,
+    build_submap_3d,
+    drift_window_3d,
+    match_loop_3d,
+)
 from .mapping import (
     Checkpoint,
     LoopRecord,
@@ -152,6 +173,8 @@ class Mapper3D:
         self._node_travel: list[float] = []
         self._submaps: dict[int, Submap3D] = {}
         self._loops: list[LoopRecord[LoopMatch3D]] = []
+        # Loops held as hypotheses (sound on their own evidence, at odds with the graph).
+        self._held: list[LoopRecord[LoopMatch3D]] = []
         self._skipped: list[int] = []
         self._pending = SE3.identity()
         self._last_pose: SE3 | None = None
@@ -334,20 +357,32 @@ class Mapper3D:
             np.searchsorted(travel, travel[node] - self.config.loop_min_travel, side="right")
         )
 
-    def _within_reach(self, candidate: int, node: int) -> tuple[bool, float, float]:
+    def _within_reach(
+        self, candidate: int, node: int, *, drift: bool = False
+    ) -> tuple[bool, float, float]:
         """Whether ``candidate`` may be where ``node`` is, given the graph: the predicted
         distance less ``loop_gate_sigmas`` σ (σ along the predicted offset, from the joint
-        marginal) is within ``loop_max_range``. Returns (verdict, distance, σ)."""
+        marginal) is within ``loop_max_range``; with ``drift``, or less the drift the path
+        between them could hold (:meth:`_drift_window`), whatever the graph's σ. Returns
+        (verdict, distance, σ)."""
         cfg = self.config
         g = self._graph
         t_rel = _se3(self._pose(candidate).inverse() @ self._pose(node)).translation
         dist = float(np.linalg.norm(t_rel))
         if dist <= cfg.loop_max_range:
             return True, dist, 0.0
+        if drift and dist <= cfg.loop_max_range + self._drift_window(candidate, node)[0]:
+            return True, dist, 0.0
         cov = g.relative_covariance(candidate, node)
         u = t_rel / max(dist, 1e-12)
         sigma = math.sqrt(max(float(u @ cov[:3, :3] @ u), 1e-12))
         return (dist - cfg.loop_max_range) / sigma <= cfg.loop_gate_sigmas, dist, sigma
+
+    def _drift_window(self, candidate: int, node: int) -> tuple[float, float]:
+        """How far ``node`` may lie from the graph's prediction in ``candidate``'s frame,
+        whatever the graph's σ: the drift the path between them could hold."""
+        path = abs(self._node_travel[node] - self._node_travel[candidate])
+        return drift_window_3d(path, self.config.loops)
 
     def _candidates(self, node: int) -> list[int]:
         cfg = self.config
@@ -408,7 +443,7 @@ class Mapper3D:
             if n in tried:
                 continue
             tried.add(n)
-            ok, dist, sigma = self._within_reach(n, node)
+            ok, dist, sigma = self._within_reach(n, node, drift=True)
             if ok:
                 records.append(self._match(n, node, "place", score=hit.distance))
             else:
@@ -435,25 +470,83 @@ class Mapper3D:
             cfg.loops,
             origin="place" if origin == "place" else "graph",
             score=score,
+            drift_window=self._drift_window(n, node),
         )
         self._timing.matching += time.perf_counter() - t_m
+        record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
         if match.accepted:
-            t_o = time.perf_counter()
-            g.add_edge(
-                n, node, match.measured, match.information, kind="loop", kernel=cfg.loop_kernel
+            self._add_loops([record], kernel=cfg.loop_kernel)
+        elif match.hypothesis:
+            record = self._hypothesize(record)
+        return record
+
+    def _hypothesize(self, record: LoopRecord[LoopMatch3D]) -> LoopRecord[LoopMatch3D]:
+        """Hold a loop the graph disagrees with; once ``loops.min_agreeing`` loops from
+        different nodes — held ones, or ones the graph accepted within the horizon — agree
+        with each other (:func:`~scanreg.pipeline.loops.agreeing_group`), close the held ones.
+        Returns ``record``, accepted if it completed a group."""
+        s = self.config.loops
+        travel = self._node_travel
+        here = record.match.node
+        self._held = [
+            h for h in self._held if travel[here] - travel[h.match.node] <= s.hypothesis_horizon
+        ]
+        # Loops the graph accepted recently back it as well: a hypothesis that agrees with
+        # one is the same story. (On the 25 m lap with the odometry's σ understated 30x, the
+        # two revisits whose neighbours the graph had accepted otherwise waited in vain.)
+        support = []
+        for r in reversed(self._loops):
+            if travel[here] - travel[r.match.node] > s.hypothesis_horizon:
+                break
+            if r.accepted:
+                support.append(r)
+        group = agreeing_group(record, self._held, self._pose, s, support=support)
+        if group is None:
+            self._held.append(record)
+            return record
+        held = {id(h) for h in group}
+        self._held = [h for h in self._held if id(h) not in held]
+        confirmed = [
+            dataclasses.replace(
+                h,
+                match=dataclasses.replace(h.match, accepted=True, reasons=(), evidence="loops"),
             )
-            # A loop moves many nodes at once: relinearise a little more than usual.
-            g.update(extra_iterations=2)
-            self._timing.optimization += time.perf_counter() - t_o
-        return LoopRecord(match, self._node_scans[n], self._node_scans[node])
+            for h in group
+        ]
+        # No robust kernel: the graph disagrees with these loops by far more than their
+        # covariance (that is why they were held); they passed a stronger test: each other.
+        self._add_loops(confirmed, kernel=None)
+        # A correction of many σ: iSAM2's few relinearisations may not carry it through.
+        t_o = time.perf_counter()
+        self._graph.optimize()
+        self._timing.optimization += time.perf_counter() - t_o
+        # The held ones were recorded as rejected when they were matched: now as decided.
+        index = {id(h): k for k, h in enumerate(self._loops)}
+        for old, new in zip(group[1:], confirmed[1:], strict=True):
+            k = index.get(id(old))
+            if k is not None:
+                self._loops[k] = new
+        return confirmed[0]
+
+    def _add_loops(self, records: list[LoopRecord[LoopMatch3D]], *, kernel: Any) -> None:
+        g = self._graph
+        t_o = time.perf_counter()
+        for r in records:
+            m = r.match
+            g.add_edge(m.submap_node, m.node, m.measured, m.information, kind="loop", kernel=kernel)
+        # A loop moves many nodes at once: relinearise a little more than usual.
+        g.update(extra_iterations=2)
+        self._timing.optimization += time.perf_counter() - t_o
 
     def _unreachable(
         self, n: int, node: int, score: float, dist: float, sigma: float
     ) -> LoopRecord[LoopMatch3D]:
-        """A place candidate the graph rules out: logged with its reason, not matched."""
+        """A place candidate out of reach (:meth:`_within_reach`): logged with its reason,
+        not matched."""
         cfg = self.config
         predicted = _se3(self._pose(n).inverse() @ self._pose(node))
-        reach = cfg.loop_max_range + cfg.loop_gate_sigmas * sigma
+        drift = self._drift_window(n, node)[0]
+        reach = cfg.loop_max_range + max(cfg.loop_gate_sigmas * sigma, drift)
         match = LoopMatch3D(
             submap_node=n,
             node=node,
@@ -469,8 +562,9 @@ class Mapper3D:
             weak_vectors=np.zeros((6, 0)),
             accepted=False,
             reasons=(
-                f"place candidate beyond the graph's reach: predicted {dist:.1f} m away > "
-                f"{reach:.1f} m ({cfg.loop_gate_sigmas:g} σ = {sigma:.2f} m)",
+                f"place candidate beyond reach: predicted {dist:.1f} m away > {reach:.1f} m "
+                f"({cfg.loop_gate_sigmas:g} σ = {cfg.loop_gate_sigmas * sigma:.2f} m; the "
+                f"drift the path allows: {drift:.2f} m)",
             ),
             origin="place",
         )
