@@ -43,6 +43,7 @@ from scanreg.graph import Graph
 from scanreg.io import Trajectory
 from scanreg.io.sequences import SimulatedSequence
 from scanreg.pipeline import OdometryConfig
+from scanreg.pipeline.map_check import check_map
 from scanreg.pipeline.mapping3d import MappingConfig3D
 from scanreg.transform import SE3
 
@@ -257,6 +258,11 @@ def run_scene(
             cfg.loops.submap_sigma_range,
         ),
         "drift": drift_statistics(res, truth, cfg.loop_min_travel),
+        # The map's self-check (no ground truth), of the run and of its odometry alone.
+        "self_check": {
+            "closed": check_map(res).as_dict(),
+            "odometry": check_map(res, poses=res.odometry_poses).as_dict(),
+        },
     }
     if kiss_poses:
         kp = np.array(kiss_poses)
@@ -264,6 +270,15 @@ def run_scene(
         out["end_kiss_m"] = float(np.linalg.norm(kp[-1, :3, 3] - truth[-1, :3, 3]))
         out["kiss_ms_per_scan"] = 1e3 * t_kiss / n
     return out
+
+
+def _verdict(check: dict[str, Any]) -> str:
+    """A self-check in one cell: verdict, contradicted fraction, loop edges over their bound."""
+    word = "consistent" if check["consistent"] else "**INCONSISTENT**"
+    return (
+        f"{word}, {100 * check['contradiction_fraction']:.2f} %, "
+        f"{check['loops_over_bound']} / {check['loops']} loops over"
+    )
 
 
 def _ratios(values: list[float] | None) -> str:
@@ -329,6 +344,13 @@ def main() -> None:
             f"{lp['lookalikes_accepted']} | {lp['nees_mean']:.2f} / {lp['nees_dof']:.1f} | "
             f"{lp['nees_median']:.2f} | {lp['nees_registration_mean']:.1f} | "
             f"{lp['by_loops']} | {_ratios(r['drift']['drift_over_sigma'])} |"
+        )
+    print("\n| scene | self-check: loop-closed map | odometry alone |")
+    print("|---|---|---|")
+    for r in results:
+        print(
+            f"| {r['scene']} | {_verdict(r['self_check']['closed'])} | "
+            f"{_verdict(r['self_check']['odometry'])} |"
         )
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
