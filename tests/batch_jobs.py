@@ -39,6 +39,9 @@ def _note_ray_node(job: Job, folder: Path) -> None:
         nodes = folder.parent.parent / "nodes"
         nodes.mkdir(exist_ok=True)
         (nodes / job.id).write_text(ray.get_runtime_context().get_node_id())
+        # Hold the slot a moment: jobs this short could otherwise all run one after another
+        # on the node that leased first, before the other's lease arrives (seen under load).
+        time.sleep(0.5)
 
 
 def ray_node_after(seconds: float) -> str:
