@@ -75,7 +75,8 @@ impl Level {
     #[inline]
     fn at(&self, x: i64, y: i64) -> f32 {
         let (xs, ys) = (x + self.shift, y + self.shift);
-        if xs < 0 || ys < 0 || xs >= self.width || ys >= self.height {
+        // One unsigned comparison per axis: a negative index wraps past the size.
+        if xs as u64 >= self.width as u64 || ys as u64 >= self.height as u64 {
             return 0.0;
         }
         self.data[(ys * self.width + xs) as usize]
@@ -249,9 +250,25 @@ impl Cost {
     }
 }
 
-/// The source points of one rotation, as cells: `(cx, cy)` per point.
+/// The source points of one rotation, as cells: `(cx, cy)` per point, less those that read 0
+/// on every level wherever the window puts them (off the canvas by more than the window's
+/// and the coarsest level's reach: an 80 m scan against a few nodes' submap).
 struct Slice {
     cells: Vec<[i64; 2]>,
+    /// How many points the rotation has (`cells` and the dropped ones): a score's divisor.
+    points: usize,
+}
+
+impl Slice {
+    /// Where a sum over `cells` starts: `Iterator::sum`'s −0.0 over all the points, but +0.0
+    /// once a point was dropped (its +0.0 would have been added): the sums keep their bits.
+    fn zero(&self) -> f64 {
+        if self.cells.len() == self.points {
+            -0.0
+        } else {
+            0.0
+        }
+    }
 }
 
 fn check_points(points: &[f64], arg: &'static str) -> Result<usize> {
@@ -1301,12 +1318,16 @@ impl LikelihoodGrid {
         self.dist2[y as usize * w + x as usize]
     }
 
-    fn slice(&self, source: &[f64], center: [f64; 3], theta: f64) -> Slice {
+    fn slice(&self, source: &[f64], center: [f64; 3], theta: f64, reach: [i64; 2]) -> Slice {
         let (s, c) = theta.sin_cos();
         let inv = 1.0 / self.resolution;
         // The lattice's cells (from its origin, as a build places them), on the canvas.
         let [dx, dy, _, _] = self.view();
-        let cells = source
+        // A level reads cells `[−shift, canvas)` (0 beyond), its shift at most the coarsest's.
+        let shift = (1i64 << self.pooled.len()) - 1;
+        let [cw, ch] = self.canvas_size;
+        let live = |v: i64, r: i64, size: usize| v + r >= -shift && v - r < size as i64;
+        let cells: Vec<[i64; 2]> = source
             .chunks_exact(2)
             .map(|p| {
                 let x = c * p[0] - s * p[1] + center[0];
@@ -1316,8 +1337,12 @@ impl LikelihoodGrid {
                     ((y - self.origin[1]) * inv).floor() as i64 + dy,
                 ]
             })
+            .filter(|c| live(c[0], reach[0], cw) && live(c[1], reach[1], ch))
             .collect();
-        Slice { cells }
+        Slice {
+            cells,
+            points: source.len() / 2,
+        }
     }
 
     #[inline]
@@ -1326,8 +1351,23 @@ impl LikelihoodGrid {
         slice
             .cells
             .iter()
-            .map(|c| g.at(c[0] + i, c[1] + j) as f64)
-            .sum()
+            .fold(slice.zero(), |t, c| t + g.at(c[0] + i, c[1] + j) as f64)
+    }
+
+    /// [`Self::sum`] at the `K` offsets `at` in one pass over the slice: each total is added
+    /// in the points' order from the same start as `sum` adds it (the same bits), but `K`
+    /// independent totals keep the pipeline busy where one waits on its previous addition
+    /// (a branch and bound's bounds are such chains of dependent additions).
+    #[inline]
+    fn sums<const K: usize>(&self, level: usize, slice: &Slice, at: &[[i64; 2]; K]) -> [f64; K] {
+        let g = self.level(level);
+        let mut total = [slice.zero(); K];
+        for c in &slice.cells {
+            for (t, o) in total.iter_mut().zip(at) {
+                *t += g.at(c[0] + o[0], c[1] + o[1]) as f64;
+            }
+        }
+        total
     }
 
     fn fitness(&self, slice: &Slice, i: i64, j: i64) -> f64 {
@@ -1336,7 +1376,7 @@ impl LikelihoodGrid {
             .iter()
             .filter(|c| self.dist2_at(c[0] + i, c[1] + j) <= 2.0)
             .count();
-        hits as f64 / slice.cells.len() as f64
+        hits as f64 / slice.points as f64
     }
 
     fn slices(&self, source: &[f64], w: &Window, sequential: bool) -> Vec<Slice> {
@@ -1345,7 +1385,12 @@ impl LikelihoodGrid {
             .with_min_len(min_len(sequential))
             .map(|i| {
                 let k = i as i64 - w.ntheta;
-                self.slice(source, w.center, w.center[2] + k as f64 * w.angular_step)
+                self.slice(
+                    source,
+                    w.center,
+                    w.center[2] + k as f64 * w.angular_step,
+                    [w.nx.max(0), w.ny.max(0)],
+                )
             })
             .collect()
     }
@@ -1363,7 +1408,7 @@ impl LikelihoodGrid {
         let slice = &slices[(k + w.ntheta) as usize];
         // `best.0` is the objective (less the motion cost, if any): report the scan's own sum.
         let sum = self.sum(0, slice, i, j);
-        let n = slice.cells.len() as f64;
+        let n = slice.points as f64;
         let (covariance, mean) = moments.covariance(w, self.resolution);
         Match {
             pose: [
@@ -1570,17 +1615,39 @@ struct BnB<'a> {
     bounds: u64,
 }
 
-/// A node's bound (level > 0) or a leaf's objective (level 0): the sum on that level, less
-/// the motion cost's minimum over the node's block of candidates.
-fn node_bound(
+/// The bounds of up to four nodes of one rotation (`keys`, all on `level`): each node's
+/// bound (level > 0) or leaf's objective (level 0), the sum on that level less the motion
+/// cost's minimum over the node's block of candidates ([`with_cost`]); the sums taken
+/// together ([`LikelihoodGrid::sums`]).
+fn node_bounds(
     grid: &LikelihoodGrid,
     slice: &Slice,
     w: &Window,
     cost: &Option<Cost>,
     level: usize,
-    key: [i64; 3],
-) -> f64 {
-    let sum = grid.sum(level, slice, key[1], key[2]);
+    keys: &[[i64; 3]],
+) -> Vec<f64> {
+    debug_assert!(keys.len() <= 4);
+    let at = |n: usize| {
+        let k = keys[n.min(keys.len() - 1)];
+        [k[1], k[2]]
+    };
+    let sums: Vec<f64> = match keys.len() {
+        0 => Vec::new(),
+        1 => vec![grid.sum(level, slice, keys[0][1], keys[0][2])],
+        2 => grid.sums(level, slice, &[at(0), at(1)]).to_vec(),
+        _ => grid
+            .sums(level, slice, &[at(0), at(1), at(2), at(3)])
+            .to_vec(),
+    };
+    keys.iter()
+        .zip(sums)
+        .map(|(&key, sum)| with_cost(sum, w, cost, level, key))
+        .collect()
+}
+
+/// A node's sum less the motion cost's minimum over its block of candidates.
+fn with_cost(sum: f64, w: &Window, cost: &Option<Cost>, level: usize, key: [i64; 3]) -> f64 {
     match cost {
         None => sum,
         Some(c) if level == 0 => sum - c.at(key[1] as f64, key[2] as f64, key[0] as f64),
@@ -1607,15 +1674,22 @@ struct Node {
 }
 
 impl BnB<'_> {
-    fn node(&mut self, level: usize, key: [i64; 3]) -> Node {
-        let slice = &self.slices[(key[0] + self.w.ntheta) as usize];
-        let bound = node_bound(self.grid, slice, self.w, &self.cost, level, key);
+    /// The nodes `keys` (up to four of one rotation) on `level`, bounded together.
+    fn nodes(&mut self, level: usize, keys: &[[i64; 3]]) -> Vec<Node> {
+        let Some(first) = keys.first() else {
+            return Vec::new();
+        };
+        let slice = &self.slices[(first[0] + self.w.ntheta) as usize];
+        let bounds = node_bounds(self.grid, slice, self.w, &self.cost, level, keys);
         if level == 0 {
-            self.evaluated += 1;
+            self.evaluated += keys.len() as u64;
         } else {
-            self.bounds += 1;
+            self.bounds += keys.len() as u64;
         }
-        Node { bound, key, level }
+        keys.iter()
+            .zip(bounds)
+            .map(|(&key, bound)| Node { bound, key, level })
+            .collect()
     }
 
     fn sort(nodes: &mut [Node]) {
@@ -1636,7 +1710,7 @@ impl BnB<'_> {
                 continue;
             }
             let half = 1i64 << (n.level - 1);
-            let mut children = Vec::with_capacity(4);
+            let mut keys = Vec::with_capacity(4);
             for di in [0, half] {
                 let i = n.key[1] + di;
                 if i > self.w.nx {
@@ -1647,9 +1721,10 @@ impl BnB<'_> {
                     if j > self.w.ny {
                         continue;
                     }
-                    children.push(self.node(n.level - 1, [n.key[0], i, j]));
+                    keys.push([n.key[0], i, j]);
                 }
             }
+            let mut children = self.nodes(n.level - 1, &keys);
             self.explore(&mut children);
         }
     }
@@ -1723,20 +1798,22 @@ fn branch_and_bound(
                 .flat_map(move |i| js.clone().into_iter().map(move |j| [k, i, j]))
         })
         .collect();
-    let mut roots: Vec<Node> = keys
+    // Four roots of one rotation at a time (a rotation's roots are consecutive in `keys`).
+    let runs: Vec<&[[i64; 3]]> = keys
+        .chunk_by(|a, b| a[0] == b[0])
+        .flat_map(|run| run.chunks(4))
+        .collect();
+    let mut roots: Vec<Node> = runs
         .par_iter()
         .with_min_len(min_len(seq))
-        .map(|&key| Node {
-            bound: node_bound(
-                grid,
-                &slices[(key[0] + w.ntheta) as usize],
-                w,
-                &cost,
-                depth,
+        .flat_map_iter(|run| {
+            let slice = &slices[(run[0][0] + w.ntheta) as usize];
+            let bounds = node_bounds(grid, slice, w, &cost, depth, run);
+            run.iter().zip(bounds).map(|(&key, bound)| Node {
+                bound,
                 key,
-            ),
-            key,
-            level: depth,
+                level: depth,
+            })
         })
         .collect();
     let mut search = BnB {
@@ -2180,6 +2257,44 @@ mod tests {
         let pruned = match_branch_and_bound_above(&grid, &source, &off, 3, 0.8 * bb.score);
         assert!(pruned.unwrap().is_none());
         assert!(match_branch_and_bound_above(&grid, &source, &w, 3, f64::NAN).is_err());
+    }
+
+    #[test]
+    fn points_no_window_puts_on_the_grid_count_but_add_nothing() {
+        // An 80 m scan against a small submap: its far points read 0 wherever the window puts
+        // them. They are left out of the sums (the same bits) but divide the score.
+        let reference = room();
+        let grid = LikelihoodGrid::build(&reference, 0.05, 0.05, 4).unwrap();
+        let near = transform(&reference, inverse([0.1, -0.05, 0.04]));
+        let far: Vec<f64> = (0..300)
+            .flat_map(|k| [60.0 + 0.05 * k as f64, -40.0 + 0.1 * k as f64])
+            .collect();
+        let both: Vec<f64> = near.iter().chain(&far).copied().collect();
+        let w = Window {
+            center: [0.0, 0.0, 0.0],
+            nx: 6,
+            ny: 6,
+            ntheta: 4,
+            angular_step: 0.02,
+            penalty: None,
+        };
+        let (n_near, n_all) = ((near.len() / 2) as f64, (both.len() / 2) as f64);
+        for m in [
+            match_exhaustive(&grid, &near, &w).unwrap(),
+            match_branch_and_bound(&grid, &near, &w, 2).unwrap(),
+        ] {
+            let ex = match_exhaustive(&grid, &both, &w).unwrap();
+            let bb = match_branch_and_bound(&grid, &both, &w, 2).unwrap();
+            for b in [&ex, &bb] {
+                assert_eq!((b.index, b.sum.to_bits()), (m.index, m.sum.to_bits()));
+                assert_eq!(b.score, m.sum / n_all);
+                assert!((b.fitness - m.fitness * n_near / n_all).abs() < 1e-12);
+            }
+        }
+        // Nothing on the grid: a sum of +0.0 (zeros added), as before any point was left out.
+        let off = match_branch_and_bound(&grid, &far, &w, 2).unwrap();
+        assert_eq!(off.sum.to_bits(), 0.0f64.to_bits());
+        assert_eq!(off.score, 0.0);
     }
 
     #[test]
