@@ -1077,8 +1077,9 @@ class Mapper:
         the bound the wide search's window has, where no loop shortens the path. MIT's
         infinite corridor: the wide search laid node 373's scan, looking down an unseen
         stretch, onto the known one 11.5 m back (score 0.86, no rival at 0.9 of it), 144 m
-        of travel after its anchor 229 but 3 m of path after the loop 229 → 370; the next
-        node, searched where it put it, fitted the same look-alike, and the two agreed."""
+        of travel after its anchor 229 but 2.5 m of path and one loop (229 → 370) from it;
+        the next node, searched where it put it, fitted the same look-alike, and the two
+        agreed."""
         g = self._graph
         a, n = match.submap_node, match.node
         graph = g.pose(a).inverse() @ g.pose(n)  # type: ignore[operator]
@@ -1088,10 +1089,12 @@ class Mapper:
         if off <= slack:
             return None
         limit = (off - slack) / MAX_DRIFT_PER_METRE
-        # A loop on the route is trusted to the least window it is searched in: it counts
-        # as the path that drifts that much (csail: a graph bent 0.9 m by its loops over
-        # 3.8 m of path was straightened by a right wide loop).
-        hop = slack / MAX_DRIFT_PER_METRE
+        # A loop on the route may be as far off as the widest window the graph's search
+        # accepts one in (``max_window``): it counts as the path that drifts that much. A
+        # false loop shortens the path too: counted as the least window (0.5 m), it held
+        # a no-odometry room tour (seed 1) to a 1.4 m error a right wide loop would have
+        # undone (0.103 -> 0.130 m ATE), and csail to 0.9 m (0.104 -> 0.160 m).
+        hop = self.config.loops.max_window[0] / MAX_DRIFT_PER_METRE
         path = path_between(self._node_travel, self._loop_links, n, a, hop=hop, limit=limit)
         if path >= limit:
             return None
