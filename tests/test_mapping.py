@@ -608,6 +608,63 @@ def test_scan_odometry_is_read_at_the_scan_time() -> None:
         assert p is not None and p.is_close(SE2.from_vector(s.odometry_pose))
 
 
+def test_a_look_alike_beyond_the_drift_the_closed_loops_allow_is_refused() -> None:
+    # MIT's infinite corridor (Radish), scans 150-379 with radish_mapping.py's wheels (seed
+    # 9). Scans 360-371 close loops to the first pass (220-229) just before it turns off the
+    # corridor; at 373, driving on west into a stretch that pass never saw, the wide search
+    # (±15 m: 144 m of travel since node 229) laid the scan onto the known corridor 11.5 m
+    # back (score 0.86, no rival at 0.9 of it; 0.38 at GMapping's pose), and the next node,
+    # searched where that put it, fitted the same look-alike: the two closed and bent the map
+    # (measured before: ATE 2.21 m, 7 accepted loops 11.5 m off GMapping's relative poses).
+    # Between the two lie 2.5 m of path and the loop 229 → 370 (counted as the 30 m that
+    # drift the widest loop window, 3 m): 3.75 m at most, not 11.5.
+    from scanreg.eval.ate import absolute_trajectory_error
+    from scanreg.io import read_scans
+    from scanreg.io.trajectory import Trajectory
+    from scanreg.pipeline import run_mapping, scan_log
+
+    log = scan_log(
+        read_scans(data_dir("carmen-radish-corrected", "infinite-corridor-corrected.log.gz")),
+        kind="FLASER",
+    )
+    lo, hi = 150, 380
+    reference = [SE2.from_vector(s.odometry_pose) for s in log.scans[:hi]]
+    rng = np.random.default_rng(9)  # radish_mapping.py's wheels for this log
+    wheels = [reference[0]]
+    for a, b in itertools.pairwise(reference):
+        step = a.inverse() @ b
+        d = float(np.linalg.norm(step.translation))
+        sigma = [0.05 * d, 0.02 * d, math.radians(0.5) + math.radians(2.0) * d]
+        wheels.append(wheels[-1] @ step @ SE2.from_vector(rng.normal(size=3) * sigma))
+    # Its stamps are not monotonic: one second per scan, as radish_mapping.py gives it.
+    stamps = np.arange(lo, hi, dtype=np.float64)
+    scans = tuple(
+        dataclasses.replace(s, timestamp=float(t))
+        for s, t in zip(log.scans[lo:hi], stamps, strict=True)
+    )
+    part = dataclasses.replace(log, scans=scans, stamps=stamps, odometry=tuple(wheels[lo:]))
+    res = run_mapping(part, MappingConfig())
+    truth = reference[lo:]
+    off = []
+    for r in res.accepted_loops:
+        rel = truth[r.submap_scan].inverse() @ truth[r.scan]
+        err = float(np.linalg.norm((rel.inverse() @ r.match.measured).translation))
+        if err > 1.0:
+            off.append((r.submap_scan + lo, r.scan + lo, r.match.search, round(err, 1)))
+    assert not off  # before: 7, 11.4-11.6 m
+    refused = [
+        r
+        for r in res.loops
+        if (r.submap_scan + lo, r.scan + lo) == (229, 373)
+        and any("closed loops could have drifted" in why for why in r.match.reasons)
+    ]
+    assert refused and refused[0].match.search == "wide"
+    ate = absolute_trajectory_error(
+        Trajectory.from_poses(list(res.poses), stamps), Trajectory.from_poses(truth, stamps)
+    )
+    assert ate.translation.rmse < 0.3  # measured 0.223 m (before: 2.21 m)
+
+
 def test_scans_keep_their_own_odometry_when_the_stamps_cannot_place_them() -> None:
     # Radish's belgioioso log: scan stamps truncated (repeats, "coarse"), its ODOM stream
     # the raw wheels. Interpolated at a handful of instants, every scan read the same pose

@@ -23,7 +23,9 @@ One :meth:`Mapper.step` per scan, in five stages:
    (``LoopSettings.wide_window``: up to ±20 m, as wide as the path between the two could have
    drifted); such a loop, and a match that is sound on its own evidence (and not degenerate)
    but fails only the χ² test, is held until another loop agrees with it (both are then
-   closed: the graph, not the loops, was wrong; :func:`~scanreg.pipeline.loops.loops_agree`).
+   closed: the graph, not the loops, was wrong; :func:`~scanreg.pipeline.loops.loops_agree`),
+   unless it moves its node farther than the path between the two, through the loops already
+   closed, could have drifted (:func:`~scanreg.pipeline.graph_path.path_between`).
    While a loop is held, each new node is also searched where that loop puts it (the
    old node nearest there, over the least window): a true loop's successors lie where it
    says, and their matches confirm it;
@@ -64,6 +66,7 @@ from ..io.carmen import CarmenLog
 from ..io.scan_log import ScanLog
 from ..preprocess import voxel_downsample
 from ..transform import SE2, SE3, as_pose
+from .graph_path import path_between
 from .loops import (
     MAX_DRIFT_PER_METRE,
     LoopMatch,
@@ -390,6 +393,7 @@ class Mapper:
         self._node_blind: dict[int, tuple[float, float]] = {}  # bearing gap: start, width
         self._node_sweep: dict[int, DeskewedSweep] = {}  # how each node's scan was deskewed
         self._node_travel: list[float] = []  # path length at each node
+        self._loop_links: dict[int, list[int]] = {}  # the nodes each has an accepted loop with
         self._submaps: OrderedDict[tuple[int, int, int], Submap2D] = OrderedDict()  # anchor, lo, hi
         self._submap_bytes = 0
         self._loops: list[LoopRecord[LoopMatch]] = []
@@ -1013,6 +1017,9 @@ class Mapper:
         cfg = self.config
         travel = self._node_travel
         here = record.match.node
+        why = self._beyond_drift(record.match)
+        if why is not None:
+            return dataclasses.replace(record, match=_refused(record.match, why))
         # Only recent hypotheses: the leg between two nodes must be short to be trusted.
         horizon = cfg.loops.hypothesis_horizon
         self._held = [h for h in self._held if travel[here] - travel[h.match.node] <= horizon]
@@ -1053,6 +1060,40 @@ class Mapper:
                 self._loops[k] = new
         return confirmed[0]
 
+    def _beyond_drift(self, match: LoopMatch) -> str | None:
+        """Why a held loop is refused, or None: it moves its node farther from where the graph
+        puts it (relative to the submap's anchor) than the path between the two could have
+        drifted — the least loop window plus ``MAX_DRIFT_PER_METRE`` of that path, taken
+        through the loops already closed (:func:`~scanreg.pipeline.graph_path.path_between`):
+        the bound the wide search's window has, where no loop shortens the path. MIT's
+        infinite corridor: the wide search laid node 373's scan, looking down an unseen
+        stretch, onto the known one 11.5 m back (score 0.86, no rival at 0.9 of it), 144 m
+        of travel after its anchor 229 but 2.5 m of path and one loop (229 → 370) from it;
+        the next node, searched where it put it, fitted the same look-alike, and the two
+        agreed."""
+        g = self._graph
+        a, n = match.submap_node, match.node
+        graph = g.pose(a).inverse() @ g.pose(n)  # type: ignore[operator]
+        assert isinstance(graph, SE2)
+        off = float(np.linalg.norm((graph.inverse() @ match.measured).translation))
+        slack = self.config.loops.min_window[0]
+        if off <= slack:
+            return None
+        limit = (off - slack) / MAX_DRIFT_PER_METRE
+        # A loop on the route may be as far off as the widest window the graph's search
+        # accepts one in (``max_window``): it counts as the path that drifts that much. A
+        # false loop shortens the path too: counted as the least window (0.5 m), it held
+        # a no-odometry room tour (seed 1) to a 1.4 m error a right wide loop would have
+        # undone (0.103 -> 0.130 m ATE), and csail to 0.9 m (0.104 -> 0.160 m).
+        hop = self.config.loops.max_window[0] / MAX_DRIFT_PER_METRE
+        path = path_between(self._node_travel, self._loop_links, n, a, hop=hop, limit=limit)
+        if path >= limit:
+            return None
+        return (
+            f"moves the node {off:.1f} m from the graph's pose, more than {path:.1f} m of path "
+            "through the closed loops could have drifted"
+        )
+
     def _add_loops(
         self, records: list[LoopRecord[LoopMatch]], *, kernel: Kernel | None
     ) -> list[LoopRecord[LoopMatch]]:
@@ -1066,6 +1107,9 @@ class Mapper:
         try:
             # A loop moves many nodes at once: relinearise a little more than usual.
             g.update(extra_iterations=2)
+            for r in records:
+                self._loop_links.setdefault(r.match.submap_node, []).append(r.match.node)
+                self._loop_links.setdefault(r.match.node, []).append(r.match.submap_node)
         except GraphSolveError as exc:
             g.remove_last_edges(len(records))
             g.optimize()
@@ -1313,6 +1357,14 @@ _GUIDED = "found where a held loop puts the node: waits for it to agree"
 
 #: Why a match a held loop guided is dropped though it fits there.
 _GUIDED_UNSOUND = "found where a held loop puts the node, but degenerate or weak: cannot agree"
+
+
+def _refused(match: LoopMatch, why: str) -> LoopMatch:
+    """``match`` neither accepted nor held, for ``why``."""
+    return dataclasses.replace(
+        match, accepted=False, hypothesis=False, evidence="", reasons=(*match.reasons, why)
+    )
+
 
 #: How many held loops guide one node's search (:meth:`Mapper._guided`), the latest first.
 _GUIDED_PER_NODE = 2
