@@ -1494,16 +1494,7 @@ def run_mapping(
                 while len(ahead) < _TRACK_AHEAD and k + len(ahead) < total:
                     ahead.append(pool.submit(track, k + len(ahead)))
                 step = mapper.integrate(ahead.popleft().result())
-                # The counts walk every loop so far: only for a bar that shows them.
-                if bar.enabled and (step.loops or step.index % 25 == 0):
-                    bar.set_counters(
-                        nodes=mapper.num_nodes,
-                        loops=sum(r.accepted for r in mapper.loops),
-                        rejected=sum(not r.accepted for r in mapper.loops),
-                    )
-                bar.update()
-                if checkpoint is not None and (k + 1) % checkpoint_every == 0:
-                    checkpoint(mapper.snapshot(f"checkpoint after {k + 1} of {total} scans"))
+                _stepped(mapper, step, bar, 25, k, total, checkpoint, checkpoint_every)
         pool.shutdown()
         return mapper.finish()
     except (KeyboardInterrupt, Exception) as exc:
@@ -1512,6 +1503,31 @@ def run_mapping(
         if stopped is None:
             raise
         raise stopped from exc
+
+
+def _stepped(
+    mapper: Any,
+    step: MappingStep,
+    bar: Any,
+    every: int,
+    k: int,
+    total: int,
+    checkpoint: Checkpoint | None,
+    checkpoint_every: int,
+) -> None:
+    """After scan ``k`` of ``total`` (2D or 3D mapper): the progress bar, its node and loop
+    counts at each loop and every ``every`` scans, and the checkpoint when due."""
+    # The counts walk every loop so far: only for a bar that shows them.
+    if bar.enabled and (step.loops or step.index % every == 0):
+        loops = mapper.loops
+        bar.set_counters(
+            nodes=mapper.num_nodes,
+            loops=sum(r.accepted for r in loops),
+            rejected=sum(not r.accepted for r in loops),
+        )
+    bar.update()
+    if checkpoint is not None and (k + 1) % checkpoint_every == 0:
+        checkpoint(mapper.snapshot(f"checkpoint after {k + 1} of {total} scans"))
 
 
 def _checked_checkpoint_every(checkpoint_every: object) -> None:

@@ -75,6 +75,7 @@ from .mapping import (
     MappingStep,
     MappingTiming,
     _checked_checkpoint_every,
+    _stepped,
     _stopped_run,
 )
 from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph_fields
@@ -676,15 +677,7 @@ def run_mapping_3d(
             for k in range(total):
                 frame = sequence[k]
                 step = mapper.step(frame.points, frame.timestamps, stamp=frame.stamp)
-                if step.loops or step.index % 10 == 0:
-                    bar.set_counters(
-                        nodes=mapper.num_nodes,
-                        loops=sum(r.accepted for r in mapper.loops),
-                        rejected=sum(not r.accepted for r in mapper.loops),
-                    )
-                bar.update()
-                if checkpoint is not None and (k + 1) % checkpoint_every == 0:
-                    checkpoint(mapper.snapshot(f"checkpoint after {k + 1} of {total} scans"))
+                _stepped(mapper, step, bar, 10, k, total, checkpoint, checkpoint_every)
         return mapper.finish()
     except (KeyboardInterrupt, Exception) as exc:
         stopped = _stopped_run(mapper, exc, k, total)
