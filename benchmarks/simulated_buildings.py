@@ -47,6 +47,10 @@ class Variant:
     beam_times: bool = True
     wheel_noise: float = 1.0
     odometry: bool = True
+    #: ``room_tour`` or ``ring_corridor`` (one lap round bare corridors, closed at the end).
+    kind: str = "room_tour"
+    #: The wheels' distances × this (a wheel radius mis-set: drift the noise model hides).
+    wheel_scale: float = 1.0
 
 
 VARIANTS: dict[str, Variant] = {
@@ -62,22 +66,32 @@ VARIANTS: dict[str, Variant] = {
     "360° laser, 0.1 s sweep": Variant(laser="laser_360"),
     "360° laser, no beam times": Variant(laser="laser_360", beam_times=False),
     "no odometry": Variant(odometry=False),
+    "ring corridor, 361 beams": Variant(kind="ring_corridor", laser="laser_361"),
+    "ring corridor, wheels 3 % long": Variant(
+        kind="ring_corridor", laser="laser_361", wheel_scale=1.03
+    ),
 }
 
 
-def _wheels(truth: list[SE2], seed: int, noise: float) -> list[SE2]:
-    """The wheels' odometry ``T_odom_base`` at each scan (``noise`` × the simulator's)."""
+def _wheels(truth: list[SE2], seed: int, noise: float, scale: float = 1.0) -> list[SE2]:
+    """The wheels' odometry ``T_odom_base`` at each scan (``noise`` × the simulator's, the
+    distances × ``scale``)."""
     steps = sim.wheel_odometry(truth, seed + 7)
     odometry = [SE2.identity()]
     for a, b, step in zip(truth[:-1], truth[1:], steps[1:], strict=True):
         assert step is not None
         true = (a.inverse() @ b).log()
-        odometry.append(odometry[-1] @ SE2.exp(true + noise * (step.log() - true)))
+        measured = true + noise * (step.log() - true)
+        measured[:2] *= scale
+        odometry.append(odometry[-1] @ SE2.exp(measured))
     return odometry
 
 
 def tour(v: Variant, seed: int) -> tuple[ScanLog, list[SE2]]:
-    course = sim.room_tour(seed=seed, **{"rooms_per_side": 2, **v.course})
+    if v.kind == "ring_corridor":
+        course = sim.ring_corridor(seed=seed, **v.course)
+    else:
+        course = sim.room_tour(seed=seed, **{"rooms_per_side": 2, **v.course})
     laser = sim.LaserModel.preset(v.laser)
     run = sim.simulate_run(
         course.scene, laser, course.trajectory,
@@ -96,7 +110,9 @@ def tour(v: Variant, seed: int) -> tuple[ScanLog, list[SE2]]:
 
     scans = tuple(message(k, s) for k, s in enumerate(run.scans))
     odometry: list[SE2 | None] = (
-        list(_wheels(truth, seed, v.wheel_noise)) if v.odometry else [None] * len(scans)
+        list(_wheels(truth, seed, v.wheel_noise, v.wheel_scale))
+        if v.odometry
+        else [None] * len(scans)
     )
     stamps = np.arange(len(scans)) / v.rate
     return ScanLog("sim", scans, stamps, tuple(odometry), SE2.identity()), truth  # type: ignore[arg-type]

@@ -203,6 +203,28 @@ def test_room_tour_checks_its_arguments() -> None:
     assert not np.array_equal(a.trajectory.knot_times, c.trajectory.knot_times)
 
 
+def test_ring_corridor_is_one_lap_closed_at_its_start_and_checks_its_arguments() -> None:
+    course = sim.ring_corridor(seed=0, overlap=10.0)
+    # One lap of the 40 x 24 m ring's centreline (corners cut by 0.8 m arcs) and 10 m more.
+    lap = 2 * (40.0 - 2.4 + 24.0 - 2.4) - 4 * 0.8 * (2 - math.pi / 2) + 10.0
+    assert course.length == pytest.approx(lap, abs=1e-9)
+    back = course.trajectory.pose_at(float(course.pass_start_times[1]))
+    np.testing.assert_allclose(back.as_vector(), [20.0, 1.2, 0.0], atol=1e-9)
+    # The only revisits are the last 10 m over the first ones, a lap apart.
+    times = np.arange(0.0, course.duration, 1.0)
+    pairs = course.revisits(times, radius=0.5, min_time_gap=20.0)
+    assert pairs and all(times[i] < 17.0 and times[j] > 190.0 for i, j in pairs)
+    # The corridor is 2.4 m wide wherever the robot drives: nothing stands in it.
+    scan = sim.simulate_scan(course.scene, LASER, course.trajectory, start_time=100.0)
+    assert np.hypot(*scan.points.T).min() > 1.1
+    with pytest.raises(ValueError, match="width, depth: the inner block needs >= 4 m"):
+        sim.ring_corridor(depth=8.0)
+    with pytest.raises(ValueError, match=r"overlap: must be <= 17\.6"):
+        sim.ring_corridor(overlap=20.0)
+    a, b = sim.ring_corridor(seed=3), sim.ring_corridor(seed=4)
+    assert not np.array_equal(a.scene.primitives, b.scene.primitives)
+
+
 # --- trajectory through waypoints -----------------------------------------------------------
 def test_through_waypoints_is_exact_at_the_ends_and_smooth() -> None:
     points = np.array([[0.0, 0.0], [4.0, 0.0], [4.0, 3.0], [4.0, 0.5]])

@@ -147,12 +147,15 @@ class MappingConfig:
     #: the candidates (``OdometryConfig2D.prior_covariance_use="search"``), so that where the
     #: scan barely prefers one pose over another (a corridor's axis, a repeated doorway) the
     #: one the wheels support is refined; the refinement, verdict and covariance stay the
-    #: scan's. Unused without wheel odometry and while ``wheel`` is set (the wheels are then
-    #: in the solve itself). On by default: without it the Freiburg hospital's odometry lost
-    #: its heading in places (351 steps more than 3° off the wheels'; all relations 10.0 m,
-    #: mapped 9.97 m), with it 1.01 m (mapped 1.02 m); Intel 0.0152 → 0.0154 m, ACES
-    #: 0.0360 → 0.0352 m mapped (benchmarks/README.md, "freiburg_mapping.py"). ``None`` (from
-    #: Python or a dict): the candidates are ranked by the scan alone.
+    #: scan's, but for a result named degenerate, held along its weak directions to the
+    #: candidate the cost chose (a bare corridor's axis: its plain refinement slides to where
+    #: the map's keyframe sampled the walls). Unused without wheel odometry and while
+    #: ``wheel`` is set (the wheels are then in the solve itself). On by default: without it
+    #: the Freiburg hospital's odometry lost its heading in places (351 steps more than 3°
+    #: off the wheels'; all relations 10.0 m, mapped 9.97 m), with it 1.01 m (mapped 1.02 m);
+    #: Intel 0.0152 → 0.0154 m, ACES 0.0360 → 0.0352 m mapped (benchmarks/README.md,
+    #: "freiburg_mapping.py"). ``None`` (from Python or a dict): the candidates are ranked by
+    #: the scan alone.
     motion_cost: WheelNoise | None = field(default_factory=WheelNoise)
     #: The final pass (:meth:`Mapper.finish`, after the batch pass): every scan re-solved
     #: from its scan step and its wheel step, each weighted by step noise identified on the
@@ -338,6 +341,10 @@ class MappingResult(Generic[PoseT]):
     #: odometry's best guess (a corridor's axis held to the wheels, a start kept where the
     #: refinement ran off), unconfirmed by the scan alone.
     rejected: tuple[int, ...] = ()
+    #: Scans whose odometry pose the wheels alone placed along a direction the scan left open
+    #: (2D, :attr:`~scanreg.pipeline.Frame2D.held_directions`: a bare corridor's axis); the
+    #: scan confirms them across it only. Wheels that stall or slip there go unseen.
+    held: tuple[int, ...] = ()
     #: Scans where the odometry had lost its map and went on from its best guess (2D,
     #: :attr:`~scanreg.pipeline.Frame2D.map_reseeded`): the map is unconfirmed there.
     reseeded: tuple[int, ...] = ()
@@ -404,6 +411,7 @@ class Mapper:
         self._last_wide = -math.inf
         self._skipped: list[int] = []
         self._rejected: list[int] = []  # scans whose odometry verdict rejected them
+        self._held_scans: list[int] = []  # scans held to the wheels along a direction
         self._reseeded: list[int] = []  # scans where the odometry's map was left behind
         self._pending = SE2.identity()  # motion prior accumulated over skipped scans
         self._timed_stamp: float | None = None  # the last stamp a deskewed scan had
@@ -526,6 +534,8 @@ class Mapper:
             self._timed_stamp = timed["stamp"]
         if not frame.verdict.accepted:
             self._rejected.append(index)
+        if frame.held_directions:
+            self._held_scans.append(index)
         if frame.map_reseeded:
             self._reseeded.append(index)
         self._pending = SE2.identity()
@@ -1189,6 +1199,7 @@ class Mapper:
             loops=tuple(self._loops),
             skipped=tuple(k for k in self._skipped if k < num_scans),
             rejected=tuple(k for k in self._rejected if k < num_scans),
+            held=tuple(k for k in self._held_scans if k < num_scans),
             reseeded=tuple(k for k in self._reseeded if k < num_scans),
             node_points=tuple(self._node_points[n] for n in range(self.num_nodes)),
             graph=g,

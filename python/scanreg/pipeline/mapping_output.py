@@ -227,6 +227,7 @@ def summary(result: MappingResult[Any], check: MapCheck | None = None) -> dict[s
         "num_nodes": len(result.node_scans),
         "skipped_scans": len(result.skipped),
         "odometry_rejected_scans": len(result.rejected),
+        "odometry_held_scans": len(result.held),
         "odometry_reseeded_scans": list(result.reseeded),
         "loops_accepted": len(result.accepted_loops),
         "loops_rejected": len(result.rejected_loops),

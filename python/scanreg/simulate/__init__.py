@@ -23,7 +23,7 @@ Conventions: poses are ``T_world_sensor`` (``SE2``/``SE3``); sensor frame x forw
 z up; see :mod:`scanreg.simulate.scan` for which frame and time each output is in.
 """
 
-from .courses import Course, block_loop, room_tour
+from .courses import Course, block_loop, ring_corridor, room_tour
 from .objects import ObjectShape, blob, figurine, object_view, trefoil_knot
 from .scan import (
     DROPOUT,
@@ -66,6 +66,7 @@ __all__ = [
     "figurine",
     "floor_plan",
     "object_view",
+    "ring_corridor",
     "room_tour",
     "simulate_run",
     "simulate_scan",

@@ -8,6 +8,8 @@ with exact truth — the test instrument for loop closure and place recognition.
 * :func:`room_tour` (2D): a robot walks down an office corridor, enters rooms, turns round at
   the far end and walks back through the same rooms to its start.
   ``identical_rooms=True`` makes every room the same (door, furniture) up to a rigid motion.
+* :func:`ring_corridor` (2D): a robot drives once round a ring of bare office corridors and on
+  past its start: one large loop, closed only after the whole lap's drift.
 
 Each returns a :class:`Course`; scan it with :func:`~scanreg.simulate.simulate_run`::
 
@@ -467,4 +469,105 @@ def room_tour(
         length=float(np.sum(seg[moving] * trajectory.twists[moving, 0])),
         pass_start_times=_frozen([trajectory.start_time, t_turn]),
         repeated_frames=tuple(frames) if identical_rooms else (),
+    )
+
+
+# --------------------------------------------------------------------------- 2D ring corridor
+
+
+def ring_corridor(
+    seed: int = 0,
+    *,
+    width: float = 40.0,
+    depth: float = 24.0,
+    corridor_width: float = 2.4,
+    door_spacing: float = 8.0,
+    overlap: float = 10.0,
+    speed: float = 0.6,
+    turn_radius: float = 0.8,
+) -> Course:
+    """A robot driving once round a ring of office corridors (2D) and on past its start: one
+    large loop, closed only at the end — the revisit a loop closer must find after the whole
+    lap's drift.
+
+    The corridors ring a ``width`` × ``depth`` m building (outer walls ``[0, width] × [0,
+    depth]``, the inner block ``corridor_width`` m in from them). Both walls of every corridor
+    are bare but for door recesses (0.9–1.6 m wide, 0.3–1.2 m deep) about ``door_spacing`` m
+    apart at random places: between them a corridor pins nothing along itself, as real ones
+    do. The robot starts in the middle of the south corridor facing +x (on the corridor's
+    centreline), drives counter-clockwise at ``speed`` m/s with corners cut by arcs of
+    ``turn_radius``, passes its start and drives ``overlap`` m further.
+    """
+    rng = np.random.default_rng(check_seed(seed))
+    w, d = positive(width, "width"), positive(depth, "depth")
+    cw = positive(corridor_width, "corridor_width")
+    spacing = positive(door_spacing, "door_spacing")
+    extra = non_negative(overlap, "overlap")
+    if min(w, d) < 2 * cw + 4.0:
+        raise ValueError(
+            f"width, depth: the inner block needs >= 4 m a side ({w} x {d} with corridors {cw})"
+        )
+    if extra > w / 2 - cw:
+        raise ValueError(f"overlap: must be <= {w / 2 - cw:g} (the south corridor), got {overlap}")
+    b = SceneBuilder(2)
+
+    def wall_with_doors(a: FloatArray, z: FloatArray, away: FloatArray) -> None:
+        """The wall ``a → z``, door recesses opening ``away`` from the corridor."""
+        length = float(np.hypot(*(z - a)))
+        u = (z - a) / length
+        edges, s = [], 1.5 + rng.uniform(0.0, spacing)
+        while s + 1.6 < length - 1.5:
+            width_ = rng.uniform(0.9, 1.6)
+            edges.append((s, s + width_, rng.uniform(0.3, 1.2)))
+            s += width_ + rng.uniform(0.5, 1.5) * spacing
+        start = 0.0
+        for s0, s1, deep in edges:
+            p0, p1 = a + s0 * u, a + s1 * u
+            b.wall(a + start * u, p0)
+            b.polyline([p0, p0 + deep * away, p1 + deep * away, p1])
+            start = s1
+        b.wall(a + start * u, z)
+
+    corners = np.array([[0.0, 0.0], [w, 0.0], [w, d], [0.0, d]])
+    inner = np.array([[cw, cw], [w - cw, cw], [w - cw, d - cw], [cw, d - cw]])
+    outward = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
+    for k in range(4):
+        wall_with_doors(corners[k], corners[(k + 1) % 4], outward[k])
+        wall_with_doors(inner[k], inner[(k + 1) % 4], -outward[k])
+
+    h = cw / 2
+    start = np.array([w / 2, h])
+    waypoints = np.array(
+        [
+            start,
+            [w - h, h],
+            [w - h, d - h],
+            [h, d - h],
+            [h, h],
+            start,
+            start + np.array([extra, 0.0]),
+        ]
+    )
+    trajectory = Trajectory.through_waypoints(
+        waypoints if extra > 0 else waypoints[:-1],
+        speed=positive(speed, "speed"),
+        turn_radius=positive(turn_radius, "turn_radius"),
+    )
+    # The second pass starts when the robot is back at its start (a knot: the straight
+    # pieces of the last two legs meet there).
+    knots = trajectory.knot_poses
+    back = [
+        float(trajectory.knot_times[k])
+        for k in range(1, len(knots))
+        if np.hypot(*(knots[k].translation - start)) < 1e-6
+    ]
+    back.append(trajectory.end_time)  # overlap 0: the lap ends at the start
+    moving = trajectory.twists[:, 0] > 0
+    seg = np.diff(trajectory.knot_times)
+    return Course(
+        scene=b.build(),
+        trajectory=trajectory,
+        length=float(np.sum(seg[moving] * trajectory.twists[moving, 0])),
+        pass_start_times=_frozen([trajectory.start_time, back[0]]),
+        repeated_frames=(),
     )
