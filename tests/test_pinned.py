@@ -111,6 +111,9 @@ def test_weak_fit_loss_counts_sparse_samples_on_their_surface() -> None:
     loss = weak_fit_loss(target, source, res.pose, deg, 1.0)
     assert loss is not None and min(loss) < 0.01
     assert not res.verdict.accepted  # type: ignore[union-attr]
+    # A target without normals: only target points sampled finer than the tight gate count.
+    bare = scanreg.prepare(walls, normals=False)
+    assert weak_fit_loss(bare, source, res.pose, deg, 1.0) == (0.0,)
     # Moved by half the spacing, no source point is within the tight gate of a target point.
     shifted = res.pose @ SE2.from_vector([0.125, 0.0, 0.0])
     near_point = scanreg._core.count_within(target.index, source, shifted.as_matrix(), 0.1)

@@ -127,8 +127,9 @@ def _surface_fits(
     surface the target samples: across the nearest target point's line (its normal) by at most
     ``tight``, and along it no further than that point's sample spacing allows
     (:data:`_ALONG_SPACING` of the distance to its nearest neighbour, at least ``tight``) — a
-    point between two sparse samples of a wall counts wherever it falls between them. Without
-    normals (or where a normal is not valid) the plain distance to the point is taken."""
+    point between two sparse samples of a wall counts wherever it falls between them. Where a
+    normal is not valid the plain distance to the point is taken; without normals, only target
+    points with another within ``tight`` are counted on."""
     m = np.asarray(matrices, dtype=np.float64)
     moved = source[None] @ m[:, :2, :2].transpose(0, 2, 1) + m[:, None, :2, 2]
     idx, _ = target.index.nearest(np.ascontiguousarray(moved.reshape(-1, 2)), reach)
@@ -136,15 +137,18 @@ def _surface_fits(
     near = idx[found]
     offset = moved.reshape(-1, 2)[found] - target.points[near]
     dist2 = np.einsum("ij,ij->i", offset, offset)
+    spacing = target._sample_spacing()[near]
     if target.normals is None:
-        on = dist2 <= tight * tight
+        # No line to measure across: a point counts only within the tight gate of a target
+        # point that has another within it (where beams falling elsewhere cannot matter).
+        on = (dist2 <= tight * tight) & (spacing <= tight)
     else:
         normal = target.normals[near]
         across = np.einsum("ij,ij->i", offset, normal)
         valid = np.einsum("ij,ij->i", normal, normal) > 0.5
         across = np.where(valid, np.abs(across), np.sqrt(dist2))
         along2 = np.where(valid, np.maximum(dist2 - across * across, 0.0), 0.0)
-        limit = np.maximum(tight, _ALONG_SPACING * target._sample_spacing()[near])
+        limit = np.maximum(tight, _ALONG_SPACING * spacing)
         on = (across <= tight) & (along2 <= limit * limit)
     counted = np.zeros(idx.shape[0], dtype=bool)
     counted[found] = on
