@@ -181,23 +181,22 @@ class PreparedTarget:
             grid = grids[resolution] = prepare_correlative(self.points, resolution=resolution)
         return grid
 
-    def _finely_sampled(self, gap: float) -> NDArray[np.bool_]:
-        """Which points have another within ``gap`` (where the target samples its surface
-        finer than ``gap``; :mod:`scanreg.pinned`), found by one search of its points on first
-        use and kept per ``gap``. Not pickled: recomputed on demand."""
-        kept: dict[float, NDArray[np.bool_]] = self.__dict__.setdefault("_finely", {})
-        dense = kept.get(gap)
-        if dense is None:
+    def _sample_spacing(self) -> NDArray[np.float64]:
+        """Each point's distance to its nearest other point (how finely the target samples its
+        surface there; :mod:`scanreg.pinned`), found by one search of its points on first use
+        and kept. Not pickled: recomputed on demand."""
+        spacing: NDArray[np.float64] | None = self.__dict__.get("_spacing")
+        if spacing is None:
             _, d2 = self.index.knn(self.points, 2)  # the first is the point itself
             nearest = np.asarray(d2, dtype=np.float64).reshape(len(self.points), -1)[:, -1]
-            dense = kept[gap] = np.sqrt(nearest) <= gap
-        return dense
+            spacing = self.__dict__["_spacing"] = np.sqrt(nearest)
+        return spacing
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
         state.pop("_grids", None)  # the core's grids do not pickle; rebuilt when read
         state.pop("_start_grids", None)
-        state.pop("_finely", None)
+        state.pop("_spacing", None)
         return state
 
     def nearest(self, query_points: FloatArray, max_distance: float = math.inf) -> Nearest:
