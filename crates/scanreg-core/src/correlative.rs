@@ -437,6 +437,18 @@ fn transpose(data: &[f64], width: usize, height: usize, sequential: bool) -> Vec
     out
 }
 
+/// The larger of two likelihoods: `f32::max` without its NaN handling, which keeps the
+/// pooling loops from vectorising to plain maxima. The same bits: likelihoods are finite and
+/// `>= +0.0` (an `exp` or `+0.0`, never `-0.0`), so equal values are the same value.
+#[inline(always)]
+fn larger(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
 /// `out = max(a, b)` elementwise where `b` is `a` shifted right by `half` (zeros outside), over
 /// `a.len() + half` outputs: the 1-D step of a 2 × 2 max with stride `half`. Likelihoods are
 /// ≥ 0, so the zero padding never wins a maximum it should not.
@@ -446,7 +458,7 @@ fn max_with_shifted(a: &[f32], half: usize, out: &mut [f32]) {
     let lead = half.min(n);
     out[..lead].copy_from_slice(&a[..lead]);
     for c in lead..n {
-        out[c] = a[c].max(a[c - half]);
+        out[c] = larger(a[c], a[c - half]);
     }
     let tail = n.max(half);
     out[tail..n + half].copy_from_slice(&a[tail - half..n]);
@@ -460,7 +472,12 @@ fn push_max_with_shifted(a: &[f32], half: usize, out: &mut Vec<f32>) {
     let n = a.len();
     let lead = half.min(n);
     out.extend_from_slice(&a[..lead]);
-    out.extend(a[lead..].iter().zip(&a[..n - lead]).map(|(x, y)| x.max(*y)));
+    out.extend(
+        a[lead..]
+            .iter()
+            .zip(&a[..n - lead])
+            .map(|(x, y)| larger(*x, *y)),
+    );
     if half > n {
         out.resize(out.len() + (half - n), 0.0); // only when the level is narrower than the stride
     }
@@ -506,7 +523,7 @@ fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64, sequential: bool) -> 
         let mut data = Vec::with_capacity(wu * height as usize);
         for r in 0..height as usize {
             match row_pair(&rows, r, h, hp, wu) {
-                (Some(a), Some(b)) => data.extend(a.iter().zip(b).map(|(x, y)| x.max(*y))),
+                (Some(a), Some(b)) => data.extend(a.iter().zip(b).map(|(x, y)| larger(*x, *y))),
                 (Some(a), None) | (None, Some(a)) => data.extend_from_slice(a),
                 (None, None) => data.resize(data.len() + wu, 0.0),
             }
@@ -530,7 +547,7 @@ fn pool(prev: &Level, half: i64, base_w: i64, base_h: i64, sequential: bool) -> 
         .for_each(|(r, out)| match row_pair(&rows, r, h, hp, wu) {
             (Some(a), Some(b)) => {
                 for ((o, x), y) in out.iter_mut().zip(a).zip(b) {
-                    *o = x.max(*y);
+                    *o = larger(*x, *y);
                 }
             }
             (Some(a), None) | (None, Some(a)) => out.copy_from_slice(a),
@@ -558,10 +575,25 @@ fn pool_run(prev: &Level, half: i64, j: i64, i0: i64, i1: i64, out: &mut [f32]) 
         // Both columns of every cell exist (all but the level's edges): a loop without
         // bounds tests, which vectorises.
         let (a, b, n) = ((i0 - half) as usize, i0 as usize, (i1 - i0) as usize);
-        out.fill(0.0);
-        for r in rows.iter().flatten() {
-            for ((o, x), y) in out.iter_mut().zip(&r[b..b + n]).zip(&r[a..a + n]) {
-                *o = o.max(x.max(*y));
+        match rows {
+            // One pass over both rows: the values of the row-by-row loop below (whose zero
+            // start never wins: likelihoods are >= 0).
+            [Some(r0), Some(r1)] => {
+                let cells = out
+                    .iter_mut()
+                    .zip(r0[b..b + n].iter().zip(&r0[a..a + n]))
+                    .zip(r1[b..b + n].iter().zip(&r1[a..a + n]));
+                for ((o, (x0, y0)), (x1, y1)) in cells {
+                    *o = larger(larger(*x0, *y0), larger(*x1, *y1));
+                }
+            }
+            _ => {
+                out.fill(0.0);
+                for r in rows.iter().flatten() {
+                    for ((o, x), y) in out.iter_mut().zip(&r[b..b + n]).zip(&r[a..a + n]) {
+                        *o = larger(*o, larger(*x, *y));
+                    }
+                }
             }
         }
         return;
@@ -570,11 +602,11 @@ fn pool_run(prev: &Level, half: i64, j: i64, i0: i64, i1: i64, out: &mut [f32]) 
         let mut v = 0.0f32;
         for r in rows.iter().flatten() {
             if i < pw {
-                v = v.max(r[i as usize]);
+                v = larger(v, r[i as usize]);
             }
             let k = i - half;
             if k >= 0 && k < pw {
-                v = v.max(r[k as usize]);
+                v = larger(v, r[k as usize]);
             }
         }
         *o = v;
