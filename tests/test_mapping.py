@@ -149,6 +149,10 @@ def test_corridor_loop_has_no_information_along_the_corridor() -> None:
     # right within a centimetre, and so is the heading.
     assert abs(match.measured.translation[1] - truth.translation[1]) < 0.01
     assert abs(match.measured.angle - truth.angle) < math.radians(0.5)
+    # Along it the edge says what the graph says: where the refinement slid there is no
+    # measurement, and through the weak vector's tilt it would leak across.
+    # (Measured: 1.1 cm from the prediction along it; the refinement ended 1.17 m away.)
+    assert abs((predicted.inverse() @ match.measured).translation[0]) < 0.03
     # As an edge it moves the graph across the corridor only.
     g = Graph(2)
     g.add_node(0, SE2.identity())
@@ -291,7 +295,9 @@ def test_a_return_driven_the_other_way_closes_on_the_submap_its_scan_sees() -> N
         error = (out[anchor].inverse() @ truth).inverse() @ match.measured
         results[label] = (match, float(np.linalg.norm(error.translation)), abs(error.angle))
     index, index_error, _ = results["index"]
-    assert not index.accepted and index_error > 3.0, (index.reasons, index_error)
+    # (The index submap's match is rejected 3.0 m off: degenerate, it is recorded at the
+    # prediction along its weak direction, which is the graph's 3 m error.)
+    assert not index.accepted and index_error > 2.5, (index.reasons, index_error)
     seen, seen_error, seen_turn = results["seen"]
     assert seen.accepted, seen.reasons
     # Measured on the grown submap: on the usual 5 nodes, which look east from 21-23 m, the

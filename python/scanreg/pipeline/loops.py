@@ -603,11 +603,20 @@ def _measure(
         cov = cov + residual
     combined = relative_covariance + cov
     hypothesis = False
+    measured = pose
     if _well_posed(cov) and _well_posed(combined):
         info, weak, vectors = _information(cov, res)
         if len(weak) >= 3:
             reasons.append("degenerate in every direction")
         e = (predicted.inverse() @ pose).log()
+        if weak and res.degeneracy is not None:
+            # The edge carries no information along its weak directions, and there the
+            # refined pose is no measurement: along a bare corridor it slides to where the
+            # submap sampled the walls, metres off. Through the weak vector's small tilt
+            # (1-2 %) that leaked centimetres across the corridor into the graph (a ring
+            # corridor's lap bent 1.6 deg: benchmarks/simulated_buildings.py). Along them
+            # the edge says what the graph says; across them, what the scan does.
+            measured = predicted @ SE2.exp(e - res.degeneracy.weak_projector() @ e)
         chi2 = float(e @ np.linalg.solve(combined, e))
         if not chi2 <= s.chi2_threshold:
             # The graph's prediction may be what is wrong (more drift than it knows): a
@@ -623,7 +632,7 @@ def _measure(
         submap_node=submap.anchor,
         node=node,
         predicted=predicted,
-        measured=pose,
+        measured=measured,
         window=(dt, dr),
         score=float(coarse.score),
         overlap=float(out.report.overlap),
