@@ -227,26 +227,9 @@ class LoopSettings:
     #: is refused as ambiguous when another pose of its window, outside ``min_window`` of
     #: it, scores at least this fraction of its correlative score (:func:`rival_search`).
     ambiguity_ratio: float = 0.9
-    #: The pass search (:mod:`scanreg.pipeline.pass_loops`), run where a node's searches
-    #: closed nothing (at most once per ``wide_spacing`` m): the last ``pass_path`` m of
-    #: its path, laid by the graph, matched against the graph's candidate's grown pass over
-    #: ``max_window``, from a correlative score of ``pass_min_score`` ...
-    pass_path: float = 8.0
-    pass_min_score: float = 0.1
-    #: ... its points kept one per ``pass_voxel_size`` (m) and searched in steps of
-    #: ``pass_angular_resolution`` (rad; 9 cm at 20 m), the refinement taking it from there:
-    #: at the loop search's own (5 cm, one cell at the farthest return) Edmonton's run took
-    #: 46 s of CPU instead of 19 (10 without the pass search), with the same map ...
-    pass_voxel_size: float = 0.1
-    pass_angular_resolution: float = math.radians(0.25)
-    #: ... kept when no pose ``pass_rival_exclusion`` m or more from it scores
-    #: ``pass_rival_ratio`` of its score and the graph agrees (χ²); its edge's σ (m, rad).
-    pass_rival_ratio: float = 0.5
-    pass_rival_exclusion: float = 1.5
-    pass_sigma: tuple[float, float] = (0.1, math.radians(1.0))
 
     def __post_init__(self) -> None:
-        for name in ("wide_window", "agreement", "agreement_per_metre", "pass_sigma"):
+        for name in ("wide_window", "agreement", "agreement_per_metre"):
             pair = getattr(self, name)
             if not (
                 isinstance(pair, tuple)
@@ -258,28 +241,12 @@ class LoopSettings:
             raise ValueError(
                 f"wide_window: must be > 0 m and in (0, π] rad, got {self.wide_window}"
             )
-        if not (self.pass_sigma[0] > 0 and self.pass_sigma[1] > 0):
-            raise ValueError(f"pass_sigma: must be > 0, got {self.pass_sigma!r}")
-        for name in (
-            "wide_spacing",
-            "hypothesis_horizon",
-            "wide_submap_radius",
-            "pass_path",
-            "pass_rival_exclusion",
-        ):
+        for name in ("wide_spacing", "hypothesis_horizon", "wide_submap_radius"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name}: must be finite and >= 0, got {value!r}")
         if not self.ambiguity_ratio > 0.0:
             raise ValueError(f"ambiguity_ratio: must be > 0, got {self.ambiguity_ratio!r}")
-        for name in ("pass_voxel_size", "pass_angular_resolution"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name}: must be finite and > 0, got {value!r}")
-        for name in ("pass_min_score", "pass_rival_ratio"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and 0.0 < value <= 1.0):
-                raise ValueError(f"{name}: must be in (0, 1], got {value!r}")
         if not 0.0 <= self.hypothesis_min_score <= 1.0:
             raise ValueError(
                 f"hypothesis_min_score: must be in [0, 1], got {self.hypothesis_min_score!r}"
@@ -352,8 +319,7 @@ class LoopMatch:
     hypothesis: bool = False
     #: Which search found it (:class:`~scanreg.pipeline.Mapper`): ``"graph"`` (the window
     #: the graph's uncertainty sized), ``"wide"`` (the drift-independent window) or
-    #: ``"guided"`` (where a held loop puts the node) or ``"pass"`` (the node's last metres
-    #: against an earlier pass, :mod:`scanreg.pipeline.pass_loops`).
+    #: ``"guided"`` (where a held loop puts the node).
     search: str = "graph"
     #: The best correlative score elsewhere in the window (outside ``min_window`` of the
     #: match) over the match's own when it reaches ``ambiguity_ratio`` (the match is then

@@ -28,10 +28,7 @@ One :meth:`Mapper.step` per scan, in five stages:
    closed, could have drifted (:func:`~scanreg.pipeline.graph_path.path_between`).
    While a loop is held, each new node is also searched where that loop puts it (the
    old node nearest there, over the least window): a true loop's successors lie where it
-   says, and their matches confirm it. Where all of these came up empty (at most once per
-   ``wide_spacing`` m), the node's last metres of path are matched against the first
-   candidate's grown pass (:mod:`~scanreg.pipeline.pass_loops`): a revisit seen across
-   open space, which no single scan closes, is one pose of a kind for many scans together;
+   says, and their matches confirm it;
 5. **close** — an accepted loop becomes an edge with information = inverse calibrated
    covariance (nothing along its degenerate directions) and a robust kernel, and iSAM2
    re-solves.
@@ -84,7 +81,6 @@ from .loops3d import LoopMatch3D
 from .mapping_graph import is_new_node, odometry_edge_covariance, validate_graph_fields
 from .odometry2d import Odometry2D, OdometryConfig2D, _positive
 from .odometry_timing import measure_laser_latency, odometry_at_scans
-from .pass_loops import match_pass, pass_points
 from .smoothing import StepNoise, identify_step_noise, smooth_scan_poses
 from .sweep_residual import DeskewedSweep, deskew_error
 from .wheel import WheelNoise, WheelOdometry
@@ -236,7 +232,7 @@ class LoopRecord(Generic[MatchT]):
         if isinstance(m, LoopMatch3D):
             out["origin"] = m.origin  # "graph" or "place"
         else:
-            out["search"] = m.search  # "graph", "wide", "guided" or "pass"
+            out["search"] = m.search  # "graph", "wide" or "guided"
             out["rival"] = _number(m.rival)  # null: no rival search
         return out
 
@@ -406,7 +402,6 @@ class Mapper:
         # Path length (m) at the last node that closed a loop, and at the last wide search.
         self._last_closed = -math.inf
         self._last_wide = -math.inf
-        self._last_pass = -math.inf  # ... and at the last pass search
         self._skipped: list[int] = []
         self._rejected: list[int] = []  # scans whose odometry verdict rejected them
         self._reseeded: list[int] = []  # scans where the odometry's map was left behind
@@ -871,52 +866,6 @@ class Mapper:
                 records.append(record)
                 if record.accepted:
                     self._last_closed = travel
-        # Where every search came up empty, the node's last metres against the first
-        # candidate's pass (a view across open space: see _pass_search).
-        if not any(r.accepted for r in records) and travel - self._last_pass >= spacing:
-            empty = [
-                r
-                for r in records
-                if r.match.search == "graph"
-                and not (r.match.score >= cfg.loops.min_score)  # (NaN: nothing found)
-            ]
-            if empty:
-                found = self._pass_search(empty[0].match.submap_node, node)
-                if found is not None:
-                    records.append(found)
-                    if found.accepted:
-                        self._last_closed = travel
-
-    def _pass_search(self, n: int, node: int) -> LoopRecord[LoopMatch] | None:
-        """Match ``node``'s last ``pass_path`` metres (laid by the graph) against candidate
-        ``n``'s grown pass (:mod:`scanreg.pipeline.pass_loops`); close it if accepted. None
-        when ``n`` is within ``loop_min_travel`` of the pass's first node (it would match
-        the path against itself)."""
-        cfg = self.config
-        s = cfg.loops
-        self._last_pass = self._node_travel[node]
-        t_m = _clock()
-        g = self._graph
-        first, pts = pass_points(
-            node,
-            self._node_points,
-            g.pose,  # type: ignore[arg-type]
-            self._node_travel,
-            path=s.pass_path,
-            voxel_size=s.pass_voxel_size,
-        )
-        before = min(self._num_old(node), self._num_old(first))
-        if n >= before:
-            return None
-        predicted = g.pose(n).inverse() @ g.pose(node)  # type: ignore[operator]
-        assert isinstance(predicted, SE2)
-        submap = self._wide_submap(n, node, before, margin=s.max_window[0])
-        match = match_pass(pts, node, submap, predicted, g.relative_covariance(n, node), s)
-        self._timing.add("matching", t_m)
-        record = LoopRecord(match, self._node_scans[n], self._node_scans[node])
-        if match.accepted:
-            (record,) = self._add_loops([record], kernel=cfg.loop_kernel)
-        return record
 
     def _guided(self, node: int) -> list[LoopRecord[LoopMatch]]:
         """Matches of ``node`` where the held loops put it.
