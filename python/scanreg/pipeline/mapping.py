@@ -147,10 +147,8 @@ class MappingConfig:
     #: the candidates (``OdometryConfig2D.prior_covariance_use="search"``), so that where the
     #: scan barely prefers one pose over another (a corridor's axis, a repeated doorway) the
     #: one the wheels support is refined; the refinement, verdict and covariance stay the
-    #: scan's, but for a result named degenerate, held along its weak directions to the
-    #: candidate the cost chose (a bare corridor's axis: its plain refinement slides to where
-    #: the map's keyframe sampled the walls). Unused without wheel odometry and while
-    #: ``wheel`` is set (the wheels are then in the solve itself). On by default: without it
+    #: scan's. Unused without wheel odometry and while ``wheel`` is set (the wheels are then
+    #: in the solve itself). On by default: without it
     #: the Freiburg hospital's odometry lost its heading in places (351 steps more than 3°
     #: off the wheels'; all relations 10.0 m, mapped 9.97 m), with it 1.01 m (mapped 1.02 m);
     #: Intel 0.0152 → 0.0154 m, ACES 0.0360 → 0.0352 m mapped (benchmarks/README.md,

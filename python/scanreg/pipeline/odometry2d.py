@@ -130,11 +130,10 @@ class OdometryConfig2D:
     thresholds: VerdictThresholds = field(default_factory=VerdictThresholds)
     #: What a step's ``prior_covariance`` does: ``"solve"`` — the prior is part of the solve
     #: (directions the scan leaves open are held to the prediction, :func:`hold_to_prediction`);
-    #: ``"search"`` — it ranks the correlative front end's candidates, as a motion cost
+    #: ``"search"`` — it only ranks the correlative front end's candidates, as a motion cost
     #: (:func:`scanreg.match_correlative`'s ``init_covariance``; positive definite), so that of
     #: two poses the scan supports about equally the one nearer the prediction is refined,
-    #: while the refinement, verdict and covariance stay the scan's own — but along the
-    #: directions a degenerate result names, which are held to that correlative pose.
+    #: while the refinement, verdict and covariance stay the scan's own.
     prior_covariance_use: PriorUse = "solve"
     #: How long one scan's sweep takes (s), for scans without per-beam time (``step`` then
     #: needs ``stamp``): the prediction's motion between the scans, scaled to this duration,
@@ -381,9 +380,8 @@ class Odometry2D:
             registration (the prediction's variance along the held directions: the previous
             pose's, carried through the motion, plus ``prior_covariance``), and
             ``held_directions`` names them. ``None``: the prior only starts the search.
-            With ``config.prior_covariance_use="search"`` it instead ranks the correlative
-            front end's candidates (a motion cost), and a result named degenerate is held
-            along its weak directions to the correlative pose that cost chose.
+            With ``config.prior_covariance_use="search"`` it instead only ranks the
+            correlative front end's candidates (a motion cost; nothing is held).
         """
         t_start = time.perf_counter()
         pts = as_points(points, "points", dim=2)
@@ -527,17 +525,14 @@ class Odometry2D:
             fallback = True
             res = refine(start)
         held: tuple[str, ...] = ()
-        # A degenerate result is held along its weak directions: to the prediction when the
-        # wheels are in the solve; as a motion cost, to the correlative start, the candidate
-        # the scan and the wheels' cost chose together. The plain refinement is no estimate
-        # there: along a bare corridor it slides back to where the map's keyframe sampled the
-        # walls (a ring corridor's odometry stood still for 30 scans, 3.2 m:
-        # tests/test_mapping.py), and a frame rejected as degenerate kept that pose.
-        hold_cov, hold_at = (prior_cov, predicted) if search_cov is None else (search_cov, start)
-        if hold_cov is not None and motion is not None and res.stop_reason not in _FAILED:
-            predicted_cov = predicted_covariance(self._covariance, motion, hold_cov)
+        # (With the wheels as a motion cost only, a degenerate result is not held: held to the
+        # correlative start, the ring corridor's stuck start was fixed but five Radish logs
+        # and the Freiburg hospital's odometry mapped worse; benchmarks/README.md,
+        # simulated_buildings.py.)
+        if prior_cov is not None and motion is not None and res.stop_reason not in _FAILED:
+            predicted_cov = predicted_covariance(self._covariance, motion, prior_cov)
             res, held, held_start = _hold(
-                res, pts, self._target, hold_at, predicted_cov, cfg, sweep, self._map_sweep()
+                res, pts, self._target, predicted, predicted_cov, cfg, sweep, self._map_sweep()
             )
             if held:
                 start = held_start
