@@ -16,24 +16,17 @@ RATE = 5.0
 
 
 def tour_log(
-    seed: int,
-    laser_name: str,
-    *,
-    beam_times: bool,
-    odometry: bool,
-    course: sim.Course | None = None,
-    num_scans: int | None = None,
+    seed: int, laser_name: str, *, beam_times: bool, odometry: bool
 ) -> tuple[ScanLog, tuple[SE2, ...]]:
-    """One room on each side of a corridor (``simulate.room_tour``; or ``course``) toured at
-    5 Hz (its first ``num_scans`` scans): the scans with ``time_increment`` (``beam_times``;
-    else 0, as a driver that does not fill it in), the wheels' odometry at each stamp
-    (``odometry``; else none), and ``T_first_scan`` of each scan as the truth."""
-    if course is None:
-        course = sim.room_tour(seed=seed, rooms_per_side=1)
+    """One room on each side of a corridor (``simulate.room_tour``) toured at 5 Hz: the scans
+    with ``time_increment`` (``beam_times``; else 0, as a driver that does not fill it in),
+    the wheels' odometry at each stamp (``odometry``; else none), and ``T_first_scan`` of each
+    scan as the truth."""
+    course = sim.room_tour(seed=seed, rooms_per_side=1)
     laser = sim.LaserModel.preset(laser_name)
     run = sim.simulate_run(
         course.scene, laser, course.trajectory,
-        num_scans=num_scans or course.num_scans(RATE), scan_rate=RATE, seed=seed,
+        num_scans=course.num_scans(RATE), scan_rate=RATE, seed=seed,
     )  # fmt: skip
     truth: tuple[SE2, ...] = tuple(run.poses[0].inverse() @ p for p in run.poses)  # type: ignore[misc]
     poses: list[SE2 | None] = [None] * len(truth)

@@ -148,12 +148,11 @@ class MappingConfig:
     #: scan barely prefers one pose over another (a corridor's axis, a repeated doorway) the
     #: one the wheels support is refined; the refinement, verdict and covariance stay the
     #: scan's. Unused without wheel odometry and while ``wheel`` is set (the wheels are then
-    #: in the solve itself). On by default: without it
-    #: the Freiburg hospital's odometry lost its heading in places (351 steps more than 3°
-    #: off the wheels'; all relations 10.0 m, mapped 9.97 m), with it 1.01 m (mapped 1.02 m);
-    #: Intel 0.0152 → 0.0154 m, ACES 0.0360 → 0.0352 m mapped (benchmarks/README.md,
-    #: "freiburg_mapping.py"). ``None`` (from Python or a dict): the candidates are ranked by
-    #: the scan alone.
+    #: in the solve itself). On by default: without it the Freiburg hospital's odometry lost
+    #: its heading in places (351 steps more than 3° off the wheels'; all relations 10.0 m,
+    #: mapped 9.97 m), with it 1.01 m (mapped 1.02 m); Intel 0.0152 → 0.0154 m, ACES
+    #: 0.0360 → 0.0352 m mapped (benchmarks/README.md, "freiburg_mapping.py"). ``None`` (from
+    #: Python or a dict): the candidates are ranked by the scan alone.
     motion_cost: WheelNoise | None = field(default_factory=WheelNoise)
     #: The final pass (:meth:`Mapper.finish`, after the batch pass): every scan re-solved
     #: from its scan step and its wheel step, each weighted by step noise identified on the
