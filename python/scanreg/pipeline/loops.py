@@ -768,3 +768,13 @@ def agreeing_group(
     if len({h.match.node for h in (*group, *backers)}) < settings.min_agreeing:
         return None
     return group
+
+
+def record_decided(loops: list[Any], held: Sequence[Any], decided: Sequence[Any]) -> None:
+    """Replace in ``loops`` (a run's records, in order) each of ``held`` by its ``decided``
+    record: held loops were recorded as rejected when they were matched (2D and 3D)."""
+    index = {id(h): k for k, h in enumerate(loops)}
+    for old, new in zip(held, decided, strict=True):
+        k = index.get(id(old))
+        if k is not None:
+            loops[k] = new

@@ -75,6 +75,7 @@ from .loops import (
     agreeing_group,
     build_submap,
     match_loop,
+    record_decided,
     wide_submap_span,
 )
 from .loops3d import LoopMatch3D
@@ -1059,12 +1060,7 @@ class Mapper:
         if confirmed[0].accepted:
             # A correction of many σ: iSAM2's few relinearisations may not carry it through.
             self._graph.optimize()
-        # The held ones were recorded as rejected when they were matched: now as decided.
-        index = {id(h): k for k, h in enumerate(self._loops)}
-        for old, new in zip(group[1:], confirmed[1:], strict=True):
-            k = index.get(id(old))
-            if k is not None:
-                self._loops[k] = new
+        record_decided(self._loops, group[1:], confirmed[1:])
         return confirmed[0]
 
     def _beyond_drift(self, match: LoopMatch) -> str | None:

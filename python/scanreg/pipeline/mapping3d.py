@@ -59,7 +59,7 @@ from ..graph import Graph, Kernel
 from ..place import PlaceCandidate, PlaceDatabase
 from ..preprocess import voxel_downsample
 from ..transform import SE3, as_pose
-from .loops import agreeing_group
+from .loops import agreeing_group, record_decided
 from .loops3d import (
     LoopMatch3D,
     LoopSettings3D,
@@ -521,12 +521,7 @@ class Mapper3D:
         t_o = time.perf_counter()
         self._graph.optimize()
         self._timing.optimization += time.perf_counter() - t_o
-        # The held ones were recorded as rejected when they were matched: now as decided.
-        index = {id(h): k for k, h in enumerate(self._loops)}
-        for old, new in zip(group[1:], confirmed[1:], strict=True):
-            k = index.get(id(old))
-            if k is not None:
-                self._loops[k] = new
+        record_decided(self._loops, group[1:], confirmed[1:])
         return confirmed[0]
 
     def _add_loops(self, records: list[LoopRecord[LoopMatch3D]], *, kernel: Any) -> None:
