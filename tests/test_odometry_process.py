@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scanreg.io.scan_log import ScanLog
-from scanreg.pipeline import MappingConfig, run_mapping
+from scanreg.pipeline import MappingConfig, odometry_process, run_mapping
 from scanreg.pipeline.mapping import MappingInterrupted
 from scanreg.pipeline.odometry_process import available
 
@@ -89,4 +89,17 @@ def test_an_error_in_the_child_is_raised_with_what_was_mapped(log: ScanLog) -> N
     assert str(child.value.__cause__) == str(threaded.value.__cause__)
     assert child.value.partial is not None
     assert len(child.value.partial.poses) == len(threaded.value.partial.poses) == 60
+    assert _children() == ""
+
+
+def test_a_child_that_cannot_start_leaves_the_odometry_on_a_thread(
+    log: ScanLog, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    threaded = run_mapping(log, MappingConfig(), max_scans=60, odometry_process=False)
+    # An interpreter that cannot run scanreg's child (it exits at once).
+    monkeypatch.setattr(odometry_process, "_BOOT", "raise SystemExit(3)")
+    with pytest.warns(RuntimeWarning, match=r"the odometry runs on a thread .*exit 3"):
+        fallback = run_mapping(log, MappingConfig(), max_scans=60, odometry_process=True)
+    for a, b in zip(threaded.poses, fallback.poses, strict=True):
+        assert np.array_equal(a.as_vector(), b.as_vector())
     assert _children() == ""

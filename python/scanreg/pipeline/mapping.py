@@ -52,6 +52,7 @@ import bisect
 import dataclasses
 import math
 import time
+import warnings
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -1552,12 +1553,16 @@ def run_mapping(
 
     if odometry_process is None:
         odometry_process = total >= PROCESS_MIN_SCANS and odometry_processes.available()
-    front: _ThreadedOdometry | odometry_processes.OdometryProcess
-    front = (
-        odometry_processes.OdometryProcess(scans, cfg)
-        if odometry_process
-        else _ThreadedOdometry(mapper, scans, cfg)
-    )
+    front: _ThreadedOdometry | odometry_processes.OdometryProcess | None = None
+    if odometry_process:
+        try:
+            front = odometry_processes.OdometryProcess(scans, cfg)
+        except (OSError, odometry_processes.OdometryProcessError) as exc:
+            warnings.warn(
+                f"run_mapping: the odometry runs on a thread ({exc})", RuntimeWarning, stacklevel=2
+            )
+    if front is None:
+        front = _ThreadedOdometry(mapper, scans, cfg)
     k = 0
     try:
         with bar:

@@ -23,6 +23,7 @@ import pickle
 import signal
 import subprocess
 import sys
+from collections import deque
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -36,6 +37,9 @@ _BOOT = (
     "import sys; sys.path.insert(0, sys.argv[1]); "
     "from scanreg.pipeline.odometry_process import serve; serve()"
 )
+#: Scans the child sends at once: each message wakes the parent, which on a busy machine
+#: waits for a time slice each time.
+_BATCH = 8
 #: A pipe holds this many bytes before the child waits for the parent to read (Linux; the
 #: default 64 kB is ~10 scans: the child would stall whenever a loop search runs long).
 _PIPE_BYTES = 1 << 20
@@ -70,20 +74,28 @@ class OdometryProcess:
         self._from = Connection(os.dup(self._proc.stdout.fileno()), writable=False)
         self._proc.stdin.close()
         self._proc.stdout.close()
+        self._scans: deque[tuple[Tracked, Any]] = deque()
+        # Pickled while the child starts; sent once it says it runs (an interpreter that
+        # cannot import scanreg never does: OdometryProcessError, and the caller uses a thread).
+        data = pickle.dumps((scans, config), protocol=pickle.HIGHEST_PROTOCOL)
         try:
-            self._to.send_bytes(pickle.dumps((scans, config), protocol=pickle.HIGHEST_PROTOCOL))
-        except OSError as exc:  # it died before reading
+            if self._receive() != ["ready"]:
+                raise OdometryProcessError("odometry process: no handshake")
+            self._to.send_bytes(data)
+        except BaseException:
             self.close()
-            raise self._died() from exc
+            raise
 
     def next(self, mapper: Mapper) -> Tracked:
         """The next scan's :class:`Tracked`, its odometry's record adopted by ``mapper``."""
-        kind, *payload = self._receive()
-        if kind != "scan":
-            raise OdometryProcessError(f"odometry process: expected a scan, got {kind!r}")
-        tracked, record = payload
+        if not self._scans:
+            kind, *payload = self._receive()
+            if kind != "scans":
+                raise OdometryProcessError(f"odometry process: expected scans, got {kind!r}")
+            self._scans.extend(payload[0])
+        tracked, record = self._scans.popleft()
         mapper.adopt_odometry(record)
-        return tracked  # type: ignore[no-any-return]
+        return tracked
 
     def finish(self, mapper: Mapper) -> None:
         """After the last scan: ``mapper`` adopts the child's wheels and odometry timing; the
@@ -138,17 +150,24 @@ def serve() -> None:
     # stderr: on stdout it would corrupt the answers.
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
     sys.stdout = sys.stderr
+    batch: list[tuple[Any, ...]] = []
     try:
+        outbox.send(["ready"])
         scans, config = pickle.loads(inbox.recv_bytes())
         mapper = Mapper(config)
         for k in range(len(scans)):
             mark = mapper.odometry_mark()
             tracked = track_scan(mapper, scans, config, k)
-            outbox.send(["scan", tracked, mapper.odometry_since(mark)])
+            batch.append((tracked, mapper.odometry_since(mark)))
+            if len(batch) == _BATCH or k + 1 == len(scans):
+                outbox.send(["scans", batch])
+                batch = []
         outbox.send(["end", mapper.odometry_end()])
     except (BrokenPipeError, EOFError):
         return  # the parent stopped listening
-    except Exception as exc:  # carried back and raised in the parent
+    except Exception as exc:  # carried back and raised in the parent, after what was tracked
+        if batch:
+            outbox.send(["scans", batch])
         try:
             outbox.send(["error", exc])
         except Exception:
