@@ -52,6 +52,7 @@ import bisect
 import dataclasses
 import math
 import time
+import warnings
 from collections import OrderedDict, deque
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -66,6 +67,7 @@ from ..io.carmen import CarmenLog
 from ..io.scan_log import ScanLog
 from ..preprocess import voxel_downsample
 from ..transform import SE2, SE3, as_pose
+from . import odometry_process as odometry_processes
 from .graph_path import path_between
 from .loops import (
     MAX_DRIFT_PER_METRE,
@@ -552,6 +554,57 @@ class Mapper:
         return Tracked(
             index, kept, pose, frame.covariance, self._deskewed_sweep(deskewed_with, pts)
         )
+
+    # -- the odometry's record, for a Mapper that integrates what another one tracked ---
+    #: What :meth:`track` appends to, one entry (or none) per scan; :meth:`integrate`,
+    #: :meth:`snapshot` and :meth:`finish` read them.
+    _ODOMETRY_RECORD = (
+        "_stamps",
+        "_skipped",
+        "_odom_poses",
+        "_scan_wheel",
+        "_scanned",
+        "_rejected",
+        "_held_scans",
+        "_reseeded",
+    )
+
+    def odometry_mark(self) -> tuple[int, ...]:
+        """Where the odometry's record stands (for :meth:`odometry_since`)."""
+        return tuple(len(getattr(self, name)) for name in self._ODOMETRY_RECORD)
+
+    def odometry_since(self, mark: tuple[int, ...]) -> tuple[list[Any], ...]:
+        """What :meth:`track` recorded since ``mark``: for another Mapper to
+        :meth:`adopt_odometry` before it integrates the same :class:`Tracked`
+        (:mod:`scanreg.pipeline.odometry_process`)."""
+        return tuple(
+            getattr(self, name)[start:]
+            for name, start in zip(self._ODOMETRY_RECORD, mark, strict=True)
+        )
+
+    def adopt_odometry(self, record: tuple[list[Any], ...]) -> None:
+        """Record what another Mapper's :meth:`track` recorded (:meth:`odometry_since`)."""
+        if len(record) != len(self._ODOMETRY_RECORD):
+            raise ValueError(f"record: expected {len(self._ODOMETRY_RECORD)} lists")
+        for name, entries in zip(self._ODOMETRY_RECORD, record, strict=True):
+            getattr(self, name).extend(entries)
+
+    def odometry_end(self) -> dict[str, Any]:
+        """After the last :meth:`track`: the wheels as calibrated and the odometry's time."""
+        return {
+            "wheels": self._wheels,
+            "cost_wheels": self._cost_wheels,
+            "timing": {
+                name: getattr(self._timing, name)
+                for name in ("odometry", "odometry_cpu", "total", "total_cpu")
+            },
+        }
+
+    def adopt_odometry_end(self, end: dict[str, Any]) -> None:
+        """Take another Mapper's :meth:`odometry_end` (its time added to this one's)."""
+        self._wheels, self._cost_wheels = end["wheels"], end["cost_wheels"]
+        for name, seconds in end["timing"].items():
+            setattr(self._timing, name, getattr(self._timing, name) + float(seconds))
 
     def _deskewed_sweep(self, deskewed_with: Any, pts: FloatArray) -> DeskewedSweep | None:
         """``deskewed_with`` (:meth:`step`) with its increment's error: the wheels' noise
@@ -1383,6 +1436,9 @@ _GATE_TESTS_PER_CANDIDATE = 2
 #: run side by side most of the time and each goes slower: process CPU +10 % on the hospital,
 #: +19-24 % on Intel (its odometry's thread 38-42 against 31-34 s, no faster wall; load 7).
 _TRACK_AHEAD = 4
+#: :func:`run_mapping` runs the odometry in a child process for runs of at least this many
+#: scans (starting it and handing it the log costs ~1-2 s).
+PROCESS_MIN_SCANS = 1000
 
 
 class MappingInterrupted(Exception):
@@ -1425,6 +1481,25 @@ def laser_mounting(log: CarmenLog, indices: Sequence[int]) -> SE2:
     return SE2.from_vector([float(x), float(y), angle])
 
 
+def track_scan(mapper: Mapper, scans: ScanLog, config: MappingConfig, k: int) -> Tracked:
+    """Scan ``k`` of ``scans`` through ``mapper``'s odometry (:meth:`Mapper.track`), as
+    :func:`run_mapping` feeds it."""
+    cfg = config
+    # In the base frame, as the wheel prior and the poses are (and the relations of a
+    # benchmark: the hospital's laser sits 0.22 m ahead of the robot's centre).
+    # A sweep with beam times (a LaserScan's time_increment) is undone by the wheels'
+    # motion during it, else by the odometry's prediction (ScanLog.swept_points).
+    points, times = scans.swept_points(k, cfg.min_range, cfg.max_range)
+    undone = None if times is not None else scans.deskew_motion(k, cfg.min_range, cfg.max_range)
+    return mapper.track(
+        points,
+        times,
+        prior=scans.prior(k),
+        stamp=float(scans.stamps[k]),
+        deskewed_with=undone,
+    )
+
+
 def run_mapping(
     log: CarmenLog | ScanLog,
     config: MappingConfig | None = None,
@@ -1434,6 +1509,7 @@ def run_mapping(
     progress: bool = False,
     checkpoint: Checkpoint | None = None,
     checkpoint_every: int = 1000,
+    odometry_process: bool | None = None,
 ) -> MappingResult[SE2]:
     """Map a run of 2D scans in recording order (its timestamps may step backwards; they are
     kept as written), with each scan's wheel-odometry motion as the prior.
@@ -1447,6 +1523,10 @@ def run_mapping(
     present, else the first kind in the log). ``progress``: a progress line on stderr
     (scans/s, loops accepted and rejected). ``checkpoint``: called with
     :meth:`Mapper.snapshot` every ``checkpoint_every`` scans (e.g. to write the outputs so far).
+    ``odometry_process``: run the odometry in a child process beside the graph
+    (:mod:`scanreg.pipeline.odometry_process`; the same result, to the bit, as on a second
+    thread, without the two sharing one interpreter lock); ``None``: for runs of at least
+    :data:`PROCESS_MIN_SCANS` scans where the platform allows it.
 
     Raises
     ------
@@ -1471,42 +1551,60 @@ def run_mapping(
     total = len(scans)
     bar = Progress(total, description="map", unit="scans", enabled=progress)
 
-    def track(k: int) -> Tracked:
-        # In the base frame, as the wheel prior and the poses are (and the relations of a
-        # benchmark: the hospital's laser sits 0.22 m ahead of the robot's centre).
-        # A sweep with beam times (a LaserScan's time_increment) is undone by the wheels'
-        # motion during it, else by the odometry's prediction (ScanLog.swept_points).
-        points, times = scans.swept_points(k, cfg.min_range, cfg.max_range)
-        undone = None if times is not None else scans.deskew_motion(k, cfg.min_range, cfg.max_range)
-        return mapper.track(
-            points,
-            times,
-            prior=scans.prior(k),
-            stamp=float(scans.stamps[k]),
-            deskewed_with=undone,
-        )
-
-    # The odometry of the next scans runs on a second thread while this one closes loops:
-    # the two share nothing (Mapper.track / Mapper.integrate), and both spend most of their
-    # time in the Rust core with the GIL released.
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="scanreg-odometry")
-    ahead: deque[Future[Tracked]] = deque()
+    if odometry_process is None:
+        odometry_process = total >= PROCESS_MIN_SCANS and odometry_processes.available()
+    front: _ThreadedOdometry | odometry_processes.OdometryProcess | None = None
+    if odometry_process:
+        try:
+            front = odometry_processes.OdometryProcess(scans, cfg)
+        except (OSError, odometry_processes.OdometryProcessError) as exc:
+            warnings.warn(
+                f"run_mapping: the odometry runs on a thread ({exc})", RuntimeWarning, stacklevel=2
+            )
+    if front is None:
+        front = _ThreadedOdometry(mapper, scans, cfg)
     k = 0
     try:
         with bar:
             for k in range(total):
-                while len(ahead) < _TRACK_AHEAD and k + len(ahead) < total:
-                    ahead.append(pool.submit(track, k + len(ahead)))
-                step = mapper.integrate(ahead.popleft().result())
+                step = mapper.integrate(front.next(mapper))
                 _stepped(mapper, step, bar, 25, k, total, checkpoint, checkpoint_every)
-        pool.shutdown()
+        front.finish(mapper)
         return mapper.finish()
     except (KeyboardInterrupt, Exception) as exc:
-        pool.shutdown(wait=True, cancel_futures=True)
+        front.close()
         stopped = _stopped_run(mapper, exc, k, total)
         if stopped is None:
             raise
         raise stopped from exc
+
+
+class _ThreadedOdometry:
+    """The odometry of the next scans on a second thread while the caller's closes loops:
+    the two share nothing (:meth:`Mapper.track` / :meth:`Mapper.integrate`), and both spend
+    much of their time in the Rust core with the GIL released. The interface of
+    :class:`~scanreg.pipeline.odometry_process.OdometryProcess`."""
+
+    def __init__(self, mapper: Mapper, scans: ScanLog, config: MappingConfig) -> None:
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="scanreg-odometry")
+        self._ahead: deque[Future[Tracked]] = deque()
+        self._mapper, self._scans, self._config = mapper, scans, config
+        self._next = 0
+
+    def next(self, mapper: Mapper) -> Tracked:
+        total = len(self._scans)
+        while len(self._ahead) < _TRACK_AHEAD and self._next < total:
+            self._ahead.append(
+                self._pool.submit(track_scan, self._mapper, self._scans, self._config, self._next)
+            )
+            self._next += 1
+        return self._ahead.popleft().result()
+
+    def finish(self, mapper: Mapper) -> None:
+        self._pool.shutdown()
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _stepped(
