@@ -13,7 +13,10 @@ There is no peer in the same process (Cartographer is not installable here), so 
 average is printed beside the times.
 
 Run: ``.venv/bin/python benchmarks/freiburg_mapping.py [--data ../shared/data]
-[--logs intel aces] [--max-scans N] [--config map.toml] [--output DIR] [--self-check]``
+[--logs intel aces] [--max-scans N] [--config map.toml] [--output DIR] [--self-check]
+[--odometry thread|process]``
+(``--odometry``: where ``run_mapping`` runs the odometry, as the speed comparison of
+``benchmarks/README.md`` alternates it; default its own choice, a child process on these logs)
 (``--output``: also write each log's mapping outputs, as ``scanreg map`` does, to
 ``DIR/<log>/``; the map there is what ``benchmarks/freiburg_localization.py`` localizes in).
 
@@ -99,8 +102,15 @@ def main() -> None:
     parser.add_argument("--config", type=Path, default=None, help="MappingConfig TOML")
     parser.add_argument("--output", type=Path, default=None, help="write outputs to DIR/<log>/")
     parser.add_argument("--self-check", action="store_true", help="self-check table (see above)")
+    parser.add_argument(
+        "--odometry",
+        choices=("auto", "thread", "process"),
+        default="auto",
+        help="where run_mapping runs the odometry (default: its own choice)",
+    )
     args = parser.parse_args()
     config = load_config(MappingConfig, args.config)
+    in_process = {"auto": None, "thread": False, "process": True}[args.odometry]
     folder = args.data / "freiburg-slam-benchmark"
     table = []
     speed = []
@@ -111,7 +121,7 @@ def main() -> None:
         relations = read_relations(folder / relations_file)
         load_before = os.getloadavg()[0]
         wall, cpu = time.perf_counter(), _cpu()
-        res = run_mapping(log, config, max_scans=args.max_scans)
+        res = run_mapping(log, config, max_scans=args.max_scans, odometry_process=in_process)
         wall, cpu = time.perf_counter() - wall, _cpu() - cpu
         load = 0.5 * (load_before + os.getloadavg()[0])
         if args.output is not None:
@@ -146,7 +156,11 @@ def main() -> None:
         print(f"{name}: done in {wall:.1f} s", flush=True)
         if args.self_check:
             no_loops = dataclasses.replace(config, max_candidates=0)
-            rows = self_checks(name, res, run_mapping(log, no_loops, max_scans=args.max_scans))
+            rows = self_checks(
+                name,
+                res,
+                run_mapping(log, no_loops, max_scans=args.max_scans, odometry_process=in_process),
+            )
             print("\n".join(rows), flush=True)  # kept if a later log fails
             checks += rows
     print()
