@@ -11,9 +11,9 @@ integrates the scan — the same poses, to the bit, as the threads give.
 
 The child is a fresh interpreter (``python -c``, not ``fork``: a fork would inherit the
 core's thread pool without its threads), started from the same ``scanreg`` package as the
-parent, fed the scans and the configuration through its stdin, answering on its stdout. It
-ignores Ctrl-C (the parent stops it and keeps what was mapped) and exits when its input
-closes; an error in it is raised in the parent.
+parent, fed the scans, the configuration and the core's thread budget through its stdin,
+answering on its stdout. It ignores Ctrl-C (the parent stops it and keeps what was mapped)
+and exits when its input closes; an error in it is raised in the parent.
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ from collections import deque
 from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from ..threads import get_num_threads
 
 if TYPE_CHECKING:
     from ..io.scan_log import ScanLog
@@ -77,7 +79,9 @@ class OdometryProcess:
         self._scans: deque[tuple[Tracked, Any]] = deque()
         # Pickled while the child starts; sent once it says it runs (an interpreter that
         # cannot import scanreg never does: OdometryProcessError, and the caller uses a thread).
-        data = pickle.dumps((scans, config), protocol=pickle.HIGHEST_PROTOCOL)
+        # The child's core pool as large as ours (a batch worker may have sized ours to one).
+        threads = get_num_threads()
+        data = pickle.dumps((scans, config, threads), protocol=pickle.HIGHEST_PROTOCOL)
         try:
             if self._receive() != ["ready"]:
                 raise OdometryProcessError("odometry process: no handshake")
@@ -140,6 +144,7 @@ def _widen(fd: int) -> None:
 
 def serve() -> None:
     """The child: read ``(scans, config)`` from stdin, track every scan, answer on stdout."""
+    from ..threads import set_num_threads
     from .mapping import Mapper, track_scan
 
     # Ctrl-C reaches the whole process group: the parent decides what to keep, then stops us.
@@ -153,7 +158,8 @@ def serve() -> None:
     batch: list[tuple[Any, ...]] = []
     try:
         outbox.send(["ready"])
-        scans, config = pickle.loads(inbox.recv_bytes())
+        scans, config, threads = pickle.loads(inbox.recv_bytes())
+        set_num_threads(threads)
         mapper = Mapper(config)
         for k in range(len(scans)):
             mark = mapper.odometry_mark()
