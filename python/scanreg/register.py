@@ -251,8 +251,7 @@ class RegistrationSettings:
     #: ``step_projector`` (which keep ``init`` along what they hold). ``benchmarks/wrong_start.py``
     #: (real pairs from starts turned and moved): correct results accepted Freiburg Intel
     #: 84.4 → 89.4 %, Intel subset 82.1 → 85.9 %, ACES 69.6 → 70.8 %, one more accepted and
-    #: wrong (ACES); one or two nearest-neighbour passes of 15-41 poses on a weak result.
-    #: ``False``: the result where the solve left it.
+    #: wrong (ACES); ~1 ms a weak result. ``False``: the result where the solve left it.
     shift_weak: bool = True
 
     def __post_init__(self) -> None:
