@@ -56,7 +56,6 @@ from .quality import (
     Conditioning,
 )
 from .robust import check_kernel
-from .shift import maybe_weak_2d, weak_shift
 from .slide import SlideCheck, _fit, guard_start, refine_in_basin, refined_objective
 from .start_search import _searched_start
 from .target import PreparedTarget, prepare
@@ -242,17 +241,6 @@ class RegistrationSettings:
     #: (a screen on every call, ~15 µs; on a degenerate result the analysis within the call
     #: and three held solves, ~1.1 ms). ``False``: the refined result as it is.
     hold_degenerate: bool = True
-    #: 2D against a :class:`~scanreg.PreparedTarget` with normals: when the result is weak (a
-    #: screen on the target normals it matched, then the trust analysis) and not held (above),
-    #: move it along its weak direction to the middle of the shifts that fit the most of the
-    #: source within the tight gate of the target's surface, out to one gate each way, where
-    #: that fits more than the result and the scan pins it there (:mod:`scanreg.shift`); the
-    #: verdict then judges the moved pose. Not with ``degeneracy_aware`` or a
-    #: ``step_projector`` (which keep ``init`` along what they hold). ``benchmarks/wrong_start.py``
-    #: (real pairs from starts turned and moved): correct results accepted Freiburg Intel
-    #: 84.4 → 89.4 %, Intel subset 82.1 → 85.9 %, ACES 69.6 → 70.8 %, one more accepted and
-    #: wrong (ACES); ~1 ms a weak result. ``False``: the result where the solve left it.
-    shift_weak: bool = True
 
     def __post_init__(self) -> None:
         _positive_float(
@@ -291,7 +279,6 @@ class RegistrationSettings:
             "refine_in_basin",
             "search_start",
             "hold_degenerate",
-            "shift_weak",
         ):
             value = getattr(self, name)
             if not isinstance(value, bool):
@@ -1057,7 +1044,6 @@ def register(
     # Built here only when the solve needs it; a lazy analysis builds it on first use.
     ctx: TrustInputs | dict[str, Any] = ctx_fields
     first: CorrespondenceAnalysis | None = None
-    held_result = False
     if aware:
         ctx = _build(TrustInputs, ctx_fields)
         first = correspondence_analysis(ctx, out)
@@ -1127,47 +1113,7 @@ def register(
                         )
                         ctx = _replaced(ctx, slide=slide)  # built above with the old one
                 out = again
-                held_result = True
                 first = correspondence_analysis(ctx, out, held=first.degeneracy, valley=valley)
-
-    # The solve's own outcome (iterations, time) before a shift replaces it by an evaluation.
-    # A held result keeps the start along its weak directions by design (the start's word
-    # there beats the scan's: from the odometry, shifting held results made 4 more of the 400
-    # Intel relation pairs wrong): not shifted.
-    solved = out
-    if (
-        s.shift_weak
-        and not held_result
-        and dim == 2
-        and isinstance(prepared, PreparedTarget)
-        and t_normals is not None
-        and step_projector is None
-        and not s.degeneracy_aware
-        and str(out.stop_reason) == "converged"
-        and not (slide is not None and slide.outcome == "start")
-        and out.num_correspondences > 0
-        and (first is not None or maybe_weak_2d(out.correspondences, t_normals))
-    ):
-        if isinstance(ctx, dict):
-            ctx = _build(TrustInputs, ctx)
-        if first is None:
-            first = correspondence_analysis(ctx, out)
-        if first.degeneracy.degenerate:
-            shifted = weak_shift(
-                prepared, src, np.asarray(out.pose), first.degeneracy, s.max_correspondence_distance
-            )
-            if shifted is not None:
-                # Evaluated there with the registration's own gate and kernel (as the hold's
-                # pose): the covariance and verdict read its pairs.
-                out = run(np.zeros((dof, dof)), shifted, max_iterations=1)
-                returned[0] = out.pose
-                if slide is not None:
-                    # The loose-fit check and the basin screen read the fit of the pose returned.
-                    slide = dataclasses.replace(
-                        slide, held_fit=_fit(index, src, np.asarray(out.pose), slide.gate)
-                    )
-                    ctx = _replaced(ctx, slide=slide)
-                first = correspondence_analysis(ctx, out)
 
     t0 = time.perf_counter()
     pose = pose_from_core(out, dim)
@@ -1188,7 +1134,7 @@ def register(
         {
             "target_preparation": t_target,
             "source_preparation": t_source,
-            "iterations": solved.iteration_seconds,
+            "iterations": out.iteration_seconds,
             "final_evaluation": out.final_evaluation_seconds,
             "post_processing": t_post,
             "total": t_total,
@@ -1204,7 +1150,7 @@ def register(
             "iterations": (
                 slide.refined_iterations
                 if slide is not None and slide.refined != "off"
-                else solved.iterations
+                else out.iterations
             ),
             "converged": stop == "converged",
             "stop_reason": stop,
