@@ -78,8 +78,9 @@ class OdometryProcess:
         self._proc.stdout.close()
         self._scans: deque[tuple[Tracked, Any]] = deque()
         # Pickled while the child starts; sent once it says it runs (an interpreter that
-        # cannot import scanreg never does: OdometryProcessError, and the caller uses a thread).
-        # The child's core pool as large as ours (a batch worker may have sized ours to one).
+        # cannot import scanreg never does: OdometryProcessError, and the caller uses a
+        # thread). The child's core pool as large as ours (a batch worker may have sized ours
+        # to one).
         threads = get_num_threads()
         data = pickle.dumps((scans, config, threads), protocol=pickle.HIGHEST_PROTOCOL)
         try:
@@ -143,7 +144,9 @@ def _widen(fd: int) -> None:
 
 
 def serve() -> None:
-    """The child: read ``(scans, config)`` from stdin, track every scan, answer on stdout."""
+    """The child: say it runs, read ``(scans, config, threads)`` from stdin, track every scan
+    and answer on stdout (eight scans a message, then the end; an error after what was
+    tracked)."""
     from ..threads import set_num_threads
     from .mapping import Mapper, track_scan
 
