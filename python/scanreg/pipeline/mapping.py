@@ -568,43 +568,51 @@ class Mapper:
         "_held_scans",
         "_reseeded",
     )
+    #: The time :meth:`track` adds to (:class:`MappingTiming` fields).
+    _ODOMETRY_TIME = ("odometry", "odometry_cpu", "total", "total_cpu")
 
-    def odometry_mark(self) -> tuple[int, ...]:
-        """Where the odometry's record stands (for :meth:`odometry_since`)."""
-        return tuple(len(getattr(self, name)) for name in self._ODOMETRY_RECORD)
-
-    def odometry_since(self, mark: tuple[int, ...]) -> tuple[list[Any], ...]:
-        """What :meth:`track` recorded since ``mark``: for another Mapper to
-        :meth:`adopt_odometry` before it integrates the same :class:`Tracked`
-        (:mod:`scanreg.pipeline.odometry_process`)."""
-        return tuple(
-            getattr(self, name)[start:]
-            for name, start in zip(self._ODOMETRY_RECORD, mark, strict=True)
+    def odometry_mark(self) -> tuple[tuple[int, ...], tuple[float, ...]]:
+        """Where the odometry's record and time stand (for :meth:`odometry_since`)."""
+        return (
+            tuple(len(getattr(self, name)) for name in self._ODOMETRY_RECORD),
+            tuple(getattr(self._timing, name) for name in self._ODOMETRY_TIME),
         )
 
-    def adopt_odometry(self, record: tuple[list[Any], ...]) -> None:
-        """Record what another Mapper's :meth:`track` recorded (:meth:`odometry_since`)."""
-        if len(record) != len(self._ODOMETRY_RECORD):
-            raise ValueError(f"record: expected {len(self._ODOMETRY_RECORD)} lists")
-        for name, entries in zip(self._ODOMETRY_RECORD, record, strict=True):
+    def odometry_since(
+        self, mark: tuple[tuple[int, ...], tuple[float, ...]]
+    ) -> tuple[tuple[list[Any], ...], tuple[float, ...]]:
+        """What :meth:`track` recorded since ``mark``, and the time it took: for another
+        Mapper to :meth:`adopt_odometry` before it integrates the same :class:`Tracked`
+        (:mod:`scanreg.pipeline.odometry_process`)."""
+        lengths, seconds = mark
+        lists = tuple(
+            getattr(self, name)[start:]
+            for name, start in zip(self._ODOMETRY_RECORD, lengths, strict=True)
+        )
+        spent = tuple(
+            getattr(self._timing, name) - before
+            for name, before in zip(self._ODOMETRY_TIME, seconds, strict=True)
+        )
+        return lists, spent
+
+    def adopt_odometry(self, record: tuple[tuple[list[Any], ...], tuple[float, ...]]) -> None:
+        """Record what another Mapper's :meth:`track` recorded, and its time
+        (:meth:`odometry_since`)."""
+        lists, spent = record
+        if len(lists) != len(self._ODOMETRY_RECORD) or len(spent) != len(self._ODOMETRY_TIME):
+            raise ValueError("record: expected what odometry_since returns")
+        for name, entries in zip(self._ODOMETRY_RECORD, lists, strict=True):
             getattr(self, name).extend(entries)
+        for name, seconds in zip(self._ODOMETRY_TIME, spent, strict=True):
+            setattr(self._timing, name, getattr(self._timing, name) + float(seconds))
 
     def odometry_end(self) -> dict[str, Any]:
-        """After the last :meth:`track`: the wheels as calibrated and the odometry's time."""
-        return {
-            "wheels": self._wheels,
-            "cost_wheels": self._cost_wheels,
-            "timing": {
-                name: getattr(self._timing, name)
-                for name in ("odometry", "odometry_cpu", "total", "total_cpu")
-            },
-        }
+        """After the last :meth:`track`: the wheels as calibrated."""
+        return {"wheels": self._wheels, "cost_wheels": self._cost_wheels}
 
     def adopt_odometry_end(self, end: dict[str, Any]) -> None:
-        """Take another Mapper's :meth:`odometry_end` (its time added to this one's)."""
+        """Take another Mapper's :meth:`odometry_end`."""
         self._wheels, self._cost_wheels = end["wheels"], end["cost_wheels"]
-        for name, seconds in end["timing"].items():
-            setattr(self._timing, name, getattr(self._timing, name) + float(seconds))
 
     def _deskewed_sweep(self, deskewed_with: Any, pts: FloatArray) -> DeskewedSweep | None:
         """``deskewed_with`` (:meth:`step`) with its increment's error: the wheels' noise

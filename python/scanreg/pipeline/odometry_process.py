@@ -103,8 +103,8 @@ class OdometryProcess:
         return tracked
 
     def finish(self, mapper: Mapper) -> None:
-        """After the last scan: ``mapper`` adopts the child's wheels and odometry timing; the
-        child exits."""
+        """After the last scan: ``mapper`` adopts the child's wheels as calibrated; the child
+        exits."""
         kind, *payload = self._receive()
         if kind != "end":
             raise OdometryProcessError(f"odometry process: expected its end, got {kind!r}")
