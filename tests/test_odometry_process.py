@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scanreg.io.scan_log import ScanLog
 from scanreg.pipeline import MappingConfig, odometry_process, run_mapping
-from scanreg.pipeline.mapping import MappingInterrupted
+from scanreg.pipeline.mapping import Mapper, MappingInterrupted, track_scan
 from scanreg.pipeline.odometry_process import available
 
 from tests._sim_scan_log import tour_log
@@ -116,3 +116,27 @@ def test_a_child_that_cannot_start_leaves_the_odometry_on_a_thread(
     for a, b in zip(threaded.poses, fallback.poses, strict=True):
         assert np.array_equal(a.as_vector(), b.as_vector())
     assert _children() == []
+
+
+def test_bad_input_is_refused_by_name(log: ScanLog) -> None:
+    with pytest.raises(TypeError, match="odometry_process: expected True, False or None, got str"):
+        run_mapping(log, MappingConfig(), max_scans=10, odometry_process="yes")  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="scans: expected a ScanLog, got ndarray"):
+        odometry_process.OdometryProcess(np.zeros((0, 2)), MappingConfig())  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="config: expected a MappingConfig, got dict"):
+        odometry_process.OdometryProcess(log, {})  # type: ignore[arg-type]
+    mapper = Mapper(MappingConfig())
+    lengths, seconds = mapper.odometry_mark()
+    with pytest.raises(ValueError, match="mark: expected 4 finite times"):
+        mapper.odometry_since((lengths, (float("nan"), 0.0, 0.0, 0.0)))
+    with pytest.raises(ValueError, match="mark: expected 8 list lengths"):
+        mapper.odometry_since(((), seconds))
+    with pytest.raises(TypeError, match=r"record: expected what Mapper\.odometry_since returns"):
+        mapper.adopt_odometry(np.zeros((2, 3)))  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="record: expected 4 finite times >= 0"):
+        mapper.adopt_odometry((mapper.odometry_since(mapper.odometry_mark())[0], (0.0,)))
+    with pytest.raises(ValueError, match=r"end: expected what Mapper\.odometry_end returns"):
+        mapper.adopt_odometry_end({})
+    with pytest.raises(TypeError, match="scans: expected a ScanLog, got ndarray"):
+        track_scan(mapper, np.zeros((3, 2)), MappingConfig(), 0)  # type: ignore[arg-type]
+    assert mapper.odometry_mark() == (lengths, seconds)  # nothing adopted

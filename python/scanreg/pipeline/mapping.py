@@ -584,7 +584,7 @@ class Mapper:
         """What :meth:`track` recorded since ``mark``, and the time it took: for another
         Mapper to :meth:`adopt_odometry` before it integrates the same :class:`Tracked`
         (:mod:`scanreg.pipeline.odometry_process`)."""
-        lengths, seconds = mark
+        lengths, seconds = _checked_mark(mark, len(self._ODOMETRY_RECORD), self._ODOMETRY_TIME)
         lists = tuple(
             getattr(self, name)[start:]
             for name, start in zip(self._ODOMETRY_RECORD, lengths, strict=True)
@@ -598,9 +598,7 @@ class Mapper:
     def adopt_odometry(self, record: tuple[tuple[list[Any], ...], tuple[float, ...]]) -> None:
         """Record what another Mapper's :meth:`track` recorded, and its time
         (:meth:`odometry_since`)."""
-        lists, spent = record
-        if len(lists) != len(self._ODOMETRY_RECORD) or len(spent) != len(self._ODOMETRY_TIME):
-            raise ValueError("record: expected what odometry_since returns")
+        lists, spent = _checked_record(record, len(self._ODOMETRY_RECORD), self._ODOMETRY_TIME)
         for name, entries in zip(self._ODOMETRY_RECORD, lists, strict=True):
             getattr(self, name).extend(entries)
         for name, seconds in zip(self._ODOMETRY_TIME, spent, strict=True):
@@ -612,6 +610,11 @@ class Mapper:
 
     def adopt_odometry_end(self, end: dict[str, Any]) -> None:
         """Take another Mapper's :meth:`odometry_end`."""
+        if not (isinstance(end, dict) and set(end) == {"wheels", "cost_wheels"}):
+            raise ValueError("end: expected what Mapper.odometry_end returns")
+        for name in ("wheels", "cost_wheels"):
+            if end[name] is not None and not isinstance(end[name], WheelOdometry):
+                raise TypeError(f"end[{name!r}]: expected WheelOdometry or None")
         self._wheels, self._cost_wheels = end["wheels"], end["cost_wheels"]
 
     def _deskewed_sweep(self, deskewed_with: Any, pts: FloatArray) -> DeskewedSweep | None:
@@ -1489,9 +1492,42 @@ def laser_mounting(log: CarmenLog, indices: Sequence[int]) -> SE2:
     return SE2.from_vector([float(x), float(y), angle])
 
 
+def _checked_mark(
+    mark: Any, num_lists: int, times: tuple[str, ...]
+) -> tuple[tuple[int, ...], tuple[float, ...]]:
+    """``mark`` as :meth:`Mapper.odometry_mark` gives it, or ValueError / TypeError by name."""
+    if not (isinstance(mark, tuple) and len(mark) == 2):
+        raise TypeError("mark: expected what Mapper.odometry_mark returns (lengths, seconds)")
+    lengths, seconds = mark
+    if len(lengths) != num_lists or not all(isinstance(n, int) and n >= 0 for n in lengths):
+        raise ValueError(f"mark: expected {num_lists} list lengths >= 0, got {lengths!r:.80}")
+    if len(seconds) != len(times) or not all(math.isfinite(float(t)) for t in seconds):
+        raise ValueError(f"mark: expected {len(times)} finite times, got {seconds!r:.80}")
+    return tuple(lengths), tuple(float(t) for t in seconds)
+
+
+def _checked_record(
+    record: Any, num_lists: int, times: tuple[str, ...]
+) -> tuple[tuple[list[Any], ...], tuple[float, ...]]:
+    """``record`` as :meth:`Mapper.odometry_since` gives it, or ValueError / TypeError by
+    name."""
+    if not (isinstance(record, tuple) and len(record) == 2):
+        raise TypeError("record: expected what Mapper.odometry_since returns (lists, seconds)")
+    lists, spent = record
+    if len(lists) != num_lists or not all(isinstance(x, list) for x in lists):
+        raise ValueError(f"record: expected {num_lists} lists of entries")
+    if len(spent) != len(times) or not all(
+        math.isfinite(float(t)) and float(t) >= 0 for t in spent
+    ):
+        raise ValueError(f"record: expected {len(times)} finite times >= 0, got {spent!r:.80}")
+    return tuple(lists), tuple(float(t) for t in spent)
+
+
 def track_scan(mapper: Mapper, scans: ScanLog, config: MappingConfig, k: int) -> Tracked:
     """Scan ``k`` of ``scans`` through ``mapper``'s odometry (:meth:`Mapper.track`), as
     :func:`run_mapping` feeds it."""
+    if not isinstance(scans, ScanLog):
+        raise TypeError(f"scans: expected a ScanLog, got {type(scans).__name__}")
     cfg = config
     # In the base frame, as the wheel prior and the poses are (and the relations of a
     # benchmark: the hospital's laser sits 0.22 m ahead of the robot's centre).
@@ -1547,6 +1583,10 @@ def run_mapping(
 
     cfg = MappingConfig() if config is None else config
     _checked_checkpoint_every(checkpoint_every)
+    if odometry_process is not None and not isinstance(odometry_process, bool):
+        raise TypeError(
+            f"odometry_process: expected True, False or None, got {type(odometry_process).__name__}"
+        )
     scans = scan_log(
         log,
         kind=kind,

@@ -63,6 +63,14 @@ class OdometryProcess:
     :meth:`next` hands its scans to a parent :class:`Mapper` one by one."""
 
     def __init__(self, scans: ScanLog, config: MappingConfig) -> None:
+        from ..io.scan_log import ScanLog
+        from .mapping import MappingConfig
+
+        # Refused here, by name: in the child a wrong argument would fail only at its first scan.
+        if not isinstance(scans, ScanLog):
+            raise TypeError(f"scans: expected a ScanLog, got {type(scans).__name__}")
+        if not isinstance(config, MappingConfig):
+            raise TypeError(f"config: expected a MappingConfig, got {type(config).__name__}")
         package = Path(__file__).resolve().parents[2]
         self._proc = subprocess.Popen(
             [sys.executable, "-c", _BOOT, str(package)],
